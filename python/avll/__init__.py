@@ -1,0 +1,46 @@
+"""avll: models of the lower-level (actuator) controller of automated vehicles.
+
+Exact rollouts, parallel GA calibration and stability maps, in Rust, after
+Liu et al., "Experimental study and modeling of the lower-level controller of
+automated vehicle".
+"""
+
+from ._core import __version__
+from .data import DataError, Run
+from .models import (
+    MODELS,
+    FirstOrderLag,
+    LowerLevelModel,
+    Proposed,
+    SecondOrder,
+    UpperLevel,
+    model_class,
+)
+from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
+
+#: Table II of the paper: the calibrated parameters of the three models.
+PAPER_TABLE_II = {
+    "first": FirstOrderLag(Td=1.0758),
+    "second": SecondOrder(K0=0.7292, m2=0.0445, m3=0.1305, Td=0.7796),
+    "proposed": Proposed(m1=6.7893, m2=1.2824, m3=8.8157, K0=0.3479, Td=0.7903, K=0.1008),
+}
+
+__all__ = [
+    "__version__",
+    "DataError",
+    "Run",
+    "MODELS",
+    "FirstOrderLag",
+    "LowerLevelModel",
+    "Proposed",
+    "SecondOrder",
+    "UpperLevel",
+    "model_class",
+    "Trajectory",
+    "batch_cost",
+    "closed_loop",
+    "platoon",
+    "simulate",
+    "simulate_full",
+    "PAPER_TABLE_II",
+]

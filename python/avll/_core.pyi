@@ -1,0 +1,68 @@
+# Stubs of the Rust extension avll._core (checked with mypy.stubtest in the tests).
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+def model_params(model: str) -> list[str]: ...
+def simulate(
+    model: str,
+    params: list[float],
+    command: npt.NDArray[np.float64],
+    dt: float,
+    init: str = "rest",
+) -> npt.NDArray[np.float64]: ...
+def simulate_full(
+    model: str,
+    params: list[float],
+    command: npt.NDArray[np.float64],
+    dt: float,
+    command_kind: str = "acceleration",
+    init: str = "rest",
+    v0: float = 0.0,
+    x0: float = 0.0,
+) -> dict[str, npt.NDArray[np.float64]]: ...
+def closed_loop(
+    model: str,
+    params: list[float],
+    lead_x: npt.NDArray[np.float64],
+    lead_v: npt.NDArray[np.float64],
+    dt: float,
+    kg: float,
+    kv: float,
+    tg: float,
+    gmin: float,
+    v0: float,
+    x0: float,
+) -> dict[str, npt.NDArray[np.float64]]: ...
+def platoon(
+    model: str,
+    params: list[float],
+    lead_x: npt.NDArray[np.float64],
+    lead_v: npt.NDArray[np.float64],
+    dt: float,
+    kg: float,
+    kv: float,
+    tg: float,
+    gmin: float,
+    followers: int,
+) -> dict[str, npt.NDArray[np.float64]]: ...
+def batch_cost(
+    model: str,
+    params: npt.NDArray[np.float64],
+    offsets: list[int],
+    dt: npt.NDArray[np.float64],
+    a: npt.NDArray[np.float64],
+    command: npt.NDArray[np.float64] | None = None,
+    lead_x: npt.NDArray[np.float64] | None = None,
+    lead_v: npt.NDArray[np.float64] | None = None,
+    v: npt.NDArray[np.float64] | None = None,
+    x: npt.NDArray[np.float64] | None = None,
+    upper: npt.NDArray[np.float64] | None = None,
+    upper_free: list[int] = ...,
+    command_kind: str = "acceleration",
+    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    threads: int = 0,
+) -> npt.NDArray[np.float64]: ...

@@ -1,0 +1,199 @@
+"""Parameter objects of the lower-level controller models (paper Eqs. 1, 2, 5)
+and of the upper-level constant-time-gap law (Eq. 3).
+
+Every model is a small frozen dataclass with the paper's parameter names. A
+model's ``name`` is the short name used by the Rust core, the CLI and JSON files
+(``"first"``, ``"second"``, ``"proposed"``).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import astuple, dataclass, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+__all__ = [
+    "LowerLevelModel",
+    "FirstOrderLag",
+    "SecondOrder",
+    "Proposed",
+    "UpperLevel",
+    "MODELS",
+    "model_class",
+]
+
+
+def _check(name: str, value: float, *, positive: bool = False, nonneg: bool = False) -> None:
+    if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
+        raise ValueError(f"{name}: must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name}: must be finite, got {value}")
+    if positive and not value > 0:
+        raise ValueError(f"{name}: must be > 0, got {value}")
+    if nonneg and not value >= 0:
+        raise ValueError(f"{name}: must be >= 0, got {value}")
+
+
+@dataclass(frozen=True)
+class LowerLevelModel(ABC):
+    """Base class: a strictly proper rational part, a dead time and an inner feedback.
+
+    ``G(s) = (b1 s + b0) e^{-Td s} / (a2 s^2 + a1 s + 1)`` and ``G_fb = G / (1 - K G)``.
+    """
+
+    name: ClassVar[str] = ""
+
+    @classmethod
+    def param_names(cls) -> tuple[str, ...]:
+        """The parameter names in array order (the paper's notation)."""
+        return tuple(f.name for f in fields(cls))
+
+    def to_array(self) -> np.ndarray:
+        """The parameters as a float64 array, in :meth:`param_names` order."""
+        return np.array(astuple(self), dtype=np.float64)
+
+    @classmethod
+    def from_array(cls, values: Any) -> LowerLevelModel:
+        """Builds the model from values in :meth:`param_names` order."""
+        vals = [float(v) for v in np.asarray(values, dtype=np.float64).ravel()]
+        names = cls.param_names()
+        if len(vals) != len(names):
+            raise ValueError(
+                f"params: {cls.__name__} takes {len(names)} values ({', '.join(names)}), "
+                f"got {len(vals)}"
+            )
+        return cls(*vals)
+
+    def to_dict(self) -> dict[str, float]:
+        """The parameters by name."""
+        return {n: float(v) for n, v in zip(self.param_names(), astuple(self), strict=True)}
+
+    @abstractmethod
+    def linear(self) -> dict[str, float]:
+        """Coefficients ``b1, b0, a2, a1, Td, K`` of the common linear form."""
+
+    @property
+    def dc_gain(self) -> float:
+        """Static gain of the lower level, ``K0 / (1 - K K0)``."""
+        c = self.linear()
+        return c["b0"] / (1.0 - c["K"] * c["b0"])
+
+    def rational(self) -> tuple[np.ndarray, np.ndarray]:
+        """Numerator and denominator (highest power first) of ``G_fb`` without the delay
+        when ``Td = 0``; with a delay, of the rational part ``G`` alone."""
+        c = self.linear()
+        num = np.array([c["b1"], c["b0"]])
+        den = np.array([c["a2"], c["a1"], 1.0])
+        return np.trim_zeros(num, "f"), np.trim_zeros(den, "f")
+
+
+@dataclass(frozen=True)
+class FirstOrderLag(LowerLevelModel):
+    """First-order lag, paper Eq. 1: ``1 / (Td s + 1)``; ``Td`` (s) is the time constant."""
+
+    Td: float
+    name: ClassVar[str] = "first"
+
+    def __post_init__(self) -> None:
+        _check("Td", self.Td, positive=True)
+
+    def linear(self) -> dict[str, float]:
+        return {"b1": 0.0, "b0": 1.0, "a2": 0.0, "a1": self.Td, "Td": 0.0, "K": 0.0}
+
+
+@dataclass(frozen=True)
+class SecondOrder(LowerLevelModel):
+    """Second-order response with dead time, Eq. 2 with ``m1 = 0``:
+    ``K0 e^{-Td s} / (m2 s^2 + m3 s + 1)``."""
+
+    K0: float
+    m2: float
+    m3: float
+    Td: float
+    name: ClassVar[str] = "second"
+
+    def __post_init__(self) -> None:
+        _check("K0", self.K0)
+        _check("m2", self.m2, positive=True)
+        _check("m3", self.m3)
+        _check("Td", self.Td, nonneg=True)
+
+    def linear(self) -> dict[str, float]:
+        return {"b1": 0.0, "b0": self.K0, "a2": self.m2, "a1": self.m3, "Td": self.Td, "K": 0.0}
+
+
+@dataclass(frozen=True)
+class Proposed(LowerLevelModel):
+    """The paper's proposed model, Eqs. 2 and 5: ``G / (1 - K G)`` with
+    ``G = (m1 s + K0) e^{-Td s} / (m2 s^2 + m3 s + 1)``."""
+
+    m1: float
+    m2: float
+    m3: float
+    K0: float
+    Td: float
+    K: float
+    name: ClassVar[str] = "proposed"
+
+    def __post_init__(self) -> None:
+        _check("m1", self.m1)
+        _check("m2", self.m2, positive=True)
+        _check("m3", self.m3)
+        _check("K0", self.K0)
+        _check("Td", self.Td, nonneg=True)
+        _check("K", self.K)
+
+    def linear(self) -> dict[str, float]:
+        return {
+            "b1": self.m1,
+            "b0": self.K0,
+            "a2": self.m2,
+            "a1": self.m3,
+            "Td": self.Td,
+            "K": self.K,
+        }
+
+
+@dataclass(frozen=True)
+class UpperLevel:
+    """Constant-time-gap law, paper Eq. 3:
+    ``a_cmd = kg (x_lead - x - Tg v - Gmin) + kv (v_lead - v)``."""
+
+    kg: float
+    kv: float = 0.0
+    Tg: float = 2.0
+    Gmin: float = 9.5
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            _check(f.name, getattr(self, f.name))
+
+    def command(self, lead_x: Any, lead_v: Any, x: Any, v: Any) -> Any:
+        """The command acceleration for the given states (arrays broadcast)."""
+        return self.kg * (lead_x - x - self.Tg * v - self.Gmin) + self.kv * (lead_v - v)
+
+    def to_array(self) -> np.ndarray:
+        return np.array([self.kg, self.kv, self.Tg, self.Gmin], dtype=np.float64)
+
+
+#: The registered base models by short name.
+MODELS: dict[str, type[LowerLevelModel]] = {
+    m.name: m for m in (FirstOrderLag, SecondOrder, Proposed)
+}
+
+
+def model_class(name: str | type[LowerLevelModel] | LowerLevelModel) -> type[LowerLevelModel]:
+    """The model class for a short name (``"first"``, ``"second"``, ``"proposed"``)."""
+    if isinstance(name, LowerLevelModel):
+        return type(name)
+    if isinstance(name, type) and issubclass(name, LowerLevelModel):
+        return name
+    try:
+        return MODELS[str(name)]
+    except KeyError:
+        raise ValueError(
+            f"model: unknown model {name!r}; known: {', '.join(MODELS)}"
+        ) from None

@@ -1,0 +1,204 @@
+"""Rollouts of the lower-level models (Rust core; the GIL is released).
+
+Discretization convention (shared with :mod:`avll.reference` and the tests):
+
+* the reference input ``u_ref[n] = u[n] + K y[n]`` is held over ``[t_n, t_{n+1})``;
+* the rational part is driven by ``u_ref(t - Td)``, discretized exactly for that
+  piecewise-constant input: with ``Td/dt = i + f`` the interval's first ``f dt``
+  carries ``u_ref[n-i-1]`` and the rest ``u_ref[n-i]``, so results are smooth in Td;
+* ``y[n] = C x[n]``: the input at sample ``n`` first shows in ``y[n+1]``;
+* ``init="rest"``: zero state and zero input history (``y[0] = 0``);
+  ``init="steady"``: the equilibrium of the first command sample held forever
+  (``y[0] = dc_gain * u[0]``), for runs that do not start at rest;
+* speed and position integrate the response exactly under the same hold.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from .data import Run
+from .models import LowerLevelModel, UpperLevel, model_class
+
+__all__ = [
+    "Trajectory",
+    "simulate",
+    "simulate_full",
+    "closed_loop",
+    "platoon",
+    "batch_cost",
+]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Simulated acceleration ``a`` (m/s²), speed ``v`` (m/s), position ``x`` (m) and
+    the command fed to the lower level. Platoon trajectories are 2-D
+    (follower, sample)."""
+
+    a: np.ndarray
+    v: np.ndarray
+    x: np.ndarray
+    command: np.ndarray
+
+
+def _f64(name: str, x: Any) -> np.ndarray:
+    arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    if arr.ndim != 1:
+        raise ValueError(f"{name}: must be 1-D, got shape {arr.shape}")
+    return arr
+
+
+def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
+    if not isinstance(model, LowerLevelModel):
+        raise ValueError(f"model: expected an avll model object, got {type(model).__name__}")
+    return model.name, [float(v) for v in model.to_array()]
+
+
+def simulate(model: LowerLevelModel, command: Any, dt: float, *, init: str = "rest") -> np.ndarray:
+    """Open-loop response of ``model`` to ``command`` sampled every ``dt`` seconds.
+
+    For an acceleration command the response is the acceleration; for a speed
+    command, the speed. ``init`` is ``"rest"`` or ``"steady"`` (see the module doc).
+    """
+    name, p = _model(model)
+    return _core.simulate(name, p, _f64("command", command), float(dt), init)
+
+
+def simulate_full(
+    model: LowerLevelModel,
+    command: Any,
+    dt: float,
+    *,
+    command_kind: str = "acceleration",
+    init: str = "rest",
+    v0: float = 0.0,
+    x0: float = 0.0,
+) -> Trajectory:
+    """Open-loop rollout with speed and position. For a speed command, ``a`` is the
+    time derivative of the simulated speed at each sample (right limit)."""
+    name, p = _model(model)
+    d = _core.simulate_full(
+        name, p, _f64("command", command), float(dt), command_kind, init, float(v0), float(x0)
+    )
+    return Trajectory(**d)
+
+
+def closed_loop(
+    model: LowerLevelModel,
+    lead_x: Any,
+    lead_v: Any,
+    dt: float,
+    upper: UpperLevel,
+    *,
+    v0: float,
+    x0: float,
+) -> Trajectory:
+    """Car following behind a recorded leader: the upper law (Eq. 3) evaluated at the
+    samples commands the lower level; the follower starts at speed ``v0`` and position
+    ``x0`` with the lower level at rest. A diverging follower's trajectory is NaN from
+    the divergence on."""
+    name, p = _model(model)
+    d = _core.closed_loop(
+        name, p, _f64("lead_x", lead_x), _f64("lead_v", lead_v), float(dt),
+        upper.kg, upper.kv, upper.Tg, upper.Gmin, float(v0), float(x0),
+    )
+    return Trajectory(**d)
+
+
+def platoon(
+    model: LowerLevelModel,
+    lead_x: Any,
+    lead_v: Any,
+    dt: float,
+    upper: UpperLevel,
+    followers: int,
+) -> Trajectory:
+    """``followers`` identical vehicles behind a recorded leader, each starting at the
+    leader's initial speed and the equilibrium gap ``Gmin + Tg v``. Arrays are
+    (follower, sample)."""
+    if int(followers) < 1:
+        raise ValueError(f"followers: must be >= 1, got {followers}")
+    name, p = _model(model)
+    d = _core.platoon(
+        name, p, _f64("lead_x", lead_x), _f64("lead_v", lead_v), float(dt),
+        upper.kg, upper.kv, upper.Tg, upper.Gmin, int(followers),
+    )
+    return Trajectory(**d)
+
+
+def _concat(runs: Sequence[Run], attr: str, needed: bool) -> np.ndarray | None:
+    parts = [getattr(r, attr) for r in runs]
+    if all(p is None for p in parts):
+        if needed:
+            raise ValueError(f"runs: column {attr!r} is needed here but no run has it")
+        return None
+    for r, p in zip(runs, parts, strict=True):
+        if p is None:
+            raise ValueError(f"run {r.run_id!r}: column {attr!r} is missing")
+    return np.ascontiguousarray(np.concatenate(parts))
+
+
+def batch_cost(
+    model: str | type[LowerLevelModel],
+    params: Any,
+    runs: Sequence[Run],
+    *,
+    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    upper_free: Sequence[int] = (),
+    threads: int = 0,
+) -> np.ndarray:
+    """Per-run costs of many parameter sets: a (P, R) array.
+
+    Each cost is ``wa MSE(a) + wv MSE(v) + wx MSE(x)`` over the run's samples (paper
+    Eq. 6 with the default weights); Eq. 6 itself is the mean over runs. Open loop
+    drives the model with each run's recorded command; closed loop drives it with the
+    recorded leader through the run's upper law, whose parameters listed in
+    ``upper_free`` (0 kg, 1 kv, 2 Tg, 3 Gmin) are taken from the extra columns of
+    ``params``. Invalid or unstable parameter sets cost ``inf``.
+    """
+    cls = model_class(model)
+    if not runs:
+        raise ValueError("runs: no runs given")
+    kinds = {r.command_kind for r in runs}
+    if len(kinds) != 1:
+        raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
+    p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
+    upper = None
+    if closed_loop or any(r.upper is not None for r in runs):
+        rows = []
+        for r in runs:
+            if r.upper is None:
+                if closed_loop:
+                    raise ValueError(f"run {r.run_id!r}: closed loop needs its upper-level law")
+                rows.append(np.zeros(4))
+            else:
+                rows.append(r.upper.to_array())
+        upper = np.ascontiguousarray(np.vstack(rows))
+    return _core.batch_cost(
+        cls.name,
+        p,
+        [int(o) for o in offsets],
+        np.array([r.dt for r in runs], dtype=np.float64),
+        _concat(runs, "a", True),
+        command=None if closed_loop else _concat(runs, "command", True),
+        lead_x=_concat(runs, "lead_x", closed_loop) if closed_loop else None,
+        lead_v=_concat(runs, "lead_v", closed_loop) if closed_loop else None,
+        v=_concat(runs, "v", closed_loop or weights[1] > 0),
+        x=_concat(runs, "x", closed_loop or weights[2] > 0),
+        upper=upper,
+        upper_free=[int(i) for i in upper_free],
+        command_kind=runs[0].command_kind,
+        weights=tuple(float(w) for w in weights),
+        init=init,
+        closed_loop=closed_loop,
+        threads=int(threads),
+    )

@@ -1,0 +1,284 @@
+//! Bindings of the models and rollouts.
+
+use super::{guard, slice1, slice2};
+use crate::model::{CommandKind, ModelKind};
+use crate::rollout::{self, CostSpec, Init, RunRef, Upper};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+fn linear(model: &str, params: &[f64]) -> PyResult<crate::model::Linear> {
+    guard(|| ModelKind::from_name(model)?.linear(params))
+}
+
+/// Names of the registered models and their parameters.
+#[pyfunction]
+fn model_params(model: &str) -> PyResult<Vec<&'static str>> {
+    guard(|| Ok(ModelKind::from_name(model)?.params().to_vec()))
+}
+
+/// Open-loop response of a model to a command (see `avll.simulate`).
+#[pyfunction]
+#[pyo3(signature = (model, params, command, dt, init = "rest"))]
+fn simulate<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: Vec<f64>,
+    command: PyReadonlyArray1<'py, f64>,
+    dt: f64,
+    init: &str,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let lin = linear(model, &params)?;
+    let init = guard(|| Init::from_name(init))?;
+    let u = slice1("command", &command)?;
+    let y = py.detach(|| guard(|| rollout::simulate(&lin, u, dt, init)))?;
+    Ok(y.into_pyarray(py))
+}
+
+fn trajectory<'py>(py: Python<'py>, tr: rollout::Trajectory) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("a", tr.a.into_pyarray(py))?;
+    d.set_item("v", tr.v.into_pyarray(py))?;
+    d.set_item("x", tr.x.into_pyarray(py))?;
+    d.set_item("command", tr.command.into_pyarray(py))?;
+    Ok(d)
+}
+
+/// Open-loop rollout with speed and position: dict of arrays a, v, x, command.
+#[pyfunction]
+#[pyo3(signature = (model, params, command, dt, command_kind = "acceleration", init = "rest", v0 = 0.0, x0 = 0.0))]
+#[allow(clippy::too_many_arguments)]
+fn simulate_full<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: Vec<f64>,
+    command: PyReadonlyArray1<'py, f64>,
+    dt: f64,
+    command_kind: &str,
+    init: &str,
+    v0: f64,
+    x0: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    let lin = linear(model, &params)?;
+    let kind = guard(|| CommandKind::from_name(command_kind))?;
+    let init = guard(|| Init::from_name(init))?;
+    let u = slice1("command", &command)?;
+    let tr = py.detach(|| guard(|| rollout::simulate_full(&lin, kind, u, dt, init, v0, x0)))?;
+    trajectory(py, tr)
+}
+
+/// Closed-loop car following behind a recorded leader (upper law Eq. 3).
+#[pyfunction]
+#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, v0, x0))]
+#[allow(clippy::too_many_arguments)]
+fn closed_loop<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: Vec<f64>,
+    lead_x: PyReadonlyArray1<'py, f64>,
+    lead_v: PyReadonlyArray1<'py, f64>,
+    dt: f64,
+    kg: f64,
+    kv: f64,
+    tg: f64,
+    gmin: f64,
+    v0: f64,
+    x0: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    let lin = linear(model, &params)?;
+    let up = Upper { kg, kv, tg, gmin };
+    let lx = slice1("lead_x", &lead_x)?;
+    let lv = slice1("lead_v", &lead_v)?;
+    let tr = py.detach(|| guard(|| rollout::closed_loop(&lin, &up, lx, lv, dt, v0, x0)))?;
+    trajectory(py, tr)
+}
+
+/// Platoon of `followers` identical vehicles: dict of (followers, T) arrays.
+#[pyfunction]
+#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, followers))]
+#[allow(clippy::too_many_arguments)]
+fn platoon<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: Vec<f64>,
+    lead_x: PyReadonlyArray1<'py, f64>,
+    lead_v: PyReadonlyArray1<'py, f64>,
+    dt: f64,
+    kg: f64,
+    kv: f64,
+    tg: f64,
+    gmin: f64,
+    followers: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let lin = linear(model, &params)?;
+    let up = Upper { kg, kv, tg, gmin };
+    let lx = slice1("lead_x", &lead_x)?;
+    let lv = slice1("lead_v", &lead_v)?;
+    let trs = py.detach(|| guard(|| rollout::platoon(&lin, &up, lx, lv, dt, followers)))?;
+    let t = lx.len();
+    let d = PyDict::new(py);
+    for (key, get) in [
+        (
+            "a",
+            (|tr: &rollout::Trajectory| tr.a.clone()) as fn(&rollout::Trajectory) -> Vec<f64>,
+        ),
+        ("v", |tr| tr.v.clone()),
+        ("x", |tr| tr.x.clone()),
+        ("command", |tr| tr.command.clone()),
+    ] {
+        let flat: Vec<f64> = trs.iter().flat_map(get).collect();
+        d.set_item(key, flat.into_pyarray(py).reshape([followers, t])?)?;
+    }
+    Ok(d)
+}
+
+/// An optional series that must have the total length of `a`.
+fn optional<'a>(
+    name: &str,
+    s: &'a Option<PyReadonlyArray1<'_, f64>>,
+    total: usize,
+) -> PyResult<Option<&'a [f64]>> {
+    match s {
+        None => Ok(None),
+        Some(arr) => {
+            let sl = slice1(name, arr)?;
+            if sl.len() != total {
+                return Err(PyValueError::new_err(format!(
+                    "{name}: has length {} but `a` has {total}",
+                    sl.len()
+                )));
+            }
+            Ok(Some(sl))
+        }
+    }
+}
+
+fn sub<'a>(s: Option<&'a [f64]>, offsets: &[usize], k: usize) -> Option<&'a [f64]> {
+    s.map(|s| &s[offsets[k]..offsets[k + 1]])
+}
+
+/// Per-run costs (Eq. 6) of many parameter rows over many runs, in parallel.
+///
+/// Runs are concatenated: run `r` is `offsets[r]..offsets[r+1]` of every series.
+/// Returns a (P, R) array; invalid or unstable rows get `inf`.
+#[pyfunction]
+#[pyo3(signature = (model, params, offsets, dt, a, command=None, lead_x=None, lead_v=None, v=None, x=None, upper=None, upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, threads=0))]
+#[allow(clippy::too_many_arguments)]
+fn batch_cost<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: PyReadonlyArray2<'py, f64>,
+    offsets: Vec<usize>,
+    dt: PyReadonlyArray1<'py, f64>,
+    a: PyReadonlyArray1<'py, f64>,
+    command: Option<PyReadonlyArray1<'py, f64>>,
+    lead_x: Option<PyReadonlyArray1<'py, f64>>,
+    lead_v: Option<PyReadonlyArray1<'py, f64>>,
+    v: Option<PyReadonlyArray1<'py, f64>>,
+    x: Option<PyReadonlyArray1<'py, f64>>,
+    upper: Option<PyReadonlyArray2<'py, f64>>,
+    upper_free: Vec<usize>,
+    command_kind: &str,
+    weights: (f64, f64, f64),
+    init: &str,
+    closed_loop: bool,
+    threads: usize,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let spec = guard(|| {
+        Ok(CostSpec {
+            model: ModelKind::from_name(model)?,
+            kind: CommandKind::from_name(command_kind)?,
+            weights: [weights.0, weights.1, weights.2],
+            init: Init::from_name(init)?,
+            closed_loop,
+            upper_free,
+        })
+    })?;
+    let (p, np, rows) = slice2("params", &params)?;
+    if np != spec.n_params() {
+        return Err(PyValueError::new_err(format!(
+            "params: rows have {np} columns, expected {} ({} model parameters + {} free upper-level)",
+            spec.n_params(),
+            spec.model.n_params(),
+            spec.upper_free.len()
+        )));
+    }
+    let a = slice1("a", &a)?;
+    let total = a.len();
+    let (command, lead_x, lead_v, v, x) = (
+        optional("command", &command, total)?,
+        optional("lead_x", &lead_x, total)?,
+        optional("lead_v", &lead_v, total)?,
+        optional("v", &v, total)?,
+        optional("x", &x, total)?,
+    );
+    let dts = slice1("dt", &dt)?;
+    let r = dts.len();
+    if offsets.len() != r + 1
+        || offsets[0] != 0
+        || offsets[r] != total
+        || offsets.windows(2).any(|w| w[0] > w[1])
+    {
+        return Err(PyValueError::new_err(format!(
+            "offsets: must be {} non-decreasing values from 0 to {total} (one more than dt)",
+            r + 1
+        )));
+    }
+    let uppers: Vec<Upper> = match &upper {
+        None => vec![
+            Upper {
+                kg: 0.0,
+                kv: 0.0,
+                tg: 0.0,
+                gmin: 0.0
+            };
+            r
+        ],
+        Some(u) => {
+            let (ur, uc, us) = slice2("upper", u)?;
+            if ur != r || uc != 4 {
+                return Err(PyValueError::new_err(format!(
+                    "upper: must have shape ({r}, 4) (kg, kv, Tg, Gmin per run), got ({ur}, {uc})"
+                )));
+            }
+            us.chunks(4)
+                .map(|c| Upper {
+                    kg: c[0],
+                    kv: c[1],
+                    tg: c[2],
+                    gmin: c[3],
+                })
+                .collect()
+        }
+    };
+    let runs: Vec<RunRef> = (0..r)
+        .map(|k| RunRef {
+            dt: dts[k],
+            command: sub(command, &offsets, k),
+            lead_x: sub(lead_x, &offsets, k),
+            lead_v: sub(lead_v, &offsets, k),
+            a: &a[offsets[k]..offsets[k + 1]],
+            v: sub(v, &offsets, k),
+            x: sub(x, &offsets, k),
+            upper: uppers[k],
+        })
+        .collect();
+    let out = py.detach(|| {
+        guard(|| {
+            crate::parallel::with_threads(threads, || rollout::batch_cost(&spec, rows, &runs))?
+        })
+    })?;
+    let _ = p;
+    Ok(out.into_pyarray(py).reshape([p, r])?)
+}
+
+pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(model_params, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate_full, m)?)?;
+    m.add_function(wrap_pyfunction!(closed_loop, m)?)?;
+    m.add_function(wrap_pyfunction!(platoon, m)?)?;
+    m.add_function(wrap_pyfunction!(batch_cost, m)?)?;
+    Ok(())
+}

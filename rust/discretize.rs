@@ -1,0 +1,270 @@
+//! Exact zero-order-hold discretization with a fractional dead time.
+//!
+//! Convention (shared by the Rust core, `avll.reference` and every test):
+//! * the reference input `u_ref[n] = u[n] + K y[n]` is held over `[t_n, t_{n+1})`;
+//! * the rational part is driven by `w(t) = u_ref(t - Td)`; with `Td/dt = i + f`
+//!   (`0 <= f < 1`) the interval's first `f dt` carries `u_ref[n-i-1]` and the rest
+//!   `u_ref[n-i]` (the modified z-transform), so the result is smooth in `Td`;
+//! * `x[n+1] = Phi x[n] + G0 u_ref[n-i] + G1 u_ref[n-i-1]`, `y[n] = C x[n]`;
+//! * the input-to-state maps come from the matrix exponential of the augmented
+//!   matrix `[[A, B], [0, 0]] tau`, which also handles the integrators exactly.
+//!
+//! The continuous realization of `(b1 s + b0)/(a2 s^2 + a1 s + 1)` is the
+//! controllable canonical form; integrators for speed and position are appended
+//! after the model states (`v' = y, p' = v` for an acceleration response; `p' = y`
+//! for a speed response).
+
+use crate::error::{AvllError, Result};
+use crate::model::{CommandKind, Linear};
+use nalgebra::DMatrix;
+
+/// Which integrators are appended to the model states.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Integrators {
+    /// Model states only.
+    None,
+    /// Acceleration response: speed and position (`v' = y`, `p' = v`).
+    SpeedPosition,
+    /// Speed response: position (`p' = y`).
+    Position,
+}
+
+impl Integrators {
+    pub fn count(self) -> usize {
+        match self {
+            Integrators::None => 0,
+            Integrators::SpeedPosition => 2,
+            Integrators::Position => 1,
+        }
+    }
+
+    /// The integrators that go with a command kind when speed/position are wanted.
+    pub fn for_kind(kind: CommandKind) -> Self {
+        match kind {
+            CommandKind::Acceleration => Integrators::SpeedPosition,
+            CommandKind::Speed => Integrators::Position,
+        }
+    }
+}
+
+/// A discretized model of state dimension `N` (model order plus integrators).
+#[derive(Debug, Clone, Copy)]
+pub struct Discrete<const N: usize> {
+    pub phi: [[f64; N]; N],
+    /// Input map of `u_ref[n-i]` (held over the last `(1-f) dt` of the interval).
+    pub g0: [f64; N],
+    /// Input map of `u_ref[n-i-1]` (held over the first `f dt`); zero when `f = 0`.
+    pub g1: [f64; N],
+    /// Response row: `y = c x`.
+    pub c: [f64; N],
+    /// Time derivative of the response at `t_n+`: `ca x + cb w(t_n+)`.
+    pub ca: [f64; N],
+    pub cb: f64,
+    /// Whole samples of dead time (`i`).
+    pub delay_steps: usize,
+    /// Fractional part of the dead time in samples (`f`).
+    pub frac: f64,
+    /// Inner feedback gain.
+    pub k: f64,
+    /// Model order (number of model states, before the integrators).
+    pub order: usize,
+}
+
+/// Continuous realization `(A, B, C)` of the rational part plus integrators.
+pub fn continuous(lin: &Linear, ints: Integrators) -> (DMatrix<f64>, Vec<f64>, Vec<f64>) {
+    let m = lin.order();
+    let n = m + ints.count();
+    let mut a = DMatrix::<f64>::zeros(n, n);
+    let mut b = vec![0.0; n];
+    let mut c = vec![0.0; n];
+    if m == 1 {
+        a[(0, 0)] = -1.0 / lin.a1;
+        b[0] = 1.0;
+        c[0] = lin.b0 / lin.a1;
+    } else {
+        a[(0, 1)] = 1.0;
+        a[(1, 0)] = -1.0 / lin.a2;
+        a[(1, 1)] = -lin.a1 / lin.a2;
+        b[1] = 1.0;
+        c[0] = lin.b0 / lin.a2;
+        c[1] = lin.b1 / lin.a2;
+    }
+    match ints {
+        Integrators::None => {}
+        Integrators::SpeedPosition => {
+            for j in 0..m {
+                a[(m, j)] = c[j]; // v' = y
+            }
+            a[(m + 1, m)] = 1.0; // p' = v
+        }
+        Integrators::Position => {
+            for j in 0..m {
+                a[(m, j)] = c[j]; // p' = y
+            }
+        }
+    }
+    (a, b, c)
+}
+
+/// `(e^{A tau}, int_0^tau e^{A s} B ds)` from one matrix exponential.
+fn zoh(a: &DMatrix<f64>, b: &[f64], tau: f64) -> (DMatrix<f64>, Vec<f64>) {
+    let n = a.nrows();
+    let mut m = DMatrix::<f64>::zeros(n + 1, n + 1);
+    for i in 0..n {
+        for j in 0..n {
+            m[(i, j)] = a[(i, j)] * tau;
+        }
+        m[(i, n)] = b[i] * tau;
+    }
+    let e = m.exp();
+    let phi = e.view((0, 0), (n, n)).into_owned();
+    let gam = (0..n).map(|i| e[(i, n)]).collect();
+    (phi, gam)
+}
+
+/// Splits a dead time into whole samples and a fraction, `td/dt = i + f`.
+pub fn split_delay(td: f64, dt: f64) -> (usize, f64) {
+    let r = td / dt;
+    let i = r.floor();
+    let mut f = r - i;
+    // Guard against `f` a rounding error below 1 or above 0.
+    if f < 1e-12 {
+        f = 0.0;
+    }
+    (i as usize, f)
+}
+
+/// Discretizes `lin` for sample time `dt`, with the given integrators.
+/// `N` must equal `lin.order() + ints.count()`.
+pub fn discretize<const N: usize>(lin: &Linear, ints: Integrators, dt: f64) -> Result<Discrete<N>> {
+    if !(dt.is_finite() && dt > 0.0) {
+        return Err(AvllError::new(
+            "dt",
+            format!("must be finite and > 0, got {dt}"),
+        ));
+    }
+    let m = lin.order();
+    if m + ints.count() != N {
+        return Err(AvllError::new(
+            "model",
+            format!("internal: state size {} != {N}", m + ints.count()),
+        ));
+    }
+    let (a, b, c) = continuous(lin, ints);
+    let (i, f) = split_delay(lin.td, dt);
+    if i > 1 << 24 {
+        return Err(AvllError::new("Td", "dead time longer than 2^24 samples"));
+    }
+    // Last (1-f) dt carries u_ref[n-i]; first f dt carries u_ref[n-i-1].
+    let (phi_a, gam_a) = zoh(&a, &b, (1.0 - f) * dt);
+    let mut d = Discrete::<N> {
+        phi: [[0.0; N]; N],
+        g0: [0.0; N],
+        g1: [0.0; N],
+        c: [0.0; N],
+        ca: [0.0; N],
+        cb: 0.0,
+        delay_steps: i,
+        frac: f,
+        k: lin.k,
+        order: m,
+    };
+    if f > 0.0 {
+        let (phi_b, gam_b) = zoh(&a, &b, f * dt);
+        let phi = &phi_a * &phi_b;
+        for r in 0..N {
+            for col in 0..N {
+                d.phi[r][col] = phi[(r, col)];
+            }
+            d.g0[r] = gam_a[r];
+            d.g1[r] = (0..N).map(|j| phi_a[(r, j)] * gam_b[j]).sum();
+        }
+    } else {
+        for r in 0..N {
+            for col in 0..N {
+                d.phi[r][col] = phi_a[(r, col)];
+            }
+            d.g0[r] = gam_a[r];
+        }
+    }
+    for j in 0..N {
+        d.c[j] = c[j];
+        d.ca[j] = (0..N).map(|r| c[r] * a[(r, j)]).sum();
+    }
+    d.cb = (0..N).map(|r| c[r] * b[r]).sum();
+    if d.phi
+        .iter()
+        .flatten()
+        .chain(d.g0.iter())
+        .chain(d.g1.iter())
+        .any(|x| !x.is_finite())
+    {
+        return Err(AvllError::new("params", "discretization is not finite"));
+    }
+    Ok(d)
+}
+
+/// Model-state equilibrium for a constant rational-part input `w`: `A x + B w = 0`.
+/// Returns the model states (length `order`); `y = b0 w` there.
+pub fn equilibrium(lin: &Linear, w: f64) -> [f64; 2] {
+    if lin.order() == 1 {
+        [lin.a1 * w, 0.0] // x = a1 w, y = (b0/a1) x = b0 w
+    } else {
+        [lin.a2 * w, 0.0] // x0 = a2 w, x1 = 0, y = (b0/a2) x0 = b0 w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lag(td: f64) -> Linear {
+        Linear {
+            b1: 0.0,
+            b0: 1.0,
+            a2: 0.0,
+            a1: td,
+            td: 0.0,
+            k: 0.0,
+        }
+    }
+
+    #[test]
+    fn first_order_lag_matches_closed_form() {
+        let d = discretize::<1>(&lag(0.8), Integrators::None, 0.05).unwrap();
+        let a = (-0.05f64 / 0.8).exp();
+        // y = (1/Td) x, x[n+1] = a x + Td (1-a) u => y[n+1] = a y + (1-a) u
+        assert!((d.phi[0][0] - a).abs() < 1e-14);
+        assert!((d.c[0] * d.g0[0] - (1.0 - a)).abs() < 1e-14);
+        assert_eq!(d.delay_steps, 0);
+        assert_eq!(d.frac, 0.0);
+    }
+
+    #[test]
+    fn fractional_delay_splits_input_map() {
+        let lin = Linear {
+            b1: 0.3,
+            b0: 0.7,
+            a2: 0.5,
+            a1: 1.1,
+            td: 0.12,
+            k: 0.0,
+        };
+        let d = discretize::<2>(&lin, Integrators::None, 0.05).unwrap();
+        assert_eq!(d.delay_steps, 2);
+        assert!((d.frac - 0.4).abs() < 1e-9);
+        // The two input maps together equal the full-interval ZOH map.
+        let d0 = discretize::<2>(&Linear { td: 0.0, ..lin }, Integrators::None, 0.05).unwrap();
+        for r in 0..2 {
+            assert!((d.g0[r] + d.g1[r] - d0.g0[r]).abs() < 1e-13);
+        }
+    }
+
+    #[test]
+    fn split_delay_is_exact_on_integers() {
+        assert_eq!(split_delay(0.0, 0.05), (0, 0.0));
+        let (i, f) = split_delay(0.7903, 0.05);
+        assert_eq!(i, 15);
+        assert!((f - 0.806).abs() < 1e-9);
+    }
+}
