@@ -68,6 +68,9 @@ __all__ = [
     "mse",
     "run_cost",
     "batch_cost",
+    "discrete_transfer_function",
+    "split_delay",
+    "hold_map",
 ]
 
 #: A response (m/s² or m/s) beyond this magnitude counts as divergence (infinite cost).
@@ -508,3 +511,41 @@ def batch_cost(
 ) -> np.ndarray:
     """``(P, R)`` per-run costs, one Python call per (model, run) pair."""
     return np.array([[run_cost(m, r, **kwargs) for r in runs] for m in models])
+
+
+# ---------------------------------------------------------------------------
+# The same open-loop rollout as a rational transfer function (for scipy.signal).
+# ---------------------------------------------------------------------------
+
+
+def discrete_transfer_function(model: LowerLevelModel, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(b, a)`` for ``scipy.signal.lfilter`` such that ``lfilter(b, a, u)`` is the
+    open-loop response at rest under the convention above, dead time (fractional
+    part included) and inner feedback included.
+
+    Over one interval ``x[n+1] = Phi x[n] + G0 u_ref[n-i] + G1 u_ref[n-i-1]`` with
+    ``Phi = Phi_rest Phi_first``, ``G0 = Gamma_rest``, ``G1 = Phi_rest Gamma_first``
+    (the modified z-transform), so the rational part is
+    ``Gd(z) = z^-i (N0(z) + z^-1 N1(z)) / D(z)`` and the inner loop gives
+    ``Y = Gd (U + K Y)``, i.e. ``Y/U = Gd_num / (D - K Gd_num)``.
+    """
+    import scipy.signal
+
+    p = plant(model)
+    _check_dt(dt)
+    i, f = split_delay(p.Td, dt)
+    phi_f, gam_f = hold_map(p.A, p.B, f * dt)
+    phi_r, gam_r = hold_map(p.A, p.B, (1.0 - f) * dt)
+    phi = phi_r @ phi_f
+    gains = np.column_stack([gam_r, phi_r @ gam_f])
+    m = p.A.shape[0]
+    num0, den = scipy.signal.ss2tf(phi, gains, p.C[None, :], np.zeros((1, 2)), input=0)
+    num1, _ = scipy.signal.ss2tf(phi, gains, p.C[None, :], np.zeros((1, 2)), input=1)
+    # descending powers of z with equal length m+1 == ascending powers of z^-1
+    b = np.zeros(i + m + 2)
+    b[i : i + m + 1] += num0[0]
+    b[i + 1 : i + m + 2] += num1[0]
+    a = np.zeros_like(b)
+    a[: m + 1] = den
+    a = a - p.K * b
+    return b, a
