@@ -7,11 +7,10 @@ closed-form recursion, and scipy.signal's own ZOH discretization / simulation.
 
 from __future__ import annotations
 
+import avll
 import numpy as np
 import pytest
 import scipy.signal
-
-import avll
 from avll.reference import rollout as ref
 
 
