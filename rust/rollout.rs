@@ -12,7 +12,9 @@
 //! Closed loop and platoons start the lower level at rest (zero acceleration,
 //! zero history); the follower's speed and position start at the given values.
 
-use crate::discretize::{discretize, equilibrium, split_delay, Discrete, Integrators};
+use crate::discretize::{
+    discretize, equilibrium, inner_loop_stable, split_delay, Discrete, Integrators,
+};
 use crate::error::{check_series, AvllError, Result};
 use crate::model::{CommandKind, Linear, ModelKind};
 use rayon::prelude::*;
@@ -565,8 +567,10 @@ fn finite_or_inf(c: f64) -> f64 {
     }
 }
 
-/// Cost of one parameter row on one run; `inf` for invalid or unstable parameters.
-/// Assumes `spec.validate(runs)` passed.
+/// Cost of one parameter row on one run; `inf` for invalid parameters, for a lower
+/// level that is not asymptotically stable (see
+/// [`crate::discretize::inner_loop_stable`]: whatever the run's length), and for a
+/// response that leaves `|y| < DIVERGED`. Assumes `spec.validate(runs)` passed.
 pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef) -> f64 {
     let np = spec.model.n_params();
     let lin = match spec.model.linear(&row[..np]) {
@@ -595,6 +599,9 @@ pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef) -> f64 {
 fn cost_open_accel<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) -> Result<f64> {
     let u = run.command.unwrap_or(&[]);
     let d = discretize::<N>(lin, Integrators::None, run.dt)?;
+    if !inner_loop_stable(&d, lin) {
+        return Ok(f64::INFINITY);
+    }
     let (x0, hist) = initial::<N>(lin, spec.init, u[0])?;
     let meas = run.a;
     let mut s = 0.0;
@@ -620,6 +627,9 @@ fn cost_open_accel<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) 
 fn cost_open_full<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) -> Result<f64> {
     let u = run.command.unwrap_or(&[]);
     let d = discretize::<N>(lin, Integrators::for_kind(spec.kind), run.dt)?;
+    if !inner_loop_stable(&d, lin) {
+        return Ok(f64::INFINITY);
+    }
     let m = lin.order();
     let (mut x0, hist) = initial::<N>(lin, spec.init, u[0])?;
     let v0 = run.v.map_or(0.0, |v| v[0]);
@@ -673,6 +683,9 @@ fn cost_closed<const N: usize>(
     run: &RunRef,
 ) -> Result<f64> {
     let d = discretize::<N>(lin, Integrators::SpeedPosition, run.dt)?;
+    if !inner_loop_stable(&d, lin) {
+        return Ok(f64::INFINITY);
+    }
     let lx = run.lead_x.unwrap_or(&[]);
     let lv = run.lead_v.unwrap_or(&[]);
     let vm = run.v.unwrap_or(&[]);

@@ -167,6 +167,8 @@ def test_batch_cost_matches_reference(
 ) -> None:
     rng = np.random.default_rng(zlib.crc32(f'{name}{kind}{weights}{closed}'.encode()))
     true = random_model(rng, name)
+    while not ref.lower_level_stable(true, DT):
+        true = random_model(rng, name)
     runs = [
         make_run(rng, true, int(rng.integers(20, 160)), kind, closed, f"r{j}") for j in range(3)
     ]
@@ -469,3 +471,26 @@ def test_no_panic_crosses_into_python(
             call()
         except ValueError:
             pass
+
+
+def test_inf_cost_pattern_matches_reference_stability() -> None:
+    """The core's stability rule (Schur-Cohn on the loop's characteristic polynomial)
+    against the reference's (eigenvalues of the delay-augmented state map), on random
+    rows many of which are unstable; rows within 1e-6 of the boundary are skipped."""
+    rng = np.random.default_rng(99)
+    run = _one_run(30)  # far too short for the divergence check to notice
+    rows, stable = [], []
+    while len(rows) < 60:
+        m = avll.Proposed(
+            m1=float(rng.uniform(0, 8)), m2=float(rng.uniform(0.02, 3)),
+            m3=float(rng.uniform(-1, 5)), K0=float(rng.uniform(0.1, 2)),
+            Td=float(rng.uniform(0, 1.5)), K=float(rng.uniform(-6, 3)),
+        )
+        r = ref.lower_level_spectral_radius(m, DT)
+        if abs(r - 1.0) < 1e-6:
+            continue
+        rows.append(m.to_array())
+        stable.append(r < 1.0)
+    c = avll.batch_cost("proposed", np.array(rows), [run])[:, 0]
+    assert 10 < sum(stable) < 50  # both kinds are exercised
+    assert np.array_equal(np.isfinite(c), np.array(stable))

@@ -66,6 +66,8 @@ __all__ = [
     "closed_loop",
     "platoon",
     "mse",
+    "lower_level_stable",
+    "lower_level_spectral_radius",
     "run_cost",
     "batch_cost",
     "discrete_transfer_function",
@@ -460,6 +462,42 @@ def platoon(
 # ---------------------------------------------------------------------------
 
 
+def lower_level_stable(model: LowerLevelModel, dt: float) -> bool:
+    """Whether the sampled lower level is asymptotically stable: the spectral radius of
+    its autonomous (``u = 0``) state map (:func:`lower_level_spectral_radius`) is
+    below ``1 - 1e-12``. Systems on the boundary (an undamped rational part,
+    ``K K0 = 1``) count as unstable."""
+    return lower_level_spectral_radius(model, dt) < 1.0 - 1e-12
+
+
+def lower_level_spectral_radius(model: LowerLevelModel, dt: float) -> float:
+    """Spectral radius of the sampled lower level's autonomous (``u = 0``) state map.
+
+    The state is the model state plus the delay line ``u_ref[n-1] ... u_ref[n-i-1]``;
+    one step is ``x' = Phi x + G0 u_ref[n-i] + G1 u_ref[n-i-1]`` with the hold maps
+    of the convention and ``u_ref[n] = K y[n] = K C x[n]``."""
+    p = plant(model)
+    _check_dt(dt)
+    i, f = split_delay(p.Td, dt)
+    phi_f, gam_f = hold_map(p.A, p.B, f * dt)
+    phi_r, gam_r = hold_map(p.A, p.B, (1.0 - f) * dt)
+    phi, g0, g1 = phi_r @ phi_f, gam_r, phi_r @ gam_f
+    m = p.A.shape[0]
+    size = m + i + 1
+    M = np.zeros((size, size))
+    feedback = p.K * p.C  # u_ref[n] as a row over the state
+    M[:m, :m] = phi
+    if i == 0:
+        M[:m, :m] += np.outer(g0, feedback)  # w0 = u_ref[n]
+    else:
+        M[:m, m + i - 1] += g0  # w0 = u_ref[n-i] = r_i
+    M[:m, m + i] += g1  # w1 = u_ref[n-i-1] = r_{i+1}
+    M[m, :m] = feedback  # r_1' = u_ref[n]
+    for k in range(1, i + 1):
+        M[m + k, m + k - 1] = 1.0  # r_{k+1}' = r_k
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
 def mse(sim: np.ndarray, meas: np.ndarray) -> float:
     """Mean squared error ``(1/T) sum_t (sim_t - meas_t)^2``."""
     return float(np.mean((np.asarray(sim) - np.asarray(meas)) ** 2))
@@ -479,8 +517,12 @@ def run_cost(
     speed and position starting at the run's measured first samples (0 if absent);
     closed loop drives it with the leader through ``upper`` (default: the run's
     law), starting at the run's measured speed and position, lower level at rest.
-    A response that leaves ``|y| < DIVERGED`` or is not finite costs ``inf``."""
+    A lower level that is not asymptotically stable (:func:`lower_level_stable`,
+    whatever the run's length) or a response that leaves ``|y| < DIVERGED`` costs
+    ``inf``."""
     wa, wv, wx = weights
+    if not lower_level_stable(model, run.dt):
+        return math.inf
     v0 = float(run.v[0]) if run.v is not None else 0.0
     x0 = float(run.x[0]) if run.x is not None else 0.0
     if closed_loop_:
