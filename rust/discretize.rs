@@ -122,7 +122,7 @@ fn zoh(a: &DMatrix<f64>, b: &[f64], tau: f64) -> Result<(DMatrix<f64>, Vec<f64>)
         }
         m[(i, n)] = b[i] * tau;
     }
-    if m.iter().any(|x| !(x.abs() <= MAX_SCALED_ENTRY)) {
+    if m.iter().any(|x| x.is_nan() || x.abs() > MAX_SCALED_ENTRY) {
         return Err(AvllError::new(
             "params",
             format!(
@@ -288,7 +288,7 @@ pub fn schur_stable(c: &mut Vec<f64>) -> bool {
     let mut q = vec![0.0; c.len()];
     while n > 0 {
         let (a0, an) = (c[0], c[n]);
-        if !(a0.abs() < an.abs()) {
+        if a0.is_nan() || an.is_nan() || a0.abs() >= an.abs() {
             return false;
         }
         for j in 0..n {

@@ -105,6 +105,34 @@ fn dot<const N: usize>(a: &[f64; N], x: &[f64; N]) -> f64 {
     s
 }
 
+/// `t + row . x`, summed as a shallow tree with `t` (the input terms, known before
+/// the state) added last: the state-to-state latency of a step is one multiply and
+/// `ceil(log2 N) + 1` adds instead of a chain of `N + 2` dependent operations.
+#[inline(always)]
+fn affine<const N: usize>(row: &[f64; N], x: &[f64; N], t: f64) -> f64 {
+    let (r, x) = (&row[..], &x[..]);
+    match N {
+        1 => t + r[0] * x[0],
+        2 => t + (r[0] * x[0] + r[1] * x[1]),
+        3 => (t + r[2] * x[2]) + (r[0] * x[0] + r[1] * x[1]),
+        4 => t + ((r[0] * x[0] + r[1] * x[1]) + (r[2] * x[2] + r[3] * x[3])),
+        _ => {
+            let mut s = t;
+            for j in 0..N {
+                s += r[j] * x[j];
+            }
+            s
+        }
+    }
+}
+
+/// One exact step: `x[n+1] = Phi x[n] + G0 w0 + G1 w1` (`w0` held over the last
+/// `(1-f) dt`, `w1` over the first `f dt`).
+#[inline(always)]
+fn advance<const N: usize>(d: &Discrete<N>, x: &[f64; N], w0: f64, w1: f64) -> [f64; N] {
+    std::array::from_fn(|r| affine(&d.phi[r], x, d.g0[r] * w0 + d.g1[r] * w1))
+}
+
 /// The one stepping loop every rollout uses. `input(n, x)` gives the command at
 /// sample `n`; `out(n, x, y, u, w_first)` records it and returns `false` to stop.
 /// Returns `false` if stopped early.
@@ -126,18 +154,67 @@ fn step_loop<const N: usize>(
     for n in 0..len {
         let y = dot(&d.c, &x);
         let u = input(n, &x);
-        buf[n & mask] = u + d.k * y;
-        let w0 = buf[n.wrapping_sub(i) & mask];
+        let r = u + d.k * y;
+        buf[n & mask] = r;
+        // Without whole-sample delay the new input acts at once: keep it in a register
+        // (a round trip through the delay line would lengthen the loop's latency).
+        let w0 = if i == 0 {
+            r
+        } else {
+            buf[n.wrapping_sub(i) & mask]
+        };
         let w1 = buf[n.wrapping_sub(i + 1) & mask];
         let wf = if has_frac { w1 } else { w0 };
         if !out(n, &x, y, u, wf) {
             return false;
         }
-        let mut nx = [0.0; N];
-        for r in 0..N {
-            nx[r] = dot(&d.phi[r], &x) + d.g0[r] * w0 + d.g1[r] * w1;
+        x = advance(d, &x, w0, w1);
+    }
+    true
+}
+
+/// The open-loop kernel behind `simulate` and the fast cost path: model states only,
+/// driven by the recorded command `u`; `sink(n, y[n])` returns `false` to stop early
+/// (then this returns `false`). Without inner feedback (`K = 0`) the delayed input is
+/// the command itself, read straight from `u` (no delay line, no dependence of the
+/// input on the state); with feedback it falls back to [`step_loop`].
+#[inline(always)]
+fn open_loop<const N: usize>(
+    d: &Discrete<N>,
+    u: &[f64],
+    x0: [f64; N],
+    hist: f64,
+    mut sink: impl FnMut(usize, f64) -> bool,
+) -> bool {
+    if d.k != 0.0 {
+        return step_loop(
+            d,
+            u.len(),
+            x0,
+            hist,
+            |n, _| u[n],
+            |n, _, y, _, _| sink(n, y),
+        );
+    }
+    let i = d.delay_steps;
+    let len = u.len();
+    let w = |k: usize| if k <= i { hist } else { u[k - i - 1] };
+    let mut x = x0;
+    // Head: the delayed inputs still reach into the history (n - i - 1 < 0).
+    let head = (i + 1).min(len);
+    for n in 0..head {
+        if !sink(n, dot(&d.c, &x)) {
+            return false;
         }
-        x = nx;
+        // w0 = u[n-i] (history if n < i), w1 = u[n-i-1] (history)
+        x = advance(d, &x, w(n + 1), w(n));
+    }
+    // Body: w1 = u[n-i-1] = pair[0], w0 = u[n-i] = pair[1].
+    for (n, pair) in (head..len).zip(u.windows(2)) {
+        if !sink(n, dot(&d.c, &x)) {
+            return false;
+        }
+        x = advance(d, &x, pair[1], pair[0]);
     }
     true
 }
@@ -194,17 +271,10 @@ fn response_n<const N: usize>(
 ) -> Result<()> {
     let d = discretize::<N>(lin, Integrators::None, dt)?;
     let (x0, hist) = initial::<N>(lin, init, u.first().copied().unwrap_or(0.0))?;
-    step_loop(
-        &d,
-        u.len(),
-        x0,
-        hist,
-        |n, _| u[n],
-        |n, _, yy, _, _| {
-            y[n] = yy;
-            true
-        },
-    );
+    open_loop(&d, u, x0, hist, |n, yy| {
+        y[n] = yy;
+        true
+    });
     Ok(())
 }
 
@@ -303,8 +373,9 @@ pub fn simulate_full(
     Ok(tr)
 }
 
-/// Writes one closed-loop follower into the given output slices; returns `false`
-/// if the response diverged (the rest of the outputs are then left unwritten).
+/// Writes one closed-loop follower into the given output slices; returns the number
+/// of samples written: all of them, or up to and including the one where the
+/// response diverged (the rest of the outputs are then left unwritten).
 #[allow(clippy::too_many_arguments)]
 fn closed_n<const N: usize>(
     d: &Discrete<N>,
@@ -317,11 +388,12 @@ fn closed_n<const N: usize>(
     v: &mut [f64],
     x: &mut [f64],
     cmd: &mut [f64],
-) -> bool {
+) -> usize {
     let m = d.order;
     let mut s0 = [0.0; N];
     s0[m] = v0;
     s0[m + 1] = p0;
+    let mut stopped = None;
     step_loop(
         d,
         lead_x.len(),
@@ -333,9 +405,14 @@ fn closed_n<const N: usize>(
             v[n] = s[m];
             x[n] = s[m + 1];
             cmd[n] = u;
-            y.abs() < DIVERGED && y.is_finite()
+            let ok = y.abs() < DIVERGED && y.is_finite();
+            if !ok {
+                stopped = Some(n + 1);
+            }
+            ok
         },
-    )
+    );
+    stopped.unwrap_or(lead_x.len())
 }
 
 fn closed_loop_n<const N: usize>(
@@ -350,12 +427,12 @@ fn closed_loop_n<const N: usize>(
     let d = discretize::<N>(lin, Integrators::SpeedPosition, dt)?;
     let n = lead_x.len();
     let mut tr = Trajectory {
-        a: vec![f64::NAN; n],
-        v: vec![f64::NAN; n],
-        x: vec![f64::NAN; n],
-        command: vec![f64::NAN; n],
+        a: vec![0.0; n],
+        v: vec![0.0; n],
+        x: vec![0.0; n],
+        command: vec![0.0; n],
     };
-    closed_n(
+    let written = closed_n(
         &d,
         up,
         lead_x,
@@ -367,6 +444,10 @@ fn closed_loop_n<const N: usize>(
         &mut tr.x,
         &mut tr.command,
     );
+    // Diverged: NaN from the sample after the divergence on.
+    for s in [&mut tr.a, &mut tr.v, &mut tr.x, &mut tr.command] {
+        s[written..].fill(f64::NAN);
+    }
     Ok(tr)
 }
 
@@ -605,18 +686,11 @@ fn cost_open_accel<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) 
     let (x0, hist) = initial::<N>(lin, spec.init, u[0])?;
     let meas = run.a;
     let mut s = 0.0;
-    let ok = step_loop(
-        &d,
-        u.len(),
-        x0,
-        hist,
-        |n, _| u[n],
-        |n, _, y, _, _| {
-            let e = y - meas[n];
-            s += e * e;
-            y.abs() < DIVERGED
-        },
-    );
+    let ok = open_loop(&d, u, x0, hist, |n, y| {
+        let e = y - meas[n];
+        s += e * e;
+        y.abs() < DIVERGED
+    });
     Ok(if ok {
         spec.weights[0] * s / u.len() as f64
     } else {
@@ -726,7 +800,7 @@ fn cost_closed<const N: usize>(
 pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Vec<f64>> {
     spec.validate(runs)?;
     let np = spec.n_params();
-    if np == 0 || params.len() % np != 0 {
+    if np == 0 || !params.len().is_multiple_of(np) {
         return Err(AvllError::new(
             "params",
             format!(

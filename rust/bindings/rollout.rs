@@ -270,7 +270,7 @@ fn batch_cost<'py>(
         })
     })?;
     let _ = p;
-    Ok(out.into_pyarray(py).reshape([p, r])?)
+    out.into_pyarray(py).reshape([p, r])
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
