@@ -141,7 +141,10 @@ def main() -> None:
         ones = np.ones(T)
 
         def lfilter_closed(filt=filt, ones=ones) -> np.ndarray:
-            return sum(scipy.signal.lfilter(bb, aa, s) for (bb, aa), s in zip(filt, (lx, lv, ones)))
+            inputs = (lx, lv, ones)
+            return sum(
+                scipy.signal.lfilter(b, a, s) for (b, a), s in zip(filt, inputs, strict=True)
+            )
 
         t_lf = best(lfilter_closed, rep)
         a_rust = avll.closed_loop(model, lx, lv, DT, up, v0=0.0, x0=0.0).a
@@ -176,22 +179,53 @@ def main() -> None:
             scale=0.05, size=n_run
         )
         runs.append(avll.Run(f"r{j}", np.arange(n_run) * DT, a=aj, command=uj))
+    lxr, lvr = leader(n_run, seed=5)
+    closed_runs = []
+    for j in range(args.runs):
+        tr = avll.closed_loop(
+            avll.PAPER_TABLE_II["proposed"],
+            lxr,
+            lvr,
+            DT,
+            up,
+            v0=float(lvr[0]),
+            x0=float(lxr[0]) - 40.0,
+        )
+        closed_runs.append(
+            avll.Run(
+                f"c{j}",
+                np.arange(n_run) * DT,
+                a=tr.a + rng.normal(scale=0.05, size=n_run),
+                v=tr.v,
+                x=tr.x,
+                lead_x=lxr,
+                lead_v=lvr,
+                upper=up,
+            )
+        )
     base = avll.PAPER_TABLE_II["proposed"].to_array()
     params = base * rng.uniform(0.8, 1.2, size=(args.population, base.size))
     steps = args.population * args.runs * n_run
     print(
         f"\nbatch_cost, proposed model: {args.population} rows x {args.runs} runs x "
-        f"{n_run} samples = {steps / 1e6:.1f} M model-steps"
+        f"{n_run} samples = {steps / 1e6:.1f} M model-steps per call"
     )
-    res = {}
-    for threads in (1, 2):
-        t = best(lambda th=threads: avll.batch_cost("proposed", params, runs, threads=th), rep)
-        res[threads] = t
-        print(
-            f"  threads={threads}: {t * 1e3:8.1f} ms  {steps / t / 1e6:7.1f} M steps/s  "
-            f"{args.population * args.runs / t:,.0f} run-evaluations/s"
-        )
-    print(f"  speed-up 2 threads / 1 thread: {res[1] / res[2]:.2f}x")
+    for label, rs, closed in (("open loop", runs, False), ("closed loop", closed_runs, True)):
+        res = {}
+        for threads in (1, 2):
+            t = best(
+                lambda th=threads, rs=rs, c=closed: avll.batch_cost(
+                    "proposed", params, rs, closed_loop=c, threads=th
+                ),
+                rep,
+            )
+            res[threads] = t
+            print(
+                f"  {label:<12} threads={threads}: {t * 1e3:8.1f} ms  "
+                f"{steps / t / 1e6:7.1f} M steps/s  "
+                f"{args.population * args.runs / t:>9,.0f} run-evaluations/s"
+            )
+        print(f"  {label:<12} speed-up 2 threads / 1 thread: {res[1] / res[2]:.2f}x")
 
 
 if __name__ == "__main__":
