@@ -62,7 +62,7 @@ def leader(rng: np.random.Generator, n: int, v0: float = 12.0) -> tuple[np.ndarr
 @pytest.mark.parametrize("kind", ["acceleration", "speed"])
 @pytest.mark.parametrize("init", ["rest", "steady"])
 def test_open_loop_matches_reference(name: str, kind: str, init: str) -> None:
-    rng = np.random.default_rng(zlib.crc32(f'{name}{kind}{init}'.encode()))
+    rng = np.random.default_rng(zlib.crc32(f"{name}{kind}{init}".encode()))
     checked = 0
     for _ in range(8):
         m = random_model(rng, name)
@@ -136,8 +136,15 @@ def make_run(
         tr = ref.closed_loop(m, lx, lv, DT, up, v0=float(lv[0]), x0=float(lx[0] - 30))
         noise = rng.normal(scale=0.05, size=(3, n))
         return avll.Run(
-            rid, t, a=tr["a"] + noise[0], v=tr["v"] + noise[1], x=tr["x"] + noise[2],
-            lead_x=lx, lead_v=lv, command=tr["command"], upper=up,
+            rid,
+            t,
+            a=tr["a"] + noise[0],
+            v=tr["v"] + noise[1],
+            x=tr["x"] + noise[2],
+            lead_x=lx,
+            lead_v=lv,
+            command=tr["command"],
+            upper=up,
         )
     u = np.convolve(rng.normal(size=n), np.ones(10) / 10, mode="same") + (
         8.0 if kind == "speed" else 0.0
@@ -145,8 +152,13 @@ def make_run(
     tr = ref.simulate_full(m, u, DT, command_kind=kind, v0=2.0, x0=1.0)
     noise = rng.normal(scale=0.05, size=(3, n))
     return avll.Run(
-        rid, t, a=tr["a"] + noise[0], v=tr["v"] + noise[1], x=tr["x"] + noise[2],
-        command_kind=kind, command=u,
+        rid,
+        t,
+        a=tr["a"] + noise[0],
+        v=tr["v"] + noise[1],
+        x=tr["x"] + noise[2],
+        command_kind=kind,
+        command=u,
     )
 
 
@@ -165,7 +177,7 @@ def make_run(
 def test_batch_cost_matches_reference(
     name: str, kind: str, weights: tuple[float, float, float], closed: bool
 ) -> None:
-    rng = np.random.default_rng(zlib.crc32(f'{name}{kind}{weights}{closed}'.encode()))
+    rng = np.random.default_rng(zlib.crc32(f"{name}{kind}{weights}{closed}".encode()))
     true = random_model(rng, name)
     while not ref.lower_level_stable(true, DT):
         true = random_model(rng, name)
@@ -197,7 +209,9 @@ def test_batch_cost_upper_free_overrides_the_runs_law() -> None:
         want.append(
             [
                 ref.run_cost(
-                    m, r, closed_loop_=True,
+                    m,
+                    r,
+                    closed_loop_=True,
                     upper=avll.UpperLevel(kg=kg, kv=r.upper.kv, Tg=Tg, Gmin=r.upper.Gmin),
                 )
                 for r in runs
@@ -233,7 +247,11 @@ def linear_models(draw: st.DrawFn) -> avll.LowerLevelModel:
     if name == "second":
         return avll.SecondOrder(K0=K0, m2=m2, m3=m3, Td=Td)
     return avll.Proposed(
-        m1=draw(st.floats(0.0, 8.0)), m2=m2, m3=m3, K0=K0, Td=Td,
+        m1=draw(st.floats(0.0, 8.0)),
+        m2=m2,
+        m3=m3,
+        K0=K0,
+        Td=Td,
         K=draw(st.floats(-1.0, 0.9)) / K0,
     )
 
@@ -333,49 +351,80 @@ PROP = [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008]
         ),
         (
             lambda: avll.closed_loop(
-                avll.PAPER_TABLE_II["first"], np.arange(5.0), np.arange(4.0), DT,
-                avll.UpperLevel(0.5), v0=0.0, x0=0.0,
+                avll.PAPER_TABLE_II["first"],
+                np.arange(5.0),
+                np.arange(4.0),
+                DT,
+                avll.UpperLevel(0.5),
+                v0=0.0,
+                x0=0.0,
             ),
             "lead_v",
         ),
         (
             lambda: avll.closed_loop(
-                avll.PAPER_TABLE_II["first"], [0.0, math.nan], [0.0, 0.0], DT,
-                avll.UpperLevel(0.5), v0=0.0, x0=0.0,
+                avll.PAPER_TABLE_II["first"],
+                [0.0, math.nan],
+                [0.0, 0.0],
+                DT,
+                avll.UpperLevel(0.5),
+                v0=0.0,
+                x0=0.0,
             ),
             "lead_x",
         ),
         (
             lambda: _core.batch_cost(
-                "first", np.ones((1, 1)), [0, 3], np.array([DT]), np.zeros(3),
+                "first",
+                np.ones((1, 1)),
+                [0, 3],
+                np.array([DT]),
+                np.zeros(3),
                 command=np.zeros(4),
             ),
             "command",
         ),
         (
             lambda: _core.batch_cost(
-                "first", np.ones((1, 1)), [0, 3], np.array([0.0]), np.zeros(3),
+                "first",
+                np.ones((1, 1)),
+                [0, 3],
+                np.array([0.0]),
+                np.zeros(3),
                 command=np.zeros(3),
             ),
             "dt",
         ),
         (
             lambda: _core.batch_cost(
-                "first", np.ones((1, 1)), [0, 3], np.array([DT]), np.array([0, math.nan, 0]),
+                "first",
+                np.ones((1, 1)),
+                [0, 3],
+                np.array([DT]),
+                np.array([0, math.nan, 0]),
                 command=np.zeros(3),
             ),
             "a",
         ),
         (
             lambda: _core.batch_cost(
-                "first", np.ones((1, 1)), [0, 3], np.array([DT]), np.zeros(3),
-                command=np.zeros(3), init="hot",
+                "first",
+                np.ones((1, 1)),
+                [0, 3],
+                np.array([DT]),
+                np.zeros(3),
+                command=np.zeros(3),
+                init="hot",
             ),
             "init",
         ),
         (
             lambda: _core.batch_cost(
-                "first", np.ones((1, 2)), [0, 3], np.array([DT]), np.zeros(3),
+                "first",
+                np.ones((1, 2)),
+                [0, 3],
+                np.array([DT]),
+                np.zeros(3),
                 command=np.zeros(3),
             ),
             "params",
@@ -434,9 +483,7 @@ def test_invalid_rows_cost_inf_never_nan() -> None:
 
 @settings(max_examples=150, deadline=None)
 @given(
-    row=st.lists(
-        st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=6, max_size=6
-    ),
+    row=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=6, max_size=6),
     closed=st.booleans(),
 )
 def test_cost_never_nan_and_never_panics(row: list[float], closed: bool) -> None:
@@ -482,9 +529,12 @@ def test_inf_cost_pattern_matches_reference_stability() -> None:
     rows, stable = [], []
     while len(rows) < 60:
         m = avll.Proposed(
-            m1=float(rng.uniform(0, 8)), m2=float(rng.uniform(0.02, 3)),
-            m3=float(rng.uniform(-1, 5)), K0=float(rng.uniform(0.1, 2)),
-            Td=float(rng.uniform(0, 1.5)), K=float(rng.uniform(-6, 3)),
+            m1=float(rng.uniform(0, 8)),
+            m2=float(rng.uniform(0.02, 3)),
+            m3=float(rng.uniform(-1, 5)),
+            K0=float(rng.uniform(0.1, 2)),
+            Td=float(rng.uniform(0, 1.5)),
+            K=float(rng.uniform(-6, 3)),
         )
         r = ref.lower_level_spectral_radius(m, DT)
         if abs(r - 1.0) < 1e-6:
@@ -494,3 +544,26 @@ def test_inf_cost_pattern_matches_reference_stability() -> None:
     c = avll.batch_cost("proposed", np.array(rows), [run])[:, 0]
     assert 10 < sum(stable) < 50  # both kinds are exercised
     assert np.array_equal(np.isfinite(c), np.array(stable))
+
+
+def test_extreme_time_constants_raise_instead_of_hanging() -> None:
+    """Regression: |A dt| ~ 1e59 made nalgebra's matrix exponential loop forever."""
+    row = [1.4085411909858596e75, 1.2248913874710556e16, 1.4085411909858596e75, 1e-191, 1e-9, -1.08]
+    with pytest.raises(ValueError, match="^params"):
+        _core.simulate("proposed", row, np.ones(5), DT)
+    assert math.isinf(avll.batch_cost("proposed", np.array([row]), [_one_run(20)])[0, 0])
+
+
+def test_diverging_follower_is_nan_after_the_divergence() -> None:
+    m = avll.Proposed(m1=0.0, m2=1.0, m3=1.0, K0=1.0, Td=0.1, K=5.0)  # K K0 > 1
+    lx, lv = leader(np.random.default_rng(2), 3000)
+    tr = avll.closed_loop(m, lx, lv, DT, avll.UpperLevel(0.5, 0.0, 2.0, 9.5), v0=12.0, x0=0.0)
+    bad = np.flatnonzero(~np.isfinite(tr.a))
+    assert bad.size > 0
+    k = bad[0]
+    assert abs(tr.a[k - 1]) >= ref.DIVERGED  # the diverged sample is kept, NaN after it
+    assert np.all(np.isfinite(tr.a[:k])) and np.all(np.isnan(tr.a[k:]))
+    for key in ("v", "x", "command"):
+        assert np.all(np.isnan(getattr(tr, key)[k:])) and np.all(np.isfinite(getattr(tr, key)[:k]))
+    plat = avll.platoon(m, lx, lv, DT, avll.UpperLevel(0.5, 0.0, 2.0, 9.5), 2)
+    assert np.isnan(plat.a[1, -1])  # and so are the followers behind it

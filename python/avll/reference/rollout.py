@@ -540,8 +540,12 @@ def run_cost(
         return math.inf
     cost = wa * mse(tr["a"], run.a)
     if wv > 0:
+        if run.v is None:
+            raise ValueError(f"run {run.run_id!r}: column 'v' is needed for weight_v > 0")
         cost += wv * mse(tr["v"], run.v)
     if wx > 0:
+        if run.x is None:
+            raise ValueError(f"run {run.run_id!r}: column 'x' is needed for weight_x > 0")
         cost += wx * mse(tr["x"], run.x)
     return cost if math.isfinite(cost) else math.inf
 
