@@ -525,19 +525,20 @@ def run_cost(
         return math.inf
     v0 = float(run.v[0]) if run.v is not None else 0.0
     x0 = float(run.x[0]) if run.x is not None else 0.0
-    if closed_loop_:
-        law = upper if upper is not None else run.upper
-        if law is None or run.lead_x is None or run.lead_v is None:
-            raise ValueError(f"run {run.run_id!r}: closed loop needs the leader and the law")
-        tr = closed_loop(model, run.lead_x, run.lead_v, run.dt, law, v0=v0, x0=x0)
-        response = tr["a"]
-    else:
-        tr = simulate_full(
-            model, run.command, run.dt, command_kind=run.command_kind, init=init, v0=v0, x0=x0
-        )
-        response = tr["a"] if run.command_kind == "acceleration" else tr["v"]
-    if not np.all(np.abs(response) < DIVERGED):
-        return math.inf
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging follower is inf here
+        if closed_loop_:
+            law = upper if upper is not None else run.upper
+            if law is None or run.lead_x is None or run.lead_v is None:
+                raise ValueError(f"run {run.run_id!r}: closed loop needs the leader and the law")
+            tr = closed_loop(model, run.lead_x, run.lead_v, run.dt, law, v0=v0, x0=x0)
+            response = tr["a"]
+        else:
+            tr = simulate_full(
+                model, run.command, run.dt, command_kind=run.command_kind, init=init, v0=v0, x0=x0
+            )
+            response = tr["a"] if run.command_kind == "acceleration" else tr["v"]
+        if not np.all(np.abs(response) < DIVERGED):
+            return math.inf
     cost = wa * mse(tr["a"], run.a)
     if wv > 0:
         if run.v is None:
