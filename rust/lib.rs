@@ -7,6 +7,7 @@
 
 pub mod discretize;
 pub mod error;
+pub mod ga;
 pub mod model;
 pub mod parallel;
 pub mod rollout;
