@@ -351,8 +351,8 @@ pub struct GaResult {
 }
 
 const TAG_INIT: u64 = 0x494e_4954;
-const TAG_LHS: u64 = 0x4c48_53;
-const TAG_BREED: u64 = 0x4252_4545_44;
+const TAG_LHS: u64 = 0x004c_4853;
+const TAG_BREED: u64 = 0x0042_5245_4544;
 
 /// The random stream of `(seed, generation, index, purpose)`.
 fn stream(seed: u64, generation: u64, index: u64, tag: u64) -> ChaCha8Rng {
@@ -366,7 +366,7 @@ fn stream(seed: u64, generation: u64, index: u64, tag: u64) -> ChaCha8Rng {
 
 /// A sub-seed for problem `k` of a batch.
 pub fn derive_seed(seed: u64, k: u64) -> u64 {
-    let mut r = stream(seed, u64::MAX, k, 0x5355_4253_4545_44);
+    let mut r = stream(seed, u64::MAX, k, 0x0053_5542_5345_4544);
     r.random::<u64>()
 }
 
