@@ -194,6 +194,4 @@ def model_class(name: str | type[LowerLevelModel] | LowerLevelModel) -> type[Low
     try:
         return MODELS[str(name)]
     except KeyError:
-        raise ValueError(
-            f"model: unknown model {name!r}; known: {', '.join(MODELS)}"
-        ) from None
+        raise ValueError(f"model: unknown model {name!r}; known: {', '.join(MODELS)}") from None
