@@ -6,6 +6,15 @@ automated vehicle".
 """
 
 from ._core import __version__
+from .calibrate import (
+    Bootstrap,
+    CalibrationResult,
+    Workflow,
+    bootstrap,
+    calibrate,
+    calibrate_many,
+    paper_workflow,
+)
 from .data import DataError, Run
 from .models import (
     MODELS,
@@ -43,4 +52,11 @@ __all__ = [
     "simulate",
     "simulate_full",
     "PAPER_TABLE_II",
+    "Bootstrap",
+    "CalibrationResult",
+    "Workflow",
+    "bootstrap",
+    "calibrate",
+    "calibrate_many",
+    "paper_workflow",
 ]
