@@ -153,8 +153,7 @@ def _resolve_bounds(
     for k, b in (bounds or {}).items():
         if k not in box:
             raise ValueError(
-                f"bounds: unknown parameter {k!r} for model {cls.name!r}; "
-                f"known: {', '.join(names)}"
+                f"bounds: unknown parameter {k!r} for model {cls.name!r}; known: {', '.join(names)}"
             )
         b = tuple(b)
         if len(b) not in (2, 3):
@@ -671,8 +670,10 @@ class Workflow:
         rows = {}
         for m, r in self.results.items():
             d = r.per_run_mse if which == "cal" else self.val_mse[m]
-            rows[_LABELS.get(m, m)] = {**d, "Average": float(np.mean(list(d.values())))
-                                        if d else float("nan")}
+            rows[_LABELS.get(m, m)] = {
+                **d,
+                "Average": float(np.mean(list(d.values()))) if d else float("nan"),
+            }
         return pd.DataFrame(rows).T
 
     def averages(self) -> Any:
@@ -873,23 +874,44 @@ def register_cli(sub: Any) -> None:
     )
     p.add_argument("data", metavar="DATA", help="runs file (canonical CSV/Parquet, or --format)")
     p.add_argument("--format", default="canonical", help="loader of DATA (default canonical)")
-    p.add_argument("--command-kind", choices=("acceleration", "speed"), default=None,
-                   help="kind of the recorded command (default: from the file's sidecar)")
-    p.add_argument("--models", default="first,second,proposed",
-                   help="comma-separated models (default first,second,proposed)")
-    p.add_argument("--cal-runs", default=None,
-                   help="comma-separated calibration run ids, or 'paper' (default: alternate)")
+    p.add_argument(
+        "--command-kind",
+        choices=("acceleration", "speed"),
+        default=None,
+        help="kind of the recorded command (default: from the file's sidecar)",
+    )
+    p.add_argument(
+        "--models",
+        default="first,second,proposed",
+        help="comma-separated models (default first,second,proposed)",
+    )
+    p.add_argument(
+        "--cal-runs",
+        default=None,
+        help="comma-separated calibration run ids, or 'paper' (default: alternate)",
+    )
     p.add_argument("--seed", type=int, default=0, help="GA seed (default 0)")
     p.add_argument("--json", default=None, metavar="OUT.json", help="write results as JSON")
     p.add_argument("--threads", type=int, default=0, help="worker threads (0 = all cores)")
-    p.add_argument("--closed-loop", action="store_true",
-                   help="drive the model by the leader through the upper law (Eq. 3)")
-    p.add_argument("--init", choices=("rest", "steady"), default="rest",
-                   help="initial state of each rollout (default rest)")
+    p.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="drive the model by the leader through the upper law (Eq. 3)",
+    )
+    p.add_argument(
+        "--init",
+        choices=("rest", "steady"),
+        default="rest",
+        help="initial state of each rollout (default rest)",
+    )
     p.add_argument("--max-generations", type=int, default=GA_OPTIONS["max_generations"])
     p.add_argument("--pop-size", type=int, default=0, help="GA population (0 = automatic)")
-    p.add_argument("--figure", default=None, metavar="PATH",
-                   help="save measured vs simulated acceleration (PNG/SVG)")
+    p.add_argument(
+        "--figure",
+        default=None,
+        metavar="PATH",
+        help="save measured vs simulated acceleration (PNG/SVG)",
+    )
     p.add_argument("--figure-run", default=None, help="run of --figure (default: first cal run)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd)
