@@ -15,7 +15,10 @@
 //!   exchanged with probability 1/2;
 //! * mutation: bounded polynomial mutation with index `eta_m`, each gene with
 //!   probability `mutation_prob` (default `1/d`);
-//! * replacement: generational with elitism (the `elite` best survive unchanged);
+//! * survival: (mu + lambda) — the best `pop` distinct individuals of parents and
+//!   offspring (elitist by construction) — or generational with `elite` survivors;
+//! * local search (memetic): every `local_every` generations a short Nelder–Mead
+//!   from the best individual joins the population;
 //! * stopping: `max_generations`; stall (the best improved by at most
 //!   `ftol * |best|` over the last `stall_generations` generations); tolerance (the
 //!   population collapsed: every coordinate's spread `< xtol` in unit coordinates);
@@ -171,10 +174,10 @@ pub struct GaOptions {
     pub pop_size: usize,
     /// Generation limit (default 300).
     pub max_generations: usize,
-    /// Stall window (default 40 generations).
+    /// Stall window (default 20 generations).
     pub stall_generations: usize,
     /// Relative improvement of the best over the stall window that counts as a
-    /// stall (default 1e-6).
+    /// stall (default 1e-4; the polish refines further).
     pub ftol: f64,
     /// Population spread (unit coordinates) that counts as converged (default 1e-8).
     pub xtol: f64,
@@ -202,6 +205,13 @@ pub struct GaOptions {
     pub polish: bool,
     /// Evaluation budget of the polish (default 0 = `400 d`).
     pub polish_max_evals: usize,
+    /// Every `local_every` generations a short Nelder–Mead from the best individual
+    /// joins the population (Lamarckian local search; default 3, 0 = never). It
+    /// speeds the crawl along the curved valleys where the model's parameters trade
+    /// off, which coordinate-wise crossover handles poorly.
+    pub local_every: usize,
+    /// Evaluation budget of each local search (default 0 = `20 d`).
+    pub local_evals: usize,
     /// Starting points (parameter coordinates) that replace the first individuals.
     pub initial: Vec<Vec<f64>>,
 }
@@ -211,8 +221,8 @@ impl Default for GaOptions {
         Self {
             pop_size: 0,
             max_generations: 300,
-            stall_generations: 40,
-            ftol: 1e-6,
+            stall_generations: 20,
+            ftol: 1e-4,
             xtol: 1e-8,
             target: f64::NEG_INFINITY,
             tournament: 2,
@@ -225,6 +235,8 @@ impl Default for GaOptions {
             seed: 0,
             polish: true,
             polish_max_evals: 0,
+            local_every: 3,
+            local_evals: 0,
             initial: Vec::new(),
         }
     }
@@ -448,6 +460,22 @@ fn sort_pop(pop: &mut Vec<Vec<f64>>, fit: &mut Vec<f64>) {
     *fit = idx.iter().map(|&i| fit[i]).collect();
 }
 
+/// Initial Nelder–Mead steps per coordinate: the spread of the best tenth of the
+/// population, clamped to [1e-4, 0.05] in unit coordinates.
+fn simplex_steps(pop: &[Vec<f64>], n: usize, d: usize) -> Vec<f64> {
+    let top = (n / 10).max(d + 1).min(n);
+    (0..d)
+        .map(|j| {
+            let (lo, hi) = pop[..top]
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |s, z| {
+                    (s.0.min(z[j]), s.1.max(z[j]))
+                });
+            (hi - lo).clamp(1e-4, 0.05)
+        })
+        .collect()
+}
+
 /// Keeps the best `n` of a sorted population, preferring distinct individuals
 /// (clones of a kept individual only fill up when too few distinct ones remain).
 fn survive_unique(pop: &mut Vec<Vec<f64>>, fit: &mut Vec<f64>, n: usize) {
@@ -590,6 +618,23 @@ where
         if opts.plus {
             survive_unique(&mut pop, &mut fit, n);
         }
+        if opts.local_every > 0 && generation % opts.local_every == 0 && fit[0].is_finite() {
+            // Lamarckian local search: a short Nelder–Mead from the best individual,
+            // whose result joins the population (the worst individual leaves).
+            let step = simplex_steps(&pop, n, d);
+            let budget = if opts.local_evals == 0 {
+                20 * d
+            } else {
+                opts.local_evals
+            };
+            let (z, fz) = nelder_mead(&mut ev, &pop[0], fit[0], &step, budget, |_, _, _| true);
+            if fz < fit[0] {
+                pop.insert(0, z);
+                fit.insert(0, fz);
+                pop.truncate(n);
+                fit.truncate(n);
+            }
+        }
         history.push(fit[0]);
 
         bounds.to_user(&pop[0], &mut x_best);
@@ -639,18 +684,7 @@ where
     let mut f_best = fit[0];
 
     if opts.polish && !stopped_by_callback && stop != StopReason::Target && f_best.is_finite() {
-        // Initial step per coordinate from the spread of the best tenth.
-        let top = (n / 10).max(d + 1).min(n);
-        let step: Vec<f64> = (0..d)
-            .map(|j| {
-                let (lo, hi) = pop[..top]
-                    .iter()
-                    .fold((f64::INFINITY, f64::NEG_INFINITY), |s, z| {
-                        (s.0.min(z[j]), s.1.max(z[j]))
-                    });
-                (hi - lo).clamp(1e-4, 0.05)
-            })
-            .collect();
+        let step = simplex_steps(&pop, n, d);
         let budget = if opts.polish_max_evals == 0 {
             400 * d
         } else {
@@ -1053,7 +1087,7 @@ mod tests {
         let flat = |_: &[f64]| 1.0;
         let r = minimize(&flat, &b, &GaOptions::default(), |_| true).unwrap();
         assert_eq!(r.stop, StopReason::Stall);
-        assert_eq!(r.generations, 40);
+        assert_eq!(r.generations, 20);
         let o = GaOptions {
             target: 1e-2,
             ..Default::default()

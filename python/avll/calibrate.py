@@ -106,8 +106,8 @@ _UPPER_NAMES = ("kg", "kv", "Tg", "Gmin")
 GA_OPTIONS: dict[str, Any] = {
     "pop_size": 0,
     "max_generations": 300,
-    "stall_generations": 40,
-    "ftol": 1e-6,
+    "stall_generations": 20,
+    "ftol": 1e-4,
     "xtol": 1e-8,
     "tournament": 2,
     "crossover_prob": 0.9,
@@ -118,6 +118,8 @@ GA_OPTIONS: dict[str, Any] = {
     "elite": 0,
     "polish": True,
     "polish_max_evals": 0,
+    "local_every": 3,
+    "local_evals": 0,
 }
 
 
@@ -284,7 +286,7 @@ def _ga_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
             raise ValueError(f"{k}: unknown GA option; known: {', '.join(GA_OPTIONS)}")
         out[k] = v
     for k in ("pop_size", "max_generations", "stall_generations", "tournament", "elite",
-              "polish_max_evals"):  # fmt: skip
+              "polish_max_evals", "local_every", "local_evals"):  # fmt: skip
         if int(out[k]) < 0:
             raise ValueError(f"{k}: must be >= 0, got {out[k]}")
         out[k] = int(out[k])

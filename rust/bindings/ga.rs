@@ -136,9 +136,9 @@ fn result_dict<'py>(py: Python<'py>, r: GaResult) -> PyResult<Bound<'py, PyDict>
     command=None, lead_x=None, lead_v=None, v=None, x=None, upper=None,
     upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0),
     init="rest", closed_loop=false, problems=None, derive_seeds=true,
-    seed=0, pop_size=0, max_generations=300, stall_generations=40, ftol=1e-6,
+    seed=0, pop_size=0, max_generations=300, stall_generations=20, ftol=1e-4,
     xtol=1e-8, target=f64::NEG_INFINITY, tournament=2, crossover_prob=0.9, eta_c=10.0,
-    mutation_prob=0.0, eta_m=20.0, plus=true, elite=0, polish=true, polish_max_evals=0,
+    mutation_prob=0.0, eta_m=20.0, plus=true, elite=0, polish=true, polish_max_evals=0, local_every=3, local_evals=0,
     initial=None, progress=None, threads=0
 ))]
 #[allow(clippy::too_many_arguments)]
@@ -180,6 +180,8 @@ fn calibrate<'py>(
     elite: usize,
     polish: bool,
     polish_max_evals: usize,
+    local_every: usize,
+    local_evals: usize,
     initial: Option<PyReadonlyArray2<'py, f64>>,
     progress: Option<Py<PyAny>>,
     threads: usize,
@@ -224,6 +226,8 @@ fn calibrate<'py>(
         seed,
         polish,
         polish_max_evals,
+        local_every,
+        local_evals,
         initial,
     };
     let a = slice1("a", &a)?;
@@ -319,13 +323,16 @@ fn calibrate<'py>(
                         stop.store(true, Ordering::Relaxed);
                         return;
                     }
-                    if let (Some(cb), Some(Msg::Progress {
-                        problem,
-                        phase,
-                        iteration,
-                        evaluations,
-                        best,
-                    })) = (&progress, last.take())
+                    if let (
+                        Some(cb),
+                        Some(Msg::Progress {
+                            problem,
+                            phase,
+                            iteration,
+                            evaluations,
+                            best,
+                        }),
+                    ) = (&progress, last.take())
                     {
                         let info = PyDict::new(py);
                         let r = (|| -> PyResult<()> {
