@@ -170,7 +170,7 @@ impl Bounds {
 /// GA settings. `Default` gives the values documented on each field.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GaOptions {
-    /// Population size (default 0 = `max(40, 10 d)` rounded up to even).
+    /// Population size (default 0 = `max(40, 16 d)` rounded up to even).
     pub pop_size: usize,
     /// Generation limit (default 300).
     pub max_generations: usize,
@@ -288,7 +288,7 @@ impl GaOptions {
 
     fn pop(&self, d: usize) -> usize {
         let p = if self.pop_size == 0 {
-            (10 * d).max(40)
+            (16 * d).max(40)
         } else {
             self.pop_size
         };
