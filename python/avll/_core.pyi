@@ -90,6 +90,7 @@ def calibrate(
     closed_loop: bool = False,
     problems: list[list[int]] | None = None,
     derive_seeds: bool = True,
+    stop_all_at_target: bool = False,
     seed: int = 0,
     pop_size: int = 0,
     max_generations: int = 300,

@@ -113,15 +113,23 @@ enum Msg {
     Done,
 }
 
-fn result_dict<'py>(py: Python<'py>, r: GaResult) -> PyResult<Bound<'py, PyDict>> {
+fn result_dict<'py>(py: Python<'py>, r: GaResult, by_user: bool) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
+    // A callback stop is an interrupt when the user asked for it; otherwise another
+    // start of the same problem reached the target (`stop_all_at_target`).
+    let interrupted = r.stop == StopReason::Callback && by_user;
+    let stop = if r.stop == StopReason::Callback && !by_user {
+        "target"
+    } else {
+        r.stop.name()
+    };
     d.set_item("x", r.x.into_pyarray(py))?;
     d.set_item("f", r.f)?;
     d.set_item("f_ga", r.f_ga)?;
     d.set_item("generations", r.generations)?;
     d.set_item("evaluations", r.evaluations)?;
-    d.set_item("stop", r.stop.name())?;
-    d.set_item("interrupted", r.stop == StopReason::Callback)?;
+    d.set_item("stop", stop)?;
+    d.set_item("interrupted", interrupted)?;
     d.set_item("history", r.history.into_pyarray(py))?;
     Ok(d)
 }
@@ -129,13 +137,14 @@ fn result_dict<'py>(py: Python<'py>, r: GaResult) -> PyResult<Bound<'py, PyDict>
 /// Calibrates a model by the GA on Eq. 6: one problem over all runs, or many
 /// independent problems (`problems`: run-index lists, repeats allowed) solved in
 /// parallel. Returns one dict per problem (x, f, f_ga, generations, evaluations,
-/// stop, interrupted, history).
+/// stop, interrupted, history). With `stop_all_at_target`, every problem stops once
+/// any reaches `target` (independent starts of one problem).
 #[pyfunction]
 #[pyo3(signature = (
     model, offsets, dt, a, lower_bounds, upper_bounds, scale,
     command=None, lead_x=None, lead_v=None, v=None, x=None, upper=None,
     upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0),
-    init="rest", closed_loop=false, problems=None, derive_seeds=true,
+    init="rest", closed_loop=false, problems=None, derive_seeds=true, stop_all_at_target=false,
     seed=0, pop_size=0, max_generations=300, stall_generations=20, ftol=1e-4,
     xtol=1e-8, target=f64::NEG_INFINITY, tournament=2, crossover_prob=0.9, eta_c=10.0,
     mutation_prob=0.0, eta_m=20.0, plus=true, elite=0, polish=true, polish_max_evals=0, local_every=3, local_evals=0,
@@ -164,6 +173,7 @@ fn calibrate<'py>(
     closed_loop: bool,
     problems: Option<Vec<Vec<usize>>>,
     derive_seeds: bool,
+    stop_all_at_target: bool,
     seed: u64,
     pop_size: usize,
     max_generations: usize,
@@ -257,14 +267,15 @@ fn calibrate<'py>(
     let n_problems = problems.len();
 
     let stop = AtomicBool::new(false);
+    let target_hit = AtomicBool::new(false);
     let (tx, rx) = mpsc::channel::<Msg>();
     let mut interrupted_by_user = false;
     let mut py_error: Option<PyErr> = None;
     let outcome = py.detach(|| {
         let rx = rx;
         std::thread::scope(|s| {
-            let (spec, runs, problems, bounds, opts, stop) =
-                (&spec, &runs, &problems, &bounds, &opts, &stop);
+            let (spec, runs, problems, bounds, opts, stop, target_hit) =
+                (&spec, &runs, &problems, &bounds, &opts, &stop, &target_hit);
             let worker = s.spawn(move || {
                 let tx = std::sync::Mutex::new(tx);
                 let res = guard(|| {
@@ -281,7 +292,13 @@ fn calibrate<'py>(
                                         best: p.best_f,
                                     });
                                 }
-                                Some(!stop.load(Ordering::Relaxed))
+                                if stop_all_at_target && p.best_f <= opts.target {
+                                    target_hit.store(true, Ordering::Relaxed);
+                                }
+                                Some(
+                                    !(stop.load(Ordering::Relaxed)
+                                        || target_hit.load(Ordering::Relaxed)),
+                                )
                             }
                         })
                     })?
@@ -368,8 +385,10 @@ fn calibrate<'py>(
         return Err(e);
     }
     let results = outcome?;
-    let _ = interrupted_by_user; // reported per problem through `interrupted`
-    results.into_iter().map(|r| result_dict(py, r)).collect()
+    results
+        .into_iter()
+        .map(|r| result_dict(py, r, interrupted_by_user))
+        .collect()
 }
 
 /// Default seed of problem `k` when `derive_seeds` is true.
