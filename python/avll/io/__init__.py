@@ -1,0 +1,16 @@
+"""Loaders of measured data into :class:`avll.Run` objects (minimal; the lead's
+canonical reader/writer and ``read_runs`` dispatch land on main)."""
+
+from .carma import carma_report, load_carma
+from .generic import load_generic
+from .openacc import load_openacc_astazero
+from .resample import resample_arrays, resample_run
+
+__all__ = [
+    "load_carma",
+    "carma_report",
+    "load_generic",
+    "load_openacc_astazero",
+    "resample_arrays",
+    "resample_run",
+]
