@@ -5,12 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from loader_helpers import ASTA, CARMA, NO_DATA, canonical_frame, carma_frame, sha
-
 from avll import DataError
 from avll.io import carma_report, load_carma, load_generic, load_openacc_astazero
 from avll.io.openacc import grade_at, load_slope
 from avll.io.resample import resample_arrays
+from loader_helpers import ASTA, CARMA, NO_DATA, canonical_frame, carma_frame, sha
 
 needs_carma = pytest.mark.skipif(not CARMA.is_dir(), reason=NO_DATA)
 needs_asta = pytest.mark.skipif(not ASTA.is_dir(), reason=NO_DATA)
@@ -38,14 +37,16 @@ def test_carma_synthetic_stretches_holes_sorting(tmp_path):
     assert ids == ["synth/leader/s01", "synth/leader/s02", "synth/leader/s03",
                    "synth/follower1/s01", "synth/follower1/s02", "synth/follower1/s03"]
     lead = runs[:3]
-    assert [(r.t[0], r.t[-1]) for r in lead] == [(0.0, 19.9), (22.0, 39.9), (40.5, 59.9)]
+    ends = [r.t[i] for r in lead for i in (0, -1)]
+    assert ends == pytest.approx([0.0, 19.9, 22.0, 39.9, 40.5, 59.9])
     assert lead[0].meta["bridged_samples"] == 1
     # the bridged sample is the mean of its neighbours (linear interpolation)
     v = lead[0].v
     assert v[100] == pytest.approx(0.5 * (v[99] + v[101]))
     assert any("1 rows were out of order" in c for c in lead[0].meta["cleaning"])
     fol = runs[3:]
-    assert [(r.t[0], r.t[-1]) for r in fol] == [(0.0, 4.9), (6.0, 29.9), (31.0, 59.9)]
+    ends = [r.t[i] for r in fol for i in (0, -1)]
+    assert ends == pytest.approx([0.0, 4.9, 6.0, 29.9, 31.0, 59.9])
     for r in runs:
         assert r.command_kind == "speed" and r.dt == pytest.approx(0.1)
         assert np.all(r.command > 0)
@@ -64,8 +65,8 @@ def test_carma_min_duration_and_no_bridging(tmp_path):
     runs0 = load_carma(p, vehicles=["leader"], min_duration=1.0, max_hole=0.0)
     assert len(runs0) == 3 and all(r.meta["bridged_samples"] == 0 for r in runs0)
     long = load_carma(p, vehicles=["leader"], min_duration=20.0, max_hole=0.0)
-    assert [r.run_id for r in long] == ["d/leader/s01"]  # only the 25 s middle stretch
-    assert long[0].t[0] == pytest.approx(10.1)
+    assert [r.run_id for r in long] == ["d/leader/s01"]  # only the last stretch (25.1-59.9 s)
+    assert long[0].t[0] == pytest.approx(25.1)
 
 
 # ----------------------------------------------------------------- CARMA, published
@@ -89,12 +90,19 @@ def test_carma_published_files(name, descents):
         rows = raw.loc[np.round(r.t * 10).astype(int)]
         mode = rows[f"{veh}_CARMA_mode"].to_numpy()
         cmd = rows[f"{veh}_Speed_command"].to_numpy()
-        ok = (mode == 2) & (cmd > 0)
+        spd = rows[f"{veh}_avg_speed_driven_wheels"].to_numpy()
+        acc = rows[f"{veh}_acceleration"].to_numpy()
+        ok = (mode == 2) & (cmd > 0) & np.isfinite(spd) & np.isfinite(acc)
         assert int((~ok).sum()) == r.meta["bridged_samples"]
-        assert np.all(np.isnan(mode[~ok]) | np.isnan(cmd[~ok])
-                      | np.isnan(rows[f"{veh}_avg_speed_driven_wheels"].to_numpy()[~ok]))
+        # no bridged sample is explicitly "off"
+        off = (mode[~ok] != 2) & np.isfinite(mode[~ok]) | (cmd[~ok] <= 0)
+        assert not off.any()
         assert (len(r) - 1) * r.dt >= 10.0 - 1e-9
-        assert r.meta["a_quantum"] == pytest.approx(0.1, abs=0.015)
+        # CAN acceleration quantised in steps of 0.01 g (0.098 m/s²)
+        q = r.meta["a_quantum"]
+        assert np.isnan(q) or q == pytest.approx(0.098, abs=0.006)
+    quanta = [v["a_quantum"] for v in runs[0].meta["file_report"]["vehicles"].values()]
+    assert quanta == pytest.approx([0.098] * len(quanta), abs=0.0015)
 
 
 @needs_carma

@@ -68,11 +68,26 @@ def carma_vehicles(columns: Sequence[str]) -> list[str]:
     return [c[: -len("_CARMA_mode")] for c in columns if c.endswith("_CARMA_mode")]
 
 
-def _quantum(a: np.ndarray) -> float:
-    u = np.unique(np.round(a[np.isfinite(a)], 6))
-    if u.size < 3:
+def _quantum(a: np.ndarray, share: float = 0.9) -> float:
+    """The quantisation step of ``a`` (m/s²).
+
+    The CARMA CAN acceleration is ``k * q`` truncated to two decimals (0.09, 0.19,
+    ..., 1.07, ..., 2.35 for q = 0.098 m/s² = 0.01 g). Returns the largest q in
+    [0.01, 0.2] for which at least ``share`` of the non-zero samples are such
+    truncated multiples (a few samples are averages of two levels, from the 10 Hz
+    binning); NaN with fewer than 20 non-zero samples."""
+    v = np.abs(a[np.isfinite(a)])
+    v = v[v > 0.005]
+    if v.size < 20:
         return float("nan")
-    return float(np.median(np.diff(u)))
+    u, c = np.unique(np.round(v, 6), return_counts=True)
+    for q in np.arange(0.2, 0.01, -1e-4):
+        k = np.round(u / q)
+        gap = k * q - u
+        fit = (k > 0) & (gap > -1e-6) & (gap < 0.01 + 1e-6)
+        if c[fit].sum() >= share * v.size:
+            return round(float(q), 4)
+    return float("nan")
 
 
 def load_carma(
@@ -151,13 +166,13 @@ def load_carma(
     dup = np.flatnonzero(np.diff(t) == 0)
     if dup.size:
         keep = np.ones(t.shape[0], dtype=bool)
-        for i in dup:
-            a_row, b_row = df.iloc[i], df.iloc[i + 1]
+        for j in (int(x) for x in dup):
+            a_row, b_row = df.iloc[j], df.iloc[j + 1]
             if not a_row.equals(b_row):
                 raise DataError(
-                    f"{where(path, 'Time', int(rows[i + 1]))}: duplicated time {t[i]:g} with "
-                    f"different values (also row {int(rows[i])})")
-            keep[i + 1] = False
+                    f"{where(path, 'Time', int(rows[j + 1]))}: duplicated time {t[j]:g} with "
+                    f"different values (also row {int(rows[j])})")
+            keep[j + 1] = False
         file_notes.append(f"dropped {int((~keep).sum())} exact duplicate rows")
         df = df[keep].reset_index(drop=True)
         rows, t = rows[keep], t[keep]
@@ -176,6 +191,7 @@ def load_carma(
         file_notes.append(f"{missing_rows} missing rows (time steps absent from the file) "
                           "treated as empty cells")
     grid_t = t[0] + dt * np.arange(n)
+    grid_t[k] = t  # the file's own time stamps where the row exists
     grid_row = np.full(n, -1, dtype=np.int64)
     grid_row[k] = rows
 
@@ -236,6 +252,7 @@ def load_carma(
             "bridged_samples": int(bridged),
             "long_holes_split": len(long_holes),
             "kept": [], "dropped_short": 0, "dropped_short_s": 0.0,
+            "a_quantum": _quantum(acc[engaged]),
         }
         stretches = contiguous(usable)
         s_idx = 0
@@ -273,7 +290,8 @@ def load_carma(
                 "speed_column": f"{veh}_{speed_column}",
                 "command_column": f"{veh}_Speed_command",
                 "accel_column": f"{veh}_acceleration",
-                "a_quantum": _quantum(acc_f[sl]),
+                "a_quantum": _quantum(acc[sl][engaged[sl]]),
+                "file_report": report,
             }
             runs.append(Run(run_id=rid, t=grid_t[sl], a=acc_f[sl], command_kind="speed",
                             command=cmd_f[sl], v=spd_f[sl], meta=meta))
@@ -287,8 +305,6 @@ def load_carma(
             f"{where(path, f'{veh}_CARMA_mode')}: empty engaged stretch: no engaged, "
             f"not overridden stretch (mode 2, command > 0) of at least {min_duration:g} s "
             f"for {', '.join(empty_vehicles)}")
-    for r in runs:
-        r.meta["file_report"] = report
     return runs
 
 

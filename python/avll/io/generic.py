@@ -159,7 +159,7 @@ def load_generic(
 
 def _make(rid: str, cols: Mapping[str, np.ndarray], kind: str, meta: dict[str, Any]) -> Run:
     exo = {k[4:]: v for k, v in cols.items() if k.startswith("exo_")}
-    kw = {k: cols.get(k) for k in CANONICAL_COLUMNS if k != "t"}
+    kw: dict[str, Any] = {k: cols.get(k) for k in CANONICAL_COLUMNS if k != "t"}
     return Run(run_id=rid, t=cols["t"], command_kind=kind, exo=exo, meta=meta, **kw)
 
 

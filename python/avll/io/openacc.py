@@ -44,7 +44,8 @@ from ._common import (
 
 __all__ = ["load_openacc_astazero", "load_slope", "grade_at"]
 
-_FF_NAME = re.compile(r"^(?P<id>.+?)_(?P<start>\d+(?:\.\d+)?)_(?P<end>\d+(?:\.\d+)?)_V(?P<kmh>\d+)$")
+_FF_NAME = re.compile(
+    r"^(?P<id>.+?)_(?P<start>\d+(?:\.\d+)?)_(?P<end>\d+(?:\.\d+)?)_V(?P<kmh>\d+)$")
 
 
 def load_slope(path: str | Path) -> tuple[np.ndarray, np.ndarray, float]:

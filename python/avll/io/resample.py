@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -89,7 +90,7 @@ def resample_run(run: Run, dt: float, *, max_gap: float | None = None,
         meta["cleaning"] = cl
         rid = run.run_id if len(segs) == 1 else f"{run.run_id}/r{k + 1:02d}"
         exo = {n[4:]: v for n, v in s.columns.items() if n.startswith("exo_")}
-        kw = {f: s.columns.get(f) for f in fields}
+        kw: dict[str, Any] = {f: s.columns.get(f) for f in fields}
         out.append(dataclasses.replace(run, run_id=rid, t=s.t, exo=exo, meta=meta, **kw))
     return out
 
