@@ -162,6 +162,21 @@ def test_carma_kmh_speed(tmp_path):
     _raises(carma, p, "follower1_avg_speed_driven_wheels", match="km/h")
 
 
+def test_carma_kmh_below_hard_limit(tmp_path):
+    """A speed or a command in km/h that stays below 70 is still caught: the speed by
+    its derivative against the CAN acceleration, the command by its ratio to the speed."""
+    df = carma_frame()
+    df["leader_avg_speed_driven_wheels"] *= 3.6
+    df["leader_avg_speed_driven_wheels"] -= 30.0  # 24-35 "m/s": below the hard limit
+    p = _write(df, tmp_path / "c.csv")
+    _raises(carma, p, "leader_avg_speed_driven_wheels", match="km/h")
+    df = carma_frame()
+    df["follower1_Speed_command"] *= 3.6
+    df["follower1_Speed_command"] -= 10.0
+    p = _write(df, tmp_path / "d.csv")
+    _raises(carma, p, "follower1_Speed_command", match="implausible units")
+
+
 def test_carma_empty_engaged_stretch(tmp_path):
     df = carma_frame()
     df["leader_CARMA_mode"] = 0.0

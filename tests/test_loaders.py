@@ -231,3 +231,17 @@ def test_resample_arrays_nan_is_a_hole():
     segs = resample_arrays(t, {"v": v}, 0.1, max_gap=0.25)
     assert [(s.start, s.stop) for s in segs] == [(0, 60), (70, 100)]
     assert segs[0].columns["v"][40] == pytest.approx(0.5 * (v[39] + v[41]))
+
+
+def test_load_format_dispatch_and_resample(tmp_path):
+    from avll.io import load_format
+
+    p = tmp_path / "c.csv"
+    carma_frame(300).to_csv(p, index=False)
+    runs = load_format(p, "carma", min_duration=1.0)
+    assert [r.run_id for r in runs] == ["c/leader/s01", "c/follower1/s01"]
+    half = load_format(p, "carma", dt=0.2, min_duration=1.0)
+    assert [len(r) for r in half] == [150, 150] and half[0].dt == pytest.approx(0.2)
+    np.testing.assert_allclose(half[0].v, runs[0].v[::2])
+    with pytest.raises(ValueError, match="format"):
+        load_format(p, "nope")

@@ -217,9 +217,18 @@ def load_carma(
             bad = np.flatnonzero(np.isinf(arr))
             if bad.size:
                 raise DataError(f"{where(path, name, int(grid_row[bad[0]]))}: value is inf")
-        check_speed_units(spd, path, f"{veh}_{speed_column}")
-        check_speed_units(cmd, path, f"{veh}_Speed_command")
         check_accel_units(acc, path, f"{veh}_acceleration")
+        check_speed_units(spd, path, f"{veh}_{speed_column}", dt=dt, a=acc)
+        check_speed_units(cmd, path, f"{veh}_Speed_command")
+        both = (mode == 2) & (cmd > 2.0) & (spd > 2.0)
+        if both.sum() >= 50:
+            ratio = float(np.median(cmd[both] / spd[both]))
+            if not 0.5 < ratio < 2.0:
+                i = int(np.flatnonzero(both)[0])
+                raise DataError(
+                    f"{where(path, f'{veh}_Speed_command', int(grid_row[i]))}: the engaged "
+                    f"command is {ratio:.3g} x the measured speed {veh}_{speed_column} (median)"
+                    f"; implausible units (km/h would give 3.6): both must be m/s")
 
         present = (np.isfinite(mode) & np.isfinite(cmd) & np.isfinite(spd) & np.isfinite(acc))
         overridden = man == 1
