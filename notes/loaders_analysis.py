@@ -12,12 +12,11 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-from scipy.optimize import least_squares
-
 import avll
+import numpy as np
 from avll.io import carma_report, load_carma, load_openacc_astazero
 from avll.io.openacc import grade_at, load_slope
+from scipy.optimize import least_squares
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 G = 9.81
@@ -308,6 +307,50 @@ def part_grade() -> None:
 
 
 # ---------------------------------------------------------------- closed loop
+def closed_pair(r: avll.Run) -> list[object]:
+    """Steady-state spacing regression and a quick closed-loop fit of one pair."""
+    i0 = int(np.flatnonzero(r.v > 1.0)[0])
+    t = slice(i0, len(r))
+    lx, lv, am, x, v = r.lead_x[t], r.lead_v[t], r.a[t], r.x[t], r.v[t]
+    gap = lx - x
+    la = r.lead_a[t]
+    calm = (np.abs(am) < 0.05) & (np.abs(la) < 0.05) & (np.abs(v - lv) < 0.2) & (v > 5)
+    calm = np.convolve(calm.astype(float), np.ones(31) / 31, mode="same") > 0.999
+    tg_ss, gmin_ss = np.polyfit(v[calm], gap[calm], 1) if calm.sum() > 50 else (np.nan,
+                                                                              np.nan)
+    gr = r.exo["grade"][t]
+
+    def sim(p: np.ndarray) -> avll.Trajectory:
+        up = avll.UpperLevel(kg=p[0], kv=p[1], Tg=p[2], Gmin=p[3])
+        return avll.closed_loop(avll.FirstOrderLag(Td=p[4]), lx, lv, r.dt, up,
+                                v0=float(v[0]), x0=float(x[0]))
+
+    def res(p: np.ndarray) -> np.ndarray:
+        tr = sim(p)
+        ea = np.where(np.isfinite(tr.a), tr.a - am, 10.0)
+        eg = np.where(np.isfinite(tr.x), (lx - tr.x) - gap, 100.0)
+        return np.r_[ea, 0.1 * eg] / np.sqrt(am.size)
+
+    best = None
+    for x0 in ([0.1, 0.5, 1.0, 3.0, 0.5], [0.05, 0.3, 1.5, 5.0, 1.0],
+               [0.2, 0.8, 0.8, 2.0, 0.3]):
+        sol = least_squares(res, x0, bounds=([0, 0, 0, 0, 0.05], [2, 3, 5, 20, 5]),
+                            x_scale="jac", max_nfev=200)
+        if best is None or sol.cost < best.cost:
+            best = sol
+    tr = sim(best.x)
+    e = am - tr.a
+    ok = np.isfinite(e)
+    gg = -G * gr[ok]
+    k_g = float(np.dot(e[ok], gg) / np.dot(gg, gg))
+    X = np.c_[np.maximum(tr.a, 0), np.minimum(tr.a, 0)][ok]
+    gp, gn = np.linalg.lstsq(X, am[ok], rcond=None)[0]
+    return [r.run_id.split("_")[-1], int(calm.sum()), float(tg_ss), float(gmin_ss),
+            " ".join(f"{p:.3g}" for p in best.x), float(np.mean(e[ok] ** 2)),
+            float(np.mean(((lx - tr.x) - gap)[ok] ** 2)), k_g,
+            float(np.corrcoef(e[ok], gg)[0, 1]), float(gp), float(gn)]
+
+
 def part_closed() -> None:
     asta = DATA / "openacc-astazero"
     runs = load_openacc_astazero(asta / "platoon", command_kind="acceleration")
@@ -318,48 +361,11 @@ def part_closed() -> None:
           " bounded least squares on acceleration + 0.01 x gap error, best of 3 starts.\n")
     rows = []
     for r in runs:
-        i0 = int(np.flatnonzero(r.v > 1.0)[0])
-        t = slice(i0, len(r))
-        lx, lv, am, x, v = r.lead_x[t], r.lead_v[t], r.a[t], r.x[t], r.v[t]
-        gap = lx - x
-        la = r.lead_a[t]
-        calm = (np.abs(am) < 0.05) & (np.abs(la) < 0.05) & (np.abs(v - lv) < 0.2) & (v > 5)
-        calm = np.convolve(calm.astype(float), np.ones(31) / 31, mode="same") > 0.999
-        tg_ss, gmin_ss = np.polyfit(v[calm], gap[calm], 1) if calm.sum() > 50 else (np.nan,
-                                                                                  np.nan)
-        gr = r.exo["grade"][t]
-
-        def sim(p: np.ndarray) -> avll.Trajectory:
-            up = avll.UpperLevel(kg=p[0], kv=p[1], Tg=p[2], Gmin=p[3])
-            return avll.closed_loop(avll.FirstOrderLag(Td=p[4]), lx, lv, r.dt, up,
-                                    v0=float(v[0]), x0=float(x[0]))
-
-        def res(p: np.ndarray) -> np.ndarray:
-            tr = sim(p)
-            ea = np.where(np.isfinite(tr.a), tr.a - am, 10.0)
-            eg = np.where(np.isfinite(tr.x), (lx - tr.x) - gap, 100.0)
-            return np.r_[ea, 0.1 * eg] / np.sqrt(am.size)
-
-        best = None
-        for x0 in ([0.1, 0.5, 1.0, 3.0, 0.5], [0.05, 0.3, 1.5, 5.0, 1.0],
-                   [0.2, 0.8, 0.8, 2.0, 0.3]):
-            sol = least_squares(res, x0, bounds=([0, 0, 0, 0, 0.05], [2, 3, 5, 20, 5]),
-                                x_scale="jac", max_nfev=200)
-            if best is None or sol.cost < best.cost:
-                best = sol
-        tr = sim(best.x)
-        e = am - tr.a
-        ok = np.isfinite(e)
-        gg = -G * gr[ok]
-        k_g = float(np.dot(e[ok], gg) / np.dot(gg, gg))
-        rows.append([r.run_id.split("_")[-1], int(calm.sum()), float(tg_ss), float(gmin_ss),
-                     " ".join(f"{p:.3g}" for p in best.x), float(np.mean(e[ok] ** 2)),
-                     float(np.mean(((lx - tr.x) - gap)[ok] ** 2)), k_g,
-                     float(np.corrcoef(e[ok], gg)[0, 1])])
+        rows.append(closed_pair(r))
         print(f"  fitted {r.run_id}", file=sys.stderr)
     print(md(rows, ["pair", "steady samples", "Tg steady (s)", "Gmin steady (m)",
                     "fit kg kv Tg Gmin Td", "MSE a", "MSE gap", "resid. on -g·grade",
-                    "corr"]))
+                    "corr", "gain a>0", "gain a<0"]))
 
 
 def main() -> None:
