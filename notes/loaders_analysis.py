@@ -12,11 +12,12 @@ import argparse
 import sys
 from pathlib import Path
 
-import avll
 import numpy as np
+from scipy.optimize import least_squares
+
+import avll
 from avll.io import carma_report, load_carma, load_openacc_astazero
 from avll.io.openacc import grade_at, load_slope
-from scipy.optimize import least_squares
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 G = 9.81

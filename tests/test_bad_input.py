@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from avll import DataError, Run
-from avll.io import load_carma, load_generic, load_openacc_astazero
-from avll.io._common import check_runs_for_delay
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from loader_helpers import ASTA, NO_DATA, canonical_frame, carma_frame, sha
+
+from avll import DataError, Run
+from avll.io import load_carma, load_generic, load_openacc_astazero
+from avll.io._common import check_runs_for_delay
 
 
 def _write(df: pd.DataFrame, path: Path) -> Path:

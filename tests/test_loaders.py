@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from loader_helpers import ASTA, CARMA, NO_DATA, canonical_frame, carma_frame, sha
+
 from avll import DataError
 from avll.io import carma_report, load_carma, load_generic, load_openacc_astazero
 from avll.io.openacc import grade_at, load_slope
 from avll.io.resample import resample_arrays
-from loader_helpers import ASTA, CARMA, NO_DATA, canonical_frame, carma_frame, sha
 
 needs_carma = pytest.mark.skipif(not CARMA.is_dir(), reason=NO_DATA)
 needs_asta = pytest.mark.skipif(not ASTA.is_dir(), reason=NO_DATA)
@@ -234,13 +235,17 @@ def test_resample_arrays_nan_is_a_hole():
 
 
 def test_load_format_dispatch_and_resample(tmp_path):
-    from avll.io import load_format
+    from avll.io import load_format, read_runs
 
     p = tmp_path / "c.csv"
     carma_frame(300).to_csv(p, index=False)
     runs = load_format(p, "carma", min_duration=1.0)
     assert [r.run_id for r in runs] == ["c/leader/s01", "c/follower1/s01"]
-    half = load_format(p, "carma", dt=0.2, min_duration=1.0)
+    via = read_runs(p, format="carma", min_duration=1.0)
+    np.testing.assert_array_equal(via[1].v, runs[1].v)
+    with pytest.raises(ValueError, match="CARMA commands are speeds"):
+        read_runs(p, command_kind="acceleration", format="carma")
+    half = read_runs(p, format="carma", dt=0.2, min_duration=1.0)
     assert [len(r) for r in half] == [150, 150] and half[0].dt == pytest.approx(0.2)
     np.testing.assert_allclose(half[0].v, runs[0].v[::2])
     with pytest.raises(ValueError, match="format"):

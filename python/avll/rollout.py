@@ -105,8 +105,17 @@ def closed_loop(
     the divergence on."""
     name, p = _model(model)
     d = _core.closed_loop(
-        name, p, _f64("lead_x", lead_x), _f64("lead_v", lead_v), float(dt),
-        upper.kg, upper.kv, upper.Tg, upper.Gmin, float(v0), float(x0),
+        name,
+        p,
+        _f64("lead_x", lead_x),
+        _f64("lead_v", lead_v),
+        float(dt),
+        upper.kg,
+        upper.kv,
+        upper.Tg,
+        upper.Gmin,
+        float(v0),
+        float(x0),
     )
     return Trajectory(**d)
 
@@ -126,8 +135,16 @@ def platoon(
         raise ValueError(f"followers: must be >= 1, got {followers}")
     name, p = _model(model)
     d = _core.platoon(
-        name, p, _f64("lead_x", lead_x), _f64("lead_v", lead_v), float(dt),
-        upper.kg, upper.kv, upper.Tg, upper.Gmin, int(followers),
+        name,
+        p,
+        _f64("lead_x", lead_x),
+        _f64("lead_v", lead_v),
+        float(dt),
+        upper.kg,
+        upper.kv,
+        upper.Tg,
+        upper.Gmin,
+        int(followers),
     )
     return Trajectory(**d)
 

@@ -155,11 +155,12 @@ def check_time(t: np.ndarray, path: str | Path, column: str = "t", *,
     if back.size and (not dup.size or back[0] < dup[0]):
         i = int(back[0]) + 1
         raise DataError(
-            f"{where(path, column, row(i))}: time goes backwards ({t[i - 1]!r} then {t[i]!r}); "
+            f"{where(path, column, row(i))}: time goes backwards "
+            f"({float(t[i - 1]):.10g} then {float(t[i]):.10g}); "
             f"{back.size} such rows; sort the file or use a loader that sorts")
     if dup.size:
         i = int(dup[0]) + 1
-        raise DataError(f"{where(path, column, row(i))}: duplicated time {t[i]!r} "
+        raise DataError(f"{where(path, column, row(i))}: duplicated time {float(t[i]):.10g} "
                         f"(also at row {row(i - 1)}); {dup.size} duplicates")
     dt = float(np.median(d))
     if uniform:

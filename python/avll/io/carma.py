@@ -183,7 +183,8 @@ def load_carma(
     if off.size:
         i = int(off[0])
         raise DataError(
-            f"{where(path, 'Time', int(rows[i]))}: non-uniform sampling: Time {t[i]!r} is "
+            f"{where(path, 'Time', int(rows[i]))}: non-uniform sampling: "
+            f"Time {float(t[i]):.10g} is "
             f"not on the {dt:g} s grid from {t[0]:g} (tolerance {time_tol * dt:g} s)")
     n = int(k[-1]) + 1
     missing_rows = n - t.shape[0]
