@@ -323,3 +323,37 @@ def test_carma_messy_but_valid_property(holes, moved):
         assert np.all(np.isfinite(r.v)) and np.all(r.command > 0)
         if moved:
             assert any("out of order" in c for c in r.meta["cleaning"])
+
+
+# ------------------------------------------------------------------ CLI
+def test_cli_load_bad_input_one_line_exit_2(tmp_path, capsys):
+    from avll.cli import main
+
+    df = carma_frame().astype({"leader_acceleration": object})
+    df.loc[123, "leader_acceleration"] = "oops"
+    p = _write(df, tmp_path / "c.csv")
+    before = sha(p)
+    assert main(["load", str(p), "--format", "carma"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "c.csv, column 'leader_acceleration', row 123 (line 125): not a number" in err
+    assert sha(p) == before
+
+
+def test_cli_load_converts_to_canonical(tmp_path, capsys):
+    from avll.cli import main
+    from avll.io import read_runs
+
+    p = _write(carma_frame(), tmp_path / "c.csv")
+    out = tmp_path / "canon.csv"
+    rep = tmp_path / "rep" / "r.json"
+    assert main(["load", str(p), "--format", "carma", "--min-duration", "1",
+                 "--out", str(out), "--report", str(rep)]) == 0
+    assert "2 runs" in capsys.readouterr().out
+    back = read_runs(out)
+    orig = load_carma(p, min_duration=1.0)
+    assert [r.run_id for r in back] == [r.run_id for r in orig]
+    assert back[0].command_kind == "speed"
+    np.testing.assert_allclose(back[1].v, orig[1].v, rtol=1e-9)
+    import json
+    assert set(json.loads(rep.read_text())) == {r.run_id for r in orig}

@@ -255,11 +255,13 @@ def load_openacc_astazero(
         files = [path]
     runs: list[Run] = []
     for f in files:
+        head = read_table(f)
+        require_columns(head, f, ["Time", "X1", "SpeedDoppler1", "Accel1"])
+        cols = head.columns
         sl_path = _find(f, "Slope.csv", slope) if grade else None
         if grade and sl_path is None:
             raise DataError(f"Slope.csv: not found beside {f} (pass slope=PATH or grade=False)")
         sl = load_slope(sl_path) if sl_path is not None else None
-        cols = read_table(f).columns
         if "X2" in cols:
             runs += _platoon(f, sl, _find(f, "Labels.csv", labels), grade_offset, lap_length)
         else:
