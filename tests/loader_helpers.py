@@ -61,3 +61,40 @@ def canonical_frame(n: int = 400, runs: tuple[str, ...] = ("r1", "r2"), dt: floa
         cmd = np.r_[a[3:], np.repeat(a[-1], 3)]
         parts.append(pd.DataFrame({"run": r, "t": t, "command": cmd, "a": a, "v": v, "x": x}))
     return pd.concat(parts, ignore_index=True)
+
+
+LABELS_HEADER = ("File,type1,type2,type3,atf1,atf2,atf3,atb1,atb2,atb3,"
+                 "length1,length2,length3\n")
+
+
+def openacc_dir(root: Path, n: int = 600, stem: str = "ASta_010101_platoon1") -> Path:
+    """A small 3-car OpenACC-like platoon file with its Labels.csv and Slope.csv in
+    ``root``; returns the platoon file. Spacing = X_{i-1} - X_i - length_{i-1}."""
+    lap = 1000.0
+    sx = np.arange(0.0, lap + 1e-9, 5.0)
+    pd.DataFrame({"X": sx, "Y": 0.02 * np.sin(2 * np.pi * sx / lap)}).to_csv(
+        root / "Slope.csv", index=False)
+    lengths = (5.0, 4.5, 4.8)
+    (root / "Labels.csv").write_text(
+        LABELS_HEADER + f"{stem},1,2,3,4,3.5,4,0.6,1,0.7,{lengths[0]},{lengths[1]},{lengths[2]}\n",
+        encoding="utf-8")
+    t = np.round(1.0 + 0.1 * np.arange(n), 1)
+    cols: dict[str, np.ndarray] = {"Time": t}
+    v_lead = 15 + 2 * np.sin(2 * np.pi * t / 30)
+    x_prev = 900.0 + np.cumsum(v_lead) * 0.1
+    vs, xs = [v_lead], [x_prev]
+    for _ in range(2):
+        v = np.r_[vs[-1][0], vs[-1][:-1]]  # a 0.1 s lagged copy
+        xs.append(xs[-1] - lengths[len(xs) - 1] - 20.0 - 0.5 * np.sin(t))
+        vs.append(v)
+    for i in range(3):
+        cols[f"X{i + 1}"] = xs[i]
+    for i in range(3):
+        cols[f"SpeedDoppler{i + 1}"] = vs[i]
+    for i in range(3):
+        cols[f"Accel{i + 1}"] = np.r_[np.diff(vs[i]) / 0.1, 0.0]
+    for i in range(1, 3):
+        cols[f"Spacing{i + 1}"] = xs[i - 1] - xs[i] - lengths[i - 1]
+    p = root / f"{stem}.csv"
+    pd.DataFrame(cols).to_csv(p, index=False)
+    return p

@@ -357,3 +357,81 @@ def test_cli_load_converts_to_canonical(tmp_path, capsys):
     np.testing.assert_allclose(back[1].v, orig[1].v, rtol=1e-9)
     import json
     assert set(json.loads(rep.read_text())) == {r.run_id for r in orig}
+
+
+CARMA_CORRUPTIONS = ("text", "inf", "drop_column", "off_grid", "dup_conflict", "kmh")
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(kind=st.sampled_from(CARMA_CORRUPTIONS), row=st.integers(1, 298),
+       veh=st.sampled_from(["leader", "follower1"]),
+       field=st.sampled_from(["Speed_command", "avg_speed_driven_wheels", "acceleration",
+                              "CARMA_mode"]))
+def test_carma_corruption_property(kind, row, veh, field):
+    """Single corruptions of a valid CARMA file: a DataError naming file, column and
+    (where it exists) row; the file is untouched."""
+    df = carma_frame(300)
+    col, r = f"{veh}_{field}", row
+    if kind == "text":
+        df = df.astype({col: object})
+        df.loc[row, col] = "x1"
+    elif kind == "inf":
+        df.loc[row, col] = np.inf
+    elif kind == "drop_column":
+        df = df.drop(columns=col)
+        r = None
+    elif kind == "off_grid":
+        df.loc[row, "Time"] = df.loc[row, "Time"] + 0.05
+        col = "Time"
+    elif kind == "dup_conflict":
+        df.loc[row, "Time"] = df.loc[row - 1, "Time"]
+        col = "Time"
+    else:
+        col = f"{veh}_avg_speed_driven_wheels"
+        df[col] = df[col] * 3.6 - 25.0
+        r = None
+    with tempfile.TemporaryDirectory() as d:
+        p = _write(df, Path(d) / "corrupt.csv")
+        _raises(carma, p, col, r)
+
+
+@pytest.mark.parametrize("kind", ["text", "nan", "drop", "backwards", "kmh", "labels"])
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(row=st.integers(2, 590), veh=st.integers(1, 3))
+def test_openacc_corruption_property(kind, row, veh):
+    """Corrupted copies of a (synthetic) OpenACC platoon file."""
+    from loader_helpers import openacc_dir
+
+    with tempfile.TemporaryDirectory() as d:
+        p = openacc_dir(Path(d))
+        df = pd.read_csv(p)
+        col, r = f"Accel{veh}", row
+        if kind == "text":
+            df = df.astype({col: object})
+            df.loc[row, col] = "--"
+        elif kind == "nan":
+            col = f"X{veh}"
+            df.loc[row, col] = np.nan
+        elif kind == "drop":
+            col = f"SpeedDoppler{veh}"
+            df = df.drop(columns=col)
+            r = None
+        elif kind == "backwards":
+            col = "Time"
+            df.loc[[row, row + 1], col] = df.loc[[row + 1, row], col].to_numpy()
+            r = row + 1
+        elif kind == "kmh":
+            col = f"SpeedDoppler{veh}"
+            df[col] *= 3.6
+            r = None
+        else:
+            lab = Path(d) / "Labels.csv"
+            lab.write_text(LABELS_HEADER_ONLY, encoding="utf-8")
+            _raises(lambda _: load_openacc_astazero(p), lab, "File", None,
+                    "no row for 'ASta_010101_platoon1'")
+            return
+        _write(df, p)
+        _raises(load_openacc_astazero, p, col, r)
+
+
+LABELS_HEADER_ONLY = "File,type1\nsomething_else,1\n"

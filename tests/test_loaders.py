@@ -250,3 +250,18 @@ def test_load_format_dispatch_and_resample(tmp_path):
     np.testing.assert_allclose(half[0].v, runs[0].v[::2])
     with pytest.raises(ValueError, match="format"):
         load_format(p, "nope")
+
+
+def test_openacc_synthetic_platoon(tmp_path):
+    from loader_helpers import openacc_dir
+
+    p = openacc_dir(tmp_path)
+    runs = load_openacc_astazero(p)
+    assert [r.run_id for r in runs] == ["ASta_010101_platoon1/v1-v2", "ASta_010101_platoon1/v2-v3"]
+    raw = pd.read_csv(p)
+    for i, r in enumerate(runs, start=2):
+        np.testing.assert_allclose(r.lead_x - r.x, raw[f"Spacing{i}"], atol=1e-9)
+        # grade read at x mod 1000 on the synthetic sine profile (5 m linear interpolation)
+        np.testing.assert_allclose(r.exo["grade"], 0.02 * np.sin(2 * np.pi * r.x / 1000.0),
+                                   atol=0.02 * (2 * np.pi * 5 / 1000) ** 2 / 8 + 1e-12)
+    assert runs[1].meta["lead_length"] == 4.5 and runs[1].meta["length"] == 4.8

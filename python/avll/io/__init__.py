@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from ..data import DataError, Run
+from ._common import check_runs_for_delay, summarize
 from .canonical import load_canonical, write_runs
 from .carma import carma_report, load_carma
 from .formats import LOADERS, load_format
@@ -39,6 +40,8 @@ __all__ = [
     "load_openacc_astazero",
     "resample_arrays",
     "resample_run",
+    "check_runs_for_delay",
+    "summarize",
 ]
 
 #: Loader by format name: ``loader(path, command_kind=..., **options) -> list[Run]``.

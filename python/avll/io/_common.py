@@ -224,7 +224,7 @@ def check_speed_units(v: np.ndarray, path: str | Path, column: str, *, dt: float
 
 def check_accel_units(a: np.ndarray, path: str | Path, column: str) -> None:
     """|a| above 15 m/s² is implausible for road vehicles (wrong unit or column)."""
-    fin = np.abs(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0))
+    fin = np.abs(np.nan_to_num(a, nan=0.0, posinf=np.inf, neginf=np.inf))
     if fin.size and fin.max() > MAX_PLAUSIBLE_ACCEL:
         i = int(np.argmax(fin > MAX_PLAUSIBLE_ACCEL))
         raise DataError(f"{where(path, column, i)}: acceleration {a[i]:.4g} m/s² is implausible "

@@ -63,9 +63,17 @@ CARMA_FIELDS = ("CARMA_mode", "Speed_command", "CARMA_ovr", "avg_speed_driven_wh
 
 
 def carma_vehicles(columns: Sequence[str]) -> list[str]:
-    """The vehicle prefixes of a CARMA file (those with a ``<V>_CARMA_mode`` column),
-    in column order."""
-    return [c[: -len("_CARMA_mode")] for c in columns if c.endswith("_CARMA_mode")]
+    """The vehicle prefixes of a CARMA file: every ``<V>`` with at least one
+    ``<V>_<field>`` column of :data:`CARMA_FIELDS`, in column order (so a vehicle with a
+    missing column is reported, not silently skipped)."""
+    out: list[str] = []
+    for c in columns:
+        for f in CARMA_FIELDS:
+            if c.endswith("_" + f) and len(c) > len(f) + 1:
+                v = c[: -len(f) - 1]
+                if v not in out:
+                    out.append(v)
+    return out
 
 
 def _quantum(a: np.ndarray, share: float = 0.9) -> float:
@@ -81,13 +89,12 @@ def _quantum(a: np.ndarray, share: float = 0.9) -> float:
     if v.size < 20:
         return float("nan")
     u, c = np.unique(np.round(v, 6), return_counts=True)
-    for q in np.arange(0.2, 0.01, -1e-4):
-        k = np.round(u / q)
-        gap = k * q - u
-        fit = (k > 0) & (gap > -1e-6) & (gap < 0.01 + 1e-6)
-        if c[fit].sum() >= share * v.size:
-            return round(float(q), 4)
-    return float("nan")
+    qs = np.arange(0.2, 0.01, -1e-4)[:, None]
+    k = np.round(u[None, :] / qs)
+    gap = k * qs - u[None, :]
+    fit = (k > 0) & (gap > -1e-6) & (gap < 0.01 + 1e-6)
+    ok = np.flatnonzero((fit * c[None, :]).sum(axis=1) >= share * v.size)
+    return round(float(qs[ok[0], 0]), 4) if ok.size else float("nan")
 
 
 def load_carma(
@@ -214,7 +221,9 @@ def load_carma(
         acc = col(f"{veh}_acceleration")
         man_name = f"{veh}_{override_column}"
         man = col(man_name) if man_name in df.columns else np.full(n, np.nan)
-        for name, arr in ((f"{veh}_{speed_column}", spd), (f"{veh}_Speed_command", cmd)):
+        for name, arr in ((f"{veh}_{speed_column}", spd), (f"{veh}_Speed_command", cmd),
+                          (f"{veh}_acceleration", acc), (f"{veh}_CARMA_mode", mode),
+                          (f"{veh}_CARMA_ovr", ovr)):
             bad = np.flatnonzero(np.isinf(arr))
             if bad.size:
                 raise DataError(f"{where(path, name, int(grid_row[bad[0]]))}: value is inf")

@@ -191,7 +191,7 @@ def _freeflow(path: Path, slope: Any, parts: Path | None, offset: float,
         raise DataError(f"{where(parts, 'setSpd_mps', r)}: set speed {vset:g} m/s does not match "
                         f"the file name's V{m['kmh']} km/h")
     d, dt = _read_numeric(path, ["Time", "X1", "SpeedDoppler1", "Accel1"])
-    check_speed_units(d["SpeedDoppler1"], path, "SpeedDoppler1")
+    check_speed_units(d["SpeedDoppler1"], path, "SpeedDoppler1", dt=dt, a=d["Accel1"])
     check_accel_units(d["Accel1"], path, "Accel1")
     lap_len = slope[2] if (lap is None and slope is not None) else lap
     x = d["X1"].copy()
