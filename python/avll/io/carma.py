@@ -97,6 +97,30 @@ def _quantum(a: np.ndarray, share: float = 0.9) -> float:
     return round(float(qs[ok[0], 0]), 4) if ok.size else float("nan")
 
 
+def _why(i: int, step: int, sig: dict[str, np.ndarray], veh: str, hole_max: int,
+         dt: float) -> str:
+    """Why sample ``i``, just outside a stretch (``step`` -1 before, +1 after), is not
+    part of it."""
+    n = sig["mode"].shape[0]
+    if sig["missing"][i]:
+        j = i
+        while 0 <= j < n and sig["missing"][j]:
+            j += step
+        length = abs(j - i)
+        if length > hole_max:
+            return f"empty cells for {length * dt:.1f} s (> max_hole)"
+        nxt = _why(j, step, sig, veh, hole_max, dt) if 0 <= j < n else "the file's edge"
+        return f"empty cells for {length * dt:.1f} s then {nxt}"
+    mode, cmd = sig["mode"][i], sig["cmd"][i]
+    if np.isfinite(mode) and mode != 2:
+        return f"mode {mode:g}"
+    if np.isfinite(cmd) and cmd <= 0:
+        return f"command {cmd:g}"
+    if sig["overridden"][i]:
+        return "driver override"
+    return f"{veh}_CARMA_ovr = {sig['ovr'][i]:g}"
+
+
 def load_carma(
     path: str | Path,
     *,
@@ -273,6 +297,8 @@ def load_carma(
             "kept": [], "dropped_short": 0, "dropped_short_s": 0.0,
             "a_quantum": _quantum(acc[engaged]),
         }
+        sig = {"missing": missing, "mode": mode, "cmd": cmd, "overridden": overridden,
+               "ovr": ovr}
         stretches = contiguous(usable)
         s_idx = 0
         for a, b in stretches:
@@ -289,11 +315,11 @@ def load_carma(
                                 "linear interpolation of command, speed and acceleration")
             ends = []
             if a > 0:
-                ends.append("start: " + ("empty cells longer than max_hole"
-                                         if missing[a - 1] else "not engaged/overridden"))
+                ends.append(f"start at t={grid_t[a]:.1f} s after "
+                            f"{_why(a - 1, -1, sig, veh, hole_max, dt)}")
             if b < n:
-                ends.append("end: " + ("empty cells longer than max_hole"
-                                       if missing[b] else "not engaged/overridden"))
+                ends.append(f"end at t={grid_t[b - 1]:.1f} s before "
+                            f"{_why(b, 1, sig, veh, hole_max, dt)}")
             if ends:
                 cleaning.append("stretch bounded by " + ", ".join(ends))
             if not vrep["override_flag_present"]:
