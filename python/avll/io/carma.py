@@ -188,9 +188,9 @@ def load_carma(
     order = np.argsort(t_raw, kind="stable")
     if descents.size:
         file_notes.append(
-            f"sorted by Time: {descents.size} rows were out of order (first at row "
-            f"{int(descents[0]) + 1}, Time {t_raw[descents[0]]:g} before "
-            f"{t_raw[descents[0] + 1]:g})")
+            f"sorted by Time: {descents.size} rows were out of order (first: row "
+            f"{int(descents[0])} with Time {t_raw[descents[0]]:g} before row "
+            f"{int(descents[0]) + 1} with Time {t_raw[descents[0] + 1]:g})")
     df = df.iloc[order].reset_index(drop=True)
     rows = order  # original data-row index of each sorted row
     t = t_raw[order]
