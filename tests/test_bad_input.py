@@ -275,24 +275,22 @@ def test_carma_messy_but_valid_property(holes, moved):
     most max_hole), never crosses an off sample, and records what it did."""
     n = 300
     df = carma_frame(n, vehicles=("leader",))
-    off = np.zeros(n, dtype=bool)
-    empty = np.zeros(n, dtype=bool)
     for start, length, what in holes:
         sl = slice(start, min(n, start + length) - 1)
-        idx = np.arange(start, min(n, start + length))
         if what == "empty":
             df.loc[sl, "leader_CARMA_mode"] = np.nan
-            empty[idx] = True
         elif what == "off":
             df.loc[sl, "leader_CARMA_mode"] = 0.0
-            off[idx] = True
         elif what == "override":
             df.loc[sl, "leader_CARMA_ovr_manual"] = 1.0
-            off[idx] = True
         else:
             df.loc[sl, "leader_Speed_command"] = 0.0
-            off[idx] = True
-    empty &= ~off
+    # the state of each sample, from the final cells (later holes overwrite earlier ones)
+    mode = df["leader_CARMA_mode"].to_numpy()
+    cmd = df["leader_Speed_command"].to_numpy()
+    man = df["leader_CARMA_ovr_manual"].to_numpy()
+    off = (~np.isnan(mode) & (mode != 2)) | (~np.isnan(cmd) & (cmd <= 0)) | (man == 1)
+    empty = np.isnan(mode) & ~off
     order = list(range(n))
     for m in moved:  # move row m to the front of its neighbourhood
         order.remove(m)
