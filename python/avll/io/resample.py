@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 
 from ..data import DataError, Run
-from ._common import contiguous
 
 __all__ = ["Segment", "resample_arrays", "resample_run"]
 
@@ -94,11 +93,3 @@ def resample_run(run: Run, dt: float, *, max_gap: float | None = None,
         out.append(dataclasses.replace(run, run_id=rid, t=s.t, exo=exo, meta=meta, **kw))
     return out
 
-
-def _holes(mask: np.ndarray) -> list[tuple[int, int]]:
-    """Interior False stretches of ``mask`` (bounded by True on both sides)."""
-    out = []
-    for a, b in contiguous(~np.asarray(mask, dtype=bool)):
-        if a > 0 and b < mask.shape[0]:
-            out.append((a, b))
-    return out
