@@ -138,7 +138,9 @@ def test_many_problems_equal_single_problems(proposed_data: list[avll.Run]) -> N
     many2 = calibrate_many("second", runs, "per_run", seed=9, threads=2, max_generations=30)
     assert [m.params for m in many1] == [m.params for m in many2]
     for k, (res, run) in enumerate(zip(many1, runs, strict=True)):
-        single = calibrate("second", [run], seed=_core.derive_seed(9, k), max_generations=30)
+        single = calibrate(
+            "second", [run], seed=_core.derive_seed(9, k), max_generations=30, starts=1
+        )
         assert single.params == res.params
         assert list(res.per_run_mse) == [run.run_id]
     # Repeats weigh a run: [a, a, b] is the weighted mean of a and b.
@@ -237,11 +239,20 @@ def test_progress_error_propagates(proposed_data: list[avll.Run]) -> None:
 
 
 def test_stopping_rules(proposed_data: list[avll.Run]) -> None:
-    r = calibrate("first", proposed_data[:2], seed=0, max_generations=3, polish=False)
+    r = calibrate("first", proposed_data[:2], seed=0, max_generations=3, polish=False, starts=1)
     assert r.generations == 3 and r.stop == "max_generations" and len(r.history) == 4
     assert np.all(np.diff(r.history) <= 0)
     loose = calibrate("first", proposed_data[:2], seed=0, target=10.0)
     assert loose.stop == "target" and loose.generations == 0
+    assert len(loose.start_costs) == 2 and not loose.interrupted
+    # Two starts: the result is the better of the two single-start runs.
+    both = calibrate("second", proposed_data[:2], seed=4, max_generations=15)
+    singles = [
+        calibrate("second", proposed_data[:2], seed=_core.derive_seed(4, j), starts=1,
+                  max_generations=15).cost
+        for j in range(2)
+    ]  # fmt: skip
+    assert both.start_costs == tuple(singles) and both.cost == min(singles)
 
 
 @pytest.mark.parametrize(

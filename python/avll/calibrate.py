@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -199,6 +199,8 @@ class CalibrationResult:
     bounds: dict[str, Bound]
     upper: dict[str, float] = field(default_factory=dict)
     at_bound: tuple[str, ...] = ()
+    #: Final cost of each independent start (the best is the result).
+    start_costs: tuple[float, ...] = ()
 
     @property
     def params(self) -> dict[str, float]:
@@ -348,10 +350,16 @@ def _result(
     n_model = len(prob.cls.param_names())
     model = prob.cls.from_array(x[:n_model])
     upper = {_UPPER_NAMES[i]: float(x[n_model + j]) for j, i in enumerate(prob.free)}
+
+    def unit(v: float, lo: float, hi: float, sc: str) -> float:
+        if sc == "log":
+            return math.log(v / lo) / math.log(hi / lo)
+        return (v - lo) / (hi - lo)
+
     at_bound = tuple(
         n
-        for n, v, lo, hi in zip(prob.names, x, prob.lower, prob.upper, strict=True)
-        if lo < hi and min(v - lo, hi - v) <= 1e-3 * (hi - lo)
+        for n, v, lo, hi, sc in zip(prob.names, x, prob.lower, prob.upper, prob.scale, strict=True)
+        if lo < hi and min(unit(v, lo, hi, sc), 1.0 - unit(v, lo, hi, sc)) <= 1e-3
     )
     return CalibrationResult(
         model=model,
@@ -381,6 +389,7 @@ def _run(
     derive_seeds: bool,
     initial: Sequence[Any] | None,
     target: float | None,
+    stop_all_at_target: bool = False,
     threads: int,
     progress: bool | Callable[[dict[str, Any]], Any],
     desc: str,
@@ -405,6 +414,7 @@ def _run(
             scale=prob.scale,
             problems=problems,
             derive_seeds=derive_seeds,
+            stop_all_at_target=stop_all_at_target,
             seed=int(seed),
             target=-math.inf if target is None else float(target),
             initial=_initial(prob, initial),
@@ -430,6 +440,7 @@ def calibrate(
     init: str = "rest",
     initial: Sequence[Any] | None = None,
     target: float | None = None,
+    starts: int = 2,
     threads: int = 0,
     progress: bool | Callable[[dict[str, Any]], Any] = False,
     **ga_options: Any,
@@ -443,6 +454,11 @@ def calibrate(
     errors of acceleration, speed and position. ``init`` is the rollouts' initial state
     (``"rest"`` or ``"steady"``). ``initial`` seeds the population with models or
     parameter vectors; ``target`` stops as soon as the cost is at most that value.
+    ``starts`` independent GA runs (seeds ``_core.derive_seed(seed, j)``; with one
+    start, ``seed`` itself) run in parallel and the best is kept: on the proposed
+    model about one start in ten settles in a local minimum at a bound corner
+    (e.g. ``K0 = 3, K = -1.2``) with several times the cost, so two starts are the
+    default.
     ``threads`` (0 = all cores) does not change the result. ``progress`` shows a tqdm
     bar on stderr (or is a callable receiving a dict per generation). Ctrl-C stops
     cleanly: the best so far is returned with ``interrupted=True``. Further GA options:
@@ -453,12 +469,23 @@ def calibrate(
         model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
         weights=weights, init=init,
     )  # fmt: skip
-    raw = _run(
-        prob, None, seed=seed, derive_seeds=False, initial=initial, target=target,
+    if isinstance(starts, bool) or int(starts) < 1:
+        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
+    n = int(starts)
+    all_runs = list(range(len(prob.runs)))
+    raws = _run(
+        prob, None if n == 1 else [all_runs] * n, seed=seed, derive_seeds=n > 1,
+        initial=initial, target=target, stop_all_at_target=n > 1 and target is not None,
         threads=threads, progress=progress, desc=f"calibrate {prob.cls.name}", options=ga_options,
-    )[0]  # fmt: skip
+    )  # fmt: skip
+    best = min(range(n), key=lambda j: (raws[j]["f"], j))
+    raw = dict(raws[best])
+    raw["evaluations"] = sum(int(r["evaluations"]) for r in raws)
+    raw["interrupted"] = any(bool(r["interrupted"]) for r in raws)
+    start_seed = int(seed) if n == 1 else _core.derive_seed(int(seed), best)
     per_run = _per_run(prob, np.asarray(raw["x"]), prob.runs, threads)
-    return _result(prob, raw, prob.runs, seed, per_run)
+    res = _result(prob, raw, prob.runs, start_seed, per_run)
+    return replace(res, start_costs=tuple(float(r["f"]) for r in raws))
 
 
 def _per_run(prob: _Problem, x: np.ndarray, runs: Sequence[Run], threads: int) -> np.ndarray:
@@ -500,6 +527,7 @@ def calibrate_many(
     init: str = "rest",
     initial: Sequence[Any] | None = None,
     target: float | None = None,
+    starts: int = 1,
     **ga_options: Any,
 ) -> list[CalibrationResult]:
     """Solves many independent calibration problems in one parallel call.
@@ -508,8 +536,14 @@ def calibrate_many(
     repeats allowed, e.g. a bootstrap resample) whose Eq. 6 it minimises, or is
     ``"per_run"`` (one problem per run). Problem ``k`` uses the seed
     ``_core.derive_seed(seed, k)``; results are the same for any ``threads``.
-    Each result's ``per_run_mse`` covers the runs of its problem (once each).
+    With ``starts > 1`` each problem gets that many independent GA runs (problem
+    ``k``, start ``j`` uses ``_core.derive_seed(seed, k * starts + j)``) and keeps
+    the best. Each result's ``per_run_mse`` covers the runs of its problem (once
+    each).
     """
+    if isinstance(starts, bool) or int(starts) < 1:
+        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
+    n_st = int(starts)
     prob = _problem(
         model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
         weights=weights, init=init,
@@ -522,17 +556,24 @@ def calibrate_many(
         idx = [_subset_indices(prob.runs, s, k) for k, s in enumerate(subsets)]
         if not idx:
             raise ValueError("subsets: no problems given")
+    expanded = [sub for sub in idx for _ in range(n_st)]
     raws = _run(
-        prob, idx, seed=seed, derive_seeds=True, initial=initial, target=target,
+        prob, expanded, seed=seed, derive_seeds=True, initial=initial, target=target,
         threads=threads, progress=progress, desc=f"calibrate {prob.cls.name} x{len(idx)}",
         options=ga_options,
     )  # fmt: skip
     out = []
-    for k, (raw, sub) in enumerate(zip(raws, idx, strict=True)):
+    for k, sub in enumerate(idx):
+        group = raws[k * n_st : (k + 1) * n_st]
+        j = min(range(n_st), key=lambda i: (group[i]["f"], i))
+        raw = dict(group[j])
+        raw["evaluations"] = sum(int(r["evaluations"]) for r in group)
+        raw["interrupted"] = any(bool(r["interrupted"]) for r in group)
         uniq = sorted(set(sub))
         rs = [prob.runs[i] for i in uniq]
         per_run = _per_run(prob, np.asarray(raw["x"]), rs, threads)
-        out.append(_result(prob, raw, rs, _core.derive_seed(int(seed), k), per_run))
+        res = _result(prob, raw, rs, _core.derive_seed(int(seed), k * n_st + j), per_run)
+        out.append(replace(res, start_costs=tuple(float(r["f"]) for r in group)))
     return out
 
 
