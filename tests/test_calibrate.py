@@ -168,6 +168,24 @@ def test_closed_loop_with_free_upper_gain() -> None:
     assert r.params["Td"] == pytest.approx(1.0758, rel=0.05)
 
 
+def test_speed_command_runs() -> None:
+    # A speed-tracking lower level (command and response are speeds; Eq. 6 still
+    # compares accelerations, here the derivative of the simulated speed).
+    true = avll.FirstOrderLag(Td=0.8)
+    rng = np.random.default_rng(0)
+    runs = []
+    for k in range(3):
+        t = np.arange(0.0, 60.0, 0.05)
+        cmd = 10 + 3 * np.sin(0.3 * t + k) + np.cumsum(rng.normal(0, 0.02, t.size))
+        tr = avll.simulate_full(true, cmd, 0.05, command_kind="speed", init="steady", v0=cmd[0])
+        runs.append(avll.Run(run_id=str(k), t=t, a=tr.a + rng.normal(0, 0.02, t.size),
+                             command_kind="speed", command=cmd, v=tr.v))  # fmt: skip
+    r = calibrate("first", runs, seed=0, init="steady")
+    assert r.params["Td"] == pytest.approx(0.8, rel=0.02)
+    c_true = float(avll.batch_cost("first", true.to_array()[None], runs, init="steady").mean())
+    assert r.cost <= c_true * (1 + 1e-9)
+
+
 # --- cross-check against scipy ----------------------------------------------------
 
 
