@@ -6,6 +6,7 @@
 //! cross into Python.
 
 mod rollout;
+mod stability;
 
 use crate::error::AvllError;
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
@@ -58,5 +59,6 @@ pub(crate) fn slice2<'a>(
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     rollout::register(m)?;
+    stability::register(m)?;
     Ok(())
 }

@@ -42,6 +42,14 @@ pub const STRING_UNSTABLE: u8 = 1;
 pub const STABLE: u8 = 2;
 
 /// The model part of the closed-loop polynomials, fixed for a map.
+///
+/// Besides `Ga`, `Gb` and `M = Gb − K Ga`, it holds the pieces that make the per-point
+/// work a few multiply-adds: `D` and `R` are affine/bilinear in the upper-level
+/// parameters, `D = M s² + μ (s Ga) + kg Ga` and, with `α = kg Tg`, `β = μ + kv`,
+/// `γ = 2 kg`, `R = R00 + β R01 + γ R02 + α R10 + α β R11`, where the `Rij` are
+/// products of the `jω` even/odd parts of `s M`, `s² M`, `Ga`, `s Ga` (the `α γ`
+/// term is `E_Ga O_Ga − O_Ga E_Ga = 0`). [`LoopModel::string_poly`] computes `R` from
+/// `C` and `B` directly; a unit test checks that both agree.
 #[derive(Debug, Clone, Copy)]
 pub struct LoopModel {
     /// `Ga = b(s) Q(-s)`.
@@ -52,6 +60,13 @@ pub struct LoopModel {
     pub m: Poly,
     /// Padé order used (irrelevant when the model has no delay).
     pub pade_order: usize,
+    d_m: Poly,
+    d_mu: Poly,
+    r00: Poly,
+    r01: Poly,
+    r02: Poly,
+    r10: Poly,
+    r11: Poly,
 }
 
 impl LoopModel {
@@ -79,15 +94,28 @@ impl LoopModel {
         let ga = b.mul(&q.reflect());
         let gb = a.mul(&q);
         let m = gb.sub(&ga.scale(lin.k));
+        let (ms1, ms2, gas1) = (m.shift(1), m.shift(2), ga.shift(1));
+        let (e1, o1) = (ms1.even_jw(), ms1.odd_jw());
+        let (e2, o2) = (ga.even_jw(), ga.odd_jw());
+        let (e3, o3) = (ms2.even_jw(), ms2.odd_jw());
+        let (e4, o4) = (gas1.even_jw(), gas1.odd_jw());
+        let cross = |e: &Poly, o: &Poly, e_: &Poly, o_: &Poly| e.mul(o_).sub(&o.mul(e_));
         Ok(Self {
             ga,
             gb,
             m,
             pade_order,
+            d_m: ms2,
+            d_mu: gas1,
+            r00: cross(&e1, &o1, &e3, &o3),
+            r01: cross(&e1, &o1, &e4, &o4),
+            r02: cross(&e1, &o1, &e2, &o2),
+            r10: cross(&e2, &o2, &e3, &o3),
+            r11: cross(&e2, &o2, &e4, &o4),
         })
     }
 
-    /// `N(s)` and `D(s)` of Eq. 8 at one upper-level point.
+    /// `N(s)` and `D(s)` of Eq. 8 at one upper-level point, as products.
     #[inline]
     pub fn closed_loop(&self, kg: f64, tg: f64, kv: f64) -> (Poly, Poly) {
         let mu = kv + tg * kg;
@@ -96,7 +124,23 @@ impl LoopModel {
         (n, d)
     }
 
-    /// `R(x) = P(x) / x` (see the module doc), in powers of `x = ω²`.
+    /// `D(s)` from the precomputed pieces (the map's fast path).
+    #[inline]
+    pub fn char_poly(&self, kg: f64, tg: f64, kv: f64) -> Poly {
+        let mu = kv + tg * kg;
+        let mut d = self.d_m;
+        for k in 0..=self.d_mu.deg {
+            d.c[k] += mu * self.d_mu.c[k];
+        }
+        for k in 0..=self.ga.deg {
+            d.c[k] += kg * self.ga.c[k];
+        }
+        d.deg = d.deg.max(self.d_mu.deg);
+        d.trimmed()
+    }
+
+    /// `R(x) = P(x) / x` (see the module doc), in powers of `x = ω²`, computed from
+    /// `C = s M + kg Tg Ga` and `B = D + N` as `E_C O_B − O_C E_B`.
     #[inline]
     pub fn string_poly(&self, kg: f64, tg: f64, kv: f64) -> Poly {
         let mu = kv + tg * kg;
@@ -110,14 +154,37 @@ impl LoopModel {
         ec.mul(&ob).sub(&oc.mul(&eb))
     }
 
+    /// `R(x)` from the precomputed bilinear pieces (the map's fast path).
+    #[inline]
+    pub fn string_poly_fast(&self, kg: f64, tg: f64, kv: f64) -> Poly {
+        let alpha = kg * tg;
+        let beta = 2.0 * kv + alpha;
+        let gamma = 2.0 * kg;
+        let ab = alpha * beta;
+        let mut r = self.r00;
+        let deg = r
+            .deg
+            .max(self.r01.deg)
+            .max(self.r02.deg)
+            .max(self.r10.deg)
+            .max(self.r11.deg);
+        for k in 0..=deg {
+            r.c[k] += beta * self.r01.c[k]
+                + gamma * self.r02.c[k]
+                + alpha * self.r10.c[k]
+                + ab * self.r11.c[k];
+        }
+        r.deg = deg;
+        r.trimmed()
+    }
+
     /// The map code at one point: [`LOCAL_UNSTABLE`], [`STRING_UNSTABLE`] or [`STABLE`].
     #[inline]
     pub fn classify(&self, kg: f64, tg: f64, kv: f64) -> u8 {
-        let (_, d) = self.closed_loop(kg, tg, kv);
-        if !routh::hurwitz(&d) {
+        if !routh::hurwitz(&self.char_poly(kg, tg, kv)) {
             return LOCAL_UNSTABLE;
         }
-        if string_stable(&self.string_poly(kg, tg, kv)) {
+        if string_stable(&self.string_poly_fast(kg, tg, kv)) {
             STABLE
         } else {
             STRING_UNSTABLE

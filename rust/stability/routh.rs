@@ -40,11 +40,10 @@ pub fn hurwitz(d: &Poly) -> bool {
     // Row lengths: rows k = 0..=n have ceil((n - k + 1) / 2) entries.
     for k in 2..=n {
         let len = (n - k) / 2 + 1;
-        let b0 = bot[0];
-        let t0 = top[0];
+        let f = top[0] / bot[0];
         let mut new = [0.0f64; CAP / 2 + 1];
         for j in 0..len {
-            new[j] = (b0 * top[j + 1] - t0 * bot[j + 1]) / b0;
+            new[j] = top[j + 1] - f * bot[j + 1];
         }
         if !(new[0] > 0.0) {
             return false;

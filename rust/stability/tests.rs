@@ -243,3 +243,35 @@ fn grid_layout_matches_pointwise() {
     assert!(grid::Axes::new(&[], &tg, &kv).is_err());
     assert!(grid::Axes::new(&[f64::NAN], &tg, &kv).is_err());
 }
+
+/// The fast (precomputed, bilinear) D and R equal the direct products.
+#[test]
+fn fast_path_equals_products() {
+    let mut r = Lcg(5);
+    for _ in 0..300 {
+        let p = [
+            r.range(0.0, 10.0),
+            r.range(0.01, 3.0),
+            r.range(0.0, 10.0),
+            r.range(0.05, 2.0),
+            r.range(0.0, 2.0),
+            r.range(-1.0, 1.0),
+        ];
+        let lin = ModelKind::Proposed.linear(&p).unwrap();
+        let order = 1 + (r.next() * 5.0) as usize;
+        let lm = LoopModel::new(&lin, order).unwrap();
+        let (kg, tg, kv) = (r.range(0.0, 2.0), r.range(0.0, 10.0), r.range(-1.0, 2.0));
+        let (_, d) = lm.closed_loop(kg, tg, kv);
+        let d2 = lm.char_poly(kg, tg, kv);
+        assert_eq!(d.deg, d2.deg);
+        for k in 0..=d.deg {
+            assert!(close(d.c[k], d2.c[k]));
+        }
+        let (r1, r2) = (lm.string_poly(kg, tg, kv), lm.string_poly_fast(kg, tg, kv));
+        let scale = r1.max_abs();
+        assert_eq!(r1.deg, r2.deg);
+        for k in 0..=r1.deg {
+            assert!((r1.c[k] - r2.c[k]).abs() <= 1e-12 * scale, "{r1:?} {r2:?}");
+        }
+    }
+}
