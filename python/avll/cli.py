@@ -15,6 +15,7 @@ from collections.abc import Sequence
 # "module:function" registering one or more sub-commands, in help order.
 _COMMANDS = [
     "avll.demo:register_cli",
+    "avll.stability:register_cli",
 ]
 
 

@@ -531,3 +531,124 @@ def plot_thresholds(models: Sequence[LowerLevelModel], ths: Sequence[Thresholds]
         a.grid(alpha=0.3)
     fig.tight_layout()
     return fig
+
+
+# ---------------------------------------------------------------------------
+# CLI: avll stability-map
+# ---------------------------------------------------------------------------
+
+
+def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
+    try:
+        lo, hi, n = float(spec[0]), float(spec[1]), int(spec[2])
+    except (ValueError, IndexError):
+        raise ValueError(f"--{name}: expected MIN MAX N, got {' '.join(spec)}") from None
+    if n < 1 or not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
+        raise ValueError(f"--{name}: need finite MIN <= MAX and N >= 1, got {lo} {hi} {n}")
+    if log:
+        if lo <= 0:
+            raise ValueError(f"--{name}: a log-spaced axis needs MIN > 0, got {lo}")
+        return np.geomspace(lo, hi, n)
+    return np.linspace(lo, hi, n)
+
+
+def _cli(args: argparse.Namespace) -> int:
+    from . import PAPER_TABLE_II
+
+    names = args.model or ["second", "proposed"]
+    models = []
+    for n in names:
+        if n not in PAPER_TABLE_II:
+            raise ValueError(f"--model: unknown model {n!r}; known: {', '.join(PAPER_TABLE_II)}")
+        models.append(PAPER_TABLE_II[n])
+    kg = _range(args.kg, "kg", log=args.kg_log)
+    tg = _range(args.tg, "tg")
+    kv = _range(args.kv, "kv")
+    total = kg.size * tg.size * kv.size
+    show = (not args.quiet) and total >= 2_000_000
+    maps = [
+        stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads, progress=show)
+        for m in models
+    ]
+    ths = [thresholds(mp, kg, tg, kv) for mp in maps]
+    print(
+        f"grid: kg {kg[0]:g}..{kg[-1]:g} ({kg.size}{', log' if args.kg_log else ''}), "
+        f"Tg {tg[0]:g}..{tg[-1]:g} ({tg.size}), kv {kv[0]:g}..{kv[-1]:g} ({kv.size}), "
+        f"Padé order {args.pade_order}"
+    )
+    print(f"{'model':<10} {'kv last stable':>15} {'kv first empty':>15} {'min Tg':>8} "
+          f"{'capacity':>10}")
+    for m, th in zip(models, ths, strict=True):
+        cap = capacity(th.tg_min_overall, args.length, args.speed)
+        print(f"{m.name:<10} {th.kv_last_stable:>15.6g} {th.kv_first_empty:>15.6g} "
+              f"{th.tg_min_overall:>8.4g} {cap:>10.1f}")
+    print()
+    head = "kv".rjust(10) + "".join(
+        f"{m.name + ' kg_max':>18}{m.name + ' Tg_min':>18}" for m in models
+    )
+    print(head)
+    for j in range(kv.size):
+        print(f"{kv[j]:>10.4g}" + "".join(
+            f"{th.kg_max[j]:>18.6g}{th.tg_min[j]:>18.6g}" for th in ths
+        ))
+    if args.out:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        idx = np.unique(np.linspace(0, kv.size - 1, min(args.panels, kv.size)).round().astype(int))
+        fig = plot_regions(models, kg, tg, kv[idx], args.pade_order,
+                           maps=[mp[:, :, idx] for mp in maps])
+        fig.savefig(args.out, dpi=120, bbox_inches="tight")
+        if args.thresholds_out:
+            plot_thresholds(models, ths).savefig(args.thresholds_out, dpi=120,
+                                                 bbox_inches="tight")
+        print(f"\nfigure written to {args.out}")
+    if args.json:
+        doc = {
+            "grid": {"kg": [float(kg[0]), float(kg[-1]), kg.size, "log" if args.kg_log else "lin"],
+                     "tg": [float(tg[0]), float(tg[-1]), tg.size],
+                     "kv": [float(kv[0]), float(kv[-1]), kv.size],
+                     "pade_order": args.pade_order},
+            "capacity": {"formula": "3600 / (Tg + length / speed)", "length": args.length,
+                         "speed": args.speed},
+            "models": {m.name: {**th.to_dict(),
+                                "capacity_at_min_tg": None if math.isnan(th.tg_min_overall)
+                                else float(capacity(th.tg_min_overall, args.length, args.speed))}
+                       for m, th in zip(models, ths, strict=True)},
+        }
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=2)
+    return 0
+
+
+def register_cli(sub: Any) -> None:
+    """Registers ``avll stability-map``."""
+    p = sub.add_parser(
+        "stability-map",
+        help="stability regions and thresholds over a kg-Tg-kv grid (paper Section IV)",
+        description="Local (Routh-Hurwitz) and exact string stability of the paper's "
+        "Table II models over a kg x Tg x kv grid; prints the thresholds, writes the "
+        "region figure and optionally JSON.",
+    )
+    p.add_argument("--model", action="append", choices=["first", "second", "proposed"],
+                   help="model(s) to map (repeat; default: second and proposed)")
+    p.add_argument("--kg", nargs=3, default=["0.001", "2", "400"], metavar=("MIN", "MAX", "N"),
+                   help="kg axis (1/s^2); default 0.001 2 400, log-spaced")
+    p.add_argument("--kg-linear", dest="kg_log", action="store_false",
+                   help="space the kg axis linearly instead of logarithmically")
+    p.add_argument("--tg", nargs=3, default=["0", "15", "151"], metavar=("MIN", "MAX", "N"),
+                   help="Tg axis (s); default 0 15 151 (0.1 s)")
+    p.add_argument("--kv", nargs=3, default=["0", "1", "101"], metavar=("MIN", "MAX", "N"),
+                   help="kv axis (1/s); default 0 1 101")
+    p.add_argument("--pade-order", type=int, default=2, help="Padé order of the delay (1..10)")
+    p.add_argument("--threads", type=int, default=0, help="worker threads (0: all cores)")
+    p.add_argument("--out", default="stability-map.png", help="region figure (PNG/SVG)")
+    p.add_argument("--thresholds-out", default=None, help="thresholds-vs-kv figure")
+    p.add_argument("--panels", type=int, default=3, help="kv panels in the region figure")
+    p.add_argument("--json", default=None, metavar="PATH", help="write the thresholds as JSON")
+    p.add_argument("--length", type=float, default=CAPACITY_LENGTH,
+                   help="effective vehicle length (m) of the capacity formula")
+    p.add_argument("--speed", type=float, default=CAPACITY_SPEED,
+                   help="speed (m/s) of the capacity formula")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cli)
