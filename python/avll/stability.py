@@ -135,7 +135,9 @@ def stability_points(
     for n, a in zip(("kg", "tg", "kv"), flat, strict=True):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"{n}: values must be finite")
-    out = _core.stability_points(name, p, *flat, _order(pade_order), int(threads))
+    out = _core.stability_points(
+        name, p, flat[0], flat[1], flat[2], _order(pade_order), int(threads)
+    )
     return out.reshape(shape)
 
 
@@ -341,10 +343,11 @@ def exact_delay_string(
             for j in loc:
                 a_, b_ = math.log(w[j - 1]), math.log(w[j + 1])
                 gr = (math.sqrt(5) - 1) / 2
-                pts = kg[sl][i : i + 1], tg[sl][i : i + 1], kv[sl][i : i + 1]
+                pk, pt, pv = kg[sl][i : i + 1], tg[sl][i : i + 1], kv[sl][i : i + 1]
 
-                def fval(lw: float, pts: Any = pts) -> float:
-                    return float(_exact_margin_curve(lin, *pts, np.array([math.exp(lw)]))[0, 0])
+                def fval(lw: float, pk: Any = pk, pt: Any = pt, pv: Any = pv) -> float:
+                    w1 = np.array([math.exp(lw)])
+                    return float(_exact_margin_curve(lin, pk, pt, pv, w1)[0, 0])
 
                 c_, d_ = b_ - gr * (b_ - a_), a_ + gr * (b_ - a_)
                 fc, fd = fval(c_), fval(d_)
@@ -489,7 +492,7 @@ def plot_regions(
     colors = ["tab:blue", "tab:red", "tab:green", "tab:orange"]
     for j in range(n):
         ax = axes[j // ncol][j % ncol]
-        for i, (m, mp) in enumerate(zip(models, maps, strict=True)):
+        for i, mp in enumerate(maps):
             st = (mp[:, :, j] == STABLE).astype(float).T  # (tg, kg)
             c = colors[i % len(colors)]
             if st.any():

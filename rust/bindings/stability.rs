@@ -46,9 +46,7 @@ fn stability_map<'py>(
         let part = &mut out[start..end];
         py.detach(|| {
             guard(|| {
-                crate::parallel::with_threads(threads, || {
-                    grid::fill_range(&lm, &axes, start, part)
-                })
+                crate::parallel::with_threads(threads, || grid::fill_range(&lm, &axes, start, part))
             })
         })?;
         start = end;
@@ -78,9 +76,7 @@ fn stability_points<'py>(
     let lm = loop_model(model, &params, pade_order)?;
     let (kg, tg, kv) = (slice1("kg", &kg)?, slice1("tg", &tg)?, slice1("kv", &kv)?);
     let out = py.detach(|| {
-        guard(|| {
-            crate::parallel::with_threads(threads, || grid::classify_points(&lm, kg, tg, kv))?
-        })
+        guard(|| crate::parallel::with_threads(threads, || grid::classify_points(&lm, kg, tg, kv))?)
     })?;
     Ok(out.into_pyarray(py))
 }
@@ -100,7 +96,11 @@ fn stability_polys(
     let lm = loop_model(model, &params, pade_order)?;
     let (n, d) = lm.closed_loop(kg, tg, kv);
     let r = lm.string_poly(kg, tg, kv);
-    Ok((n.coeffs().to_vec(), d.coeffs().to_vec(), r.coeffs().to_vec()))
+    Ok((
+        n.coeffs().to_vec(),
+        d.coeffs().to_vec(),
+        r.coeffs().to_vec(),
+    ))
 }
 
 /// Ascending coefficients of the Padé denominator Q(s): e^{-td s} ≈ Q(-s)/Q(s).

@@ -136,7 +136,8 @@ impl LoopModel {
             d.c[k] += kg * self.ga.c[k];
         }
         d.deg = d.deg.max(self.d_mu.deg);
-        d.trimmed()
+        d.trim();
+        d
     }
 
     /// `R(x) = P(x) / x` (see the module doc), in powers of `x = ω²`, computed from
@@ -175,7 +176,8 @@ impl LoopModel {
                 + ab * self.r11.c[k];
         }
         r.deg = deg;
-        r.trimmed()
+        r.trim();
+        r
     }
 
     /// The map code at one point: [`LOCAL_UNSTABLE`], [`STRING_UNSTABLE`] or [`STABLE`].
@@ -195,19 +197,19 @@ impl LoopModel {
 /// `R > 0` on `(0, ∞)`: positive just right of 0 and no root on `(0, ∞)`.
 #[inline]
 pub fn string_stable(r: &Poly) -> bool {
-    let r = r.trimmed();
-    let lo = match r.lowest_nonzero() {
+    let deg = r.trimmed_deg();
+    let lo = match r.c[..=deg].iter().copied().find(|&x| x != 0.0) {
         None => return false,
-        Some(i) => r.c[i],
+        Some(x) => x,
     };
-    if !(lo > 0.0) || !r.lead().is_finite() {
+    if lo <= 0.0 || lo.is_nan() || !r.c[deg].is_finite() {
         return false;
     }
-    // Descartes: no sign change => no positive root.
-    match sturm::descartes(&r) {
+    // Descartes: no sign change => no positive root; one => exactly one.
+    match sturm::descartes(r) {
         0 => true,
         1 => false,
-        _ => sturm::count_positive_roots(&r) == 0,
+        _ => sturm::count_positive_roots(r) == 0,
     }
 }
 

@@ -72,6 +72,24 @@ impl Poly {
         self.deg == 0 && self.c[0] == 0.0
     }
 
+    /// Drops exactly-zero leading coefficients, in place.
+    #[inline]
+    pub fn trim(&mut self) {
+        while self.deg > 0 && self.c[self.deg] == 0.0 {
+            self.deg -= 1;
+        }
+    }
+
+    /// Degree once exactly-zero leading coefficients are dropped.
+    #[inline]
+    pub fn trimmed_deg(&self) -> usize {
+        let mut d = self.deg;
+        while d > 0 && self.c[d] == 0.0 {
+            d -= 1;
+        }
+        d
+    }
+
     /// Drops exactly-zero leading coefficients.
     #[inline]
     pub fn trimmed(mut self) -> Poly {
@@ -219,7 +237,7 @@ impl Poly {
         let mut r = Poly::ZERO;
         let mut sign = 1.0;
         let mut k = 0;
-        while 2 * k + 1 <= self.deg {
+        while 2 * k < self.deg {
             r.c[k] = sign * self.c[2 * k + 1];
             sign = -sign;
             k += 1;

@@ -17,7 +17,7 @@ pub fn hurwitz(d: &Poly) -> bool {
     }
     let sgn = lead.signum();
     for &x in d.coeffs() {
-        if !(x * sgn > 0.0) {
+        if x * sgn <= 0.0 || x.is_nan() {
             return false;
         }
     }
@@ -45,7 +45,7 @@ pub fn hurwitz(d: &Poly) -> bool {
         for j in 0..len {
             new[j] = top[j + 1] - f * bot[j + 1];
         }
-        if !(new[0] > 0.0) {
+        if new[0] <= 0.0 || new[0].is_nan() {
             return false;
         }
         top = bot;

@@ -16,21 +16,6 @@ use super::poly::{Poly, CAP};
 pub const REM_TOL: f64 = 1e-11;
 
 #[inline]
-fn sign_changes(signs: &[i8]) -> usize {
-    let mut last = 0i8;
-    let mut n = 0;
-    for &s in signs {
-        if s != 0 {
-            if last != 0 && s != last {
-                n += 1;
-            }
-            last = s;
-        }
-    }
-    n
-}
-
-#[inline]
 fn sgn(x: f64) -> i8 {
     if x > 0.0 {
         1
@@ -41,80 +26,116 @@ fn sgn(x: f64) -> i8 {
     }
 }
 
-/// Normalises `p` to unit largest coefficient (a positive factor: signs unchanged).
-#[inline]
-fn normalised(p: Poly) -> Poly {
-    let m = p.max_abs();
-    if m > 0.0 && m.is_finite() {
-        p.scale(1.0 / m)
-    } else {
-        p
+/// Running count of sign changes, zeros skipped.
+#[derive(Clone, Copy)]
+struct Changes {
+    last: i8,
+    n: usize,
+}
+
+impl Changes {
+    #[inline]
+    fn push(&mut self, s: i8) {
+        if s != 0 {
+            if self.last != 0 && s != self.last {
+                self.n += 1;
+            }
+            self.last = s;
+        }
     }
 }
 
-/// `-rem(a, b)` with tiny coefficients (relative to the rounding bound) set to zero.
+/// Scales `c[..=deg]` to unit largest magnitude (a positive factor: signs unchanged).
 #[inline]
-fn neg_rem(a: &Poly, b: &Poly) -> Poly {
-    let mut r = *a;
-    let db = b.deg;
-    let lb = b.lead();
-    let bmax = b.max_abs();
-    let mut bound = a.max_abs();
-    if r.deg >= db {
-        let mut k = r.deg;
-        loop {
-            let q = r.c[k] / lb;
-            bound = bound.max(q.abs() * bmax);
-            for i in 0..db {
-                r.c[k - db + i] -= q * b.c[i];
-            }
-            r.c[k] = 0.0;
-            if k == db {
-                break;
-            }
-            k -= 1;
+fn normalise(c: &mut [f64; CAP], deg: usize) {
+    let m = c[..=deg].iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if m > 0.0 && m.is_finite() {
+        let inv = 1.0 / m;
+        for x in c[..=deg].iter_mut() {
+            *x *= inv;
         }
-        r.deg = if db == 0 { 0 } else { db - 1 };
+    }
+}
+
+/// Replaces `a` by `-rem(a, b)` in place, with coefficients within `REM_TOL` of the
+/// rounding bound of their computation set to zero. Returns the new degree, or
+/// `None` when the remainder vanishes.
+#[inline]
+fn neg_rem_in_place(a: &mut [f64; CAP], da: usize, b: &[f64; CAP], db: usize) -> Option<usize> {
+    let lb = b[db];
+    let bmax = b[..=db].iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let mut bound = a[..=da].iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let mut k = da;
+    while k >= db {
+        let q = a[k] / lb;
+        bound = bound.max(q.abs() * bmax);
+        for i in 0..db {
+            a[k - db + i] -= q * b[i];
+        }
+        a[k] = 0.0;
+        if k == 0 {
+            break;
+        }
+        k -= 1;
+    }
+    if db == 0 {
+        return None;
     }
     let tol = REM_TOL * bound;
-    for k in 0..=r.deg {
-        r.c[k] = if r.c[k].abs() <= tol { 0.0 } else { -r.c[k] };
+    let mut deg = None;
+    for (i, x) in a[..db].iter_mut().enumerate() {
+        if x.abs() <= tol {
+            *x = 0.0;
+        } else {
+            *x = -*x;
+            deg = Some(i);
+        }
     }
-    r.trimmed()
+    deg
 }
 
 /// Number of distinct real roots of `p` in `(0, +inf)`. `p` must not be zero.
 pub fn count_positive_roots(p: &Poly) -> usize {
-    let p = p.trimmed();
-    if p.deg == 0 {
+    let pd = p.trimmed_deg();
+    if pd == 0 {
         return 0;
     }
-    let mut s0 = [0i8; CAP + 1];
-    let mut sinf = [0i8; CAP + 1];
-    let mut n = 0;
-    let mut push = |q: &Poly, n: &mut usize| {
-        let lo = q.lowest_nonzero().map_or(0.0, |i| q.c[i]);
-        s0[*n] = sgn(lo);
-        sinf[*n] = sgn(q.lead());
-        *n += 1;
-    };
-    let mut a = normalised(p);
-    let mut b = normalised(a.derivative());
-    push(&a, &mut n);
-    push(&b, &mut n);
-    while b.deg > 0 {
-        let r = neg_rem(&a, &b);
-        if r.is_zero() {
-            break;
-        }
-        let r = normalised(r);
-        push(&r, &mut n);
-        a = b;
-        b = r;
+    let mut bufs = [[0.0f64; CAP]; 2];
+    let mut deg = [pd, pd - 1];
+    bufs[0][..=pd].copy_from_slice(&p.c[..=pd]);
+    for k in 1..=pd {
+        bufs[1][k - 1] = p.c[k] * k as f64;
     }
-    let v0 = sign_changes(&s0[..n]);
-    let vinf = sign_changes(&sinf[..n]);
-    v0.saturating_sub(vinf)
+    normalise(&mut bufs[0], deg[0]);
+    normalise(&mut bufs[1], deg[1]);
+    let mut at0 = Changes { last: 0, n: 0 };
+    let mut atinf = Changes { last: 0, n: 0 };
+    let lowest = |c: &[f64; CAP], d: usize| c[..=d].iter().copied().find(|&x| x != 0.0);
+    for i in 0..2 {
+        at0.push(sgn(lowest(&bufs[i], deg[i]).unwrap_or(0.0)));
+        atinf.push(sgn(bufs[i][deg[i]]));
+    }
+    // bufs[ia] is the older member, bufs[1 - ia] the newer one.
+    let mut ia = 0;
+    while deg[1 - ia] > 0 {
+        let (lo, hi) = bufs.split_at_mut(1);
+        let (a, b) = if ia == 0 {
+            (&mut lo[0], &hi[0])
+        } else {
+            (&mut hi[0], &lo[0])
+        };
+        match neg_rem_in_place(a, deg[ia], b, deg[1 - ia]) {
+            None => break,
+            Some(d) => {
+                normalise(a, d);
+                at0.push(sgn(lowest(a, d).unwrap_or(0.0)));
+                atinf.push(sgn(a[d]));
+                deg[ia] = d;
+            }
+        }
+        ia = 1 - ia;
+    }
+    at0.n.saturating_sub(atinf.n)
 }
 
 /// Sign changes of the coefficient sequence (Descartes' bound on positive roots).

@@ -25,6 +25,7 @@ fn close(a: f64, b: f64) -> bool {
 
 /// Eq. 14 (a1..a7) and Eq. 17 (b1'..b5') against the product form, random parameters.
 #[test]
+#[allow(clippy::needless_range_loop)]
 fn paper_eq14_eq17_equal_products() {
     let mut r = Lcg(7);
     let (p1, p2) = (0.5, 1.0 / 12.0);

@@ -60,13 +60,14 @@ def closed_loop_polys(
     gb = np.polymul(np.trim_zeros(np.array([c["a2"], c["a1"], 1.0]), "f"), q)
     mu = kv + tg * kg
     n = np.polymul([kv, kg], ga)
-    d = np.polyadd(np.polymul(np.polysub(gb, c["K"] * ga), [1.0, 0.0, 0.0]), np.polymul(ga, [mu, kg]))
+    m_s2 = np.polymul(np.polysub(gb, c["K"] * ga), [1.0, 0.0, 0.0])
+    d = np.polyadd(m_s2, np.polymul(ga, [mu, kg]))
     return np.trim_zeros(n, "f"), np.trim_zeros(d, "f")
 
 
 def string_poly(n: np.ndarray, d: np.ndarray) -> np.ndarray:
     """P(x) (highest first in x = ω²) from D(s)D(−s) − N(s)N(−s) at s² = −x."""
-    e = np.polysub(np.polymul(d, _reflect(d)), np.polymul(n, _reflect(n)))
+    e: np.ndarray = np.polysub(np.polymul(d, _reflect(d)), np.polymul(n, _reflect(n)))
     # an even polynomial in s: keep the even powers, s^{2k} -> (-x)^k
     e = e[::-1]  # ascending in s
     asc = np.array([e[2 * k] * (-1.0) ** k for k in range((len(e) + 1) // 2)])
@@ -142,6 +143,7 @@ def stability_codes(
     if np.any(local):
         idx = np.nonzero(local)[0]
         rroots = _batched_roots(rmat[idx])
-        for j, i in enumerate(idx):
+        for j in range(idx.size):
+            i = int(idx[j])
             codes[i] = 2 if _string_from_roots(rmat[i], rroots[j]) else 1
     return codes, margin
