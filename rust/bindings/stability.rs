@@ -56,7 +56,7 @@ fn stability_map<'py>(
         }
     }
     let shape = [kg.len(), tg.len(), kv.len()];
-    Ok(out.into_pyarray(py).reshape(shape)?)
+    out.into_pyarray(py).reshape(shape)
 }
 
 /// Codes of scattered points (kg[i], tg[i], kv[i]).
