@@ -38,58 +38,74 @@ def _boundary_points(
     model: avll.LowerLevelModel, rng: np.random.Generator, n: int
 ) -> tuple[np.ndarray, ...]:
     """Points at a relative distance 1e-4 (in kg) on either side of a code change
-    found by bisection along kg with the engine."""
-    out: list[tuple[float, float, float]] = []
-    while len(out) < n:
-        kg, tg, kv = _random_points(rng, 4 * n)
-        c = S.stability_points(model, kg, tg, kv)
-        kg2 = kg * rng.uniform(0.2, 5.0, kg.size)
-        c2 = S.stability_points(model, kg2, tg, kv)
-        for i in np.nonzero(c != c2)[0]:
-            lo, hi = kg[i], kg2[i]
-            clo = c[i]
-            for _ in range(60):
-                mid = math.sqrt(lo * hi)
-                if S.stability_points(model, [mid], [tg[i]], [kv[i]])[0] == clo:
-                    lo = mid
-                else:
-                    hi = mid
-            for f in (1 - 1e-4, 1 + 1e-4):
-                out.append((lo * f, tg[i], kv[i]))
-            if len(out) >= n:
-                break
-    a = np.array(out[:n])
-    return a[:, 0], a[:, 1], a[:, 2]
+    found by bisection along kg with the engine (all pairs bisected at once)."""
+    kg, tg, kv = _random_points(rng, 8 * n)
+    kg2 = kg * rng.uniform(0.2, 5.0, kg.size)
+    c = S.stability_points(model, kg, tg, kv)
+    c2 = S.stability_points(model, kg2, tg, kv)
+    sel = np.nonzero(c != c2)[0][: n // 2]
+    assert sel.size == n // 2
+    lo, hi, clo, tg, kv = kg[sel], kg2[sel], c[sel], tg[sel], kv[sel]
+    for _ in range(60):
+        mid = np.sqrt(lo * hi)
+        same = S.stability_points(model, mid, tg, kv) == clo
+        lo, hi = np.where(same, mid, lo), np.where(same, hi, mid)
+    kgb = np.concatenate([lo * (1 - 1e-4), lo * (1 + 1e-4)])
+    return kgb, np.concatenate([tg, tg]), np.concatenate([kv, kv])
 
 
-def _flips_nearby(model: avll.LowerLevelModel, kg: float, tg: float, kv: float) -> bool:
+def _flips_nearby(
+    model: avll.LowerLevelModel, kg: float, tg: float, kv: float, order: int = 2
+) -> bool:
     """True if the reference verdict changes within BOUNDARY_REL of the point."""
-    base = ref.stability_code(model, kg, tg, kv)
+    base = ref.stability_code(model, kg, tg, kv, order)
     for j in range(3):
         for f in (1 - BOUNDARY_REL, 1 + BOUNDARY_REL):
             p = [kg, tg, kv]
             p[j] = p[j] * f if p[j] != 0 else (f - 1)
-            if ref.stability_code(model, *p) != base:
+            if ref.stability_code(model, p[0], p[1], p[2], order) != base:
                 return True
     return False
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_engine_agrees_with_numpy_reference(name: str) -> None:
+@pytest.mark.parametrize(
+    "n_random", [2_000, pytest.param(10_000, marks=pytest.mark.slow)]
+)
+def test_engine_agrees_with_numpy_reference(name: str, n_random: int) -> None:
+    """>= 10,000 random points per model (slow variant; 2,000 in the fast one) plus
+    points 1e-4 (relative, in kg) from the engine's boundary, against the reference."""
     model = P[name]
-    rng = np.random.default_rng(100 + NAMES.index(name))
-    kg, tg, kv = _random_points(rng, 10_000)
-    bkg, btg, bkv = _boundary_points(model, rng, 1_000)
+    rng = np.random.default_rng(100 + NAMES.index(name) + n_random)
+    kg, tg, kv = _random_points(rng, n_random)
+    bkg, btg, bkv = _boundary_points(model, rng, n_random // 10)
     kg, tg, kv = (np.concatenate(p) for p in ((kg, bkg), (tg, btg), (kv, bkv)))
     rust = S.stability_points(model, kg, tg, kv)
     refc, _ = ref.stability_codes(model, kg, tg, kv)
     counts = np.bincount(refc, minlength=3)
-    assert (counts > 200).all(), counts  # every code is exercised
+    assert (counts > n_random // 50).all(), counts  # every code is exercised
     bad = np.nonzero(rust != refc)[0]
     unexplained = [i for i in bad if not _flips_nearby(model, kg[i], tg[i], kv[i])]
     assert not unexplained, [(kg[i], tg[i], kv[i], rust[i], refc[i]) for i in unexplained]
     # explained (on-boundary) disagreements are rare
     assert len(bad) <= 0.002 * kg.size, len(bad)
+
+
+@pytest.mark.parametrize("name", ["second", "proposed"])
+def test_engine_agrees_with_reference_at_every_pade_order(name: str) -> None:
+    """Orders 1..PADE_MAX_ORDER (high orders make R badly scaled: a Sturm count
+    without rescaling once missed two positive roots at order 5)."""
+    model = P[name]
+    rng = np.random.default_rng(77)
+    kg = np.concatenate([10 ** rng.uniform(-3.5, -1.5, 300), rng.uniform(0, 2, 300)])
+    tg = rng.uniform(0, 15, kg.size)
+    kv = rng.uniform(-0.3, 1.5, kg.size)
+    for order in range(1, S.PADE_MAX_ORDER + 1):
+        rust = S.stability_points(model, kg, tg, kv, order)
+        refc, _ = ref.stability_codes(model, kg, tg, kv, order)
+        bad = [i for i in np.nonzero(rust != refc)[0]
+               if not _flips_nearby(model, kg[i], tg[i], kv[i], order)]
+        assert not bad, (order, [(kg[i], tg[i], kv[i], rust[i], refc[i]) for i in bad])
 
 
 @pytest.mark.parametrize("name", NAMES)

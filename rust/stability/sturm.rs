@@ -13,7 +13,7 @@
 use super::poly::{Poly, CAP};
 
 /// Relative threshold below which a computed remainder coefficient counts as zero.
-pub const REM_TOL: f64 = 1e-11;
+pub const REM_TOL: f64 = 1e-13;
 
 #[inline]
 fn sgn(x: f64) -> i8 {
@@ -103,10 +103,22 @@ pub fn count_positive_roots(p: &Poly) -> usize {
     let mut bufs = [[0.0f64; CAP]; 2];
     let mut deg = [pd, pd - 1];
     bufs[0][..=pd].copy_from_slice(&p.c[..=pd]);
-    for k in 1..=pd {
-        bufs[1][k - 1] = p.c[k] * k as f64;
+    // Balance the coefficients by substituting x = σ y (σ > 0 keeps the roots on
+    // (0, ∞)): σ makes the lowest nonzero and the leading coefficient equal in size.
+    if let Some(i0) = bufs[0][..pd].iter().position(|&x| x != 0.0) {
+        let sigma = (bufs[0][i0].abs() / bufs[0][pd].abs()).powf(1.0 / (pd - i0) as f64);
+        if sigma.is_finite() && sigma > 0.0 {
+            let mut f = 1.0;
+            for x in bufs[0][..=pd].iter_mut() {
+                *x *= f;
+                f *= sigma;
+            }
+        }
     }
     normalise(&mut bufs[0], deg[0]);
+    for k in 1..=pd {
+        bufs[1][k - 1] = bufs[0][k] * k as f64;
+    }
     normalise(&mut bufs[1], deg[1]);
     let mut at0 = Changes { last: 0, n: 0 };
     let mut atinf = Changes { last: 0, n: 0 };
@@ -233,6 +245,25 @@ mod tests {
                 panic!("count {c} != {expect} for {:?}", p.coeffs());
             }
         }
+    }
+
+    #[test]
+    fn badly_scaled_degree_eight() {
+        // R(x) of the proposed model, Padé 5, kg = 0.00588, Tg = 14.6, kv = 0.76:
+        // roots -557, 1.174, 0.579, -0.001 and two complex pairs; coefficients span
+        // eleven orders of magnitude.
+        let r = Poly::from_ascending(&[
+            0.012740426987576457,
+            12.44173069211328,
+            -32.48072122924222,
+            19.215687434421937,
+            -0.502593637896823,
+            0.006213388066443448,
+            -1.736439636570731e-05,
+            4.090513140691302e-08,
+            1.7092408528980463e-10,
+        ]);
+        assert_eq!(count_positive_roots(&r), 2);
     }
 
     #[test]
