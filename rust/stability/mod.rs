@@ -24,6 +24,7 @@
 //!   decided by Descartes' rule when it settles it and otherwise by a Sturm count
 //!   ([`sturm::count_positive_roots`]); no frequency is sampled.
 
+pub mod dd;
 pub mod grid;
 pub mod pade;
 pub mod poly;

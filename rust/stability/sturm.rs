@@ -14,10 +14,16 @@
 //! with tiny leading coefficients) occur well inside the regions for high Padé
 //! orders, and a worst-case bound zeroed genuine coefficients there.
 
+use super::dd::Dd;
 use super::poly::{Poly, CAP};
 
-/// Relative threshold below which a computed remainder coefficient counts as zero.
+/// Relative threshold below which a computed remainder coefficient counts as zero (f64).
 pub const REM_TOL: f64 = 1e-14;
+/// The same in double-double arithmetic.
+pub const REM_TOL_DD: f64 = 1e-28;
+/// An f64 sequence whose members' end coefficients fall below this fraction of
+/// their size is recomputed in double-double arithmetic.
+pub const COND_TOL: f64 = 1e-3;
 
 #[inline]
 fn sgn(x: f64) -> i8 {
@@ -49,33 +55,103 @@ impl Changes {
     }
 }
 
-/// Scales `c[..=deg]` to unit largest magnitude (a positive factor: signs unchanged).
-#[inline]
-fn normalise(c: &mut [f64; CAP], deg: usize) {
-    let m = c[..=deg].iter().fold(0.0f64, |m, x| m.max(x.abs()));
-    if m > 0.0 && m.is_finite() {
-        let inv = 1.0 / m;
-        for x in c[..=deg].iter_mut() {
-            *x *= inv;
-        }
+/// The arithmetic a Sturm sequence runs in: `f64`, or [`Dd`] when `f64` is not enough.
+trait Scalar:
+    Copy
+    + PartialEq
+    + std::ops::Add<Output = Self>
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::ops::Div<Output = Self>
+    + std::ops::Neg<Output = Self>
+{
+    const ZERO: Self;
+    fn from_f64(x: f64) -> Self;
+    /// Leading f64 part (the value for f64).
+    fn hi(self) -> f64;
+    /// Multiplication by a power of two.
+    fn scale(self, f: f64) -> Self;
+}
+
+impl Scalar for f64 {
+    const ZERO: f64 = 0.0;
+    #[inline(always)]
+    fn from_f64(x: f64) -> f64 {
+        x
+    }
+    #[inline(always)]
+    fn hi(self) -> f64 {
+        self
+    }
+    #[inline(always)]
+    fn scale(self, f: f64) -> f64 {
+        self * f
     }
 }
 
-/// Replaces `a` by `-rem(a, b)` in place, with coefficients below `REM_TOL` times
-/// the dividend's largest set to zero. Returns the new degree, or
-/// `None` when the remainder vanishes.
+impl Scalar for Dd {
+    const ZERO: Dd = Dd::ZERO;
+    #[inline(always)]
+    fn from_f64(x: f64) -> Dd {
+        Dd::from_f64(x)
+    }
+    #[inline(always)]
+    fn hi(self) -> f64 {
+        self.hi
+    }
+    #[inline(always)]
+    fn scale(self, f: f64) -> Dd {
+        Dd::scale(self, f)
+    }
+}
+
+/// `2^-e` for the binary exponent `e` of a positive normal `m` (so `m 2^-e ∈ [1, 2)`).
+#[inline(always)]
+fn inv_pow2_of(m: f64) -> f64 {
+    let e = ((m.to_bits() >> 52) & 0x7ff) as i64 - 1023;
+    if (-1000..=1000).contains(&e) {
+        f64::from_bits(((1023 - e) as u64) << 52)
+    } else {
+        1.0
+    }
+}
+
+/// Scales `c[..=deg]` by a power of two to largest magnitude in `[1, 2)` (exact;
+/// signs unchanged). Returns the largest magnitude after scaling.
 #[inline]
-fn neg_rem_in_place(a: &mut [f64; CAP], da: usize, b: &[f64; CAP], db: usize) -> Option<usize> {
+fn normalise<T: Scalar>(c: &mut [T; CAP], deg: usize) -> f64 {
+    let m = c[..=deg].iter().fold(0.0f64, |m, x| m.max(x.hi().abs()));
+    if m > 0.0 && m.is_finite() {
+        let f = inv_pow2_of(m);
+        for x in c[..=deg].iter_mut() {
+            *x = x.scale(f);
+        }
+        m * f
+    } else {
+        m
+    }
+}
+
+/// Replaces `a` by `-rem(a, b)` in place, with coefficients below `tol` times the
+/// dividend's largest set to zero. Returns the new degree, or `None` when the
+/// remainder vanishes.
+#[inline]
+fn neg_rem_in_place<T: Scalar>(
+    a: &mut [T; CAP],
+    da: usize,
+    b: &[T; CAP],
+    db: usize,
+    tol: f64,
+) -> Option<usize> {
     let lb = b[db];
-    // `a` is normalised (largest magnitude 1): the threshold is absolute.
-    let amax = a[..=da].iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let amax = a[..=da].iter().fold(0.0f64, |m, x| m.max(x.hi().abs()));
     let mut k = da;
     while k >= db {
         let q = a[k] / lb;
         for i in 0..db {
-            a[k - db + i] -= q * b[i];
+            a[k - db + i] = a[k - db + i] - q * b[i];
         }
-        a[k] = 0.0;
+        a[k] = T::ZERO;
         if k == 0 {
             break;
         }
@@ -84,11 +160,11 @@ fn neg_rem_in_place(a: &mut [f64; CAP], da: usize, b: &[f64; CAP], db: usize) ->
     if db == 0 {
         return None;
     }
-    let tol = REM_TOL * amax;
+    let thr = tol * amax;
     let mut deg = None;
     for (i, x) in a[..db].iter_mut().enumerate() {
-        if x.abs() <= tol {
-            *x = 0.0;
+        if x.hi().abs() <= thr {
+            *x = T::ZERO;
         } else {
             *x = -*x;
             deg = Some(i);
@@ -97,40 +173,51 @@ fn neg_rem_in_place(a: &mut [f64; CAP], da: usize, b: &[f64; CAP], db: usize) ->
     deg
 }
 
-/// Number of distinct real roots of `p` in `(0, +inf)`. `p` must not be zero.
-pub fn count_positive_roots(p: &Poly) -> usize {
-    let pd = p.trimmed_deg();
-    if pd == 0 {
-        return 0;
-    }
-    let mut bufs = [[0.0f64; CAP]; 2];
+/// Sturm count in arithmetic `T`; also returns the smallest ratio, over the members,
+/// of the end coefficients (whose signs are used) to the member's largest one.
+fn sturm_in<T: Scalar>(p: &Poly, pd: usize, tol: f64) -> (usize, f64) {
+    let mut bufs = [[T::ZERO; CAP]; 2];
     let mut deg = [pd, pd - 1];
-    bufs[0][..=pd].copy_from_slice(&p.c[..=pd]);
-    // Balance the coefficients by substituting x = σ y (σ > 0 keeps the roots on
-    // (0, ∞)): σ makes the lowest nonzero and the leading coefficient equal in size.
-    if let Some(i0) = bufs[0][..pd].iter().position(|&x| x != 0.0) {
-        let sigma = (bufs[0][i0].abs() / bufs[0][pd].abs()).powf(1.0 / (pd - i0) as f64);
+    for k in 0..=pd {
+        bufs[0][k] = T::from_f64(p.c[k]);
+    }
+    // Balance the coefficients by substituting x = σ y, σ a power of two (exact;
+    // σ > 0 keeps the roots on (0, ∞)) making the lowest nonzero and the leading
+    // coefficient about equal in size.
+    if let Some(i0) = p.c[..pd].iter().position(|&x| x != 0.0) {
+        let sigma = (p.c[i0].abs() / p.c[pd].abs()).powf(1.0 / (pd - i0) as f64);
         if sigma.is_finite() && sigma > 0.0 {
+            let s2 = 1.0 / inv_pow2_of(sigma);
             let mut f = 1.0;
             for x in bufs[0][..=pd].iter_mut() {
-                *x *= f;
-                f *= sigma;
+                *x = x.scale(f);
+                f *= s2;
             }
         }
     }
-    normalise(&mut bufs[0], deg[0]);
+    normalise(&mut bufs[0], pd);
     for k in 1..=pd {
-        bufs[1][k - 1] = bufs[0][k] * k as f64;
+        bufs[1][k - 1] = bufs[0][k] * T::from_f64(k as f64);
     }
-    normalise(&mut bufs[1], deg[1]);
+    let mut worst = f64::INFINITY;
     let mut at0 = Changes { last: 0, n: 0 };
     let mut atinf = Changes { last: 0, n: 0 };
-    let lowest = |c: &[f64; CAP], d: usize| c[..=d].iter().copied().find(|&x| x != 0.0);
-    for i in 0..2 {
-        at0.push(sgn(lowest(&bufs[i], deg[i]).unwrap_or(0.0)));
-        atinf.push(sgn(bufs[i][deg[i]]));
-    }
-    // bufs[ia] is the older member, bufs[1 - ia] the newer one.
+    let mut note = |c: &[T; CAP], d: usize, max: f64, worst: &mut f64| {
+        let lo = c[..=d]
+            .iter()
+            .map(|x| x.hi())
+            .find(|&x| x != 0.0)
+            .unwrap_or(0.0);
+        let hi = c[d].hi();
+        at0.push(sgn(lo));
+        atinf.push(sgn(hi));
+        *worst = worst.min(lo.abs().min(hi.abs()) / max);
+    };
+    normalise(&mut bufs[1], deg[1]);
+    // p and p' carry the input's own signs: only the remainders can be noise
+    let mut ignore = f64::INFINITY;
+    note(&bufs[0], deg[0], 1.0, &mut ignore);
+    note(&bufs[1], deg[1], 1.0, &mut ignore);
     let mut ia = 0;
     while deg[1 - ia] > 0 {
         let (lo, hi) = bufs.split_at_mut(1);
@@ -139,18 +226,34 @@ pub fn count_positive_roots(p: &Poly) -> usize {
         } else {
             (&mut hi[0], &lo[0])
         };
-        match neg_rem_in_place(a, deg[ia], b, deg[1 - ia]) {
+        match neg_rem_in_place(a, deg[ia], b, deg[1 - ia], tol) {
             None => break,
             Some(d) => {
-                normalise(a, d);
-                at0.push(sgn(lowest(a, d).unwrap_or(0.0)));
-                atinf.push(sgn(a[d]));
+                let m = normalise(a, d);
+                note(a, d, m, &mut worst);
                 deg[ia] = d;
             }
         }
         ia = 1 - ia;
     }
-    at0.n.saturating_sub(atinf.n)
+    (at0.n.saturating_sub(atinf.n), worst)
+}
+
+/// Number of distinct real roots of `p` in `(0, +inf)`. `p` must not be zero.
+///
+/// Runs in f64; when a member of the sequence has an end coefficient below
+/// [`COND_TOL`] of its size (its sign may then be rounding noise), the sequence is
+/// recomputed in double-double arithmetic.
+pub fn count_positive_roots(p: &Poly) -> usize {
+    let pd = p.trimmed_deg();
+    if pd == 0 {
+        return 0;
+    }
+    let (n, worst) = sturm_in::<f64>(p, pd, REM_TOL);
+    if worst >= COND_TOL {
+        return n;
+    }
+    sturm_in::<Dd>(p, pd, REM_TOL_DD).0
 }
 
 /// Sign changes of the coefficient sequence (Descartes' bound on positive roots).
