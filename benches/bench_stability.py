@@ -13,9 +13,8 @@ import argparse
 import os
 import time
 
-import numpy as np
-
 import avll
+import numpy as np
 from avll import stability as S
 from avll.reference import stability as ref
 
@@ -55,14 +54,17 @@ def main() -> None:
     rng = np.random.default_rng(0)
     idx = rng.integers(0, npts, a.ref_points)
     pk, pt = kg[idx // tg.size], tg[idx % tg.size]
-    _, wall, cpu = timed(lambda: [ref.stability_code(m, pk[i], pt[i], 0.3) for i in range(idx.size)])
+    _, wall, cpu = timed(
+        lambda: [ref.stability_code(m, pk[i], pt[i], 0.3) for i in range(idx.size)]
+    )
     ref_core = idx.size / cpu
     print(f"numpy reference (numpy.roots per point): {ref_core / 1e3:8.2f} k points/s per core "
           f"(CPU), {idx.size / wall / 1e3:.2f} k wall")
     (bc, _), wall, cpu = timed(lambda: ref.stability_codes(m, pk, pt, np.full(idx.size, 0.3)))
-    print(f"numpy reference (batched eigvals)       : {idx.size / cpu / 1e3:8.2f} k points/s per core "
-          f"(CPU; numpy may use several threads)")
-    assert np.array_equal(bc, codes.reshape(-1)[idx]) or True
+    print(f"numpy reference (batched eigvals)       : {idx.size / cpu / 1e3:8.2f} k points/s "
+          f"per core (CPU; numpy may use several threads)")
+    same = int((bc == codes.reshape(-1)[idx]).sum())
+    print(f"reference codes equal to the map's at {same} of {idx.size} sampled points")
     print(f"ratio rust / numpy.roots reference: {rust_core / ref_core:,.0f} x (per core)")
 
 

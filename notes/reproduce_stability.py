@@ -7,9 +7,8 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
-
 import avll
+import numpy as np
 from avll import stability as S
 
 P = avll.PAPER_TABLE_II

@@ -409,3 +409,11 @@ def test_cli_stability_map(tmp_path, capsys) -> None:  # type: ignore[no-untyped
     text = capsys.readouterr().out
     assert "kv last stable" in text and "proposed" in text
     assert main(["stability-map", "--kg", "0", "1", "5", "--quiet"]) == 2
+
+
+def test_progress_bar_option(capsys) -> None:  # type: ignore[no-untyped-def]
+    m = P["first"]
+    kg, tg, kv = np.linspace(0.01, 1, 30), np.linspace(0, 5, 20), np.array([0.1, 0.2])
+    a = S.stability_map(m, kg, tg, kv, progress=True)
+    assert np.array_equal(a, S.stability_map(m, kg, tg, kv))
+    assert "stability first" in capsys.readouterr().err

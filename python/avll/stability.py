@@ -111,7 +111,7 @@ def stability_map(
         raise ValueError(f"threads: must be >= 0, got {threads}")
     if not progress:
         return _core.stability_map(name, p, kg, tg, kv, order, int(threads))
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     total = kg.size * tg.size * kv.size
     with tqdm(total=total, unit="pt", unit_scale=True, desc=f"stability {name}") as bar:

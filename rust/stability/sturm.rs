@@ -178,8 +178,8 @@ fn neg_rem_in_place<T: Scalar>(
 fn sturm_in<T: Scalar>(p: &Poly, pd: usize, tol: f64) -> (usize, f64) {
     let mut bufs = [[T::ZERO; CAP]; 2];
     let mut deg = [pd, pd - 1];
-    for k in 0..=pd {
-        bufs[0][k] = T::from_f64(p.c[k]);
+    for (x, &c) in bufs[0].iter_mut().zip(&p.c[..=pd]) {
+        *x = T::from_f64(c);
     }
     // Balance the coefficients by substituting x = σ y, σ a power of two (exact;
     // σ > 0 keeps the roots on (0, ∞)) making the lowest nonzero and the leading
