@@ -63,7 +63,7 @@ def batch_cost(
     upper: npt.NDArray[np.float64] | None = None,
     upper_free: list[int] = ...,
     command_kind: str = "acceleration",
-    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    weights: tuple[float, float, float] = ...,
     init: str = "rest",
     closed_loop: bool = False,
     threads: int = 0,
