@@ -13,8 +13,9 @@ import argparse
 import os
 import time
 
-import avll
 import numpy as np
+
+import avll
 from avll import stability as S
 from avll.reference import stability as ref
 

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import time
 
-import avll
 import numpy as np
+
+import avll
 from avll import stability as S
 
 P = avll.PAPER_TABLE_II

@@ -9,9 +9,10 @@ import signal
 import threading
 import time
 
-import avll
 import numpy as np
 import pytest
+
+import avll
 from avll import _core
 from avll import stability as S
 from avll.reference import stability as ref

@@ -499,6 +499,11 @@ def plot_regions(
                 ax.contourf(kg, tg, st, levels=[0.5, 1.5], colors=[c], alpha=0.3)
                 if 0 < st.mean() < 1:
                     ax.contour(kg, tg, st, levels=[0.5], colors=[c], linewidths=1.2)
+        if not any((mp[:, :, j] == STABLE).any() for mp in maps):
+            ax.text(0.5, 0.5, "nothing stable", ha="center", va="center",
+                    transform=ax.transAxes)
+        ax.set_xlim(kg[0], kg[-1])
+        ax.set_ylim(tg[0], tg[-1])
         ax.set_title(f"kv = {kvs[j]:g} 1/s")
         ax.set_xlabel("kg (1/s²)")
         ax.set_ylabel("Tg (s)")
@@ -508,9 +513,10 @@ def plot_regions(
         Patch(color=colors[i % len(colors)], alpha=0.4, label=f"{_label(m)}: stable")
         for i, m in enumerate(models)
     ]
-    fig.legend(handles=handles, loc="upper center", ncol=len(models), frameon=False)
-    fig.suptitle(f"Stability regions (Padé order {pade_order})", y=1.02)
+    fig.suptitle(f"Stable regions (local and string), Padé order {pade_order}")
     fig.tight_layout()
+    fig.legend(handles=handles, loc="upper center", ncol=len(models), frameon=False,
+               bbox_to_anchor=(0.5, 0.0))
     return fig
 
 
