@@ -206,11 +206,16 @@ pub fn string_stable(r: &Poly) -> bool {
     if lo <= 0.0 || lo.is_nan() || !r.c[deg].is_finite() {
         return false;
     }
-    // Descartes: no sign change => no positive root; one => exactly one.
+    // Descartes: no sign change => no positive root; one => exactly one. Then an
+    // AM-GM positivity certificate or a negative value as witness; else Sturm.
     match sturm::descartes(r) {
         0 => true,
         1 => false,
-        _ => sturm::count_positive_roots(r) == 0,
+        _ => match sturm::quick_check(r, deg) {
+            sturm::Quick::Positive => true,
+            sturm::Quick::NegativeSomewhere => false,
+            sturm::Quick::Unknown => sturm::count_positive_roots(r) == 0,
+        },
     }
 }
 

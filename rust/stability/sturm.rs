@@ -105,6 +105,12 @@ impl Scalar for Dd {
     }
 }
 
+/// Binary exponent of a nonzero finite f64 (subnormals count as -1023).
+#[inline(always)]
+fn binary_exponent(x: f64) -> i64 {
+    ((x.to_bits() >> 52) & 0x7ff) as i64 - 1023
+}
+
 /// `2^-e` for the binary exponent `e` of a positive normal `m` (so `m 2^-e ∈ [1, 2)`).
 #[inline(always)]
 fn inv_pow2_of(m: f64) -> f64 {
@@ -185,9 +191,10 @@ fn sturm_in<T: Scalar>(p: &Poly, pd: usize, tol: f64) -> (usize, f64) {
     // σ > 0 keeps the roots on (0, ∞)) making the lowest nonzero and the leading
     // coefficient about equal in size.
     if let Some(i0) = p.c[..pd].iter().position(|&x| x != 0.0) {
-        let sigma = (p.c[i0].abs() / p.c[pd].abs()).powf(1.0 / (pd - i0) as f64);
-        if sigma.is_finite() && sigma > 0.0 {
-            let s2 = 1.0 / inv_pow2_of(sigma);
+        let ediff = binary_exponent(p.c[i0]) - binary_exponent(p.c[pd]);
+        let e = (ediff as f64 / (pd - i0) as f64).round() as i64;
+        if (-60..=60).contains(&e) {
+            let s2 = f64::from_bits(((1023 + e) as u64) << 52);
             let mut f = 1.0;
             for x in bufs[0][..=pd].iter_mut() {
                 *x = x.scale(f);
@@ -254,6 +261,68 @@ pub fn count_positive_roots(p: &Poly) -> usize {
         return n;
     }
     sturm_in::<Dd>(p, pd, REM_TOL_DD).0
+}
+
+/// Outcome of [`quick_check`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quick {
+    /// Proven positive on `(0, ∞)`.
+    Positive,
+    /// Proven to take a negative value on `(0, ∞)` (so, with `p(0+) > 0`, to have a root).
+    NegativeSomewhere,
+    /// Not settled: count the roots.
+    Unknown,
+}
+
+/// Cheap exact shortcuts for a polynomial `p` (trimmed degree `deg`) with all sign
+/// information needed: `p(0+) > 0` and a positive leading coefficient.
+///
+/// * Certificate of positivity (AM–GM): every negative coefficient `c_k` has positive
+///   neighbours and `c_k² < 4 L R`, where `L`, `R` are the shares of `c_{k−1}`,
+///   `c_{k+1}` not claimed by another negative neighbour (half when shared); then
+///   `L x^{k−1} + R x^{k+1} ≥ 2√(LR) x^k > |c_k| x^k` for all `x > 0`.
+/// * Witness of a root: `p(x) < 0` (beyond rounding) at `x = √(c_{k−1}/c_{k+1})`, the
+///   point where that AM–GM bound is tightest.
+///
+/// A witness proves instability; stability is only ever concluded from a certificate,
+/// Descartes' rule or a Sturm count — never from sampled values.
+#[inline]
+pub fn quick_check(p: &Poly, deg: usize) -> Quick {
+    let c = &p.c;
+    let mut cert = true;
+    for k in 1..deg {
+        if c[k] >= 0.0 {
+            continue;
+        }
+        let (a, b) = (c[k - 1], c[k + 1]);
+        if a > 0.0 && b > 0.0 {
+            let x = (a / b).sqrt();
+            let (mut v, mut mag) = (0.0f64, 0.0f64);
+            for i in (0..=deg).rev() {
+                v = v * x + c[i];
+                mag = mag * x + c[i].abs();
+            }
+            if v < -1e-12 * mag {
+                return Quick::NegativeSomewhere;
+            }
+            let l = if k >= 2 && c[k - 2] < 0.0 { 0.5 * a } else { a };
+            let r = if k + 2 <= deg && c[k + 2] < 0.0 {
+                0.5 * b
+            } else {
+                b
+            };
+            if c[k] * c[k] >= 4.0 * l * r * (1.0 - 1e-12) {
+                cert = false;
+            }
+        } else {
+            cert = false;
+        }
+    }
+    if cert {
+        Quick::Positive
+    } else {
+        Quick::Unknown
+    }
 }
 
 /// Sign changes of the coefficient sequence (Descartes' bound on positive roots).
@@ -384,6 +453,41 @@ mod tests {
             1.7092408528980463e-10,
         ]);
         assert_eq!(count_positive_roots(&r), 2);
+    }
+
+    #[test]
+    fn quick_check_never_contradicts_sturm() {
+        let mut state = 99u64;
+        let mut rnd = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut pos, mut neg) = (0, 0);
+        for _ in 0..20000 {
+            let deg = 2 + (rnd() * 7.0) as usize;
+            let mut c = vec![0.0; deg + 1];
+            for x in c.iter_mut() {
+                *x = (rnd() - 0.3) * 10f64.powf(4.0 * rnd() - 2.0);
+            }
+            c[0] = c[0].abs() + 1e-3;
+            c[deg] = c[deg].abs() + 1e-3;
+            let p = Poly::from_ascending(&c);
+            let n = count_positive_roots(&p);
+            match quick_check(&p, p.deg) {
+                Quick::Positive => {
+                    assert_eq!(n, 0, "{c:?}");
+                    pos += 1;
+                }
+                Quick::NegativeSomewhere => {
+                    assert!(n >= 1, "{c:?}");
+                    neg += 1;
+                }
+                Quick::Unknown => {}
+            }
+        }
+        assert!(pos > 1000 && neg > 1000, "{pos} {neg}");
     }
 
     #[test]
