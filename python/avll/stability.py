@@ -317,9 +317,10 @@ def exact_delay_string(
     ``margin = min over ω > 0 of (1 − |H(jω)|²)/ω²`` (in s², > 0 iff string stable),
     from the exact low-frequency limit, a dense log-spaced search of ``n_w``
     frequencies on ``[w_min, w_max]`` and a golden-section refinement of every
-    local minimum of the dense curve to a relative frequency tolerance ``xtol``.
-    Above ``w_max`` the gain of these models is far below 1 (checked: the
-    curve's last value is returned in the margin as well).
+    local minimum of the dense curve to a relative frequency tolerance ``xtol``
+    (in log ω). The search stops at ``w_max``: beyond it ``|H|`` of these loops falls
+    off like ``1/ω`` or faster (``G_fb`` is strictly proper and ``H ~ (kv s + kg) G_fb
+    / s²``), so a user with unusual parameters should widen the range.
     """
     kg, tg, kv = (np.atleast_1d(np.asarray(a, dtype=float)).ravel() for a in (kg, tg, kv))
     kg, tg, kv = np.broadcast_arrays(kg, tg, kv)
