@@ -26,6 +26,17 @@ from .models import (
     model_class,
 )
 from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
+from .stability import (
+    PadeReport,
+    Thresholds,
+    capacity,
+    exact_delay_codes,
+    kv_threshold,
+    pade_report,
+    stability_map,
+    stability_points,
+    thresholds,
+)
 
 #: Table II of the paper: the calibrated parameters of the three models.
 PAPER_TABLE_II = {
@@ -59,4 +70,13 @@ __all__ = [
     "calibrate",
     "calibrate_many",
     "paper_workflow",
+    "PadeReport",
+    "Thresholds",
+    "capacity",
+    "exact_delay_codes",
+    "kv_threshold",
+    "pade_report",
+    "stability_map",
+    "stability_points",
+    "thresholds",
 ]

@@ -114,3 +114,35 @@ def calibrate(
     threads: int = 0,
 ) -> list[dict[str, Any]]: ...
 def derive_seed(seed: int, k: int) -> int: ...
+
+# --- stability (rust/bindings/stability.rs) ---
+PADE_MAX_ORDER: int
+
+def stability_map(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    pade_order: int = 2,
+    threads: int = 0,
+    progress: Callable[[int, int], object] | None = None,
+) -> npt.NDArray[np.uint8]: ...
+def stability_points(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    pade_order: int = 2,
+    threads: int = 0,
+) -> npt.NDArray[np.uint8]: ...
+def stability_polys(
+    model: str,
+    params: list[float],
+    kg: float,
+    tg: float,
+    kv: float,
+    pade_order: int = 2,
+) -> tuple[list[float], list[float], list[float]]: ...
+def pade_den(order: int, td: float) -> list[float]: ...
