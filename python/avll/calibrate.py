@@ -842,7 +842,7 @@ def paper_workflow(
         results[cls.name] = res
         if val:
             c = batch_cost(
-                cls, res.params and np.array(list(res.params.values()))[None, :], val,
+                cls, np.array(list(res.params.values()))[None, :], val,
                 weights=tuple(kwargs.get("weights", (1.0, 0.0, 0.0))),
                 init=kwargs.get("init", "rest"), closed_loop=kwargs.get("closed_loop", False),
                 upper_free=[_upper_index(u) for u in kwargs.get("upper_free", ())],
