@@ -34,8 +34,10 @@
 //! parallel (rayon) and gathered in order, and ties are broken by index, so the
 //! result is bit-identical for any number of threads.
 
+use crate::discretize::{discretize, equilibrium, Integrators};
 use crate::error::{AvllError, Result};
-use crate::rollout::{run_cost, CostSpec, RunRef};
+use crate::model::{CommandKind, Linear};
+use crate::rollout::{run_cost, CostSpec, Init, RunRef, DIVERGED};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -425,28 +427,54 @@ fn poly_mutation(y: f64, eta: f64, u: f64) -> f64 {
     (y + dq).clamp(0.0, 1.0)
 }
 
-struct Evaluator<'a, F> {
+/// An objective for [`minimize`]. Any `Fn(&[f64]) -> f64 + Sync` is one; an
+/// objective may also implement `eval_bounded`, which may stop early and return
+/// any value `>= bound` once the result is known to be at least `bound` (the GA
+/// uses it for offspring that cannot survive).
+pub trait Objective: Sync {
+    fn eval(&self, x: &[f64]) -> f64;
+    fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
+        let _ = bound;
+        self.eval(x)
+    }
+}
+
+impl<F: Fn(&[f64]) -> f64 + Sync> Objective for F {
+    fn eval(&self, x: &[f64]) -> f64 {
+        self(x)
+    }
+}
+
+struct Evaluator<'a, F: ?Sized> {
     f: &'a F,
     bounds: &'a Bounds,
     evaluations: usize,
 }
 
-impl<F: Fn(&[f64]) -> f64 + Sync> Evaluator<'_, F> {
+impl<F: Objective + ?Sized> Evaluator<'_, F> {
     fn one(&mut self, z: &[f64]) -> f64 {
         self.evaluations += 1;
         let mut x = vec![0.0; z.len()];
         self.bounds.to_user(z, &mut x);
-        clean((self.f)(&x))
+        clean(self.f.eval(&x))
     }
 
     fn many(&mut self, zs: &[Vec<f64>]) -> Vec<f64> {
+        self.many_bounded(zs, f64::INFINITY)
+    }
+
+    fn many_bounded(&mut self, zs: &[Vec<f64>], bound: f64) -> Vec<f64> {
         self.evaluations += zs.len();
         let (f, b) = (self.f, self.bounds);
         zs.par_iter()
             .map(|z| {
                 let mut x = vec![0.0; z.len()];
                 b.to_user(z, &mut x);
-                clean(f(&x))
+                if bound.is_finite() {
+                    clean(f.eval_bounded(&x, bound))
+                } else {
+                    clean(f.eval(&x))
+                }
             })
             .collect()
     }
@@ -511,7 +539,7 @@ pub fn minimize<F>(
     mut callback: impl FnMut(&Progress) -> bool,
 ) -> Result<GaResult>
 where
-    F: Fn(&[f64]) -> f64 + Sync,
+    F: Objective + ?Sized,
 {
     let d = bounds.dim();
     opts.validate(d)?;
@@ -607,7 +635,10 @@ where
             })
             .collect();
         let mut kids: Vec<Vec<f64>> = children.into_iter().flatten().take(n_off).collect();
-        let kid_fit = ev.many(&kids);
+        // (mu + lambda): an offspring whose value reaches the current worst cannot
+        // survive, so its evaluation may stop early (exact values otherwise).
+        let bound = if opts.plus { fit[n - 1] } else { f64::INFINITY };
+        let kid_fit = ev.many_bounded(&kids, bound);
         if !opts.plus {
             pop.truncate(n_elite);
             fit.truncate(n_elite);
@@ -748,7 +779,7 @@ where
 /// and Han (2012); trial points are projected onto `[0, 1]^d`. Stops on the budget,
 /// a collapsed simplex (size `< 1e-10`, values within `1e-12` relative) or the
 /// callback returning `false`.
-fn nelder_mead<F: Fn(&[f64]) -> f64 + Sync>(
+fn nelder_mead<F: Objective + ?Sized>(
     ev: &mut Evaluator<'_, F>,
     z0: &[f64],
     f0: f64,
@@ -872,6 +903,119 @@ pub fn subset_cost(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(us
     }
 }
 
+/// Eq. 6 over a weighted set of runs, with early abandoning on the common path
+/// (open loop, acceleration command and error only).
+struct Eq6<'a> {
+    spec: &'a CostSpec,
+    runs: &'a [RunRef<'a>],
+    w: Vec<(usize, f64)>,
+    total: f64,
+}
+
+impl Objective for Eq6<'_> {
+    fn eval(&self, x: &[f64]) -> f64 {
+        subset_cost(self.spec, x, self.runs, &self.w)
+    }
+
+    fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
+        let s = self.spec;
+        if s.closed_loop
+            || s.kind != CommandKind::Acceleration
+            || s.weights[1] != 0.0
+            || s.weights[2] != 0.0
+            || s.weights[0] <= 0.0
+        {
+            return self.eval(x);
+        }
+        let lin = match s.model.linear(&x[..s.model.n_params()]) {
+            Ok(l) => l,
+            Err(_) => return f64::INFINITY,
+        };
+        match lin.order() {
+            1 => self.bounded::<1>(&lin, bound),
+            _ => self.bounded::<2>(&lin, bound),
+        }
+    }
+}
+
+impl Eq6<'_> {
+    /// Same arithmetic, in the same order, as `rollout::run_cost` and
+    /// [`subset_cost`] (so an unabandoned value is bit-identical); stops with `inf`
+    /// once the partial sum proves the result `>= bound`.
+    fn bounded<const N: usize>(&self, lin: &Linear, bound: f64) -> f64 {
+        let wa = self.spec.weights[0];
+        let mut done = 0.0; // sum of w_j c_j over finished runs
+        let mut costs = Vec::with_capacity(self.w.len());
+        for &(j, wj) in &self.w {
+            let run = &self.runs[j];
+            let u = run.command.unwrap_or(&[]);
+            let n = u.len();
+            let d = match discretize::<N>(lin, Integrators::None, run.dt) {
+                Ok(d) => d,
+                Err(_) => return f64::INFINITY,
+            };
+            let mut x = [0.0; N];
+            let mut hist = 0.0;
+            if self.spec.init == Init::Steady {
+                let den = 1.0 - lin.k * lin.b0;
+                if den.abs() < 1e-12 {
+                    return f64::INFINITY;
+                }
+                let w = u[0] / den;
+                let e = equilibrium(lin, w);
+                x[..lin.order()].copy_from_slice(&e[..lin.order()]);
+                hist = w;
+            }
+            // Abandon once wa * s / n * wj + done >= bound * total.
+            let limit = (bound * self.total - done) * n as f64 / (wj * wa);
+            let i = d.delay_steps;
+            let cap = (i + 2).next_power_of_two();
+            let mask = cap - 1;
+            let mut buf = vec![hist; cap];
+            let mut sum = 0.0;
+            for k in 0..n {
+                let mut y = 0.0;
+                for c in 0..N {
+                    y += d.c[c] * x[c];
+                }
+                buf[k & mask] = u[k] + d.k * y;
+                let w0 = buf[k.wrapping_sub(i) & mask];
+                let w1 = buf[k.wrapping_sub(i + 1) & mask];
+                let e = y - run.a[k];
+                sum += e * e;
+                if y.abs() >= DIVERGED {
+                    return f64::INFINITY;
+                }
+                if k & 63 == 63 && sum >= limit {
+                    return f64::INFINITY;
+                }
+                let mut nx = [0.0; N];
+                for (r, v) in nx.iter_mut().enumerate() {
+                    let mut acc = 0.0;
+                    for c in 0..N {
+                        acc += d.phi[r][c] * x[c];
+                    }
+                    *v = acc + d.g0[r] * w0 + d.g1[r] * w1;
+                }
+                x = nx;
+            }
+            let c = wa * sum / n as f64;
+            if !c.is_finite() {
+                return f64::INFINITY;
+            }
+            done += wj * c;
+            costs.push(c);
+        }
+        let s = costs.iter().zip(&self.w).fold(0.0, |s, (c, w)| s + c * w.1);
+        let m = s / self.total;
+        if m.is_finite() {
+            m
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
 /// Multiplicities of a subset: sorted unique indices with their counts.
 fn multiplicities(subset: &[usize], r: usize, problem: usize) -> Result<Vec<(usize, f64)>> {
     if subset.is_empty() {
@@ -934,7 +1078,13 @@ fn calibrate_one(
         ));
     }
     let w = multiplicities(subset, runs.len(), problem)?;
-    let f = |x: &[f64]| subset_cost(spec, x, runs, &w);
+    let total = w.iter().map(|p| p.1).sum();
+    let f = Eq6 {
+        spec,
+        runs,
+        w,
+        total,
+    };
     minimize(&f, bounds, opts, callback)
 }
 
@@ -1103,5 +1253,113 @@ mod tests {
         let f = |x: &[f64]| if x[0] < 0.0 { f64::NAN } else { sphere(x) };
         let r = minimize(&f, &b, &GaOptions::default(), |_| true).unwrap();
         assert!(r.f.is_finite() && r.x[0] >= 0.0);
+    }
+
+    fn synthetic_runs() -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+        let lin = crate::model::ModelKind::Proposed
+            .linear(&[6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008])
+            .unwrap();
+        let mut us = Vec::new();
+        let mut ys = Vec::new();
+        for r in 0..3 {
+            let u: Vec<f64> = (0..1500)
+                .map(|k| {
+                    let t = k as f64 * 0.05;
+                    (0.3 * t + r as f64).sin() + 0.5 * (0.05 * t * t / 10.0).sin()
+                })
+                .collect();
+            let mut y =
+                crate::rollout::simulate(&lin, &u, 0.05, crate::rollout::Init::Rest).unwrap();
+            for (k, v) in y.iter_mut().enumerate() {
+                *v += 0.05 * ((k * 7919 + r * 104729) as f64).sin();
+            }
+            us.push(u);
+            ys.push(y);
+        }
+        (us, ys)
+    }
+
+    fn spec() -> CostSpec {
+        CostSpec {
+            model: crate::model::ModelKind::Proposed,
+            kind: CommandKind::Acceleration,
+            weights: [1.0, 0.0, 0.0],
+            init: Init::Rest,
+            closed_loop: false,
+            upper_free: vec![],
+        }
+    }
+
+    fn refs<'a>(us: &'a [Vec<f64>], ys: &'a [Vec<f64>]) -> Vec<RunRef<'a>> {
+        us.iter()
+            .zip(ys)
+            .map(|(u, y)| RunRef {
+                dt: 0.05,
+                command: Some(u),
+                lead_x: None,
+                lead_v: None,
+                a: y,
+                v: None,
+                x: None,
+                upper: crate::rollout::Upper {
+                    kg: 0.5,
+                    kv: 0.0,
+                    tg: 2.0,
+                    gmin: 9.5,
+                },
+            })
+            .collect()
+    }
+
+    #[test]
+    fn bounded_objective_is_exact_or_abandons_above_the_bound() {
+        let (us, ys) = synthetic_runs();
+        let runs = refs(&us, &ys);
+        let sp = spec();
+        let w = vec![(0, 2.0), (1, 1.0), (2, 1.0)];
+        let f = Eq6 {
+            spec: &sp,
+            runs: &runs,
+            w: w.clone(),
+            total: 4.0,
+        };
+        for row in [
+            [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008],
+            [1.0, 0.5, 2.0, 0.8, 0.33, -0.4],
+            [0.0, 0.04, 0.13, 0.73, 0.78, 0.0],
+        ] {
+            let exact = subset_cost(&sp, &row, &runs, &w);
+            assert_eq!(f.eval_bounded(&row, 1e300).to_bits(), exact.to_bits());
+            assert_eq!(
+                f.eval_bounded(&row, exact * 1.0001).to_bits(),
+                exact.to_bits()
+            );
+            assert!(f.eval_bounded(&row, exact * 0.5) >= exact * 0.5);
+        }
+        // The GA with abandoning finds the same as with exact values throughout.
+        let b = Bounds::new(
+            vec![1e-4, 1e-3, 1e-3, 0.0, 0.0, -3.0],
+            vec![100.0, 100.0, 100.0, 3.0, 3.0, 3.0],
+            vec![
+                Scale::Log,
+                Scale::Log,
+                Scale::Log,
+                Scale::Linear,
+                Scale::Linear,
+                Scale::Linear,
+            ],
+        )
+        .unwrap();
+        let o = GaOptions {
+            seed: 3,
+            max_generations: 25,
+            ..Default::default()
+        };
+        let plain = |x: &[f64]| subset_cost(&sp, x, &runs, &w);
+        let r1 = minimize(&plain, &b, &o, |_| true).unwrap();
+        let r2 = minimize(&f, &b, &o, |_| true).unwrap();
+        assert_eq!(r1.x, r2.x);
+        assert_eq!(r1.history, r2.history);
+        assert!(r2.f < 0.01, "{}", r2.f);
     }
 }
