@@ -974,10 +974,7 @@ impl Eq6<'_> {
             let mut buf = vec![hist; cap];
             let mut sum = 0.0;
             for k in 0..n {
-                let mut y = 0.0;
-                for c in 0..N {
-                    y += d.c[c] * x[c];
-                }
+                let y = d.c.iter().zip(&x).fold(0.0, |s, (a, b)| s + a * b);
                 buf[k & mask] = u[k] + d.k * y;
                 let w0 = buf[k.wrapping_sub(i) & mask];
                 let w1 = buf[k.wrapping_sub(i + 1) & mask];
@@ -991,10 +988,7 @@ impl Eq6<'_> {
                 }
                 let mut nx = [0.0; N];
                 for (r, v) in nx.iter_mut().enumerate() {
-                    let mut acc = 0.0;
-                    for c in 0..N {
-                        acc += d.phi[r][c] * x[c];
-                    }
+                    let acc = d.phi[r].iter().zip(&x).fold(0.0, |s, (a, b)| s + a * b);
                     *v = acc + d.g0[r] * w0 + d.g1[r] * w1;
                 }
                 x = nx;
