@@ -23,6 +23,9 @@
 //!   `ftol * |best|` over the last `stall_generations` generations); tolerance (the
 //!   population collapsed: every coordinate's spread `< xtol` in unit coordinates);
 //!   an optional `target` value; or the per-generation callback returning `false`;
+//! * early abandoning: with (mu + lambda) survival, offspring are evaluated with
+//!   the current worst value as a bound ([`Objective::eval_bounded`]); the
+//!   calibration objective stops a rollout once its partial Eq. 6 sum reaches it;
 //! * polish (optional): a bounded Nelder–Mead (adaptive coefficients, trial points
 //!   projected onto the box) from the best individual, restarted once.
 //!
