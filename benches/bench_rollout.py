@@ -30,9 +30,10 @@ import platform
 import time
 from collections.abc import Callable
 
-import avll
 import numpy as np
 import scipy.signal
+
+import avll
 from avll.reference import rollout as ref
 
 DT = 0.05

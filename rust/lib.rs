@@ -7,9 +7,11 @@
 
 pub mod discretize;
 pub mod error;
+pub mod ga;
 pub mod model;
 pub mod parallel;
 pub mod rollout;
+pub mod stability;
 
 #[cfg(feature = "python")]
 mod bindings;

@@ -499,7 +499,7 @@ pub fn platoon(
     }
     let v0 = lead_v[0];
     let mut out: Vec<Trajectory> = Vec::with_capacity(followers);
-    for j in 0..followers {
+    for _ in 0..followers {
         let (px, pv, p0) = match out.last() {
             None => (lead_x, lead_v, lead_x[0]),
             Some(t) => (&t.x[..], &t.v[..], t.x[0]),
@@ -519,7 +519,6 @@ pub fn platoon(
                 closed_loop_n(lin, up, px, pv, dt, v0, start)
             )?
         };
-        let _ = j;
         out.push(tr);
     }
     Ok(out)
@@ -669,7 +668,7 @@ pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef) -> f64 {
         && spec.weights[1] == 0.0
         && spec.weights[2] == 0.0
     {
-        with_dim!(lin.order(), cost_open_accel(&lin, spec, run))
+        cost_open_accel(&lin, spec, run)
     } else {
         with_dim!(dim_full, cost_open_full(&lin, spec, run))
     };
@@ -677,25 +676,53 @@ pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef) -> f64 {
 }
 
 /// The fast path: acceleration command, acceleration error only.
-fn cost_open_accel<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) -> Result<f64> {
+fn cost_open_accel(lin: &Linear, spec: &CostSpec, run: &RunRef) -> Result<f64> {
+    let s = open_accel_sse(lin, spec.init, run, f64::INFINITY);
+    Ok(if s.is_finite() {
+        spec.weights[0] * s / run.len() as f64
+    } else {
+        f64::INFINITY
+    })
+}
+
+/// Sum of squared acceleration errors of the open-loop rollout of `lin` driven by
+/// `run.command` (an acceleration command) — the kernel of the fast cost path
+/// (`cost = weight_a * sse / len`), public so that callers with a bound (the GA's
+/// early abandoning) get bit-identical values. `inf` if the parameters are invalid
+/// for `run.dt`, the lower level is not asymptotically stable
+/// ([`inner_loop_stable`]), the response leaves `|y| < DIVERGED`, or the partial
+/// sum reaches `limit` (checked every 64 samples; pass `inf` for no bound).
+pub fn open_accel_sse(lin: &Linear, init: Init, run: &RunRef, limit: f64) -> f64 {
+    let r = match lin.order() {
+        1 => open_accel_sse_n::<1>(lin, init, run, limit),
+        _ => open_accel_sse_n::<2>(lin, init, run, limit),
+    };
+    r.unwrap_or(f64::INFINITY)
+}
+
+fn open_accel_sse_n<const N: usize>(
+    lin: &Linear,
+    init: Init,
+    run: &RunRef,
+    limit: f64,
+) -> Result<f64> {
     let u = run.command.unwrap_or(&[]);
+    if u.is_empty() || run.a.len() != u.len() {
+        return Ok(f64::INFINITY);
+    }
     let d = discretize::<N>(lin, Integrators::None, run.dt)?;
     if !inner_loop_stable(&d, lin) {
         return Ok(f64::INFINITY);
     }
-    let (x0, hist) = initial::<N>(lin, spec.init, u[0])?;
+    let (x0, hist) = initial::<N>(lin, init, u[0])?;
     let meas = run.a;
     let mut s = 0.0;
     let ok = open_loop(&d, u, x0, hist, |n, y| {
         let e = y - meas[n];
         s += e * e;
-        y.abs() < DIVERGED
+        y.abs() < DIVERGED && !(n & 63 == 63 && s >= limit)
     });
-    Ok(if ok {
-        spec.weights[0] * s / u.len() as f64
-    } else {
-        f64::INFINITY
-    })
+    Ok(if ok { s } else { f64::INFINITY })
 }
 
 fn cost_open_full<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) -> Result<f64> {

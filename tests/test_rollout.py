@@ -10,13 +10,14 @@ from __future__ import annotations
 import math
 import zlib
 
-import avll
 import numpy as np
 import pytest
-from avll import _core
-from avll.reference import rollout as ref
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+import avll
+from avll import _core
+from avll.reference import rollout as ref
 
 TOL = 1e-9
 DT = 0.05

@@ -6,6 +6,15 @@ automated vehicle".
 """
 
 from ._core import __version__
+from .calibrate import (
+    Bootstrap,
+    CalibrationResult,
+    Workflow,
+    bootstrap,
+    calibrate,
+    calibrate_many,
+    paper_workflow,
+)
 from .data import DataError, Run
 from .models import (
     MODELS,
@@ -17,6 +26,17 @@ from .models import (
     model_class,
 )
 from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
+from .stability import (
+    PadeReport,
+    Thresholds,
+    capacity,
+    exact_delay_codes,
+    kv_threshold,
+    pade_report,
+    stability_map,
+    stability_points,
+    thresholds,
+)
 
 #: Table II of the paper: the calibrated parameters of the three models.
 PAPER_TABLE_II = {
@@ -43,4 +63,20 @@ __all__ = [
     "simulate",
     "simulate_full",
     "PAPER_TABLE_II",
+    "Bootstrap",
+    "CalibrationResult",
+    "Workflow",
+    "bootstrap",
+    "calibrate",
+    "calibrate_many",
+    "paper_workflow",
+    "PadeReport",
+    "Thresholds",
+    "capacity",
+    "exact_delay_codes",
+    "kv_threshold",
+    "pade_report",
+    "stability_map",
+    "stability_points",
+    "thresholds",
 ]

@@ -15,6 +15,10 @@ from collections.abc import Sequence
 # "module:function" registering one or more sub-commands, in help order.
 _COMMANDS = [
     "avll.demo:register_cli",
+    "avll.synth:register_cli",
+    "avll.io.cli_load:register_cli",
+    "avll.calibrate:register_cli",
+    "avll.stability:register_cli",
 ]
 
 

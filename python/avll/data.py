@@ -31,9 +31,7 @@ def _series(run_id: str, name: str, x: Any, n: int | None) -> np.ndarray:
     if arr.ndim != 1:
         raise DataError(f"run {run_id!r}: column {name!r} must be 1-D, got shape {arr.shape}")
     if n is not None and arr.shape[0] != n:
-        raise DataError(
-            f"run {run_id!r}: column {name!r} has {arr.shape[0]} samples, expected {n}"
-        )
+        raise DataError(f"run {run_id!r}: column {name!r} has {arr.shape[0]} samples, expected {n}")
     bad = np.flatnonzero(~np.isfinite(arr))
     if bad.size:
         raise DataError(

@@ -32,7 +32,10 @@ def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
     res = {name: simulate(m, u, dt) for name, m in PAPER_TABLE_II.items()}
     cols = np.column_stack([t, u, *res.values()])
     np.savetxt(
-        out / "simulate.csv", cols, delimiter=",", header="t,command," + ",".join(res),
+        out / "simulate.csv",
+        cols,
+        delimiter=",",
+        header="t,command," + ",".join(res),
         comments="",
     )
     fig, ax = plt.subplots(figsize=(9, 3.5), layout="constrained")

@@ -5,7 +5,9 @@
 //! into `ValueError` and a panic (a bug) into `RuntimeError` rather than letting it
 //! cross into Python.
 
+mod ga;
 mod rollout;
+mod stability;
 
 use crate::error::AvllError;
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
@@ -58,5 +60,7 @@ pub(crate) fn slice2<'a>(
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     rollout::register(m)?;
+    ga::register(m)?;
+    stability::register(m)?;
     Ok(())
 }

@@ -269,7 +269,7 @@ fn batch_cost<'py>(
             crate::parallel::with_threads(threads, || rollout::batch_cost(&spec, rows, &runs))?
         })
     })?;
-    let _ = p;
+
     out.into_pyarray(py).reshape([p, r])
 }
 

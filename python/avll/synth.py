@@ -1,0 +1,176 @@
+"""The paper's car-following experiment, synthesised (the built-in data).
+
+The paper's field data are not public, so avll ships a generator of the same
+experiment (Section II, Table I): 21 runs, 20 Hz, a leader tracking a pre-set
+oscillating speed profile from standstill, and a follower under the
+constant-time-gap law (Eq. 3, ``kv = 0``, ``Gmin = 9.5 m``, Table I's ``kg`` and
+``Tg``) with a chosen lower-level model (Table II's proposed model by default).
+The follower's recorded command is the upper law's output; its measured
+acceleration, speed and position carry Gaussian sensor noise and quantisation of
+configurable size. Every run has its own random stream derived from
+``(seed, run number)``, so a run does not change when others are added.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from .data import Run
+from .models import LowerLevelModel, Proposed, UpperLevel
+from .rollout import closed_loop
+
+__all__ = [
+    "TABLE_I",
+    "PAPER_CAL_RUNS",
+    "PAPER_VAL_RUNS",
+    "GMIN",
+    "leader_profile",
+    "paper_experiment",
+]
+
+#: Table I: (kg in s^-2, Tg in s) of each run, in chronological order.
+TABLE_I: dict[int, tuple[float, float]] = {
+    1: (0.7, 2.0), 2: (0.7, 2.0), 3: (0.5, 1.8), 4: (0.5, 1.8), 5: (0.5, 1.8),
+    6: (0.5, 1.8), 7: (0.5, 1.8), 8: (0.6, 2.0), 9: (0.6, 2.0), 10: (0.6, 2.0),
+    11: (0.6, 2.0), 12: (0.6, 2.0), 13: (0.6, 2.0), 14: (0.6, 2.0), 15: (0.5, 2.0),
+    16: (0.5, 2.0), 17: (0.5, 2.0), 18: (0.5, 2.0), 19: (0.4, 2.0), 20: (0.4, 2.0),
+    21: (0.4, 2.0),
+}  # fmt: skip
+#: The paper's calibration runs (Table III); the others are its validation runs (Table IV).
+PAPER_CAL_RUNS = (3, 4, 5, 9, 10, 11, 15, 16, 17, 19)
+PAPER_VAL_RUNS = tuple(r for r in TABLE_I if r not in PAPER_CAL_RUNS)
+#: Standstill spacing of the experiment (m).
+GMIN = 9.5
+#: The proposed model with Table II's parameters (the default true lower level).
+TABLE_II_PROPOSED = Proposed(m1=6.7893, m2=1.2824, m3=8.8157, K0=0.3479, Td=0.7903, K=0.1008)
+
+
+def leader_profile(
+    duration: float, dt: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A leader speed profile from standstill: a smooth ramp to a cruise speed, then
+    alternating speed dips and bumps (raised-cosine shapes of random depth and
+    length, so the acceleration is continuous). Returns time, position, speed."""
+    t = np.arange(0.0, duration, dt)
+    v_c = rng.uniform(9.0, 13.0)
+    t_ramp = rng.uniform(15.0, 25.0)
+    v = np.where(t < t_ramp, v_c * 0.5 * (1 - np.cos(np.pi * t / t_ramp)), v_c)
+    start = t_ramp + rng.uniform(3.0, 8.0)
+    sign = -1.0
+    while start < duration:
+        period = rng.uniform(10.0, 30.0)
+        depth = rng.uniform(1.5, 4.5) if sign < 0 else rng.uniform(1.0, 3.0)
+        m = (t >= start) & (t < start + period)
+        v[m] += sign * depth * 0.5 * (1 - np.cos(2 * np.pi * (t[m] - start) / period))
+        start += period + rng.uniform(0.0, 6.0)
+        sign = -sign
+    v = np.maximum(v, 0.0)
+    x = np.concatenate([[0.0], np.cumsum(0.5 * dt * (v[1:] + v[:-1]))])
+    return t, x, v
+
+
+def paper_experiment(
+    model: LowerLevelModel = TABLE_II_PROPOSED,
+    *,
+    seed: int = 0,
+    runs: tuple[int, ...] | None = None,
+    duration: float = 180.0,
+    dt: float = 0.05,
+    noise_a: float = 0.05,
+    noise_v: float = 0.02,
+    noise_x: float = 0.02,
+    quantization_a: float = 0.01,
+) -> list[Run]:
+    """Synthesises the paper's 21-run experiment (or the listed ``runs``).
+
+    ``noise_*`` are the standard deviations of the Gaussian sensor noise on the
+    measured acceleration (m/s²), speed (m/s) and position (m); the measured
+    acceleration is then rounded to multiples of ``quantization_a`` (0 = none).
+    The recorded command and the leader's trajectory are exact.
+    """
+    if duration <= 10 * dt:
+        raise ValueError(f"duration: must be > 10 dt, got {duration}")
+    for name, val in (
+        ("noise_a", noise_a), ("noise_v", noise_v), ("noise_x", noise_x),
+        ("quantization_a", quantization_a),
+    ):  # fmt: skip
+        if not (np.isfinite(val) and val >= 0):
+            raise ValueError(f"{name}: must be finite and >= 0, got {val}")
+    chosen = tuple(TABLE_I) if runs is None else tuple(int(r) for r in runs)
+    out = []
+    for r in chosen:
+        if r not in TABLE_I:
+            raise ValueError(f"runs: run {r} is not in Table I (1..21)")
+        kg, tg = TABLE_I[r]
+        upper = UpperLevel(kg=kg, kv=0.0, Tg=tg, Gmin=GMIN)
+        rng = np.random.default_rng([int(seed), r])
+        t, lx, lv = leader_profile(duration, dt, rng)
+        la = np.gradient(lv, dt)
+        tr = closed_loop(model, lx, lv, dt, upper, v0=0.0, x0=lx[0] - GMIN)
+        if not np.all(np.isfinite(tr.a)):
+            raise ValueError(f"model: the follower diverges in run {r} ({model})")
+        a = tr.a + rng.normal(0.0, noise_a, t.size) if noise_a > 0 else tr.a.copy()
+        if quantization_a > 0:
+            a = np.round(a / quantization_a) * quantization_a
+        v = tr.v + rng.normal(0.0, noise_v, t.size) if noise_v > 0 else tr.v.copy()
+        x = tr.x + rng.normal(0.0, noise_x, t.size) if noise_x > 0 else tr.x.copy()
+        out.append(
+            Run(
+                run_id=str(r),
+                t=t,
+                a=a,
+                command_kind="acceleration",
+                command=tr.command,
+                v=v,
+                x=x,
+                lead_x=lx,
+                lead_v=lv,
+                lead_a=la,
+                upper=upper,
+                meta={
+                    "synthetic": True,
+                    "true_model": {"name": model.name, **model.to_dict()},
+                    "seed": int(seed),
+                    "noise": {"a": noise_a, "v": noise_v, "x": noise_x, "quant_a": quantization_a},
+                    "calibration_run": r in PAPER_CAL_RUNS,
+                },
+            )
+        )
+    return out
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    from . import PAPER_TABLE_II
+    from .io import write_runs
+    from .models import MODELS
+
+    if args.model not in MODELS:
+        raise ValueError(f"--model: unknown model {args.model!r}; known: {', '.join(MODELS)}")
+    runs = paper_experiment(
+        PAPER_TABLE_II[args.model],
+        seed=args.seed,
+        duration=args.duration,
+        noise_a=args.noise_a,
+        quantization_a=args.quantization,
+    )
+    path = write_runs(runs, args.out)
+    n = sum(len(r) for r in runs)
+    print(f"wrote {len(runs)} runs ({n} samples, model {args.model}, seed {args.seed}) to {path}")
+    return 0
+
+
+def register_cli(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "synth", help="write the synthetic 21-run experiment in the canonical format"
+    )
+    p.add_argument("--out", required=True, help="output CSV or Parquet file")
+    p.add_argument(
+        "--model", default="proposed", help="true lower level (Table II): first|second|proposed"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=float, default=180.0, help="seconds per run (default 180)")
+    p.add_argument("--noise-a", type=float, default=0.05, help="acceleration noise std (m/s²)")
+    p.add_argument("--quantization", type=float, default=0.01, help="acceleration step (m/s²)")
+    p.set_defaults(func=_cmd)

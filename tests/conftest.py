@@ -1,0 +1,17 @@
+"""Shared fixtures. ``shared_data`` is ``../shared/data`` beside the repository;
+tests that need it skip with a clear reason when it is absent (a user's machine)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"field data folder {SHARED_DATA} is absent (only on the project's machines)")
+    return SHARED_DATA
