@@ -5,6 +5,7 @@
 //! into `ValueError` and a panic (a bug) into `RuntimeError` rather than letting it
 //! cross into Python.
 
+mod effects;
 mod rollout;
 
 use crate::error::AvllError;
@@ -58,5 +59,6 @@ pub(crate) fn slice2<'a>(
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     rollout::register(m)?;
+    effects::register(m)?;
     Ok(())
 }
