@@ -17,6 +17,20 @@ from .models import (
     model_class,
 )
 from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
+from .effects import (
+    EFFECTS,
+    Asymmetric,
+    Deadband,
+    Delay,
+    Grade,
+    RateLimit,
+    Saturation,
+    SpeedDrag,
+    WithEffects,
+    batch_cost_effects,
+    closed_loop_effects,
+    simulate_effects,
+)
 
 #: Table II of the paper: the calibrated parameters of the three models.
 PAPER_TABLE_II = {
@@ -43,4 +57,16 @@ __all__ = [
     "simulate",
     "simulate_full",
     "PAPER_TABLE_II",
+    "EFFECTS",
+    "Asymmetric",
+    "Deadband",
+    "Delay",
+    "Grade",
+    "RateLimit",
+    "Saturation",
+    "SpeedDrag",
+    "WithEffects",
+    "batch_cost_effects",
+    "closed_loop_effects",
+    "simulate_effects",
 ]

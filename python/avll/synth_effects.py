@@ -216,12 +216,17 @@ def paper_experiment_effects(
     noise_x: float = 0.02,
     quantization_a: float = 0.01,
     extra_exo: tuple[str, ...] = (),
+    leader_speedup: float = 1.0,
 ) -> list[Run]:
     """Runs of the paper-like experiment whose true lower level is ``model`` plus
     the generator-side ``effects`` (``{"saturation": {"A": 0.7}}``, parameters
     defaulting to :data:`GENERATOR_DEFAULTS`). With ``grade`` the runs carry
     ``exo_grade``; ``extra_exo`` adds irrelevant smooth random exogenous columns of
-    those names (false-positive checks)."""
+    those names (false-positive checks). ``leader_speedup`` plays the leader's
+    profile that many times faster (accelerations scale by it, jerks by its square),
+    for effects that only show in brisk manoeuvres (``rate_limit``)."""
+    if not (np.isfinite(leader_speedup) and leader_speedup > 0):
+        raise ValueError(f"leader_speedup: must be > 0, got {leader_speedup}")
     effs: dict[str, dict[str, float]] = {}
     for name, par in (effects or {}).items():
         if name not in GENERATOR_DEFAULTS:
@@ -237,7 +242,12 @@ def paper_experiment_effects(
         kg, tg = TABLE_I[r]
         upper = UpperLevel(kg=kg, kv=0.0, Tg=tg, Gmin=GMIN)
         rng = np.random.default_rng([int(seed), r, 6])
-        t, lx, lv = leader_profile(duration, dt, rng)
+        t, lx, lv = leader_profile(duration * leader_speedup, dt, rng)
+        if leader_speedup != 1.0:
+            ts = np.arange(0.0, duration, dt)
+            lv = np.interp(ts * leader_speedup, t, lv)
+            lx = np.interp(ts * leader_speedup, t, lx) / leader_speedup
+            t = ts
         phase = float(rng.uniform(0, 2 * np.pi))
         tr = _truth_rollout(model, effs, lx, lv, dt, upper, lx[0] - GMIN, phase)
         a = tr["a"] + rng.normal(0.0, noise_a, t.size) if noise_a > 0 else tr["a"].copy()
