@@ -7,16 +7,6 @@ automated vehicle".
 
 from ._core import __version__
 from .data import DataError, Run
-from .models import (
-    MODELS,
-    FirstOrderLag,
-    LowerLevelModel,
-    Proposed,
-    SecondOrder,
-    UpperLevel,
-    model_class,
-)
-from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
 from .effects import (
     EFFECTS,
     Asymmetric,
@@ -31,6 +21,16 @@ from .effects import (
     closed_loop_effects,
     simulate_effects,
 )
+from .models import (
+    MODELS,
+    FirstOrderLag,
+    LowerLevelModel,
+    Proposed,
+    SecondOrder,
+    UpperLevel,
+    model_class,
+)
+from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
 
 #: Table II of the paper: the calibrated parameters of the three models.
 PAPER_TABLE_II = {

@@ -115,7 +115,7 @@ def simulate_runs(
     closed = _closed(runs, closed_loop)
     out = []
     for r in runs:
-        needs = {EFFECTS[n].exo for n in model.effect_names} - {None}
+        needs = [x for x in (EFFECTS[n].exo for n in model.effect_names) if x is not None]
         exo = {k: r.exo[k] for k in needs if k in r.exo}
         if closed:
             if r.upper is None or r.lead_x is None or r.lead_v is None or r.v is None:
@@ -541,11 +541,12 @@ def diagnose(
     # Speed residual (open loop: integrate the simulated acceleration from v[0]).
     speed_rms = None
     if all(r.v is not None for r in runs):
-        ev = []
+        evs = []
         for r, s in zip(runs, sims, strict=True):
+            assert r.v is not None
             vs = r.v[0] + np.concatenate([[0.0], np.cumsum(0.5 * r.dt * (s[1:] + s[:-1]))])
-            ev.append(r.v - vs)
-        speed_rms = float(np.sqrt(np.mean(np.concatenate(ev) ** 2)))
+            evs.append(r.v - vs)
+        speed_rms = float(np.sqrt(np.mean(np.concatenate(evs) ** 2)))
     # Spectrum and autocorrelation (of the longest run's residual, averaged over runs).
     nper = int(min(512, min(len(x) for x in res)))
     freqs, psds = [], []
@@ -590,11 +591,9 @@ def diagnose(
     kind = runs[0].command_kind
     allowed = [n for n in (candidates or CANONICAL_ORDER) if n not in model.effect_names]
     allowed = [n for n in allowed if not (EFFECTS[n].accel_only and kind == "speed")]
+    every = [*runs, *val_runs]
     allowed = [n for n in allowed
-               if EFFECTS[n].exo is None or all(EFFECTS[n].exo in r.exo for r in runs)]  # fmt: skip
-    if val_runs:
-        allowed = [n for n in allowed
-                   if EFFECTS[n].exo is None or all(EFFECTS[n].exo in r.exo for r in val_runs)]  # fmt: skip
+               if EFFECTS[n].exo is None or all(EFFECTS[n].exo in r.exo for r in every)]
     J = _sensitivities(model, runs, sims, closed)
     _, rss0 = _lstsq(J, e)
     sse = float(e @ e)
@@ -822,8 +821,9 @@ def effect_loop(
                 current = new
                 accepted = True
                 break
-            rejected.append({"effect": c.effect, "val_mse_before": mv0, "val_mse_after": mv1,
-                             "lr_p_value": p_lr, "bic_before": bic0, "bic_after": bic1})  # fmt: skip
+            rejected.append({"effect": c.effect, "val_mse_before": mv0,
+                             "val_mse_after": mv1, "lr_p_value": p_lr,
+                             "bic_before": bic0, "bic_after": bic1})  # fmt: skip
         if not accepted:
             break
     return LoopResult(out_base, current, steps, diags, rejected)

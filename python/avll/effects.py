@@ -449,7 +449,7 @@ def batch_cost_effects(
         p,
         [int(o) for o in offsets],
         np.array([r.dt for r in runs], dtype=np.float64),
-        _concat(runs, "a", True),
+        _concat(runs, "a", True),  # type: ignore[arg-type]
         command=None if closed_loop else _concat(runs, "command", True),
         lead_x=_concat(runs, "lead_x", closed_loop) if closed_loop else None,
         lead_v=_concat(runs, "lead_v", closed_loop) if closed_loop else None,
@@ -458,7 +458,7 @@ def batch_cost_effects(
         upper=upper,
         upper_free=[int(i) for i in upper_free],
         command_kind=runs[0].command_kind,
-        weights=tuple(float(w) for w in weights),
+        weights=(float(weights[0]), float(weights[1]), float(weights[2])),
         init=init,
         closed_loop=closed_loop,
         exo=exo,

@@ -33,7 +33,7 @@ def _zoh(a: np.ndarray, b: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarr
     return e[:n, :n], e[:n, n]
 
 
-def _system(c: dict[str, float], scale: float, speed_cmd: bool):
+def _system(c: dict[str, float], scale: float, speed_cmd: bool) -> Any:
     """Rational part (time-scaled by ``scale``) plus integrators: (A, B, C, order)."""
     b1, b0, a2, a1 = c["b1"], c["b0"], c["a2"], c["a1"]
     if a2 != 0.0:
@@ -76,7 +76,7 @@ def rollout_effects(
     lower level starts at rest) rollout: dict of arrays a, v, x, command."""
     if isinstance(model, LowerLevelModel):
         model = WithEffects(model, ())
-    eff = {e.name: e for e in model.effects}
+    eff: dict[str, Any] = {e.name: e for e in model.effects}
     c = model.base.linear()
     closed = command is None
     speed_cmd = command_kind == "speed"
@@ -92,7 +92,7 @@ def rollout_effects(
     if f < 1e-12:
         f = 0.0
 
-    def maps(sys):
+    def maps(sys: Any) -> Any:
         a, b, cc, _ = sys
         pa, ga = _zoh(a, b, (1.0 - f) * dt)
         pb, gb = _zoh(a, b, f * dt)
@@ -142,6 +142,7 @@ def rollout_effects(
                 a_act -= eff["grade"].g_eff * float(exo["grade"][n])
             y_act = a_act
         if closed:
+            assert upper is not None, "closed loop needs upper"
             u = upper.kg * (lead_x[n] - p - upper.Tg * v - upper.Gmin) + upper.kv * (lead_v[n] - v)
         else:
             u = float(command[n])
