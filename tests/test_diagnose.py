@@ -183,3 +183,26 @@ def test_two_effects_get_both() -> None:
     assert res.steps[-1].to_dict()["val_mse_after"] < 0.5 * d0["val_mse_before"]
     g = {s.effect: s.params for s in res.steps}
     assert g["grade"]["g_eff"] == pytest.approx(expected_params("grade")["g_eff"], abs=1.5)
+
+
+@pytest.mark.slow
+def test_speed_command_asymmetry_is_found() -> None:
+    # Speed command (as CARMA): a lower level that slows down 1.8x more slowly than
+    # it speeds up. Only command-side effects and `asymmetric` (time scale) apply.
+    true = WithEffects(avll.SecondOrder(K0=1.0, m2=0.9, m3=2.2, Td=0.3),
+                       (avll.Asymmetric(kb=1.0, rb=1.8),))  # fmt: skip
+    rng = np.random.default_rng(5)
+    runs = []
+    for k in range(5):
+        t = np.arange(0, 150, 0.1)
+        u = 20 + np.cumsum(rng.normal(0, 0.08, t.size))
+        u = np.convolve(u, np.ones(20) / 20, mode="same")
+        u[:20], u[-20:] = u[20], u[-21]
+        tr = simulate_effects(true, u, 0.1, command_kind="speed", init="steady")
+        runs.append(avll.Run(run_id=str(k), t=t, a=tr.a + rng.normal(0, 0.03, t.size),
+                             command_kind="speed", command=u,
+                             v=tr.v + rng.normal(0, 0.01, t.size)))  # fmt: skip
+    res = effect_loop("second", runs[:3], runs[3:], seed=2, init="steady")
+    assert [s.effect for s in res.steps][:1] == ["asymmetric"]
+    assert res.steps[0].params["kb"] == 1.0
+    assert res.steps[0].params["rb"] == pytest.approx(1.8, abs=0.3)

@@ -101,6 +101,16 @@ BASE_BOUNDS: dict[str, dict[str, tuple[float, float, str]]] = {
 # ---------------------------------------------------------------------------
 
 
+def _init(runs: Sequence[Run], init: str) -> str:
+    """``"auto"``: a speed command starts at its steady state (a run that begins
+    while driving), an acceleration command at rest (the paper's experiment)."""
+    if init == "auto":
+        return "steady" if runs and runs[0].command_kind == "speed" else "rest"
+    if init not in ("rest", "steady"):
+        raise ValueError(f"init: must be 'auto', 'rest' or 'steady', got {init!r}")
+    return init
+
+
 def _closed(runs: Sequence[Run], closed_loop: bool | None) -> bool:
     if closed_loop is not None:
         return bool(closed_loop)
@@ -108,11 +118,13 @@ def _closed(runs: Sequence[Run], closed_loop: bool | None) -> bool:
 
 
 def simulate_runs(
-    model: WithEffects, runs: Sequence[Run], *, closed_loop: bool | None = None
+    model: WithEffects, runs: Sequence[Run], *, closed_loop: bool | None = None,
+    init: str = "auto",
 ) -> list[np.ndarray]:
     """The simulated acceleration of every run (open loop from the recorded command,
     or closed loop behind the recorded leader), as in the calibration cost."""
     closed = _closed(runs, closed_loop)
+    init = _init(runs, init)
     out = []
     for r in runs:
         needs = [x for x in (EFFECTS[n].exo for n in model.effect_names) if x is not None]
@@ -126,7 +138,7 @@ def simulate_runs(
             out.append(tr.a)
         else:
             tr = simulate_effects(
-                model, r.command, r.dt, command_kind=r.command_kind,
+                model, r.command, r.dt, command_kind=r.command_kind, init=init,
                 v0=float(r.v[0]) if r.v is not None else 0.0,
                 x0=float(r.x[0]) if r.x is not None else 0.0, exo=exo,
             )  # fmt: skip
@@ -139,13 +151,14 @@ def _weights(runs: Sequence[Run], closed: bool) -> tuple[float, float, float]:
 
 
 def run_mse(
-    model: WithEffects, runs: Sequence[Run], *, closed_loop: bool | None = None, threads: int = 0
+    model: WithEffects, runs: Sequence[Run], *, closed_loop: bool | None = None,
+    init: str = "auto", threads: int = 0,
 ) -> np.ndarray:
     """Per-run MSE of the acceleration (paper Eq. 6 per run); ``inf`` if unstable."""
     closed = _closed(runs, closed_loop)
     c = batch_cost_effects(
         model.base.name, model.effect_names, model.to_array()[None, :], runs,
-        closed_loop=closed, threads=threads,
+        closed_loop=closed, init=_init(runs, init), threads=threads,
     )  # fmt: skip
     return c[0]
 
@@ -179,7 +192,14 @@ class _Space:
         return np.where(self.log, np.exp(w), w)
 
 
-def _space(base: str, effects: Sequence[str]) -> _Space:
+def _fixed(effect: str, param: str, kind: str) -> float | None:
+    """Parameters that a command kind fixes (a speed command has no braking gain)."""
+    if kind == "speed" and effect == "asymmetric" and param == "kb":
+        return 1.0
+    return None
+
+
+def _space(base: str, effects: Sequence[str], kind: str = "acceleration") -> _Space:
     bb = BASE_BOUNDS[model_class(base).name]
     names, lo, hi, lg = [], [], [], []
     for n, (a, b, s) in bb.items():
@@ -190,6 +210,9 @@ def _space(base: str, effects: Sequence[str]) -> _Space:
     for e in canonical(list(effects)):
         cls = EFFECTS[e]
         for n, (a, b) in zip(cls.param_names(), cls.bounds, strict=True):
+            fx = _fixed(e, n, kind)
+            if fx is not None:
+                a = b = fx
             names.append(f"{e}.{n}")
             lo.append(a)
             hi.append(b)
@@ -198,12 +221,14 @@ def _space(base: str, effects: Sequence[str]) -> _Space:
 
 
 def _objective(
-    base: str, effects: Sequence[str], runs: Sequence[Run], closed: bool, sp: _Space, threads: int
+    base: str, effects: Sequence[str], runs: Sequence[Run], closed: bool, sp: _Space,
+    threads: int, init: str,
 ) -> Callable[[np.ndarray], np.ndarray]:
     def f(z: np.ndarray) -> np.ndarray:
         z2 = np.atleast_2d(z)
         rows = np.vstack([sp.from_z(zz) for zz in z2])
-        c = batch_cost_effects(base, effects, rows, runs, closed_loop=closed, threads=threads)
+        c = batch_cost_effects(base, effects, rows, runs, closed_loop=closed, init=init,
+                               threads=threads)  # fmt: skip
         m = c.mean(axis=1)
         return np.where(np.isfinite(m), m, 1e6)
 
@@ -243,6 +268,7 @@ def fit(
     closed_loop: bool | None = None,
     popsize: int = 12,
     maxiter: int = 300,
+    init: str = "auto",
     threads: int = 0,
 ) -> WithEffects:
     """Calibrates base + effects on ``runs`` (mean of the per-run acceleration MSE).
@@ -256,8 +282,8 @@ def fit(
     bname = model_class(base).name
     names = canonical(list(effects))
     closed = _closed(runs, closed_loop)
-    sp = _space(bname, names)
-    f = _objective(bname, names, runs, closed, sp, threads)
+    sp = _space(bname, names, runs[0].command_kind)
+    f = _objective(bname, names, runs, closed, sp, threads, _init(runs, init))
     rng = np.random.default_rng(seed)
     x0 = None
     if start is not None:
@@ -452,7 +478,7 @@ def _effect_grid(name: str, runs: Sequence[Run], sims: list[np.ndarray]) -> list
 
 def _columns(
     model: WithEffects, name: str, setting: dict[str, float], runs: Sequence[Run],
-    base_sims: list[np.ndarray], closed: bool,
+    base_sims: list[np.ndarray], closed: bool, init: str = "auto",
 ) -> list[np.ndarray]:
     """Signature columns (one per parameter of a linear-in-parameter effect; one per
     threshold for threshold effects), concatenated over runs."""
@@ -462,26 +488,29 @@ def _columns(
     if name in ("asymmetric", "speed_drag"):
         # One column per parameter: perturb one at a time.
         for p in cls.param_names():
+            if _fixed(name, p, runs[0].command_kind) is not None:
+                continue
             eff = cls(**{**neutral, p: setting[p]})
             sims = simulate_runs(WithEffects(model.base, (*model.effects, eff)), runs,
-                                 closed_loop=closed)  # fmt: skip
+                                 closed_loop=closed, init=init)  # fmt: skip
             cols.append(np.concatenate([s - b for s, b in zip(sims, base_sims, strict=True)]))
     elif name == "saturation":
         for p in ("a_max", "d_max"):
             eff = cls(**{**neutral, p: setting[p]})
             sims = simulate_runs(WithEffects(model.base, (*model.effects, eff)), runs,
-                                 closed_loop=closed)  # fmt: skip
+                                 closed_loop=closed, init=init)  # fmt: skip
             cols.append(np.concatenate([s - b for s, b in zip(sims, base_sims, strict=True)]))
     else:
         eff = cls(**setting)
         sims = simulate_runs(WithEffects(model.base, (*model.effects, eff)), runs,
-                             closed_loop=closed)  # fmt: skip
+                             closed_loop=closed, init=init)  # fmt: skip
         cols.append(np.concatenate([s - b for s, b in zip(sims, base_sims, strict=True)]))
     return cols
 
 
 def _sensitivities(
-    model: WithEffects, runs: Sequence[Run], base_sims: list[np.ndarray], closed: bool
+    model: WithEffects, runs: Sequence[Run], base_sims: list[np.ndarray], closed: bool,
+    init: str = "auto",
 ) -> np.ndarray:
     """Finite-difference sensitivities of the simulated acceleration to the model's
     own parameters, concatenated over runs: (n, p)."""
@@ -493,7 +522,7 @@ def _sensitivities(
         p[j] += h
         try:
             m = WithEffects.from_array(model.base.name, model.effect_names, p)
-            sims = simulate_runs(m, runs, closed_loop=closed)
+            sims = simulate_runs(m, runs, closed_loop=closed, init=init)
         except ValueError:
             continue
         col = np.concatenate([(s - b) / h for s, b in zip(sims, base_sims, strict=True)])
@@ -523,6 +552,7 @@ def diagnose(
     alpha: float = 1e-3,
     min_explained: float = 0.01,
     candidates: Sequence[str] | None = None,
+    init: str = "auto",
 ) -> Diagnosis:
     """Residual diagnosis of ``model`` on ``runs`` (the held-out ``val_runs`` check
     the candidates). See the module doc for the statistics."""
@@ -531,7 +561,8 @@ def diagnose(
     if not runs:
         raise ValueError("runs: no runs given")
     closed = _closed(runs, closed_loop)
-    sims = simulate_runs(model, runs, closed_loop=closed)
+    init = _init(runs, init)
+    sims = simulate_runs(model, runs, closed_loop=closed, init=init)
     res = [r.a - s for r, s in zip(runs, sims, strict=True)]
     if not all(np.all(np.isfinite(x)) for x in res):
         raise ValueError("model: the simulation diverges on the runs")
@@ -594,13 +625,13 @@ def diagnose(
     every = [*runs, *val_runs]
     allowed = [n for n in allowed
                if EFFECTS[n].exo is None or all(EFFECTS[n].exo in r.exo for r in every)]
-    J = _sensitivities(model, runs, sims, closed)
+    J = _sensitivities(model, runs, sims, closed, init)
     _, rss0 = _lstsq(J, e)
     sse = float(e @ e)
     if val_runs:
-        vsims = simulate_runs(model, val_runs, closed_loop=closed)
+        vsims = simulate_runs(model, val_runs, closed_loop=closed, init=init)
         ev = np.concatenate([r.a - s for r, s in zip(val_runs, vsims, strict=True)])
-        Jv = _sensitivities(model, val_runs, vsims, closed)
+        Jv = _sensitivities(model, val_runs, vsims, closed, init)
     cands = []
     n_tests = max(len(allowed), 1)
     for name in allowed:
@@ -608,7 +639,7 @@ def diagnose(
         best: tuple[float, dict[str, float], np.ndarray, list[np.ndarray]] | None = None
         for setting in grid:
             try:
-                cols = _columns(model, name, setting, runs, sims, closed)
+                cols = _columns(model, name, setting, runs, sims, closed, init)
             except ValueError:
                 continue
             if not all(np.all(np.isfinite(c)) for c in cols):
@@ -629,7 +660,7 @@ def diagnose(
         val_explained = float("nan")
         if val_runs:
             try:
-                vcols = _columns(model, name, setting, val_runs, vsims, closed)
+                vcols = _columns(model, name, setting, val_runs, vsims, closed, init)
                 Xv0 = Jv if Jv.shape[1] == J.shape[1] else None
                 if Xv0 is not None:
                     # Held-out: the base part re-fitted there, the effect's coefficient
@@ -641,7 +672,7 @@ def diagnose(
                     val_explained = (r_before - r_after) / float(ev @ ev)
             except ValueError:
                 val_explained = float("nan")
-        hint = _hint(name, setting, beta[J.shape[1]:])
+        hint = _hint(name, setting, beta[J.shape[1]:], kind)
         significant = bool(p < alpha and explained >= min_explained
                            and (not val_runs or val_explained > 0))  # fmt: skip
         cands.append(Candidate(name, float(explained), float(val_explained), float(F), q, p,
@@ -654,14 +685,21 @@ def diagnose(
     )  # fmt: skip
 
 
-def _hint(name: str, setting: dict[str, float], gamma: np.ndarray) -> dict[str, float]:
+def _hint(
+    name: str, setting: dict[str, float], gamma: np.ndarray, kind: str = "acceleration"
+) -> dict[str, float]:
     """A starting guess of the effect's parameters from the signature coefficients."""
     cls = EFFECTS[name]
     neutral = dict(zip(cls.param_names(), cls.neutral, strict=True))
     out = dict(setting)
     if name in ("asymmetric", "speed_drag"):
-        for g, p in zip(gamma, cls.param_names(), strict=True):
+        free = [p for p in cls.param_names() if _fixed(name, p, kind) is None]
+        for g, p in zip(gamma, free, strict=True):
             out[p] = float(neutral[p] + g * (setting[p] - neutral[p]))
+        for p in cls.param_names():
+            fx = _fixed(name, p, kind)
+            if fx is not None:
+                out[p] = fx
     elif name == "grade":
         out["g_eff"] = float(gamma[0] * setting["g_eff"])
     for (lo, hi), p in zip(cls.bounds, cls.param_names(), strict=True):
@@ -735,10 +773,13 @@ def _mean(d: dict[str, float]) -> float:
     return float(np.mean(list(d.values()))) if d else float("nan")
 
 
-def _per_run(model: WithEffects, runs: Sequence[Run], closed: bool) -> dict[str, float]:
+def _per_run(
+    model: WithEffects, runs: Sequence[Run], closed: bool, init: str
+) -> dict[str, float]:
     if not runs:
         return {}
-    return {r.run_id: float(c) for r, c in zip(runs, run_mse(model, runs, closed_loop=closed),
+    mse = run_mse(model, runs, closed_loop=closed, init=init)
+    return {r.run_id: float(c) for r, c in zip(runs, mse,
                                                  strict=True)}  # fmt: skip
 
 
@@ -759,6 +800,7 @@ def effect_loop(
     tries: int = 2,
     baseline: LowerLevelModel | None = None,
     candidates: Sequence[str] | None = None,
+    init: str = "auto",
     progress: bool = False,
 ) -> LoopResult:
     """Baseline fit -> diagnose -> add the top-ranked effect -> recalibrate -> keep it
@@ -769,10 +811,11 @@ def effect_loop(
     if not val_runs:
         raise ValueError("val_runs: the loop needs held-out runs")
     closed = _closed([*cal_runs, *val_runs], closed_loop)
+    init = _init(cal_runs, init)
     bname = model_class(base).name
     say = print if progress else (lambda *a, **k: None)
     if baseline is None:
-        current = fit(bname, (), cal_runs, seed=seed, closed_loop=closed)
+        current = fit(bname, (), cal_runs, seed=seed, closed_loop=closed, init=init)
     else:
         current = WithEffects(baseline, ())
     say(f"baseline {current.base}")
@@ -781,7 +824,7 @@ def effect_loop(
     diags: list[Diagnosis] = []
     rejected: list[dict[str, Any]] = []
     for it in range(max_effects):
-        d = diagnose(current, cal_runs, val_runs, closed_loop=closed, alpha=alpha,
+        d = diagnose(current, cal_runs, val_runs, closed_loop=closed, alpha=alpha, init=init,
                      candidates=candidates)  # fmt: skip
         diags.append(d)
         ranked = d.ranked
@@ -789,19 +832,20 @@ def effect_loop(
                                        for c in d.candidates))  # fmt: skip
         if not ranked:
             break
-        cal0 = _per_run(current, cal_runs, closed)
-        val0 = _per_run(current, val_runs, closed)
+        cal0 = _per_run(current, cal_runs, closed, init)
+        val0 = _per_run(current, val_runs, closed, init)
         accepted = False
         for c in ranked[:tries]:
             cls = EFFECTS[c.effect]
             start = WithEffects(current.base, (*current.effects, cls(**c.hint)))
             new = fit(bname, [*current.effect_names, c.effect], cal_runs, start=start,
-                      seed=seed + 1000 * (it + 1), closed_loop=closed)  # fmt: skip
-            cal1 = _per_run(new, cal_runs, closed)
-            val1 = _per_run(new, val_runs, closed)
+                      seed=seed + 1000 * (it + 1), closed_loop=closed, init=init)  # fmt: skip
+            cal1 = _per_run(new, cal_runs, closed, init)
+            val1 = _per_run(new, val_runs, closed, init)
             n_val = sum(len(r) for r in val_runs)
             vres = [r.a - s for r, s in zip(val_runs, simulate_runs(current, val_runs,
-                                                                     closed_loop=closed),
+                                                                     closed_loop=closed,
+                                                                     init=init),
                                             strict=True)]  # fmt: skip
             n_eff_val = _neff(n_val, _lag1(vres))
             mv0, mv1 = _mean(val0), _mean(val1)
@@ -960,7 +1004,8 @@ def _cmd(args: argparse.Namespace) -> int:
     if not val:
         raise ValueError("--cal-runs: every run is a calibration run; keep some for validation")
     model_class(args.model)
-    res = effect_loop(args.model, cal, val, seed=args.seed, progress=not args.quiet)
+    res = effect_loop(args.model, cal, val, seed=args.seed, init=args.init,
+                      progress=not args.quiet)  # fmt: skip
     d = res.to_dict()
     Path(args.json).write_text(json.dumps(d, indent=2, default=float), encoding="utf-8")
     if args.report:
@@ -979,5 +1024,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", required=True, help="output JSON file")
     p.add_argument("--report", default=None, help="folder for a Markdown/HTML report")
+    p.add_argument("--init", choices=["auto", "rest", "steady"], default="auto",
+                   help="initial state (auto: steady for a speed command, else rest)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd)
