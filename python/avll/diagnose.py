@@ -41,7 +41,7 @@ import argparse
 import json
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +58,7 @@ from .effects import (
     closed_loop_effects,
     simulate_effects,
 )
-from .models import LowerLevelModel, model_class
+from .models import LowerLevelModel, UpperLevel, model_class
 
 __all__ = [
     "BASE_BOUNDS",
@@ -68,6 +68,7 @@ __all__ = [
     "Step",
     "LoopResult",
     "fit",
+    "fit_full",
     "simulate_runs",
     "run_mse",
     "diagnose",
@@ -220,21 +221,6 @@ def _space(base: str, effects: Sequence[str], kind: str = "acceleration") -> _Sp
     return _Space(tuple(names), np.array(lo), np.array(hi), np.array(lg))
 
 
-def _objective(
-    base: str, effects: Sequence[str], runs: Sequence[Run], closed: bool, sp: _Space,
-    threads: int, init: str,
-) -> Callable[[np.ndarray], np.ndarray]:
-    def f(z: np.ndarray) -> np.ndarray:
-        z2 = np.atleast_2d(z)
-        rows = np.vstack([sp.from_z(zz) for zz in z2])
-        c = batch_cost_effects(base, effects, rows, runs, closed_loop=closed, init=init,
-                               threads=threads)  # fmt: skip
-        m = c.mean(axis=1)
-        return np.where(np.isfinite(m), m, 1e6)
-
-    return f
-
-
 def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, maxiter: int) -> np.ndarray:
     h = 1e-5
     k = z0.size
@@ -258,6 +244,90 @@ def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, maxiter: int)
     return np.asarray(res.x)
 
 
+#: Search box of the upper-level law when it is calibrated (closed loop, no known law).
+UPPER_BOUNDS: dict[str, tuple[float, float]] = {
+    "kg": (0.0, 3.0), "kv": (0.0, 3.0), "Tg": (0.0, 5.0), "Gmin": (0.0, 30.0),
+}  # fmt: skip
+
+
+#: Cost weights (acceleration, speed, position) of a closed-loop calibration.
+CLOSED_LOOP_WEIGHTS: tuple[float, float, float] = (1.0, 0.1, 0.01)
+
+
+def fit_full(
+    base: str | type[LowerLevelModel] | LowerLevelModel,
+    effects: Sequence[str],
+    runs: Sequence[Run],
+    *,
+    start: WithEffects | None = None,
+    start_upper: UpperLevel | None = None,
+    seed: int = 0,
+    closed_loop: bool | None = None,
+    free_upper: bool | None = None,
+    weights: tuple[float, float, float] | None = None,
+    popsize: int = 12,
+    maxiter: int = 300,
+    init: str = "auto",
+    threads: int = 0,
+) -> tuple[WithEffects, UpperLevel | None]:
+    """As :func:`fit`, and in closed loop with ``free_upper`` (default: when a run
+    has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
+    Gmin`` (returned; ``None`` otherwise). ``weights`` of the acceleration, speed and
+    position MSE default to ``(1, 0, 0)`` in open loop (paper Eq. 6) and to
+    :data:`CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration alone leaves
+    the upper law's spacing unidentified."""
+    bname = model_class(base).name
+    names = canonical(list(effects))
+    closed = _closed(runs, closed_loop)
+    if free_upper is None:
+        free_upper = closed and any(r.upper is None for r in runs)
+    sp = _space(bname, names, runs[0].command_kind)
+    if free_upper:
+        lo = [b[0] for b in UPPER_BOUNDS.values()]
+        hi = [b[1] for b in UPPER_BOUNDS.values()]
+        sp = _Space(sp.names + tuple(UPPER_BOUNDS), np.concatenate([sp.lo, lo]),
+                    np.concatenate([sp.hi, hi]), np.concatenate([sp.log, [False] * 4]))  # fmt: skip
+        placeholder = UpperLevel(kg=0.0, kv=0.0, Tg=0.0, Gmin=0.0)
+        runs = [replace(r, upper=placeholder) for r in runs]
+    ini = _init(runs, init)
+    if weights is None:
+        weights = CLOSED_LOOP_WEIGHTS if closed else (1.0, 0.0, 0.0)
+    rows_of = sp.from_z
+    upper_free = [0, 1, 2, 3] if free_upper else []
+
+    def f(z: np.ndarray) -> np.ndarray:
+        rows = np.vstack([rows_of(zz) for zz in np.atleast_2d(z)])
+        c = batch_cost_effects(bname, names, rows, runs, closed_loop=closed, init=ini,
+                               upper_free=upper_free, weights=weights,
+                               threads=threads)  # fmt: skip
+        m = c.mean(axis=1)
+        return np.where(np.isfinite(m), m, 1e6)
+
+    rng = np.random.default_rng(seed)
+    x0 = None
+    if start is not None:
+        parts = [start.base.to_array()]
+        for n in names:
+            if n in start.effect_names:
+                parts.append(dict((e.name, e) for e in start.effects)[n].to_array())
+            else:
+                parts.append(np.array(EFFECTS[n].neutral))
+        if free_upper:
+            parts.append(start_upper.to_array() if start_upper is not None
+                         else np.array([0.5, 0.5, 1.5, 5.0]))  # fmt: skip
+        x0 = sp.to_z(np.concatenate(parts))
+    res = optimize.differential_evolution(
+        lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
+        popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
+        x0=x0, init="sobol",
+    )  # fmt: skip
+    p = sp.from_z(_polish(f, np.asarray(res.x), 200))
+    n_model = len(p) - (4 if free_upper else 0)
+    model = WithEffects.from_array(bname, names, p[:n_model])
+    up = UpperLevel(*[float(x) for x in p[n_model:]]) if free_upper else None
+    return model, up
+
+
 def fit(
     base: str | type[LowerLevelModel] | LowerLevelModel,
     effects: Sequence[str],
@@ -271,7 +341,8 @@ def fit(
     init: str = "auto",
     threads: int = 0,
 ) -> WithEffects:
-    """Calibrates base + effects on ``runs`` (mean of the per-run acceleration MSE).
+    """Calibrates base + effects on ``runs`` (mean of the per-run acceleration MSE,
+    paper Eq. 6; closed loop runs need their upper-level law, see :func:`fit_full`).
 
     A global search (``scipy.optimize.differential_evolution`` on the Rust batched
     cost, vectorised, seeded; ``start`` — e.g. the previous model with the new
@@ -279,30 +350,10 @@ def fit(
     to [0, 1] (log scale for positive time coefficients), then a bounded
     quasi-Newton polish (L-BFGS-B on batched central differences).
     """
-    bname = model_class(base).name
-    names = canonical(list(effects))
-    closed = _closed(runs, closed_loop)
-    sp = _space(bname, names, runs[0].command_kind)
-    f = _objective(bname, names, runs, closed, sp, threads, _init(runs, init))
-    rng = np.random.default_rng(seed)
-    x0 = None
-    if start is not None:
-        p0 = np.concatenate([
-            start.base.to_array(),
-            *[
-                (dict((e.name, e) for e in start.effects)[n].to_array()
-                 if n in start.effect_names else np.array(EFFECTS[n].neutral))
-                for n in names
-            ],
-        ])  # fmt: skip
-        x0 = sp.to_z(p0)
-    res = optimize.differential_evolution(
-        lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
-        popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
-        x0=x0, init="sobol",
-    )  # fmt: skip
-    z = _polish(f, np.asarray(res.x), 200)
-    return WithEffects.from_array(bname, names, sp.from_z(z))
+    model, _ = fit_full(base, effects, runs, start=start, seed=seed, closed_loop=closed_loop,
+                        free_upper=False, popsize=popsize, maxiter=maxiter, init=init,
+                        threads=threads)  # fmt: skip
+    return model
 
 
 # ---------------------------------------------------------------------------
@@ -755,9 +806,13 @@ class LoopResult:
     steps: list[Step]
     diagnoses: list[Diagnosis]
     rejected: list[dict[str, Any]] = field(default_factory=list)
+    upper: UpperLevel | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "upper": None if self.upper is None else {
+                "kg": self.upper.kg, "kv": self.upper.kv, "Tg": self.upper.Tg,
+                "Gmin": self.upper.Gmin},
             "base_model": self.baseline.base.name,
             "baseline_params": self.baseline.base.to_dict(),
             "steps": [s.to_dict() for s in self.steps],
@@ -783,8 +838,8 @@ def _per_run(
                                                  strict=True)}  # fmt: skip
 
 
-def _bic(model: WithEffects, mse: dict[str, float], n_eff: float) -> float:
-    k = model.to_array().size
+def _bic(model: WithEffects, mse: dict[str, float], n_eff: float, extra: int = 0) -> float:
+    k = model.to_array().size + extra
     return float(n_eff * math.log(max(_mean(mse), 1e-300)) + k * math.log(n_eff))
 
 
@@ -814,11 +869,23 @@ def effect_loop(
     init = _init(cal_runs, init)
     bname = model_class(base).name
     say = print if progress else (lambda *a, **k: None)
+    free_upper = closed and any(r.upper is None for r in [*cal_runs, *val_runs])
+    upper: UpperLevel | None = None
+
+    def with_upper(rs: Sequence[Run], up: UpperLevel | None) -> list[Run]:
+        # The calibrated upper-level law replaces the unknown one (also on the
+        # validation runs: the same vehicle's law).
+        return [replace(r, upper=up) for r in rs] if free_upper else list(rs)
+
     if baseline is None:
-        current = fit(bname, (), cal_runs, seed=seed, closed_loop=closed, init=init)
+        current, upper = fit_full(bname, (), cal_runs, seed=seed, closed_loop=closed, init=init,
+                                  free_upper=free_upper)  # fmt: skip
     else:
         current = WithEffects(baseline, ())
-    say(f"baseline {current.base}")
+        if free_upper:
+            raise ValueError("baseline: give runs with their upper-level law in closed loop")
+    cal_runs, val_runs = with_upper(cal_runs, upper), with_upper(val_runs, upper)
+    say(f"baseline {current.base}" + (f", upper {upper}" if upper is not None else ""))
     out_base = current
     steps: list[Step] = []
     diags: list[Diagnosis] = []
@@ -838,10 +905,12 @@ def effect_loop(
         for c in ranked[:tries]:
             cls = EFFECTS[c.effect]
             start = WithEffects(current.base, (*current.effects, cls(**c.hint)))
-            new = fit(bname, [*current.effect_names, c.effect], cal_runs, start=start,
-                      seed=seed + 1000 * (it + 1), closed_loop=closed, init=init)  # fmt: skip
-            cal1 = _per_run(new, cal_runs, closed, init)
-            val1 = _per_run(new, val_runs, closed, init)
+            new, up1 = fit_full(bname, [*current.effect_names, c.effect], cal_runs,
+                                start=start, start_upper=upper, seed=seed + 1000 * (it + 1),
+                                closed_loop=closed, init=init, free_upper=free_upper)  # fmt: skip
+            cal_new, val_new = with_upper(cal_runs, up1), with_upper(val_runs, up1)
+            cal1 = _per_run(new, cal_new, closed, init)
+            val1 = _per_run(new, val_new, closed, init)
             n_val = sum(len(r) for r in val_runs)
             vres = [r.a - s for r, s in zip(val_runs, simulate_runs(current, val_runs,
                                                                      closed_loop=closed,
@@ -852,8 +921,8 @@ def effect_loop(
             lr = n_eff_val * math.log(mv0 / mv1) if mv1 > 0 and math.isfinite(mv1) else -np.inf
             q = len(cls.param_names())
             p_lr = float(stats.chi2.sf(lr, q)) if lr > 0 else 1.0
-            bic0 = _bic(current, cal0, d.n_eff)
-            bic1 = _bic(new, cal1, d.n_eff)
+            bic0 = _bic(current, cal0, d.n_eff, 4 if free_upper else 0)
+            bic1 = _bic(new, cal1, d.n_eff, 4 if free_upper else 0)
             ok = p_lr < alpha and bic1 < bic0 and mv1 < mv0
             say(f"try {c.effect}: cal {_mean(cal0):.4g} -> {_mean(cal1):.4g}, val {mv0:.4g} -> "
                 f"{mv1:.4g}, LR p={p_lr:.2g}, BIC {bic0:.1f} -> {bic1:.1f}: "
@@ -863,6 +932,8 @@ def effect_loop(
                 steps.append(Step(c.effect, eff.to_dict(), new, cal0, cal1, val0, val1, p_lr,
                                   bic0, bic1))  # fmt: skip
                 current = new
+                if free_upper:
+                    upper, cal_runs, val_runs = up1, cal_new, val_new
                 accepted = True
                 break
             rejected.append({"effect": c.effect, "val_mse_before": mv0,
@@ -870,7 +941,7 @@ def effect_loop(
                              "bic_before": bic0, "bic_after": bic1})  # fmt: skip
         if not accepted:
             break
-    return LoopResult(out_base, current, steps, diags, rejected)
+    return LoopResult(out_base, current, steps, diags, rejected, upper)
 
 
 # ---------------------------------------------------------------------------
