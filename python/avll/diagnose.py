@@ -18,11 +18,11 @@ recalibration of the present parameters could absorb) and then on ``[J, s]``:
 
 * ``explained`` = ``(RSS_J - RSS_Js) / sum(e²)``, the share of the residual only
   the effect explains;
-* ``F = ((RSS_J - RSS_Js)/q) / (RSS_Js/(n_eff - k))`` with ``n_eff = n (1 - r1)/(1 + r1)``
-  (``r1`` the lag-1 autocorrelation of the residual: residuals at 10-20 Hz are far
-  from independent, and ignoring that would make everything "significant"); the
-  p-value is Bonferroni-corrected for the profiled grid and the number of
-  candidates;
+* ``F = ((RSS_J - RSS_Js)/q) / (RSS_Js/(n_eff - k))`` with ``n_eff = n / (1 + 2 sum
+  rho_k)`` the effective sample size of the residual with the effect (Geyer's
+  initial positive sequence: residuals at 10-20 Hz are far from independent, and
+  ignoring that would make everything "significant"); the p-value is
+  Bonferroni-corrected for the profiled grid and the number of candidates;
 * ``val_explained``: the same coefficients applied to the held-out runs.
 
 An effect is a candidate when ``p < alpha``, ``explained >= min_explained`` and
@@ -252,6 +252,9 @@ UPPER_BOUNDS: dict[str, tuple[float, float]] = {
 
 #: Cost weights (acceleration, speed, position) of a closed-loop calibration.
 CLOSED_LOOP_WEIGHTS: tuple[float, float, float] = (1.0, 0.1, 0.01)
+#: ... and of a speed command, whose response is the speed (the acceleration alone
+#: leaves the static gain free).
+SPEED_COMMAND_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.0)
 
 
 def fit_full(
@@ -273,9 +276,10 @@ def fit_full(
     """As :func:`fit`, and in closed loop with ``free_upper`` (default: when a run
     has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
     Gmin`` (returned; ``None`` otherwise). ``weights`` of the acceleration, speed and
-    position MSE default to ``(1, 0, 0)`` in open loop (paper Eq. 6) and to
+    position MSE default to ``(1, 0, 0)`` in open loop (paper Eq. 6), to
+    :data:`SPEED_COMMAND_WEIGHTS` for a speed command and to
     :data:`CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration alone leaves
-    the upper law's spacing unidentified."""
+    the upper law's spacing unidentified. The loop reports acceleration MSEs."""
     bname = model_class(base).name
     names = canonical(list(effects))
     closed = _closed(runs, closed_loop)
@@ -291,7 +295,12 @@ def fit_full(
         runs = [replace(r, upper=placeholder) for r in runs]
     ini = _init(runs, init)
     if weights is None:
-        weights = CLOSED_LOOP_WEIGHTS if closed else (1.0, 0.0, 0.0)
+        if closed:
+            weights = CLOSED_LOOP_WEIGHTS
+        elif runs[0].command_kind == "speed" and all(r.v is not None for r in runs):
+            weights = SPEED_COMMAND_WEIGHTS
+        else:
+            weights = (1.0, 0.0, 0.0)
     rows_of = sp.from_z
     upper_free = [0, 1, 2, 3] if free_upper else []
 
@@ -439,8 +448,33 @@ def _lag1(res: list[np.ndarray]) -> float:
     return float(np.clip(num / den, -0.99, 0.999)) if den > 0 else 0.0
 
 
-def _neff(n: int, r1: float) -> float:
-    return max(float(n) * (1 - r1) / (1 + r1), 10.0)
+def _ess(res: Sequence[np.ndarray]) -> float:
+    """Effective sample size of autocorrelated residuals, ``n / (1 + 2 sum rho_k)``,
+    with the pooled autocorrelation summed by Geyer's initial positive sequence
+    (pairs ``rho_2m + rho_2m+1`` while positive) — the standard estimator for
+    correlated samples; residuals at 10-20 Hz are far from independent."""
+    n = sum(len(r) for r in res)
+    maxlag = int(min(min(len(r) for r in res) // 2, 4000))
+    if maxlag < 2:
+        return float(n)
+    acov = np.zeros(maxlag + 1)
+    for r in res:
+        x = r - r.mean()
+        m = 1 << int(np.ceil(np.log2(2 * x.size)))
+        f = np.fft.rfft(x, m)
+        acov += np.fft.irfft(f * np.conj(f), m)[: maxlag + 1]
+    if acov[0] <= 0:
+        return float(n)
+    rho = acov / acov[0]
+    tau = 1.0  # 1 + 2 sum_{k>=1} rho_k = -1 + 2 sum_m Gamma_m
+    total = 0.0
+    for m in range(maxlag // 2):
+        g = rho[2 * m] + rho[2 * m + 1]
+        if g <= 0:
+            break
+        total += g
+    tau = max(2 * total - 1.0, 1.0)
+    return max(float(n) / tau, 10.0)
 
 
 def _signals(run: Run, sim: np.ndarray) -> dict[str, np.ndarray]:
@@ -463,7 +497,7 @@ def _signals(run: Run, sim: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def _binned(x: np.ndarray, e: np.ndarray, r1: float, nbins: int = 10) -> SignalDependence:
+def _binned(x: np.ndarray, e: np.ndarray, cuts: np.ndarray, nbins: int = 10) -> SignalDependence:
     uniq = np.unique(x)
     if uniq.size <= 3:
         edges = np.concatenate([[uniq[0] - 0.5], (uniq[1:] + uniq[:-1]) / 2, [uniq[-1] + 0.5]])
@@ -474,20 +508,26 @@ def _binned(x: np.ndarray, e: np.ndarray, r1: float, nbins: int = 10) -> SignalD
     centers, means, hw, counts = (np.zeros(k) for _ in range(4))
     for b in range(k):
         m = idx == b
+        if m.any():
+            means[b] = float(np.mean(e[m]))
+    # Effective sample size of the residual under the alternative (bin means removed).
+    ratio = _ess(np.split(e - means[idx], cuts)) / e.size
+    for b in range(k):
+        m = idx == b
         counts[b] = m.sum()
         if counts[b] == 0:
             centers[b] = means[b] = np.nan
             continue
         centers[b] = float(np.mean(x[m]))
         means[b] = float(np.mean(e[m]))
-        ne = _neff(int(counts[b]), r1)
+        ne = max(counts[b] * ratio, 2.0)
         hw[b] = 1.96 * float(np.std(e[m])) / math.sqrt(ne)
     # One-way ANOVA of the bins with effective sample sizes.
     ok = counts > 0
     ss_between = float(np.sum(counts[ok] * (means[ok] - e.mean()) ** 2))
     ss_tot = float(np.sum((e - e.mean()) ** 2))
     explained = ss_between / ss_tot if ss_tot > 0 else 0.0
-    n_eff = _neff(e.size, r1)
+    n_eff = max(e.size * ratio, 10.0)
     kk = int(ok.sum())
     if kk > 1 and ss_tot > ss_between:
         F = (explained / (kk - 1)) / ((1 - explained) / max(n_eff - kk, 1))
@@ -619,7 +659,7 @@ def diagnose(
         raise ValueError("model: the simulation diverges on the runs")
     e = np.concatenate(res)
     r1 = _lag1(res)
-    n_eff = _neff(e.size, r1)
+    n_eff = _ess(res)
     # Speed residual (open loop: integrate the simulated acceleration from v[0]).
     speed_rms = None
     if all(r.v is not None for r in runs):
@@ -666,7 +706,7 @@ def diagnose(
     deps = []
     for k in names:
         x = np.concatenate([s[k] for s in sig_runs])
-        d = _binned(x, e, r1)
+        d = _binned(x, e, np.cumsum([len(r) for r in runs])[:-1])
         deps.append(SignalDependence(k, d.centers, d.means, d.half_width, d.counts,
                                      d.explained, d.p_value))  # fmt: skip
     # Candidate effects: the score test by simulation.
@@ -704,9 +744,13 @@ def diagnose(
         rss1, setting, beta, cols = best
         q = len(cols)
         k = J.shape[1] + q
+        # Effective sample size of the residual under the alternative (with the effect).
+        r_alt = e - np.column_stack([J, *cols]) @ beta
+        cuts = np.cumsum([len(r) for r in runs])[:-1]
+        n_eff_c = _ess(np.split(r_alt, cuts))
         explained = max(rss0 - rss1, 0.0) / sse if sse > 0 else 0.0
-        F = ((rss0 - rss1) / q) / (rss1 / max(n_eff - k, 1.0)) if rss1 > 0 else np.inf
-        p = float(stats.f.sf(F, q, max(n_eff - k, 1.0))) * len(grid) * n_tests
+        F = ((rss0 - rss1) / q) / (rss1 / max(n_eff_c - k, 1.0)) if rss1 > 0 else np.inf
+        p = float(stats.f.sf(F, q, max(n_eff_c - k, 1.0))) * len(grid) * n_tests
         p = min(p, 1.0)
         val_explained = float("nan")
         if val_runs:
@@ -911,12 +955,9 @@ def effect_loop(
             cal_new, val_new = with_upper(cal_runs, up1), with_upper(val_runs, up1)
             cal1 = _per_run(new, cal_new, closed, init)
             val1 = _per_run(new, val_new, closed, init)
-            n_val = sum(len(r) for r in val_runs)
-            vres = [r.a - s for r, s in zip(val_runs, simulate_runs(current, val_runs,
-                                                                     closed_loop=closed,
-                                                                     init=init),
-                                            strict=True)]  # fmt: skip
-            n_eff_val = _neff(n_val, _lag1(vres))
+            vsim1 = simulate_runs(new, val_new, closed_loop=closed, init=init)
+            vres = [r.a - s for r, s in zip(val_new, vsim1, strict=True)]
+            n_eff_val = _ess(vres)
             mv0, mv1 = _mean(val0), _mean(val1)
             lr = n_eff_val * math.log(mv0 / mv1) if mv1 > 0 and math.isfinite(mv1) else -np.inf
             q = len(cls.param_names())
