@@ -132,8 +132,8 @@ fn step_loop<const N: usize>(
             return false;
         }
         let mut nx = [0.0; N];
-        for r in 0..N {
-            nx[r] = dot(&d.phi[r], &x) + d.g0[r] * w0 + d.g1[r] * w1;
+        for (r, xr) in nx.iter_mut().enumerate() {
+            *xr = dot(&d.phi[r], &x) + d.g0[r] * w0 + d.g1[r] * w1;
         }
         x = nx;
     }
@@ -416,7 +416,7 @@ pub fn platoon(
     }
     let v0 = lead_v[0];
     let mut out: Vec<Trajectory> = Vec::with_capacity(followers);
-    for j in 0..followers {
+    for _ in 0..followers {
         let (px, pv, p0) = match out.last() {
             None => (lead_x, lead_v, lead_x[0]),
             Some(t) => (&t.x[..], &t.v[..], t.x[0]),
@@ -436,7 +436,6 @@ pub fn platoon(
                 closed_loop_n(lin, up, px, pv, dt, v0, start)
             )?
         };
-        let _ = j;
         out.push(tr);
     }
     Ok(out)
@@ -713,7 +712,7 @@ fn cost_closed<const N: usize>(
 pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Vec<f64>> {
     spec.validate(runs)?;
     let np = spec.n_params();
-    if np == 0 || params.len() % np != 0 {
+    if np == 0 || !params.len().is_multiple_of(np) {
         return Err(AvllError::new(
             "params",
             format!(

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 _COMMANDS = [
     "avll.demo:register_cli",
     "avll.synth:register_cli",
+    "avll.io.cli_load:register_cli",
     "avll.diagnose:register_cli",
 ]
 

@@ -23,6 +23,7 @@ __all__ = [
     "UpperLevel",
     "MODELS",
     "model_class",
+    "pade",
 ]
 
 
@@ -81,13 +82,32 @@ class LowerLevelModel(ABC):
         c = self.linear()
         return c["b0"] / (1.0 - c["K"] * c["b0"])
 
-    def rational(self) -> tuple[np.ndarray, np.ndarray]:
-        """Numerator and denominator (highest power first) of ``G_fb`` without the delay
-        when ``Td = 0``; with a delay, of the rational part ``G`` alone."""
+    def transfer_function(self, pade_order: int = 2) -> tuple[np.ndarray, np.ndarray]:
+        """Numerator and denominator (highest power first) of ``G_fb(s)`` with the dead
+        time replaced by its Padé approximation of ``pade_order`` (exact when Td = 0):
+        ``G_fb = Ga / (Gb - K Ga)``, ``Ga = (b1 s + b0) Q(-s)``,
+        ``Gb = (a2 s^2 + a1 s + 1) Q(s)``."""
         c = self.linear()
-        num = np.array([c["b1"], c["b0"]])
-        den = np.array([c["a2"], c["a1"], 1.0])
-        return np.trim_zeros(num, "f"), np.trim_zeros(den, "f")
+        pn, pd = pade(c["Td"], pade_order)
+        ga = np.polymul(np.trim_zeros(np.array([c["b1"], c["b0"]]), "f"), pn)
+        gb = np.polymul(np.trim_zeros(np.array([c["a2"], c["a1"], 1.0]), "f"), pd)
+        den = np.polysub(gb, c["K"] * ga)
+        return np.trim_zeros(ga, "f"), np.trim_zeros(den, "f")
+
+    def to_scipy(self, pade_order: int = 2) -> Any:
+        """A continuous ``scipy.signal.TransferFunction`` of ``G_fb`` (dead time by Padé)."""
+        from scipy import signal
+
+        return signal.TransferFunction(*self.transfer_function(pade_order))
+
+    def to_control(self, pade_order: int = 2) -> Any:
+        """A ``control.TransferFunction`` of ``G_fb`` (python-control, an optional
+        dependency: ``pip install avll[control]``), dead time by Padé."""
+        try:
+            import control
+        except ImportError as e:  # pragma: no cover - depends on the environment
+            raise ImportError("to_control() needs python-control: pip install control") from e
+        return control.tf(*self.transfer_function(pade_order))
 
 
 @dataclass(frozen=True)
@@ -177,6 +197,27 @@ class UpperLevel:
 
     def to_array(self) -> np.ndarray:
         return np.array([self.kg, self.kv, self.Tg, self.Gmin], dtype=np.float64)
+
+
+def pade(td: float, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Padé approximation of ``e^{-td s}``: numerator ``Q(-s)`` and denominator ``Q(s)``
+    (highest power first), ``Q(s) = sum_k c_k (td s)^k`` with
+    ``c_k = (2n-k)! n! / ((2n)! k! (n-k)!)``. ``td = 0`` gives ``1/1``."""
+    if not (isinstance(order, (int, np.integer)) and 0 <= order <= 10):
+        raise ValueError(f"pade_order: must be an integer in 0..10, got {order!r}")
+    _check("Td", td, nonneg=True)
+    if td == 0 or order == 0:
+        return np.array([1.0]), np.array([1.0])
+    n = int(order)
+    c = [
+        math.factorial(2 * n - k) * math.factorial(n)
+        / (math.factorial(2 * n) * math.factorial(k) * math.factorial(n - k))
+        * td**k
+        for k in range(n + 1)
+    ]
+    den = np.array(c[::-1])
+    num = np.array([ck * (-1) ** k for k, ck in enumerate(c)][::-1])
+    return num, den
 
 
 #: The registered base models by short name.

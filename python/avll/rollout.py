@@ -200,12 +200,15 @@ def batch_cost(
             else:
                 rows.append(r.upper.to_array())
         upper = np.ascontiguousarray(np.vstack(rows))
+    a = _concat(runs, "a", True)
+    assert a is not None
+    wa, wv, wx = (float(w) for w in weights)
     return _core.batch_cost(
         cls.name,
         p,
         [int(o) for o in offsets],
         np.array([r.dt for r in runs], dtype=np.float64),
-        _concat(runs, "a", True),
+        a,
         command=None if closed_loop else _concat(runs, "command", True),
         lead_x=_concat(runs, "lead_x", closed_loop) if closed_loop else None,
         lead_v=_concat(runs, "lead_v", closed_loop) if closed_loop else None,
@@ -214,7 +217,7 @@ def batch_cost(
         upper=upper,
         upper_free=[int(i) for i in upper_free],
         command_kind=runs[0].command_kind,
-        weights=tuple(float(w) for w in weights),
+        weights=(wa, wv, wx),
         init=init,
         closed_loop=closed_loop,
         threads=int(threads),

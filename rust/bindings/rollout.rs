@@ -269,8 +269,8 @@ fn batch_cost<'py>(
             crate::parallel::with_threads(threads, || rollout::batch_cost(&spec, rows, &runs))?
         })
     })?;
-    let _ = p;
-    Ok(out.into_pyarray(py).reshape([p, r])?)
+
+    out.into_pyarray(py).reshape([p, r])
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

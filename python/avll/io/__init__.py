@@ -4,6 +4,12 @@
 a list of :class:`avll.Run` and raises :class:`avll.DataError` (a ``ValueError``)
 naming the file, the column and the row of any bad input. Input files are never
 modified.
+
+Formats: ``canonical`` (the library's own long CSV/Parquet), ``generic`` (any
+CSV/Parquet with a column mapping), ``carma`` (FHWA CARMA platoon CSVs: engaged
+stretches, speed command), ``openacc-astazero`` (JRC OpenACC AstaZero: platoon pairs
+and free-flow segments, road grade). The measured-data loaders accept ``dt=`` (and
+``max_gap=``) to resample.
 """
 
 from __future__ import annotations
@@ -13,13 +19,35 @@ from pathlib import Path
 from typing import Any
 
 from ..data import DataError, Run
+from ._common import check_runs_for_delay, summarize
 from .canonical import load_canonical, write_runs
+from .carma import carma_report, load_carma
+from .formats import LOADERS, load_format
+from .generic import load_generic
+from .openacc import load_openacc_astazero
+from .resample import resample_arrays, resample_run
 
-__all__ = ["read_runs", "write_runs", "load_canonical", "FORMATS"]
+__all__ = [
+    "read_runs",
+    "write_runs",
+    "load_canonical",
+    "FORMATS",
+    "LOADERS",
+    "load_format",
+    "load_carma",
+    "carma_report",
+    "load_generic",
+    "load_openacc_astazero",
+    "resample_arrays",
+    "resample_run",
+    "check_runs_for_delay",
+    "summarize",
+]
 
 #: Loader by format name: ``loader(path, command_kind=..., **options) -> list[Run]``.
 FORMATS: dict[str, Callable[..., list[Run]]] = {
     "canonical": load_canonical,
+    **LOADERS,
 }
 
 
