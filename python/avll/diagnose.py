@@ -1105,7 +1105,7 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
 def _cmd(args: argparse.Namespace) -> int:
     from .io import read_runs
 
-    runs = read_runs(args.data, command_kind=args.command_kind)
+    runs = read_runs(args.data, command_kind=args.command_kind, format=args.format)
     ids = [s.strip() for s in args.cal_runs.split(",") if s.strip()]
     known = {r.run_id for r in runs}
     missing = [i for i in ids if i not in known]
@@ -1131,6 +1131,8 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("diagnose", help="residual diagnosis and the add-effect loop")
     p.add_argument("data", help="runs in the canonical format (CSV/Parquet)")
     p.add_argument("--command-kind", choices=["acceleration", "speed"], default=None)
+    p.add_argument("--format", default="canonical",
+                   help="data format (see `avll load`), default canonical")
     p.add_argument("--model", default="proposed", help="base model: first|second|proposed")
     p.add_argument("--cal-runs", required=True, help="comma-separated calibration run ids")
     p.add_argument("--seed", type=int, default=0)
