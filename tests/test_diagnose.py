@@ -206,3 +206,11 @@ def test_speed_command_asymmetry_is_found() -> None:
     assert [s.effect for s in res.steps][:1] == ["asymmetric"]
     assert res.steps[0].params["kb"] == 1.0
     assert res.steps[0].params["rb"] == pytest.approx(1.8, abs=0.3)
+
+
+@pytest.mark.slow
+def test_proposed_base_finds_saturation() -> None:
+    # The CLI's default base model on a proposed-model truth.
+    e = expected_params("saturation")
+    res = _loop(avll.PAPER_TABLE_II["proposed"], {"saturation": None}, "proposed")
+    _check_step(res, "saturation", {"a_max": (e["a_max"], 0.12), "d_max": (e["d_max"], 0.12)})

@@ -272,6 +272,7 @@ def fit_full(
     maxiter: int = 300,
     init: str = "auto",
     threads: int = 0,
+    progress: bool = False,
 ) -> tuple[WithEffects, UpperLevel | None]:
     """As :func:`fit`, and in closed loop with ``free_upper`` (default: when a run
     has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
@@ -325,11 +326,25 @@ def fit_full(
             parts.append(start_upper.to_array() if start_upper is not None
                          else np.array([0.5, 0.5, 1.5, 5.0]))  # fmt: skip
         x0 = sp.to_z(np.concatenate(parts))
-    res = optimize.differential_evolution(
-        lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
-        popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
-        x0=x0, init="sobol",
-    )  # fmt: skip
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=maxiter, desc="fit " + "+".join([bname, *names]), leave=False)
+
+    def cb(intermediate_result: Any) -> None:
+        if bar is not None:
+            bar.update(1)
+
+    try:
+        res = optimize.differential_evolution(
+            lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
+            popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
+            x0=x0, init="sobol", callback=cb,
+        )  # fmt: skip
+    finally:
+        if bar is not None:
+            bar.close()
     p = sp.from_z(_polish(f, np.asarray(res.x), 200))
     n_model = len(p) - (4 if free_upper else 0)
     model = WithEffects.from_array(bname, names, p[:n_model])
@@ -912,7 +927,12 @@ def effect_loop(
     closed = _closed([*cal_runs, *val_runs], closed_loop)
     init = _init(cal_runs, init)
     bname = model_class(base).name
-    say = print if progress else (lambda *a, **k: None)
+    if progress:
+        from tqdm.auto import tqdm
+
+        say: Callable[[str], None] = tqdm.write
+    else:
+        say = lambda msg: None  # noqa: E731
     free_upper = closed and any(r.upper is None for r in [*cal_runs, *val_runs])
     upper: UpperLevel | None = None
 
@@ -923,7 +943,7 @@ def effect_loop(
 
     if baseline is None:
         current, upper = fit_full(bname, (), cal_runs, seed=seed, closed_loop=closed, init=init,
-                                  free_upper=free_upper)  # fmt: skip
+                                  free_upper=free_upper, progress=progress)  # fmt: skip
     else:
         current = WithEffects(baseline, ())
         if free_upper:
@@ -951,7 +971,8 @@ def effect_loop(
             start = WithEffects(current.base, (*current.effects, cls(**c.hint)))
             new, up1 = fit_full(bname, [*current.effect_names, c.effect], cal_runs,
                                 start=start, start_upper=upper, seed=seed + 1000 * (it + 1),
-                                closed_loop=closed, init=init, free_upper=free_upper)  # fmt: skip
+                                closed_loop=closed, init=init, free_upper=free_upper,
+                                progress=progress)  # fmt: skip
             cal_new, val_new = with_upper(cal_runs, up1), with_upper(val_runs, up1)
             cal1 = _per_run(new, cal_new, closed, init)
             val1 = _per_run(new, val_new, closed, init)
