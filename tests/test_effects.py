@@ -218,3 +218,17 @@ def test_bad_input_names_the_argument() -> None:
     with pytest.raises(ValueError, match="kb must be 1"):
         simulate_effects(WithEffects(base, (Asymmetric(0.5, 1.0),)), u + 5, DT,
                          command_kind="speed")  # fmt: skip
+
+
+def test_equivalent_model_for_stability_maps() -> None:
+    from avll.effects import equivalent_model
+
+    prop = avll.PAPER_TABLE_II["proposed"]
+    brake = equivalent_model(WithEffects(prop, (Asymmetric(0.8, 1.5),)), side=-1)
+    assert isinstance(brake, avll.Proposed)
+    assert brake.K0 == pytest.approx(0.8 * prop.K0) and brake.m2 == pytest.approx(2.25 * prop.m2)
+    assert brake.m1 == pytest.approx(0.8 * 1.5 * prop.m1) and brake.K == prop.K
+    first = equivalent_model(WithEffects(avll.FirstOrderLag(Td=0.7), (Saturation(1, 1),)))
+    assert first == avll.FirstOrderLag(Td=0.7)
+    with pytest.raises(ValueError, match="neither"):
+        equivalent_model(WithEffects(avll.FirstOrderLag(Td=0.7), (Asymmetric(0.5, 1.0),)), side=-1)

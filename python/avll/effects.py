@@ -53,6 +53,7 @@ __all__ = [
     "CANONICAL_ORDER",
     "WithEffects",
     "effect_class",
+    "equivalent_model",
     "simulate_effects",
     "closed_loop_effects",
     "batch_cost_effects",
@@ -318,6 +319,26 @@ class WithEffects:
                 int(side),
             )
         )
+
+
+def equivalent_model(
+    model: WithEffects, *, v: float = 0.0, side: int = 0
+) -> LowerLevelModel:
+    """The small-signal equivalent (:meth:`WithEffects.linear`) as a base-model
+    object for the stability functions: a :class:`~avll.Proposed` (``m1 = b1, m2 = a2,
+    m3 = a1, K0 = b0``) when the rational part is of second order, a
+    :class:`~avll.FirstOrderLag` when it is a unit-gain lag without dead time or
+    feedback; ``ValueError`` otherwise (e.g. a first-order lag with a braking gain)."""
+    from .models import FirstOrderLag, Proposed
+
+    c = model.linear(v=v, side=side)
+    if c["a2"] > 0:
+        return Proposed(m1=c["b1"], m2=c["a2"], m3=c["a1"], K0=c["b0"], Td=c["Td"], K=c["K"])
+    if c["b1"] == 0 and c["b0"] == 1 and c["Td"] == 0 and c["K"] == 0 and c["a1"] > 0:
+        return FirstOrderLag(Td=c["a1"])
+    raise ValueError(
+        f"model: the equivalent {c} is neither second order nor a unit-gain first-order lag"
+    )
 
 
 def _split(model: WithEffects | LowerLevelModel) -> tuple[str, list[float], list[str], list[float]]:
