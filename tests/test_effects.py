@@ -200,6 +200,15 @@ def test_batch_cost_matches_simulation_and_flags_invalid_rows() -> None:
     c2 = batch_cost_effects("proposed", ["saturation", "grade"], row[None, :], runs, threads=2)
     c1 = batch_cost_effects("proposed", ["saturation", "grade"], row[None, :], runs, threads=1)
     np.testing.assert_array_equal(c1, c2)
+    # The acceleration-only fast path (no integrators) gives the same costs.
+    for j, r in enumerate(runs):
+        tr = simulate_effects(m, r.command, DT, v0=r.v[0], x0=r.x[0], exo=r.exo)
+        assert c1[0, j] == pytest.approx(np.mean((tr.a - r.a) ** 2), rel=1e-12)
+    drag = WithEffects(base, (SpeedDrag(0.05, 0.002),))
+    cd = batch_cost_effects("proposed", ["speed_drag"], drag.to_array()[None, :], runs)
+    for j, r in enumerate(runs):
+        tr = simulate_effects(drag, r.command, DT, v0=r.v[0], x0=r.x[0])
+        assert cd[0, j] == pytest.approx(np.mean((tr.a - r.a) ** 2), rel=1e-12)
 
 
 def test_bad_input_names_the_argument() -> None:

@@ -129,6 +129,8 @@ fn step_loop<const N: usize>(
     let mut x = x0;
     let has_frac = d.frac > 0.0;
     let acc = kind == CommandKind::Acceleration;
+    // Without integrators (a cost on the acceleration alone) speed and position are 0.
+    let ints = N > m;
     let (mut dv, mut dp) = (0.0, 0.0);
     let half_dt2 = 0.5 * dt * dt;
     for n in 0..len {
@@ -137,7 +139,16 @@ fn step_loop<const N: usize>(
             // The linear part diverged (an output clip may hide it).
             return false;
         }
-        let (v, p, y_act) = if acc {
+        let (v, p, y_act) = if !ints {
+            let mut a = y_lin;
+            for e in effects.iter() {
+                a = e.output(a);
+            }
+            for (e, s) in effects.iter().zip(exo) {
+                a += e.disturbance(0.0, s.map_or(0.0, |s| s[n]));
+            }
+            (0.0, 0.0, if acc { a } else { y_lin })
+        } else if acc {
             let v = x[m] + dv;
             let mut a = y_lin;
             for e in effects.iter() {
@@ -495,6 +506,17 @@ impl EffCostSpec {
     }
 }
 
+/// Open loop, acceleration command, acceleration error only and no effect reading
+/// the speed: the integrators are not needed (as in the linear cost's fast path).
+fn fast_path(spec: &EffCostSpec) -> bool {
+    let b = &spec.base;
+    !b.closed_loop
+        && b.kind == CommandKind::Acceleration
+        && b.weights[1] == 0.0
+        && b.weights[2] == 0.0
+        && !spec.effects.0.iter().any(|k| k.needs_speed())
+}
+
 fn finite_or_inf(c: f64) -> f64 {
     if c.is_finite() {
         c
@@ -524,7 +546,12 @@ pub fn run_cost(spec: &EffCostSpec, row: &[f64], run: &EffRun) -> f64 {
         Ok(e) => e,
         Err(_) => return f64::INFINITY,
     };
-    let dim = lin.order() + Integrators::for_kind(spec.base.kind).count();
+    let ints = if fast_path(spec) {
+        Integrators::None
+    } else {
+        Integrators::for_kind(spec.base.kind)
+    };
+    let dim = lin.order() + ints.count();
     let res = with_dim!(dim, cost_n(&lin, &mut effs, &up, spec, &run.run, &exo));
     finite_or_inf(res.unwrap_or(f64::INFINITY))
 }
@@ -539,7 +566,11 @@ fn cost_n<const N: usize>(
 ) -> Result<f64> {
     let kind = spec.base.kind;
     let closed = spec.base.closed_loop;
-    let ints = Integrators::for_kind(kind);
+    let ints = if fast_path(spec) {
+        Integrators::None
+    } else {
+        Integrators::for_kind(kind)
+    };
     let mp = maps::<N>(lin, effects, ints, run.dt)?;
     let m = lin.order();
     let len = run.len();
@@ -553,11 +584,13 @@ fn cost_n<const N: usize>(
     }
     let v0 = run.v.map_or(0.0, |v| v[0]);
     let p0 = run.x.map_or(0.0, |x| x[0]);
-    if kind == CommandKind::Acceleration {
-        x0[m] = v0;
-        x0[m + 1] = p0;
-    } else {
-        x0[m] = p0;
+    if N > m {
+        if kind == CommandKind::Acceleration {
+            x0[m] = v0;
+            x0[m + 1] = p0;
+        } else {
+            x0[m] = p0;
+        }
     }
     let [wa, wv, wx] = spec.base.weights;
     let (mut sa, mut sv, mut sx) = (0.0, 0.0, 0.0);

@@ -49,6 +49,9 @@ pub trait Effect: Clone + Send + Sync + Sized {
     const EXO: Option<&'static str> = None;
     /// `true` if the effect acts on the acceleration and needs an acceleration command.
     const ACCEL_ONLY: bool = false;
+    /// `true` if the effect reads the actual speed (the engine then integrates it
+    /// even when the cost does not need it).
+    const NEEDS_SPEED: bool = false;
 
     /// Builds the effect from validated parameters (`p.len() == PARAMS.len()`,
     /// finite).
@@ -129,6 +132,9 @@ macro_rules! registry {
             }
             pub fn accel_only(self) -> bool {
                 match self { $(EffectKind::$variant => <$module::$ty as Effect>::ACCEL_ONLY),+ }
+            }
+            pub fn needs_speed(self) -> bool {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::NEEDS_SPEED),+ }
             }
             fn build(self, p: &[f64], kind: CommandKind) -> Result<AnyEffect> {
                 match self {

@@ -27,6 +27,7 @@ impl Effect for SpeedDrag {
     const BOUNDS: &'static [(f64, f64)] = &[(0.0, 0.6), (0.0, 0.006)];
     const NEUTRAL: &'static [f64] = &[0.0, 0.0];
     const ACCEL_ONLY: bool = true;
+    const NEEDS_SPEED: bool = true;
 
     fn new(p: &[f64], _kind: CommandKind) -> Result<Self> {
         check_range("speed_drag.c0", p[0], -10.0, 10.0)?;
