@@ -52,11 +52,17 @@ def main() -> None:
           f"(engine {t_ref / m / (t_all / n):.0f}x faster)")  # fmt: skip
     runs = [avll.Run(run_id=str(k), t=t[:3600], a=u[:3600], command=u[:3600],
                      exo={"grade": g[:3600]}) for k in range(3)]  # fmt: skip
+    steps = 256 * 3 * 3600
+    base_rows = np.repeat(base.to_array()[None, :], 256, axis=0)
+    t_lb = _best(lambda: avll.batch_cost("proposed", base_rows, runs, threads=1), 3)
+    t_eb = _best(lambda: batch_cost_effects("proposed", [], base_rows, runs, threads=1), 3)
+    print(f"batched cost, linear      {steps / t_lb / 1e6:8.1f} M steps/s (1 thread)")
+    print(f"batched cost, no effect   {steps / t_eb / 1e6:8.1f} M steps/s ({t_eb / t_lb:.2f}x)")
     rows = np.repeat(allfx.to_array()[None, :], 256, axis=0)
     names = list(allfx.effect_names)
     for th in (1, 2):
         tb = _best(lambda th=th: batch_cost_effects("proposed", names, rows, runs, threads=th), 3)
-        print(f"batched cost, {th} thread(s) {256 * 3 * 3600 / tb / 1e6:8.1f} M steps/s")
+        print(f"batched cost, all 7, {th} thread(s) {steps / tb / 1e6:8.1f} M steps/s")
 
 
 if __name__ == "__main__":
