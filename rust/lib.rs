@@ -11,6 +11,7 @@ pub mod error;
 pub mod model;
 pub mod parallel;
 pub mod rollout;
+pub mod stability;
 
 #[cfg(feature = "python")]
 mod bindings;

@@ -31,6 +31,17 @@ from .models import (
     model_class,
 )
 from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
+from .stability import (
+    PadeReport,
+    Thresholds,
+    capacity,
+    exact_delay_codes,
+    kv_threshold,
+    pade_report,
+    stability_map,
+    stability_points,
+    thresholds,
+)
 
 #: Table II of the paper: the calibrated parameters of the three models.
 PAPER_TABLE_II = {
@@ -69,4 +80,13 @@ __all__ = [
     "batch_cost_effects",
     "closed_loop_effects",
     "simulate_effects",
+    "PadeReport",
+    "Thresholds",
+    "capacity",
+    "exact_delay_codes",
+    "kv_threshold",
+    "pade_report",
+    "stability_map",
+    "stability_points",
+    "thresholds",
 ]

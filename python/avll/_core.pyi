@@ -1,4 +1,6 @@
 # Stubs of the Rust extension avll._core (checked with mypy.stubtest in the tests).
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 
@@ -126,3 +128,35 @@ def batch_cost_effects(
     exo: dict[str, npt.NDArray[np.float64]] = ...,
     threads: int = 0,
 ) -> npt.NDArray[np.float64]: ...
+
+# --- stability (rust/bindings/stability.rs) ---
+PADE_MAX_ORDER: int
+
+def stability_map(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    pade_order: int = 2,
+    threads: int = 0,
+    progress: Callable[[int, int], object] | None = None,
+) -> npt.NDArray[np.uint8]: ...
+def stability_points(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    pade_order: int = 2,
+    threads: int = 0,
+) -> npt.NDArray[np.uint8]: ...
+def stability_polys(
+    model: str,
+    params: list[float],
+    kg: float,
+    tg: float,
+    kv: float,
+    pade_order: int = 2,
+) -> tuple[list[float], list[float], list[float]]: ...
+def pade_den(order: int, td: float) -> list[float]: ...

@@ -7,6 +7,7 @@
 
 mod effects;
 mod rollout;
+mod stability;
 
 use crate::error::AvllError;
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
@@ -60,5 +61,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     rollout::register(m)?;
     effects::register(m)?;
+    stability::register(m)?;
     Ok(())
 }
