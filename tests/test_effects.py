@@ -241,3 +241,21 @@ def test_equivalent_model_for_stability_maps() -> None:
     assert first == avll.FirstOrderLag(Td=0.7)
     with pytest.raises(ValueError, match="neither"):
         equivalent_model(WithEffects(avll.FirstOrderLag(Td=0.7), (Asymmetric(0.5, 1.0),)), side=-1)
+
+
+def test_stability_maps_redrawn_with_an_effect() -> None:
+    from avll.effects import equivalent_model
+    from avll.stability import stability_map
+
+    prop = avll.PAPER_TABLE_II["proposed"]
+    kg, tg, kv = np.linspace(0.05, 1.5, 30), np.linspace(0.1, 6, 30), [0.0, 0.3]
+    base = stability_map(prop, kg, tg, kv)
+    # Effects whose small-signal model is the identity leave the map unchanged.
+    same = equivalent_model(WithEffects(prop, (Saturation(1, 1), Deadband(0.1), Grade(9.8))))
+    np.testing.assert_array_equal(stability_map(same, kg, tg, kv), base)
+    # Slower braking dynamics (more lag) shrink the stable region; faster ones grow it.
+    n = {r: int((stability_map(equivalent_model(WithEffects(prop, (Asymmetric(1.0, r),)),
+                                                side=-1), kg, tg, kv) == 2).sum())
+         for r in (0.7, 1.5)}  # fmt: skip
+    n0 = int((base == 2).sum())
+    assert n[1.5] < n0 < n[0.7]
