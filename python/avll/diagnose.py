@@ -502,9 +502,14 @@ def _signals(run: Run, sim: np.ndarray) -> dict[str, np.ndarray]:
         "command rate": du,
         "command jerk": np.gradient(du, dt),
         "simulated acceleration": sim,
-        "sign of command": np.sign(u),
-        "sign of acceleration": np.sign(sim),
     }
+    if run.command_kind == "speed" and run.command is not None and run.v is not None:
+        # For a speed command the demand is the speed error; its sign says braking.
+        out["speed error"] = run.command - run.v
+        out["sign of speed error"] = np.sign(run.command - run.v)
+    else:
+        out["sign of command"] = np.sign(u)
+    out["sign of acceleration"] = np.sign(sim)
     if run.v is not None:
         out["speed"] = run.v
     for k, v in run.exo.items():
