@@ -207,6 +207,138 @@ fn sub<'a>(s: Option<&'a [f64]>, offsets: &[usize], k: usize) -> Option<&'a [f64
     s.map(|s| &s[offsets[k]..offsets[k + 1]])
 }
 
+/// The cost specification of the batched functions (effects in canonical order).
+fn eff_spec(
+    model: &str,
+    effects: &[String],
+    upper_free: Vec<usize>,
+    command_kind: &str,
+    weights: (f64, f64, f64),
+    init: &str,
+    closed_loop: bool,
+) -> PyResult<engine::EffCostSpec> {
+    guard(|| {
+        let kind = CommandKind::from_name(command_kind)?;
+        let names: Vec<&str> = effects.iter().map(|s| s.as_str()).collect();
+        let list = EffectList::from_names(&names, kind)?;
+        if list.0.iter().map(|k| k.name()).ne(names.iter().copied()) {
+            return Err(crate::error::AvllError::new(
+                "effects",
+                format!(
+                    "must be in the canonical order {:?}",
+                    list.0.iter().map(|k| k.name()).collect::<Vec<_>>()
+                ),
+            ));
+        }
+        Ok(engine::EffCostSpec {
+            base: CostSpec {
+                model: ModelKind::from_name(model)?,
+                kind,
+                weights: [weights.0, weights.1, weights.2],
+                init: Init::from_name(init)?,
+                closed_loop,
+                upper_free,
+            },
+            effects: list,
+        })
+    })
+}
+
+/// The concatenated run arrays of the batched functions as borrowed runs: run `r`
+/// is `offsets[r]..offsets[r+1]` of every series.
+#[allow(clippy::too_many_arguments)]
+fn eff_runs<'a>(
+    offsets: &[usize],
+    dt: &'a PyReadonlyArray1<'_, f64>,
+    a: &'a PyReadonlyArray1<'_, f64>,
+    command: &'a Option<PyReadonlyArray1<'_, f64>>,
+    lead_x: &'a Option<PyReadonlyArray1<'_, f64>>,
+    lead_v: &'a Option<PyReadonlyArray1<'_, f64>>,
+    v: &'a Option<PyReadonlyArray1<'_, f64>>,
+    x: &'a Option<PyReadonlyArray1<'_, f64>>,
+    upper: &'a Option<PyReadonlyArray2<'_, f64>>,
+    exo: &'a Exo<'_>,
+) -> PyResult<Vec<engine::EffRun<'a>>> {
+    let a = slice1("a", a)?;
+    let total = a.len();
+    let (command, lead_x, lead_v, v, x) = (
+        optional("command", command, total)?,
+        optional("lead_x", lead_x, total)?,
+        optional("lead_v", lead_v, total)?,
+        optional("v", v, total)?,
+        optional("x", x, total)?,
+    );
+    let mut exos = Vec::new();
+    for (k, arr) in exo {
+        let name = format!("exo[{k:?}]");
+        let s = slice1(&name, arr)?;
+        if s.len() != total {
+            return Err(PyValueError::new_err(format!(
+                "{name}: has length {} but `a` has {total}",
+                s.len()
+            )));
+        }
+        exos.push((k.as_str(), s));
+    }
+    let dts = slice1("dt", dt)?;
+    let r = dts.len();
+    if offsets.len() != r + 1
+        || offsets[0] != 0
+        || offsets[r] != total
+        || offsets.windows(2).any(|w| w[0] > w[1])
+    {
+        return Err(PyValueError::new_err(format!(
+            "offsets: must be {} non-decreasing values from 0 to {total} (one more than dt)",
+            r + 1
+        )));
+    }
+    let uppers: Vec<Upper> = match upper {
+        None => vec![
+            Upper {
+                kg: 0.0,
+                kv: 0.0,
+                tg: 0.0,
+                gmin: 0.0
+            };
+            r
+        ],
+        Some(u) => {
+            let (ur, uc, us) = slice2("upper", u)?;
+            if ur != r || uc != 4 {
+                return Err(PyValueError::new_err(format!(
+                    "upper: must have shape ({r}, 4) (kg, kv, Tg, Gmin per run), got ({ur}, {uc})"
+                )));
+            }
+            us.chunks(4)
+                .map(|c| Upper {
+                    kg: c[0],
+                    kv: c[1],
+                    tg: c[2],
+                    gmin: c[3],
+                })
+                .collect()
+        }
+    };
+    Ok((0..r)
+        .map(|k| engine::EffRun {
+            run: RunRef {
+                dt: dts[k],
+                command: sub(command, offsets, k),
+                lead_x: sub(lead_x, offsets, k),
+                lead_v: sub(lead_v, offsets, k),
+                a: &a[offsets[k]..offsets[k + 1]],
+                v: sub(v, offsets, k),
+                x: sub(x, offsets, k),
+                upper: uppers[k],
+            },
+            exo: exos
+                .iter()
+                .map(|(n, s)| (*n, &s[offsets[k]..offsets[k + 1]]))
+                .collect(),
+        })
+        .collect())
+}
+
 /// Per-run costs of base+effects parameter rows `[base | effects (canonical order) |
 /// free upper]` over concatenated runs, in parallel: a (P, R) array, `inf` for
 /// invalid or unstable rows.
@@ -235,31 +367,15 @@ fn batch_cost_effects<'py>(
     exo: Exo<'py>,
     threads: usize,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    let spec = guard(|| {
-        let kind = CommandKind::from_name(command_kind)?;
-        let names: Vec<&str> = effects.iter().map(|s| s.as_str()).collect();
-        let list = EffectList::from_names(&names, kind)?;
-        if list.0.iter().map(|k| k.name()).ne(names.iter().copied()) {
-            return Err(crate::error::AvllError::new(
-                "effects",
-                format!(
-                    "must be in the canonical order {:?}",
-                    list.0.iter().map(|k| k.name()).collect::<Vec<_>>()
-                ),
-            ));
-        }
-        Ok(engine::EffCostSpec {
-            base: CostSpec {
-                model: ModelKind::from_name(model)?,
-                kind,
-                weights: [weights.0, weights.1, weights.2],
-                init: Init::from_name(init)?,
-                closed_loop,
-                upper_free,
-            },
-            effects: list,
-        })
-    })?;
+    let spec = eff_spec(
+        model,
+        &effects,
+        upper_free,
+        command_kind,
+        weights,
+        init,
+        closed_loop,
+    )?;
     let (p, np, rows) = slice2("params", &params)?;
     if np != spec.n_params() {
         return Err(PyValueError::new_err(format!(
@@ -270,84 +386,10 @@ fn batch_cost_effects<'py>(
             spec.base.upper_free.len()
         )));
     }
-    let a = slice1("a", &a)?;
-    let total = a.len();
-    let (command, lead_x, lead_v, v, x) = (
-        optional("command", &command, total)?,
-        optional("lead_x", &lead_x, total)?,
-        optional("lead_v", &lead_v, total)?,
-        optional("v", &v, total)?,
-        optional("x", &x, total)?,
-    );
-    let mut exos = Vec::new();
-    for (k, arr) in &exo {
-        let name = format!("exo[{k:?}]");
-        let s = slice1(&name, arr)?;
-        if s.len() != total {
-            return Err(PyValueError::new_err(format!(
-                "{name}: has length {} but `a` has {total}",
-                s.len()
-            )));
-        }
-        exos.push((k.as_str(), s));
-    }
-    let dts = slice1("dt", &dt)?;
-    let r = dts.len();
-    if offsets.len() != r + 1
-        || offsets[0] != 0
-        || offsets[r] != total
-        || offsets.windows(2).any(|w| w[0] > w[1])
-    {
-        return Err(PyValueError::new_err(format!(
-            "offsets: must be {} non-decreasing values from 0 to {total} (one more than dt)",
-            r + 1
-        )));
-    }
-    let uppers: Vec<Upper> = match &upper {
-        None => vec![
-            Upper {
-                kg: 0.0,
-                kv: 0.0,
-                tg: 0.0,
-                gmin: 0.0
-            };
-            r
-        ],
-        Some(u) => {
-            let (ur, uc, us) = slice2("upper", u)?;
-            if ur != r || uc != 4 {
-                return Err(PyValueError::new_err(format!(
-                    "upper: must have shape ({r}, 4) (kg, kv, Tg, Gmin per run), got ({ur}, {uc})"
-                )));
-            }
-            us.chunks(4)
-                .map(|c| Upper {
-                    kg: c[0],
-                    kv: c[1],
-                    tg: c[2],
-                    gmin: c[3],
-                })
-                .collect()
-        }
-    };
-    let runs: Vec<engine::EffRun> = (0..r)
-        .map(|k| engine::EffRun {
-            run: RunRef {
-                dt: dts[k],
-                command: sub(command, &offsets, k),
-                lead_x: sub(lead_x, &offsets, k),
-                lead_v: sub(lead_v, &offsets, k),
-                a: &a[offsets[k]..offsets[k + 1]],
-                v: sub(v, &offsets, k),
-                x: sub(x, &offsets, k),
-                upper: uppers[k],
-            },
-            exo: exos
-                .iter()
-                .map(|(n, s)| (*n, &s[offsets[k]..offsets[k + 1]]))
-                .collect(),
-        })
-        .collect();
+    let runs = eff_runs(
+        &offsets, &dt, &a, &command, &lead_x, &lead_v, &v, &x, &upper, &exo,
+    )?;
+    let r = runs.len();
     let out = py.detach(|| {
         guard(|| crate::parallel::with_threads(threads, || engine::batch_cost(&spec, rows, &runs))?)
     })?;
