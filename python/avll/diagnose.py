@@ -988,8 +988,13 @@ def effect_loop(
             lr = n_eff_val * math.log(mv0 / mv1) if mv1 > 0 and math.isfinite(mv1) else -np.inf
             q = len(cls.param_names())
             p_lr = float(stats.chi2.sf(lr, q)) if lr > 0 else 1.0
-            bic0 = _bic(current, cal0, d.n_eff, 4 if free_upper else 0)
-            bic1 = _bic(new, cal1, d.n_eff, 4 if free_upper else 0)
+            # Both BICs with the effective sample size of the calibration residual
+            # under the larger model (the restricted residual's own autocorrelation
+            # contains the very structure the effect explains).
+            csim1 = simulate_runs(new, cal_new, closed_loop=closed, init=init)
+            n_eff_cal = _ess([r.a - s for r, s in zip(cal_new, csim1, strict=True)])
+            bic0 = _bic(current, cal0, n_eff_cal, 4 if free_upper else 0)
+            bic1 = _bic(new, cal1, n_eff_cal, 4 if free_upper else 0)
             ok = p_lr < alpha and bic1 < bic0 and mv1 < mv0
             say(f"try {c.effect}: cal {_mean(cal0):.4g} -> {_mean(cal1):.4g}, val {mv0:.4g} -> "
                 f"{mv1:.4g}, LR p={p_lr:.2g}, BIC {bic0:.1f} -> {bic1:.1f}: "
