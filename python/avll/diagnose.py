@@ -1008,7 +1008,10 @@ def effect_loop(
                     upper, cal_runs, val_runs = up1, cal_new, val_new
                 accepted = True
                 break
-            rejected.append({"effect": c.effect, "val_mse_before": mv0,
+            rejected.append({"effect": c.effect,
+                             "params": dict((e.name, e) for e in new.effects)[c.effect].to_dict(),
+                             "cal_mse_before": _mean(cal0), "cal_mse_after": _mean(cal1),
+                             "val_mse_before": mv0,
                              "val_mse_after": mv1, "lr_p_value": p_lr,
                              "bic_before": bic0, "bic_after": bic1})  # fmt: skip
         if not accepted:
