@@ -8,6 +8,7 @@
 pub mod discretize;
 pub mod effects;
 pub mod error;
+pub mod ga;
 pub mod model;
 pub mod parallel;
 pub mod rollout;

@@ -6,6 +6,15 @@ automated vehicle".
 """
 
 from ._core import __version__
+from .calibrate import (
+    Bootstrap,
+    CalibrationResult,
+    Workflow,
+    bootstrap,
+    calibrate,
+    calibrate_many,
+    paper_workflow,
+)
 from .data import DataError, Run
 from .effects import (
     EFFECTS,
@@ -80,6 +89,13 @@ __all__ = [
     "batch_cost_effects",
     "closed_loop_effects",
     "simulate_effects",
+    "Bootstrap",
+    "CalibrationResult",
+    "Workflow",
+    "bootstrap",
+    "calibrate",
+    "calibrate_many",
+    "paper_workflow",
     "PadeReport",
     "Thresholds",
     "capacity",

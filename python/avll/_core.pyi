@@ -1,5 +1,6 @@
 # Stubs of the Rust extension avll._core (checked with mypy.stubtest in the tests).
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -68,6 +69,83 @@ def batch_cost(
     closed_loop: bool = False,
     threads: int = 0,
 ) -> npt.NDArray[np.float64]: ...
+def calibrate(
+    model: str,
+    offsets: list[int],
+    dt: npt.NDArray[np.float64],
+    a: npt.NDArray[np.float64],
+    lower_bounds: list[float],
+    upper_bounds: list[float],
+    scale: list[str],
+    command: npt.NDArray[np.float64] | None = None,
+    lead_x: npt.NDArray[np.float64] | None = None,
+    lead_v: npt.NDArray[np.float64] | None = None,
+    v: npt.NDArray[np.float64] | None = None,
+    x: npt.NDArray[np.float64] | None = None,
+    upper: npt.NDArray[np.float64] | None = None,
+    upper_free: list[int] = ...,
+    command_kind: str = "acceleration",
+    weights: tuple[float, float, float] = ...,
+    init: str = "rest",
+    closed_loop: bool = False,
+    problems: list[list[int]] | None = None,
+    derive_seeds: bool = True,
+    stop_all_at_target: bool = False,
+    seed: int = 0,
+    pop_size: int = 0,
+    max_generations: int = 300,
+    stall_generations: int = 20,
+    ftol: float = 0.0001,
+    xtol: float = 1e-08,
+    target: float = ...,
+    tournament: int = 2,
+    crossover_prob: float = 0.9,
+    eta_c: float = 10.0,
+    mutation_prob: float = 0.0,
+    eta_m: float = 20.0,
+    plus: bool = True,
+    elite: int = 0,
+    polish: bool = True,
+    polish_max_evals: int = 0,
+    local_every: int = 3,
+    local_evals: int = 0,
+    initial: npt.NDArray[np.float64] | None = None,
+    progress: Callable[[dict[str, Any]], Any] | None = None,
+    threads: int = 0,
+) -> list[dict[str, Any]]: ...
+def derive_seed(seed: int, k: int) -> int: ...
+
+# --- stability (rust/bindings/stability.rs) ---
+PADE_MAX_ORDER: int
+
+def stability_map(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    pade_order: int = 2,
+    threads: int = 0,
+    progress: Callable[[int, int], object] | None = None,
+) -> npt.NDArray[np.uint8]: ...
+def stability_points(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    pade_order: int = 2,
+    threads: int = 0,
+) -> npt.NDArray[np.uint8]: ...
+def stability_polys(
+    model: str,
+    params: list[float],
+    kg: float,
+    tg: float,
+    kv: float,
+    pade_order: int = 2,
+) -> tuple[list[float], list[float], list[float]]: ...
+def pade_den(order: int, td: float) -> list[float]: ...
 def effect_info() -> list[dict[str, object]]: ...
 def simulate_effects(
     model: str,

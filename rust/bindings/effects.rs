@@ -396,11 +396,144 @@ fn batch_cost_effects<'py>(
     out.into_pyarray(py).reshape([p, r])
 }
 
+/// Calibrates base + effects (and free upper-level gains) by the project's GA on the
+/// mean over runs of the effects cost. Rows/bounds: `[base | effects (canonical) |
+/// free upper]`. `progress(dict)` is called between generations; Ctrl-C stops the GA
+/// with the best so far and raises `KeyboardInterrupt`. Returns a dict (x, f, f_ga,
+/// generations, evaluations, stop, history).
+#[pyfunction]
+#[pyo3(signature = (
+    model, effects, offsets, dt, a, lower_bounds, upper_bounds, scale,
+    command=None, lead_x=None, lead_v=None, v=None, x=None, upper=None,
+    upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0),
+    init="rest", closed_loop=false, exo=BTreeMap::new(), seed=0, pop_size=0,
+    max_generations=300, stall_generations=20, ftol=1e-4, polish=true, local_every=3,
+    initial=None, progress=None, threads=0
+))]
+#[allow(clippy::too_many_arguments)]
+fn calibrate_effects<'py>(
+    py: Python<'py>,
+    model: &str,
+    effects: Vec<String>,
+    offsets: Vec<usize>,
+    dt: PyReadonlyArray1<'py, f64>,
+    a: PyReadonlyArray1<'py, f64>,
+    lower_bounds: Vec<f64>,
+    upper_bounds: Vec<f64>,
+    scale: Vec<String>,
+    command: Option<PyReadonlyArray1<'py, f64>>,
+    lead_x: Option<PyReadonlyArray1<'py, f64>>,
+    lead_v: Option<PyReadonlyArray1<'py, f64>>,
+    v: Option<PyReadonlyArray1<'py, f64>>,
+    x: Option<PyReadonlyArray1<'py, f64>>,
+    upper: Option<PyReadonlyArray2<'py, f64>>,
+    upper_free: Vec<usize>,
+    command_kind: &str,
+    weights: (f64, f64, f64),
+    init: &str,
+    closed_loop: bool,
+    exo: Exo<'py>,
+    seed: u64,
+    pop_size: usize,
+    max_generations: usize,
+    stall_generations: usize,
+    ftol: f64,
+    polish: bool,
+    local_every: usize,
+    initial: Option<PyReadonlyArray2<'py, f64>>,
+    progress: Option<Py<PyAny>>,
+    threads: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    use crate::ga::{Bounds, GaOptions, Scale};
+    let spec = eff_spec(
+        model,
+        &effects,
+        upper_free,
+        command_kind,
+        weights,
+        init,
+        closed_loop,
+    )?;
+    let scales = guard(|| scale.iter().map(|s| Scale::from_name(s)).collect())?;
+    let bounds = guard(|| Bounds::new(lower_bounds, upper_bounds, scales))?;
+    let initial: Vec<Vec<f64>> = match &initial {
+        None => Vec::new(),
+        Some(arr) => {
+            let (_, c, s) = slice2("initial", arr)?;
+            if c == 0 {
+                Vec::new()
+            } else {
+                s.chunks(c).map(|r| r.to_vec()).collect()
+            }
+        }
+    };
+    let opts = GaOptions {
+        pop_size,
+        max_generations,
+        stall_generations,
+        ftol,
+        seed,
+        polish,
+        local_every,
+        initial,
+        ..GaOptions::default()
+    };
+    let runs = eff_runs(
+        &offsets, &dt, &a, &command, &lead_x, &lead_v, &v, &x, &upper, &exo,
+    )?;
+    let mut interrupted = false;
+    let mut cb_error: Option<PyErr> = None;
+    let res = py.detach(|| {
+        guard(|| {
+            crate::parallel::with_threads(threads, || {
+                crate::effects::calibrate::calibrate(&spec, &runs, &bounds, &opts, |p| {
+                    Python::attach(|py| {
+                        if let Err(e) = py.check_signals() {
+                            interrupted = true;
+                            cb_error = Some(e);
+                            return false;
+                        }
+                        if let Some(cb) = &progress {
+                            let info = PyDict::new(py);
+                            let r = (|| -> PyResult<()> {
+                                info.set_item("iteration", p.iteration)?;
+                                info.set_item("evaluations", p.evaluations)?;
+                                info.set_item("best", p.best_f)?;
+                                cb.bind(py).call1((info,))?;
+                                Ok(())
+                            })();
+                            if let Err(e) = r {
+                                cb_error = Some(e);
+                                return false;
+                            }
+                        }
+                        true
+                    })
+                })
+            })?
+        })
+    })?;
+    if let Some(e) = cb_error {
+        let _ = interrupted;
+        return Err(e);
+    }
+    let d = PyDict::new(py);
+    d.set_item("x", res.x.into_pyarray(py))?;
+    d.set_item("f", res.f)?;
+    d.set_item("f_ga", res.f_ga)?;
+    d.set_item("generations", res.generations)?;
+    d.set_item("evaluations", res.evaluations)?;
+    d.set_item("stop", res.stop.name())?;
+    d.set_item("history", res.history.into_pyarray(py))?;
+    Ok(d)
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(effect_info, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_effects, m)?)?;
     m.add_function(wrap_pyfunction!(closed_loop_effects, m)?)?;
     m.add_function(wrap_pyfunction!(linearize_effects, m)?)?;
     m.add_function(wrap_pyfunction!(batch_cost_effects, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate_effects, m)?)?;
     Ok(())
 }

@@ -6,6 +6,7 @@
 //! cross into Python.
 
 mod effects;
+mod ga;
 mod rollout;
 mod stability;
 
@@ -61,6 +62,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     rollout::register(m)?;
     effects::register(m)?;
+    ga::register(m)?;
     stability::register(m)?;
     Ok(())
 }

@@ -19,6 +19,7 @@
 //! With no effect (or every effect at its neutral parameters) the engine reproduces
 //! the linear rollouts of [`crate::rollout`] exactly.
 
+pub mod calibrate;
 pub mod engine;
 
 use crate::error::{check_finite, AvllError, Result};

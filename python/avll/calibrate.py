@@ -1,0 +1,960 @@
+"""Calibration of the lower-level models by a parallel genetic algorithm (paper
+Section III.B–C).
+
+The objective is the paper's Eq. 6: the mean over runs of each run's mean squared
+acceleration error (optionally plus weighted speed and position errors), with the
+model driven open loop by the recorded command or closed loop by the recorded
+leader through the upper-level law (Eq. 3), whose gains may be calibrated too.
+The GA (Rust, ``avll._core.calibrate``) evaluates whole populations in parallel
+without Python in the loop, is reproducible from ``seed`` whatever the thread
+count, and is polished by a bounded Nelder–Mead.
+
+Bounds
+------
+The paper bounds most parameters to ``[0, Inf)``; a GA needs a finite box, so each
+model has practical default bounds (:data:`DEFAULT_BOUNDS`), with a logarithmic
+search scale for the positive coefficients that can span decades:
+
+============  ===============  ======  ====================================================
+parameter     bounds           scale   why
+============  ===============  ======  ====================================================
+Td (first)    [0.01, 3] s      linear  the paper's 3 s bound; a time constant must be > 0
+Td            [0, 3] s         linear  the paper's bounds
+K0            [0, 3]           linear  a static gain near 1 (the paper's: 0.35, 0.73)
+m1            [1e-4, 100] s    log     ``m1 <= 1e-4`` puts the zero beyond 1000 rad/s, i.e.
+                                       indistinguishable from the paper's ``m1 = 0`` at 20 Hz
+m2            [1e-3, 100] s²   log     time scales from ~30 ms to 10 s (``sqrt(m2)``)
+m3            [1e-3, 100] s    log     time constants from 1 ms to 100 s, far beyond the
+                                       paper's 0.13–8.8 s
+K             [-3, 3]          linear  the paper's 0.10; ``|K| K0 ~ 1`` is already a
+                                       marginal inner loop
+kg, kv        [0, 3] s⁻², s⁻¹  linear  (free upper-level gains, closed loop)
+Tg            [0, 5] s         linear
+Gmin          [0, 30] m        linear
+============  ===============  ======  ====================================================
+
+A fitted parameter within 0.1 % of a bound is reported in
+:attr:`CalibrationResult.at_bound`; widen that bound (``bounds={"m3": (1e-3, 1e3)}``)
+and calibrate again. Setting ``lo == hi`` fixes a parameter (e.g. ``m1 = 0`` of the
+paper's last remark: ``bounds={"m1": (0, 0)}``).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from .data import Run
+from .models import LowerLevelModel, UpperLevel, model_class
+from .rollout import _concat, batch_cost, closed_loop, simulate
+
+__all__ = [
+    "DEFAULT_BOUNDS",
+    "UPPER_BOUNDS",
+    "PAPER_CAL_RUNS",
+    "CalibrationResult",
+    "Bootstrap",
+    "Workflow",
+    "default_bounds",
+    "calibrate",
+    "calibrate_many",
+    "bootstrap",
+    "paper_workflow",
+    "split_runs",
+]
+
+#: The paper's calibration runs (Table III); the other runs validate (Table IV).
+PAPER_CAL_RUNS: tuple[int, ...] = (3, 4, 5, 9, 10, 11, 15, 16, 17, 19)
+
+Bound = tuple[float, float, str]
+
+#: Default search box per model: ``name -> (lower, upper, scale)``; see the module doc.
+DEFAULT_BOUNDS: dict[str, dict[str, Bound]] = {
+    "first": {"Td": (0.01, 3.0, "linear")},
+    "second": {
+        "K0": (0.0, 3.0, "linear"),
+        "m2": (1e-3, 100.0, "log"),
+        "m3": (1e-3, 100.0, "log"),
+        "Td": (0.0, 3.0, "linear"),
+    },
+    "proposed": {
+        "m1": (1e-4, 100.0, "log"),
+        "m2": (1e-3, 100.0, "log"),
+        "m3": (1e-3, 100.0, "log"),
+        "K0": (0.0, 3.0, "linear"),
+        "Td": (0.0, 3.0, "linear"),
+        "K": (-3.0, 3.0, "linear"),
+    },
+}
+
+#: Default box of the upper-level gains when they are calibrated (``upper_free``).
+UPPER_BOUNDS: dict[str, Bound] = {
+    "kg": (0.0, 3.0, "linear"),
+    "kv": (0.0, 3.0, "linear"),
+    "Tg": (0.0, 5.0, "linear"),
+    "Gmin": (0.0, 30.0, "linear"),
+}
+_UPPER_NAMES = ("kg", "kv", "Tg", "Gmin")
+
+#: GA options passed through to the Rust core, with their defaults.
+GA_OPTIONS: dict[str, Any] = {
+    "pop_size": 0,
+    "max_generations": 300,
+    "stall_generations": 20,
+    "ftol": 1e-4,
+    "xtol": 1e-8,
+    "tournament": 2,
+    "crossover_prob": 0.9,
+    "eta_c": 10.0,
+    "mutation_prob": 0.0,
+    "eta_m": 20.0,
+    "plus": True,
+    "elite": 0,
+    "polish": True,
+    "polish_max_evals": 0,
+    "local_every": 3,
+    "local_evals": 0,
+}
+
+
+def _upper_index(u: int | str) -> int:
+    if isinstance(u, str):
+        if u not in _UPPER_NAMES:
+            raise ValueError(f"upper_free: unknown gain {u!r}; known: {', '.join(_UPPER_NAMES)}")
+        return _UPPER_NAMES.index(u)
+    if not 0 <= int(u) < 4:
+        raise ValueError(f"upper_free: index {u} is not in 0..3 (kg, kv, Tg, Gmin)")
+    return int(u)
+
+
+def default_bounds(
+    model: str | type[LowerLevelModel], upper_free: Sequence[int | str] = ()
+) -> dict[str, Bound]:
+    """The default search box of ``model`` (plus the free upper-level gains)."""
+    cls = model_class(model)
+    out = dict(DEFAULT_BOUNDS[cls.name])
+    for u in upper_free:
+        name = _UPPER_NAMES[_upper_index(u)]
+        out[name] = UPPER_BOUNDS[name]
+    return out
+
+
+def _resolve_bounds(
+    cls: type[LowerLevelModel],
+    free: Sequence[int],
+    bounds: Mapping[str, Sequence[Any]] | None,
+) -> tuple[list[str], list[float], list[float], list[str]]:
+    box = default_bounds(cls, free)
+    names = list(cls.param_names()) + [_UPPER_NAMES[i] for i in free]
+    for k, b in (bounds or {}).items():
+        if k not in box:
+            raise ValueError(
+                f"bounds: unknown parameter {k!r} for model {cls.name!r}; known: {', '.join(names)}"
+            )
+        b = tuple(b)
+        if len(b) not in (2, 3):
+            raise ValueError(f"bounds[{k!r}]: expected (lower, upper) or (lower, upper, scale)")
+        lo, hi = float(b[0]), float(b[1])
+        scale = str(b[2]) if len(b) == 3 else box[k][2]
+        if scale == "log" and lo <= 0:
+            scale = "linear"  # a user box reaching 0 cannot be log-scaled
+        if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+            raise ValueError(f"bounds[{k!r}]: need finite lower <= upper, got ({lo}, {hi})")
+        box[k] = (lo, hi, scale)
+    return (
+        names,
+        [box[n][0] for n in names],
+        [box[n][1] for n in names],
+        [box[n][2] for n in names],
+    )
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """A calibrated model.
+
+    ``cost`` is Eq. 6 on the calibration runs; ``per_run_mse`` each run's cost (the
+    acceleration MSE with the default weights); ``upper`` the calibrated upper-level
+    gains (closed loop with ``upper_free``); ``history`` the best cost after each
+    generation; ``interrupted`` is true when Ctrl-C (or the progress callable)
+    stopped the search, the result then being the best so far.
+    """
+
+    model: LowerLevelModel
+    cost: float
+    per_run_mse: dict[str, float]
+    generations: int
+    evaluations: int
+    interrupted: bool
+    stop: str
+    history: np.ndarray
+    cost_ga: float
+    seed: int
+    bounds: dict[str, Bound]
+    upper: dict[str, float] = field(default_factory=dict)
+    at_bound: tuple[str, ...] = ()
+    #: Final cost of each independent start (the best is the result).
+    start_costs: tuple[float, ...] = ()
+
+    @property
+    def params(self) -> dict[str, float]:
+        """The calibrated parameters by name (model, then free upper-level gains)."""
+        return {**self.model.to_dict(), **self.upper}
+
+
+@dataclass(frozen=True)
+class _Problem:
+    cls: type[LowerLevelModel]
+    runs: list[Run]
+    free: list[int]
+    names: list[str]
+    lower: list[float]
+    upper: list[float]
+    scale: list[str]
+    kw: dict[str, Any]
+    weights: tuple[float, float, float]
+    init: str
+    closed_loop: bool
+
+
+def _problem(
+    model: Any,
+    runs: Sequence[Run],
+    *,
+    bounds: Mapping[str, Sequence[Any]] | None,
+    closed_loop: bool,
+    upper_free: Sequence[int | str],
+    weights: Sequence[float],
+    init: str,
+) -> _Problem:
+    cls = model_class(model)
+    runs = list(runs)
+    if not runs:
+        raise ValueError("runs: no runs given")
+    for r in runs:
+        if not isinstance(r, Run):
+            raise ValueError(f"runs: expected avll.Run objects, got {type(r).__name__}")
+    kinds = {r.command_kind for r in runs}
+    if len(kinds) != 1:
+        raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
+    if len(weights) != 3:
+        raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
+    w = (float(weights[0]), float(weights[1]), float(weights[2]))
+    free = [_upper_index(u) for u in upper_free]
+    if free and not closed_loop:
+        raise ValueError("upper_free: the upper-level gains can only be calibrated in closed loop")
+    names, lo, hi, sc = _resolve_bounds(cls, free, bounds)
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
+    upper = None
+    if closed_loop or any(r.upper is not None for r in runs):
+        rows = []
+        for r in runs:
+            if r.upper is None:
+                if closed_loop:
+                    raise ValueError(f"run {r.run_id!r}: closed loop needs its upper-level law")
+                rows.append(np.zeros(4))
+            else:
+                rows.append(r.upper.to_array())
+        upper = np.ascontiguousarray(np.vstack(rows))
+    kw = dict(
+        offsets=[int(o) for o in offsets],
+        dt=np.array([r.dt for r in runs], dtype=np.float64),
+        a=_concat(runs, "a", True),
+        command=None if closed_loop else _concat(runs, "command", True),
+        lead_x=_concat(runs, "lead_x", True) if closed_loop else None,
+        lead_v=_concat(runs, "lead_v", True) if closed_loop else None,
+        v=_concat(runs, "v", closed_loop or w[1] > 0) if (closed_loop or w[1] > 0) else None,
+        x=_concat(runs, "x", closed_loop or w[2] > 0) if (closed_loop or w[2] > 0) else None,
+        upper=upper,
+        upper_free=free,
+        command_kind=runs[0].command_kind,
+        weights=w,
+        init=init,
+        closed_loop=closed_loop,
+    )
+    return _Problem(cls, runs, free, names, lo, hi, sc, kw, w, init, closed_loop)
+
+
+def _ga_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(GA_OPTIONS)
+    for k, v in options.items():
+        if k not in GA_OPTIONS:
+            raise ValueError(f"{k}: unknown GA option; known: {', '.join(GA_OPTIONS)}")
+        out[k] = v
+    for k in ("pop_size", "max_generations", "stall_generations", "tournament", "elite",
+              "polish_max_evals", "local_every", "local_evals"):  # fmt: skip
+        if int(out[k]) < 0:
+            raise ValueError(f"{k}: must be >= 0, got {out[k]}")
+        out[k] = int(out[k])
+    return out
+
+
+def _initial(prob: _Problem, initial: Sequence[Any] | None) -> np.ndarray | None:
+    if not initial:
+        return None
+    rows = []
+    for k, m in enumerate(initial):
+        if isinstance(m, LowerLevelModel):
+            if type(m) is not prob.cls:
+                raise ValueError(
+                    f"initial[{k}]: a {type(m).__name__}, expected {prob.cls.__name__}"
+                )
+            row = list(m.to_array())
+            row += [0.5 * (prob.lower[i] + prob.upper[i]) for i in range(len(row), len(prob.names))]
+        else:
+            row = [float(v) for v in np.asarray(m, dtype=np.float64).ravel()]
+        if len(row) != len(prob.names):
+            raise ValueError(
+                f"initial[{k}]: expected {len(prob.names)} values ({', '.join(prob.names)})"
+            )
+        rows.append(row)
+    return np.ascontiguousarray(np.array(rows, dtype=np.float64))
+
+
+class _Bar:
+    """tqdm progress on stderr over generations (and finished problems)."""
+
+    def __init__(self, enabled: bool, total: int, desc: str, problems: int) -> None:
+        self.bar: Any = None
+        self.problems = problems
+        self.seen: dict[int, int] = {}
+        if enabled:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, desc=desc, file=sys.stderr, leave=True, unit="gen")
+
+    def __call__(self, info: dict[str, Any]) -> None:
+        if self.bar is None:
+            return
+        if info["phase"] == "ga":
+            self.seen[info["problem"]] = info["iteration"]
+            done = sum(self.seen.values())
+            self.bar.update(max(0, done - self.bar.n))
+        self.bar.set_postfix(best=f"{info['best']:.5g}", phase=info["phase"], refresh=False)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _result(
+    prob: _Problem, raw: dict[str, Any], runs: Sequence[Run], seed: int, per_run: np.ndarray
+) -> CalibrationResult:
+    x = np.asarray(raw["x"], dtype=np.float64)
+    n_model = len(prob.cls.param_names())
+    model = prob.cls.from_array(x[:n_model])
+    upper = {_UPPER_NAMES[i]: float(x[n_model + j]) for j, i in enumerate(prob.free)}
+
+    def unit(v: float, lo: float, hi: float, sc: str) -> float:
+        if sc == "log":
+            return math.log(v / lo) / math.log(hi / lo)
+        return (v - lo) / (hi - lo)
+
+    at_bound = tuple(
+        n
+        for n, v, lo, hi, sc in zip(prob.names, x, prob.lower, prob.upper, prob.scale, strict=True)
+        if lo < hi and min(unit(v, lo, hi, sc), 1.0 - unit(v, lo, hi, sc)) <= 1e-3
+    )
+    return CalibrationResult(
+        model=model,
+        cost=float(raw["f"]),
+        per_run_mse={r.run_id: float(c) for r, c in zip(runs, per_run, strict=True)},
+        generations=int(raw["generations"]),
+        evaluations=int(raw["evaluations"]),
+        interrupted=bool(raw["interrupted"]),
+        stop=str(raw["stop"]),
+        history=np.asarray(raw["history"]),
+        cost_ga=float(raw["f_ga"]),
+        seed=int(seed),
+        bounds={
+            n: (lo, hi, s)
+            for n, lo, hi, s in zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)
+        },
+        upper=upper,
+        at_bound=at_bound,
+    )
+
+
+def _run(
+    prob: _Problem,
+    problems: list[list[int]] | None,
+    *,
+    seed: int,
+    derive_seeds: bool,
+    initial: Sequence[Any] | None,
+    target: float | None,
+    stop_all_at_target: bool = False,
+    threads: int,
+    progress: bool | Callable[[dict[str, Any]], Any],
+    desc: str,
+    options: Mapping[str, Any],
+) -> list[dict[str, Any]]:
+    ga = _ga_kwargs(options)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed: must be a non-negative integer, got {seed!r}")
+    if int(threads) < 0:
+        raise ValueError(f"threads: must be >= 0, got {threads}")
+    n_problems = 1 if problems is None else len(problems)
+    bar: Any
+    if callable(progress):
+        bar = progress
+    else:
+        bar = _Bar(bool(progress), n_problems * ga["max_generations"], desc, n_problems)
+    try:
+        return _core.calibrate(
+            prob.cls.name,
+            lower_bounds=prob.lower,
+            upper_bounds=prob.upper,
+            scale=prob.scale,
+            problems=problems,
+            derive_seeds=derive_seeds,
+            stop_all_at_target=stop_all_at_target,
+            seed=int(seed),
+            target=-math.inf if target is None else float(target),
+            initial=_initial(prob, initial),
+            progress=bar if (callable(progress) or progress) else None,
+            threads=int(threads),
+            **ga,
+            **prob.kw,
+        )
+    finally:
+        if isinstance(bar, _Bar):
+            bar.close()
+
+
+def calibrate(
+    model: str | type[LowerLevelModel],
+    runs: Sequence[Run],
+    *,
+    bounds: Mapping[str, Sequence[Any]] | None = None,
+    seed: int = 0,
+    closed_loop: bool = False,
+    upper_free: Sequence[int | str] = (),
+    weights: Sequence[float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    initial: Sequence[Any] | None = None,
+    target: float | None = None,
+    starts: int = 2,
+    threads: int = 0,
+    progress: bool | Callable[[dict[str, Any]], Any] = False,
+    **ga_options: Any,
+) -> CalibrationResult:
+    """Calibrates ``model`` on ``runs`` by minimising Eq. 6 with the GA.
+
+    ``bounds`` overrides the default box per parameter (``{"Td": (0, 2)}``, optionally
+    with a scale: ``{"m3": (1e-3, 1e3, "log")}``). ``closed_loop`` drives the model by
+    the recorded leader through each run's upper law; ``upper_free`` (names or indices
+    of kg, kv, Tg, Gmin) calibrates those gains too. ``weights`` weigh the mean squared
+    errors of acceleration, speed and position. ``init`` is the rollouts' initial state
+    (``"rest"`` or ``"steady"``). ``initial`` seeds the population with models or
+    parameter vectors; ``target`` stops as soon as the cost is at most that value.
+    ``starts`` independent GA runs (seeds ``_core.derive_seed(seed, j)``; with one
+    start, ``seed`` itself) run in parallel and the best is kept: on the proposed
+    model about one start in ten settles in a local minimum at a bound corner
+    (e.g. ``K0 = 3, K = -1.2``) with several times the cost, so two starts are the
+    default.
+    ``threads`` (0 = all cores) does not change the result. ``progress`` shows a tqdm
+    bar on stderr (or is a callable receiving a dict per generation). Ctrl-C stops
+    cleanly: the best so far is returned with ``interrupted=True``. Further GA options:
+    see :data:`GA_OPTIONS` (``pop_size``, ``max_generations``, ``stall_generations``,
+    ``ftol``, ``polish``, ...).
+    """
+    prob = _problem(
+        model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
+        weights=weights, init=init,
+    )  # fmt: skip
+    if isinstance(starts, bool) or int(starts) < 1:
+        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
+    n = int(starts)
+    all_runs = list(range(len(prob.runs)))
+    raws = _run(
+        prob, None if n == 1 else [all_runs] * n, seed=seed, derive_seeds=n > 1,
+        initial=initial, target=target, stop_all_at_target=n > 1 and target is not None,
+        threads=threads, progress=progress, desc=f"calibrate {prob.cls.name}", options=ga_options,
+    )  # fmt: skip
+    best = min(range(n), key=lambda j: (raws[j]["f"], j))
+    raw = dict(raws[best])
+    raw["evaluations"] = sum(int(r["evaluations"]) for r in raws)
+    raw["interrupted"] = any(bool(r["interrupted"]) for r in raws)
+    start_seed = int(seed) if n == 1 else _core.derive_seed(int(seed), best)
+    per_run = _per_run(prob, np.asarray(raw["x"]), prob.runs, threads)
+    res = _result(prob, raw, prob.runs, start_seed, per_run)
+    return replace(res, start_costs=tuple(float(r["f"]) for r in raws))
+
+
+def _per_run(prob: _Problem, x: np.ndarray, runs: Sequence[Run], threads: int) -> np.ndarray:
+    return batch_cost(
+        prob.cls, x[None, :], runs, weights=prob.weights, init=prob.init,
+        closed_loop=prob.closed_loop, upper_free=prob.free, threads=threads,
+    )[0]  # fmt: skip
+
+
+def _subset_indices(runs: Sequence[Run], subset: Sequence[Any], k: int) -> list[int]:
+    ids = {r.run_id: i for i, r in enumerate(runs)}
+    out = []
+    for s in subset:
+        if isinstance(s, (int, np.integer)) and not isinstance(s, bool):
+            if not 0 <= int(s) < len(runs):
+                raise ValueError(f"subsets[{k}]: run index {s} is out of range 0..{len(runs) - 1}")
+            out.append(int(s))
+        elif str(s) in ids:
+            out.append(ids[str(s)])
+        else:
+            raise ValueError(f"subsets[{k}]: unknown run {s!r}")
+    if not out:
+        raise ValueError(f"subsets[{k}]: is empty")
+    return out
+
+
+def calibrate_many(
+    model: str | type[LowerLevelModel],
+    runs: Sequence[Run],
+    subsets: Sequence[Sequence[int | str]] | str = "per_run",
+    *,
+    seed: int = 0,
+    threads: int = 0,
+    progress: bool | Callable[[dict[str, Any]], Any] = False,
+    bounds: Mapping[str, Sequence[Any]] | None = None,
+    closed_loop: bool = False,
+    upper_free: Sequence[int | str] = (),
+    weights: Sequence[float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    initial: Sequence[Any] | None = None,
+    target: float | None = None,
+    starts: int = 1,
+    **ga_options: Any,
+) -> list[CalibrationResult]:
+    """Solves many independent calibration problems in one parallel call.
+
+    ``subsets`` lists, per problem, the runs (indices into ``runs`` or run ids;
+    repeats allowed, e.g. a bootstrap resample) whose Eq. 6 it minimises, or is
+    ``"per_run"`` (one problem per run). Problem ``k`` uses the seed
+    ``_core.derive_seed(seed, k)``; results are the same for any ``threads``.
+    With ``starts > 1`` each problem gets that many independent GA runs (problem
+    ``k``, start ``j`` uses ``_core.derive_seed(seed, k * starts + j)``) and keeps
+    the best. Each result's ``per_run_mse`` covers the runs of its problem (once
+    each).
+    """
+    if isinstance(starts, bool) or int(starts) < 1:
+        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
+    n_st = int(starts)
+    prob = _problem(
+        model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
+        weights=weights, init=init,
+    )  # fmt: skip
+    if isinstance(subsets, str):
+        if subsets != "per_run":
+            raise ValueError(f"subsets: expected run lists or 'per_run', got {subsets!r}")
+        idx = [[i] for i in range(len(prob.runs))]
+    else:
+        idx = [_subset_indices(prob.runs, s, k) for k, s in enumerate(subsets)]
+        if not idx:
+            raise ValueError("subsets: no problems given")
+    expanded = [sub for sub in idx for _ in range(n_st)]
+    raws = _run(
+        prob, expanded, seed=seed, derive_seeds=True, initial=initial, target=target,
+        threads=threads, progress=progress, desc=f"calibrate {prob.cls.name} x{len(idx)}",
+        options=ga_options,
+    )  # fmt: skip
+    out = []
+    for k, sub in enumerate(idx):
+        group = raws[k * n_st : (k + 1) * n_st]
+        j = min(range(n_st), key=lambda i: (group[i]["f"], i))
+        raw = dict(group[j])
+        raw["evaluations"] = sum(int(r["evaluations"]) for r in group)
+        raw["interrupted"] = any(bool(r["interrupted"]) for r in group)
+        uniq = sorted(set(sub))
+        rs = [prob.runs[i] for i in uniq]
+        per_run = _per_run(prob, np.asarray(raw["x"]), rs, threads)
+        res = _result(prob, raw, rs, _core.derive_seed(int(seed), k * n_st + j), per_run)
+        out.append(replace(res, start_costs=tuple(float(r["f"]) for r in group)))
+    return out
+
+
+@dataclass(frozen=True)
+class Bootstrap:
+    """Bootstrap of a calibration over runs: ``samples`` is (n, parameters) with
+    columns ``names`` plus ``dc_gain``; ``ci`` the percentile intervals at ``level``."""
+
+    names: tuple[str, ...]
+    samples: np.ndarray
+    level: float
+    results: list[CalibrationResult]
+
+    def ci(self) -> Any:
+        """A DataFrame: rows parameters, columns median, low, high."""
+        import pandas as pd
+
+        q = (1.0 - self.level) / 2.0
+        return pd.DataFrame(
+            {
+                "median": np.median(self.samples, axis=0),
+                "low": np.quantile(self.samples, q, axis=0),
+                "high": np.quantile(self.samples, 1.0 - q, axis=0),
+            },
+            index=list(self.names),
+        )
+
+
+def bootstrap(
+    model: str | type[LowerLevelModel],
+    runs: Sequence[Run],
+    n: int = 50,
+    *,
+    seed: int = 0,
+    level: float = 0.95,
+    threads: int = 0,
+    progress: bool | Callable[[dict[str, Any]], Any] = False,
+    **kwargs: Any,
+) -> Bootstrap:
+    """Percentile bootstrap over runs: ``n`` resamples of the runs with replacement
+    (drawn from ``seed``), each calibrated independently (in parallel, by
+    :func:`calibrate_many`). ``kwargs`` go to :func:`calibrate_many`. The samples
+    include the DC gain ``K0/(1 - K K0)``, which is identified even where the
+    individual parameters trade off."""
+    if int(n) < 2:
+        raise ValueError(f"n: must be >= 2, got {n}")
+    if not 0 < level < 1:
+        raise ValueError(f"level: must be in (0, 1), got {level}")
+    runs = list(runs)
+    rng = np.random.default_rng(int(seed))
+    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(int(n))]
+    res = calibrate_many(
+        model, runs, subsets, seed=seed, threads=threads, progress=progress, **kwargs
+    )
+    names = tuple(res[0].params) + ("dc_gain",)
+    samples = np.array([[*r.params.values(), r.model.dc_gain] for r in res])
+    return Bootstrap(names, samples, float(level), res)
+
+
+# ---------------------------------------------------------------------------
+# The paper's workflow: calibrate on some runs, validate on the others.
+# ---------------------------------------------------------------------------
+
+
+def split_runs(
+    runs: Sequence[Run], cal_runs: Sequence[Any] | str | None = None
+) -> tuple[list[Run], list[Run]]:
+    """Splits runs into calibration and validation runs.
+
+    ``cal_runs`` lists run ids (or ``"paper"`` for the paper's runs 3, 4, 5, 9, 10,
+    11, 15, 16, 17, 19); ``None`` means alternate runs in file order (1st, 3rd, ...
+    calibrate; 2nd, 4th, ... validate).
+    """
+    runs = list(runs)
+    if not runs:
+        raise ValueError("runs: no runs given")
+    if cal_runs is None:
+        return runs[0::2], runs[1::2]
+    if isinstance(cal_runs, str):
+        if cal_runs != "paper":
+            raise ValueError(f"cal_runs: expected run ids or 'paper', got {cal_runs!r}")
+        cal_runs = PAPER_CAL_RUNS
+    want = [str(c) for c in cal_runs]
+    ids = [r.run_id for r in runs]
+    missing = [c for c in want if c not in ids]
+    if missing:
+        raise ValueError(
+            f"cal_runs: run(s) {', '.join(missing)} not in the data (runs: {', '.join(ids)})"
+        )
+    if not want:
+        raise ValueError("cal_runs: is empty")
+    cal = [r for r in runs if r.run_id in want]
+    val = [r for r in runs if r.run_id not in want]
+    return cal, val
+
+
+_LABELS = {
+    "first": "First-order lag model",
+    "second": "Second-order response model",
+    "proposed": "The proposed model",
+}
+
+
+@dataclass(frozen=True)
+class Workflow:
+    """Calibration of several models on ``cal`` runs and their validation on ``val``
+    runs (the paper's Tables II–IV and Figs. 3–4)."""
+
+    results: dict[str, CalibrationResult]
+    cal: list[Run]
+    val: list[Run]
+    val_mse: dict[str, dict[str, float]]
+    closed_loop: bool = False
+    init: str = "rest"
+
+    @property
+    def interrupted(self) -> bool:
+        return any(r.interrupted for r in self.results.values())
+
+    def params_table(self) -> Any:
+        """Table II: rows the parameters (paper names), columns the models."""
+        import pandas as pd
+
+        names: list[str] = []
+        for r in self.results.values():
+            names += [n for n in r.params if n not in names]
+        cols = {m: pd.Series(r.params) for m, r in self.results.items()}
+        return pd.DataFrame(cols).reindex(names)
+
+    def mse_table(self, which: str = "cal") -> Any:
+        """Table III (``"cal"``) or IV (``"val"``): per-run MSE, rows the models,
+        columns the runs and their average."""
+        import pandas as pd
+
+        if which not in ("cal", "val"):
+            raise ValueError(f"which: must be 'cal' or 'val', got {which!r}")
+        rows = {}
+        for m, r in self.results.items():
+            d = r.per_run_mse if which == "cal" else self.val_mse[m]
+            rows[_LABELS.get(m, m)] = {
+                **d,
+                "Average": float(np.mean(list(d.values()))) if d else float("nan"),
+            }
+        return pd.DataFrame(rows).T
+
+    def averages(self) -> Any:
+        """Average calibration and validation MSE per model."""
+        import pandas as pd
+
+        return pd.DataFrame(
+            {
+                "cal_mse": {m: r.cost for m, r in self.results.items()},
+                "val_mse": {
+                    m: float(np.mean(list(v.values()))) if v else float("nan")
+                    for m, v in self.val_mse.items()
+                },
+            }
+        )
+
+    def to_text(self) -> str:
+        """The tables as plain text."""
+        import pandas as pd
+
+        with pd.option_context("display.width", 200, "display.max_columns", 50):
+            parts = [
+                "Calibrated parameters (cf. Table II)",
+                self.params_table().to_string(float_format=lambda v: f"{v:.4f}"),
+                "",
+                "Calibration MSE (m/s^2)^2 (cf. Table III)",
+                self.mse_table("cal").to_string(float_format=lambda v: f"{v:.4f}"),
+            ]
+            if self.val:
+                parts += [
+                    "",
+                    "Validation MSE (m/s^2)^2 (cf. Table IV)",
+                    self.mse_table("val").to_string(float_format=lambda v: f"{v:.4f}"),
+                ]
+        if self.interrupted:
+            parts += ["", "(interrupted: results are the best found so far)"]
+        return "\n".join(parts)
+
+    def to_json(self) -> dict[str, Any]:
+        """The CLI's JSON contract: ``{"models": {name: {"params", "cal_mse", "val_mse",
+        "per_run_mse"}}}`` (``per_run_mse`` covers calibration and validation runs)."""
+        models: dict[str, Any] = {}
+        for m, r in self.results.items():
+            v = self.val_mse[m]
+            models[m] = {
+                "params": r.params,
+                "cal_mse": r.cost,
+                "val_mse": float(np.mean(list(v.values()))) if v else None,
+                "per_run_mse": {**r.per_run_mse, **v},
+                "cal_runs": [x.run_id for x in self.cal],
+                "val_runs": [x.run_id for x in self.val],
+                "generations": r.generations,
+                "evaluations": r.evaluations,
+                "interrupted": r.interrupted,
+                "at_bound": list(r.at_bound),
+            }
+        return {"models": models}
+
+    def simulated(self, model: str, run: Run) -> np.ndarray:
+        """The acceleration that ``model`` (as calibrated) simulates for ``run``."""
+        res = self.results[model]
+        if self.closed_loop:
+            if run.upper is None or run.lead_x is None or run.lead_v is None:
+                raise ValueError(f"run {run.run_id!r}: closed loop needs the leader and upper law")
+            up = run.upper.to_array()
+            for k, val in res.upper.items():
+                up[_UPPER_NAMES.index(k)] = val
+            v0 = float(run.v[0]) if run.v is not None else 0.0
+            x0 = float(run.x[0]) if run.x is not None else 0.0
+            tr = closed_loop(res.model, run.lead_x, run.lead_v, run.dt, UpperLevel(*up),
+                             v0=v0, x0=x0)  # fmt: skip
+            return tr.a
+        if run.command is None:
+            raise ValueError(f"run {run.run_id!r}: has no recorded command")
+        return simulate(res.model, run.command, run.dt, init=self.init)
+
+    def figure(self, run_id: Any, models: Sequence[str] | None = None) -> Any:
+        """Measured vs simulated acceleration of one run (cf. Figs. 3–4): a Figure."""
+        from matplotlib.figure import Figure
+
+        runs = {r.run_id: r for r in self.cal + self.val}
+        rid = str(run_id)
+        if rid not in runs:
+            raise ValueError(f"run_id: unknown run {run_id!r}; known: {', '.join(runs)}")
+        run = runs[rid]
+        fig = Figure(figsize=(8, 3.5), layout="constrained")
+        ax = fig.add_subplot()
+        ax.plot(run.t, run.a, color="k", lw=1.0, label="measured")
+        styles = {"first": ":", "second": "--", "proposed": "-"}
+        for m in models or list(self.results):
+            ax.plot(run.t, self.simulated(m, run), styles.get(m, "-"), lw=1.0,
+                    label=_LABELS.get(m, m))  # fmt: skip
+        role = "calibration" if any(r.run_id == rid for r in self.cal) else "validation"
+        ax.set(xlabel="time (s)", ylabel="acceleration (m/s²)",
+               title=f"Run {rid} ({role})")  # fmt: skip
+        ax.legend(loc="best", fontsize="small")
+        return fig
+
+
+def paper_workflow(
+    runs: Sequence[Run],
+    *,
+    cal_runs: Sequence[Any] | str | None = "paper",
+    models: Sequence[str] = ("first", "second", "proposed"),
+    seed: int = 0,
+    threads: int = 0,
+    progress: bool = False,
+    **kwargs: Any,
+) -> Workflow:
+    """The paper's workflow: calibrate each of ``models`` on the ``cal_runs`` (default:
+    the paper's runs 3, 4, 5, 9, 10, 11, 15, 16, 17, 19; ``None``: alternate runs) and
+    validate on the rest. ``kwargs`` go to :func:`calibrate` (bounds must then be per
+    model: pass ``bounds={"proposed": {...}}``). Stops after the model being
+    calibrated when interrupted (Ctrl-C); the workflow is then flagged interrupted."""
+    cal, val = split_runs(runs, cal_runs)
+    bounds_by_model = kwargs.pop("bounds", None) or {}
+    results: dict[str, CalibrationResult] = {}
+    val_mse: dict[str, dict[str, float]] = {}
+    for m in models:
+        cls = model_class(m)
+        res = calibrate(cls, cal, seed=seed, threads=threads, progress=progress,
+                        bounds=bounds_by_model.get(cls.name), **kwargs)  # fmt: skip
+        results[cls.name] = res
+        if val:
+            c = batch_cost(
+                cls, np.array(list(res.params.values()))[None, :], val,
+                weights=tuple(kwargs.get("weights", (1.0, 0.0, 0.0))),
+                init=kwargs.get("init", "rest"), closed_loop=kwargs.get("closed_loop", False),
+                upper_free=[_upper_index(u) for u in kwargs.get("upper_free", ())],
+                threads=threads,
+            )[0]  # fmt: skip
+            val_mse[cls.name] = {r.run_id: float(x) for r, x in zip(val, c, strict=True)}
+        else:
+            val_mse[cls.name] = {}
+        if res.interrupted:
+            break
+    return Workflow(results, cal, val, val_mse, bool(kwargs.get("closed_loop", False)),
+                    str(kwargs.get("init", "rest")))  # fmt: skip
+
+
+# ---------------------------------------------------------------------------
+# The `avll calibrate` command.
+# ---------------------------------------------------------------------------
+
+
+def _parse_list(opt: str, text: str) -> list[str]:
+    items = [t.strip() for t in text.split(",")]
+    if not text.strip() or any(not t for t in items):
+        raise ValueError(f"{opt}: expected a comma-separated list, got {text!r}")
+    return items
+
+
+def _cmd(args: Any) -> int:
+    import json
+
+    from .io import read_runs
+
+    models = _parse_list("--models", args.models)
+    for m in models:
+        model_class(m)  # ValueError naming the unknown model
+    cal_runs: Any = None
+    if args.cal_runs is not None:
+        cal_runs = "paper" if args.cal_runs == "paper" else _parse_list("--cal-runs", args.cal_runs)
+    runs = read_runs(args.data, command_kind=args.command_kind, format=args.format)
+    wf = paper_workflow(
+        runs, cal_runs=cal_runs, models=models, seed=args.seed, threads=args.threads,
+        progress=not args.quiet, closed_loop=args.closed_loop, init=args.init,
+        max_generations=args.max_generations, pop_size=args.pop_size,
+    )  # fmt: skip
+    print(wf.to_text())
+    if args.json:
+        from pathlib import Path
+
+        out = Path(args.json)
+        out.write_text(json.dumps(wf.to_json(), indent=2) + "\n")
+        print(f"wrote {out}", file=sys.stderr)
+    if args.figure:
+        rid = args.figure_run or wf.cal[0].run_id
+        fig = wf.figure(rid)
+        fig.savefig(args.figure, dpi=120)
+        print(f"wrote {args.figure}", file=sys.stderr)
+    if wf.interrupted:
+        print("avll calibrate: interrupted; results are the best so far", file=sys.stderr)
+        return 130
+    return 0
+
+
+def register_cli(sub: Any) -> None:
+    """Registers ``avll calibrate``."""
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate lower-level models on runs and validate them (Tables II-IV)",
+        description="Calibrate the lower-level models by the GA on the calibration runs "
+        "(Eq. 6) and validate them on the other runs. Tables go to stdout, the "
+        "progress bar to stderr. Without --cal-runs, alternate runs calibrate (the 1st, "
+        "3rd, ... in file order) and the others validate; --cal-runs paper takes the "
+        "paper's runs 3,4,5,9,10,11,15,16,17,19.",
+    )
+    p.add_argument("data", metavar="DATA", help="runs file (canonical CSV/Parquet, or --format)")
+    p.add_argument("--format", default="canonical", help="loader of DATA (default canonical)")
+    p.add_argument(
+        "--command-kind",
+        choices=("acceleration", "speed"),
+        default=None,
+        help="kind of the recorded command (default: from the file's sidecar)",
+    )
+    p.add_argument(
+        "--models",
+        default="first,second,proposed",
+        help="comma-separated models (default first,second,proposed)",
+    )
+    p.add_argument(
+        "--cal-runs",
+        default=None,
+        help="comma-separated calibration run ids, or 'paper' (default: alternate)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="GA seed (default 0)")
+    p.add_argument("--json", default=None, metavar="OUT.json", help="write results as JSON")
+    p.add_argument("--threads", type=int, default=0, help="worker threads (0 = all cores)")
+    p.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="drive the model by the leader through the upper law (Eq. 3)",
+    )
+    p.add_argument(
+        "--init",
+        choices=("rest", "steady"),
+        default="rest",
+        help="initial state of each rollout (default rest)",
+    )
+    p.add_argument("--max-generations", type=int, default=GA_OPTIONS["max_generations"])
+    p.add_argument("--pop-size", type=int, default=0, help="GA population (0 = automatic)")
+    p.add_argument(
+        "--figure",
+        default=None,
+        metavar="PATH",
+        help="save measured vs simulated acceleration (PNG/SVG)",
+    )
+    p.add_argument("--figure-run", default=None, help="run of --figure (default: first cal run)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd)

@@ -1,0 +1,1362 @@
+//! A real-coded genetic algorithm (GA) over a box, and the calibration problem it
+//! solves (paper Section III.B, Eq. 6).
+//!
+//! # Algorithm
+//!
+//! The search runs in unit coordinates `z ∈ [0, 1]^d`; each parameter maps to its
+//! box `[lo, hi]` either linearly or logarithmically ([`Scale`]), so positive
+//! scale parameters spanning decades (e.g. `m2`, `m3`) are searched evenly per
+//! decade. A parameter with `lo == hi` is fixed.
+//!
+//! * initial population: a Latin hypercube in `z` (plus optional user points);
+//! * selection: tournaments of `tournament` individuals;
+//! * crossover: simulated binary crossover (SBX, bounded form) with distribution
+//!   index `eta_c`, applied to a pair with probability `crossover_prob`, each gene
+//!   exchanged with probability 1/2;
+//! * mutation: bounded polynomial mutation with index `eta_m`, each gene with
+//!   probability `mutation_prob` (default `1/d`);
+//! * survival: (mu + lambda) — the best `pop` distinct individuals of parents and
+//!   offspring (elitist by construction) — or generational with `elite` survivors;
+//! * local search (memetic): every `local_every` generations a short Nelder–Mead
+//!   from the best individual joins the population;
+//! * stopping: `max_generations`; stall (the best improved by at most
+//!   `ftol * |best|` over the last `stall_generations` generations); tolerance (the
+//!   population collapsed: every coordinate's spread `< xtol` in unit coordinates);
+//!   an optional `target` value; or the per-generation callback returning `false`;
+//! * early abandoning: with (mu + lambda) survival, offspring are evaluated with
+//!   the current worst value as a bound ([`Objective::eval_bounded`]); the
+//!   calibration objective stops a rollout once its partial Eq. 6 sum reaches it;
+//! * polish (optional): a bounded Nelder–Mead (adaptive coefficients, trial points
+//!   projected onto the box) from the best individual, restarted once.
+//!
+//! # Reproducibility
+//!
+//! Every random decision of generation `g` for offspring pair `k` comes from its own
+//! ChaCha8 stream keyed by `(seed, g, k)`; the initial population from the stream
+//! `(seed, 0, ·)`. Fitness values are pure functions of the individual, evaluated in
+//! parallel (rayon) and gathered in order, and ties are broken by index, so the
+//! result is bit-identical for any number of threads.
+
+use crate::discretize::{discretize, equilibrium, Integrators};
+use crate::error::{AvllError, Result};
+use crate::model::{CommandKind, Linear};
+use crate::rollout::{run_cost, CostSpec, Init, RunRef, DIVERGED};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+/// How a parameter maps from unit coordinates onto its bounds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scale {
+    /// `x = lo + z (hi - lo)`.
+    Linear,
+    /// `x = lo (hi/lo)^z`; needs `lo > 0`.
+    Log,
+}
+
+impl Scale {
+    pub fn from_name(name: &str) -> Result<Self> {
+        match name {
+            "linear" | "lin" => Ok(Scale::Linear),
+            "log" => Ok(Scale::Log),
+            _ => Err(AvllError::new(
+                "scale",
+                format!("must be 'linear' or 'log', got {name:?}"),
+            )),
+        }
+    }
+}
+
+/// A box with a scale per coordinate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bounds {
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+    scale: Vec<Scale>,
+}
+
+impl Bounds {
+    /// Validates and builds the box (`lo <= hi`, finite, `lo > 0` for log scale).
+    pub fn new(lower: Vec<f64>, upper: Vec<f64>, scale: Vec<Scale>) -> Result<Self> {
+        if lower.is_empty() {
+            return Err(AvllError::new("bounds", "no parameters"));
+        }
+        if upper.len() != lower.len() || scale.len() != lower.len() {
+            return Err(AvllError::new(
+                "bounds",
+                format!(
+                    "lower, upper and scale have lengths {}, {}, {}",
+                    lower.len(),
+                    upper.len(),
+                    scale.len()
+                ),
+            ));
+        }
+        for i in 0..lower.len() {
+            let (lo, hi) = (lower[i], upper[i]);
+            if !(lo.is_finite() && hi.is_finite()) {
+                return Err(AvllError::new(
+                    format!("bounds[{i}]"),
+                    format!("must be finite, got [{lo}, {hi}]"),
+                ));
+            }
+            if lo > hi {
+                return Err(AvllError::new(
+                    format!("bounds[{i}]"),
+                    format!("lower {lo} > upper {hi}"),
+                ));
+            }
+            if scale[i] == Scale::Log && lo <= 0.0 {
+                return Err(AvllError::new(
+                    format!("bounds[{i}]"),
+                    format!("log scale needs a lower bound > 0, got {lo}"),
+                ));
+            }
+        }
+        Ok(Self {
+            lower,
+            upper,
+            scale,
+        })
+    }
+
+    /// Linear box.
+    pub fn linear(lower: Vec<f64>, upper: Vec<f64>) -> Result<Self> {
+        let n = lower.len();
+        Self::new(lower, upper, vec![Scale::Linear; n])
+    }
+
+    pub fn dim(&self) -> usize {
+        self.lower.len()
+    }
+
+    pub fn lower(&self) -> &[f64] {
+        &self.lower
+    }
+
+    pub fn upper(&self) -> &[f64] {
+        &self.upper
+    }
+
+    /// Unit coordinates to parameters.
+    pub fn to_user(&self, z: &[f64], x: &mut [f64]) {
+        for i in 0..z.len() {
+            let (lo, hi) = (self.lower[i], self.upper[i]);
+            let zi = z[i].clamp(0.0, 1.0);
+            x[i] = if lo == hi {
+                lo
+            } else {
+                match self.scale[i] {
+                    Scale::Linear => lo + zi * (hi - lo),
+                    Scale::Log => (lo.ln() + zi * (hi / lo).ln()).exp().clamp(lo, hi),
+                }
+            };
+        }
+    }
+
+    /// Parameters to unit coordinates (clamped onto the box).
+    pub fn to_unit(&self, x: &[f64]) -> Vec<f64> {
+        (0..x.len())
+            .map(|i| {
+                let (lo, hi) = (self.lower[i], self.upper[i]);
+                if lo == hi {
+                    return 0.0;
+                }
+                let xi = x[i].clamp(lo, hi);
+                match self.scale[i] {
+                    Scale::Linear => (xi - lo) / (hi - lo),
+                    Scale::Log => (xi / lo).ln() / (hi / lo).ln(),
+                }
+            })
+            .collect()
+    }
+}
+
+/// GA settings. `Default` gives the values documented on each field.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GaOptions {
+    /// Population size (default 0 = `max(40, 16 d)` rounded up to even).
+    pub pop_size: usize,
+    /// Generation limit (default 300).
+    pub max_generations: usize,
+    /// Stall window (default 20 generations).
+    pub stall_generations: usize,
+    /// Relative improvement of the best over the stall window that counts as a
+    /// stall (default 1e-4; the polish refines further).
+    pub ftol: f64,
+    /// Population spread (unit coordinates) that counts as converged (default 1e-8).
+    pub xtol: f64,
+    /// Stop as soon as the best value is `<= target` (default `-inf`: never).
+    pub target: f64,
+    /// Tournament size (default 2).
+    pub tournament: usize,
+    /// Probability of crossing a selected pair (default 0.9).
+    pub crossover_prob: f64,
+    /// SBX distribution index (default 10).
+    pub eta_c: f64,
+    /// Per-gene mutation probability (default 0 = `1/d`).
+    pub mutation_prob: f64,
+    /// Polynomial mutation index (default 20).
+    pub eta_m: f64,
+    /// Survival: `true` (default) keeps the best `pop` of parents and offspring
+    /// together ((mu + lambda), elitist by construction); `false` replaces the
+    /// population by its offspring except the `elite` best.
+    pub plus: bool,
+    /// Individuals kept unchanged each generation when `plus` is false (default
+    /// 0 = `max(2, pop/20)`).
+    pub elite: usize,
+    pub seed: u64,
+    /// Nelder–Mead polish of the best individual (default true).
+    pub polish: bool,
+    /// Evaluation budget of the polish (default 0 = `400 d`).
+    pub polish_max_evals: usize,
+    /// Every `local_every` generations a short Nelder–Mead from the best individual
+    /// joins the population (Lamarckian local search; default 3, 0 = never). It
+    /// speeds the crawl along the curved valleys where the model's parameters trade
+    /// off, which coordinate-wise crossover handles poorly.
+    pub local_every: usize,
+    /// Evaluation budget of each local search (default 0 = `20 d`).
+    pub local_evals: usize,
+    /// Starting points (parameter coordinates) that replace the first individuals.
+    pub initial: Vec<Vec<f64>>,
+}
+
+impl Default for GaOptions {
+    fn default() -> Self {
+        Self {
+            pop_size: 0,
+            max_generations: 300,
+            stall_generations: 20,
+            ftol: 1e-4,
+            xtol: 1e-8,
+            target: f64::NEG_INFINITY,
+            tournament: 2,
+            crossover_prob: 0.9,
+            eta_c: 10.0,
+            mutation_prob: 0.0,
+            eta_m: 20.0,
+            plus: true,
+            elite: 0,
+            seed: 0,
+            polish: true,
+            polish_max_evals: 0,
+            local_every: 3,
+            local_evals: 0,
+            initial: Vec::new(),
+        }
+    }
+}
+
+impl GaOptions {
+    fn validate(&self, d: usize) -> Result<()> {
+        let prob = |n: &str, p: f64| -> Result<()> {
+            if (0.0..=1.0).contains(&p) {
+                Ok(())
+            } else {
+                Err(AvllError::new(n, format!("must be in [0, 1], got {p}")))
+            }
+        };
+        prob("crossover_prob", self.crossover_prob)?;
+        prob("mutation_prob", self.mutation_prob)?;
+        crate::error::check_positive("eta_c", self.eta_c)?;
+        crate::error::check_positive("eta_m", self.eta_m)?;
+        crate::error::check_nonneg("ftol", self.ftol)?;
+        crate::error::check_nonneg("xtol", self.xtol)?;
+        if self.target.is_nan() {
+            return Err(AvllError::new("target", "is NaN"));
+        }
+        if self.pop_size == 1 || self.pop_size > 1_000_000 {
+            return Err(AvllError::new(
+                "pop_size",
+                format!("must be 0 (automatic) or in 2..=1e6, got {}", self.pop_size),
+            ));
+        }
+        if self.tournament == 0 {
+            return Err(AvllError::new("tournament", "must be >= 1"));
+        }
+        if self.stall_generations == 0 {
+            return Err(AvllError::new("stall_generations", "must be >= 1"));
+        }
+        for (k, x) in self.initial.iter().enumerate() {
+            if x.len() != d {
+                return Err(AvllError::new(
+                    format!("initial[{k}]"),
+                    format!("has {} values, expected {d}", x.len()),
+                ));
+            }
+            if x.iter().any(|v| !v.is_finite()) {
+                return Err(AvllError::new(format!("initial[{k}]"), "is not finite"));
+            }
+        }
+        Ok(())
+    }
+
+    fn pop(&self, d: usize) -> usize {
+        let p = if self.pop_size == 0 {
+            (16 * d).max(40)
+        } else {
+            self.pop_size
+        };
+        p + p % 2
+    }
+
+    fn n_elite(&self, pop: usize) -> usize {
+        let e = if self.elite == 0 {
+            (pop / 20).max(2)
+        } else {
+            self.elite
+        };
+        e.min(pop - 1)
+    }
+}
+
+/// Which stage reports progress.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    Ga,
+    Polish,
+}
+
+/// What the callback sees after each generation (and each polish iteration).
+#[derive(Debug, Clone, Copy)]
+pub struct Progress<'a> {
+    pub phase: Phase,
+    /// Generation (GA) or iteration (polish) number, from 1.
+    pub iteration: usize,
+    pub evaluations: usize,
+    pub best_f: f64,
+    /// The best parameters so far (parameter coordinates).
+    pub best_x: &'a [f64],
+}
+
+/// Why the run stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopReason {
+    MaxGenerations,
+    Stall,
+    Tolerance,
+    Target,
+    /// The callback returned `false` (e.g. Ctrl-C); the result is the best so far.
+    Callback,
+}
+
+impl StopReason {
+    pub fn name(self) -> &'static str {
+        match self {
+            StopReason::MaxGenerations => "max_generations",
+            StopReason::Stall => "stall",
+            StopReason::Tolerance => "tolerance",
+            StopReason::Target => "target",
+            StopReason::Callback => "interrupted",
+        }
+    }
+}
+
+/// Result of [`minimize`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct GaResult {
+    /// Best parameters (parameter coordinates) and their value.
+    pub x: Vec<f64>,
+    pub f: f64,
+    /// Best value at the end of the GA, before the polish.
+    pub f_ga: f64,
+    pub generations: usize,
+    pub evaluations: usize,
+    pub stop: StopReason,
+    /// Best value after each generation (index 0: the initial population).
+    pub history: Vec<f64>,
+}
+
+const TAG_INIT: u64 = 0x494e_4954;
+const TAG_LHS: u64 = 0x004c_4853;
+const TAG_BREED: u64 = 0x0042_5245_4544;
+
+/// The random stream of `(seed, generation, index, purpose)`.
+fn stream(seed: u64, generation: u64, index: u64, tag: u64) -> ChaCha8Rng {
+    let mut key = [0u8; 32];
+    key[..8].copy_from_slice(&seed.to_le_bytes());
+    key[8..16].copy_from_slice(&generation.to_le_bytes());
+    key[16..24].copy_from_slice(&index.to_le_bytes());
+    key[24..].copy_from_slice(&tag.to_le_bytes());
+    ChaCha8Rng::from_seed(key)
+}
+
+/// A sub-seed for problem `k` of a batch.
+pub fn derive_seed(seed: u64, k: u64) -> u64 {
+    let mut r = stream(seed, u64::MAX, k, 0x0053_5542_5345_4544);
+    r.random::<u64>()
+}
+
+#[inline]
+fn clean(f: f64) -> f64 {
+    if f.is_nan() {
+        f64::INFINITY
+    } else {
+        f
+    }
+}
+
+/// Bounded SBX on one gene pair in [0, 1].
+fn sbx(p1: f64, p2: f64, eta: f64, u: f64) -> (f64, f64) {
+    let (y1, y2) = if p1 < p2 { (p1, p2) } else { (p2, p1) };
+    let dy = y2 - y1;
+    if dy < 1e-14 {
+        return (p1, p2);
+    }
+    let e1 = 1.0 / (eta + 1.0);
+    let betaq = |beta: f64| {
+        let alpha = 2.0 - beta.powf(-(eta + 1.0));
+        if u <= 1.0 / alpha {
+            (u * alpha).powf(e1)
+        } else {
+            (1.0 / (2.0 - u * alpha)).powf(e1)
+        }
+    };
+    let c1 = 0.5 * (y1 + y2 - betaq(1.0 + 2.0 * y1 / dy) * dy);
+    let c2 = 0.5 * (y1 + y2 + betaq(1.0 + 2.0 * (1.0 - y2) / dy) * dy);
+    (c1.clamp(0.0, 1.0), c2.clamp(0.0, 1.0))
+}
+
+/// Bounded polynomial mutation of one gene in [0, 1].
+fn poly_mutation(y: f64, eta: f64, u: f64) -> f64 {
+    let p = eta + 1.0;
+    let dq = if u < 0.5 {
+        let xy = 1.0 - y;
+        (2.0 * u + (1.0 - 2.0 * u) * xy.powf(p)).powf(1.0 / p) - 1.0
+    } else {
+        let xy = y;
+        1.0 - (2.0 * (1.0 - u) + 2.0 * (u - 0.5) * xy.powf(p)).powf(1.0 / p)
+    };
+    (y + dq).clamp(0.0, 1.0)
+}
+
+/// An objective for [`minimize`]. Any `Fn(&[f64]) -> f64 + Sync` is one; an
+/// objective may also implement `eval_bounded`, which may stop early and return
+/// any value `>= bound` once the result is known to be at least `bound` (the GA
+/// uses it for offspring that cannot survive).
+pub trait Objective: Sync {
+    fn eval(&self, x: &[f64]) -> f64;
+    fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
+        let _ = bound;
+        self.eval(x)
+    }
+}
+
+impl<F: Fn(&[f64]) -> f64 + Sync> Objective for F {
+    fn eval(&self, x: &[f64]) -> f64 {
+        self(x)
+    }
+}
+
+struct Evaluator<'a, F: ?Sized> {
+    f: &'a F,
+    bounds: &'a Bounds,
+    evaluations: usize,
+}
+
+impl<F: Objective + ?Sized> Evaluator<'_, F> {
+    fn one(&mut self, z: &[f64]) -> f64 {
+        self.evaluations += 1;
+        let mut x = vec![0.0; z.len()];
+        self.bounds.to_user(z, &mut x);
+        clean(self.f.eval(&x))
+    }
+
+    fn many(&mut self, zs: &[Vec<f64>]) -> Vec<f64> {
+        self.many_bounded(zs, f64::INFINITY)
+    }
+
+    fn many_bounded(&mut self, zs: &[Vec<f64>], bound: f64) -> Vec<f64> {
+        self.evaluations += zs.len();
+        let (f, b) = (self.f, self.bounds);
+        zs.par_iter()
+            .map(|z| {
+                let mut x = vec![0.0; z.len()];
+                b.to_user(z, &mut x);
+                if bound.is_finite() {
+                    clean(f.eval_bounded(&x, bound))
+                } else {
+                    clean(f.eval(&x))
+                }
+            })
+            .collect()
+    }
+}
+
+/// Sorts a population by value (stable: ties keep their order).
+fn sort_pop(pop: &mut Vec<Vec<f64>>, fit: &mut Vec<f64>) {
+    let mut idx: Vec<usize> = (0..pop.len()).collect();
+    idx.sort_by(|&a, &b| fit[a].total_cmp(&fit[b]).then(a.cmp(&b)));
+    *pop = idx.iter().map(|&i| std::mem::take(&mut pop[i])).collect();
+    *fit = idx.iter().map(|&i| fit[i]).collect();
+}
+
+/// Initial Nelder–Mead steps per coordinate: the spread of the best tenth of the
+/// population, clamped to [1e-4, 0.05] in unit coordinates.
+fn simplex_steps(pop: &[Vec<f64>], n: usize, d: usize) -> Vec<f64> {
+    let top = (n / 10).max(d + 1).min(n);
+    (0..d)
+        .map(|j| {
+            let (lo, hi) = pop[..top]
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |s, z| {
+                    (s.0.min(z[j]), s.1.max(z[j]))
+                });
+            (hi - lo).clamp(1e-4, 0.05)
+        })
+        .collect()
+}
+
+/// Keeps the best `n` of a sorted population, preferring distinct individuals
+/// (clones of a kept individual only fill up when too few distinct ones remain).
+fn survive_unique(pop: &mut Vec<Vec<f64>>, fit: &mut Vec<f64>, n: usize) {
+    let mut keep: Vec<usize> = Vec::with_capacity(pop.len());
+    let mut dup: Vec<usize> = Vec::new();
+    for i in 0..pop.len() {
+        let clone = keep
+            .iter()
+            .rev()
+            .take_while(|&&k| fit[k] == fit[i])
+            .any(|&k| pop[k] == pop[i]);
+        if clone {
+            dup.push(i);
+        } else {
+            keep.push(i);
+        }
+    }
+    keep.extend(dup);
+    keep.truncate(n);
+    keep.sort_unstable();
+    *pop = keep.iter().map(|&i| std::mem::take(&mut pop[i])).collect();
+    *fit = keep.iter().map(|&i| fit[i]).collect();
+}
+
+/// Minimises `f` over `bounds` (see the module documentation). `callback` runs after
+/// every generation and polish iteration on the calling thread; returning `false`
+/// stops the run, which then returns the best so far with [`StopReason::Callback`].
+/// Fitness evaluations run in parallel on the current rayon pool.
+pub fn minimize<F>(
+    f: &F,
+    bounds: &Bounds,
+    opts: &GaOptions,
+    mut callback: impl FnMut(&Progress) -> bool,
+) -> Result<GaResult>
+where
+    F: Objective + ?Sized,
+{
+    let d = bounds.dim();
+    opts.validate(d)?;
+    let n = opts.pop(d);
+    let n_elite = opts.n_elite(n);
+    let pm = if opts.mutation_prob > 0.0 {
+        opts.mutation_prob
+    } else {
+        1.0 / d as f64
+    };
+    let mut ev = Evaluator {
+        f,
+        bounds,
+        evaluations: 0,
+    };
+
+    // Initial population: Latin hypercube, then the user's points.
+    let mut lhs = stream(opts.seed, 0, 0, TAG_LHS);
+    let mut pop = vec![vec![0.0; d]; n];
+    for j in 0..d {
+        let mut perm: Vec<usize> = (0..n).collect();
+        for i in (1..n).rev() {
+            let k = lhs.random_range(0..=i);
+            perm.swap(i, k);
+        }
+        for (i, ind) in pop.iter_mut().enumerate() {
+            let mut r = stream(opts.seed, 0, i as u64, TAG_INIT ^ j as u64);
+            ind[j] = (perm[i] as f64 + r.random::<f64>()) / n as f64;
+        }
+    }
+    for (ind, x) in pop.iter_mut().zip(&opts.initial) {
+        *ind = bounds.to_unit(x);
+    }
+    let mut fit = ev.many(&pop);
+    sort_pop(&mut pop, &mut fit);
+    let mut history = vec![fit[0]];
+    let mut x_best = vec![0.0; d];
+    let mut stop = StopReason::MaxGenerations;
+    let mut generation = 0;
+
+    let mut stopped_by_callback = false;
+    while generation < opts.max_generations {
+        if fit[0] <= opts.target {
+            stop = StopReason::Target;
+            break;
+        }
+        generation += 1;
+        let n_off = if opts.plus { n } else { n - n_elite };
+        let pairs = n_off.div_ceil(2);
+        let g = generation as u64;
+        let (popr, fitr) = (&pop, &fit);
+        let children: Vec<[Vec<f64>; 2]> = (0..pairs)
+            .into_par_iter()
+            .map(|k| {
+                let mut r = stream(opts.seed, g, k as u64, TAG_BREED);
+                let mut pick = || {
+                    let mut best = r.random_range(0..n);
+                    for _ in 1..opts.tournament {
+                        let c = r.random_range(0..n);
+                        if fitr[c] < fitr[best] || (fitr[c] == fitr[best] && c < best) {
+                            best = c;
+                        }
+                    }
+                    best
+                };
+                let (a, b) = (pick(), pick());
+                let mut c1 = popr[a].clone();
+                let mut c2 = popr[b].clone();
+                if r.random::<f64>() < opts.crossover_prob {
+                    for j in 0..d {
+                        let u = r.random::<f64>();
+                        if r.random::<f64>() < 0.5 {
+                            let (y1, y2) = sbx(c1[j], c2[j], opts.eta_c, u);
+                            if r.random::<f64>() < 0.5 {
+                                c1[j] = y1;
+                                c2[j] = y2;
+                            } else {
+                                c1[j] = y2;
+                                c2[j] = y1;
+                            }
+                        }
+                    }
+                }
+                for c in [&mut c1, &mut c2] {
+                    for v in c.iter_mut() {
+                        let u = r.random::<f64>();
+                        if r.random::<f64>() < pm {
+                            *v = poly_mutation(*v, opts.eta_m, u);
+                        }
+                    }
+                }
+                [c1, c2]
+            })
+            .collect();
+        let mut kids: Vec<Vec<f64>> = children.into_iter().flatten().take(n_off).collect();
+        // (mu + lambda): an offspring whose value reaches the current worst cannot
+        // survive, so its evaluation may stop early (exact values otherwise).
+        let bound = if opts.plus { fit[n - 1] } else { f64::INFINITY };
+        let kid_fit = ev.many_bounded(&kids, bound);
+        if !opts.plus {
+            pop.truncate(n_elite);
+            fit.truncate(n_elite);
+        }
+        pop.append(&mut kids);
+        fit.extend(kid_fit);
+        sort_pop(&mut pop, &mut fit);
+        if opts.plus {
+            survive_unique(&mut pop, &mut fit, n);
+        }
+        if opts.local_every > 0 && generation % opts.local_every == 0 && fit[0].is_finite() {
+            // Lamarckian local search: a short Nelder–Mead from the best individual,
+            // whose result joins the population (the worst individual leaves).
+            let step = simplex_steps(&pop, n, d);
+            let budget = if opts.local_evals == 0 {
+                20 * d
+            } else {
+                opts.local_evals
+            };
+            let (z, fz) = nelder_mead(&mut ev, &pop[0], fit[0], &step, budget, |_, _, _| true);
+            if fz < fit[0] {
+                pop.insert(0, z);
+                fit.insert(0, fz);
+                pop.truncate(n);
+                fit.truncate(n);
+            }
+        }
+        history.push(fit[0]);
+
+        bounds.to_user(&pop[0], &mut x_best);
+        let go_on = callback(&Progress {
+            phase: Phase::Ga,
+            iteration: generation,
+            evaluations: ev.evaluations,
+            best_f: fit[0],
+            best_x: &x_best,
+        });
+        if !go_on {
+            stop = StopReason::Callback;
+            stopped_by_callback = true;
+            break;
+        }
+        if generation >= opts.stall_generations {
+            let old = history[generation - opts.stall_generations];
+            let new = fit[0];
+            let stalled = if old.is_finite() {
+                old - new <= opts.ftol * new.abs().max(1e-300)
+            } else {
+                !new.is_finite()
+            };
+            if stalled {
+                stop = StopReason::Stall;
+                break;
+            }
+        }
+        let spread = (0..d)
+            .map(|j| {
+                let (lo, hi) = pop.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |s, z| {
+                    (s.0.min(z[j]), s.1.max(z[j]))
+                });
+                hi - lo
+            })
+            .fold(0.0, f64::max);
+        if spread < opts.xtol {
+            stop = StopReason::Tolerance;
+            break;
+        }
+    }
+    if stop == StopReason::MaxGenerations && fit[0] <= opts.target {
+        stop = StopReason::Target;
+    }
+    let f_ga = fit[0];
+    let mut z_best = pop[0].clone();
+    let mut f_best = fit[0];
+
+    if opts.polish && !stopped_by_callback && stop != StopReason::Target && f_best.is_finite() {
+        let step = simplex_steps(&pop, n, d);
+        let budget = if opts.polish_max_evals == 0 {
+            400 * d
+        } else {
+            opts.polish_max_evals
+        };
+        let mut it = 0usize;
+        let mut interrupted = false;
+        let start_evals = ev.evaluations;
+        for restart in 0..2 {
+            let used = ev.evaluations - start_evals;
+            if used >= budget || interrupted {
+                break;
+            }
+            let scale = if restart == 0 { 1.0 } else { 0.2 };
+            let steps: Vec<f64> = step.iter().map(|s| s * scale).collect();
+            let (z, fz) = nelder_mead(
+                &mut ev,
+                &z_best,
+                f_best,
+                &steps,
+                budget - used,
+                |e, zb, fb| {
+                    it += 1;
+                    bounds.to_user(zb, &mut x_best);
+                    let ok = callback(&Progress {
+                        phase: Phase::Polish,
+                        iteration: it,
+                        evaluations: e,
+                        best_f: fb,
+                        best_x: &x_best,
+                    });
+                    if !ok {
+                        interrupted = true;
+                    }
+                    ok
+                },
+            );
+            if fz < f_best {
+                z_best = z;
+                f_best = fz;
+            }
+        }
+        if interrupted {
+            stop = StopReason::Callback;
+        }
+    }
+    let mut x = vec![0.0; d];
+    bounds.to_user(&z_best, &mut x);
+    Ok(GaResult {
+        x,
+        f: f_best,
+        f_ga,
+        generations: generation,
+        evaluations: ev.evaluations,
+        stop,
+        history,
+    })
+}
+
+/// Bounded Nelder–Mead in unit coordinates with the adaptive coefficients of Gao
+/// and Han (2012); trial points are projected onto `[0, 1]^d`. Stops on the budget,
+/// a collapsed simplex (size `< 1e-10`, values within `1e-12` relative) or the
+/// callback returning `false`.
+fn nelder_mead<F: Objective + ?Sized>(
+    ev: &mut Evaluator<'_, F>,
+    z0: &[f64],
+    f0: f64,
+    step: &[f64],
+    budget: usize,
+    mut callback: impl FnMut(usize, &[f64], f64) -> bool,
+) -> (Vec<f64>, f64) {
+    let d = z0.len();
+    let nd = d as f64;
+    let (alpha, gamma) = (1.0, 1.0 + 2.0 / nd);
+    let (rho, sigma) = (0.75 - 0.5 / nd, 1.0 - 1.0 / nd.max(2.0));
+    let proj = |z: &mut Vec<f64>| z.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+    let mut simplex: Vec<Vec<f64>> = vec![z0.to_vec()];
+    for j in 0..d {
+        let mut z = z0.to_vec();
+        z[j] = if z[j] + step[j] <= 1.0 {
+            z[j] + step[j]
+        } else {
+            z[j] - step[j]
+        };
+        simplex.push(z);
+    }
+    let start = ev.evaluations;
+    let mut fs = vec![f0];
+    fs.extend(ev.many(&simplex[1..]));
+    let order = |s: &mut Vec<Vec<f64>>, f: &mut Vec<f64>| sort_pop(s, f);
+    order(&mut simplex, &mut fs);
+    while ev.evaluations - start < budget {
+        let size = (1..=d)
+            .map(|i| {
+                simplex[i]
+                    .iter()
+                    .zip(&simplex[0])
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max)
+            })
+            .fold(0.0, f64::max);
+        let frange = fs[d] - fs[0];
+        if size < 1e-10 || (fs[d].is_finite() && frange <= 1e-12 * fs[0].abs().max(1e-300)) {
+            break;
+        }
+        let mut cen = vec![0.0; d];
+        for z in &simplex[..d] {
+            for j in 0..d {
+                cen[j] += z[j] / nd;
+            }
+        }
+        let towards = |t: f64| {
+            let mut z: Vec<f64> = (0..d)
+                .map(|j| cen[j] + t * (simplex[d][j] - cen[j]))
+                .collect();
+            proj(&mut z);
+            z
+        };
+        let zr = towards(-alpha);
+        let fr = ev.one(&zr);
+        if fr < fs[0] {
+            let ze = towards(-gamma);
+            let fe = ev.one(&ze);
+            if fe < fr {
+                simplex[d] = ze;
+                fs[d] = fe;
+            } else {
+                simplex[d] = zr;
+                fs[d] = fr;
+            }
+        } else if fr < fs[d - 1] {
+            simplex[d] = zr;
+            fs[d] = fr;
+        } else {
+            let (zc, fc) = if fr < fs[d] {
+                let z = towards(-rho * alpha);
+                let f = ev.one(&z);
+                (z, f)
+            } else {
+                let z = towards(rho);
+                let f = ev.one(&z);
+                (z, f)
+            };
+            if fc < fs[d].min(fr) {
+                simplex[d] = zc;
+                fs[d] = fc;
+            } else {
+                let best = simplex[0].clone();
+                for z in simplex.iter_mut().skip(1) {
+                    for j in 0..d {
+                        z[j] = best[j] + sigma * (z[j] - best[j]);
+                    }
+                }
+                let new = ev.many(&simplex[1..]);
+                fs[1..].copy_from_slice(&new);
+            }
+        }
+        order(&mut simplex, &mut fs);
+        if !callback(ev.evaluations, &simplex[0], fs[0]) {
+            break;
+        }
+    }
+    (simplex.swap_remove(0), fs[0])
+}
+
+// ---------------------------------------------------------------------------
+// Calibration: the GA on Eq. 6.
+// ---------------------------------------------------------------------------
+
+/// Eq. 6 over a (multi)set of runs: the mean of `run_cost` over `subset` (indices
+/// into `runs`, repeats allowed, e.g. a bootstrap resample). Per-run costs are
+/// evaluated in parallel and summed in a fixed order.
+pub fn subset_cost(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(usize, f64)]) -> f64 {
+    let costs: Vec<f64> = weights
+        .par_iter()
+        .map(|&(j, _)| run_cost(spec, row, &runs[j]))
+        .collect();
+    let total: f64 = weights.iter().map(|w| w.1).sum();
+    let s = costs.iter().zip(weights).fold(0.0, |s, (c, w)| s + c * w.1);
+    let m = s / total;
+    if m.is_finite() {
+        m
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Eq. 6 over a weighted set of runs, with early abandoning on the common path
+/// (open loop, acceleration command and error only).
+struct Eq6<'a> {
+    spec: &'a CostSpec,
+    runs: &'a [RunRef<'a>],
+    w: Vec<(usize, f64)>,
+    total: f64,
+}
+
+impl Objective for Eq6<'_> {
+    fn eval(&self, x: &[f64]) -> f64 {
+        subset_cost(self.spec, x, self.runs, &self.w)
+    }
+
+    fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
+        let s = self.spec;
+        if s.closed_loop
+            || s.kind != CommandKind::Acceleration
+            || s.weights[1] != 0.0
+            || s.weights[2] != 0.0
+            || s.weights[0] <= 0.0
+        {
+            return self.eval(x);
+        }
+        let lin = match s.model.linear(&x[..s.model.n_params()]) {
+            Ok(l) => l,
+            Err(_) => return f64::INFINITY,
+        };
+        match lin.order() {
+            1 => self.bounded::<1>(&lin, bound),
+            _ => self.bounded::<2>(&lin, bound),
+        }
+    }
+}
+
+impl Eq6<'_> {
+    /// Same arithmetic, in the same order, as `rollout::run_cost` and
+    /// [`subset_cost`] (so an unabandoned value is bit-identical); stops with `inf`
+    /// once the partial sum proves the result `>= bound`.
+    fn bounded<const N: usize>(&self, lin: &Linear, bound: f64) -> f64 {
+        let wa = self.spec.weights[0];
+        let mut done = 0.0; // sum of w_j c_j over finished runs
+        let mut costs = Vec::with_capacity(self.w.len());
+        for &(j, wj) in &self.w {
+            let run = &self.runs[j];
+            let u = run.command.unwrap_or(&[]);
+            let n = u.len();
+            let d = match discretize::<N>(lin, Integrators::None, run.dt) {
+                Ok(d) => d,
+                Err(_) => return f64::INFINITY,
+            };
+            let mut x = [0.0; N];
+            let mut hist = 0.0;
+            if self.spec.init == Init::Steady {
+                let den = 1.0 - lin.k * lin.b0;
+                if den.abs() < 1e-12 {
+                    return f64::INFINITY;
+                }
+                let w = u[0] / den;
+                let e = equilibrium(lin, w);
+                x[..lin.order()].copy_from_slice(&e[..lin.order()]);
+                hist = w;
+            }
+            // Abandon once wa * s / n * wj + done >= bound * total.
+            let limit = (bound * self.total - done) * n as f64 / (wj * wa);
+            let i = d.delay_steps;
+            let cap = (i + 2).next_power_of_two();
+            let mask = cap - 1;
+            let mut buf = vec![hist; cap];
+            let mut sum = 0.0;
+            for k in 0..n {
+                let y = d.c.iter().zip(&x).fold(0.0, |s, (a, b)| s + a * b);
+                buf[k & mask] = u[k] + d.k * y;
+                let w0 = buf[k.wrapping_sub(i) & mask];
+                let w1 = buf[k.wrapping_sub(i + 1) & mask];
+                let e = y - run.a[k];
+                sum += e * e;
+                if y.abs() >= DIVERGED {
+                    return f64::INFINITY;
+                }
+                if k & 63 == 63 && sum >= limit {
+                    return f64::INFINITY;
+                }
+                let mut nx = [0.0; N];
+                for (r, v) in nx.iter_mut().enumerate() {
+                    let acc = d.phi[r].iter().zip(&x).fold(0.0, |s, (a, b)| s + a * b);
+                    *v = acc + d.g0[r] * w0 + d.g1[r] * w1;
+                }
+                x = nx;
+            }
+            let c = wa * sum / n as f64;
+            if !c.is_finite() {
+                return f64::INFINITY;
+            }
+            done += wj * c;
+            costs.push(c);
+        }
+        let s = costs.iter().zip(&self.w).fold(0.0, |s, (c, w)| s + c * w.1);
+        let m = s / self.total;
+        if m.is_finite() {
+            m
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// Multiplicities of a subset: sorted unique indices with their counts.
+fn multiplicities(subset: &[usize], r: usize, problem: usize) -> Result<Vec<(usize, f64)>> {
+    if subset.is_empty() {
+        return Err(AvllError::new(
+            format!("problems[{problem}]"),
+            "has no runs",
+        ));
+    }
+    let mut counts = vec![0usize; r];
+    for &j in subset {
+        if j >= r {
+            return Err(AvllError::new(
+                format!("problems[{problem}]"),
+                format!("run index {j} is out of range (there are {r} runs)"),
+            ));
+        }
+        counts[j] += 1;
+    }
+    Ok(counts
+        .iter()
+        .enumerate()
+        .filter(|(_, &c)| c > 0)
+        .map(|(j, &c)| (j, c as f64))
+        .collect())
+}
+
+/// Calibrates `spec.model` (and the free upper-level gains) on `runs` by the GA:
+/// minimises Eq. 6. `bounds` has `spec.n_params()` coordinates.
+pub fn calibrate(
+    spec: &CostSpec,
+    runs: &[RunRef],
+    bounds: &Bounds,
+    opts: &GaOptions,
+    callback: impl FnMut(&Progress) -> bool,
+) -> Result<GaResult> {
+    spec.validate(runs)?;
+    let all: Vec<usize> = (0..runs.len()).collect();
+    calibrate_one(spec, runs, &all, bounds, opts, 0, callback)
+}
+
+fn calibrate_one(
+    spec: &CostSpec,
+    runs: &[RunRef],
+    subset: &[usize],
+    bounds: &Bounds,
+    opts: &GaOptions,
+    problem: usize,
+    callback: impl FnMut(&Progress) -> bool,
+) -> Result<GaResult> {
+    if bounds.dim() != spec.n_params() {
+        return Err(AvllError::new(
+            "bounds",
+            format!(
+                "has {} parameters, the model {:?} with {} free upper-level gains needs {}",
+                bounds.dim(),
+                spec.model.name(),
+                spec.upper_free.len(),
+                spec.n_params()
+            ),
+        ));
+    }
+    let w = multiplicities(subset, runs.len(), problem)?;
+    let total = w.iter().map(|p| p.1).sum();
+    let f = Eq6 {
+        spec,
+        runs,
+        w,
+        total,
+    };
+    minimize(&f, bounds, opts, callback)
+}
+
+/// Solves many independent calibration problems in parallel: problem `k` is Eq. 6
+/// over the runs `problems[k]` (repeats allowed), with the seed
+/// `derive_seed(opts.seed, k)` when `derive` is true (else `opts.seed` for all).
+/// `callback(k, progress)` returns `None`/`Some(true)` to continue and `Some(false)`
+/// to stop every problem (each then returns its best so far).
+pub fn calibrate_many(
+    spec: &CostSpec,
+    runs: &[RunRef],
+    problems: &[Vec<usize>],
+    bounds: &Bounds,
+    opts: &GaOptions,
+    derive: bool,
+    callback: impl Fn(usize, &Progress) -> Option<bool> + Sync,
+) -> Result<Vec<GaResult>> {
+    spec.validate(runs)?;
+    opts.validate(bounds.dim())?;
+    for (k, p) in problems.iter().enumerate() {
+        multiplicities(p, runs.len(), k)?;
+    }
+    problems
+        .par_iter()
+        .enumerate()
+        .map(|(k, subset)| {
+            let mut o = opts.clone();
+            if derive {
+                o.seed = derive_seed(opts.seed, k as u64);
+            }
+            calibrate_one(spec, runs, subset, bounds, &o, k, |p| {
+                callback(k, p).unwrap_or(true)
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sphere(x: &[f64]) -> f64 {
+        x.iter().map(|v| (v - 0.3) * (v - 0.3)).sum()
+    }
+
+    fn rosenbrock(x: &[f64]) -> f64 {
+        x.windows(2)
+            .map(|w| 100.0 * (w[1] - w[0] * w[0]).powi(2) + (1.0 - w[0]).powi(2))
+            .sum()
+    }
+
+    #[test]
+    fn sphere_converges() {
+        let b = Bounds::linear(vec![-5.0; 5], vec![5.0; 5]).unwrap();
+        let o = GaOptions {
+            polish: false,
+            max_generations: 400,
+            ..Default::default()
+        };
+        let r = minimize(&sphere, &b, &o, |_| true).unwrap();
+        // The GA alone gets close (it finds the basin); the polish finishes.
+        assert!(r.f < 1e-4, "f = {} {:?} {}", r.f, r.stop, r.generations);
+        for v in &r.x {
+            assert!((v - 0.3).abs() < 1e-2);
+        }
+        assert!(r.history.windows(2).all(|w| w[1] <= w[0]), "elitism");
+        let p = minimize(&sphere, &b, &GaOptions::default(), |_| true).unwrap();
+        assert!(p.f < 1e-12 && p.f <= p.f_ga, "polished f = {}", p.f);
+    }
+
+    #[test]
+    fn rosenbrock_converges_with_polish() {
+        let b = Bounds::linear(vec![-2.0; 4], vec![2.0; 4]).unwrap();
+        let o = GaOptions {
+            seed: 7,
+            ..Default::default()
+        };
+        let r = minimize(&rosenbrock, &b, &o, |_| true).unwrap();
+        assert!(r.f < 1e-8, "f = {} (ga {})", r.f, r.f_ga);
+        assert!(r.f <= r.f_ga);
+        for v in &r.x {
+            assert!((v - 1.0).abs() < 1e-3, "{:?}", r.x);
+        }
+    }
+
+    #[test]
+    fn log_scale_and_fixed_coordinates() {
+        let b = Bounds::new(
+            vec![1e-3, 2.0, -1.0],
+            vec![1e3, 2.0, 1.0],
+            vec![Scale::Log, Scale::Linear, Scale::Linear],
+        )
+        .unwrap();
+        let f = |x: &[f64]| (x[0].ln() - 3f64.ln()).powi(2) + (x[2] - 0.5).powi(2) + x[1];
+        let r = minimize(&f, &b, &GaOptions::default(), |_| true).unwrap();
+        assert!((r.x[0] - 3.0).abs() < 1e-4 && r.x[1] == 2.0 && (r.x[2] - 0.5).abs() < 1e-4);
+        assert!(Bounds::new(vec![0.0], vec![1.0], vec![Scale::Log]).is_err());
+        assert!(Bounds::linear(vec![1.0], vec![0.0]).is_err());
+    }
+
+    #[test]
+    fn same_seed_same_result_for_any_thread_count() {
+        let b = Bounds::linear(vec![-2.0; 4], vec![2.0; 4]).unwrap();
+        let o = GaOptions {
+            seed: 42,
+            max_generations: 60,
+            ..Default::default()
+        };
+        let run = |t: usize| {
+            crate::parallel::with_threads(t, || minimize(&rosenbrock, &b, &o, |_| true))
+                .unwrap()
+                .unwrap()
+        };
+        let (r1, r2, r3) = (run(1), run(2), run(3));
+        assert_eq!(r1, r2);
+        assert_eq!(r1, r3);
+        let other = minimize(
+            &rosenbrock,
+            &b,
+            &GaOptions {
+                seed: 43,
+                ..o.clone()
+            },
+            |_| true,
+        )
+        .unwrap();
+        assert_ne!(r1.history, other.history);
+    }
+
+    #[test]
+    fn callback_stops_and_returns_best_so_far() {
+        let b = Bounds::linear(vec![-5.0; 3], vec![5.0; 3]).unwrap();
+        let mut seen = 0;
+        let r = minimize(&sphere, &b, &GaOptions::default(), |p| {
+            seen += 1;
+            assert_eq!(p.phase, Phase::Ga);
+            p.iteration < 5
+        })
+        .unwrap();
+        assert_eq!(seen, 5);
+        assert_eq!(r.generations, 5);
+        assert_eq!(r.stop, StopReason::Callback);
+        assert_eq!(r.f, r.history[5]);
+        assert!((sphere(&r.x) - r.f).abs() < 1e-15);
+    }
+
+    #[test]
+    fn stall_and_target_stop() {
+        let b = Bounds::linear(vec![-1.0; 2], vec![1.0; 2]).unwrap();
+        let flat = |_: &[f64]| 1.0;
+        let r = minimize(&flat, &b, &GaOptions::default(), |_| true).unwrap();
+        assert_eq!(r.stop, StopReason::Stall);
+        assert_eq!(r.generations, 20);
+        let o = GaOptions {
+            target: 1e-2,
+            ..Default::default()
+        };
+        let r = minimize(&sphere, &b, &o, |_| true).unwrap();
+        assert_eq!(r.stop, StopReason::Target);
+        assert!(r.f <= 1e-2);
+    }
+
+    #[test]
+    fn nan_counts_as_infinite() {
+        let b = Bounds::linear(vec![-1.0; 2], vec![1.0; 2]).unwrap();
+        let f = |x: &[f64]| if x[0] < 0.0 { f64::NAN } else { sphere(x) };
+        let r = minimize(&f, &b, &GaOptions::default(), |_| true).unwrap();
+        assert!(r.f.is_finite() && r.x[0] >= 0.0);
+    }
+
+    fn synthetic_runs() -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+        let lin = crate::model::ModelKind::Proposed
+            .linear(&[6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008])
+            .unwrap();
+        let mut us = Vec::new();
+        let mut ys = Vec::new();
+        for r in 0..3 {
+            let u: Vec<f64> = (0..1500)
+                .map(|k| {
+                    let t = k as f64 * 0.05;
+                    (0.3 * t + r as f64).sin() + 0.5 * (0.05 * t * t / 10.0).sin()
+                })
+                .collect();
+            let mut y =
+                crate::rollout::simulate(&lin, &u, 0.05, crate::rollout::Init::Rest).unwrap();
+            for (k, v) in y.iter_mut().enumerate() {
+                *v += 0.05 * ((k * 7919 + r * 104729) as f64).sin();
+            }
+            us.push(u);
+            ys.push(y);
+        }
+        (us, ys)
+    }
+
+    fn spec() -> CostSpec {
+        CostSpec {
+            model: crate::model::ModelKind::Proposed,
+            kind: CommandKind::Acceleration,
+            weights: [1.0, 0.0, 0.0],
+            init: Init::Rest,
+            closed_loop: false,
+            upper_free: vec![],
+        }
+    }
+
+    fn refs<'a>(us: &'a [Vec<f64>], ys: &'a [Vec<f64>]) -> Vec<RunRef<'a>> {
+        us.iter()
+            .zip(ys)
+            .map(|(u, y)| RunRef {
+                dt: 0.05,
+                command: Some(u),
+                lead_x: None,
+                lead_v: None,
+                a: y,
+                v: None,
+                x: None,
+                upper: crate::rollout::Upper {
+                    kg: 0.5,
+                    kv: 0.0,
+                    tg: 2.0,
+                    gmin: 9.5,
+                },
+            })
+            .collect()
+    }
+
+    #[test]
+    fn bounded_objective_is_exact_or_abandons_above_the_bound() {
+        let (us, ys) = synthetic_runs();
+        let runs = refs(&us, &ys);
+        let sp = spec();
+        let w = vec![(0, 2.0), (1, 1.0), (2, 1.0)];
+        let f = Eq6 {
+            spec: &sp,
+            runs: &runs,
+            w: w.clone(),
+            total: 4.0,
+        };
+        for row in [
+            [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008],
+            [1.0, 0.5, 2.0, 0.8, 0.33, -0.4],
+            [0.0, 0.04, 0.13, 0.73, 0.78, 0.0],
+        ] {
+            let exact = subset_cost(&sp, &row, &runs, &w);
+            assert_eq!(f.eval_bounded(&row, 1e300).to_bits(), exact.to_bits());
+            assert_eq!(
+                f.eval_bounded(&row, exact * 1.0001).to_bits(),
+                exact.to_bits()
+            );
+            assert!(f.eval_bounded(&row, exact * 0.5) >= exact * 0.5);
+        }
+        // The GA with abandoning finds the same as with exact values throughout.
+        let b = Bounds::new(
+            vec![1e-4, 1e-3, 1e-3, 0.0, 0.0, -3.0],
+            vec![100.0, 100.0, 100.0, 3.0, 3.0, 3.0],
+            vec![
+                Scale::Log,
+                Scale::Log,
+                Scale::Log,
+                Scale::Linear,
+                Scale::Linear,
+                Scale::Linear,
+            ],
+        )
+        .unwrap();
+        let o = GaOptions {
+            seed: 3,
+            max_generations: 25,
+            ..Default::default()
+        };
+        let plain = |x: &[f64]| subset_cost(&sp, x, &runs, &w);
+        let r1 = minimize(&plain, &b, &o, |_| true).unwrap();
+        let r2 = minimize(&f, &b, &o, |_| true).unwrap();
+        assert_eq!(r1.x, r2.x);
+        assert_eq!(r1.history, r2.history);
+        assert!(r2.f < 0.01, "{}", r2.f);
+    }
+}
