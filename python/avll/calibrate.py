@@ -914,9 +914,7 @@ def _load_for_cli(args: Any) -> tuple[list[Run], bool, list[str], str]:
     no_cmd = [r for r in runs if r.command is None]
     closed = bool(args.closed_loop) or bool(no_cmd)
     if no_cmd and len(no_cmd) != len(runs):
-        raise ValueError(
-            f"run {no_cmd[0].run_id!r}: has no command while other runs have one"
-        )
+        raise ValueError(f"run {no_cmd[0].run_id!r}: has no command while other runs have one")
     if closed:
         bad = [r for r in runs if r.lead_x is None or r.lead_v is None]
         if bad:

@@ -256,8 +256,9 @@ def _mse(
 ) -> dict[str, float]:
     if not runs:
         return {}
-    c = batch_cost(model, np.asarray(x, dtype=np.float64)[None, :], runs, weights=weights,
-                   init=init, closed_loop=closed, upper_free=list(free), threads=threads)[0]  # fmt: skip
+    p = np.asarray(x, dtype=np.float64)[None, :]
+    c = batch_cost(model, p, runs, weights=weights, init=init, closed_loop=closed,
+                   upper_free=list(free), threads=threads)[0]  # fmt: skip
     return {r.run_id: float(v) for r, v in zip(runs, c, strict=True)}
 
 
@@ -370,9 +371,7 @@ def _contract(fits: Mapping[str, _Fit]) -> dict[str, Any]:
     }
 
 
-def _mse_tables(
-    fits: Mapping[str, Mapping[str, _Fit]], metric: str, which: str
-) -> Any:
+def _mse_tables(fits: Mapping[str, Mapping[str, _Fit]], metric: str, which: str) -> Any:
     """Tables III/IV style: rows the models, columns the groups (vehicles) and the
     average; each cell the mean over the group's runs of the per-run MSE."""
     import pandas as pd
@@ -536,7 +535,10 @@ def carma_study(
     summary = {
         "study": "carma",
         "data": str(path),
-        "split": {"cal_files": sorted(cal_set), "val_files": [f for f in files if f not in cal_set]},
+        "split": {
+            "cal_files": sorted(cal_set),
+            "val_files": [f for f in files if f not in cal_set],
+        },
         "init": "steady",
         "handover_speed": HANDOVER_SPEED,
         "ga": ga,
@@ -544,8 +546,11 @@ def carma_study(
         "runs": {"launch": [r.run_id for r in launch], "cruise": [r.run_id for r in cruise]},
         "models": main.get("models", {}),
         "vehicles": {
-            v: {"models": {m: e["groups"][v] for m, e in main.get("models", {}).items()
-                           if v in e["groups"]}}  # fmt: skip
+            v: {
+                "models": {
+                    m: e["groups"][v] for m, e in main.get("models", {}).items() if v in e["groups"]
+                }
+            }  # fmt: skip
             for v in vehicles
         },
         "studies": studies,
@@ -640,8 +645,7 @@ def astazero_study(
     t0 = time.perf_counter()
     for o in objectives:
         if o not in ASTAZERO_OBJECTIVES:
-            raise ValueError(
-                f"objectives: unknown {o!r}; known: {', '.join(ASTAZERO_OBJECTIVES)}")
+            raise ValueError(f"objectives: unknown {o!r}; known: {', '.join(ASTAZERO_OBJECTIVES)}")
     for m in models:
         model_class(m)
     runs = read_astazero_pairs(path)
@@ -659,7 +663,9 @@ def astazero_study(
             if _pair_of(r) != p or _stem_of(r) == cal_stem:
                 continue
             same = (r.meta.get("type"), r.meta.get("lead_type")) == (
-                cal[0].meta.get("type"), cal[0].meta.get("lead_type"))
+                cal[0].meta.get("type"),
+                cal[0].meta.get("lead_type"),
+            )
             if same:
                 val.append(r)
             else:
@@ -693,8 +699,9 @@ def astazero_study(
         studies[obj] = {
             "weights": list(w),
             "models": {m: _contract(f) for m, f in fits.items()},
-            "table_ii_upper_refitted": {m: _contract(base[f"Table II {m} (upper refitted)"])
-                                        for m in models if baseline},  # fmt: skip
+            "table_ii_upper_refitted": {
+                m: _contract(base[f"Table II {m} (upper refitted)"]) for m in models if baseline
+            },  # fmt: skip
         }
         unit = {"a": "acceleration MSE (m/s^2)^2", "v": "speed MSE (m/s)^2",
                 "x": "position (= gap) MSE m^2"}  # fmt: skip
@@ -713,8 +720,11 @@ def astazero_study(
     summary = {
         "study": "openacc-astazero",
         "data": str(path),
-        "split": {"cal_file": cal_stem, "val_files": [s for s in stems if s != cal_stem],
-                  "type_mismatch_excluded": mismatched},  # fmt: skip
+        "split": {
+            "cal_file": cal_stem,
+            "val_files": [s for s in stems if s != cal_stem],
+            "type_mismatch_excluded": mismatched,
+        },  # fmt: skip
         "closed_loop": True,
         "upper_free": list(_UPPER),
         "init": "rest (lower level), measured v0, x0",
