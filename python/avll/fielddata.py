@@ -276,6 +276,8 @@ class _Fit:
     val_obj: dict[str, float]
     interrupted: bool = False
     at_bound: tuple[str, ...] = ()
+    generations: int = 0
+    stop: str = ""
 
 
 def _fit_groups(
@@ -333,7 +335,9 @@ def _fit_groups(
                   **{_UPPER[i]: float(x[n + j]) for j, i in enumerate(free)}}  # fmt: skip
         out[g] = _Fit(params, x, float(np.mean(list(cal_o.values()))), cal_m, val_m, cal_o, val_o,
                       bool(r.interrupted) if r is not None else False,
-                      tuple(r.at_bound) if r is not None else ())  # fmt: skip
+                      tuple(r.at_bound) if r is not None else (),
+                      int(r.generations) if r is not None else 0,
+                      str(r.stop) if r is not None else "not fitted")  # fmt: skip
     return out
 
 
@@ -357,6 +361,9 @@ def _contract(fits: Mapping[str, _Fit]) -> dict[str, Any]:
             "val_mse": _finite(_mean(f.val_obj)) if f.val_obj else None,
             "per_run_mse": {k: _finite(v) for k, v in {**f.cal_obj, **f.val_obj}.items()},
             "at_bound": list(f.at_bound),
+            "generations": f.generations,
+            "stop": f.stop,
+            "interrupted": f.interrupted,
         }
         for g, f in fits.items()
     }
@@ -367,6 +374,7 @@ def _contract(fits: Mapping[str, _Fit]) -> dict[str, Any]:
         "cal_mse": _finite(float(np.mean(cal))),
         "val_mse": _finite(float(np.mean(val))) if val else None,
         "per_run_mse": {k: v for e in per_group.values() for k, v in e["per_run_mse"].items()},
+        "interrupted": any(f.interrupted for f in fits.values()),
         "groups": per_group,
     }
 
@@ -405,10 +413,6 @@ def _fmt(df: Any) -> str:
     with pd.option_context("display.width", 200, "display.max_columns", 50,
                            "display.max_rows", 500):  # fmt: skip
         return str(df.to_string(float_format=lambda v: f"{v:.4f}", na_rep="-"))
-
-
-def _bar(progress: bool | Callable[[dict[str, Any]], Any], desc: str) -> Any:
-    return progress if callable(progress) else False
 
 
 # ---------------------------------------------------------------------------
@@ -479,8 +483,10 @@ def carma_study(
     figs: dict[str, Any] = {}
     studies: dict[str, Any] = {}
     text: list[str] = []
-    all_fits: dict[tuple[str, str], dict[str, dict[str, _Fit]]] = {}
+    interrupted = False
     for rg in regimes:
+        if interrupted:
+            break
         groups = {}
         for v in vehicles:
             cal = [r for r in by_regime[rg] if _vehicle_of(r) == v and _file_of(r) in cal_set]
@@ -493,18 +499,22 @@ def carma_study(
         for obj in objectives:
             w = CARMA_OBJECTIVES[obj]
             fits: dict[str, dict[str, _Fit]] = {}
+            if interrupted:
+                break
             for k, m in enumerate(models):
+                if interrupted:
+                    break
                 fits[m] = _fit_groups(m, groups, weights=w, init="steady", closed=False,
                                       metrics=("a", "v"), seed=seed + 1000 * k, threads=threads,
-                                      progress=_bar(progress, m), bounds=CARMA_BOUNDS.get(m),
+                                      progress=progress, bounds=CARMA_BOUNDS.get(m),
                                       **ga)  # fmt: skip
+                interrupted = any(f.interrupted for f in fits[m].values())
             base = {
                 f"Table II {m}": _fit_groups(m, groups, weights=w, init="steady", closed=False,
                                              metrics=("a", "v"), seed=seed, threads=threads,
                                              progress=False, fixed=PAPER_TABLE_II[m], fit=False)
                 for m in models
             }  # fmt: skip
-            all_fits[(rg, obj)] = fits
             key = f"{rg}_{obj}"
             tables[f"params_{key}"] = _params_table(fits)
             labelled = {_LABEL[m]: f for m, f in fits.items()} | base
@@ -534,6 +544,7 @@ def carma_study(
     main = main.get("acceleration", next(iter(main.values()), {})) if main else {}
     summary = {
         "study": "carma",
+        "interrupted": interrupted,
         "data": str(path),
         "split": {
             "cal_files": sorted(cal_set),
@@ -676,15 +687,21 @@ def astazero_study(
     figs: dict[str, Any] = {}
     studies: dict[str, Any] = {}
     text: list[str] = []
+    interrupted = False
     for obj in objectives:
         w = ASTAZERO_OBJECTIVES[obj]
         fits: dict[str, dict[str, _Fit]] = {}
+        if interrupted:
+            break
         for k, m in enumerate(models):
+            if interrupted:
+                break
             fits[m] = _fit_groups(m, groups, weights=w, init="rest", closed=True,
                                   metrics=("a", "v", "x"), seed=seed + 1000 * k, threads=threads,
-                                  progress=_bar(progress, m), **ga)  # fmt: skip
+                                  progress=progress, **ga)  # fmt: skip
+            interrupted = any(f.interrupted for f in fits[m].values())
         base: dict[str, dict[str, _Fit]] = {}
-        if baseline:
+        if baseline and not interrupted:
             for k, m in enumerate(models):
                 base[f"Table II {m} (upper refitted)"] = _fit_groups(
                     m, groups, weights=w, init="rest", closed=True, metrics=("a", "v", "x"),
@@ -700,8 +717,10 @@ def astazero_study(
             "weights": list(w),
             "models": {m: _contract(f) for m, f in fits.items()},
             "table_ii_upper_refitted": {
-                m: _contract(base[f"Table II {m} (upper refitted)"]) for m in models if baseline
-            },  # fmt: skip
+                m: _contract(base[f"Table II {m} (upper refitted)"])
+                for m in models
+                if f"Table II {m} (upper refitted)" in base
+            },
         }
         unit = {"a": "acceleration MSE (m/s^2)^2", "v": "speed MSE (m/s)^2",
                 "x": "position (= gap) MSE m^2"}  # fmt: skip
@@ -719,6 +738,7 @@ def astazero_study(
     main = studies.get("mixed", next(iter(studies.values()), {}))
     summary = {
         "study": "openacc-astazero",
+        "interrupted": interrupted,
         "data": str(path),
         "split": {
             "cal_file": cal_stem,
