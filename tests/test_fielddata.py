@@ -225,9 +225,10 @@ def test_astazero_claims(asta_small) -> None:
     assert ((tg > 0.4) & (tg < 1.5)).all(), tg
     # the calibrated lower level is at least as good as the paper's (upper refitted)
     t = st.tables["cal_mixed_a"]
-    assert t.loc["First-order lag", "Average"] <= 1.02 * t.loc[
-        "Table II first (upper refitted)", "Average"
-    ]
+    assert (
+        t.loc["First-order lag", "Average"]
+        <= 1.02 * t.loc["Table II first (upper refitted)", "Average"]
+    )
 
 
 def test_astazero_pairs_have_placeholder_upper(shared_data: Path) -> None:

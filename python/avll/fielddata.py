@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from .calibrate import calibrate_many
+from .calibrate import CalibrationResult, calibrate_many
 from .data import DataError, Run
 from .models import MODELS, LowerLevelModel, UpperLevel, model_class
 from .rollout import batch_cost, closed_loop, simulate_full
@@ -130,7 +130,7 @@ class Study:
             paths.append(p)
         for k, f in self.figures.items():
             p = d / f"{self.name}_{k}.png"
-            f.savefig(p, dpi=90)
+            f.savefig(p, dpi=80)
             paths.append(p)
         p = d / f"{self.name}_summary.json"
         p.write_text(json.dumps(self.summary, indent=2, allow_nan=False, default=_json) + "\n")
@@ -303,6 +303,7 @@ def _fit_groups(
     free = list(range(4)) if closed else []
     names = list(groups)
     out: dict[str, _Fit] = {}
+    xs: dict[str, tuple[np.ndarray, CalibrationResult | None]]
     if fit:
         pool: list[Run] = []
         seen: set[str] = set()
@@ -317,27 +318,27 @@ def _fit_groups(
         res = calibrate_many(model, pool, subsets, seed=seed, threads=threads, progress=progress,
                              bounds=bounds, closed_loop=closed, upper_free=free,
                              weights=weights, init=init, **ga)  # fmt: skip
-        xs = {g: (np.array(list(r.params.values())), r) for g, r in zip(names, res, strict=True)}
+        xs = {g: (np.array(list(c.params.values())), c) for g, c in zip(names, res, strict=True)}
     else:
         assert fixed is not None
         xs = {g: (fixed.to_array(), None) for g in names}
     for g in names:
-        x, r = xs[g]
+        x, cr = xs[g]
         cal, val = groups[g]
-        kw = dict(init=init, closed=closed, free=free, threads=threads)
-        cal_m = {m: _mse(model, x, cal, _METRICS[m], **kw) for m in metrics}  # type: ignore[arg-type]
-        val_m = {m: _mse(model, x, val, _METRICS[m], **kw) for m in metrics}  # type: ignore[arg-type]
-        cal_o = _mse(model, x, cal, weights, **kw)  # type: ignore[arg-type]
-        val_o = _mse(model, x, val, weights, **kw)  # type: ignore[arg-type]
+        kw: dict[str, Any] = dict(init=init, closed=closed, free=free, threads=threads)
+        cal_m = {m: _mse(model, x, cal, _METRICS[m], **kw) for m in metrics}
+        val_m = {m: _mse(model, x, val, _METRICS[m], **kw) for m in metrics}
+        cal_o = _mse(model, x, cal, weights, **kw)
+        val_o = _mse(model, x, val, weights, **kw)
         cls = model_class(model)
         n = len(cls.param_names())
         params = {**cls.from_array(x[:n]).to_dict(),
                   **{_UPPER[i]: float(x[n + j]) for j, i in enumerate(free)}}  # fmt: skip
         out[g] = _Fit(params, x, float(np.mean(list(cal_o.values()))), cal_m, val_m, cal_o, val_o,
-                      bool(r.interrupted) if r is not None else False,
-                      tuple(r.at_bound) if r is not None else (),
-                      int(r.generations) if r is not None else 0,
-                      str(r.stop) if r is not None else "not fitted")  # fmt: skip
+                      bool(cr.interrupted) if cr is not None else False,
+                      tuple(cr.at_bound) if cr is not None else (),
+                      int(cr.generations) if cr is not None else 0,
+                      str(cr.stop) if cr is not None else "not fitted")  # fmt: skip
     return out
 
 
@@ -354,7 +355,7 @@ def _mean(d: Mapping[str, float]) -> float:
 def _contract(fits: Mapping[str, _Fit]) -> dict[str, Any]:
     """``{"params", "cal_mse", "val_mse", "per_run_mse"}`` of one model over groups:
     the per-group entries and the average over groups."""
-    per_group = {
+    per_group: dict[str, dict[str, Any]] = {
         g: {
             "params": f.params,
             "cal_mse": _finite(f.cost),
@@ -478,7 +479,9 @@ def carma_study(
     if not cal_set & set(files):
         raise ValueError(f"cal_files: none of {sorted(cal_set)} in the data ({', '.join(files)})")
     vehicles = list(dict.fromkeys(_vehicle_of(r) for r in runs))
-    ga = dict(max_generations=max_generations, stall_generations=stall_generations, starts=starts)
+    ga: dict[str, Any] = dict(
+        max_generations=max_generations, stall_generations=stall_generations, starts=starts
+    )
     tables: dict[str, Any] = {}
     figs: dict[str, Any] = {}
     studies: dict[str, Any] = {}
@@ -682,7 +685,9 @@ def astazero_study(
             else:
                 mismatched.append(r.run_id)
         groups[p] = (cal, val)
-    ga = dict(max_generations=max_generations, stall_generations=stall_generations, starts=starts)
+    ga: dict[str, Any] = dict(
+        max_generations=max_generations, stall_generations=stall_generations, starts=starts
+    )
     tables: dict[str, Any] = {}
     figs: dict[str, Any] = {}
     studies: dict[str, Any] = {}
