@@ -104,8 +104,9 @@ class Study:
     ``tables`` are pandas DataFrames by name, ``figures`` matplotlib Figures by
     name, ``summary`` is JSON-able: ``{"models": {name: {"params", "cal_mse",
     "val_mse", "per_run_mse"}}, "vehicles": {vehicle: {"models": {...}}}, ...}``
-    (the ``avll calibrate`` contract; top-level ``params`` are per vehicle), and
-    ``text`` a plain-text report of the tables.
+    (the ``avll calibrate`` contract; top-level ``params`` are per vehicle),
+    ``text`` a plain-text report of the tables, ``seconds`` the wall time and
+    ``runs`` the runs used (CARMA: ``"launch"``, ``"cruise"``; AstaZero: ``"pairs"``).
     """
 
     name: str
