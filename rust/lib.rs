@@ -6,6 +6,7 @@
 //! arrays, validates, releases the GIL and calls the core.
 
 pub mod discretize;
+pub mod effects;
 pub mod error;
 pub mod ga;
 pub mod model;

@@ -17,6 +17,7 @@ _COMMANDS = [
     "avll.demo:register_cli",
     "avll.synth:register_cli",
     "avll.io.cli_load:register_cli",
+    "avll.diagnose:register_cli",
     "avll.calibrate:register_cli",
     "avll.stability:register_cli",
 ]

@@ -5,6 +5,7 @@
 //! into `ValueError` and a panic (a bug) into `RuntimeError` rather than letting it
 //! cross into Python.
 
+mod effects;
 mod ga;
 mod rollout;
 mod stability;
@@ -60,6 +61,7 @@ pub(crate) fn slice2<'a>(
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     rollout::register(m)?;
+    effects::register(m)?;
     ga::register(m)?;
     stability::register(m)?;
     Ok(())

@@ -1,0 +1,541 @@
+"""Effects: self-contained extensions of any base model (issue 6).
+
+Each effect is a small frozen dataclass with its own bounded parameters, and the
+registry name that scripts depend on: ``asymmetric``, ``saturation``, ``rate_limit``,
+``deadband``, ``speed_drag``, ``grade``, ``delay``. A base model with effects is a
+:class:`WithEffects`; the rollouts (:func:`simulate_effects`,
+:func:`closed_loop_effects`) and the batched cost (:func:`batch_cost_effects`) run
+in the Rust engine (``rust/effects/``), which equals the linear rollouts exactly
+when no effect is given.
+
+Definitions (``u`` command, ``u_ref = u' + K a`` the inner loop's reference input,
+``a`` the actual acceleration, ``v`` the actual speed):
+
+* ``delay(tau)``: ``u'(t) = u(t - tau)``, a command transport delay outside the
+  inner loop, fractional by linear interpolation between samples;
+* ``rate_limit(j_max)``: ``u'`` follows ``u`` with slew rate at most ``j_max``
+  (m/s³ for an acceleration command: a jerk limit);
+* ``deadband(delta)``: ``u' = sign(u) max(|u| - delta, 0)`` (for a speed command, on
+  the speed error);
+* ``asymmetric(kb, rb)``: while braking the lower level is ``kb G(rb s)``: braking
+  gain ratio ``kb`` and time-scale ratio ``rb`` (1, 1 = symmetric);
+* ``saturation(a_max, d_max)``: ``a = clip(a_lin, -d_max, a_max)``;
+* ``speed_drag(c0, c2)``: ``a += -(c0 s(v) + c2 v |v|)``, ``s(v) = clip(v/0.1, -1, 1)``;
+* ``grade(g_eff)``: ``a += -g_eff * exo_grade`` (``g_eff = 9.81`` m/s²: no compensation).
+
+Command hooks apply in the canonical order above; see ``rust/effects/mod.rs``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import astuple, dataclass, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from . import _core
+from .data import Run
+from .models import LowerLevelModel, UpperLevel, model_class
+from .rollout import Trajectory
+
+__all__ = [
+    "Effect",
+    "Asymmetric",
+    "Saturation",
+    "RateLimit",
+    "Deadband",
+    "SpeedDrag",
+    "Grade",
+    "Delay",
+    "EFFECTS",
+    "CANONICAL_ORDER",
+    "WithEffects",
+    "effect_class",
+    "equivalent_model",
+    "simulate_effects",
+    "closed_loop_effects",
+    "batch_cost_effects",
+    "calibrate_effects",
+]
+
+
+def _num(name: str, value: float) -> None:
+    if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
+        raise ValueError(f"{name}: must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name}: must be finite, got {value}")
+
+
+@dataclass(frozen=True)
+class Effect:
+    """Base class of the effects. ``bounds`` are the calibration search bounds;
+    ``neutral`` the parameters at which the effect is (or tends to) the identity."""
+
+    name: ClassVar[str] = ""
+    bounds: ClassVar[tuple[tuple[float, float], ...]] = ()
+    neutral: ClassVar[tuple[float, ...]] = ()
+    exo: ClassVar[str | None] = None
+    accel_only: ClassVar[bool] = False
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            _num(f"{self.name}.{f.name}", getattr(self, f.name))
+
+    @classmethod
+    def param_names(cls) -> tuple[str, ...]:
+        """Parameter names in array order."""
+        return tuple(f.name for f in fields(cls))
+
+    def to_array(self) -> np.ndarray:
+        """The parameters as a float64 array."""
+        return np.array(astuple(self), dtype=np.float64)
+
+    @classmethod
+    def from_array(cls, values: Any) -> Effect:
+        """Builds the effect from values in :meth:`param_names` order."""
+        vals = [float(v) for v in np.asarray(values, dtype=np.float64).ravel()]
+        if len(vals) != len(cls.param_names()):
+            raise ValueError(
+                f"params: {cls.__name__} takes {len(cls.param_names())} values, got {len(vals)}"
+            )
+        return cls(*vals)
+
+    def to_dict(self) -> dict[str, float]:
+        """The parameters by name."""
+        return {n: float(v) for n, v in zip(self.param_names(), astuple(self), strict=True)}
+
+
+def _positive(name: str, x: float) -> None:
+    if not x > 0:
+        raise ValueError(f"{name}: must be > 0, got {x}")
+
+
+def _nonneg(name: str, x: float) -> None:
+    if not x >= 0:
+        raise ValueError(f"{name}: must be >= 0, got {x}")
+
+
+@dataclass(frozen=True)
+class Delay(Effect):
+    """Extra command transport delay ``tau`` (s), outside the inner loop."""
+
+    tau: float = 0.0
+    name: ClassVar[str] = "delay"
+    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.0, 2.0),)
+    neutral: ClassVar[tuple[float, ...]] = (0.0,)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _nonneg("delay.tau", self.tau)
+
+
+@dataclass(frozen=True)
+class RateLimit(Effect):
+    """Slew-rate limit ``j_max`` of the command (m/s³ for an acceleration command)."""
+
+    j_max: float = 30.0
+    name: ClassVar[str] = "rate_limit"
+    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.1, 30.0),)
+    neutral: ClassVar[tuple[float, ...]] = (30.0,)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive("rate_limit.j_max", self.j_max)
+
+
+@dataclass(frozen=True)
+class Deadband(Effect):
+    """Continuous dead zone of half-width ``delta`` around zero demand."""
+
+    delta: float = 0.0
+    name: ClassVar[str] = "deadband"
+    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.0, 1.0),)
+    neutral: ClassVar[tuple[float, ...]] = (0.0,)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _nonneg("deadband.delta", self.delta)
+
+
+@dataclass(frozen=True)
+class Asymmetric(Effect):
+    """Braking gain ratio ``kb`` and braking time-scale ratio ``rb``."""
+
+    kb: float = 1.0
+    rb: float = 1.0
+    name: ClassVar[str] = "asymmetric"
+    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.3, 3.0), (0.3, 3.0))
+    neutral: ClassVar[tuple[float, ...]] = (1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive("asymmetric.kb", self.kb)
+        _positive("asymmetric.rb", self.rb)
+
+
+@dataclass(frozen=True)
+class Saturation(Effect):
+    """Acceleration limit ``a_max`` and deceleration limit ``d_max`` (m/s², > 0)."""
+
+    a_max: float = 6.0
+    d_max: float = 10.0
+    name: ClassVar[str] = "saturation"
+    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.2, 6.0), (0.2, 10.0))
+    neutral: ClassVar[tuple[float, ...]] = (6.0, 10.0)
+    accel_only: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive("saturation.a_max", self.a_max)
+        _positive("saturation.d_max", self.d_max)
+
+
+@dataclass(frozen=True)
+class SpeedDrag(Effect):
+    """Uncompensated resistance ``c0`` (m/s²) + ``c2 v²`` (``c2`` in 1/m)."""
+
+    c0: float = 0.0
+    c2: float = 0.0
+    name: ClassVar[str] = "speed_drag"
+    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.0, 0.6), (0.0, 0.006))
+    neutral: ClassVar[tuple[float, ...]] = (0.0, 0.0)
+    accel_only: ClassVar[bool] = True
+
+
+@dataclass(frozen=True)
+class Grade(Effect):
+    """Uncompensated grade term ``-g_eff * exo_grade`` (``g_eff`` in m/s²)."""
+
+    g_eff: float = 0.0
+    name: ClassVar[str] = "grade"
+    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((-5.0, 20.0),)
+    neutral: ClassVar[tuple[float, ...]] = (0.0,)
+    exo: ClassVar[str | None] = "grade"
+    accel_only: ClassVar[bool] = True
+
+
+#: The registered effects by name, in the canonical application order.
+EFFECTS: dict[str, type[Effect]] = {
+    c.name: c for c in (Delay, RateLimit, Deadband, Asymmetric, Saturation, SpeedDrag, Grade)
+}
+CANONICAL_ORDER: tuple[str, ...] = tuple(EFFECTS)
+
+
+def effect_class(name: str | type[Effect] | Effect) -> type[Effect]:
+    """The effect class for a registry name."""
+    if isinstance(name, Effect):
+        return type(name)
+    if isinstance(name, type) and issubclass(name, Effect):
+        return name
+    try:
+        return EFFECTS[str(name)]
+    except KeyError:
+        raise ValueError(
+            f"effects: unknown effect {name!r}; known: {', '.join(EFFECTS)}"
+        ) from None
+
+
+def canonical(names: Sequence[str]) -> tuple[str, ...]:
+    """Effect names sorted into the canonical order (duplicates rejected)."""
+    for n in names:
+        effect_class(n)
+    if len(set(names)) != len(names):
+        raise ValueError(f"effects: duplicate effect in {list(names)}")
+    return tuple(sorted(names, key=CANONICAL_ORDER.index))
+
+
+@dataclass(frozen=True)
+class WithEffects:
+    """A base lower-level model extended by effects (at most one of each kind),
+    kept in the canonical order."""
+
+    base: LowerLevelModel
+    effects: tuple[Effect, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.base, LowerLevelModel):
+            raise ValueError(f"base: expected an avll model, got {type(self.base).__name__}")
+        effs = tuple(self.effects)
+        for e in effs:
+            if not isinstance(e, Effect):
+                raise ValueError(f"effects: expected Effect objects, got {type(e).__name__}")
+        order = canonical([e.name for e in effs])
+        object.__setattr__(
+            self, "effects", tuple(sorted(effs, key=lambda e: CANONICAL_ORDER.index(e.name)))
+        )
+        assert tuple(e.name for e in self.effects) == order
+
+    @property
+    def name(self) -> str:
+        """``base`` or ``base+effect+...``."""
+        return "+".join([self.base.name, *self.effect_names])
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.effects)
+
+    def param_names(self) -> tuple[str, ...]:
+        """Base parameter names then ``effect.param`` names."""
+        return self.base.param_names() + tuple(
+            f"{e.name}.{p}" for e in self.effects for p in e.param_names()
+        )
+
+    def to_array(self) -> np.ndarray:
+        """Base parameters then effect parameters (canonical order)."""
+        return np.concatenate([self.base.to_array(), *[e.to_array() for e in self.effects]])
+
+    @classmethod
+    def from_array(
+        cls, base: str | type[LowerLevelModel], effects: Sequence[str], values: Any
+    ) -> WithEffects:
+        """Builds base + effects from a parameter row (effects in canonical order)."""
+        bcls = model_class(base)
+        names = canonical(list(effects))
+        vals = np.asarray(values, dtype=np.float64).ravel()
+        nb = len(bcls.param_names())
+        need = nb + sum(len(EFFECTS[n].param_names()) for n in names)
+        if vals.size != need:
+            raise ValueError(f"values: expected {need} values, got {vals.size}")
+        out, o = [], nb
+        for n in names:
+            k = len(EFFECTS[n].param_names())
+            out.append(EFFECTS[n].from_array(vals[o : o + k]))
+            o += k
+        return cls(bcls.from_array(vals[:nb]), tuple(out))
+
+    def linear(self, *, v: float = 0.0, side: int = 0) -> dict[str, float]:
+        """The small-signal equivalent ``b1, b0, a2, a1, Td, K`` at speed ``v`` on
+        ``side`` (1 acceleration, -1 braking, 0 their average), for the stability
+        engine. Raises ``ValueError`` when an effect has no such equivalent
+        (``speed_drag`` at ``c2 v != 0``, ``delay`` with ``K != 0``)."""
+        return dict(
+            _core.linearize_effects(
+                self.base.name,
+                [float(x) for x in self.base.to_array()],
+                list(self.effect_names),
+                [float(x) for e in self.effects for x in e.to_array()],
+                float(v),
+                int(side),
+            )
+        )
+
+
+def equivalent_model(
+    model: WithEffects, *, v: float = 0.0, side: int = 0
+) -> LowerLevelModel:
+    """The small-signal equivalent (:meth:`WithEffects.linear`) as a base-model
+    object for the stability functions: a :class:`~avll.Proposed` (``m1 = b1, m2 = a2,
+    m3 = a1, K0 = b0``) when the rational part is of second order, a
+    :class:`~avll.FirstOrderLag` when it is a unit-gain lag without dead time or
+    feedback; ``ValueError`` otherwise (e.g. a first-order lag with a braking gain)."""
+    from .models import FirstOrderLag, Proposed
+
+    c = model.linear(v=v, side=side)
+    if c["a2"] > 0:
+        return Proposed(m1=c["b1"], m2=c["a2"], m3=c["a1"], K0=c["b0"], Td=c["Td"], K=c["K"])
+    if c["b1"] == 0 and c["b0"] == 1 and c["Td"] == 0 and c["K"] == 0 and c["a1"] > 0:
+        return FirstOrderLag(Td=c["a1"])
+    raise ValueError(
+        f"model: the equivalent {c} is neither second order nor a unit-gain first-order lag"
+    )
+
+
+def _split(model: WithEffects | LowerLevelModel) -> tuple[str, list[float], list[str], list[float]]:
+    if isinstance(model, LowerLevelModel):
+        model = WithEffects(model, ())
+    if not isinstance(model, WithEffects):
+        raise ValueError(f"model: expected a model or WithEffects, got {type(model).__name__}")
+    return (
+        model.base.name,
+        [float(x) for x in model.base.to_array()],
+        list(model.effect_names),
+        [float(x) for e in model.effects for x in e.to_array()],
+    )
+
+
+def _f64(name: str, x: Any) -> np.ndarray:
+    arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    if arr.ndim != 1:
+        raise ValueError(f"{name}: must be 1-D, got shape {arr.shape}")
+    return arr
+
+
+def _exo(exo: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
+    return {str(k): _f64(f"exo[{k!r}]", v) for k, v in (exo or {}).items()}
+
+
+def simulate_effects(
+    model: WithEffects | LowerLevelModel,
+    command: Any,
+    dt: float,
+    *,
+    command_kind: str = "acceleration",
+    init: str = "rest",
+    v0: float = 0.0,
+    x0: float = 0.0,
+    exo: Mapping[str, Any] | None = None,
+) -> Trajectory:
+    """Open-loop rollout of a base model with effects (as :func:`avll.simulate_full`;
+    ``exo`` maps exogenous signal names, e.g. ``"grade"``, to arrays)."""
+    b, p, en, ep = _split(model)
+    d = _core.simulate_effects(
+        b, p, en, ep, _f64("command", command), float(dt), command_kind, init,
+        float(v0), float(x0), _exo(exo),
+    )  # fmt: skip
+    return Trajectory(**d)
+
+
+def closed_loop_effects(
+    model: WithEffects | LowerLevelModel,
+    lead_x: Any,
+    lead_v: Any,
+    dt: float,
+    upper: UpperLevel,
+    *,
+    v0: float,
+    x0: float,
+    exo: Mapping[str, Any] | None = None,
+) -> Trajectory:
+    """Closed-loop car following of a base model with effects behind a recorded
+    leader (as :func:`avll.closed_loop`)."""
+    b, p, en, ep = _split(model)
+    d = _core.closed_loop_effects(
+        b, p, en, ep, _f64("lead_x", lead_x), _f64("lead_v", lead_v), float(dt),
+        upper.kg, upper.kv, upper.Tg, upper.Gmin, float(v0), float(x0), _exo(exo),
+    )  # fmt: skip
+    return Trajectory(**d)
+
+
+def _concat(runs: Sequence[Run], attr: str, needed: bool) -> np.ndarray | None:
+    parts = [getattr(r, attr) for r in runs]
+    if all(p is None for p in parts):
+        if needed:
+            raise ValueError(f"runs: column {attr!r} is needed here but no run has it")
+        return None
+    for r, p in zip(runs, parts, strict=True):
+        if p is None:
+            raise ValueError(f"run {r.run_id!r}: column {attr!r} is missing")
+    return np.ascontiguousarray(np.concatenate(parts))
+
+
+def batch_cost_effects(
+    base: str | type[LowerLevelModel],
+    effects: Sequence[str],
+    params: Any,
+    runs: Sequence[Run],
+    *,
+    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    upper_free: Sequence[int] = (),
+    threads: int = 0,
+) -> np.ndarray:
+    """Per-run costs (P, R) of parameter rows ``[base | effects | free upper]`` (effects
+    in the canonical order, see :data:`CANONICAL_ORDER`), as :func:`avll.batch_cost`.
+    Invalid or unstable rows cost ``inf``."""
+    cls, names, p, kw = _batch_args(base, effects, params, runs, weights=weights, init=init,
+                                    closed_loop=closed_loop, upper_free=upper_free)  # fmt: skip
+    return _core.batch_cost_effects(cls.name, list(names), p, threads=int(threads), **kw)
+
+
+def _batch_args(
+    base: str | type[LowerLevelModel],
+    effects: Sequence[str],
+    params: Any,
+    runs: Sequence[Run],
+    *,
+    weights: tuple[float, float, float],
+    init: str,
+    closed_loop: bool,
+    upper_free: Sequence[int],
+) -> tuple[type[LowerLevelModel], tuple[str, ...], np.ndarray, dict[str, Any]]:
+    """The concatenated run arrays and options shared by the batched functions."""
+    cls = model_class(base)
+    names = canonical(list(effects))
+    if not runs:
+        raise ValueError("runs: no runs given")
+    kinds = {r.command_kind for r in runs}
+    if len(kinds) != 1:
+        raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
+    p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
+    upper = None
+    if closed_loop or any(r.upper is not None for r in runs):
+        rows = []
+        for r in runs:
+            if r.upper is None:
+                if closed_loop:
+                    raise ValueError(f"run {r.run_id!r}: closed loop needs its upper-level law")
+                rows.append(np.zeros(4))
+            else:
+                rows.append(r.upper.to_array())
+        upper = np.ascontiguousarray(np.vstack(rows))
+    exo: dict[str, np.ndarray] = {}
+    for n in names:
+        sig = EFFECTS[n].exo
+        if sig is not None:
+            for r in runs:
+                if sig not in r.exo:
+                    raise ValueError(
+                        f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'"
+                    )
+            exo[sig] = np.ascontiguousarray(np.concatenate([r.exo[sig] for r in runs]))
+    kw: dict[str, Any] = dict(
+        offsets=[int(o) for o in offsets],
+        dt=np.array([r.dt for r in runs], dtype=np.float64),
+        a=_concat(runs, "a", True),
+        command=None if closed_loop else _concat(runs, "command", True),
+        lead_x=_concat(runs, "lead_x", closed_loop) if closed_loop else None,
+        lead_v=_concat(runs, "lead_v", closed_loop) if closed_loop else None,
+        v=_concat(runs, "v", closed_loop or weights[1] > 0),
+        x=_concat(runs, "x", closed_loop or weights[2] > 0),
+        upper=upper,
+        upper_free=[int(i) for i in upper_free],
+        command_kind=runs[0].command_kind,
+        weights=(float(weights[0]), float(weights[1]), float(weights[2])),
+        init=init,
+        closed_loop=closed_loop,
+        exo=exo,
+    )
+    return cls, names, p, kw
+
+
+def calibrate_effects(
+    base: str | type[LowerLevelModel],
+    effects: Sequence[str],
+    runs: Sequence[Run],
+    lower: Sequence[float],
+    upper: Sequence[float],
+    scale: Sequence[str],
+    *,
+    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    upper_free: Sequence[int] = (),
+    initial: Any = None,
+    seed: int = 0,
+    max_generations: int = 300,
+    pop_size: int = 0,
+    progress: Any = None,
+    threads: int = 0,
+) -> dict[str, Any]:
+    """Calibrates base + effects (+ free upper-level gains) by the project's Rust GA on
+    the mean over runs of the effects cost. ``lower``, ``upper``, ``scale``
+    (``"linear"``/``"log"``) give the box of the row ``[base | effects | free upper]``;
+    ``initial`` rows join the first population. Returns the GA's result dict (``x``,
+    ``f``, ``generations``, ``stop``, ...). Same seed, same result whatever the
+    thread count."""
+    cls, names, _, kw = _batch_args(base, effects, np.zeros((1, 1)), runs, weights=weights,
+                                    init=init, closed_loop=closed_loop,
+                                    upper_free=upper_free)  # fmt: skip
+    ini = None if initial is None else np.ascontiguousarray(np.atleast_2d(initial), dtype=float)
+    return dict(
+        _core.calibrate_effects(
+            cls.name, list(names), kw.pop("offsets"), kw.pop("dt"), kw.pop("a"),
+            [float(x) for x in lower], [float(x) for x in upper], [str(x) for x in scale],
+            seed=int(seed), max_generations=int(max_generations), pop_size=int(pop_size),
+            initial=ini, progress=progress, threads=int(threads), **kw,
+        )
+    )  # fmt: skip

@@ -1,0 +1,188 @@
+"""Plain numpy reference of the base model + effects rollouts, written step by step
+from the definitions in :mod:`avll.effects` (slow on purpose; the tests compare the
+Rust engine against it).
+
+Deliberately independent of the Rust engine's tricks: the braking dynamics of
+``asymmetric`` are the time-scaled system ``(A/rb, B/rb, C)`` in the base
+coordinates (the engine switches between two canonical forms instead); the
+fractional dead time is realised by integrating the interval in two pieces with
+``scipy.linalg.expm`` (the engine precombines them); the command delay keeps the
+whole command history in a list.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from scipy.linalg import expm
+
+from ..effects import WithEffects
+from ..models import LowerLevelModel, UpperLevel
+
+__all__ = ["rollout_effects"]
+
+
+def _zoh(a: np.ndarray, b: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
+    n = a.shape[0]
+    m = np.zeros((n + 1, n + 1))
+    m[:n, :n] = a * tau
+    m[:n, n] = b * tau
+    e = expm(m)
+    return e[:n, :n], e[:n, n]
+
+
+def _system(c: dict[str, float], scale: float, speed_cmd: bool) -> Any:
+    """Rational part (time-scaled by ``scale``) plus integrators: (A, B, C, order)."""
+    b1, b0, a2, a1 = c["b1"], c["b0"], c["a2"], c["a1"]
+    if a2 != 0.0:
+        am = np.array([[0.0, 1.0], [-1.0 / a2, -a1 / a2]])
+        bm = np.array([0.0, 1.0])
+        cm = np.array([b0 / a2, b1 / a2])
+    else:
+        am = np.array([[-1.0 / a1]])
+        bm = np.array([1.0])
+        cm = np.array([b0 / a1])
+    m = am.shape[0]
+    k = 1 if speed_cmd else 2
+    a = np.zeros((m + k, m + k))
+    a[:m, :m] = am / scale
+    a[m, :m] = cm  # v' = y (or p' = y for a speed command)
+    if not speed_cmd:
+        a[m + 1, m] = 1.0  # p' = v
+    b = np.zeros(m + k)
+    b[:m] = bm / scale
+    cc = np.zeros(m + k)
+    cc[:m] = cm
+    return a, b, cc, m
+
+
+def rollout_effects(
+    model: WithEffects | LowerLevelModel,
+    dt: float,
+    *,
+    command: Any = None,
+    lead_x: Any = None,
+    lead_v: Any = None,
+    upper: UpperLevel | None = None,
+    command_kind: str = "acceleration",
+    init: str = "rest",
+    v0: float = 0.0,
+    x0: float = 0.0,
+    exo: Mapping[str, Any] | None = None,
+) -> dict[str, np.ndarray]:
+    """Open loop (``command``) or closed loop (``lead_x``, ``lead_v``, ``upper``; the
+    lower level starts at rest) rollout: dict of arrays a, v, x, command."""
+    if isinstance(model, LowerLevelModel):
+        model = WithEffects(model, ())
+    eff: dict[str, Any] = {e.name: e for e in model.effects}
+    c = model.base.linear()
+    closed = command is None
+    speed_cmd = command_kind == "speed"
+    n_samples = len(lead_x) if closed else len(command)
+    rb = eff["asymmetric"].rb if "asymmetric" in eff else 1.0
+    kb = eff["asymmetric"].kb if "asymmetric" in eff else 1.0
+    sysa = _system(c, 1.0, speed_cmd)
+    sysb = _system(c, rb, speed_cmd)
+    m = sysa[3]
+    r = c["Td"] / dt
+    i = int(np.floor(r))
+    f = r - i
+    if f < 1e-12:
+        f = 0.0
+
+    def maps(sys: Any) -> Any:
+        a, b, cc, _ = sys
+        pa, ga = _zoh(a, b, (1.0 - f) * dt)
+        pb, gb = _zoh(a, b, f * dt)
+        return a, b, cc, pa, ga, pb, gb
+
+    ma, mb = maps(sysa), maps(sysb)
+    k_fb = c["K"]
+    u_first = 0.0 if closed else float(command[0])
+    # initial state and histories
+    x = np.zeros(sysa[0].shape[0])
+    w_hist = 0.0
+    u_hist = 0.0
+    if init == "steady" and not closed:
+        w_hist = u_first / (1.0 - k_fb * c["b0"])
+        if m == 2:
+            x[0] = c["a2"] * w_hist
+        else:
+            x[0] = c["a1"] * w_hist
+        u_hist = u_first
+    if speed_cmd:
+        x[m] = x0
+    else:
+        x[m], x[m + 1] = v0, x0
+
+    def gain(w: float) -> float:
+        return kb * w if w < 0 else w
+
+    refs: list[float] = []
+    cmds: list[float] = []
+    prev = u_hist
+    dv = dp = 0.0
+    out = {k: np.full(n_samples, np.nan) for k in ("a", "v", "x", "command")}
+    exo = exo or {}
+    for n in range(n_samples):
+        y = float(ma[2] @ x)
+        if speed_cmd:
+            v, p, y_act = y, x[m], y
+        else:
+            v, p = x[m] + dv, x[m + 1] + dp
+            a_act = y
+            if "saturation" in eff:
+                a_act = min(max(a_act, -eff["saturation"].d_max), eff["saturation"].a_max)
+            if "speed_drag" in eff:
+                e = eff["speed_drag"]
+                a_act -= e.c0 * min(max(v / 0.1, -1.0), 1.0) + e.c2 * v * abs(v)
+            if "grade" in eff:
+                a_act -= eff["grade"].g_eff * float(exo["grade"][n])
+            y_act = a_act
+        if closed:
+            assert upper is not None, "closed loop needs upper"
+            u = upper.kg * (lead_x[n] - p - upper.Tg * v - upper.Gmin) + upper.kv * (lead_v[n] - v)
+        else:
+            u = float(command[n])
+        cmds.append(u)
+        uc = u
+        if "delay" in eff:
+            rd = eff["delay"].tau / dt
+            idl = int(np.floor(rd))
+            fd = rd - idl
+            if fd < 1e-12:
+                fd = 0.0
+            h0 = cmds[n - idl] if n - idl >= 0 else u_hist
+            h1 = cmds[n - idl - 1] if n - idl - 1 >= 0 else u_hist
+            uc = (1 - fd) * h0 + fd * h1 if fd > 0 else h0
+        if "rate_limit" in eff:
+            step = eff["rate_limit"].j_max * dt
+            prev = prev + min(max(uc - prev, -step), step)
+            uc = prev
+        if "deadband" in eff:
+            dlt = eff["deadband"].delta
+            e_ = uc - y_act if speed_cmd else uc
+            dz = np.sign(e_) * max(abs(e_) - dlt, 0.0)
+            uc = y_act + dz if speed_cmd else dz
+        refs.append(gain(uc + k_fb * y_act))
+        w0 = refs[n - i] if n - i >= 0 else gain(w_hist)
+        w1 = refs[n - i - 1] if n - i - 1 >= 0 else gain(w_hist)
+        demand = w0 if not speed_cmd else c["b0"] * w0 - y
+        mm = mb if (rb != 1.0 and demand < 0) else ma
+        a_m, b_m, c_m, pa, ga, pb, gb = mm
+        wf = w1 if f > 0 else w0
+        acc = float(c_m @ (a_m @ x) + (c_m @ b_m) * wf) if speed_cmd else y_act
+        out["a"][n], out["v"][n], out["x"][n], out["command"][n] = acc, v, p, u
+        if abs(y) >= 1e6 or not np.isfinite(acc):
+            break
+        if f > 0:
+            x = pa @ (pb @ x + gb * w1) + ga * w0
+        else:
+            x = pa @ x + ga * w0
+        if not speed_cmd:
+            e = y_act - y
+            dp += dt * dv + 0.5 * dt * dt * e
+            dv += dt * e
+    return out

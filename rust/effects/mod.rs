@@ -1,0 +1,280 @@
+//! Effects: self-contained extensions of any base model (issue 6).
+//!
+//! An effect adds one physical phenomenon that the linear lower-level models lack.
+//! Each lives in its own file, implements [`Effect`] (only the hooks it needs; the
+//! others default to the identity) and is listed once in the registry at the end of
+//! this file: **one new effect = one new file + one registry line**.
+//!
+//! Hooks, in the order the engine ([`engine`]) applies them at each sample `n`:
+//! 1. [`Effect::command`] — the command on its way to the lower level (transport
+//!    `delay`, `rate_limit`, `deadband`), in registry order;
+//! 2. [`Effect::reference`] — a static map of the reference input
+//!    `u_ref = u' + K a_act` before the dead time (`asymmetric`'s braking gain);
+//! 3. [`Effect::brake_time_scale`] — the rational part runs `r` times slower while
+//!    braking (`asymmetric`): exact ZOH of `G(r s)`, switched per interval;
+//! 4. [`Effect::output`] — the lower level's acceleration (`saturation`);
+//! 5. [`Effect::disturbance`] — an additive acceleration from the actual speed and
+//!    an exogenous signal (`speed_drag`, `grade`).
+//!
+//! With no effect (or every effect at its neutral parameters) the engine reproduces
+//! the linear rollouts of [`crate::rollout`] exactly.
+
+pub mod calibrate;
+pub mod engine;
+
+use crate::error::{check_finite, AvllError, Result};
+use crate::model::{CommandKind, Linear};
+
+/// Operating point of a linearisation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Operating {
+    /// Speed (m/s).
+    pub v: f64,
+    /// Which side of an acceleration/braking asymmetry: `1` acceleration, `-1`
+    /// braking, `0` the average of the two.
+    pub side: i8,
+}
+
+/// One effect. Parameters are validated by [`Effect::new`] (physical validity);
+/// [`Effect::BOUNDS`] are the calibration search bounds.
+pub trait Effect: Clone + Send + Sync + Sized {
+    /// The registry name (scripts depend on it).
+    const NAME: &'static str;
+    /// Parameter names, in row order.
+    const PARAMS: &'static [&'static str];
+    /// Calibration bounds `(lo, hi)` per parameter.
+    const BOUNDS: &'static [(f64, f64)];
+    /// Parameter values at which the effect is (or tends to) the identity.
+    const NEUTRAL: &'static [f64];
+    /// Name of the exogenous signal the effect reads (e.g. `"grade"`).
+    const EXO: Option<&'static str> = None;
+    /// `true` if the effect acts on the acceleration and needs an acceleration command.
+    const ACCEL_ONLY: bool = false;
+    /// `true` if the effect reads the actual speed (the engine then integrates it
+    /// even when the cost does not need it).
+    const NEEDS_SPEED: bool = false;
+
+    /// Builds the effect from validated parameters (`p.len() == PARAMS.len()`,
+    /// finite).
+    fn new(p: &[f64], kind: CommandKind) -> Result<Self>;
+    /// Resets the internal state before a run; `u_hist` is the command assumed
+    /// before the run (0 at rest, `u[0]` at steady state).
+    fn reset(&mut self, _u_hist: f64, _dt: f64) {}
+    /// Transforms the command; `y` is the actual response at this sample
+    /// (acceleration or speed, by command kind).
+    fn command(&mut self, u: f64, _y: f64) -> f64 {
+        u
+    }
+    /// Static map of the reference input before the dead time.
+    fn reference(&self, w: f64) -> f64 {
+        w
+    }
+    /// Time-scale ratio of the rational part while braking (1 = no switching).
+    fn brake_time_scale(&self) -> f64 {
+        1.0
+    }
+    /// Transforms the lower level's acceleration.
+    fn output(&self, a: f64) -> f64 {
+        a
+    }
+    /// Additive acceleration from the actual speed `v` and the exogenous sample
+    /// `exo` (0 when the effect reads none).
+    fn disturbance(&self, _v: f64, _exo: f64) -> f64 {
+        0.0
+    }
+    /// The small-signal equivalent of base + this effect as a [`Linear`], or an
+    /// error saying why none exists.
+    fn linearize(&self, lin: &Linear, _op: &Operating) -> Result<Linear> {
+        Ok(*lin)
+    }
+}
+
+/// Checks a parameter against a closed interval of physical validity.
+pub(crate) fn check_range(arg: &str, x: f64, lo: f64, hi: f64) -> Result<()> {
+    check_finite(arg, x)?;
+    if x < lo || x > hi {
+        return Err(AvllError::new(
+            arg,
+            format!("must be in [{lo}, {hi}], got {x}"),
+        ));
+    }
+    Ok(())
+}
+
+macro_rules! registry {
+    ($($variant:ident => $module:ident :: $ty:ident),+ $(,)?) => {
+        $(pub mod $module;)+
+
+        /// The registered effects, in their canonical application order.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+        pub enum EffectKind { $($variant),+ }
+
+        /// An effect instance (static dispatch).
+        #[derive(Debug, Clone)]
+        pub enum AnyEffect { $($variant($module::$ty)),+ }
+
+        impl EffectKind {
+            pub const ALL: &'static [EffectKind] = &[$(EffectKind::$variant),+];
+
+            pub fn name(self) -> &'static str {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::NAME),+ }
+            }
+            pub fn params(self) -> &'static [&'static str] {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::PARAMS),+ }
+            }
+            pub fn bounds(self) -> &'static [(f64, f64)] {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::BOUNDS),+ }
+            }
+            pub fn neutral(self) -> &'static [f64] {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::NEUTRAL),+ }
+            }
+            pub fn exo(self) -> Option<&'static str> {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::EXO),+ }
+            }
+            pub fn accel_only(self) -> bool {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::ACCEL_ONLY),+ }
+            }
+            pub fn needs_speed(self) -> bool {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::NEEDS_SPEED),+ }
+            }
+            fn build(self, p: &[f64], kind: CommandKind) -> Result<AnyEffect> {
+                match self {
+                    $(EffectKind::$variant => Ok(AnyEffect::$variant(
+                        <$module::$ty as Effect>::new(p, kind)?))),+
+                }
+            }
+        }
+
+        impl AnyEffect {
+            pub fn kind(&self) -> EffectKind {
+                match self { $(AnyEffect::$variant(_) => EffectKind::$variant),+ }
+            }
+            #[inline]
+            pub fn reset(&mut self, u: f64, dt: f64) {
+                match self { $(AnyEffect::$variant(e) => e.reset(u, dt)),+ }
+            }
+            #[inline(always)]
+            pub fn command(&mut self, u: f64, y: f64) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.command(u, y)),+ }
+            }
+            #[inline(always)]
+            pub fn reference(&self, w: f64) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.reference(w)),+ }
+            }
+            #[inline]
+            pub fn brake_time_scale(&self) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.brake_time_scale()),+ }
+            }
+            #[inline(always)]
+            pub fn output(&self, a: f64) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.output(a)),+ }
+            }
+            #[inline(always)]
+            pub fn disturbance(&self, v: f64, exo: f64) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.disturbance(v, exo)),+ }
+            }
+            pub fn linearize(&self, lin: &Linear, op: &Operating) -> Result<Linear> {
+                match self { $(AnyEffect::$variant(e) => e.linearize(lin, op)),+ }
+            }
+        }
+    };
+}
+
+registry! {
+    Delay => delay::Delay,
+    RateLimit => rate_limit::RateLimit,
+    Deadband => deadband::Deadband,
+    Asymmetric => asymmetric::Asymmetric,
+    Saturation => saturation::Saturation,
+    SpeedDrag => speed_drag::SpeedDrag,
+    Grade => grade::Grade,
+}
+
+impl EffectKind {
+    /// Looks an effect up by its registry name.
+    pub fn from_name(name: &str) -> Result<Self> {
+        EffectKind::ALL
+            .iter()
+            .copied()
+            .find(|e| e.name() == name)
+            .ok_or_else(|| {
+                let known: Vec<_> = EffectKind::ALL.iter().map(|e| e.name()).collect();
+                AvllError::new(
+                    "effects",
+                    format!("unknown effect {name:?}; known: {}", known.join(", ")),
+                )
+            })
+    }
+
+    pub fn n_params(self) -> usize {
+        self.params().len()
+    }
+}
+
+/// A list of distinct effect kinds (the structure of an extended model), sorted
+/// into the canonical order.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct EffectList(pub Vec<EffectKind>);
+
+impl EffectList {
+    /// Parses names; rejects duplicates and accel-only effects with a speed command.
+    pub fn from_names(names: &[&str], kind: CommandKind) -> Result<Self> {
+        let mut v = Vec::with_capacity(names.len());
+        for n in names {
+            let k = EffectKind::from_name(n)?;
+            if v.contains(&k) {
+                return Err(AvllError::new(
+                    "effects",
+                    format!("effect {n:?} given twice"),
+                ));
+            }
+            if k.accel_only() && kind == CommandKind::Speed {
+                return Err(AvllError::new(
+                    "effects",
+                    format!(
+                        "effect {n:?} acts on the acceleration and needs an acceleration command"
+                    ),
+                ));
+            }
+            v.push(k);
+        }
+        v.sort();
+        Ok(EffectList(v))
+    }
+
+    /// Total number of effect parameters.
+    pub fn n_params(&self) -> usize {
+        self.0.iter().map(|k| k.n_params()).sum()
+    }
+
+    /// Builds the effect instances from a parameter slice (in list order).
+    pub fn build(&self, p: &[f64], kind: CommandKind) -> Result<Vec<AnyEffect>> {
+        if p.len() != self.n_params() {
+            return Err(AvllError::new(
+                "effect_params",
+                format!("expected {} values, got {}", self.n_params(), p.len()),
+            ));
+        }
+        let mut out = Vec::with_capacity(self.0.len());
+        let mut o = 0;
+        for k in &self.0 {
+            let q = &p[o..o + k.n_params()];
+            for (x, n) in q.iter().zip(k.params()) {
+                check_finite(&format!("{}.{n}", k.name()), *x)?;
+            }
+            out.push(k.build(q, kind)?);
+            o += k.n_params();
+        }
+        Ok(out)
+    }
+}
+
+/// The small-signal equivalent of a base model with effects, applying each effect's
+/// linearisation in canonical order.
+pub fn linearize(lin: &Linear, effects: &[AnyEffect], op: &Operating) -> Result<Linear> {
+    let mut l = *lin;
+    for e in effects {
+        l = e.linearize(&l, op)?;
+    }
+    Ok(l)
+}
