@@ -39,7 +39,7 @@ def fmt(x: Any, digits: int = 4) -> str:
         return "0"
     a = abs(v)
     if 1e-3 <= a < 1e5:
-        dec = max(0, digits - 1 - int(math.floor(math.log10(a))))
+        dec = max(1, digits - 1 - int(math.floor(math.log10(a))))
         return f"{v:.{dec}f}"
     return f"{v:.{digits - 1}e}"
 

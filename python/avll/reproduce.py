@@ -296,7 +296,13 @@ def _real(name: str, path: str | Path | None, settings: Settings) -> _Data:
     if not p.exists():
         raise ValueError(f"--data-path: {p} does not exist (the {name} data are not shipped "
                          "with avll; give the folder with --data-path)")
-    runs = read_runs(p, format=name)
+    if p.is_dir() and name == "carma":  # the CARMA loader reads one file at a time
+        files = sorted(p.glob("*.csv"))
+        if not files:
+            raise ValueError(f"--data-path: no CSV files in {p}")
+        runs = [r for f in files for r in read_runs(f, format=name)]
+    else:
+        runs = read_runs(p, format=name)
     notes = ["The paper's Table I split (runs 3, 4, 5, 9, 10, 11, 15, 16, 17, 19) does not "
              "exist in these data: alternate runs (1st, 3rd, ...) calibrate, the others "
              "validate.",
@@ -604,10 +610,10 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
         for k, pv in PAPER["params"][m].items():
             ov = cal[m]["params"].get(k)
             flag = " (at bound)" if k in cal[m]["at_bound"] else ""
-            rows.append([_NAMES[m], k + flag, pv, ov, diff(ov, pv)])
+            rows.append([_NAMES[m], k + flag, _p4(pv), _p4(ov), diff(ov, pv)])
         for k, ov in cal[m]["params"].items():
             if k not in PAPER["params"][m]:
-                rows.append([_NAMES[m], k, None, ov, "—"])
+                rows.append([_NAMES[m], k, None, _p4(ov), "—"])
     rep.table(["model", "parameter", "paper", "avll", "difference"], rows)
 
     # --- Tables III / IV
@@ -770,6 +776,13 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
         "Machine: measured on the shared 2-core development machine.",
     ])
     rep.write(outd)
+
+
+def _p4(x: Any) -> str:
+    """A parameter as the paper prints it (4 decimals)."""
+    if x is None or not math.isfinite(float(x)):
+        return fmt(x)
+    return f"{float(x):.4f}" if abs(float(x)) >= 1e-3 else f"{float(x):.3g}"
 
 
 def _mean(x: Any) -> Any:
