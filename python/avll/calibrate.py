@@ -869,24 +869,123 @@ def _parse_list(opt: str, text: str) -> list[str]:
     return items
 
 
+def _load_for_cli(args: Any) -> tuple[list[Run], bool, list[str], str]:
+    """Runs, closed loop, free upper gains and initial state for ``avll calibrate``.
+
+    * ``--format carma`` also reads a folder of CARMA files; ``--regime`` keeps the
+      launch or cruise parts (:func:`avll.fielddata.split_launch_cruise`).
+    * Mixed command kinds (the OpenACC folder: platoon pairs without a command and
+      free-flow runs with a set speed) keep the kind given by ``--command-kind``, or
+      else the closed-loop pairs (a note on stderr says so).
+    * Runs without a command but with a leader run in closed loop; runs without an
+      upper law get a placeholder and all four gains are calibrated (unless
+      ``--upper-free`` says otherwise).
+    * ``--init`` defaults to ``steady`` for the field-data formats (stretches cut out
+      of longer drives) and ``rest`` otherwise.
+    """
+    from pathlib import Path
+
+    from .fielddata import _UPPER0, read_carma, split_launch_cruise
+    from .io import read_runs
+
+    fmt = args.format
+    if fmt == "carma" and Path(args.data).is_dir():
+        runs = read_carma(args.data, command_kind=args.command_kind)
+    else:
+        runs = read_runs(args.data, command_kind=args.command_kind, format=fmt)
+    if args.regime != "all":
+        if fmt != "carma":
+            raise ValueError("--regime: only for --format carma")
+        launch, cruise = split_launch_cruise(runs)
+        runs = launch if args.regime == "launch" else cruise
+        if not runs:
+            raise ValueError(f"--regime: no {args.regime} stretches in {args.data}")
+    kinds = {r.command_kind for r in runs}
+    if len(kinds) > 1:
+        keep = [r for r in runs if r.command is None and r.lead_x is not None]
+        if not keep:
+            raise ValueError(
+                f"{args.data}: mixed command kinds {sorted(kinds)}; pass --command-kind"
+            )
+        print(f"avll calibrate: {args.data} mixes command kinds; calibrating the "
+              f"{len(keep)} closed-loop pairs (pass --command-kind speed for the others)",
+              file=sys.stderr)  # fmt: skip
+        runs = keep
+    no_cmd = [r for r in runs if r.command is None]
+    closed = bool(args.closed_loop) or bool(no_cmd)
+    if no_cmd and len(no_cmd) != len(runs):
+        raise ValueError(f"run {no_cmd[0].run_id!r}: has no command while other runs have one")
+    if closed:
+        bad = [r for r in runs if r.lead_x is None or r.lead_v is None]
+        if bad:
+            raise ValueError(
+                f"run {bad[0].run_id!r}: has no command and no leader (lead_x, lead_v): "
+                "cannot calibrate it"
+            )
+    if args.upper_free is None:
+        free = list(_UPPER_NAMES) if closed and any(r.upper is None for r in runs) else []
+    elif args.upper_free == "none":
+        free = []
+    else:
+        free = _parse_list("--upper-free", args.upper_free)
+        for u in free:
+            _upper_index(u)
+    if closed:
+        missing = [r for r in runs if r.upper is None]
+        if missing and len(free) < 4:
+            raise ValueError(
+                f"run {missing[0].run_id!r}: has no upper-level law; --upper-free must "
+                "free all of kg,kv,Tg,Gmin"
+            )
+        runs = [r if r.upper is not None else replace(r, upper=_UPPER0) for r in runs]
+    init = args.init or ("steady" if fmt in ("carma", "openacc-astazero") else "rest")
+    return runs, closed, free, init
+
+
+def _cal_ids(runs: Sequence[Run], text: str) -> list[str]:
+    """``--cal-runs`` ids; entries with ``*``, ``?`` or ``[`` are glob patterns."""
+    import fnmatch
+
+    out: list[str] = []
+    for item in _parse_list("--cal-runs", text):
+        if any(c in item for c in "*?["):
+            hit = [r.run_id for r in runs if fnmatch.fnmatchcase(r.run_id, item)]
+            if not hit:
+                raise ValueError(f"--cal-runs: pattern {item!r} matches no run")
+            out += [h for h in hit if h not in out]
+        elif item not in out:
+            out.append(item)
+    return out
+
+
 def _cmd(args: Any) -> int:
     import json
-
-    from .io import read_runs
 
     models = _parse_list("--models", args.models)
     for m in models:
         model_class(m)  # ValueError naming the unknown model
+    weights = [float(w) for w in _parse_list("--weights", args.weights)]
+    if len(weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in weights):
+        raise ValueError(f"--weights: expected three finite values >= 0, got {args.weights!r}")
+    if sum(weights) <= 0:
+        raise ValueError("--weights: at least one weight must be > 0")
+    runs, closed, free, init = _load_for_cli(args)
     cal_runs: Any = None
     if args.cal_runs is not None:
-        cal_runs = "paper" if args.cal_runs == "paper" else _parse_list("--cal-runs", args.cal_runs)
-    runs = read_runs(args.data, command_kind=args.command_kind, format=args.format)
+        cal_runs = "paper" if args.cal_runs == "paper" else _cal_ids(runs, args.cal_runs)
     wf = paper_workflow(
         runs, cal_runs=cal_runs, models=models, seed=args.seed, threads=args.threads,
-        progress=not args.quiet, closed_loop=args.closed_loop, init=args.init,
+        progress=not args.quiet, closed_loop=closed, upper_free=free, init=init,
+        weights=tuple(weights), starts=args.starts,
         max_generations=args.max_generations, pop_size=args.pop_size,
     )  # fmt: skip
-    print(wf.to_text())
+    text = wf.to_text()
+    if tuple(weights) != (1.0, 0.0, 0.0):
+        text = text.replace("MSE (m/s^2)^2", f"cost wa MSE(a) + wv MSE(v) + wx MSE(x), "
+                            f"(wa, wv, wx) = ({', '.join(f'{w:g}' for w in weights)})")  # fmt: skip
+    loop = f"closed loop, free upper gains {','.join(free) or 'none'}" if closed else "open loop"
+    print(f"{len(runs)} runs, {loop}, init {init}")
+    print(text)
     if args.json:
         from pathlib import Path
 
@@ -916,7 +1015,12 @@ def register_cli(sub: Any) -> None:
         "paper's runs 3,4,5,9,10,11,15,16,17,19.",
     )
     p.add_argument("data", metavar="DATA", help="runs file (canonical CSV/Parquet, or --format)")
-    p.add_argument("--format", default="canonical", help="loader of DATA (default canonical)")
+    p.add_argument(
+        "--format",
+        default="canonical",
+        help="loader of DATA: canonical (default), generic, carma (a file or a folder), "
+        "openacc-astazero (a file or a folder; platoon pairs run in closed loop)",
+    )
     p.add_argument(
         "--command-kind",
         choices=("acceleration", "speed"),
@@ -931,7 +1035,8 @@ def register_cli(sub: Any) -> None:
     p.add_argument(
         "--cal-runs",
         default=None,
-        help="comma-separated calibration run ids, or 'paper' (default: alternate)",
+        help="comma-separated calibration run ids or glob patterns (e.g. 'data5/*,data9/*'), "
+        "or 'paper' (default: alternate)",
     )
     p.add_argument("--seed", type=int, default=0, help="GA seed (default 0)")
     p.add_argument("--json", default=None, metavar="OUT.json", help="write results as JSON")
@@ -944,9 +1049,29 @@ def register_cli(sub: Any) -> None:
     p.add_argument(
         "--init",
         choices=("rest", "steady"),
-        default="rest",
-        help="initial state of each rollout (default rest)",
+        default=None,
+        help="initial state of each open-loop rollout (default: steady for --format carma "
+        "and openacc-astazero, whose runs are cut out of longer drives; rest otherwise)",
     )
+    p.add_argument(
+        "--weights",
+        default="1,0,0",
+        metavar="WA,WV,WX",
+        help="weights of the acceleration, speed and position MSE (default 1,0,0: Eq. 6)",
+    )
+    p.add_argument(
+        "--upper-free",
+        default=None,
+        help="closed loop: upper-level gains to calibrate, e.g. kg,kv,Tg,Gmin or 'none' "
+        "(default: all four when the runs have no upper law, as OpenACC pairs)",
+    )
+    p.add_argument(
+        "--regime",
+        choices=("all", "cruise", "launch"),
+        default="all",
+        help="CARMA only: keep the launch or cruise parts of the stretches (default all)",
+    )
+    p.add_argument("--starts", type=int, default=2, help="independent GA starts (default 2)")
     p.add_argument("--max-generations", type=int, default=GA_OPTIONS["max_generations"])
     p.add_argument("--pop-size", type=int, default=0, help="GA population (0 = automatic)")
     p.add_argument(
