@@ -14,7 +14,8 @@ from avll.report import Report, diff, fmt
 
 # Tiny budgets: short runs, a very small GA, coarse grids, no residual loop by default.
 TINY = replace(R.SETTINGS["quick"], duration=30.0, max_generations=3, kg_n=16, tg_step=1.0,
-               kv_step=0.2, kv_tg_step=1.0, kv_tol=0.05, diagnosis=False)
+               kv_step=0.2, kv_tg_step=1.0, kv_tol=0.05, diagnosis=False,
+               field_max_generations=3)
 
 
 @pytest.fixture(scope="module")
@@ -103,9 +104,13 @@ def test_real_data_carma_quick(tmp_path: Path) -> None:
     if not data.exists():
         pytest.skip("no ../shared/data/carma")
     s = R.reproduce(tmp_path, data="carma", data_path=data, settings=TINY, progress=False)
-    assert s["data"]["name"] == "carma" and s["data"]["init"] == "steady"
+    assert s["data"]["name"] == "carma"
+    assert set(R.MODELS) <= set(s["calibration"]) and s["stability_calibrated"] is None
+    assert s["stability"]["second"]["min_tg"] == pytest.approx(2.0)  # Table II, 1 s grid
     md = (tmp_path / "report.md").read_text()
-    assert "Table I split" in md and "speed command" in md
+    assert "speed** command" in md and "skipped" in md and "Table I experiment" in md
+    for fn in s["files"]["figures"].values():
+        assert (tmp_path / fn).exists()
 
 
 @pytest.mark.slow
