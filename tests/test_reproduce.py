@@ -99,6 +99,7 @@ def test_cli_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     assert "--data-path" in capsys.readouterr().err
 
 
+@pytest.mark.data
 def test_real_data_carma_quick(tmp_path: Path) -> None:
     data = Path(__file__).resolve().parents[2] / "shared" / "data" / "carma"
     if not data.exists():
@@ -111,6 +112,28 @@ def test_real_data_carma_quick(tmp_path: Path) -> None:
     assert "speed** command" in md and "skipped" in md and "Table I experiment" in md
     for fn in s["files"]["figures"].values():
         assert (tmp_path / fn).exists()
+
+
+@pytest.mark.parametrize("delay", [3.0, pytest.param(22.0, marks=pytest.mark.slow)])
+def test_ctrl_c_stops_cleanly(tmp_path: Path, delay: float) -> None:
+    """SIGINT during the default run (in the GA at 3 s; in the stability maps at about
+    22 s on this machine): exit 130, one line, no traceback, no summary written."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    p = subprocess.Popen([sys.executable, "-m", "avll.cli", "reproduce", "--out",
+                          str(tmp_path), "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    time.sleep(delay)
+    if p.poll() is not None:  # pragma: no cover - a very fast machine
+        pytest.skip("finished before the signal")
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert not (tmp_path / "summary.json").exists()
 
 
 @pytest.mark.slow
