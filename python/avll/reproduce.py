@@ -420,7 +420,7 @@ def reproduce(
     t_start = time.perf_counter()
     stages = _Stages(bool(progress), 6 + (1 if settings.diagnosis else 0))
     say = log or stages.write
-    field_study = None
+    field_study: Any = None
     if data != "synthetic":
         try:
             from . import fielddata as field_study  # the field-data studies (issue 5)
@@ -658,7 +658,8 @@ def _stability_figures(outd: Path, which: str, models: dict[str, LowerLevelModel
     tag = "table2" if which == "table2" else "calibrated"
     out: dict[str, str] = {}
     for fig_no, pair in ((5, ("proposed", "second")), (7, ("proposed", "first"))):
-        f = S.plot_regions([models[m] for m in pair], kg, tg, kv[idx], settings.pade_order,
+        f = S.plot_regions([models[m] for m in pair], kg, tg, [float(kv[i]) for i in idx],
+                           settings.pade_order,
                            maps=[st[m]["codes"][:, :, idx] for m in pair])
         for ax in f.axes:
             if ax.get_visible() and ax.get_xlabel():
