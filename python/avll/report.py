@@ -88,8 +88,8 @@ class Report:
     blocks: list[_Block] = field(default_factory=list)
 
     def heading(self, text: str, level: int = 2) -> None:
-        """Adds a heading (level 1–4)."""
-        self.blocks.append(_Block("h", (max(1, min(4, level)), text)))
+        """Adds a heading (level 2–4; the title is level 1)."""
+        self.blocks.append(_Block("h", (max(2, min(4, level)), text)))
 
     def para(self, text: str) -> None:
         """Adds a paragraph (``**bold**``, ``*italic*`` and backquoted code allowed)."""
@@ -118,7 +118,7 @@ class Report:
         for b in self.blocks:
             if b.kind == "h":
                 lvl, text = b.data
-                out += ["#" * (lvl + 1 if lvl < 4 else 4) + " " + text, ""]
+                out += ["#" * lvl + " " + text, ""]
             elif b.kind == "p":
                 out += [b.data, ""]
             elif b.kind == "ul":
@@ -159,8 +159,7 @@ class Report:
         for b in self.blocks:
             if b.kind == "h":
                 lvl, text = b.data
-                t = min(lvl + 1, 5)
-                out.append(f"<h{t}>{_inline_html(text)}</h{t}>")
+                out.append(f"<h{lvl}>{_inline_html(text)}</h{lvl}>")
             elif b.kind == "p":
                 out.append(f"<p>{_inline_html(b.data)}</p>")
             elif b.kind == "ul":

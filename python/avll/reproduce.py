@@ -113,7 +113,7 @@ class Settings:
     kv_max: float = 1.2
     kv_step: float = 0.01
     kv_tg_step: float = 0.05
-    kv_tol: float = 1e-4
+    kv_tol: float = 1e-5
     pade_order: int = 2
     panels: tuple[float, ...] = (0.0, 0.3, 0.6)
     diagnosis: bool = True
