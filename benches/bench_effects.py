@@ -38,8 +38,9 @@ def main() -> None:
     u = 1.4 * np.sin(0.35 * t) + 0.6 * np.sin(1.3 * t)
     g = 0.03 * np.sin(0.01 * t)
     base = avll.PAPER_TABLE_II["proposed"]
-    allfx = WithEffects(base, (Delay(0.2), RateLimit(2.0), Deadband(0.05), Asymmetric(0.8, 1.3),
-                               Saturation(1.5, 2.0), SpeedDrag(0.05, 0.001), Grade(9.0)))  # fmt: skip
+    effects = (Delay(0.2), RateLimit(2.0), Deadband(0.05), Asymmetric(0.8, 1.3),
+               Saturation(1.5, 2.0), SpeedDrag(0.05, 0.001), Grade(9.0))  # fmt: skip
+    allfx = WithEffects(base, effects)
     t_lin = _best(lambda: avll.simulate_full(base, u, dt))
     t_none = _best(lambda: simulate_effects(base, u, dt))
     t_all = _best(lambda: simulate_effects(allfx, u, dt, exo={"grade": g}))

@@ -106,8 +106,14 @@ pub fn continuous(lin: &Linear, ints: Integrators) -> (DMatrix<f64>, Vec<f64>, V
     (a, b, c)
 }
 
+/// Largest entry of `[A, B] tau` accepted by [`zoh`]. Beyond it the model's time
+/// constants are more than 1e12 times shorter than the sample time (meaningless for
+/// a vehicle) and nalgebra's matrix exponential can fail to terminate (observed
+/// for entries around 1e50), so such parameters are rejected.
+pub const MAX_SCALED_ENTRY: f64 = 1e12;
+
 /// `(e^{A tau}, int_0^tau e^{A s} B ds)` from one matrix exponential.
-fn zoh(a: &DMatrix<f64>, b: &[f64], tau: f64) -> (DMatrix<f64>, Vec<f64>) {
+fn zoh(a: &DMatrix<f64>, b: &[f64], tau: f64) -> Result<(DMatrix<f64>, Vec<f64>)> {
     let n = a.nrows();
     let mut m = DMatrix::<f64>::zeros(n + 1, n + 1);
     for i in 0..n {
@@ -116,10 +122,18 @@ fn zoh(a: &DMatrix<f64>, b: &[f64], tau: f64) -> (DMatrix<f64>, Vec<f64>) {
         }
         m[(i, n)] = b[i] * tau;
     }
+    if m.iter().any(|x| x.is_nan() || x.abs() > MAX_SCALED_ENTRY) {
+        return Err(AvllError::new(
+            "params",
+            format!(
+                "the model's time constants are out of range for dt (|[A, B] dt| > {MAX_SCALED_ENTRY:e})"
+            ),
+        ));
+    }
     let e = m.exp();
     let phi = e.view((0, 0), (n, n)).into_owned();
     let gam = (0..n).map(|i| e[(i, n)]).collect();
-    (phi, gam)
+    Ok((phi, gam))
 }
 
 /// Splits a dead time into whole samples and a fraction, `td/dt = i + f`.
@@ -156,7 +170,7 @@ pub fn discretize<const N: usize>(lin: &Linear, ints: Integrators, dt: f64) -> R
         return Err(AvllError::new("Td", "dead time longer than 2^24 samples"));
     }
     // Last (1-f) dt carries u_ref[n-i]; first f dt carries u_ref[n-i-1].
-    let (phi_a, gam_a) = zoh(&a, &b, (1.0 - f) * dt);
+    let (phi_a, gam_a) = zoh(&a, &b, (1.0 - f) * dt)?;
     let mut d = Discrete::<N> {
         phi: [[0.0; N]; N],
         g0: [0.0; N],
@@ -170,7 +184,7 @@ pub fn discretize<const N: usize>(lin: &Linear, ints: Integrators, dt: f64) -> R
         order: m,
     };
     if f > 0.0 {
-        let (phi_b, gam_b) = zoh(&a, &b, f * dt);
+        let (phi_b, gam_b) = zoh(&a, &b, f * dt)?;
         let phi = &phi_a * &phi_b;
         for r in 0..N {
             for col in 0..N {
@@ -202,6 +216,95 @@ pub fn discretize<const N: usize>(lin: &Linear, ints: Integrators, dt: f64) -> R
         return Err(AvllError::new("params", "discretization is not finite"));
     }
     Ok(d)
+}
+
+/// Largest characteristic-polynomial degree (dead time in samples plus model order)
+/// for which [`inner_loop_stable`] runs the O(degree^2) Schur-Cohn test; longer dead
+/// times with feedback are left to the divergence check of the rollouts.
+pub const MAX_STABILITY_DEGREE: usize = 1 << 14;
+
+/// Whether the discretized lower level — the model states of `d` (integrators, which
+/// do not feed back, are ignored) with the inner loop `u_ref = u + K y` closed at the
+/// samples — is asymptotically stable.
+///
+/// Without feedback this is the rational part's own stability (`a1 > 0`, `a2 >= 0`).
+/// With feedback, the loop's characteristic polynomial
+/// `p(z) = z^{i+1} det(zI - Phi) - K (z N0(z) + N1(z))`, `Nk(z) = c adj(zI - Phi) gk`,
+/// must have every root strictly inside the unit circle (Schur-Cohn recursion);
+/// `K b0 >= 1` is rejected first (a real root `z >= 1`: the loop has no steady state).
+pub fn inner_loop_stable<const N: usize>(d: &Discrete<N>, lin: &Linear) -> bool {
+    if lin.k == 0.0 {
+        return lin.a1 > 0.0 && lin.a2 >= 0.0;
+    }
+    if lin.k * lin.b0 >= 1.0 {
+        return false;
+    }
+    let m = d.order;
+    let deg = d.delay_steps + 1 + m;
+    if deg > MAX_STABILITY_DEGREE {
+        return true;
+    }
+    // Ascending coefficients of p(z).
+    let mut p = vec![0.0; deg + 1];
+    let (n0, n1) = if m == 1 {
+        // det(zI - phi) = z - phi; c adj g = c g
+        p[d.delay_steps + 1] = -d.phi[0][0];
+        p[d.delay_steps + 2] = 1.0;
+        ([d.c[0] * d.g0[0], 0.0], [d.c[0] * d.g1[0], 0.0])
+    } else {
+        let (f11, f12, f21, f22) = (d.phi[0][0], d.phi[0][1], d.phi[1][0], d.phi[1][1]);
+        p[d.delay_steps + 1] = f11 * f22 - f12 * f21;
+        p[d.delay_steps + 2] = -(f11 + f22);
+        p[d.delay_steps + 3] = 1.0;
+        // c adj(zI - phi) g = z (c . g) + (c1 (f12 g2 - f22 g1) + c2 (f21 g1 - f11 g2))
+        let num = |g: [f64; 2]| {
+            let (c1, c2) = (d.c[0], d.c[1]);
+            [
+                c1 * (f12 * g[1] - f22 * g[0]) + c2 * (f21 * g[0] - f11 * g[1]),
+                c1 * g[0] + c2 * g[1],
+            ]
+        };
+        (num([d.g0[0], d.g0[1]]), num([d.g1[0], d.g1[1]]))
+    };
+    // - K (z N0(z) + N1(z)): N0, N1 have degree <= 1.
+    p[0] -= lin.k * n1[0];
+    p[1] -= lin.k * (n1[1] + n0[0]);
+    p[2] -= lin.k * n0[1];
+    schur_stable(&mut p)
+}
+
+/// Schur-Cohn: all roots of the real polynomial with ascending coefficients `c`
+/// strictly inside the unit circle. With `a0 = c[0]`, `an = c[n]`, `|a0| < |an|` and
+/// the roots of `(an p(z) - a0 z^n p(1/z)) / z` (degree `n-1`) all inside are
+/// together necessary and sufficient (Rouche on `|z| = 1`). Overwrites `c`.
+pub fn schur_stable(c: &mut Vec<f64>) -> bool {
+    while c.len() > 1 && c[c.len() - 1] == 0.0 {
+        c.pop();
+    }
+    if c.iter().any(|x| !x.is_finite()) {
+        return false;
+    }
+    let mut n = c.len() - 1;
+    let mut q = vec![0.0; c.len()];
+    while n > 0 {
+        let (a0, an) = (c[0], c[n]);
+        if a0.is_nan() || an.is_nan() || a0.abs() >= an.abs() {
+            return false;
+        }
+        for j in 0..n {
+            q[j] = an * c[j + 1] - a0 * c[n - 1 - j];
+        }
+        n -= 1;
+        // keep the coefficients O(1): the new leading one is an^2 - a0^2 > 0
+        let lead = q[n];
+        if !(lead.is_finite() && lead > 0.0) {
+            return false;
+        }
+        for j in 0..=n {
+            c[j] = q[j] / lead;
+        }
+    }
+    true
 }
 
 /// Model-state equilibrium for a constant rational-part input `w`: `A x + B w = 0`.
@@ -258,6 +361,51 @@ mod tests {
         for r in 0..2 {
             assert!((d.g0[r] + d.g1[r] - d0.g0[r]).abs() < 1e-13);
         }
+    }
+
+    #[test]
+    fn schur_cohn_counts_roots() {
+        // (z - 0.5)(z + 0.9) = z^2 + 0.4 z - 0.45: stable
+        assert!(schur_stable(&mut vec![-0.45, 0.4, 1.0]));
+        // (z - 1.1)(z + 0.2): unstable
+        assert!(!schur_stable(&mut vec![-0.22, -0.9, 1.0]));
+        // z^5 - 0.3 (roots of modulus 0.3^(1/5) ~ 0.79): stable
+        assert!(schur_stable(&mut vec![-0.3, 0.0, 0.0, 0.0, 0.0, 1.0]));
+        // z^5 - 1.3: unstable
+        assert!(!schur_stable(&mut vec![-1.3, 0.0, 0.0, 0.0, 0.0, 1.0]));
+        // complex pair 0.95 e^{+-j}: z^2 - 1.9 cos(1) z + 0.9025
+        assert!(schur_stable(&mut vec![0.9025, -1.9 * 1f64.cos(), 1.0]));
+        assert!(!schur_stable(&mut vec![1.1025, -2.1 * 1f64.cos(), 1.0]));
+    }
+
+    #[test]
+    fn inner_loop_stability_matches_known_cases() {
+        let base = Linear {
+            b1: 6.7893,
+            b0: 0.3479,
+            a2: 1.2824,
+            a1: 8.8157,
+            td: 0.7903,
+            k: 0.1008,
+        };
+        let ok = |lin: Linear| {
+            let d = discretize::<2>(&lin, Integrators::None, 0.05).unwrap();
+            inner_loop_stable(&d, &lin)
+        };
+        assert!(ok(base)); // the paper's Table II model
+        assert!(!ok(Linear { k: 3.0, ..base })); // K K0 > 1
+        assert!(!ok(Linear {
+            a1: -0.1,
+            k: 0.0,
+            ..base
+        })); // negative damping
+        assert!(!ok(Linear { k: -40.0, ..base })); // strong delayed feedback oscillates
+        assert!(ok(Linear {
+            a1: -0.1,
+            td: 0.0,
+            k: -0.5,
+            ..base
+        })); // feedback stabilizes
     }
 
     #[test]

@@ -37,10 +37,9 @@
 //! parallel (rayon) and gathered in order, and ties are broken by index, so the
 //! result is bit-identical for any number of threads.
 
-use crate::discretize::{discretize, equilibrium, Integrators};
 use crate::error::{AvllError, Result};
 use crate::model::{CommandKind, Linear};
-use crate::rollout::{run_cost, CostSpec, Init, RunRef, DIVERGED};
+use crate::rollout::{open_accel_sse, run_cost, CostSpec, RunRef};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -934,67 +933,26 @@ impl Objective for Eq6<'_> {
             Ok(l) => l,
             Err(_) => return f64::INFINITY,
         };
-        match lin.order() {
-            1 => self.bounded::<1>(&lin, bound),
-            _ => self.bounded::<2>(&lin, bound),
-        }
+        self.bounded(&lin, bound)
     }
 }
 
 impl Eq6<'_> {
-    /// Same arithmetic, in the same order, as `rollout::run_cost` and
-    /// [`subset_cost`] (so an unabandoned value is bit-identical); stops with `inf`
-    /// once the partial sum proves the result `>= bound`.
-    fn bounded<const N: usize>(&self, lin: &Linear, bound: f64) -> f64 {
+    /// The same kernel as `rollout::run_cost` ([`open_accel_sse`]) and the same
+    /// combination as [`subset_cost`] (so an unabandoned value is bit-identical);
+    /// stops with `inf` once the partial sum proves the result `>= bound`.
+    fn bounded(&self, lin: &Linear, bound: f64) -> f64 {
         let wa = self.spec.weights[0];
         let mut done = 0.0; // sum of w_j c_j over finished runs
         let mut costs = Vec::with_capacity(self.w.len());
         for &(j, wj) in &self.w {
             let run = &self.runs[j];
-            let u = run.command.unwrap_or(&[]);
-            let n = u.len();
-            let d = match discretize::<N>(lin, Integrators::None, run.dt) {
-                Ok(d) => d,
-                Err(_) => return f64::INFINITY,
-            };
-            let mut x = [0.0; N];
-            let mut hist = 0.0;
-            if self.spec.init == Init::Steady {
-                let den = 1.0 - lin.k * lin.b0;
-                if den.abs() < 1e-12 {
-                    return f64::INFINITY;
-                }
-                let w = u[0] / den;
-                let e = equilibrium(lin, w);
-                x[..lin.order()].copy_from_slice(&e[..lin.order()]);
-                hist = w;
-            }
+            let n = run.len();
             // Abandon once wa * s / n * wj + done >= bound * total.
             let limit = (bound * self.total - done) * n as f64 / (wj * wa);
-            let i = d.delay_steps;
-            let cap = (i + 2).next_power_of_two();
-            let mask = cap - 1;
-            let mut buf = vec![hist; cap];
-            let mut sum = 0.0;
-            for k in 0..n {
-                let y = d.c.iter().zip(&x).fold(0.0, |s, (a, b)| s + a * b);
-                buf[k & mask] = u[k] + d.k * y;
-                let w0 = buf[k.wrapping_sub(i) & mask];
-                let w1 = buf[k.wrapping_sub(i + 1) & mask];
-                let e = y - run.a[k];
-                sum += e * e;
-                if y.abs() >= DIVERGED {
-                    return f64::INFINITY;
-                }
-                if k & 63 == 63 && sum >= limit {
-                    return f64::INFINITY;
-                }
-                let mut nx = [0.0; N];
-                for (r, v) in nx.iter_mut().enumerate() {
-                    let acc = d.phi[r].iter().zip(&x).fold(0.0, |s, (a, b)| s + a * b);
-                    *v = acc + d.g0[r] * w0 + d.g1[r] * w1;
-                }
-                x = nx;
+            let sum = open_accel_sse(lin, self.spec.init, run, limit);
+            if !sum.is_finite() {
+                return f64::INFINITY;
             }
             let c = wa * sum / n as f64;
             if !c.is_finite() {
@@ -1122,6 +1080,7 @@ pub fn calibrate_many(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rollout::Init;
 
     fn sphere(x: &[f64]) -> f64 {
         x.iter().map(|v| (v - 0.3) * (v - 0.3)).sum()

@@ -12,7 +12,9 @@
 //! Closed loop and platoons start the lower level at rest (zero acceleration,
 //! zero history); the follower's speed and position start at the given values.
 
-use crate::discretize::{discretize, equilibrium, split_delay, Discrete, Integrators};
+use crate::discretize::{
+    discretize, equilibrium, inner_loop_stable, split_delay, Discrete, Integrators,
+};
 use crate::error::{check_series, AvllError, Result};
 use crate::model::{CommandKind, Linear, ModelKind};
 use rayon::prelude::*;
@@ -103,6 +105,34 @@ fn dot<const N: usize>(a: &[f64; N], x: &[f64; N]) -> f64 {
     s
 }
 
+/// `t + row . x`, summed as a shallow tree with `t` (the input terms, known before
+/// the state) added last: the state-to-state latency of a step is one multiply and
+/// `ceil(log2 N) + 1` adds instead of a chain of `N + 2` dependent operations.
+#[inline(always)]
+fn affine<const N: usize>(row: &[f64; N], x: &[f64; N], t: f64) -> f64 {
+    let (r, x) = (&row[..], &x[..]);
+    match N {
+        1 => t + r[0] * x[0],
+        2 => t + (r[0] * x[0] + r[1] * x[1]),
+        3 => (t + r[2] * x[2]) + (r[0] * x[0] + r[1] * x[1]),
+        4 => t + ((r[0] * x[0] + r[1] * x[1]) + (r[2] * x[2] + r[3] * x[3])),
+        _ => {
+            let mut s = t;
+            for j in 0..N {
+                s += r[j] * x[j];
+            }
+            s
+        }
+    }
+}
+
+/// One exact step: `x[n+1] = Phi x[n] + G0 w0 + G1 w1` (`w0` held over the last
+/// `(1-f) dt`, `w1` over the first `f dt`).
+#[inline(always)]
+fn advance<const N: usize>(d: &Discrete<N>, x: &[f64; N], w0: f64, w1: f64) -> [f64; N] {
+    std::array::from_fn(|r| affine(&d.phi[r], x, d.g0[r] * w0 + d.g1[r] * w1))
+}
+
 /// The one stepping loop every rollout uses. `input(n, x)` gives the command at
 /// sample `n`; `out(n, x, y, u, w_first)` records it and returns `false` to stop.
 /// Returns `false` if stopped early.
@@ -124,18 +154,67 @@ fn step_loop<const N: usize>(
     for n in 0..len {
         let y = dot(&d.c, &x);
         let u = input(n, &x);
-        buf[n & mask] = u + d.k * y;
-        let w0 = buf[n.wrapping_sub(i) & mask];
+        let r = u + d.k * y;
+        buf[n & mask] = r;
+        // Without whole-sample delay the new input acts at once: keep it in a register
+        // (a round trip through the delay line would lengthen the loop's latency).
+        let w0 = if i == 0 {
+            r
+        } else {
+            buf[n.wrapping_sub(i) & mask]
+        };
         let w1 = buf[n.wrapping_sub(i + 1) & mask];
         let wf = if has_frac { w1 } else { w0 };
         if !out(n, &x, y, u, wf) {
             return false;
         }
-        let mut nx = [0.0; N];
-        for (r, xr) in nx.iter_mut().enumerate() {
-            *xr = dot(&d.phi[r], &x) + d.g0[r] * w0 + d.g1[r] * w1;
+        x = advance(d, &x, w0, w1);
+    }
+    true
+}
+
+/// The open-loop kernel behind `simulate` and the fast cost path: model states only,
+/// driven by the recorded command `u`; `sink(n, y[n])` returns `false` to stop early
+/// (then this returns `false`). Without inner feedback (`K = 0`) the delayed input is
+/// the command itself, read straight from `u` (no delay line, no dependence of the
+/// input on the state); with feedback it falls back to [`step_loop`].
+#[inline(always)]
+fn open_loop<const N: usize>(
+    d: &Discrete<N>,
+    u: &[f64],
+    x0: [f64; N],
+    hist: f64,
+    mut sink: impl FnMut(usize, f64) -> bool,
+) -> bool {
+    if d.k != 0.0 {
+        return step_loop(
+            d,
+            u.len(),
+            x0,
+            hist,
+            |n, _| u[n],
+            |n, _, y, _, _| sink(n, y),
+        );
+    }
+    let i = d.delay_steps;
+    let len = u.len();
+    let w = |k: usize| if k <= i { hist } else { u[k - i - 1] };
+    let mut x = x0;
+    // Head: the delayed inputs still reach into the history (n - i - 1 < 0).
+    let head = (i + 1).min(len);
+    for n in 0..head {
+        if !sink(n, dot(&d.c, &x)) {
+            return false;
         }
-        x = nx;
+        // w0 = u[n-i] (history if n < i), w1 = u[n-i-1] (history)
+        x = advance(d, &x, w(n + 1), w(n));
+    }
+    // Body: w1 = u[n-i-1] = pair[0], w0 = u[n-i] = pair[1].
+    for (n, pair) in (head..len).zip(u.windows(2)) {
+        if !sink(n, dot(&d.c, &x)) {
+            return false;
+        }
+        x = advance(d, &x, pair[1], pair[0]);
     }
     true
 }
@@ -192,17 +271,10 @@ fn response_n<const N: usize>(
 ) -> Result<()> {
     let d = discretize::<N>(lin, Integrators::None, dt)?;
     let (x0, hist) = initial::<N>(lin, init, u.first().copied().unwrap_or(0.0))?;
-    step_loop(
-        &d,
-        u.len(),
-        x0,
-        hist,
-        |n, _| u[n],
-        |n, _, yy, _, _| {
-            y[n] = yy;
-            true
-        },
-    );
+    open_loop(&d, u, x0, hist, |n, yy| {
+        y[n] = yy;
+        true
+    });
     Ok(())
 }
 
@@ -301,8 +373,9 @@ pub fn simulate_full(
     Ok(tr)
 }
 
-/// Writes one closed-loop follower into the given output slices; returns `false`
-/// if the response diverged (the rest of the outputs are then left unwritten).
+/// Writes one closed-loop follower into the given output slices; returns the number
+/// of samples written: all of them, or up to and including the one where the
+/// response diverged (the rest of the outputs are then left unwritten).
 #[allow(clippy::too_many_arguments)]
 fn closed_n<const N: usize>(
     d: &Discrete<N>,
@@ -315,11 +388,12 @@ fn closed_n<const N: usize>(
     v: &mut [f64],
     x: &mut [f64],
     cmd: &mut [f64],
-) -> bool {
+) -> usize {
     let m = d.order;
     let mut s0 = [0.0; N];
     s0[m] = v0;
     s0[m + 1] = p0;
+    let mut stopped = None;
     step_loop(
         d,
         lead_x.len(),
@@ -331,9 +405,14 @@ fn closed_n<const N: usize>(
             v[n] = s[m];
             x[n] = s[m + 1];
             cmd[n] = u;
-            y.abs() < DIVERGED && y.is_finite()
+            let ok = y.abs() < DIVERGED && y.is_finite();
+            if !ok {
+                stopped = Some(n + 1);
+            }
+            ok
         },
-    )
+    );
+    stopped.unwrap_or(lead_x.len())
 }
 
 fn closed_loop_n<const N: usize>(
@@ -348,12 +427,12 @@ fn closed_loop_n<const N: usize>(
     let d = discretize::<N>(lin, Integrators::SpeedPosition, dt)?;
     let n = lead_x.len();
     let mut tr = Trajectory {
-        a: vec![f64::NAN; n],
-        v: vec![f64::NAN; n],
-        x: vec![f64::NAN; n],
-        command: vec![f64::NAN; n],
+        a: vec![0.0; n],
+        v: vec![0.0; n],
+        x: vec![0.0; n],
+        command: vec![0.0; n],
     };
-    closed_n(
+    let written = closed_n(
         &d,
         up,
         lead_x,
@@ -365,6 +444,10 @@ fn closed_loop_n<const N: usize>(
         &mut tr.x,
         &mut tr.command,
     );
+    // Diverged: NaN from the sample after the divergence on.
+    for s in [&mut tr.a, &mut tr.v, &mut tr.x, &mut tr.command] {
+        s[written..].fill(f64::NAN);
+    }
     Ok(tr)
 }
 
@@ -564,8 +647,10 @@ fn finite_or_inf(c: f64) -> f64 {
     }
 }
 
-/// Cost of one parameter row on one run; `inf` for invalid or unstable parameters.
-/// Assumes `spec.validate(runs)` passed.
+/// Cost of one parameter row on one run; `inf` for invalid parameters, for a lower
+/// level that is not asymptotically stable (see
+/// [`crate::discretize::inner_loop_stable`]: whatever the run's length), and for a
+/// response that leaves `|y| < DIVERGED`. Assumes `spec.validate(runs)` passed.
 pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef) -> f64 {
     let np = spec.model.n_params();
     let lin = match spec.model.linear(&row[..np]) {
@@ -583,7 +668,7 @@ pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef) -> f64 {
         && spec.weights[1] == 0.0
         && spec.weights[2] == 0.0
     {
-        with_dim!(lin.order(), cost_open_accel(&lin, spec, run))
+        cost_open_accel(&lin, spec, run)
     } else {
         with_dim!(dim_full, cost_open_full(&lin, spec, run))
     };
@@ -591,34 +676,61 @@ pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef) -> f64 {
 }
 
 /// The fast path: acceleration command, acceleration error only.
-fn cost_open_accel<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) -> Result<f64> {
-    let u = run.command.unwrap_or(&[]);
-    let d = discretize::<N>(lin, Integrators::None, run.dt)?;
-    let (x0, hist) = initial::<N>(lin, spec.init, u[0])?;
-    let meas = run.a;
-    let mut s = 0.0;
-    let ok = step_loop(
-        &d,
-        u.len(),
-        x0,
-        hist,
-        |n, _| u[n],
-        |n, _, y, _, _| {
-            let e = y - meas[n];
-            s += e * e;
-            y.abs() < DIVERGED
-        },
-    );
-    Ok(if ok {
-        spec.weights[0] * s / u.len() as f64
+fn cost_open_accel(lin: &Linear, spec: &CostSpec, run: &RunRef) -> Result<f64> {
+    let s = open_accel_sse(lin, spec.init, run, f64::INFINITY);
+    Ok(if s.is_finite() {
+        spec.weights[0] * s / run.len() as f64
     } else {
         f64::INFINITY
     })
 }
 
+/// Sum of squared acceleration errors of the open-loop rollout of `lin` driven by
+/// `run.command` (an acceleration command) — the kernel of the fast cost path
+/// (`cost = weight_a * sse / len`), public so that callers with a bound (the GA's
+/// early abandoning) get bit-identical values. `inf` if the parameters are invalid
+/// for `run.dt`, the lower level is not asymptotically stable
+/// ([`inner_loop_stable`]), the response leaves `|y| < DIVERGED`, or the partial
+/// sum reaches `limit` (checked every 64 samples; pass `inf` for no bound).
+pub fn open_accel_sse(lin: &Linear, init: Init, run: &RunRef, limit: f64) -> f64 {
+    let r = match lin.order() {
+        1 => open_accel_sse_n::<1>(lin, init, run, limit),
+        _ => open_accel_sse_n::<2>(lin, init, run, limit),
+    };
+    r.unwrap_or(f64::INFINITY)
+}
+
+fn open_accel_sse_n<const N: usize>(
+    lin: &Linear,
+    init: Init,
+    run: &RunRef,
+    limit: f64,
+) -> Result<f64> {
+    let u = run.command.unwrap_or(&[]);
+    if u.is_empty() || run.a.len() != u.len() {
+        return Ok(f64::INFINITY);
+    }
+    let d = discretize::<N>(lin, Integrators::None, run.dt)?;
+    if !inner_loop_stable(&d, lin) {
+        return Ok(f64::INFINITY);
+    }
+    let (x0, hist) = initial::<N>(lin, init, u[0])?;
+    let meas = run.a;
+    let mut s = 0.0;
+    let ok = open_loop(&d, u, x0, hist, |n, y| {
+        let e = y - meas[n];
+        s += e * e;
+        y.abs() < DIVERGED && !(n & 63 == 63 && s >= limit)
+    });
+    Ok(if ok { s } else { f64::INFINITY })
+}
+
 fn cost_open_full<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) -> Result<f64> {
     let u = run.command.unwrap_or(&[]);
     let d = discretize::<N>(lin, Integrators::for_kind(spec.kind), run.dt)?;
+    if !inner_loop_stable(&d, lin) {
+        return Ok(f64::INFINITY);
+    }
     let m = lin.order();
     let (mut x0, hist) = initial::<N>(lin, spec.init, u[0])?;
     let v0 = run.v.map_or(0.0, |v| v[0]);
@@ -672,6 +784,9 @@ fn cost_closed<const N: usize>(
     run: &RunRef,
 ) -> Result<f64> {
     let d = discretize::<N>(lin, Integrators::SpeedPosition, run.dt)?;
+    if !inner_loop_stable(&d, lin) {
+        return Ok(f64::INFINITY);
+    }
     let lx = run.lead_x.unwrap_or(&[]);
     let lv = run.lead_v.unwrap_or(&[]);
     let vm = run.v.unwrap_or(&[]);
@@ -824,6 +939,43 @@ mod tests {
                 1.0 - 2.0 * (-t).exp() + (-2.0 * t).exp()
             };
             assert!((yn - want).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn open_loop_kernel_matches_generic_step_loop() {
+        // The K = 0 kernel (command read in place) and the delay-line loop agree, for
+        // dead times shorter and longer than the series, integer and fractional.
+        let u: Vec<f64> = (0..40).map(|n| ((n * 7919) % 13) as f64 - 6.0).collect();
+        for td in [0.0, 0.05, 0.37, 1.0, 1.95, 2.5] {
+            let lin = Linear {
+                b1: 0.4,
+                b0: 0.9,
+                a2: 0.6,
+                a1: 1.3,
+                td,
+                k: 0.0,
+            };
+            for init in [Init::Rest, Init::Steady] {
+                let d = discretize::<2>(&lin, Integrators::None, 0.05).unwrap();
+                let (x0, hist) = initial::<2>(&lin, init, u[0]).unwrap();
+                let mut want = vec![0.0; u.len()];
+                step_loop(
+                    &d,
+                    u.len(),
+                    x0,
+                    hist,
+                    |n, _| u[n],
+                    |n, _, y, _, _| {
+                        want[n] = y;
+                        true
+                    },
+                );
+                let got = simulate(&lin, &u, 0.05, init).unwrap();
+                for (g, w) in got.iter().zip(&want) {
+                    assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "td={td}");
+                }
+            }
         }
     }
 

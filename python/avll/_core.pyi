@@ -146,6 +146,8 @@ def stability_polys(
     pade_order: int = 2,
 ) -> tuple[list[float], list[float], list[float]]: ...
 def pade_den(order: int, td: float) -> list[float]: ...
+
+# --- effects (rust/bindings/effects.rs) ---
 def effect_info() -> list[dict[str, object]]: ...
 def simulate_effects(
     model: str,
@@ -206,35 +208,35 @@ def batch_cost_effects(
     exo: dict[str, npt.NDArray[np.float64]] = ...,
     threads: int = 0,
 ) -> npt.NDArray[np.float64]: ...
-
-# --- stability (rust/bindings/stability.rs) ---
-PADE_MAX_ORDER: int
-
-def stability_map(
+def calibrate_effects(
     model: str,
-    params: list[float],
-    kg: npt.NDArray[np.float64],
-    tg: npt.NDArray[np.float64],
-    kv: npt.NDArray[np.float64],
-    pade_order: int = 2,
+    effects: list[str],
+    offsets: list[int],
+    dt: npt.NDArray[np.float64],
+    a: npt.NDArray[np.float64],
+    lower_bounds: list[float],
+    upper_bounds: list[float],
+    scale: list[str],
+    command: npt.NDArray[np.float64] | None = None,
+    lead_x: npt.NDArray[np.float64] | None = None,
+    lead_v: npt.NDArray[np.float64] | None = None,
+    v: npt.NDArray[np.float64] | None = None,
+    x: npt.NDArray[np.float64] | None = None,
+    upper: npt.NDArray[np.float64] | None = None,
+    upper_free: list[int] = ...,
+    command_kind: str = "acceleration",
+    weights: tuple[float, float, float] = ...,
+    init: str = "rest",
+    closed_loop: bool = False,
+    exo: dict[str, npt.NDArray[np.float64]] = ...,
+    seed: int = 0,
+    pop_size: int = 0,
+    max_generations: int = 300,
+    stall_generations: int = 20,
+    ftol: float = 1e-4,
+    polish: bool = True,
+    local_every: int = 3,
+    initial: npt.NDArray[np.float64] | None = None,
+    progress: Callable[[dict[str, object]], object] | None = None,
     threads: int = 0,
-    progress: Callable[[int, int], object] | None = None,
-) -> npt.NDArray[np.uint8]: ...
-def stability_points(
-    model: str,
-    params: list[float],
-    kg: npt.NDArray[np.float64],
-    tg: npt.NDArray[np.float64],
-    kv: npt.NDArray[np.float64],
-    pade_order: int = 2,
-    threads: int = 0,
-) -> npt.NDArray[np.uint8]: ...
-def stability_polys(
-    model: str,
-    params: list[float],
-    kg: float,
-    tg: float,
-    kv: float,
-    pade_order: int = 2,
-) -> tuple[list[float], list[float], list[float]]: ...
-def pade_den(order: int, td: float) -> list[float]: ...
+) -> dict[str, object]: ...

@@ -54,6 +54,7 @@ from .effects import (
     EFFECTS,
     WithEffects,
     batch_cost_effects,
+    calibrate_effects,
     canonical,
     closed_loop_effects,
     simulate_effects,
@@ -273,6 +274,7 @@ def fit_full(
     init: str = "auto",
     threads: int = 0,
     progress: bool = False,
+    optimizer: str = "ga",
 ) -> tuple[WithEffects, UpperLevel | None]:
     """As :func:`fit`, and in closed loop with ``free_upper`` (default: when a run
     has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
@@ -280,7 +282,11 @@ def fit_full(
     position MSE default to ``(1, 0, 0)`` in open loop (paper Eq. 6), to
     :data:`SPEED_COMMAND_WEIGHTS` for a speed command and to
     :data:`CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration alone leaves
-    the upper law's spacing unidentified. The loop reports acceleration MSEs."""
+    the upper law's spacing unidentified. The loop reports acceleration MSEs.
+    ``optimizer``: ``"ga"`` (the project's Rust GA, :func:`avll.effects.calibrate_effects`)
+    or ``"de"`` (``scipy.optimize.differential_evolution`` on the batched cost)."""
+    if optimizer not in ("ga", "de"):
+        raise ValueError(f"optimizer: must be 'ga' or 'de', got {optimizer!r}")
     bname = model_class(base).name
     names = canonical(list(effects))
     closed = _closed(runs, closed_loop)
@@ -331,21 +337,43 @@ def fit_full(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=maxiter, desc="fit " + "+".join([bname, *names]), leave=False)
+    if optimizer == "ga":
+        x0p = None if x0 is None else sp.from_z(x0)[None, :]
 
-    def cb(intermediate_result: Any) -> None:
-        if bar is not None:
-            bar.update(1)
+        def gcb(info: dict[str, Any]) -> None:
+            if bar is not None:
+                bar.update(int(info["iteration"]) - bar.n)
 
-    try:
-        res = optimize.differential_evolution(
-            lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
-            popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
-            x0=x0, init="sobol", callback=cb,
-        )  # fmt: skip
-    finally:
-        if bar is not None:
-            bar.close()
-    p = sp.from_z(_polish(f, np.asarray(res.x), 200))
+        try:
+            out = calibrate_effects(
+                bname, names, runs, list(sp.lo), list(sp.hi),
+                ["log" if lg else "linear" for lg in sp.log], weights=weights, init=ini,
+                closed_loop=closed, upper_free=upper_free, initial=x0p, seed=seed,
+                max_generations=maxiter, progress=gcb if bar is not None else None,
+                threads=threads,
+            )  # fmt: skip
+        finally:
+            if bar is not None:
+                bar.close()
+        p = np.asarray(out["x"], dtype=np.float64)
+    else:
+
+        def cb(intermediate_result: Any) -> None:
+            if bar is not None:
+                bar.update(1)
+
+        try:
+            res = optimize.differential_evolution(
+                lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
+                popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
+                x0=x0, init="sobol", callback=cb,
+            )  # fmt: skip
+        finally:
+            if bar is not None:
+                bar.close()
+
+        p = sp.from_z(_polish(f, np.asarray(res.x), 200))
+
     n_model = len(p) - (4 if free_upper else 0)
     model = WithEffects.from_array(bname, names, p[:n_model])
     up = UpperLevel(*[float(x) for x in p[n_model:]]) if free_upper else None
@@ -364,6 +392,7 @@ def fit(
     maxiter: int = 300,
     init: str = "auto",
     threads: int = 0,
+    optimizer: str = "ga",
 ) -> WithEffects:
     """Calibrates base + effects on ``runs`` (mean of the per-run acceleration MSE,
     paper Eq. 6; closed loop runs need their upper-level law, see :func:`fit_full`).
@@ -376,7 +405,7 @@ def fit(
     """
     model, _ = fit_full(base, effects, runs, start=start, seed=seed, closed_loop=closed_loop,
                         free_upper=False, popsize=popsize, maxiter=maxiter, init=init,
-                        threads=threads)  # fmt: skip
+                        threads=threads, optimizer=optimizer)  # fmt: skip
     return model
 
 
@@ -920,6 +949,7 @@ def effect_loop(
     baseline: LowerLevelModel | None = None,
     candidates: Sequence[str] | None = None,
     init: str = "auto",
+    optimizer: str = "ga",
     progress: bool = False,
 ) -> LoopResult:
     """Baseline fit -> diagnose -> add the top-ranked effect -> recalibrate -> keep it
@@ -948,7 +978,8 @@ def effect_loop(
 
     if baseline is None:
         current, upper = fit_full(bname, (), cal_runs, seed=seed, closed_loop=closed, init=init,
-                                  free_upper=free_upper, progress=progress)  # fmt: skip
+                                  free_upper=free_upper, progress=progress,
+                                  optimizer=optimizer)  # fmt: skip
     else:
         current = WithEffects(baseline, ())
         if free_upper:
@@ -977,7 +1008,7 @@ def effect_loop(
             new, up1 = fit_full(bname, [*current.effect_names, c.effect], cal_runs,
                                 start=start, start_upper=upper, seed=seed + 1000 * (it + 1),
                                 closed_loop=closed, init=init, free_upper=free_upper,
-                                progress=progress)  # fmt: skip
+                                progress=progress, optimizer=optimizer)  # fmt: skip
             cal_new, val_new = with_upper(cal_runs, up1), with_upper(val_runs, up1)
             cal1 = _per_run(new, cal_new, closed, init)
             val1 = _per_run(new, val_new, closed, init)
@@ -1151,7 +1182,7 @@ def _cmd(args: argparse.Namespace) -> int:
         raise ValueError("--cal-runs: every run is a calibration run; keep some for validation")
     model_class(args.model)
     res = effect_loop(args.model, cal, val, seed=args.seed, init=args.init,
-                      progress=not args.quiet)  # fmt: skip
+                      optimizer=args.optimizer, progress=not args.quiet)  # fmt: skip
     d = res.to_dict()
     Path(args.json).write_text(json.dumps(d, indent=2, default=float), encoding="utf-8")
     if args.report:
@@ -1174,5 +1205,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--report", default=None, help="folder for a Markdown/HTML report")
     p.add_argument("--init", choices=["auto", "rest", "steady"], default="auto",
                    help="initial state (auto: steady for a speed command, else rest)")
+    p.add_argument("--optimizer", choices=["ga", "de"], default="ga",
+                   help="calibration: the Rust GA (default) or scipy's differential evolution")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd)

@@ -57,6 +57,7 @@ __all__ = [
     "simulate_effects",
     "closed_loop_effects",
     "batch_cost_effects",
+    "calibrate_effects",
 ]
 
 
@@ -434,6 +435,23 @@ def batch_cost_effects(
     """Per-run costs (P, R) of parameter rows ``[base | effects | free upper]`` (effects
     in the canonical order, see :data:`CANONICAL_ORDER`), as :func:`avll.batch_cost`.
     Invalid or unstable rows cost ``inf``."""
+    cls, names, p, kw = _batch_args(base, effects, params, runs, weights=weights, init=init,
+                                    closed_loop=closed_loop, upper_free=upper_free)  # fmt: skip
+    return _core.batch_cost_effects(cls.name, list(names), p, threads=int(threads), **kw)
+
+
+def _batch_args(
+    base: str | type[LowerLevelModel],
+    effects: Sequence[str],
+    params: Any,
+    runs: Sequence[Run],
+    *,
+    weights: tuple[float, float, float],
+    init: str,
+    closed_loop: bool,
+    upper_free: Sequence[int],
+) -> tuple[type[LowerLevelModel], tuple[str, ...], np.ndarray, dict[str, Any]]:
+    """The concatenated run arrays and options shared by the batched functions."""
     cls = model_class(base)
     names = canonical(list(effects))
     if not runs:
@@ -464,13 +482,10 @@ def batch_cost_effects(
                         f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'"
                     )
             exo[sig] = np.ascontiguousarray(np.concatenate([r.exo[sig] for r in runs]))
-    return _core.batch_cost_effects(
-        cls.name,
-        list(names),
-        p,
-        [int(o) for o in offsets],
-        np.array([r.dt for r in runs], dtype=np.float64),
-        _concat(runs, "a", True),  # type: ignore[arg-type]
+    kw: dict[str, Any] = dict(
+        offsets=[int(o) for o in offsets],
+        dt=np.array([r.dt for r in runs], dtype=np.float64),
+        a=_concat(runs, "a", True),
         command=None if closed_loop else _concat(runs, "command", True),
         lead_x=_concat(runs, "lead_x", closed_loop) if closed_loop else None,
         lead_v=_concat(runs, "lead_v", closed_loop) if closed_loop else None,
@@ -483,5 +498,44 @@ def batch_cost_effects(
         init=init,
         closed_loop=closed_loop,
         exo=exo,
-        threads=int(threads),
     )
+    return cls, names, p, kw
+
+
+def calibrate_effects(
+    base: str | type[LowerLevelModel],
+    effects: Sequence[str],
+    runs: Sequence[Run],
+    lower: Sequence[float],
+    upper: Sequence[float],
+    scale: Sequence[str],
+    *,
+    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    upper_free: Sequence[int] = (),
+    initial: Any = None,
+    seed: int = 0,
+    max_generations: int = 300,
+    pop_size: int = 0,
+    progress: Any = None,
+    threads: int = 0,
+) -> dict[str, Any]:
+    """Calibrates base + effects (+ free upper-level gains) by the project's Rust GA on
+    the mean over runs of the effects cost. ``lower``, ``upper``, ``scale``
+    (``"linear"``/``"log"``) give the box of the row ``[base | effects | free upper]``;
+    ``initial`` rows join the first population. Returns the GA's result dict (``x``,
+    ``f``, ``generations``, ``stop``, ...). Same seed, same result whatever the
+    thread count."""
+    cls, names, _, kw = _batch_args(base, effects, np.zeros((1, 1)), runs, weights=weights,
+                                    init=init, closed_loop=closed_loop,
+                                    upper_free=upper_free)  # fmt: skip
+    ini = None if initial is None else np.ascontiguousarray(np.atleast_2d(initial), dtype=float)
+    return dict(
+        _core.calibrate_effects(
+            cls.name, list(names), kw.pop("offsets"), kw.pop("dt"), kw.pop("a"),
+            [float(x) for x in lower], [float(x) for x in upper], [str(x) for x in scale],
+            seed=int(seed), max_generations=int(max_generations), pop_size=int(pop_size),
+            initial=ini, progress=progress, threads=int(threads), **kw,
+        )
+    )  # fmt: skip
