@@ -114,10 +114,10 @@ def test_real_data_carma_quick(tmp_path: Path) -> None:
         assert (tmp_path / fn).exists()
 
 
-@pytest.mark.parametrize("delay", [3.0, pytest.param(22.0, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("delay", [3.0])
 def test_ctrl_c_stops_cleanly(tmp_path: Path, delay: float) -> None:
-    """SIGINT during the default run (in the GA at 3 s; in the stability maps at about
-    22 s on this machine): exit 130, one line, no traceback, no summary written."""
+    """SIGINT during the default run (in the GA at 3 s): exit 130, one line, no
+    traceback, no summary written."""
     import signal
     import subprocess
     import sys
@@ -128,6 +128,7 @@ def test_ctrl_c_stops_cleanly(tmp_path: Path, delay: float) -> None:
                          text=True)
     time.sleep(delay)
     if p.poll() is not None:  # pragma: no cover - a very fast machine
+        p.communicate()  # close the pipes (an unclosed pipe warns, i.e. fails, later)
         pytest.skip("finished before the signal")
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=60)
