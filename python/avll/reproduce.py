@@ -153,6 +153,11 @@ class _Stages:
             self._bar = tqdm(total=total, desc="avll reproduce", unit="stage",
                              bar_format="{desc}: {n}/{total} stages |{bar}| {elapsed}")
 
+    def set_total(self, total: int) -> None:
+        if self._bar is not None:
+            self._bar.total = total
+            self._bar.refresh()
+
     def write(self, msg: str) -> None:
         if self._bar is not None:
             self._bar.write(msg)
@@ -526,6 +531,7 @@ def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
     from . import PAPER_TABLE_II
 
     p = _data_dir(name, path)
+    stages.set_total(3 + (1 if settings.diagnosis else 0))
     with stages.stage(f"{name} study (calibration, validation)"):
         fn = F.carma_study if name == "carma" else F.astazero_study
         kw: dict[str, Any] = {}
