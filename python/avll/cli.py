@@ -20,6 +20,7 @@ _COMMANDS = [
     "avll.diagnose:register_cli",
     "avll.calibrate:register_cli",
     "avll.stability:register_cli",
+    "avll.reproduce:register_cli",
 ]
 
 
