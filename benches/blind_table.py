@@ -1,4 +1,4 @@
-"""Reproduces the blind-test table of notes/effects.md: for each generator effect,
+"""Reproduces the blind-test table of README § Effects: for each generator effect,
 the diagnosis's first candidate, the added effects, the recovered parameters and
 the calibration/validation MSE before and after (seed 0; runs 1, 3, 8 calibrate,
 12, 15, 19 validate)."""

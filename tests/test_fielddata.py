@@ -129,7 +129,7 @@ def test_launch_cruise_split(shared_data: Path) -> None:
         assert r.v is not None and r.command is not None
         assert r.v[0] >= 2.0 and r.command[0] >= HANDOVER_SPEED - 0.1, r.run_id
     cut = [r for r in cruise if r.run_id.endswith("/cruise")]
-    # the three stretches where launch and cruise are joined (notes/loaders.md)
+    # the three stretches where launch and cruise are joined (README § Field data)
     assert sorted(r.run_id.rsplit("/", 1)[0] for r in cut) == [
         "data10/follower1/s01", "data6/follower2/s01", "data9/follower3/s01",
     ]  # fmt: skip

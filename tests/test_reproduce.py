@@ -139,7 +139,7 @@ def test_ctrl_c_stops_cleanly(tmp_path: Path, delay: float) -> None:
 
 @pytest.mark.slow
 def test_default_reproduce(tmp_path: Path) -> None:
-    """The default run: Section IV with Table II parameters as in notes/stability.md,
+    """The default run: Section IV with Table II parameters as in README § Stability maps,
     and the calibrated models ranked as in the paper."""
     rc = main(["reproduce", "--out", str(tmp_path), "-q"])
     assert rc == 0

@@ -5,6 +5,7 @@ Liu et al., "Experimental study and modeling of the lower-level controller of
 automated vehicle".
 """
 
+from . import io, synth
 from ._core import __version__
 from .calibrate import (
     Bootstrap,
@@ -60,6 +61,8 @@ PAPER_TABLE_II = {
 }
 
 __all__ = [
+    "io",
+    "synth",
     "__version__",
     "DataError",
     "Run",

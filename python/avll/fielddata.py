@@ -11,7 +11,7 @@ JSON-able summary and a plain-text report):
   logic (the first command >= :data:`HANDOVER_SPEED`; the cruise logic's first
   command is 20.11 m/s = 45 mph in every cruise stretch of the four files); the
   rest is *cruise*. In launch the logged command is the current measured speed
-  (notes/loaders.md), so a launch fit identifies the logging, not a controller;
+  (README § Field data), so a launch fit identifies the logging, not a controller;
   cruise is the controller's regime and gets the main tables. Split: calibration on
   ``data5`` + ``data9``, validation on ``data6`` + ``data10`` (the two short and
   the two long drives each contribute one calibration and one validation file).
@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from .calibrate import CalibrationResult, calibrate_many
-from .data import DataError, Run
+from .data import Run
 from .models import MODELS, LowerLevelModel, UpperLevel, model_class
 from .rollout import batch_cost, closed_loop, simulate_full
 
@@ -158,23 +158,11 @@ def _finite(x: float) -> float | None:
 
 
 def read_carma(path: str | Path, **options: Any) -> list[Run]:
-    """CARMA runs of one file or of every ``*.csv`` in a folder (sorted by the
-    number in the name: data5, data6, data9, data10)."""
+    """CARMA runs of one file or of every ``*.csv`` in a folder (in natural order of
+    the names: data5, data6, data9, data10)."""
     from .io import read_runs
 
-    p = Path(path)
-    if not p.exists():
-        raise DataError(f"{p}: no such file or folder")
-    if p.is_dir():
-        files = sorted(p.glob("*.csv"), key=lambda f: (_num(f.stem), f.stem))
-        if not files:
-            raise DataError(f"{p}: no CSV files in this folder")
-    else:
-        files = [p]
-    runs: list[Run] = []
-    for f in files:
-        runs += read_runs(f, format="carma", **options)
-    return runs
+    return read_runs(path, format="carma", **options)
 
 
 def _num(stem: str) -> int:

@@ -128,7 +128,7 @@ class Settings:
         return kg, tg, kv
 
 
-#: ``default``: the paper's grids (the ones of notes/stability.md) and the full GA;
+#: ``default``: the paper's grids (the ones of README § Stability maps) and the full GA;
 #: ``quick``: coarse grids and a small GA, for smoke tests (numbers not meaningful).
 SETTINGS: dict[str, Settings] = {
     "default": Settings(),
@@ -744,7 +744,7 @@ _WHY = (
     "leader's speed profiles are our own, so the excitation differs; (iv) the proposed "
     "model's six parameters are not all identifiable from such data (only combinations: "
     "DC gain, low-frequency delay, the frequency response in the excited band — see "
-    "`notes/ga.md`), so fitted values can differ from Table II although the fit is "
+    "README § Calibration), so fitted values can differ from Table II although the fit is "
     "perfect. **What is comparable:** the ranking proposed < second-order < first-order "
     "(calibration and validation), the ratios of the MSEs between models (how much worse "
     "the simpler models are), and — because they use the paper's own Table II "
@@ -869,7 +869,7 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
                      "are the smallest stable values on the 0.1 s grid (exact boundaries "
                      "1.857/3.449/2.189 s). The capacity constants 7 m / 30 m/s are inferred "
                      "from the paper's numbers (it does not state them). See "
-                     "`notes/stability.md`.")
+                     "README § Stability maps.")
         else:
             rep.para(_calibrated_comment(summary))
         tag = which
@@ -887,7 +887,7 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
     rep.bullets([
         f"GA: paper's Eq. 6 (acceleration MSE), max {settings.max_generations} generations, "
         f"{settings.starts} independent start(s) per model, default population and bounds "
-        "(`notes/ga.md`).",
+        "(README § Calibration).",
         "Stability grid: " + grid + ".",
         f"Figures 5 and 7 show kv = {', '.join(f'{v:g}' for v in settings.panels)} 1/s.",
         f"Diagnosis: {'on' if settings.diagnosis else 'off'}, at most "

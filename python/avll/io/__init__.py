@@ -14,6 +14,7 @@ and free-flow segments, road grade). The measured-data loaders accept ``dt=`` (a
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -56,8 +57,12 @@ def read_runs(
 ) -> list[Run]:
     """Reads the runs in ``path`` with the loader of ``format``.
 
-    ``command_kind`` (``"acceleration"`` or ``"speed"``) overrides what the file or
-    its sidecar says; loaders whose format fixes the kind check it instead.
+    ``path`` is a file or, for the per-file formats (``canonical``, ``carma``,
+    ``generic``), a folder: then every ``*.csv`` / ``*.parquet`` in it is read, in
+    natural order of the names (data5, data6, data9, data10). ``openacc-astazero``
+    reads its own folder layout. ``command_kind`` (``"acceleration"`` or ``"speed"``)
+    overrides what the file or its sidecar says; loaders whose format fixes the kind
+    check it instead.
     """
     try:
         loader = FORMATS[format]
@@ -68,4 +73,24 @@ def read_runs(
     p = Path(path)
     if not p.exists():
         raise DataError(f"{p}: no such file or folder")
+    if p.is_dir() and format in _PER_FILE:
+        files = sorted(
+            (f for f in p.iterdir() if f.suffix.lower() in (".csv", ".parquet", ".pq")),
+            key=_natural,
+        )
+        if not files:
+            raise DataError(f"{p}: no CSV or Parquet files in this folder")
+        runs: list[Run] = []
+        for f in files:
+            runs += loader(f, command_kind=command_kind, **options)
+        return runs
     return loader(p, command_kind=command_kind, **options)
+
+
+#: Formats whose loader reads one file; ``read_runs`` reads a folder of them.
+_PER_FILE = ("canonical", "carma", "generic")
+
+
+def _natural(f: Path) -> tuple[Any, ...]:
+    """Sort key: names with their digit runs compared as numbers."""
+    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", f.name))

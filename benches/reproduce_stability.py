@@ -1,6 +1,6 @@
-"""Reproduces the paper's Section IV numbers with avll (see notes/stability.md).
+"""Reproduces the paper's Section IV numbers with avll (see README § Stability maps).
 
-    python notes/reproduce_stability.py
+    python benches/reproduce_stability.py
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ loop with grade). Reads canonical files converted by the loaders' `avll load`:
     avll load ../shared/data/openacc-astazero/platoon/ASta_040719_platoonN.csv \\
         --format openacc-astazero --out DIR/asta_pN.csv
 
-Usage: MPLBACKEND=Agg python notes/effects_real_data.py DIR OUTDIR
+Usage: MPLBACKEND=Agg python benches/effects_real_data.py DIR OUTDIR
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ def carma(d: Path, out: Path) -> list[dict]:
     runs = {f: read_runs(d / f"carma_{f}.csv") for f in ("data5", "data6", "data9", "data10")}
     for veh in ("leader", "follower1", "follower2", "follower3", "follower4"):
         # Cruise stretches only (>= 60 s): the launch stretches are another regime
-        # (the logged command is the current speed there; see notes/loaders.md).
+        # (the logged command is the current speed there; see README § Field data).
         def pick(files, veh=veh):
             return [r for f in files for r in runs[f]
                     if r.run_id.split("/")[1] == veh and r.t[-1] - r.t[0] >= 60]  # fmt: skip

@@ -1,6 +1,6 @@
-"""Reproduces every number of notes/loaders.md (run from the repository root):
+"""Reproduces every number of README § Field data (run from the repository root):
 
-    MPLBACKEND=Agg python notes/loaders_analysis.py [--part carma|grade|closed|all]
+    MPLBACKEND=Agg python benches/analysis_loaders.py [--part carma|grade|closed|all]
 
 Reads ../shared/data (never copies it). Plain least-squares fits with scipy driving
 the Rust rollouts of avll; the GA calibration proper is the calibration issue's.

@@ -1,0 +1,41 @@
+"""The README's API tour runs as written (field-data line skipped without the data)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def _tour() -> str:
+    text = README.read_text()
+    section = text[text.index("## Python API, a tour") :]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+def test_readme_set_up_commands() -> None:
+    text = README.read_text()
+    block = re.search(r"## Set up\n\n```bash\n(.*?)```", text, re.S).group(1)
+    cmds = [line for line in block.splitlines() if line and not line.startswith("#")]
+    assert cmds[0] == "pip install . && avll reproduce --out avll-out"
+    ci = (README.parent / ".ci" / "run").read_text()
+    assert cmds[1] in ci  # CI runs exactly the README's test command
+
+
+@pytest.mark.slow
+def test_readme_api_tour_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    code = _tour().replace("progress=True", "progress=False")
+    if SHARED.is_dir():
+        code = code.replace('"../shared/data/carma"', repr(str(SHARED / "carma")))
+    else:
+        code = "\n".join(line for line in code.splitlines() if "shared/data" not in line)
+    monkeypatch.chdir(tmp_path)
+    ns: dict = {}
+    exec(compile(code, "README tour", "exec"), ns)
+    assert ns["codes"].shape == (400, 151, 121)
+    assert ns["th"].tg_min_overall == pytest.approx(3.5)
+    assert ns["res"].cost < 0.003
