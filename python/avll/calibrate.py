@@ -52,7 +52,7 @@ import numpy as np
 from . import _core
 from .data import Run
 from .models import LowerLevelModel, UpperLevel, model_class
-from .rollout import _concat, batch_cost, closed_loop, simulate
+from .rollout import batch_cost, closed_loop, pack_runs, simulate
 
 __all__ = [
     "DEFAULT_BOUNDS",
@@ -235,49 +235,12 @@ def _problem(
 ) -> _Problem:
     cls = model_class(model)
     runs = list(runs)
-    if not runs:
-        raise ValueError("runs: no runs given")
-    for r in runs:
-        if not isinstance(r, Run):
-            raise ValueError(f"runs: expected avll.Run objects, got {type(r).__name__}")
-    kinds = {r.command_kind for r in runs}
-    if len(kinds) != 1:
-        raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
-    if len(weights) != 3:
-        raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
-    w = (float(weights[0]), float(weights[1]), float(weights[2]))
     free = [_upper_index(u) for u in upper_free]
     if free and not closed_loop:
         raise ValueError("upper_free: the upper-level gains can only be calibrated in closed loop")
+    kw = pack_runs(runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=free)
+    w = kw["weights"]
     names, lo, hi, sc = _resolve_bounds(cls, free, bounds)
-    offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
-    upper = None
-    if closed_loop or any(r.upper is not None for r in runs):
-        rows = []
-        for r in runs:
-            if r.upper is None:
-                if closed_loop:
-                    raise ValueError(f"run {r.run_id!r}: closed loop needs its upper-level law")
-                rows.append(np.zeros(4))
-            else:
-                rows.append(r.upper.to_array())
-        upper = np.ascontiguousarray(np.vstack(rows))
-    kw = dict(
-        offsets=[int(o) for o in offsets],
-        dt=np.array([r.dt for r in runs], dtype=np.float64),
-        a=_concat(runs, "a", True),
-        command=None if closed_loop else _concat(runs, "command", True),
-        lead_x=_concat(runs, "lead_x", True) if closed_loop else None,
-        lead_v=_concat(runs, "lead_v", True) if closed_loop else None,
-        v=_concat(runs, "v", closed_loop or w[1] > 0) if (closed_loop or w[1] > 0) else None,
-        x=_concat(runs, "x", closed_loop or w[2] > 0) if (closed_loop or w[2] > 0) else None,
-        upper=upper,
-        upper_free=free,
-        command_kind=runs[0].command_kind,
-        weights=w,
-        init=init,
-        closed_loop=closed_loop,
-    )
     return _Problem(cls, runs, free, names, lo, hi, sc, kw, w, init, closed_loop)
 
 

@@ -38,7 +38,7 @@ import numpy as np
 from . import _core
 from .data import Run
 from .models import LowerLevelModel, UpperLevel, model_class
-from .rollout import Trajectory
+from .rollout import Trajectory, pack_runs
 
 __all__ = [
     "Effect",
@@ -408,18 +408,6 @@ def closed_loop_effects(
     return Trajectory(**d)
 
 
-def _concat(runs: Sequence[Run], attr: str, needed: bool) -> np.ndarray | None:
-    parts = [getattr(r, attr) for r in runs]
-    if all(p is None for p in parts):
-        if needed:
-            raise ValueError(f"runs: column {attr!r} is needed here but no run has it")
-        return None
-    for r, p in zip(runs, parts, strict=True):
-        if p is None:
-            raise ValueError(f"run {r.run_id!r}: column {attr!r} is missing")
-    return np.ascontiguousarray(np.concatenate(parts))
-
-
 def batch_cost_effects(
     base: str | type[LowerLevelModel],
     effects: Sequence[str],
@@ -454,24 +442,10 @@ def _batch_args(
     """The concatenated run arrays and options shared by the batched functions."""
     cls = model_class(base)
     names = canonical(list(effects))
-    if not runs:
-        raise ValueError("runs: no runs given")
-    kinds = {r.command_kind for r in runs}
-    if len(kinds) != 1:
-        raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
+    kw = pack_runs(
+        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
+    )
     p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
-    offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
-    upper = None
-    if closed_loop or any(r.upper is not None for r in runs):
-        rows = []
-        for r in runs:
-            if r.upper is None:
-                if closed_loop:
-                    raise ValueError(f"run {r.run_id!r}: closed loop needs its upper-level law")
-                rows.append(np.zeros(4))
-            else:
-                rows.append(r.upper.to_array())
-        upper = np.ascontiguousarray(np.vstack(rows))
     exo: dict[str, np.ndarray] = {}
     for n in names:
         sig = EFFECTS[n].exo
@@ -482,23 +456,7 @@ def _batch_args(
                         f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'"
                     )
             exo[sig] = np.ascontiguousarray(np.concatenate([r.exo[sig] for r in runs]))
-    kw: dict[str, Any] = dict(
-        offsets=[int(o) for o in offsets],
-        dt=np.array([r.dt for r in runs], dtype=np.float64),
-        a=_concat(runs, "a", True),
-        command=None if closed_loop else _concat(runs, "command", True),
-        lead_x=_concat(runs, "lead_x", closed_loop) if closed_loop else None,
-        lead_v=_concat(runs, "lead_v", closed_loop) if closed_loop else None,
-        v=_concat(runs, "v", closed_loop or weights[1] > 0),
-        x=_concat(runs, "x", closed_loop or weights[2] > 0),
-        upper=upper,
-        upper_free=[int(i) for i in upper_free],
-        command_kind=runs[0].command_kind,
-        weights=(float(weights[0]), float(weights[1]), float(weights[2])),
-        init=init,
-        closed_loop=closed_loop,
-        exo=exo,
-    )
+    kw["exo"] = exo
     return cls, names, p, kw
 
 

@@ -182,12 +182,38 @@ def batch_cost(
     ``params``. Invalid or unstable parameter sets cost ``inf``.
     """
     cls = model_class(model)
+    p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    kw = pack_runs(
+        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
+    )
+    return _core.batch_cost(cls.name, p, threads=int(threads), **kw)
+
+
+def pack_runs(
+    runs: Sequence[Run],
+    *,
+    weights: Sequence[float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    upper_free: Sequence[int] = (),
+) -> dict[str, Any]:
+    """The runs as the concatenated arrays and options of the Rust batched functions
+    (run ``r`` is ``offsets[r]:offsets[r+1]`` of every series; ``upper`` an (R, 4)
+    array). Every series present in all runs is passed; those the objective needs must
+    be present (the command in open loop, the leader in closed loop, ``v``/``x`` when
+    weighted or in closed loop)."""
+    runs = list(runs)
     if not runs:
         raise ValueError("runs: no runs given")
+    for r in runs:
+        if not isinstance(r, Run):
+            raise ValueError(f"runs: expected avll.Run objects, got {type(r).__name__}")
     kinds = {r.command_kind for r in runs}
     if len(kinds) != 1:
         raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
-    p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    if len(weights) != 3:
+        raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
+    wa, wv, wx = (float(w) for w in weights)
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
     upper = None
     if closed_loop or any(r.upper is not None for r in runs):
@@ -200,25 +226,19 @@ def batch_cost(
             else:
                 rows.append(r.upper.to_array())
         upper = np.ascontiguousarray(np.vstack(rows))
-    a = _concat(runs, "a", True)
-    assert a is not None
-    wa, wv, wx = (float(w) for w in weights)
-    return _core.batch_cost(
-        cls.name,
-        p,
-        [int(o) for o in offsets],
-        np.array([r.dt for r in runs], dtype=np.float64),
-        a,
+    return dict(
+        offsets=[int(o) for o in offsets],
+        dt=np.array([r.dt for r in runs], dtype=np.float64),
+        a=_concat(runs, "a", True),
         command=None if closed_loop else _concat(runs, "command", True),
-        lead_x=_concat(runs, "lead_x", closed_loop) if closed_loop else None,
-        lead_v=_concat(runs, "lead_v", closed_loop) if closed_loop else None,
-        v=_concat(runs, "v", closed_loop or weights[1] > 0),
-        x=_concat(runs, "x", closed_loop or weights[2] > 0),
+        lead_x=_concat(runs, "lead_x", True) if closed_loop else None,
+        lead_v=_concat(runs, "lead_v", True) if closed_loop else None,
+        v=_concat(runs, "v", closed_loop or wv > 0),
+        x=_concat(runs, "x", closed_loop or wx > 0),
         upper=upper,
         upper_free=[int(i) for i in upper_free],
         command_kind=runs[0].command_kind,
         weights=(wa, wv, wx),
         init=init,
         closed_loop=closed_loop,
-        threads=int(threads),
     )

@@ -1,10 +1,11 @@
 //! Bindings of the effects library (base model + effects rollouts, batched cost,
 //! linearisation).
 
+use super::runs::{runs_from_arrays, series};
 use super::{guard, slice1, slice2};
 use crate::effects::{engine, EffectKind, EffectList, Operating};
 use crate::model::{CommandKind, Linear, ModelKind};
-use crate::rollout::{CostSpec, Init, RunRef, Trajectory, Upper};
+use crate::rollout::{CostSpec, Init, Trajectory, Upper};
 use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -183,30 +184,6 @@ fn linearize_effects<'py>(
     Ok(d)
 }
 
-fn optional<'a>(
-    name: &str,
-    s: &'a Option<PyReadonlyArray1<'_, f64>>,
-    total: usize,
-) -> PyResult<Option<&'a [f64]>> {
-    match s {
-        None => Ok(None),
-        Some(arr) => {
-            let sl = slice1(name, arr)?;
-            if sl.len() != total {
-                return Err(PyValueError::new_err(format!(
-                    "{name}: has length {} but `a` has {total}",
-                    sl.len()
-                )));
-            }
-            Ok(Some(sl))
-        }
-    }
-}
-
-fn sub<'a>(s: Option<&'a [f64]>, offsets: &[usize], k: usize) -> Option<&'a [f64]> {
-    s.map(|s| &s[offsets[k]..offsets[k + 1]])
-}
-
 /// The cost specification of the batched functions (effects in canonical order).
 fn eff_spec(
     model: &str,
@@ -259,78 +236,17 @@ fn eff_runs<'a>(
     upper: &'a Option<PyReadonlyArray2<'_, f64>>,
     exo: &'a Exo<'_>,
 ) -> PyResult<Vec<engine::EffRun<'a>>> {
-    let a = slice1("a", a)?;
-    let total = a.len();
-    let (command, lead_x, lead_v, v, x) = (
-        optional("command", command, total)?,
-        optional("lead_x", lead_x, total)?,
-        optional("lead_v", lead_v, total)?,
-        optional("v", v, total)?,
-        optional("x", x, total)?,
-    );
+    let runs = runs_from_arrays(offsets, dt, a, command, lead_x, lead_v, v, x, upper)?;
+    let total = offsets[runs.len()];
     let mut exos = Vec::new();
     for (k, arr) in exo {
-        let name = format!("exo[{k:?}]");
-        let s = slice1(&name, arr)?;
-        if s.len() != total {
-            return Err(PyValueError::new_err(format!(
-                "{name}: has length {} but `a` has {total}",
-                s.len()
-            )));
-        }
-        exos.push((k.as_str(), s));
+        exos.push((k.as_str(), series(&format!("exo[{k:?}]"), arr, total)?));
     }
-    let dts = slice1("dt", dt)?;
-    let r = dts.len();
-    if offsets.len() != r + 1
-        || offsets[0] != 0
-        || offsets[r] != total
-        || offsets.windows(2).any(|w| w[0] > w[1])
-    {
-        return Err(PyValueError::new_err(format!(
-            "offsets: must be {} non-decreasing values from 0 to {total} (one more than dt)",
-            r + 1
-        )));
-    }
-    let uppers: Vec<Upper> = match upper {
-        None => vec![
-            Upper {
-                kg: 0.0,
-                kv: 0.0,
-                tg: 0.0,
-                gmin: 0.0
-            };
-            r
-        ],
-        Some(u) => {
-            let (ur, uc, us) = slice2("upper", u)?;
-            if ur != r || uc != 4 {
-                return Err(PyValueError::new_err(format!(
-                    "upper: must have shape ({r}, 4) (kg, kv, Tg, Gmin per run), got ({ur}, {uc})"
-                )));
-            }
-            us.chunks(4)
-                .map(|c| Upper {
-                    kg: c[0],
-                    kv: c[1],
-                    tg: c[2],
-                    gmin: c[3],
-                })
-                .collect()
-        }
-    };
-    Ok((0..r)
-        .map(|k| engine::EffRun {
-            run: RunRef {
-                dt: dts[k],
-                command: sub(command, offsets, k),
-                lead_x: sub(lead_x, offsets, k),
-                lead_v: sub(lead_v, offsets, k),
-                a: &a[offsets[k]..offsets[k + 1]],
-                v: sub(v, offsets, k),
-                x: sub(x, offsets, k),
-                upper: uppers[k],
-            },
+    Ok(runs
+        .into_iter()
+        .enumerate()
+        .map(|(k, run)| engine::EffRun {
+            run,
             exo: exos
                 .iter()
                 .map(|(n, s)| (*n, &s[offsets[k]..offsets[k + 1]]))

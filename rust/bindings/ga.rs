@@ -7,10 +7,11 @@
 //! problem sees at its next generation; the results are then the best so far,
 //! flagged `interrupted`.
 
-use super::{guard, slice1, slice2};
+use super::runs::runs_from_arrays;
+use super::{guard, slice2};
 use crate::ga::{self, Bounds, GaOptions, GaResult, Phase, Scale, StopReason};
 use crate::model::{CommandKind, ModelKind};
-use crate::rollout::{CostSpec, Init, RunRef, Upper};
+use crate::rollout::{CostSpec, Init};
 use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::{PyKeyboardInterrupt, PyValueError};
 use pyo3::prelude::*;
@@ -18,89 +19,6 @@ use pyo3::types::PyDict;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
-
-fn optional<'a>(
-    name: &str,
-    s: &'a Option<PyReadonlyArray1<'_, f64>>,
-    total: usize,
-) -> PyResult<Option<&'a [f64]>> {
-    match s {
-        None => Ok(None),
-        Some(arr) => {
-            let sl = slice1(name, arr)?;
-            if sl.len() != total {
-                return Err(PyValueError::new_err(format!(
-                    "{name}: has length {} but `a` has {total}",
-                    sl.len()
-                )));
-            }
-            Ok(Some(sl))
-        }
-    }
-}
-
-fn sub<'a>(s: Option<&'a [f64]>, offsets: &[usize], k: usize) -> Option<&'a [f64]> {
-    s.map(|s| &s[offsets[k]..offsets[k + 1]])
-}
-
-/// The concatenated-run arrays of `batch_cost`, split into runs.
-#[allow(clippy::too_many_arguments)]
-fn runs_from_arrays<'a>(
-    offsets: &[usize],
-    dts: &'a [f64],
-    a: &'a [f64],
-    command: Option<&'a [f64]>,
-    lead_x: Option<&'a [f64]>,
-    lead_v: Option<&'a [f64]>,
-    v: Option<&'a [f64]>,
-    x: Option<&'a [f64]>,
-    upper: Option<&'a [f64]>,
-) -> PyResult<Vec<RunRef<'a>>> {
-    let total = a.len();
-    let r = dts.len();
-    if offsets.len() != r + 1
-        || offsets[0] != 0
-        || offsets[r] != total
-        || offsets.windows(2).any(|w| w[0] > w[1])
-    {
-        return Err(PyValueError::new_err(format!(
-            "offsets: must be {} non-decreasing values from 0 to {total} (one more than dt)",
-            r + 1
-        )));
-    }
-    if let Some(u) = upper {
-        if u.len() != 4 * r {
-            return Err(PyValueError::new_err(format!(
-                "upper: must have shape ({r}, 4) (kg, kv, Tg, Gmin per run)"
-            )));
-        }
-    }
-    Ok((0..r)
-        .map(|k| RunRef {
-            dt: dts[k],
-            command: sub(command, offsets, k),
-            lead_x: sub(lead_x, offsets, k),
-            lead_v: sub(lead_v, offsets, k),
-            a: &a[offsets[k]..offsets[k + 1]],
-            v: sub(v, offsets, k),
-            x: sub(x, offsets, k),
-            upper: upper.map_or(
-                Upper {
-                    kg: 0.0,
-                    kv: 0.0,
-                    tg: 0.0,
-                    gmin: 0.0,
-                },
-                |u| Upper {
-                    kg: u[4 * k],
-                    kv: u[4 * k + 1],
-                    tg: u[4 * k + 2],
-                    gmin: u[4 * k + 3],
-                },
-            ),
-        })
-        .collect())
-}
 
 enum Msg {
     Progress {
@@ -240,29 +158,9 @@ fn calibrate<'py>(
         local_evals,
         initial,
     };
-    let a = slice1("a", &a)?;
-    let total = a.len();
-    let (command, lead_x, lead_v, v, x) = (
-        optional("command", &command, total)?,
-        optional("lead_x", &lead_x, total)?,
-        optional("lead_v", &lead_v, total)?,
-        optional("v", &v, total)?,
-        optional("x", &x, total)?,
-    );
-    let upper_s = match &upper {
-        None => None,
-        Some(u) => {
-            let (_, uc, us) = slice2("upper", u)?;
-            if uc != 4 {
-                return Err(PyValueError::new_err(
-                    "upper: must have 4 columns (kg, kv, Tg, Gmin per run)",
-                ));
-            }
-            Some(us)
-        }
-    };
-    let dts = slice1("dt", &dt)?;
-    let runs = runs_from_arrays(&offsets, dts, a, command, lead_x, lead_v, v, x, upper_s)?;
+    let runs = runs_from_arrays(
+        &offsets, &dt, &a, &command, &lead_x, &lead_v, &v, &x, &upper,
+    )?;
     let problems = problems.unwrap_or_else(|| vec![(0..runs.len()).collect()]);
     let n_problems = problems.len();
 

@@ -8,6 +8,7 @@
 mod effects;
 mod ga;
 mod rollout;
+mod runs;
 mod stability;
 
 use crate::error::AvllError;

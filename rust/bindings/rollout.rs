@@ -1,8 +1,9 @@
 //! Bindings of the models and rollouts.
 
+use super::runs::runs_from_arrays;
 use super::{guard, slice1, slice2};
 use crate::model::{CommandKind, ModelKind};
-use crate::rollout::{self, CostSpec, Init, RunRef, Upper};
+use crate::rollout::{self, CostSpec, Init, Upper};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -133,31 +134,6 @@ fn platoon<'py>(
     Ok(d)
 }
 
-/// An optional series that must have the total length of `a`.
-fn optional<'a>(
-    name: &str,
-    s: &'a Option<PyReadonlyArray1<'_, f64>>,
-    total: usize,
-) -> PyResult<Option<&'a [f64]>> {
-    match s {
-        None => Ok(None),
-        Some(arr) => {
-            let sl = slice1(name, arr)?;
-            if sl.len() != total {
-                return Err(PyValueError::new_err(format!(
-                    "{name}: has length {} but `a` has {total}",
-                    sl.len()
-                )));
-            }
-            Ok(Some(sl))
-        }
-    }
-}
-
-fn sub<'a>(s: Option<&'a [f64]>, offsets: &[usize], k: usize) -> Option<&'a [f64]> {
-    s.map(|s| &s[offsets[k]..offsets[k + 1]])
-}
-
 /// Per-run costs (Eq. 6) of many parameter rows over many runs, in parallel.
 ///
 /// Runs are concatenated: run `r` is `offsets[r]..offsets[r+1]` of every series.
@@ -204,66 +180,10 @@ fn batch_cost<'py>(
             spec.upper_free.len()
         )));
     }
-    let a = slice1("a", &a)?;
-    let total = a.len();
-    let (command, lead_x, lead_v, v, x) = (
-        optional("command", &command, total)?,
-        optional("lead_x", &lead_x, total)?,
-        optional("lead_v", &lead_v, total)?,
-        optional("v", &v, total)?,
-        optional("x", &x, total)?,
-    );
-    let dts = slice1("dt", &dt)?;
-    let r = dts.len();
-    if offsets.len() != r + 1
-        || offsets[0] != 0
-        || offsets[r] != total
-        || offsets.windows(2).any(|w| w[0] > w[1])
-    {
-        return Err(PyValueError::new_err(format!(
-            "offsets: must be {} non-decreasing values from 0 to {total} (one more than dt)",
-            r + 1
-        )));
-    }
-    let uppers: Vec<Upper> = match &upper {
-        None => vec![
-            Upper {
-                kg: 0.0,
-                kv: 0.0,
-                tg: 0.0,
-                gmin: 0.0
-            };
-            r
-        ],
-        Some(u) => {
-            let (ur, uc, us) = slice2("upper", u)?;
-            if ur != r || uc != 4 {
-                return Err(PyValueError::new_err(format!(
-                    "upper: must have shape ({r}, 4) (kg, kv, Tg, Gmin per run), got ({ur}, {uc})"
-                )));
-            }
-            us.chunks(4)
-                .map(|c| Upper {
-                    kg: c[0],
-                    kv: c[1],
-                    tg: c[2],
-                    gmin: c[3],
-                })
-                .collect()
-        }
-    };
-    let runs: Vec<RunRef> = (0..r)
-        .map(|k| RunRef {
-            dt: dts[k],
-            command: sub(command, &offsets, k),
-            lead_x: sub(lead_x, &offsets, k),
-            lead_v: sub(lead_v, &offsets, k),
-            a: &a[offsets[k]..offsets[k + 1]],
-            v: sub(v, &offsets, k),
-            x: sub(x, &offsets, k),
-            upper: uppers[k],
-        })
-        .collect();
+    let runs = runs_from_arrays(
+        &offsets, &dt, &a, &command, &lead_x, &lead_v, &v, &x, &upper,
+    )?;
+    let r = runs.len();
     let out = py.detach(|| {
         guard(|| {
             crate::parallel::with_threads(threads, || rollout::batch_cost(&spec, rows, &runs))?
