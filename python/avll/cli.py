@@ -25,6 +25,7 @@ _COMMANDS = [
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``avll`` argument parser with every registered sub-command."""
     parser = argparse.ArgumentParser(
         prog="avll",
         description="Lower-level controller models of automated vehicles: "
@@ -41,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

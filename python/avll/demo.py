@@ -59,6 +59,7 @@ def _cmd(args: argparse.Namespace) -> int:
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
+    """Registers this module's sub-command with the ``avll`` parser."""
     p = sub.add_parser("simulate", help="simulate the paper's three models on a built-in command")
     p.add_argument("--out", default="avll-out", help="output folder (default: avll-out)")
     p.add_argument("--dt", type=float, default=0.05, help="sample time in s (default: 0.05)")

@@ -466,6 +466,7 @@ class Diagnosis:
         return [c for c in self.candidates if c.significant]
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (the ``avll diagnose`` JSON contract)."""
         return {
             "model": self.model.name,
             "residual_rms": self.residual_rms,
@@ -872,6 +873,7 @@ class Step:
     bic_after: float
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (the ``avll diagnose`` JSON contract)."""
         return {
             "effect": self.effect,
             "params": self.params,
@@ -902,6 +904,7 @@ class LoopResult:
     upper: UpperLevel | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (the ``avll diagnose`` JSON contract)."""
         return {
             "upper": None if self.upper is None else {
                 "kg": self.upper.kg, "kv": self.upper.kv, "Tg": self.upper.Tg,
@@ -1193,6 +1196,7 @@ def _cmd(args: argparse.Namespace) -> int:
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
+    """Registers this module's sub-command with the ``avll`` parser."""
     p = sub.add_parser("diagnose", help="residual diagnosis and the add-effect loop")
     p.add_argument("data", help="runs in the canonical format (CSV/Parquet)")
     p.add_argument("--command-kind", choices=["acceleration", "speed"], default=None)

@@ -121,6 +121,7 @@ class FirstOrderLag(LowerLevelModel):
         _check("Td", self.Td, positive=True)
 
     def linear(self) -> dict[str, float]:
+        """``1/(Td s + 1)``: no dead time, the lag time constant as ``a1``."""
         return {"b1": 0.0, "b0": 1.0, "a2": 0.0, "a1": self.Td, "Td": 0.0, "K": 0.0}
 
 
@@ -142,6 +143,7 @@ class SecondOrder(LowerLevelModel):
         _check("Td", self.Td, nonneg=True)
 
     def linear(self) -> dict[str, float]:
+        """``K0 e^{-Td s}/(m2 s^2 + m3 s + 1)`` in the common form (``K = 0``)."""
         return {"b1": 0.0, "b0": self.K0, "a2": self.m2, "a1": self.m3, "Td": self.Td, "K": 0.0}
 
 
@@ -167,6 +169,8 @@ class Proposed(LowerLevelModel):
         _check("K", self.K)
 
     def linear(self) -> dict[str, float]:
+        """The paper's parameters in the common form: ``b1 = m1, b0 = K0, a2 = m2,
+        a1 = m3``."""
         return {
             "b1": self.m1,
             "b0": self.K0,
@@ -196,6 +200,7 @@ class UpperLevel:
         return self.kg * (lead_x - x - self.Tg * v - self.Gmin) + self.kv * (lead_v - v)
 
     def to_array(self) -> np.ndarray:
+        """``[kg, kv, Tg, Gmin]`` as float64."""
         return np.array([self.kg, self.kv, self.Tg, self.Gmin], dtype=np.float64)
 
 

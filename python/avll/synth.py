@@ -162,6 +162,7 @@ def _cmd(args: argparse.Namespace) -> int:
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
+    """Registers this module's sub-command with the ``avll`` parser."""
     p = sub.add_parser(
         "synth", help="write the synthetic 21-run experiment in the canonical format"
     )
