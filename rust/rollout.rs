@@ -770,11 +770,7 @@ fn cost_open_full<const N: usize>(lin: &Linear, spec: &CostSpec, run: &RunRef) -
         },
     );
     let n = u.len() as f64;
-    Ok(if ok {
-        (wa * sa + wv * sv + wx * sx) / n
-    } else {
-        f64::INFINITY
-    })
+    Ok(weighted_mse(ok, [wa, wv, wx], [sa, sv, sx], n))
 }
 
 fn cost_closed<const N: usize>(
@@ -814,11 +810,7 @@ fn cost_closed<const N: usize>(
         },
     );
     let n = lx.len() as f64;
-    Ok(if ok {
-        (wa * sa + wv * sv + wx * sx) / n
-    } else {
-        f64::INFINITY
-    })
+    Ok(weighted_mse(ok, [wa, wv, wx], [sa, sv, sx], n))
 }
 
 /// Costs of `P` parameter rows (row-major, `spec.n_params()` each) on every run:
@@ -826,7 +818,19 @@ fn cost_closed<const N: usize>(
 /// unstable rows get `inf`. Validates the spec and the runs first.
 pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Vec<f64>> {
     spec.validate(runs)?;
-    let np = spec.n_params();
+    cost_matrix(spec.n_params(), params, runs, |row, run| {
+        run_cost(spec, row, run)
+    })
+}
+
+/// Evaluates `cost(row, run)` for every parameter row (row-major, `np` values each) and
+/// every run, in parallel: a `P x R` row-major matrix. Shared by every batched cost.
+pub fn cost_matrix<R: Sync>(
+    np: usize,
+    params: &[f64],
+    runs: &[R],
+    cost: impl Fn(&[f64], &R) -> f64 + Sync,
+) -> Result<Vec<f64>> {
     if np == 0 || !params.len().is_multiple_of(np) {
         return Err(AvllError::new(
             "params",
@@ -841,9 +845,19 @@ pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Ve
     let mut out = vec![0.0; p * r];
     out.par_iter_mut().enumerate().for_each(|(k, o)| {
         let (i, j) = (k / r, k % r);
-        *o = run_cost(spec, &params[i * np..(i + 1) * np], &runs[j]);
+        *o = cost(&params[i * np..(i + 1) * np], &runs[j]);
     });
     Ok(out)
+}
+
+/// The Eq. 6 run cost from the sums of squared errors of acceleration, speed and
+/// position over `n` samples: `sum(w s) / n`, or `inf` when the rollout diverged.
+pub fn weighted_mse(ok: bool, w: [f64; 3], sums: [f64; 3], n: f64) -> f64 {
+    if ok {
+        (w[0] * sums[0] + w[1] * sums[1] + w[2] * sums[2]) / n
+    } else {
+        f64::INFINITY
+    }
 }
 
 /// Mean over runs of the per-run costs (Eq. 6) for each row of a `P x R` matrix.

@@ -26,7 +26,6 @@ use crate::discretize::{discretize, equilibrium, Discrete, Integrators};
 use crate::error::{check_series, AvllError, Result};
 use crate::model::{CommandKind, Linear};
 use crate::rollout::{CostSpec, Init, RunRef, Trajectory, Upper, DIVERGED};
-use rayon::prelude::*;
 
 #[inline(always)]
 fn dot<const N: usize>(a: &[f64; N], x: &[f64; N]) -> f64 {
@@ -628,11 +627,12 @@ fn cost_n<const N: usize>(
         },
     );
     let n = len as f64;
-    Ok(if ok {
-        (wa * sa + wv * sv + wx * sx) / n
-    } else {
-        f64::INFINITY
-    })
+    Ok(crate::rollout::weighted_mse(
+        ok,
+        [wa, wv, wx],
+        [sa, sv, sx],
+        n,
+    ))
 }
 
 /// Per-run costs of `P` rows (row-major, `spec.n_params()` each) on every run: a
@@ -640,24 +640,9 @@ fn cost_n<const N: usize>(
 /// `inf`, never NaN. Validates the spec and the runs first.
 pub fn batch_cost(spec: &EffCostSpec, params: &[f64], runs: &[EffRun]) -> Result<Vec<f64>> {
     spec.validate(runs)?;
-    let np = spec.n_params();
-    if np == 0 || !params.len().is_multiple_of(np) {
-        return Err(AvllError::new(
-            "params",
-            format!(
-                "length {} is not a multiple of the row length {np}",
-                params.len()
-            ),
-        ));
-    }
-    let p = params.len() / np;
-    let r = runs.len();
-    let mut out = vec![0.0; p * r];
-    out.par_iter_mut().enumerate().for_each(|(k, o)| {
-        let (i, j) = (k / r, k % r);
-        *o = run_cost(spec, &params[i * np..(i + 1) * np], &runs[j]);
-    });
-    Ok(out)
+    crate::rollout::cost_matrix(spec.n_params(), params, runs, |row, run| {
+        run_cost(spec, row, run)
+    })
 }
 
 #[cfg(test)]
