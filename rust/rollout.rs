@@ -12,9 +12,7 @@
 //! Closed loop and platoons start the lower level at rest (zero acceleration,
 //! zero history); the follower's speed and position start at the given values.
 
-use crate::discretize::{
-    discretize, equilibrium, inner_loop_stable, split_delay, Discrete, Integrators,
-};
+use crate::discretize::{discretize, equilibrium, inner_loop_stable, Discrete, Integrators};
 use crate::error::{check_series, AvllError, Result};
 use crate::model::{CommandKind, Linear, ModelKind};
 use rayon::prelude::*;
@@ -858,19 +856,6 @@ pub fn weighted_mse(ok: bool, w: [f64; 3], sums: [f64; 3], n: f64) -> f64 {
     } else {
         f64::INFINITY
     }
-}
-
-/// Mean over runs of the per-run costs (Eq. 6) for each row of a `P x R` matrix.
-pub fn mean_over_runs(costs: &[f64], r: usize) -> Vec<f64> {
-    costs
-        .chunks(r)
-        .map(|c| finite_or_inf(c.iter().sum::<f64>() / r as f64))
-        .collect()
-}
-
-/// Fractional-delay split, re-exported for callers that report it.
-pub fn delay_split(td: f64, dt: f64) -> (usize, f64) {
-    split_delay(td, dt)
 }
 
 #[cfg(test)]

@@ -570,3 +570,11 @@ def test_diverging_follower_is_nan_after_the_divergence() -> None:
         assert np.all(np.isnan(getattr(tr, key)[k:])) and np.all(np.isfinite(getattr(tr, key)[:k]))
     plat = avll.platoon(m, lx, lv, DT, avll.UpperLevel(0.5, 0.0, 2.0, 9.5), 2)
     assert np.isnan(plat.a[1, -1])  # and so are the followers behind it
+
+
+def test_rust_and_python_model_registries_agree() -> None:
+    """The Rust registry's parameter names equal the Python parameter objects'."""
+    for name, cls in avll.MODELS.items():
+        assert tuple(_core.model_params(name)) == cls.param_names()
+    with pytest.raises(ValueError, match="unknown model"):
+        _core.model_params("third")
