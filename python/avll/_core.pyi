@@ -7,6 +7,30 @@ import numpy.typing as npt
 
 __version__: str
 
+# --- run sets (rust/bindings/runs.rs) ---
+class RunSet:
+    def __new__(
+        cls,
+        offsets: list[int],
+        dt: npt.NDArray[np.float64],
+        a: npt.NDArray[np.float64],
+        command: npt.NDArray[np.float64] | None = None,
+        lead_x: npt.NDArray[np.float64] | None = None,
+        lead_v: npt.NDArray[np.float64] | None = None,
+        v: npt.NDArray[np.float64] | None = None,
+        x: npt.NDArray[np.float64] | None = None,
+        upper: npt.NDArray[np.float64] | None = None,
+        exo: dict[str, npt.NDArray[np.float64]] = ...,
+    ) -> RunSet: ...
+    def __len__(self) -> int: ...
+    @property
+    def total(self) -> int: ...
+    @property
+    def offsets(self) -> list[int]: ...
+    @property
+    def exo_names(self) -> list[str]: ...
+
+# --- rollouts, costs (rust/bindings/rollout.rs) ---
 def model_params(model: str) -> list[str]: ...
 def simulate(
     model: str,
@@ -24,6 +48,9 @@ def simulate_full(
     init: str = "rest",
     v0: float = 0.0,
     x0: float = 0.0,
+    effects: list[str] = ...,
+    effect_params: list[float] = ...,
+    exo: dict[str, npt.NDArray[np.float64]] = ...,
 ) -> dict[str, npt.NDArray[np.float64]]: ...
 def closed_loop(
     model: str,
@@ -37,6 +64,9 @@ def closed_loop(
     gmin: float,
     v0: float,
     x0: float,
+    effects: list[str] = ...,
+    effect_params: list[float] = ...,
+    exo: dict[str, npt.NDArray[np.float64]] = ...,
 ) -> dict[str, npt.NDArray[np.float64]]: ...
 def platoon(
     model: str,
@@ -53,15 +83,8 @@ def platoon(
 def batch_cost(
     model: str,
     params: npt.NDArray[np.float64],
-    offsets: list[int],
-    dt: npt.NDArray[np.float64],
-    a: npt.NDArray[np.float64],
-    command: npt.NDArray[np.float64] | None = None,
-    lead_x: npt.NDArray[np.float64] | None = None,
-    lead_v: npt.NDArray[np.float64] | None = None,
-    v: npt.NDArray[np.float64] | None = None,
-    x: npt.NDArray[np.float64] | None = None,
-    upper: npt.NDArray[np.float64] | None = None,
+    runs: RunSet,
+    effects: list[str] = ...,
     upper_free: list[int] = ...,
     command_kind: str = "acceleration",
     weights: tuple[float, float, float] = ...,
@@ -69,20 +92,27 @@ def batch_cost(
     closed_loop: bool = False,
     threads: int = 0,
 ) -> npt.NDArray[np.float64]: ...
+def simulate_batch(
+    model: str,
+    params: npt.NDArray[np.float64],
+    runs: RunSet,
+    effects: list[str] = ...,
+    upper_free: list[int] = ...,
+    command_kind: str = "acceleration",
+    weights: tuple[float, float, float] = ...,
+    init: str = "rest",
+    closed_loop: bool = False,
+    threads: int = 0,
+) -> dict[str, npt.NDArray[np.float64]]: ...
+
+# --- calibration (rust/bindings/ga.rs) ---
 def calibrate(
     model: str,
-    offsets: list[int],
-    dt: npt.NDArray[np.float64],
-    a: npt.NDArray[np.float64],
+    runs: RunSet,
     lower_bounds: list[float],
     upper_bounds: list[float],
     scale: list[str],
-    command: npt.NDArray[np.float64] | None = None,
-    lead_x: npt.NDArray[np.float64] | None = None,
-    lead_v: npt.NDArray[np.float64] | None = None,
-    v: npt.NDArray[np.float64] | None = None,
-    x: npt.NDArray[np.float64] | None = None,
-    upper: npt.NDArray[np.float64] | None = None,
+    effects: list[str] = ...,
     upper_free: list[int] = ...,
     command_kind: str = "acceleration",
     weights: tuple[float, float, float] = ...,
@@ -91,24 +121,7 @@ def calibrate(
     problems: list[list[int]] | None = None,
     derive_seeds: bool = True,
     stop_all_at_target: bool = False,
-    seed: int = 0,
-    pop_size: int = 0,
-    max_generations: int = 300,
-    stall_generations: int = 20,
-    ftol: float = 0.0001,
-    xtol: float = 1e-08,
-    target: float = ...,
-    tournament: int = 2,
-    crossover_prob: float = 0.9,
-    eta_c: float = 10.0,
-    mutation_prob: float = 0.0,
-    eta_m: float = 20.0,
-    plus: bool = True,
-    elite: int = 0,
-    polish: bool = True,
-    polish_max_evals: int = 0,
-    local_every: int = 3,
-    local_evals: int = 0,
+    options: dict[str, Any] | None = None,
     initial: npt.NDArray[np.float64] | None = None,
     progress: Callable[[dict[str, Any]], Any] | None = None,
     threads: int = 0,
@@ -149,35 +162,6 @@ def pade_den(order: int, td: float) -> list[float]: ...
 
 # --- effects (rust/bindings/effects.rs) ---
 def effect_info() -> list[dict[str, object]]: ...
-def simulate_effects(
-    model: str,
-    params: list[float],
-    effects: list[str],
-    effect_params: list[float],
-    command: npt.NDArray[np.float64],
-    dt: float,
-    command_kind: str = "acceleration",
-    init: str = "rest",
-    v0: float = 0.0,
-    x0: float = 0.0,
-    exo: dict[str, npt.NDArray[np.float64]] = ...,
-) -> dict[str, npt.NDArray[np.float64]]: ...
-def closed_loop_effects(
-    model: str,
-    params: list[float],
-    effects: list[str],
-    effect_params: list[float],
-    lead_x: npt.NDArray[np.float64],
-    lead_v: npt.NDArray[np.float64],
-    dt: float,
-    kg: float,
-    kv: float,
-    tg: float,
-    gmin: float,
-    v0: float,
-    x0: float,
-    exo: dict[str, npt.NDArray[np.float64]] = ...,
-) -> dict[str, npt.NDArray[np.float64]]: ...
 def linearize_effects(
     model: str,
     params: list[float],
@@ -187,56 +171,3 @@ def linearize_effects(
     side: int = 0,
     command_kind: str = "acceleration",
 ) -> dict[str, float]: ...
-def batch_cost_effects(
-    model: str,
-    effects: list[str],
-    params: npt.NDArray[np.float64],
-    offsets: list[int],
-    dt: npt.NDArray[np.float64],
-    a: npt.NDArray[np.float64],
-    command: npt.NDArray[np.float64] | None = None,
-    lead_x: npt.NDArray[np.float64] | None = None,
-    lead_v: npt.NDArray[np.float64] | None = None,
-    v: npt.NDArray[np.float64] | None = None,
-    x: npt.NDArray[np.float64] | None = None,
-    upper: npt.NDArray[np.float64] | None = None,
-    upper_free: list[int] = ...,
-    command_kind: str = "acceleration",
-    weights: tuple[float, float, float] = ...,
-    init: str = "rest",
-    closed_loop: bool = False,
-    exo: dict[str, npt.NDArray[np.float64]] = ...,
-    threads: int = 0,
-) -> npt.NDArray[np.float64]: ...
-def calibrate_effects(
-    model: str,
-    effects: list[str],
-    offsets: list[int],
-    dt: npt.NDArray[np.float64],
-    a: npt.NDArray[np.float64],
-    lower_bounds: list[float],
-    upper_bounds: list[float],
-    scale: list[str],
-    command: npt.NDArray[np.float64] | None = None,
-    lead_x: npt.NDArray[np.float64] | None = None,
-    lead_v: npt.NDArray[np.float64] | None = None,
-    v: npt.NDArray[np.float64] | None = None,
-    x: npt.NDArray[np.float64] | None = None,
-    upper: npt.NDArray[np.float64] | None = None,
-    upper_free: list[int] = ...,
-    command_kind: str = "acceleration",
-    weights: tuple[float, float, float] = ...,
-    init: str = "rest",
-    closed_loop: bool = False,
-    exo: dict[str, npt.NDArray[np.float64]] = ...,
-    seed: int = 0,
-    pop_size: int = 0,
-    max_generations: int = 300,
-    stall_generations: int = 20,
-    ftol: float = 1e-4,
-    polish: bool = True,
-    local_every: int = 3,
-    initial: npt.NDArray[np.float64] | None = None,
-    progress: Callable[[dict[str, object]], object] | None = None,
-    threads: int = 0,
-) -> dict[str, object]: ...

@@ -370,6 +370,8 @@ def _run(
     else:
         bar = _Bar(bool(progress), n_problems * ga["max_generations"], desc, n_problems)
     try:
+        ga["seed"] = int(seed)
+        ga["target"] = -math.inf if target is None else float(target)
         return _core.calibrate(
             prob.cls.name,
             lower_bounds=prob.lower,
@@ -378,12 +380,10 @@ def _run(
             problems=problems,
             derive_seeds=derive_seeds,
             stop_all_at_target=stop_all_at_target,
-            seed=int(seed),
-            target=-math.inf if target is None else float(target),
+            options=ga,
             initial=_initial(prob, initial),
             progress=bar if (callable(progress) or progress) else None,
             threads=int(threads),
-            **ga,
             **prob.kw,
         )
     finally:
@@ -446,16 +446,16 @@ def calibrate(
     raw["evaluations"] = sum(int(r["evaluations"]) for r in raws)
     raw["interrupted"] = any(bool(r["interrupted"]) for r in raws)
     start_seed = int(seed) if n == 1 else _core.derive_seed(int(seed), best)
-    per_run = _per_run(prob, np.asarray(raw["x"]), prob.runs, threads)
-    res = _result(prob, raw, prob.runs, start_seed, per_run)
+    res = _result(prob, raw, prob.runs, start_seed, _per_run(raw, len(prob.runs)))
     return replace(res, start_costs=tuple(float(r["f"]) for r in raws))
 
 
-def _per_run(prob: _Problem, x: np.ndarray, runs: Sequence[Run], threads: int) -> np.ndarray:
-    return batch_cost(
-        prob.cls, x[None, :], runs, weights=prob.weights, init=prob.init,
-        closed_loop=prob.closed_loop, upper_free=prob.free, threads=threads,
-    )[0]  # fmt: skip
+def _per_run(raw: Mapping[str, Any], n_runs: int) -> np.ndarray:
+    """The per-run costs the GA returned for its best parameters (NaN for runs not in
+    the problem)."""
+    out = np.full(n_runs, np.nan)
+    out[np.asarray(raw["per_run_index"], dtype=np.int64)] = raw["per_run_cost"]
+    return out
 
 
 def _subset_indices(runs: Sequence[Run], subset: Sequence[Any], k: int) -> list[int]:
@@ -534,7 +534,7 @@ def calibrate_many(
         raw["interrupted"] = any(bool(r["interrupted"]) for r in group)
         uniq = sorted(set(sub))
         rs = [prob.runs[i] for i in uniq]
-        per_run = _per_run(prob, np.asarray(raw["x"]), rs, threads)
+        per_run = _per_run(raw, len(prob.runs))[uniq]
         res = _result(prob, raw, rs, _core.derive_seed(int(seed), k * n_st + j), per_run)
         out.append(replace(res, start_costs=tuple(float(r["f"]) for r in group)))
     return out

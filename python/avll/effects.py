@@ -380,9 +380,9 @@ def simulate_effects(
     """Open-loop rollout of a base model with effects (as :func:`avll.simulate_full`;
     ``exo`` maps exogenous signal names, e.g. ``"grade"``, to arrays)."""
     b, p, en, ep = _split(model)
-    d = _core.simulate_effects(
-        b, p, en, ep, _f64("command", command), float(dt), command_kind, init,
-        float(v0), float(x0), _exo(exo),
+    d = _core.simulate_full(
+        b, p, _f64("command", command), float(dt), command_kind, init, float(v0), float(x0),
+        effects=en, effect_params=ep, exo=_exo(exo),
     )  # fmt: skip
     return Trajectory(**d)
 
@@ -401,9 +401,10 @@ def closed_loop_effects(
     """Closed-loop car following of a base model with effects behind a recorded
     leader (as :func:`avll.closed_loop`)."""
     b, p, en, ep = _split(model)
-    d = _core.closed_loop_effects(
-        b, p, en, ep, _f64("lead_x", lead_x), _f64("lead_v", lead_v), float(dt),
-        upper.kg, upper.kv, upper.Tg, upper.Gmin, float(v0), float(x0), _exo(exo),
+    d = _core.closed_loop(
+        b, p, _f64("lead_x", lead_x), _f64("lead_v", lead_v), float(dt),
+        upper.kg, upper.kv, upper.Tg, upper.Gmin, float(v0), float(x0),
+        effects=en, effect_params=ep, exo=_exo(exo),
     )  # fmt: skip
     return Trajectory(**d)
 
@@ -425,7 +426,7 @@ def batch_cost_effects(
     Invalid or unstable rows cost ``inf``."""
     cls, names, p, kw = _batch_args(base, effects, params, runs, weights=weights, init=init,
                                     closed_loop=closed_loop, upper_free=upper_free)  # fmt: skip
-    return _core.batch_cost_effects(cls.name, list(names), p, threads=int(threads), **kw)
+    return _core.batch_cost(cls.name, p, effects=list(names), threads=int(threads), **kw)
 
 
 def _batch_args(
@@ -446,7 +447,6 @@ def _batch_args(
         runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
     )
     p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
-    exo: dict[str, np.ndarray] = {}
     for n in names:
         sig = EFFECTS[n].exo
         if sig is not None:
@@ -455,8 +455,6 @@ def _batch_args(
                     raise ValueError(
                         f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'"
                     )
-            exo[sig] = np.ascontiguousarray(np.concatenate([r.exo[sig] for r in runs]))
-    kw["exo"] = exo
     return cls, names, p, kw
 
 
@@ -489,11 +487,12 @@ def calibrate_effects(
                                     init=init, closed_loop=closed_loop,
                                     upper_free=upper_free)  # fmt: skip
     ini = None if initial is None else np.ascontiguousarray(np.atleast_2d(initial), dtype=float)
+    opts = {"seed": int(seed), "max_generations": int(max_generations), "pop_size": int(pop_size)}
     return dict(
-        _core.calibrate_effects(
-            cls.name, list(names), kw.pop("offsets"), kw.pop("dt"), kw.pop("a"),
-            [float(x) for x in lower], [float(x) for x in upper], [str(x) for x in scale],
-            seed=int(seed), max_generations=int(max_generations), pop_size=int(pop_size),
-            initial=ini, progress=progress, threads=int(threads), **kw,
-        )
+        _core.calibrate(
+            cls.name, lower_bounds=[float(x) for x in lower],
+            upper_bounds=[float(x) for x in upper], scale=[str(x) for x in scale],
+            effects=list(names), options=opts, initial=ini, progress=progress,
+            threads=int(threads), **kw,
+        )[0]
     )  # fmt: skip

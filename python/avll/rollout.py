@@ -197,10 +197,11 @@ def pack_runs(
     closed_loop: bool = False,
     upper_free: Sequence[int] = (),
 ) -> dict[str, Any]:
-    """The runs as the concatenated arrays and options of the Rust batched functions
-    (run ``r`` is ``offsets[r]:offsets[r+1]`` of every series; ``upper`` an (R, 4)
-    array). Every series present in all runs is passed; those the objective needs must
-    be present (the command in open loop, the leader in closed loop, ``v``/``x`` when
+    """The runs packed once into a Rust run set (``runs``, an ``avll._core.RunSet``:
+    run ``r`` is ``offsets[r]:offsets[r+1]`` of every series) with the cost options of
+    the batched functions. Every series present in all runs is packed, and every
+    exogenous series (``exo``) that all runs have; those the objective needs must be
+    present (the command in open loop, the leader in closed loop, ``v``/``x`` when
     weighted or in closed loop)."""
     runs = list(runs)
     if not runs:
@@ -226,19 +227,62 @@ def pack_runs(
             else:
                 rows.append(r.upper.to_array())
         upper = np.ascontiguousarray(np.vstack(rows))
-    return dict(
-        offsets=[int(o) for o in offsets],
-        dt=np.array([r.dt for r in runs], dtype=np.float64),
-        a=_concat(runs, "a", True),
+    exo: dict[str, np.ndarray] = {}
+    for name in sorted(set.intersection(*(set(r.exo) for r in runs))):
+        exo[name] = np.ascontiguousarray(np.concatenate([r.exo[name] for r in runs]))
+    packed = _core.RunSet(
+        [int(o) for o in offsets],
+        np.array([r.dt for r in runs], dtype=np.float64),
+        _concat(runs, "a", True),
         command=None if closed_loop else _concat(runs, "command", True),
         lead_x=_concat(runs, "lead_x", True) if closed_loop else None,
         lead_v=_concat(runs, "lead_v", True) if closed_loop else None,
         v=_concat(runs, "v", closed_loop or wv > 0),
         x=_concat(runs, "x", closed_loop or wx > 0),
         upper=upper,
+        exo=exo,
+    )
+    return dict(
+        runs=packed,
         upper_free=[int(i) for i in upper_free],
         command_kind=runs[0].command_kind,
         weights=(wa, wv, wx),
         init=init,
         closed_loop=closed_loop,
     )
+
+
+def simulate_batch(
+    model: str | type[LowerLevelModel],
+    params: Any,
+    runs: Sequence[Run],
+    *,
+    effects: Sequence[str] = (),
+    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    upper_free: Sequence[int] = (),
+    threads: int = 0,
+) -> dict[str, Any]:
+    """Simulates P parameter rows on R runs in one parallel call, exactly as the cost
+    sees them (same drive, initial state, effects and free upper-level gains).
+
+    Rows are ``[model | effects (canonical order) | free upper]``. Returns a dict with
+    ``a``, ``v``, ``x`` (each a list over runs of (P, len(run)) arrays) and
+    ``residual`` (simulated minus measured acceleration, same shapes). Rows the cost
+    calls invalid or unstable are NaN; a closed loop that diverges is NaN after the
+    divergence.
+    """
+    cls = model_class(model)
+    p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    runs = list(runs)
+    kw = pack_runs(
+        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
+    )
+    d = _core.simulate_batch(cls.name, p, effects=list(effects), threads=int(threads), **kw)
+    off = kw["runs"].offsets
+    out: dict[str, Any] = {}
+    for k in ("a", "v", "x"):
+        out[k] = [d[k][:, off[j] : off[j + 1]] for j in range(len(runs))]
+    out["residual"] = [out["a"][j] - runs[j].a[None, :] for j in range(len(runs))]
+    return out

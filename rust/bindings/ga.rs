@@ -1,4 +1,5 @@
-//! Bindings of the GA calibration (`avll.calibrate` uses them).
+//! The one calibration binding (`avll.calibrate`, `avll.calibrate_many`,
+//! `avll.bootstrap` and the diagnosis use it), with its progress and Ctrl-C path.
 //!
 //! The GA runs on a scoped worker thread (inside the requested rayon pool) with the
 //! GIL released; the calling thread waits for per-generation progress messages and,
@@ -7,12 +8,12 @@
 //! problem sees at its next generation; the results are then the best so far,
 //! flagged `interrupted`.
 
-use super::runs::runs_from_arrays;
+use super::rollout::cost_spec;
+use super::runs::RunSet;
 use super::{guard, slice2};
-use crate::ga::{self, Bounds, GaOptions, GaResult, Phase, Scale, StopReason};
-use crate::model::{CommandKind, ModelKind};
-use crate::rollout::{CostSpec, Init};
-use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
+use crate::ga::{self, Bounds, GaOptions, Phase, Scale, StopReason};
+use crate::optimize::calibrate::Calibration;
+use numpy::{IntoPyArray, PyReadonlyArray2};
 use pyo3::exceptions::{PyKeyboardInterrupt, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -31,7 +32,12 @@ enum Msg {
     Done,
 }
 
-fn result_dict<'py>(py: Python<'py>, r: GaResult, by_user: bool) -> PyResult<Bound<'py, PyDict>> {
+fn result_dict<'py>(
+    py: Python<'py>,
+    c: Calibration,
+    by_user: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let r = c.ga;
     let d = PyDict::new(py);
     // A callback stop is an interrupt when the user asked for it; otherwise another
     // start of the same problem reached the target (`stop_all_at_target`).
@@ -49,41 +55,77 @@ fn result_dict<'py>(py: Python<'py>, r: GaResult, by_user: bool) -> PyResult<Bou
     d.set_item("stop", stop)?;
     d.set_item("interrupted", interrupted)?;
     d.set_item("history", r.history.into_pyarray(py))?;
+    let (idx, cost): (Vec<usize>, Vec<f64>) = c.per_run.into_iter().unzip();
+    d.set_item("per_run_index", idx)?;
+    d.set_item("per_run_cost", cost.into_pyarray(py))?;
     Ok(d)
 }
 
-/// Calibrates a model by the GA on Eq. 6: one problem over all runs, or many
-/// independent problems (`problems`: run-index lists, repeats allowed) solved in
-/// parallel. Returns one dict per problem (x, f, f_ga, generations, evaluations,
-/// stop, interrupted, history). With `stop_all_at_target`, every problem stops once
-/// any reaches `target` (independent starts of one problem).
+/// GA options from a dict (`None`: the defaults); unknown keys are refused.
+fn ga_options(options: Option<&Bound<'_, PyDict>>, initial: Vec<Vec<f64>>) -> PyResult<GaOptions> {
+    let mut o = GaOptions {
+        initial,
+        ..GaOptions::default()
+    };
+    let Some(d) = options else {
+        return Ok(o);
+    };
+    for (k, v) in d.iter() {
+        let key: String = k.extract()?;
+        let bad = |e: PyErr| PyValueError::new_err(format!("{key}: {e}"));
+        match key.as_str() {
+            "seed" => o.seed = v.extract().map_err(bad)?,
+            "pop_size" => o.pop_size = v.extract().map_err(bad)?,
+            "max_generations" => o.max_generations = v.extract().map_err(bad)?,
+            "stall_generations" => o.stall_generations = v.extract().map_err(bad)?,
+            "ftol" => o.ftol = v.extract().map_err(bad)?,
+            "xtol" => o.xtol = v.extract().map_err(bad)?,
+            "target" => o.target = v.extract().map_err(bad)?,
+            "tournament" => o.tournament = v.extract().map_err(bad)?,
+            "crossover_prob" => o.crossover_prob = v.extract().map_err(bad)?,
+            "eta_c" => o.eta_c = v.extract().map_err(bad)?,
+            "mutation_prob" => o.mutation_prob = v.extract().map_err(bad)?,
+            "eta_m" => o.eta_m = v.extract().map_err(bad)?,
+            "plus" => o.plus = v.extract().map_err(bad)?,
+            "elite" => o.elite = v.extract().map_err(bad)?,
+            "polish" => o.polish = v.extract().map_err(bad)?,
+            "polish_max_evals" => o.polish_max_evals = v.extract().map_err(bad)?,
+            "local_every" => o.local_every = v.extract().map_err(bad)?,
+            "local_evals" => o.local_evals = v.extract().map_err(bad)?,
+            _ => {
+                return Err(PyValueError::new_err(format!(
+                    "options: unknown GA option {key:?}"
+                )))
+            }
+        }
+    }
+    Ok(o)
+}
+
+/// The one calibration binding: the GA on Eq. 6 for any cost (model with effects,
+/// open or closed loop, free upper-level gains) over a run set — one problem over
+/// all runs, or many independent problems (`problems`: run-index lists, repeats
+/// allowed) solved in parallel. `options` is a dict of GA options (seed, pop_size,
+/// max_generations, ..., see `GaOptions`). Returns one dict per problem (x, f, f_ga,
+/// generations, evaluations, stop, interrupted, history, per_run: the run indices
+/// and Eq. 6 run costs of the best parameters). With `stop_all_at_target`, every
+/// problem stops once any reaches the target (independent starts of one problem).
 #[pyfunction]
 #[pyo3(signature = (
-    model, offsets, dt, a, lower_bounds, upper_bounds, scale,
-    command=None, lead_x=None, lead_v=None, v=None, x=None, upper=None,
+    model, runs, lower_bounds, upper_bounds, scale, effects=Vec::new(),
     upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0),
     init="rest", closed_loop=false, problems=None, derive_seeds=true, stop_all_at_target=false,
-    seed=0, pop_size=0, max_generations=300, stall_generations=20, ftol=1e-4,
-    xtol=1e-8, target=f64::NEG_INFINITY, tournament=2, crossover_prob=0.9, eta_c=10.0,
-    mutation_prob=0.0, eta_m=20.0, plus=true, elite=0, polish=true, polish_max_evals=0, local_every=3, local_evals=0,
-    initial=None, progress=None, threads=0
+    options=None, initial=None, progress=None, threads=0
 ))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
     model: &str,
-    offsets: Vec<usize>,
-    dt: PyReadonlyArray1<'py, f64>,
-    a: PyReadonlyArray1<'py, f64>,
+    runs: &Bound<'py, RunSet>,
     lower_bounds: Vec<f64>,
     upper_bounds: Vec<f64>,
     scale: Vec<String>,
-    command: Option<PyReadonlyArray1<'py, f64>>,
-    lead_x: Option<PyReadonlyArray1<'py, f64>>,
-    lead_v: Option<PyReadonlyArray1<'py, f64>>,
-    v: Option<PyReadonlyArray1<'py, f64>>,
-    x: Option<PyReadonlyArray1<'py, f64>>,
-    upper: Option<PyReadonlyArray2<'py, f64>>,
+    effects: Vec<String>,
     upper_free: Vec<usize>,
     command_kind: &str,
     weights: (f64, f64, f64),
@@ -92,38 +134,20 @@ fn calibrate<'py>(
     problems: Option<Vec<Vec<usize>>>,
     derive_seeds: bool,
     stop_all_at_target: bool,
-    seed: u64,
-    pop_size: usize,
-    max_generations: usize,
-    stall_generations: usize,
-    ftol: f64,
-    xtol: f64,
-    target: f64,
-    tournament: usize,
-    crossover_prob: f64,
-    eta_c: f64,
-    mutation_prob: f64,
-    eta_m: f64,
-    plus: bool,
-    elite: usize,
-    polish: bool,
-    polish_max_evals: usize,
-    local_every: usize,
-    local_evals: usize,
+    options: Option<&Bound<'py, PyDict>>,
     initial: Option<PyReadonlyArray2<'py, f64>>,
     progress: Option<Py<PyAny>>,
     threads: usize,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
-    let spec = guard(|| {
-        Ok(CostSpec {
-            model: ModelKind::from_name(model)?,
-            kind: CommandKind::from_name(command_kind)?,
-            weights: [weights.0, weights.1, weights.2],
-            init: Init::from_name(init)?,
-            closed_loop,
-            upper_free,
-        })
-    })?;
+    let spec = cost_spec(
+        model,
+        &effects,
+        upper_free,
+        command_kind,
+        weights,
+        init,
+        closed_loop,
+    )?;
     let scales = guard(|| scale.iter().map(|s| Scale::from_name(s)).collect())?;
     let bounds = guard(|| Bounds::new(lower_bounds, upper_bounds, scales))?;
     let initial: Vec<Vec<f64>> = match &initial {
@@ -137,30 +161,9 @@ fn calibrate<'py>(
             }
         }
     };
-    let opts = GaOptions {
-        pop_size,
-        max_generations,
-        stall_generations,
-        ftol,
-        xtol,
-        target,
-        tournament,
-        crossover_prob,
-        eta_c,
-        mutation_prob,
-        eta_m,
-        plus,
-        elite,
-        seed,
-        polish,
-        polish_max_evals,
-        local_every,
-        local_evals,
-        initial,
-    };
-    let runs = runs_from_arrays(
-        &offsets, &dt, &a, &command, &lead_x, &lead_v, &v, &x, &upper,
-    )?;
+    let opts = ga_options(options, initial)?;
+    let rs = runs.get();
+    let runs = rs.refs();
     let problems = problems.unwrap_or_else(|| vec![(0..runs.len()).collect()]);
     let n_problems = problems.len();
 
@@ -178,27 +181,35 @@ fn calibrate<'py>(
                 let tx = std::sync::Mutex::new(tx);
                 let res = guard(|| {
                     crate::parallel::with_threads(threads, || {
-                        ga::calibrate_many(spec, runs, problems, bounds, opts, derive_seeds, {
-                            let tx = &tx;
-                            move |k, p| {
-                                if let Ok(t) = tx.lock() {
-                                    let _ = t.send(Msg::Progress {
-                                        problem: k,
-                                        phase: p.phase,
-                                        iteration: p.iteration,
-                                        evaluations: p.evaluations,
-                                        best: p.best_f,
-                                    });
+                        crate::optimize::calibrate::calibrate_many(
+                            spec,
+                            runs,
+                            problems,
+                            bounds,
+                            opts,
+                            derive_seeds,
+                            {
+                                let tx = &tx;
+                                move |k, p| {
+                                    if let Ok(t) = tx.lock() {
+                                        let _ = t.send(Msg::Progress {
+                                            problem: k,
+                                            phase: p.phase,
+                                            iteration: p.iteration,
+                                            evaluations: p.evaluations,
+                                            best: p.best_f,
+                                        });
+                                    }
+                                    if stop_all_at_target && p.best_f <= opts.target {
+                                        target_hit.store(true, Ordering::Relaxed);
+                                    }
+                                    Some(
+                                        !(stop.load(Ordering::Relaxed)
+                                            || target_hit.load(Ordering::Relaxed)),
+                                    )
                                 }
-                                if stop_all_at_target && p.best_f <= opts.target {
-                                    target_hit.store(true, Ordering::Relaxed);
-                                }
-                                Some(
-                                    !(stop.load(Ordering::Relaxed)
-                                        || target_hit.load(Ordering::Relaxed)),
-                                )
-                            }
-                        })
+                            },
+                        )
                     })?
                 });
                 if let Ok(t) = tx.lock() {

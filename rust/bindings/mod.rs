@@ -61,6 +61,7 @@ pub(crate) fn slice2<'a>(
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    runs::register(m)?;
     rollout::register(m)?;
     effects::register(m)?;
     ga::register(m)?;

@@ -5,7 +5,7 @@
 //! others default to the identity) and is listed once in the registry at the end of
 //! this file: **one new effect = one new file + one registry line**.
 //!
-//! Hooks, in the order the engine ([`engine`]) applies them at each sample `n`:
+//! Hooks, in the order the kernel ([`crate::sim::kernel`]) applies them at each sample `n`:
 //! 1. [`Effect::command`] — the command on its way to the lower level (transport
 //!    `delay`, `rate_limit`, `deadband`), in registry order;
 //! 2. [`Effect::reference`] — a static map of the reference input
@@ -16,11 +16,8 @@
 //! 5. [`Effect::disturbance`] — an additive acceleration from the actual speed and
 //!    an exogenous signal (`speed_drag`, `grade`).
 //!
-//! With no effect (or every effect at its neutral parameters) the engine reproduces
-//! the linear rollouts of [`crate::rollout`] exactly.
-
-pub mod calibrate;
-pub mod engine;
+//! With no effect the kernel runs the linear fast path; with every effect at its
+//! neutral parameters it reproduces it (tested to 1e-11).
 
 use crate::error::{check_finite, AvllError, Result};
 use crate::model::{CommandKind, Linear};

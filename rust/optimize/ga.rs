@@ -1,5 +1,6 @@
-//! A real-coded genetic algorithm (GA) over a box, and the calibration problem it
-//! solves (paper Section III.B, Eq. 6).
+//! A real-coded genetic algorithm (GA) over a box, with a bounded Nelder–Mead for
+//! its local search and polish. The calibration problem it solves (paper Section
+//! III.B, Eq. 6) is in [`super::calibrate`].
 //!
 //! # Algorithm
 //!
@@ -38,8 +39,6 @@
 //! result is bit-identical for any number of threads.
 
 use crate::error::{AvllError, Result};
-use crate::model::{CommandKind, Linear};
-use crate::rollout::{open_accel_sse, run_cost, CostSpec, RunRef};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -247,7 +246,7 @@ impl Default for GaOptions {
 }
 
 impl GaOptions {
-    fn validate(&self, d: usize) -> Result<()> {
+    pub(crate) fn validate(&self, d: usize) -> Result<()> {
         let prob = |n: &str, p: f64| -> Result<()> {
             if (0.0..=1.0).contains(&p) {
                 Ok(())
@@ -883,204 +882,9 @@ fn nelder_mead<F: Objective + ?Sized>(
     (simplex.swap_remove(0), fs[0])
 }
 
-// ---------------------------------------------------------------------------
-// Calibration: the GA on Eq. 6.
-// ---------------------------------------------------------------------------
-
-/// Eq. 6 over a (multi)set of runs: the mean of `run_cost` over `subset` (indices
-/// into `runs`, repeats allowed, e.g. a bootstrap resample). Per-run costs are
-/// evaluated in parallel and summed in a fixed order.
-pub fn subset_cost(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(usize, f64)]) -> f64 {
-    let costs: Vec<f64> = weights
-        .par_iter()
-        .map(|&(j, _)| run_cost(spec, row, &runs[j]))
-        .collect();
-    let total: f64 = weights.iter().map(|w| w.1).sum();
-    let s = costs.iter().zip(weights).fold(0.0, |s, (c, w)| s + c * w.1);
-    let m = s / total;
-    if m.is_finite() {
-        m
-    } else {
-        f64::INFINITY
-    }
-}
-
-/// Eq. 6 over a weighted set of runs, with early abandoning on the common path
-/// (open loop, acceleration command and error only).
-struct Eq6<'a> {
-    spec: &'a CostSpec,
-    runs: &'a [RunRef<'a>],
-    w: Vec<(usize, f64)>,
-    total: f64,
-}
-
-impl Objective for Eq6<'_> {
-    fn eval(&self, x: &[f64]) -> f64 {
-        subset_cost(self.spec, x, self.runs, &self.w)
-    }
-
-    fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
-        let s = self.spec;
-        if s.closed_loop
-            || s.kind != CommandKind::Acceleration
-            || s.weights[1] != 0.0
-            || s.weights[2] != 0.0
-            || s.weights[0] <= 0.0
-        {
-            return self.eval(x);
-        }
-        let lin = match s.model.linear(&x[..s.model.n_params()]) {
-            Ok(l) => l,
-            Err(_) => return f64::INFINITY,
-        };
-        self.bounded(&lin, bound)
-    }
-}
-
-impl Eq6<'_> {
-    /// The same kernel as `rollout::run_cost` ([`open_accel_sse`]) and the same
-    /// combination as [`subset_cost`] (so an unabandoned value is bit-identical);
-    /// stops with `inf` once the partial sum proves the result `>= bound`.
-    fn bounded(&self, lin: &Linear, bound: f64) -> f64 {
-        let wa = self.spec.weights[0];
-        let mut done = 0.0; // sum of w_j c_j over finished runs
-        let mut costs = Vec::with_capacity(self.w.len());
-        for &(j, wj) in &self.w {
-            let run = &self.runs[j];
-            let n = run.len();
-            // Abandon once wa * s / n * wj + done >= bound * total.
-            let limit = (bound * self.total - done) * n as f64 / (wj * wa);
-            let sum = open_accel_sse(lin, self.spec.init, run, limit);
-            if !sum.is_finite() {
-                return f64::INFINITY;
-            }
-            let c = wa * sum / n as f64;
-            if !c.is_finite() {
-                return f64::INFINITY;
-            }
-            done += wj * c;
-            costs.push(c);
-        }
-        let s = costs.iter().zip(&self.w).fold(0.0, |s, (c, w)| s + c * w.1);
-        let m = s / self.total;
-        if m.is_finite() {
-            m
-        } else {
-            f64::INFINITY
-        }
-    }
-}
-
-/// Multiplicities of a subset: sorted unique indices with their counts.
-fn multiplicities(subset: &[usize], r: usize, problem: usize) -> Result<Vec<(usize, f64)>> {
-    if subset.is_empty() {
-        return Err(AvllError::new(
-            format!("problems[{problem}]"),
-            "has no runs",
-        ));
-    }
-    let mut counts = vec![0usize; r];
-    for &j in subset {
-        if j >= r {
-            return Err(AvllError::new(
-                format!("problems[{problem}]"),
-                format!("run index {j} is out of range (there are {r} runs)"),
-            ));
-        }
-        counts[j] += 1;
-    }
-    Ok(counts
-        .iter()
-        .enumerate()
-        .filter(|(_, &c)| c > 0)
-        .map(|(j, &c)| (j, c as f64))
-        .collect())
-}
-
-/// Calibrates `spec.model` (and the free upper-level gains) on `runs` by the GA:
-/// minimises Eq. 6. `bounds` has `spec.n_params()` coordinates.
-pub fn calibrate(
-    spec: &CostSpec,
-    runs: &[RunRef],
-    bounds: &Bounds,
-    opts: &GaOptions,
-    callback: impl FnMut(&Progress) -> bool,
-) -> Result<GaResult> {
-    spec.validate(runs)?;
-    let all: Vec<usize> = (0..runs.len()).collect();
-    calibrate_one(spec, runs, &all, bounds, opts, 0, callback)
-}
-
-fn calibrate_one(
-    spec: &CostSpec,
-    runs: &[RunRef],
-    subset: &[usize],
-    bounds: &Bounds,
-    opts: &GaOptions,
-    problem: usize,
-    callback: impl FnMut(&Progress) -> bool,
-) -> Result<GaResult> {
-    if bounds.dim() != spec.n_params() {
-        return Err(AvllError::new(
-            "bounds",
-            format!(
-                "has {} parameters, the model {:?} with {} free upper-level gains needs {}",
-                bounds.dim(),
-                spec.model.name(),
-                spec.upper_free.len(),
-                spec.n_params()
-            ),
-        ));
-    }
-    let w = multiplicities(subset, runs.len(), problem)?;
-    let total = w.iter().map(|p| p.1).sum();
-    let f = Eq6 {
-        spec,
-        runs,
-        w,
-        total,
-    };
-    minimize(&f, bounds, opts, callback)
-}
-
-/// Solves many independent calibration problems in parallel: problem `k` is Eq. 6
-/// over the runs `problems[k]` (repeats allowed), with the seed
-/// `derive_seed(opts.seed, k)` when `derive` is true (else `opts.seed` for all).
-/// `callback(k, progress)` returns `None`/`Some(true)` to continue and `Some(false)`
-/// to stop every problem (each then returns its best so far).
-pub fn calibrate_many(
-    spec: &CostSpec,
-    runs: &[RunRef],
-    problems: &[Vec<usize>],
-    bounds: &Bounds,
-    opts: &GaOptions,
-    derive: bool,
-    callback: impl Fn(usize, &Progress) -> Option<bool> + Sync,
-) -> Result<Vec<GaResult>> {
-    spec.validate(runs)?;
-    opts.validate(bounds.dim())?;
-    for (k, p) in problems.iter().enumerate() {
-        multiplicities(p, runs.len(), k)?;
-    }
-    problems
-        .par_iter()
-        .enumerate()
-        .map(|(k, subset)| {
-            let mut o = opts.clone();
-            if derive {
-                o.seed = derive_seed(opts.seed, k as u64);
-            }
-            calibrate_one(spec, runs, subset, bounds, &o, k, |p| {
-                callback(k, p).unwrap_or(true)
-            })
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rollout::Init;
 
     fn sphere(x: &[f64]) -> f64 {
         x.iter().map(|v| (v - 0.3) * (v - 0.3)).sum()
@@ -1209,113 +1013,5 @@ mod tests {
         let f = |x: &[f64]| if x[0] < 0.0 { f64::NAN } else { sphere(x) };
         let r = minimize(&f, &b, &GaOptions::default(), |_| true).unwrap();
         assert!(r.f.is_finite() && r.x[0] >= 0.0);
-    }
-
-    fn synthetic_runs() -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
-        let lin = crate::model::ModelKind::Proposed
-            .linear(&[6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008])
-            .unwrap();
-        let mut us = Vec::new();
-        let mut ys = Vec::new();
-        for r in 0..3 {
-            let u: Vec<f64> = (0..1500)
-                .map(|k| {
-                    let t = k as f64 * 0.05;
-                    (0.3 * t + r as f64).sin() + 0.5 * (0.05 * t * t / 10.0).sin()
-                })
-                .collect();
-            let mut y =
-                crate::rollout::simulate(&lin, &u, 0.05, crate::rollout::Init::Rest).unwrap();
-            for (k, v) in y.iter_mut().enumerate() {
-                *v += 0.05 * ((k * 7919 + r * 104729) as f64).sin();
-            }
-            us.push(u);
-            ys.push(y);
-        }
-        (us, ys)
-    }
-
-    fn spec() -> CostSpec {
-        CostSpec {
-            model: crate::model::ModelKind::Proposed,
-            kind: CommandKind::Acceleration,
-            weights: [1.0, 0.0, 0.0],
-            init: Init::Rest,
-            closed_loop: false,
-            upper_free: vec![],
-        }
-    }
-
-    fn refs<'a>(us: &'a [Vec<f64>], ys: &'a [Vec<f64>]) -> Vec<RunRef<'a>> {
-        us.iter()
-            .zip(ys)
-            .map(|(u, y)| RunRef {
-                dt: 0.05,
-                command: Some(u),
-                lead_x: None,
-                lead_v: None,
-                a: y,
-                v: None,
-                x: None,
-                upper: crate::rollout::Upper {
-                    kg: 0.5,
-                    kv: 0.0,
-                    tg: 2.0,
-                    gmin: 9.5,
-                },
-            })
-            .collect()
-    }
-
-    #[test]
-    fn bounded_objective_is_exact_or_abandons_above_the_bound() {
-        let (us, ys) = synthetic_runs();
-        let runs = refs(&us, &ys);
-        let sp = spec();
-        let w = vec![(0, 2.0), (1, 1.0), (2, 1.0)];
-        let f = Eq6 {
-            spec: &sp,
-            runs: &runs,
-            w: w.clone(),
-            total: 4.0,
-        };
-        for row in [
-            [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008],
-            [1.0, 0.5, 2.0, 0.8, 0.33, -0.4],
-            [0.0, 0.04, 0.13, 0.73, 0.78, 0.0],
-        ] {
-            let exact = subset_cost(&sp, &row, &runs, &w);
-            assert_eq!(f.eval_bounded(&row, 1e300).to_bits(), exact.to_bits());
-            assert_eq!(
-                f.eval_bounded(&row, exact * 1.0001).to_bits(),
-                exact.to_bits()
-            );
-            assert!(f.eval_bounded(&row, exact * 0.5) >= exact * 0.5);
-        }
-        // The GA with abandoning finds the same as with exact values throughout.
-        let b = Bounds::new(
-            vec![1e-4, 1e-3, 1e-3, 0.0, 0.0, -3.0],
-            vec![100.0, 100.0, 100.0, 3.0, 3.0, 3.0],
-            vec![
-                Scale::Log,
-                Scale::Log,
-                Scale::Log,
-                Scale::Linear,
-                Scale::Linear,
-                Scale::Linear,
-            ],
-        )
-        .unwrap();
-        let o = GaOptions {
-            seed: 3,
-            max_generations: 25,
-            ..Default::default()
-        };
-        let plain = |x: &[f64]| subset_cost(&sp, x, &runs, &w);
-        let r1 = minimize(&plain, &b, &o, |_| true).unwrap();
-        let r2 = minimize(&f, &b, &o, |_| true).unwrap();
-        assert_eq!(r1.x, r2.x);
-        assert_eq!(r1.history, r2.history);
-        assert!(r2.f < 0.01, "{}", r2.f);
     }
 }

@@ -233,14 +233,55 @@ pub const MAX_STABILITY_DEGREE: usize = 1 << 14;
 /// must have every root strictly inside the unit circle (Schur-Cohn recursion);
 /// `K b0 >= 1` is rejected first (a real root `z >= 1`: the loop has no steady state).
 pub fn inner_loop_stable<const N: usize>(d: &Discrete<N>, lin: &Linear) -> bool {
+    let m = d.order;
+    let at = |r: usize, c: usize| if r < m && c < m { d.phi[r][c] } else { 0.0 };
+    let v2 = |v: &[f64; N]| [v[0], if m > 1 { v[1] } else { 0.0 }];
+    loop_parts_stable(
+        lin,
+        m,
+        d.delay_steps,
+        [[at(0, 0), at(0, 1)], [at(1, 0), at(1, 1)]],
+        v2(&d.c),
+        v2(&d.g0),
+        v2(&d.g1),
+    )
+}
+
+/// [`inner_loop_stable`] for a [`crate::sim::plant::Plant`] (in any basis: the
+/// characteristic polynomial does not depend on it).
+pub fn loop_stable<const M: usize, const N: usize>(
+    lin: &Linear,
+    p: &crate::sim::plant::Plant<M, N>,
+) -> bool {
+    let at = |r: usize, c: usize| if r < M && c < M { p.phi[r][c] } else { 0.0 };
+    let v2 = |v: &[f64; N]| [v[0], if M > 1 { v[1] } else { 0.0 }];
+    loop_parts_stable(
+        lin,
+        M,
+        p.delay,
+        [[at(0, 0), at(0, 1)], [at(1, 0), at(1, 1)]],
+        v2(&p.c),
+        v2(&p.g0),
+        v2(&p.g1),
+    )
+}
+
+fn loop_parts_stable(
+    lin: &Linear,
+    m: usize,
+    delay: usize,
+    phi: [[f64; 2]; 2],
+    c: [f64; 2],
+    g0: [f64; 2],
+    g1: [f64; 2],
+) -> bool {
     if lin.k == 0.0 {
         return lin.a1 > 0.0 && lin.a2 >= 0.0;
     }
     if lin.k * lin.b0 >= 1.0 {
         return false;
     }
-    let m = d.order;
-    let deg = d.delay_steps + 1 + m;
+    let deg = delay + 1 + m;
     if deg > MAX_STABILITY_DEGREE {
         return true;
     }
@@ -248,23 +289,23 @@ pub fn inner_loop_stable<const N: usize>(d: &Discrete<N>, lin: &Linear) -> bool 
     let mut p = vec![0.0; deg + 1];
     let (n0, n1) = if m == 1 {
         // det(zI - phi) = z - phi; c adj g = c g
-        p[d.delay_steps + 1] = -d.phi[0][0];
-        p[d.delay_steps + 2] = 1.0;
-        ([d.c[0] * d.g0[0], 0.0], [d.c[0] * d.g1[0], 0.0])
+        p[delay + 1] = -phi[0][0];
+        p[delay + 2] = 1.0;
+        ([c[0] * g0[0], 0.0], [c[0] * g1[0], 0.0])
     } else {
-        let (f11, f12, f21, f22) = (d.phi[0][0], d.phi[0][1], d.phi[1][0], d.phi[1][1]);
-        p[d.delay_steps + 1] = f11 * f22 - f12 * f21;
-        p[d.delay_steps + 2] = -(f11 + f22);
-        p[d.delay_steps + 3] = 1.0;
+        let (f11, f12, f21, f22) = (phi[0][0], phi[0][1], phi[1][0], phi[1][1]);
+        p[delay + 1] = f11 * f22 - f12 * f21;
+        p[delay + 2] = -(f11 + f22);
+        p[delay + 3] = 1.0;
         // c adj(zI - phi) g = z (c . g) + (c1 (f12 g2 - f22 g1) + c2 (f21 g1 - f11 g2))
         let num = |g: [f64; 2]| {
-            let (c1, c2) = (d.c[0], d.c[1]);
+            let (c1, c2) = (c[0], c[1]);
             [
                 c1 * (f12 * g[1] - f22 * g[0]) + c2 * (f21 * g[0] - f11 * g[1]),
                 c1 * g[0] + c2 * g[1],
             ]
         };
-        (num([d.g0[0], d.g0[1]]), num([d.g1[0], d.g1[1]]))
+        (num(g0), num(g1))
     };
     // - K (z N0(z) + N1(z)): N0, N1 have degree <= 1.
     p[0] -= lin.k * n1[0];

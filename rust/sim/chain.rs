@@ -1,0 +1,159 @@
+//! The effect chain a rollout runs through: none (the linear fast path, every hook
+//! the identity at compile time) or a list of effects with their exogenous signals.
+//!
+//! The hooks and their order are those of [`crate::effects::Effect`]; the kernel
+//! ([`super::kernel`]) calls them through this trait so that one stepping loop serves
+//! both cases and the linear case pays nothing for the generality.
+
+use crate::effects::AnyEffect;
+use crate::error::{check_series, AvllError, Result};
+use crate::model::CommandKind;
+
+/// The hooks the kernel calls at each sample.
+pub trait Chain: Send {
+    /// `true` when every hook is the identity: the kernel then skips them, and the
+    /// correction integrators, at compile time.
+    const NONE: bool;
+    /// Resets internal states before a run (`u_hist`: the command assumed before it).
+    fn reset(&mut self, u_hist: f64, dt: f64);
+    /// The command on its way to the lower level; `y` the actual response.
+    fn command(&mut self, u: f64, y: f64) -> f64;
+    /// Static map of the reference input before the dead time.
+    fn reference(&self, w: f64) -> f64;
+    /// The lower level's acceleration after the output maps.
+    fn output(&self, a: f64) -> f64;
+    /// Additive acceleration at sample `n` from the actual speed.
+    fn disturbance(&self, v: f64, n: usize) -> f64;
+    /// Time-scale ratio of the rational part while braking (1: no switching).
+    fn brake_time_scale(&self) -> f64;
+}
+
+/// No effect: the linear lower level.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoEffects;
+
+impl Chain for NoEffects {
+    const NONE: bool = true;
+    #[inline(always)]
+    fn reset(&mut self, _: f64, _: f64) {}
+    #[inline(always)]
+    fn command(&mut self, u: f64, _: f64) -> f64 {
+        u
+    }
+    #[inline(always)]
+    fn reference(&self, w: f64) -> f64 {
+        w
+    }
+    #[inline(always)]
+    fn output(&self, a: f64) -> f64 {
+        a
+    }
+    #[inline(always)]
+    fn disturbance(&self, _: f64, _: usize) -> f64 {
+        0.0
+    }
+    fn brake_time_scale(&self) -> f64 {
+        1.0
+    }
+}
+
+/// Effects in canonical order, each with its exogenous series (if it reads one).
+#[derive(Debug, Clone)]
+pub struct Effects<'a> {
+    pub effects: Vec<AnyEffect>,
+    pub exo: Vec<Option<&'a [f64]>>,
+}
+
+impl Chain for Effects<'_> {
+    const NONE: bool = false;
+    fn reset(&mut self, u_hist: f64, dt: f64) {
+        for e in self.effects.iter_mut() {
+            e.reset(u_hist, dt);
+        }
+    }
+    #[inline(always)]
+    fn command(&mut self, u: f64, y: f64) -> f64 {
+        let mut c = u;
+        for e in self.effects.iter_mut() {
+            c = e.command(c, y);
+        }
+        c
+    }
+    #[inline(always)]
+    fn reference(&self, w: f64) -> f64 {
+        let mut r = w;
+        for e in &self.effects {
+            r = e.reference(r);
+        }
+        r
+    }
+    #[inline(always)]
+    fn output(&self, a: f64) -> f64 {
+        let mut o = a;
+        for e in &self.effects {
+            o = e.output(o);
+        }
+        o
+    }
+    #[inline(always)]
+    fn disturbance(&self, v: f64, n: usize) -> f64 {
+        let mut d = 0.0;
+        for (e, s) in self.effects.iter().zip(&self.exo) {
+            d += e.disturbance(v, s.map_or(0.0, |s| s[n]));
+        }
+        d
+    }
+    fn brake_time_scale(&self) -> f64 {
+        self.effects.iter().map(|e| e.brake_time_scale()).product()
+    }
+}
+
+/// Resolves each effect's exogenous signal among a run's `exo` series (by name),
+/// checking its length and values.
+pub fn resolve_exo<'a>(
+    effects: &[AnyEffect],
+    exo: &[(&str, &'a [f64])],
+    len: usize,
+) -> Result<Vec<Option<&'a [f64]>>> {
+    effects
+        .iter()
+        .map(|e| match e.kind().exo() {
+            None => Ok(None),
+            Some(name) => match exo.iter().find(|(n, _)| *n == name) {
+                Some((_, s)) => {
+                    if s.len() != len {
+                        return Err(AvllError::new(
+                            format!("exo_{name}"),
+                            format!("has length {} but must have length {len}", s.len()),
+                        ));
+                    }
+                    check_series(&format!("exo_{name}"), s)?;
+                    Ok(Some(*s))
+                }
+                None => Err(AvllError::new(
+                    format!("exo_{name}"),
+                    format!(
+                        "effect {:?} needs the exogenous signal exo_{name}",
+                        e.kind().name()
+                    ),
+                )),
+            },
+        })
+        .collect()
+}
+
+/// Refuses effects that act on the acceleration with a speed command.
+pub fn check_kind(effects: &[AnyEffect], kind: CommandKind) -> Result<()> {
+    if kind == CommandKind::Speed {
+        if let Some(e) = effects.iter().find(|e| e.kind().accel_only()) {
+            return Err(AvllError::new(
+                "effects",
+                format!(
+                    "effect {:?} acts on the acceleration and needs an acceleration command",
+                    e.kind().name()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}

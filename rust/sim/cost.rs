@@ -1,0 +1,522 @@
+//! The Eq. 6 cost on the one kernel: run references, the one cost specification
+//! (base model, effects, command kind, weights, initial state, open or closed loop,
+//! free upper-level gains), per-run costs with early abandoning, batched costs and
+//! batched simulation over parameter rows x runs.
+//!
+//! A parameter row is `[base params | effect params (canonical order) | free upper
+//! gains]`. Invalid or unstable rows cost `inf` (never NaN): parameters the model
+//! refuses, a lower level whose inner loop is not asymptotically stable (Schur-Cohn
+//! on the discretized loop, see [`crate::sim::discretize::inner_loop_stable`]) and
+//! runs whose response leaves `|.| < DIVERGED`.
+
+use super::chain::{resolve_exo, Chain, Effects, NoEffects};
+use super::discretize::{loop_stable, Integrators};
+use super::kernel::{self, Record, Sse};
+use super::plant::{start, Init, Plant};
+use super::rollout::{stepper, Upper};
+use super::with_plant;
+use crate::effects::{AnyEffect, EffectList};
+use crate::error::{check_series, AvllError, Result};
+use crate::model::{CommandKind, Linear, ModelKind};
+use rayon::prelude::*;
+
+/// One measured run, borrowed. Open loop uses `command`; closed loop uses the
+/// leader (`lead_x`, `lead_v`) and `upper`; `exo` holds the exogenous series the
+/// effects read (e.g. `grade`).
+#[derive(Debug, Clone)]
+pub struct RunRef<'a> {
+    pub dt: f64,
+    pub command: Option<&'a [f64]>,
+    pub lead_x: Option<&'a [f64]>,
+    pub lead_v: Option<&'a [f64]>,
+    /// Measured acceleration (always present).
+    pub a: &'a [f64],
+    pub v: Option<&'a [f64]>,
+    pub x: Option<&'a [f64]>,
+    pub upper: Upper,
+    pub exo: Vec<(&'a str, &'a [f64])>,
+}
+
+impl RunRef<'_> {
+    pub fn len(&self) -> usize {
+        self.a.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.a.is_empty()
+    }
+}
+
+/// What the cost compares, and how the runs are driven.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CostSpec {
+    pub model: ModelKind,
+    /// Effects extending the base model (empty: the linear model).
+    pub effects: EffectList,
+    pub kind: CommandKind,
+    /// Weights of the mean squared errors of acceleration, speed and position
+    /// (the gap error equals the position error behind a recorded leader).
+    pub weights: [f64; 3],
+    pub init: Init,
+    /// Closed loop: driven by the leader through the upper law.
+    pub closed_loop: bool,
+    /// Indices (0 kg, 1 kv, 2 Tg, 3 Gmin) of upper-level parameters that are
+    /// calibrated: their values follow the model and effect parameters in each row,
+    /// in this order, and override the runs' own.
+    pub upper_free: Vec<usize>,
+}
+
+impl CostSpec {
+    /// A linear-model spec (no effects).
+    pub fn linear(
+        model: ModelKind,
+        kind: CommandKind,
+        weights: [f64; 3],
+        init: Init,
+        closed_loop: bool,
+        upper_free: Vec<usize>,
+    ) -> Self {
+        Self {
+            model,
+            effects: EffectList::default(),
+            kind,
+            weights,
+            init,
+            closed_loop,
+            upper_free,
+        }
+    }
+
+    /// Length of a parameter row.
+    pub fn n_params(&self) -> usize {
+        self.model.n_params() + self.effects.n_params() + self.upper_free.len()
+    }
+
+    /// Open loop, acceleration command, acceleration error only and no effect
+    /// reading the speed: the rollout needs no integrators.
+    pub fn accel_only(&self) -> bool {
+        !self.closed_loop
+            && self.kind == CommandKind::Acceleration
+            && self.weights[1] == 0.0
+            && self.weights[2] == 0.0
+            && !self.effects.0.iter().any(|k| k.needs_speed())
+    }
+
+    /// Checks the spec against the runs, so that evaluation cannot fail later.
+    pub fn validate(&self, runs: &[RunRef]) -> Result<()> {
+        for (w, n) in self
+            .weights
+            .iter()
+            .zip(["weight_a", "weight_v", "weight_x"])
+        {
+            crate::error::check_nonneg(n, *w)?;
+        }
+        if self.weights.iter().all(|w| *w == 0.0) {
+            return Err(AvllError::new("weights", "all weights are zero"));
+        }
+        if self.closed_loop && self.kind != CommandKind::Acceleration {
+            return Err(AvllError::new(
+                "command_kind",
+                "closed loop runs the upper law, which commands an acceleration",
+            ));
+        }
+        if let Some(&i) = self.upper_free.iter().find(|&&i| i > 3) {
+            return Err(AvllError::new(
+                "upper_free",
+                format!("index {i} is not in 0..4"),
+            ));
+        }
+        if runs.is_empty() {
+            return Err(AvllError::new("runs", "no runs given"));
+        }
+        let neutral: Vec<f64> = self
+            .effects
+            .0
+            .iter()
+            .flat_map(|k| k.neutral().iter().copied())
+            .collect();
+        let effs = self.effects.build(&neutral, self.kind)?;
+        for (r, run) in runs.iter().enumerate() {
+            let name = |s: &str| format!("runs[{r}].{s}");
+            let n = run.len();
+            if n < 2 {
+                return Err(AvllError::new(name("a"), "needs at least 2 samples"));
+            }
+            if !(run.dt.is_finite() && run.dt > 0.0) {
+                return Err(AvllError::new(
+                    name("dt"),
+                    format!("must be > 0, got {}", run.dt),
+                ));
+            }
+            check_series(&name("a"), run.a)?;
+            let need = |opt: Option<&[f64]>, what: &str, needed: bool| -> Result<()> {
+                match opt {
+                    Some(s) => {
+                        if s.len() != n {
+                            return Err(AvllError::new(
+                                name(what),
+                                format!("has length {} but must have length {n}", s.len()),
+                            ));
+                        }
+                        check_series(&name(what), s)
+                    }
+                    None if needed => {
+                        Err(AvllError::new(name(what), "is required here but missing"))
+                    }
+                    None => Ok(()),
+                }
+            };
+            need(run.command, "command", !self.closed_loop)?;
+            need(run.lead_x, "lead_x", self.closed_loop)?;
+            need(run.lead_v, "lead_v", self.closed_loop)?;
+            need(run.v, "v", self.weights[1] > 0.0 || self.closed_loop)?;
+            need(run.x, "x", self.weights[2] > 0.0 || self.closed_loop)?;
+            run.upper.validate()?;
+            resolve_exo(&effs, &run.exo, n)
+                .map_err(|e| AvllError::new(format!("runs[{r}].{}", e.arg), e.msg))?;
+        }
+        Ok(())
+    }
+
+    /// The lower level, effects and upper law of one row for one run, or `None`
+    /// when the row is invalid.
+    fn prepare(&self, row: &[f64], run: &RunRef) -> Option<(Linear, Vec<AnyEffect>, Upper)> {
+        let nb = self.model.n_params();
+        let ne = self.effects.n_params();
+        let lin = self.model.linear(&row[..nb]).ok()?;
+        let effs = if self.effects.0.is_empty() {
+            Vec::new()
+        } else {
+            self.effects.build(&row[nb..nb + ne], self.kind).ok()?
+        };
+        let mut up = run.upper;
+        for (j, &i) in self.upper_free.iter().enumerate() {
+            up.set(i, row[nb + ne + j]);
+        }
+        Some((lin, effs, up))
+    }
+
+    fn integrators(&self) -> Integrators {
+        if self.accel_only() {
+            Integrators::None
+        } else {
+            Integrators::for_kind(self.kind)
+        }
+    }
+}
+
+/// How a run is driven and started, from the spec and the run.
+struct Drive<'a> {
+    closed: bool,
+    up: Upper,
+    u: &'a [f64],
+    lx: &'a [f64],
+    lv: &'a [f64],
+}
+
+impl Drive<'_> {
+    #[inline(always)]
+    fn command(&self, n: usize, o: &super::kernel::Obs) -> f64 {
+        if self.closed {
+            self.up.command(self.lx[n], self.lv[n], o.p, o.v)
+        } else {
+            self.u[n]
+        }
+    }
+}
+
+/// The Eq. 6 cost of `row` on `run` (`sum(w s) / len`), `inf` for invalid or
+/// unstable parameters or a diverged response, and `inf` as soon as the weighted sum
+/// of squared errors reaches `limit` (checked every [`super::kernel::CHUNK`]
+/// samples; `inf` for no bound). An unabandoned value does not depend on `limit`.
+/// Assumes `spec.validate(runs)` passed.
+pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef, limit: f64) -> f64 {
+    let Some((lin, effs, up)) = spec.prepare(row, run) else {
+        return f64::INFINITY;
+    };
+    let modal = effs.iter().map(|e| e.brake_time_scale()).product::<f64>() == 1.0;
+    let ints = spec.integrators();
+    let r: Result<f64> = (|| {
+        with_plant!(
+            &lin,
+            ints,
+            run.dt,
+            modal,
+            cost_n(&lin, &effs, &up, spec, run, limit)
+        )
+    })();
+    r.unwrap_or(f64::INFINITY)
+}
+
+fn cost_n<const M: usize, const N: usize, const D: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    effs: &[AnyEffect],
+    up: &Upper,
+    spec: &CostSpec,
+    run: &RunRef,
+    limit: f64,
+) -> Result<f64> {
+    if !loop_stable(lin, &plant) {
+        return Ok(f64::INFINITY);
+    }
+    if effs.is_empty() {
+        cost_chain::<M, N, D, _>(plant, lin, NoEffects, up, spec, run, limit)
+    } else {
+        let ch = Effects {
+            effects: effs.to_vec(),
+            exo: resolve_exo(effs, &run.exo, run.len())?,
+        };
+        cost_chain::<M, N, D, _>(plant, lin, ch, up, spec, run, limit)
+    }
+}
+
+fn cost_chain<const M: usize, const N: usize, const D: bool, C: Chain>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    chain: C,
+    up: &Upper,
+    spec: &CostSpec,
+    run: &RunRef,
+    limit: f64,
+) -> Result<f64> {
+    let len = run.len();
+    let drive = Drive {
+        closed: spec.closed_loop,
+        up: *up,
+        u: run.command.unwrap_or(&[]),
+        lx: run.lead_x.unwrap_or(&[]),
+        lv: run.lead_v.unwrap_or(&[]),
+    };
+    let mut st = start_stepper::<M, N, D, C>(plant, lin, chain, spec, run)?;
+    let f = |n: usize, o: &super::kernel::Obs| drive.command(n, o);
+    if N == M {
+        let mut sse = Sse::<false>::new(run.a, run.a, run.a, spec.weights, limit);
+        let done = kernel::run(&mut st, len, f, &mut sse);
+        Ok(sse.cost(done, len))
+    } else {
+        let mut sse = Sse::<true>::new(
+            run.a,
+            run.v.unwrap_or(run.a),
+            run.x.unwrap_or(run.a),
+            spec.weights,
+            limit,
+        );
+        let done = kernel::run(&mut st, len, f, &mut sse);
+        Ok(sse.cost(done, len))
+    }
+}
+
+/// The stepper of a cost or batched-simulation rollout: the closed loop starts the
+/// lower level at rest with the measured speed and position; the open loop by
+/// `spec.init` with the measured (or zero) speed and position.
+fn start_stepper<const M: usize, const N: usize, const D: bool, C: Chain>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    chain: C,
+    spec: &CostSpec,
+    run: &RunRef,
+) -> Result<super::kernel::Stepper<M, N, D, C>> {
+    let accel = spec.kind == CommandKind::Acceleration;
+    let v0 = run.v.map_or(0.0, |v| v[0]);
+    let p0 = run.x.map_or(0.0, |x| x[0]);
+    let (s, int0) = if spec.closed_loop {
+        (start(lin, Init::Rest, 0.0)?, [v0, p0])
+    } else {
+        let s = start(lin, spec.init, run.command.map_or(0.0, |u| u[0]))?;
+        (s, if accel { [v0, p0] } else { [p0, 0.0] })
+    };
+    stepper::<M, N, D, C>(plant, lin, spec.integrators(), chain, accel, &s, int0)
+}
+
+/// Costs of `P` parameter rows (row-major, `spec.n_params()` each) on every run:
+/// a `P x R` row-major matrix of per-run costs, evaluated in parallel. Invalid or
+/// unstable rows get `inf`. Validates the spec and the runs first.
+pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Vec<f64>> {
+    spec.validate(runs)?;
+    cost_matrix(spec.n_params(), params, runs, |row, run| {
+        run_cost(spec, row, run, f64::INFINITY)
+    })
+}
+
+/// Evaluates `cost(row, run)` for every parameter row (row-major, `np` values each) and
+/// every run, in parallel: a `P x R` row-major matrix.
+pub fn cost_matrix<R: Sync>(
+    np: usize,
+    params: &[f64],
+    runs: &[R],
+    cost: impl Fn(&[f64], &R) -> f64 + Sync,
+) -> Result<Vec<f64>> {
+    let p = rows(np, params)?;
+    let r = runs.len();
+    let mut out = vec![0.0; p * r];
+    out.par_iter_mut().enumerate().for_each(|(k, o)| {
+        let (i, j) = (k / r, k % r);
+        *o = cost(&params[i * np..(i + 1) * np], &runs[j]);
+    });
+    Ok(out)
+}
+
+/// Number of rows of a row-major parameter array.
+fn rows(np: usize, params: &[f64]) -> Result<usize> {
+    if np == 0 || !params.len().is_multiple_of(np) {
+        return Err(AvllError::new(
+            "params",
+            format!(
+                "length {} is not a multiple of the row length {np}",
+                params.len()
+            ),
+        ));
+    }
+    Ok(params.len() / np)
+}
+
+/// Simulated acceleration, speed and position of every row on every run, as the
+/// cost sees them (the same drive, initial state and effects): row-major `P x T`
+/// arrays with `T` the runs' total length (run `r` at its offset). A row the cost
+/// calls invalid or unstable is NaN throughout; a closed-loop rollout that diverges
+/// is NaN after the divergence. Evaluated in parallel over (row, run).
+pub fn simulate_batch(
+    spec: &CostSpec,
+    params: &[f64],
+    runs: &[RunRef],
+    a: &mut [f64],
+    v: &mut [f64],
+    x: &mut [f64],
+) -> Result<()> {
+    spec.validate(runs)?;
+    let np = spec.n_params();
+    let p = rows(np, params)?;
+    let total: usize = runs.iter().map(|r| r.len()).sum();
+    for s in [&*a, &*v, &*x] {
+        if s.len() != p * total {
+            return Err(AvllError::new(
+                "out",
+                format!("has length {} but must have length {}", s.len(), p * total),
+            ));
+        }
+    }
+    let mut offsets = Vec::with_capacity(runs.len() + 1);
+    offsets.push(0);
+    for r in runs {
+        offsets.push(offsets.last().copied().unwrap_or(0) + r.len());
+    }
+    // Disjoint (row, run) output pieces, in parallel.
+    let mut pieces = Vec::with_capacity(p * runs.len());
+    let (mut ra, mut rv, mut rx) = (a, v, x);
+    for i in 0..p {
+        for r in runs {
+            let n = r.len();
+            let (ha, ta) = std::mem::take(&mut ra).split_at_mut(n);
+            let (hv, tv) = std::mem::take(&mut rv).split_at_mut(n);
+            let (hx, tx) = std::mem::take(&mut rx).split_at_mut(n);
+            pieces.push((i, r, ha, hv, hx));
+            ra = ta;
+            rv = tv;
+            rx = tx;
+        }
+    }
+    pieces.into_par_iter().for_each(|(i, run, pa, pv, px)| {
+        let row = &params[i * np..(i + 1) * np];
+        if !simulate_one(spec, row, run, pa, pv, px) {
+            pa.fill(f64::NAN);
+            pv.fill(f64::NAN);
+            px.fill(f64::NAN);
+        }
+    });
+    Ok(())
+}
+
+/// One (row, run) rollout of [`simulate_batch`]; `false` when the row is invalid or
+/// unstable.
+fn simulate_one(
+    spec: &CostSpec,
+    row: &[f64],
+    run: &RunRef,
+    a: &mut [f64],
+    v: &mut [f64],
+    x: &mut [f64],
+) -> bool {
+    let Some((lin, effs, up)) = spec.prepare(row, run) else {
+        return false;
+    };
+    let modal = effs.iter().map(|e| e.brake_time_scale()).product::<f64>() == 1.0;
+    let ints = Integrators::for_kind(spec.kind);
+    let r: Result<bool> = (|| {
+        with_plant!(
+            &lin,
+            ints,
+            run.dt,
+            modal,
+            sim_n(&lin, &effs, &up, spec, run, a, v, x)
+        )
+    })();
+    r.unwrap_or(false)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn sim_n<const M: usize, const N: usize, const D: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    effs: &[AnyEffect],
+    up: &Upper,
+    spec: &CostSpec,
+    run: &RunRef,
+    a: &mut [f64],
+    v: &mut [f64],
+    x: &mut [f64],
+) -> Result<bool> {
+    if !loop_stable(lin, &plant) {
+        return Ok(false);
+    }
+    // The trajectory needs the integrators even where the cost does not.
+    let full = CostSpec {
+        weights: [1.0, 1.0, 1.0],
+        ..spec.clone()
+    };
+    let drive = Drive {
+        closed: spec.closed_loop,
+        up: *up,
+        u: run.command.unwrap_or(&[]),
+        lx: run.lead_x.unwrap_or(&[]),
+        lv: run.lead_v.unwrap_or(&[]),
+    };
+    let f = |n: usize, o: &super::kernel::Obs| drive.command(n, o);
+    let len = run.len();
+    if effs.is_empty() {
+        let mut st = start_stepper::<M, N, D, _>(plant, lin, NoEffects, &full, run)?;
+        record(&mut st, len, f, a, v, x, spec.closed_loop);
+    } else {
+        let ch = Effects {
+            effects: effs.to_vec(),
+            exo: resolve_exo(effs, &run.exo, len)?,
+        };
+        let mut st = start_stepper::<M, N, D, _>(plant, lin, ch, &full, run)?;
+        record(&mut st, len, f, a, v, x, spec.closed_loop);
+    }
+    Ok(true)
+}
+
+/// Runs into the output slices: a closed loop that diverges is NaN after the
+/// divergence; an open loop is recorded as it is.
+fn record<const M: usize, const N: usize, const D: bool, C: Chain>(
+    st: &mut super::kernel::Stepper<M, N, D, C>,
+    len: usize,
+    f: impl FnMut(usize, &super::kernel::Obs) -> f64,
+    a: &mut [f64],
+    v: &mut [f64],
+    x: &mut [f64],
+    closed: bool,
+) {
+    if closed {
+        let mut rec = Record::<true>::new(a, v, x, None);
+        if !kernel::run(st, len, f, &mut rec) {
+            let w = rec.written;
+            rec.a[w..].fill(f64::NAN);
+            rec.v[w..].fill(f64::NAN);
+            rec.x[w..].fill(f64::NAN);
+        }
+    } else {
+        kernel::run(st, len, f, &mut Record::<false>::new(a, v, x, None));
+    }
+}

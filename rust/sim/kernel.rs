@@ -1,0 +1,432 @@
+//! The one step kernel. Every rollout (open loop, closed loop, platoon), every cost
+//! (linear or with effects, open or closed loop) and so the GA and the diagnosis run
+//! through [`Stepper`]: generic over the model order `M`, the state size `N` (model
+//! states plus integrators), the block structure `D` (diagonal modal block or full
+//! canonical block) and the effect chain `C` ([`NoEffects`] compiles every hook
+//! away).
+//!
+//! Per sample `n` (the convention of [`crate::sim::discretize`]):
+//! 1. [`Stepper::observe`]: the lower level's linear response `y_lin = C x`, and
+//!    for an acceleration command the actual acceleration
+//!    `a = output(y_lin) + disturbance(v, n)` with the actual speed and position
+//!    `v = v_lin + dv`, `p = p_lin + dp` (`dv, dp` integrate `a - y_lin` with the same
+//!    hold; zero without effects); for a speed command `v = y_lin`;
+//! 2. the command `u[n]` (recorded, or the upper law of the actual `p, v`);
+//! 3. [`Stepper::step`]: `u' = command(u, y)`, `u_ref = reference(u' + K y)` into the
+//!    dead-time line (branch-free ring buffer), and the exact step
+//!    `x[n+1] = Phi x[n] + G0 u_ref[n-i] + G1 u_ref[n-i-1]`, with the braking maps
+//!    while braking when an effect switches the dynamics.
+//!
+//! The structural zeros and ones of the transition (model rows never read the
+//! integrators; `v' = v + ...`, `p' = p + dt v + ...`) are used as such, so each
+//! integrator adds one addition to its own dependency chain and a diagonal modal
+//! block one multiply-add per mode.
+
+use super::chain::{Chain, NoEffects};
+use super::plant::Plant;
+
+/// Responses beyond this magnitude (m/s² or m/s) count as divergence.
+pub const DIVERGED: f64 = 1e6;
+
+/// Samples between two checks of a sink (divergence, early abandoning).
+pub const CHUNK: usize = 64;
+
+/// What the vehicle shows at a sample, before that sample's command acts.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Obs {
+    /// The linear part's response `C x` (acceleration or speed).
+    pub y_lin: f64,
+    /// The actual response fed back by the inner loop (`y_lin` after the output
+    /// maps and disturbances for an acceleration command; `y_lin` for a speed one).
+    pub y: f64,
+    /// Actual speed and position (0 when the stepper carries no integrators).
+    pub v: f64,
+    pub p: f64,
+}
+
+/// One vehicle's lower level being stepped.
+#[derive(Debug, Clone)]
+pub struct Stepper<const M: usize, const N: usize, const D: bool, C: Chain> {
+    pub plant: Plant<M, N>,
+    /// Braking maps and the state scaling into them (effects that switch dynamics).
+    brake: Option<(Plant<M, N>, [f64; 2])>,
+    pub chain: C,
+    buf: Vec<f64>,
+    mask: usize,
+    pub x: [f64; N],
+    dv: f64,
+    dp: f64,
+    accel: bool,
+    b0: f64,
+}
+
+impl<const M: usize, const N: usize, const D: bool> Stepper<M, N, D, NoEffects> {
+    /// A linear stepper (no effect).
+    pub fn linear(plant: Plant<M, N>, accel: bool, x0: [f64; N], w_hist: f64) -> Self {
+        Self::new(plant, None, NoEffects, accel, 0.0, x0, w_hist, 0.0)
+    }
+}
+
+impl<const M: usize, const N: usize, const D: bool, C: Chain> Stepper<M, N, D, C> {
+    /// A stepper at state `x0` (kernel coordinates) with the dead-time line filled
+    /// with `reference(w_hist)` and the chain reset to `u_hist`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        plant: Plant<M, N>,
+        brake: Option<(Plant<M, N>, [f64; 2])>,
+        mut chain: C,
+        accel: bool,
+        b0: f64,
+        x0: [f64; N],
+        w_hist: f64,
+        u_hist: f64,
+    ) -> Self {
+        debug_assert!(D == plant.diag || !D);
+        chain.reset(u_hist, plant.dt);
+        let cap = (plant.delay + 2).next_power_of_two();
+        let h = chain.reference(w_hist);
+        Self {
+            plant,
+            brake: if C::NONE { None } else { brake },
+            chain,
+            buf: vec![h; cap],
+            mask: cap - 1,
+            x: x0,
+            dv: 0.0,
+            dp: 0.0,
+            accel,
+            b0,
+        }
+    }
+
+    /// The response and the actual speed and position at sample `n`.
+    #[inline(always)]
+    pub fn observe(&self, n: usize) -> Obs {
+        let x = &self.x;
+        let p = &self.plant;
+        let mut y_lin = 0.0;
+        for j in 0..M {
+            y_lin += p.c[j] * x[j];
+        }
+        if !self.accel {
+            let pos = if N > M { x[M] } else { 0.0 };
+            return Obs {
+                y_lin,
+                y: y_lin,
+                v: y_lin,
+                p: pos,
+            };
+        }
+        if C::NONE {
+            return Obs {
+                y_lin,
+                y: y_lin,
+                v: if N > M { x[M] } else { 0.0 },
+                p: if N > M + 1 { x[M + 1] } else { 0.0 },
+            };
+        }
+        let v = if N > M { x[M] + self.dv } else { 0.0 };
+        let pos = if N > M + 1 { x[M + 1] + self.dp } else { 0.0 };
+        let y = self.chain.output(y_lin) + self.chain.disturbance(v, n);
+        Obs {
+            y_lin,
+            y,
+            v,
+            p: pos,
+        }
+    }
+
+    /// Applies the command `u` of sample `n` (observed as `o`) and steps to `n + 1`.
+    /// Returns the acceleration of sample `n` (`o.y` for an acceleration command; the
+    /// right-limit derivative of the speed for a speed command).
+    #[inline(always)]
+    pub fn step(&mut self, n: usize, o: &Obs, u: f64) -> f64 {
+        let p = &self.plant;
+        let uc = if C::NONE {
+            u
+        } else {
+            self.chain.command(u, o.y)
+        };
+        let r = if C::NONE {
+            u + p.k * o.y
+        } else {
+            self.chain.reference(uc + p.k * o.y)
+        };
+        let i = p.delay;
+        let mask = self.mask;
+        self.buf[n & mask] = r;
+        // Without whole-sample delay the new input acts at once: keep it in a register.
+        let w0 = if i == 0 {
+            r
+        } else {
+            self.buf[n.wrapping_sub(i) & mask]
+        };
+        let w1 = self.buf[n.wrapping_sub(i + 1) & mask];
+        let wf = if p.frac > 0.0 { w1 } else { w0 };
+        if !C::NONE {
+            if let Some((bp, s)) = &self.brake {
+                let demand = if self.accel {
+                    w0
+                } else {
+                    self.b0 * w0 - o.y_lin
+                };
+                if demand < 0.0 {
+                    let mut xb = self.x;
+                    for j in 0..M {
+                        xb[j] *= s[j];
+                    }
+                    let a = if self.accel {
+                        o.y
+                    } else {
+                        deriv::<M, N>(bp, &xb, wf)
+                    };
+                    let mut nx = advance::<M, N, false>(bp, &xb, w0, w1);
+                    for j in 0..M {
+                        nx[j] /= s[j];
+                    }
+                    self.x = nx;
+                    self.correct(o);
+                    return a;
+                }
+            }
+        }
+        let a = if self.accel {
+            o.y
+        } else {
+            deriv::<M, N>(p, &self.x, wf)
+        };
+        self.x = advance::<M, N, D>(p, &self.x, w0, w1);
+        self.correct(o);
+        a
+    }
+
+    /// Integrates the difference between the actual and the linear acceleration.
+    #[inline(always)]
+    fn correct(&mut self, o: &Obs) {
+        if !C::NONE && self.accel && N > M {
+            let dt = self.plant.dt;
+            let e = o.y - o.y_lin;
+            self.dp += dt * self.dv + 0.5 * dt * dt * e;
+            self.dv += dt * e;
+        }
+    }
+}
+
+/// The derivative of a speed response at `t_n+`: `ca x + cb w(t_n+)`.
+#[inline(always)]
+fn deriv<const M: usize, const N: usize>(p: &Plant<M, N>, x: &[f64; N], wf: f64) -> f64 {
+    let mut s = p.cb * wf;
+    for j in 0..M {
+        s += p.ca[j] * x[j];
+    }
+    s
+}
+
+/// One exact step in the kernel's coordinates, using the structure of `Phi`.
+#[inline(always)]
+fn advance<const M: usize, const N: usize, const D: bool>(
+    p: &Plant<M, N>,
+    x: &[f64; N],
+    w0: f64,
+    w1: f64,
+) -> [f64; N] {
+    let mut o = [0.0; N];
+    for r in 0..M {
+        let t = p.g0[r] * w0 + p.g1[r] * w1;
+        o[r] = if D || M == 1 {
+            t + p.phi[r][r] * x[r]
+        } else {
+            // Own state last: one multiply-add on the row's own chain.
+            (t + p.phi[r][1 - r] * x[1 - r]) + p.phi[r][r] * x[r]
+        };
+    }
+    if N > M {
+        // First integrator (speed, or position for a speed command): s' = s + ...
+        let mut t = p.g0[M] * w0 + p.g1[M] * w1;
+        for j in 0..M {
+            t += p.phi[M][j] * x[j];
+        }
+        o[M] = x[M] + t;
+    }
+    if N > M + 1 {
+        // Position behind speed: p' = p + dt v + ...
+        let mut t = p.g0[M + 1] * w0 + p.g1[M + 1] * w1 + p.phi[M + 1][M] * x[M];
+        for j in 0..M {
+            t += p.phi[M + 1][j] * x[j];
+        }
+        o[M + 1] = x[M + 1] + t;
+    }
+    o
+}
+
+/// Where the samples of a run go.
+pub trait Sink {
+    /// Records sample `n`: acceleration, speed, position, command and the linear
+    /// response.
+    fn put(&mut self, n: usize, a: f64, v: f64, p: f64, u: f64, y_lin: f64);
+    /// Called after samples `from..to`; `false` stops the run.
+    fn proceed(&mut self, from: usize, to: usize) -> bool;
+}
+
+/// Runs `len` samples: the command of sample `n` is `drive(n, &obs)`. Returns
+/// `false` if the sink stopped the run.
+#[inline(always)]
+pub fn run<const M: usize, const N: usize, const D: bool, C: Chain, S: Sink>(
+    st: &mut Stepper<M, N, D, C>,
+    len: usize,
+    mut drive: impl FnMut(usize, &Obs) -> f64,
+    sink: &mut S,
+) -> bool {
+    let mut from = 0;
+    while from < len {
+        let to = (from + CHUNK).min(len);
+        for n in from..to {
+            let o = st.observe(n);
+            let u = drive(n, &o);
+            let a = st.step(n, &o, u);
+            sink.put(n, a, o.v, o.p, u, o.y_lin);
+        }
+        if !sink.proceed(from, to) {
+            return false;
+        }
+        from = to;
+    }
+    true
+}
+
+/// The one SSE accumulator of the Eq. 6 cost: squared errors of acceleration and,
+/// when `FULL`, speed and position against the measurements, with the largest
+/// response seen (for the divergence test) and an optional bound on the weighted
+/// sum (early abandoning).
+pub struct Sse<'a, const FULL: bool> {
+    pub a: &'a [f64],
+    pub v: &'a [f64],
+    pub x: &'a [f64],
+    pub w: [f64; 3],
+    pub sums: [f64; 3],
+    pub peak: f64,
+    pub limit: f64,
+}
+
+impl<'a, const FULL: bool> Sse<'a, FULL> {
+    pub fn new(a: &'a [f64], v: &'a [f64], x: &'a [f64], w: [f64; 3], limit: f64) -> Self {
+        Self {
+            a,
+            v,
+            x,
+            w,
+            sums: [0.0; 3],
+            peak: 0.0,
+            limit,
+        }
+    }
+
+    /// The weighted sum `wa sa + wv sv + wx sx`.
+    #[inline(always)]
+    pub fn weighted(&self) -> f64 {
+        self.w[0] * self.sums[0] + self.w[1] * self.sums[1] + self.w[2] * self.sums[2]
+    }
+
+    /// The Eq. 6 run cost over `n` samples: `weighted / n`, or `inf` when the run
+    /// diverged, was abandoned or is not finite.
+    pub fn cost(&self, completed: bool, n: usize) -> f64 {
+        let c = self.weighted() / n as f64;
+        if completed && self.peak < DIVERGED && c.is_finite() {
+            c
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+impl<const FULL: bool> Sink for Sse<'_, FULL> {
+    #[inline(always)]
+    fn put(&mut self, n: usize, a: f64, v: f64, p: f64, _u: f64, y_lin: f64) {
+        let e = a - self.a[n];
+        self.sums[0] += e * e;
+        if FULL {
+            let ev = v - self.v[n];
+            let ex = p - self.x[n];
+            self.sums[1] += ev * ev;
+            self.sums[2] += ex * ex;
+            self.peak = self.peak.max(v.abs());
+        }
+        self.peak = self.peak.max(a.abs()).max(y_lin.abs());
+    }
+
+    #[inline(always)]
+    fn proceed(&mut self, _: usize, _: usize) -> bool {
+        // NaN anywhere makes the sums NaN: `!(x < y)` catches it.
+        self.peak < DIVERGED && self.weighted() < self.limit
+    }
+}
+
+/// Writes the trajectory into caller-provided slices; with `STOP`, stops at the
+/// first sample whose acceleration or speed leaves `|.| < DIVERGED` (that sample is
+/// written; `written` says how many were).
+pub struct Record<'a, const STOP: bool> {
+    pub a: &'a mut [f64],
+    pub v: &'a mut [f64],
+    pub x: &'a mut [f64],
+    pub u: Option<&'a mut [f64]>,
+    pub written: usize,
+}
+
+impl<'a, const STOP: bool> Record<'a, STOP> {
+    pub fn new(
+        a: &'a mut [f64],
+        v: &'a mut [f64],
+        x: &'a mut [f64],
+        u: Option<&'a mut [f64]>,
+    ) -> Self {
+        Self {
+            a,
+            v,
+            x,
+            u,
+            written: 0,
+        }
+    }
+}
+
+impl<const STOP: bool> Sink for Record<'_, STOP> {
+    #[inline(always)]
+    fn put(&mut self, n: usize, a: f64, v: f64, p: f64, u: f64, _y_lin: f64) {
+        self.a[n] = a;
+        self.v[n] = v;
+        self.x[n] = p;
+        if let Some(c) = self.u.as_deref_mut() {
+            c[n] = u;
+        }
+    }
+
+    #[inline(always)]
+    fn proceed(&mut self, from: usize, to: usize) -> bool {
+        if STOP {
+            for n in from..to {
+                if !(self.a[n].abs() < DIVERGED && self.v[n].abs() < DIVERGED) {
+                    self.written = n + 1;
+                    return false;
+                }
+            }
+        }
+        self.written = to;
+        true
+    }
+}
+
+/// Only the response (`simulate`): acceleration for an acceleration command, speed
+/// for a speed command.
+pub struct Response<'a>(pub &'a mut [f64]);
+
+impl Sink for Response<'_> {
+    #[inline(always)]
+    fn put(&mut self, n: usize, _a: f64, _v: f64, _p: f64, _u: f64, y_lin: f64) {
+        self.0[n] = y_lin;
+    }
+
+    #[inline(always)]
+    fn proceed(&mut self, _: usize, _: usize) -> bool {
+        true
+    }
+}

@@ -1,0 +1,64 @@
+//! Simulation: the exact discretization, the one step kernel and everything built
+//! on it (rollouts, run sets, the Eq. 6 cost).
+//!
+//! * [`discretize`]: exact zero-order hold with a fractional dead time;
+//! * [`plant`]: the discretized lower level in the kernel's coordinates (modal when
+//!   safe) and the one initial-state routine;
+//! * [`chain`]: the effect chain (none: the linear fast path);
+//! * [`kernel`]: the one stepping loop and its sinks (trajectory, SSE);
+//! * [`rollout`]: open loop, closed loop, platoons;
+//! * [`cost`]: run references, the cost specification, batched costs and batched
+//!   simulation.
+//!
+//! Initial conditions (stated once, applied identically in `avll.reference`):
+//! [`Init::Rest`] — zero model state and input history; [`Init::Steady`] — the
+//! lower level at the equilibrium of the first command held forever. Integrators
+//! (speed, position) start at the given or measured values. Closed loops and
+//! platoons start the lower level at rest.
+
+// State-space loops index several arrays by the same state index.
+#![allow(clippy::needless_range_loop)]
+
+pub mod chain;
+pub mod cost;
+pub mod discretize;
+pub mod kernel;
+pub mod plant;
+pub mod rollout;
+
+pub use cost::{batch_cost, run_cost, CostSpec, RunRef};
+pub use kernel::DIVERGED;
+pub use plant::Init;
+pub use rollout::{
+    closed_loop, platoon, simulate, simulate_full, simulate_into, Trajectory, Upper,
+};
+
+/// Dispatches on the model order and the integrators: builds the [`plant::Plant`]
+/// and calls `$f::<M, N, D>(plant, args...)` with `D` telling whether the model
+/// block is diagonal (modal coordinates).
+macro_rules! with_plant {
+    ($lin:expr, $ints:expr, $dt:expr, $modal:expr, $f:ident ( $($arg:expr),* )) => {{
+        use $crate::sim::discretize::Integrators as I;
+        use $crate::sim::plant::Plant;
+        match ($lin.order(), $ints) {
+            (1, I::None) => $f::<1, 1, true>(Plant::<1, 1>::new($lin, $ints, $dt, false)? $(, $arg)*),
+            (1, I::Position) => $f::<1, 2, true>(Plant::<1, 2>::new($lin, $ints, $dt, false)? $(, $arg)*),
+            (1, I::SpeedPosition) => {
+                $f::<1, 3, true>(Plant::<1, 3>::new($lin, $ints, $dt, false)? $(, $arg)*)
+            }
+            (_, I::None) => {
+                let p = Plant::<2, 2>::new($lin, $ints, $dt, $modal)?;
+                if p.diag { $f::<2, 2, true>(p $(, $arg)*) } else { $f::<2, 2, false>(p $(, $arg)*) }
+            }
+            (_, I::Position) => {
+                let p = Plant::<2, 3>::new($lin, $ints, $dt, $modal)?;
+                if p.diag { $f::<2, 3, true>(p $(, $arg)*) } else { $f::<2, 3, false>(p $(, $arg)*) }
+            }
+            (_, I::SpeedPosition) => {
+                let p = Plant::<2, 4>::new($lin, $ints, $dt, $modal)?;
+                if p.diag { $f::<2, 4, true>(p $(, $arg)*) } else { $f::<2, 4, false>(p $(, $arg)*) }
+            }
+        }
+    }};
+}
+pub(crate) use with_plant;

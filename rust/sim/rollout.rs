@@ -1,0 +1,548 @@
+//! Rollouts on the one kernel: open loop (driven by a recorded command), closed loop
+//! (behind a recorded leader through the upper-level constant-time-gap law, paper
+//! Eq. 3) and platoons (time-major: every follower advances one sample before any
+//! advances the next). Each takes an optional effect list (empty: the linear fast
+//! path) with its exogenous signals, and writes into caller-provided slices
+//! (`*_into`) or returns a [`Trajectory`].
+
+use super::chain::{check_kind, resolve_exo, Chain, Effects, NoEffects};
+use super::discretize::Integrators;
+use super::kernel::{run, Record, Response, Stepper, DIVERGED};
+use super::plant::{start, Init, Plant, Start};
+use super::with_plant;
+use crate::effects::AnyEffect;
+use crate::error::{check_finite, check_series, AvllError, Result};
+use crate::model::{CommandKind, Linear};
+
+/// Upper-level constant-time-gap law, paper Eq. 3:
+/// `a_cmd = kg (x_lead - x - Tg v - Gmin) + kv (v_lead - v)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Upper {
+    pub kg: f64,
+    pub kv: f64,
+    pub tg: f64,
+    pub gmin: f64,
+}
+
+impl Upper {
+    pub const NAMES: [&'static str; 4] = ["kg", "kv", "Tg", "Gmin"];
+
+    #[inline(always)]
+    pub fn command(&self, lead_x: f64, lead_v: f64, x: f64, v: f64) -> f64 {
+        self.kg * (lead_x - x - self.tg * v - self.gmin) + self.kv * (lead_v - v)
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        for (n, x) in Self::NAMES
+            .iter()
+            .zip([self.kg, self.kv, self.tg, self.gmin])
+        {
+            check_finite(n, x)?;
+        }
+        Ok(())
+    }
+
+    pub fn get(&self, i: usize) -> f64 {
+        [self.kg, self.kv, self.tg, self.gmin][i]
+    }
+
+    pub fn set(&mut self, i: usize, x: f64) {
+        match i {
+            0 => self.kg = x,
+            1 => self.kv = x,
+            2 => self.tg = x,
+            _ => self.gmin = x,
+        }
+    }
+}
+
+/// A simulated trajectory. For an acceleration command `a` is the response and
+/// `v`, `x` its integrals; for a speed command `v` is the response, `a` its time
+/// derivative at each sample (right limit) and `x` its integral.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Trajectory {
+    pub a: Vec<f64>,
+    pub v: Vec<f64>,
+    pub x: Vec<f64>,
+    /// Command fed to the lower level (closed loop: the upper law's output).
+    pub command: Vec<f64>,
+}
+
+impl Trajectory {
+    /// `n` samples of `fill`.
+    pub fn filled(n: usize, fill: f64) -> Self {
+        Self {
+            a: vec![fill; n],
+            v: vec![fill; n],
+            x: vec![fill; n],
+            command: vec![fill; n],
+        }
+    }
+}
+
+/// The effect list of a rollout with its exogenous series resolved.
+#[derive(Debug, Clone, Copy)]
+pub struct EffectsRef<'a> {
+    pub effects: &'a [AnyEffect],
+    pub exo: &'a [(&'a str, &'a [f64])],
+}
+
+impl<'a> EffectsRef<'a> {
+    pub const NONE: EffectsRef<'static> = EffectsRef {
+        effects: &[],
+        exo: &[],
+    };
+
+    /// The chain for a run of `len` samples (checks the exogenous signals).
+    fn chain(&self, len: usize) -> Result<Effects<'a>> {
+        Ok(Effects {
+            effects: self.effects.to_vec(),
+            exo: resolve_exo(self.effects, self.exo, len)?,
+        })
+    }
+
+    /// Whether the modal form may be used (no effect switches the dynamics).
+    pub fn modal(&self) -> bool {
+        self.effects
+            .iter()
+            .map(|e| e.brake_time_scale())
+            .product::<f64>()
+            == 1.0
+    }
+}
+
+/// A stepper for `plant` with `chain`, started at `s` with the integrators at `int0`.
+pub(crate) fn stepper<const M: usize, const N: usize, const D: bool, C: Chain>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    ints: Integrators,
+    chain: C,
+    accel: bool,
+    s: &Start,
+    int0: [f64; 2],
+) -> Result<Stepper<M, N, D, C>> {
+    let r = chain.brake_time_scale();
+    let brake = if !C::NONE && r != 1.0 {
+        let lb = Linear {
+            b1: r * lin.b1,
+            b0: lin.b0,
+            a2: r * r * lin.a2,
+            a1: r * lin.a1,
+            td: lin.td,
+            k: lin.k,
+        };
+        let bp = Plant::<M, N>::new(&lb, ints, plant.dt, false)?;
+        let scale = if M == 2 { [r * r, r] } else { [r, 1.0] };
+        Some((bp, scale))
+    } else {
+        None
+    };
+    let x0 = plant.state(s, int0);
+    Ok(Stepper::new(
+        plant, brake, chain, accel, lin.b0, x0, s.w_hist, s.u_hist,
+    ))
+}
+
+fn check_len(arg: &str, xs: &[f64], len: usize) -> Result<()> {
+    if xs.len() != len {
+        return Err(AvllError::new(
+            arg,
+            format!("has length {} but must have length {len}", xs.len()),
+        ));
+    }
+    Ok(())
+}
+
+fn response_n<const M: usize, const N: usize, const D: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    u: &[f64],
+    init: Init,
+    y: &mut [f64],
+) -> Result<()> {
+    let s = start(lin, init, u.first().copied().unwrap_or(0.0))?;
+    let mut st =
+        stepper::<M, N, D, _>(plant, lin, Integrators::None, NoEffects, true, &s, [0.0; 2])?;
+    run(&mut st, u.len(), |n, _| u[n], &mut Response(y));
+    Ok(())
+}
+
+/// Open-loop response of the linear lower level (acceleration for an acceleration
+/// command, speed for a speed command) into `y`.
+pub fn simulate_into(lin: &Linear, u: &[f64], dt: f64, init: Init, y: &mut [f64]) -> Result<()> {
+    check_series("command", u)?;
+    check_len("out", y, u.len())?;
+    with_plant!(
+        lin,
+        Integrators::None,
+        dt,
+        true,
+        response_n(lin, u, init, y)
+    )
+}
+
+/// Open-loop response as a new vector.
+pub fn simulate(lin: &Linear, u: &[f64], dt: f64, init: Init) -> Result<Vec<f64>> {
+    let mut y = vec![0.0; u.len()];
+    simulate_into(lin, u, dt, init, &mut y)?;
+    Ok(y)
+}
+
+/// Output slices of one trajectory.
+pub struct Out<'a> {
+    pub a: &'a mut [f64],
+    pub v: &'a mut [f64],
+    pub x: &'a mut [f64],
+    pub u: Option<&'a mut [f64]>,
+}
+
+impl<'a> Out<'a> {
+    pub fn of(tr: &'a mut Trajectory) -> Self {
+        Self {
+            a: &mut tr.a,
+            v: &mut tr.v,
+            x: &mut tr.x,
+            u: Some(&mut tr.command),
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn full_n<const M: usize, const N: usize, const D: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    eff: &EffectsRef,
+    kind: CommandKind,
+    u: &[f64],
+    init: Init,
+    v0: f64,
+    p0: f64,
+    out: Out,
+) -> Result<()> {
+    let ints = Integrators::for_kind(kind);
+    let accel = kind == CommandKind::Acceleration;
+    let s = start(lin, init, u.first().copied().unwrap_or(0.0))?;
+    let int0 = if accel { [v0, p0] } else { [p0, 0.0] };
+    let mut rec = Record::<false>::new(out.a, out.v, out.x, out.u);
+    if eff.effects.is_empty() {
+        let mut st = stepper::<M, N, D, _>(plant, lin, ints, NoEffects, accel, &s, int0)?;
+        run(&mut st, u.len(), |n, _| u[n], &mut rec);
+    } else {
+        let ch = eff.chain(u.len())?;
+        let mut st = stepper::<M, N, D, _>(plant, lin, ints, ch, accel, &s, int0)?;
+        run(&mut st, u.len(), |n, _| u[n], &mut rec);
+    }
+    Ok(())
+}
+
+/// Open-loop rollout with the integrated states into `out` (see [`Trajectory`]);
+/// the command slot of `out` receives the command. `v0`, `p0` are the initial speed
+/// and position (for a speed command the initial speed is the model's own).
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_full_into(
+    lin: &Linear,
+    eff: &EffectsRef,
+    kind: CommandKind,
+    u: &[f64],
+    dt: f64,
+    init: Init,
+    v0: f64,
+    p0: f64,
+    out: Out,
+) -> Result<()> {
+    check_series("command", u)?;
+    check_finite("v0", v0)?;
+    check_finite("x0", p0)?;
+    check_kind(eff.effects, kind)?;
+    for s in [&out.a, &out.v, &out.x] {
+        check_len("out", s, u.len())?;
+    }
+    let ints = Integrators::for_kind(kind);
+    with_plant!(
+        lin,
+        ints,
+        dt,
+        eff.modal(),
+        full_n(lin, eff, kind, u, init, v0, p0, out)
+    )
+}
+
+/// Open-loop rollout with the integrated states, as a new [`Trajectory`].
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_full(
+    lin: &Linear,
+    eff: &EffectsRef,
+    kind: CommandKind,
+    u: &[f64],
+    dt: f64,
+    init: Init,
+    v0: f64,
+    p0: f64,
+) -> Result<Trajectory> {
+    let mut tr = Trajectory::filled(u.len(), 0.0);
+    let mut out = Out::of(&mut tr);
+    out.u = None;
+    simulate_full_into(lin, eff, kind, u, dt, init, v0, p0, out)?;
+    tr.command = u.to_vec();
+    Ok(tr)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn closed_n<const M: usize, const N: usize, const D: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    eff: &EffectsRef,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    v0: f64,
+    p0: f64,
+    out: Out,
+) -> Result<usize> {
+    let s = start(lin, Init::Rest, 0.0)?;
+    let ints = Integrators::SpeedPosition;
+    let mut rec = Record::<true>::new(out.a, out.v, out.x, out.u);
+    let law = |n: usize, o: &super::kernel::Obs| up.command(lead_x[n], lead_v[n], o.p, o.v);
+    if eff.effects.is_empty() {
+        let mut st = stepper::<M, N, D, _>(plant, lin, ints, NoEffects, true, &s, [v0, p0])?;
+        run(&mut st, lead_x.len(), law, &mut rec);
+    } else {
+        let ch = eff.chain(lead_x.len())?;
+        let mut st = stepper::<M, N, D, _>(plant, lin, ints, ch, true, &s, [v0, p0])?;
+        run(&mut st, lead_x.len(), law, &mut rec);
+    }
+    Ok(rec.written)
+}
+
+fn check_leader(lead_x: &[f64], lead_v: &[f64]) -> Result<()> {
+    check_series("lead_x", lead_x)?;
+    check_series("lead_v", lead_v)?;
+    check_len("lead_v", lead_v, lead_x.len())
+}
+
+/// Closed-loop car following behind a recorded leader into `out` (the upper law
+/// Eq. 3 evaluated at the samples; the lower level starts at rest). If the follower
+/// diverges (`|a|` or `|v|` reaches [`DIVERGED`]) the rest of the outputs are NaN.
+#[allow(clippy::too_many_arguments)]
+pub fn closed_loop_into(
+    lin: &Linear,
+    eff: &EffectsRef,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    dt: f64,
+    v0: f64,
+    p0: f64,
+    mut out: Out,
+) -> Result<()> {
+    up.validate()?;
+    check_leader(lead_x, lead_v)?;
+    check_finite("v0", v0)?;
+    check_finite("x0", p0)?;
+    check_kind(eff.effects, CommandKind::Acceleration)?;
+    let n = lead_x.len();
+    for s in [&out.a, &out.v, &out.x] {
+        check_len("out", s, n)?;
+    }
+    let written = with_plant!(
+        lin,
+        Integrators::SpeedPosition,
+        dt,
+        eff.modal(),
+        closed_n(
+            lin,
+            eff,
+            up,
+            lead_x,
+            lead_v,
+            v0,
+            p0,
+            Out {
+                a: &mut *out.a,
+                v: &mut *out.v,
+                x: &mut *out.x,
+                u: out.u.as_deref_mut(),
+            }
+        )
+    )?;
+    out.a[written..].fill(f64::NAN);
+    out.v[written..].fill(f64::NAN);
+    out.x[written..].fill(f64::NAN);
+    if let Some(u) = out.u {
+        u[written..].fill(f64::NAN);
+    }
+    Ok(())
+}
+
+/// Closed-loop car following as a new [`Trajectory`] (see [`closed_loop_into`]).
+#[allow(clippy::too_many_arguments)]
+pub fn closed_loop(
+    lin: &Linear,
+    eff: &EffectsRef,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    dt: f64,
+    v0: f64,
+    p0: f64,
+) -> Result<Trajectory> {
+    let mut tr = Trajectory::filled(lead_x.len(), 0.0);
+    closed_loop_into(lin, eff, up, lead_x, lead_v, dt, v0, p0, Out::of(&mut tr))?;
+    Ok(tr)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn platoon_n<const M: usize, const N: usize, const D: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    eff: &EffectsRef,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    outs: &mut [Out],
+) -> Result<()> {
+    if eff.effects.is_empty() {
+        platoon_chain::<M, N, D, _>(plant, lin, NoEffects, up, lead_x, lead_v, outs)
+    } else {
+        let ch = eff.chain(lead_x.len())?;
+        platoon_chain::<M, N, D, _>(plant, lin, ch, up, lead_x, lead_v, outs)
+    }
+}
+
+/// Time-major platoon stepping: at each sample every follower observes its state,
+/// takes the upper law's command from its predecessor's observed position and speed
+/// and steps. The followers' steps within a sample are independent, so they overlap
+/// in the pipeline.
+fn platoon_chain<const M: usize, const N: usize, const D: bool, C: Chain + Clone>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    chain: C,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    outs: &mut [Out],
+) -> Result<()> {
+    let len = lead_x.len();
+    let f = outs.len();
+    let v0 = lead_v[0];
+    let s = start(lin, Init::Rest, 0.0)?;
+    let gap = up.gmin + up.tg * v0;
+    let mut cars = Vec::with_capacity(f);
+    for j in 0..f {
+        let p0 = lead_x[0] - (j + 1) as f64 * gap;
+        cars.push(stepper::<M, N, D, C>(
+            plant,
+            lin,
+            Integrators::SpeedPosition,
+            chain.clone(),
+            true,
+            &s,
+            [v0, p0],
+        )?);
+    }
+    // `alive`: followers ahead of the first diverged one (it and those behind stop).
+    let mut alive = f;
+    let mut from = 0;
+    while from < len && alive > 0 {
+        let to = (from + super::kernel::CHUNK).min(len);
+        for n in from..to {
+            let (mut px, mut pv) = (lead_x[n], lead_v[n]);
+            for (car, o) in cars[..alive].iter_mut().zip(outs.iter_mut()) {
+                let ob = car.observe(n);
+                let u = up.command(px, pv, ob.p, ob.v);
+                let a = car.step(n, &ob, u);
+                o.a[n] = a;
+                o.v[n] = ob.v;
+                o.x[n] = ob.p;
+                if let Some(c) = o.u.as_deref_mut() {
+                    c[n] = u;
+                }
+                px = ob.p;
+                pv = ob.v;
+            }
+        }
+        // Divergence: the first follower whose acceleration or speed left the range.
+        let mut first = None;
+        'scan: for (j, o) in outs[..alive].iter().enumerate() {
+            for n in from..to {
+                if !(o.a[n].abs() < DIVERGED && o.v[n].abs() < DIVERGED) {
+                    first = Some((j, n));
+                    break 'scan;
+                }
+            }
+        }
+        if let Some((j, n)) = first {
+            // Follower j: NaN after sample n; followers behind it: NaN throughout.
+            let o = &mut outs[j];
+            for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
+                s[n + 1..].fill(f64::NAN);
+            }
+            if let Some(c) = o.u.as_deref_mut() {
+                c[n + 1..].fill(f64::NAN);
+            }
+            for o in outs[j + 1..alive].iter_mut() {
+                for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
+                    s.fill(f64::NAN);
+                }
+                if let Some(c) = o.u.as_deref_mut() {
+                    c.fill(f64::NAN);
+                }
+            }
+            alive = j;
+        }
+        from = to;
+    }
+    Ok(())
+}
+
+/// A platoon of identical vehicles behind a recorded leader, one output per
+/// follower (leader excluded), written time-major. Each follower starts at the
+/// leader's initial speed, at the equilibrium gap `Gmin + Tg v` behind its
+/// predecessor, with the lower level at rest. A diverged follower's outputs are NaN
+/// after the divergence, and those of the followers behind it throughout.
+pub fn platoon_into(
+    lin: &Linear,
+    eff: &EffectsRef,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    dt: f64,
+    outs: &mut [Out],
+) -> Result<()> {
+    up.validate()?;
+    check_leader(lead_x, lead_v)?;
+    check_kind(eff.effects, CommandKind::Acceleration)?;
+    if lead_x.is_empty() {
+        return Err(AvllError::new("lead_x", "is empty"));
+    }
+    for o in outs.iter() {
+        for s in [&o.a, &o.v, &o.x] {
+            check_len("out", s, lead_x.len())?;
+        }
+    }
+    with_plant!(
+        lin,
+        Integrators::SpeedPosition,
+        dt,
+        eff.modal(),
+        platoon_n(lin, eff, up, lead_x, lead_v, outs)
+    )
+}
+
+/// A platoon as new trajectories (see [`platoon_into`]).
+pub fn platoon(
+    lin: &Linear,
+    eff: &EffectsRef,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    dt: f64,
+    followers: usize,
+) -> Result<Vec<Trajectory>> {
+    let mut trs: Vec<Trajectory> = (0..followers)
+        .map(|_| Trajectory::filled(lead_x.len(), 0.0))
+        .collect();
+    let mut outs: Vec<Out> = trs.iter_mut().map(Out::of).collect();
+    platoon_into(lin, eff, up, lead_x, lead_v, dt, &mut outs)?;
+    Ok(trs)
+}
