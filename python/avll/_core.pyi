@@ -1,6 +1,6 @@
 # Stubs of the Rust extension avll._core (checked with mypy.stubtest in the tests).
 from collections.abc import Callable
-from typing import Any
+from typing import Any, final
 
 import numpy as np
 import numpy.typing as npt
@@ -8,6 +8,7 @@ import numpy.typing as npt
 __version__: str
 
 # --- run sets (rust/bindings/runs.rs) ---
+@final
 class RunSet:
     def __new__(
         cls,

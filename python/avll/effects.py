@@ -492,7 +492,7 @@ def calibrate_effects(
         _core.calibrate(
             cls.name, lower_bounds=[float(x) for x in lower],
             upper_bounds=[float(x) for x in upper], scale=[str(x) for x in scale],
-            effects=list(names), options=opts, initial=ini, progress=progress,
+            effects=list(names), options=opts, initial=ini, progress=progress, derive_seeds=False,
             threads=int(threads), **kw,
         )[0]
     )  # fmt: skip
