@@ -62,3 +62,6 @@ macro_rules! with_plant {
     }};
 }
 pub(crate) use with_plant;
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,473 @@
+//! Tests of the one kernel: analytic responses, modal vs canonical coordinates, the
+//! effect chain at neutral parameters vs the linear fast path, time-major platoons
+//! vs followers stepped one by one, batched simulation vs the single rollouts, and
+//! the cost's early abandoning.
+
+use super::chain::NoEffects;
+use super::cost::{batch_cost, run_cost, simulate_batch, CostSpec, RunRef};
+use super::discretize::Integrators;
+use super::kernel::{run, Record};
+use super::plant::{Init, Plant};
+use super::rollout::{
+    closed_loop, platoon, simulate, simulate_full, stepper, EffectsRef, Trajectory, Upper,
+};
+use crate::effects::{EffectKind, EffectList, Operating};
+use crate::model::{CommandKind, Linear, ModelKind};
+
+fn proposed() -> Linear {
+    Linear {
+        b1: 6.7893,
+        b0: 0.3479,
+        a2: 1.2824,
+        a1: 8.8157,
+        td: 0.7903,
+        k: 0.1008,
+    }
+}
+
+fn second() -> Linear {
+    Linear {
+        b1: 0.0,
+        b0: 0.7292,
+        a2: 0.0445,
+        a1: 0.1305,
+        td: 0.7796,
+        k: 0.0,
+    }
+}
+
+fn cmd(n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|k| {
+            let t = k as f64 * 0.05;
+            1.5 * (0.3 * t).sin() + 0.7 * (1.1 * t).cos()
+        })
+        .collect()
+}
+
+/// Largest difference relative to the signal's size (at least 1).
+fn max_diff(a: &[f64], b: &[f64]) -> f64 {
+    let scale = b.iter().fold(1.0f64, |m, y| m.max(y.abs()));
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+        / scale
+}
+
+fn leader(n: usize, dt: f64) -> (Vec<f64>, Vec<f64>) {
+    let lv: Vec<f64> = (0..n)
+        .map(|k| 10.0 + 2.0 * (0.2 * k as f64 * dt).sin())
+        .collect();
+    let mut lx = vec![100.0; n];
+    for k in 1..n {
+        lx[k] = lx[k - 1] + 0.5 * dt * (lv[k] + lv[k - 1]);
+    }
+    (lx, lv)
+}
+
+const UP: Upper = Upper {
+    kg: 0.5,
+    kv: 0.1,
+    tg: 2.0,
+    gmin: 9.5,
+};
+
+#[test]
+fn first_order_step_is_analytic() {
+    let lin = Linear {
+        b1: 0.0,
+        b0: 1.0,
+        a2: 0.0,
+        a1: 1.0758,
+        td: 0.0,
+        k: 0.0,
+    };
+    let y = simulate(&lin, &[1.0; 200], 0.05, Init::Rest).unwrap();
+    for (n, yn) in y.iter().enumerate() {
+        let t = n as f64 * 0.05;
+        assert!((yn - (1.0 - (-t / 1.0758).exp())).abs() < 1e-12, "n={n}");
+    }
+}
+
+#[test]
+fn second_order_step_with_fractional_delay_is_analytic() {
+    // 1/((s+1)(s+2)) * 2 -> a2 = 0.5, a1 = 1.5 (real modes: the modal path).
+    for td in [0.3, 0.137] {
+        let lin = Linear {
+            b1: 0.0,
+            b0: 0.8,
+            a2: 0.5,
+            a1: 1.5,
+            td,
+            k: 0.0,
+        };
+        let y = simulate(&lin, &[1.0; 300], 0.05, Init::Rest).unwrap();
+        for (n, yn) in y.iter().enumerate() {
+            let t = n as f64 * 0.05 - td;
+            let want = if t <= 0.0 {
+                0.0
+            } else {
+                0.8 * (1.0 - 2.0 * (-t).exp() + (-2.0 * t).exp())
+            };
+            assert!((yn - want).abs() < 1e-12, "td={td} n={n} {yn} {want}");
+        }
+    }
+}
+
+/// The open-loop response in canonical coordinates (the modal form switched off).
+fn canonical_response(lin: &Linear, u: &[f64], init: Init) -> Vec<f64> {
+    let p = Plant::<2, 4>::new(lin, Integrators::SpeedPosition, 0.05, false).unwrap();
+    let s = super::plant::start(lin, init, u[0]).unwrap();
+    let mut st = stepper::<2, 4, false, _>(
+        p,
+        lin,
+        Integrators::SpeedPosition,
+        NoEffects,
+        true,
+        &s,
+        [0.0; 2],
+    )
+    .unwrap();
+    let mut tr = Trajectory::filled(u.len(), 0.0);
+    let mut rec = Record::<false>::new(&mut tr.a, &mut tr.v, &mut tr.x, None);
+    run(&mut st, u.len(), |n, _| u[n], &mut rec);
+    tr.a
+}
+
+#[test]
+fn modal_form_equals_canonical_form() {
+    let u = cmd(4000);
+    for init in [Init::Rest, Init::Steady] {
+        let want = canonical_response(&proposed(), &u, init);
+        let got = simulate(&proposed(), &u, 0.05, init).unwrap();
+        let d = max_diff(&got, &want);
+        assert!(d < 1e-12, "{d}");
+        let full = simulate_full(
+            &proposed(),
+            &EffectsRef::NONE,
+            CommandKind::Acceleration,
+            &u,
+            0.05,
+            init,
+            0.0,
+            0.0,
+        )
+        .unwrap();
+        assert!(max_diff(&full.a, &want) < 1e-12);
+    }
+}
+
+#[test]
+fn proposed_dc_gain_and_steady_start() {
+    let lin = proposed();
+    let y = simulate(&lin, &vec![1.0; 20000], 0.05, Init::Rest).unwrap();
+    assert!((y[19999] - lin.dc_gain()).abs() < 1e-6);
+    let y = simulate(&lin, &[2.0; 500], 0.05, Init::Steady).unwrap();
+    for yn in &y {
+        assert!((yn - 2.0 * lin.dc_gain()).abs() < 1e-9);
+    }
+}
+
+#[test]
+fn closed_loop_reaches_equilibrium_gap() {
+    let n = 20000;
+    let dt = 0.05;
+    let up = Upper { kv: 0.0, ..UP };
+    let lv = vec![10.0; n];
+    let lx: Vec<f64> = (0..n).map(|k| 100.0 + 10.0 * k as f64 * dt).collect();
+    let tr = closed_loop(
+        &proposed(),
+        &EffectsRef::NONE,
+        &up,
+        &lx,
+        &lv,
+        dt,
+        10.0,
+        100.0 - 29.5 - 5.0,
+    )
+    .unwrap();
+    let gap = lx[n - 1] - tr.x[n - 1];
+    assert!((gap - 29.5).abs() < 1e-3, "gap {gap}");
+}
+
+fn neutral(names: &[&str]) -> Vec<crate::effects::AnyEffect> {
+    let list = EffectList::from_names(names, CommandKind::Acceleration).unwrap();
+    let p: Vec<f64> = list
+        .0
+        .iter()
+        .flat_map(|k| k.neutral().iter().copied())
+        .collect();
+    list.build(&p, CommandKind::Acceleration).unwrap()
+}
+
+#[test]
+fn neutral_effects_equal_the_linear_fast_path() {
+    let (lx, lv) = leader(4000, 0.05);
+    let effs = neutral(&["delay", "deadband", "asymmetric", "grade", "speed_drag"]);
+    let g = vec![0.01; lx.len()];
+    let exo = [("grade", &g[..])];
+    let eff = EffectsRef {
+        effects: &effs,
+        exo: &exo,
+    };
+    for lin in [proposed(), second()] {
+        let a = closed_loop(&lin, &EffectsRef::NONE, &UP, &lx, &lv, 0.05, 10.0, 70.0).unwrap();
+        let b = closed_loop(&lin, &eff, &UP, &lx, &lv, 0.05, 10.0, 70.0).unwrap();
+        assert!(max_diff(&b.a, &a.a) < 1e-11, "{}", max_diff(&b.a, &a.a));
+        assert!(max_diff(&b.x, &a.x) < 1e-11);
+        assert!(max_diff(&b.command, &a.command) < 1e-11);
+        let u = cmd(3000);
+        for kind in [CommandKind::Acceleration, CommandKind::Speed] {
+            let effs = if kind == CommandKind::Speed {
+                neutral(&["delay", "deadband"])
+            } else {
+                effs.clone()
+            };
+            let eff = EffectsRef {
+                effects: &effs,
+                exo: &exo[..0],
+            };
+            let effs_needing_grade = effs.iter().any(|e| e.kind() == EffectKind::Grade);
+            let eff = if effs_needing_grade {
+                EffectsRef {
+                    effects: &effs,
+                    exo: &[("grade", &g[..3000])],
+                }
+            } else {
+                eff
+            };
+            let x = simulate_full(
+                &lin,
+                &EffectsRef::NONE,
+                kind,
+                &u,
+                0.05,
+                Init::Rest,
+                3.0,
+                5.0,
+            )
+            .unwrap();
+            let y = simulate_full(&lin, &eff, kind, &u, 0.05, Init::Rest, 3.0, 5.0).unwrap();
+            assert!(max_diff(&y.a, &x.a) < 1e-11, "{kind:?}");
+            assert!(max_diff(&y.v, &x.v) < 1e-11);
+            assert!(max_diff(&y.x, &x.x) < 1e-11);
+        }
+    }
+}
+
+#[test]
+fn asymmetric_braking_side_equals_scaled_model() {
+    let u: Vec<f64> = cmd(2000).iter().map(|x| -x.abs() - 0.1).collect();
+    let lin = Linear {
+        k: 0.0,
+        ..proposed()
+    };
+    let e = EffectList::from_names(&["asymmetric"], CommandKind::Acceleration)
+        .unwrap()
+        .build(&[0.7, 1.6], CommandKind::Acceleration)
+        .unwrap();
+    let eff = EffectsRef {
+        effects: &e,
+        exo: &[],
+    };
+    let got = simulate_full(
+        &lin,
+        &eff,
+        CommandKind::Acceleration,
+        &u,
+        0.05,
+        Init::Rest,
+        0.0,
+        0.0,
+    )
+    .unwrap();
+    let lb = e[0]
+        .linearize(&lin, &Operating { v: 0.0, side: -1 })
+        .unwrap();
+    let want = simulate(&lb, &u, 0.05, Init::Rest).unwrap();
+    assert!(max_diff(&got.a, &want) < 1e-10);
+}
+
+#[test]
+fn saturation_clips_and_speed_integrates_the_clip() {
+    let lin = Linear {
+        b1: 0.0,
+        b0: 1.0,
+        a2: 0.0,
+        a1: 0.5,
+        td: 0.0,
+        k: 0.0,
+    };
+    let e = EffectList::from_names(&["saturation"], CommandKind::Acceleration)
+        .unwrap()
+        .build(&[1.5, 2.0], CommandKind::Acceleration)
+        .unwrap();
+    let eff = EffectsRef {
+        effects: &e,
+        exo: &[],
+    };
+    let tr = simulate_full(
+        &lin,
+        &eff,
+        CommandKind::Acceleration,
+        &[3.0; 400],
+        0.05,
+        Init::Rest,
+        0.0,
+        0.0,
+    )
+    .unwrap();
+    assert!(tr.a.iter().all(|a| *a <= 1.5 + 1e-15));
+    assert!((tr.a[399] - 1.5).abs() < 1e-12);
+    assert!((tr.v[399] - tr.v[398] - 1.5 * 0.05).abs() < 1e-12);
+}
+
+#[test]
+fn time_major_platoon_equals_followers_one_by_one() {
+    let (lx, lv) = leader(3000, 0.05);
+    for lin in [proposed(), second()] {
+        let trs = platoon(&lin, &EffectsRef::NONE, &UP, &lx, &lv, 0.05, 6).unwrap();
+        let (mut px, mut pv) = (lx.clone(), lv.clone());
+        for (j, tr) in trs.iter().enumerate() {
+            let p0 = px[0] - (UP.gmin + UP.tg * lv[0]);
+            let one = closed_loop(&lin, &EffectsRef::NONE, &UP, &px, &pv, 0.05, lv[0], p0).unwrap();
+            for (a, b) in [(&tr.a, &one.a), (&tr.v, &one.v), (&tr.x, &one.x)] {
+                assert_eq!(a, b, "follower {j}: bit-identical");
+            }
+            px = one.x;
+            pv = one.v;
+        }
+    }
+}
+
+#[test]
+fn unstable_platoon_is_nan_after_divergence_and_behind_it() {
+    let (lx, lv) = leader(4000, 0.05);
+    let up = Upper {
+        kg: 40.0,
+        kv: 0.0,
+        tg: 0.1,
+        gmin: 2.0,
+    };
+    let trs = platoon(&proposed(), &EffectsRef::NONE, &up, &lx, &lv, 0.05, 3).unwrap();
+    let first = trs[0].a.iter().position(|a| a.is_nan()).expect("diverges");
+    assert!(first > 0 && trs[0].a[..first].iter().all(|a| a.is_finite()));
+    assert!(trs[1].a.iter().all(|a| a.is_nan()) && trs[2].v.iter().all(|v| v.is_nan()));
+}
+
+fn spec(closed: bool, weights: [f64; 3], free: Vec<usize>) -> CostSpec {
+    CostSpec::linear(
+        ModelKind::Proposed,
+        CommandKind::Acceleration,
+        weights,
+        Init::Rest,
+        closed,
+        free,
+    )
+}
+
+fn open_run<'a>(u: &'a [f64], a: &'a [f64]) -> RunRef<'a> {
+    RunRef {
+        dt: 0.05,
+        command: Some(u),
+        lead_x: None,
+        lead_v: None,
+        a,
+        v: None,
+        x: None,
+        upper: UP,
+        exo: vec![],
+    }
+}
+
+const ROW: [f64; 6] = [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008];
+
+#[test]
+fn unstable_params_cost_inf() {
+    let u = cmd(2000);
+    let run = open_run(&u, &u);
+    // K K0 > 1: the inner loop is unstable; m2 < 0: invalid.
+    let rows = [1.0, 1.0, 1.0, 1.0, 0.1, 5.0, 1.0, -1.0, 1.0, 1.0, 0.1, 0.0];
+    let c = batch_cost(&spec(false, [1.0, 0.0, 0.0], vec![]), &rows, &[run]).unwrap();
+    assert_eq!(c, vec![f64::INFINITY, f64::INFINITY]);
+}
+
+#[test]
+fn bounded_cost_is_exact_or_abandons_above_the_bound() {
+    let u = cmd(3000);
+    let y: Vec<f64> = simulate(&proposed(), &u, 0.05, Init::Rest)
+        .unwrap()
+        .iter()
+        .enumerate()
+        .map(|(k, v)| v + 0.05 * ((k * 7919) as f64).sin())
+        .collect();
+    let run = open_run(&u, &y);
+    let sp = spec(false, [1.0, 0.0, 0.0], vec![]);
+    let row = [1.0, 0.5, 2.0, 0.8, 0.33, -0.4];
+    let exact = run_cost(&sp, &row, &run, f64::INFINITY);
+    let sse = exact * u.len() as f64;
+    assert_eq!(
+        run_cost(&sp, &row, &run, sse * 1.0001).to_bits(),
+        exact.to_bits()
+    );
+    assert_eq!(run_cost(&sp, &row, &run, sse * 0.5), f64::INFINITY);
+}
+
+#[test]
+fn batched_simulation_equals_single_rollouts() {
+    let (lx, lv) = leader(1500, 0.05);
+    let tr = closed_loop(
+        &proposed(),
+        &EffectsRef::NONE,
+        &UP,
+        &lx,
+        &lv,
+        0.05,
+        10.0,
+        70.0,
+    )
+    .unwrap();
+    let run = RunRef {
+        dt: 0.05,
+        command: None,
+        lead_x: Some(&lx),
+        lead_v: Some(&lv),
+        a: &tr.a,
+        v: Some(&tr.v),
+        x: Some(&tr.x),
+        upper: UP,
+        exo: vec![],
+    };
+    let sp = spec(true, [1.0, 1.0, 1.0], vec![2]);
+    let rows: Vec<f64> = [ROW.as_slice(), &[2.0], ROW.as_slice(), &[1.5]].concat();
+    let n = lx.len();
+    let (mut a, mut v, mut x) = (vec![0.0; 2 * n], vec![0.0; 2 * n], vec![0.0; 2 * n]);
+    simulate_batch(
+        &sp,
+        &rows,
+        std::slice::from_ref(&run),
+        &mut a,
+        &mut v,
+        &mut x,
+    )
+    .unwrap();
+    // Row 0 is the data's own model: it reproduces it exactly (same start).
+    assert_eq!(&a[..n], &tr.a[..]);
+    let other = closed_loop(
+        &proposed(),
+        &EffectsRef::NONE,
+        &Upper { tg: 1.5, ..UP },
+        &lx,
+        &lv,
+        0.05,
+        10.0,
+        70.0,
+    )
+    .unwrap();
+    assert_eq!(&x[n..], &other.x[..]);
+    // And the cost of row 0 is zero.
+    let c = batch_cost(&sp, &rows, &[run]).unwrap();
+    assert_eq!(c[0], 0.0);
+    assert!(c[1] > 0.0 && c[1].is_finite());
+}
