@@ -248,7 +248,7 @@ pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef, limit: f64) -> f64 {
     r.unwrap_or(f64::INFINITY)
 }
 
-fn cost_n<const M: usize, const N: usize, const D: bool>(
+fn cost_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
     effs: &[AnyEffect],
@@ -261,17 +261,17 @@ fn cost_n<const M: usize, const N: usize, const D: bool>(
         return Ok(f64::INFINITY);
     }
     if effs.is_empty() {
-        cost_chain::<M, N, D, _>(plant, lin, NoEffects, up, spec, run, limit)
+        cost_chain::<M, N, D, F, _>(plant, lin, NoEffects, up, spec, run, limit)
     } else {
         let ch = Effects {
             effects: effs.to_vec(),
             exo: resolve_exo(effs, &run.exo, run.len())?,
         };
-        cost_chain::<M, N, D, _>(plant, lin, ch, up, spec, run, limit)
+        cost_chain::<M, N, D, F, _>(plant, lin, ch, up, spec, run, limit)
     }
 }
 
-fn cost_chain<const M: usize, const N: usize, const D: bool, C: Chain>(
+fn cost_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
     plant: Plant<M, N>,
     lin: &Linear,
     chain: C,
@@ -288,7 +288,7 @@ fn cost_chain<const M: usize, const N: usize, const D: bool, C: Chain>(
         lx: run.lead_x.unwrap_or(&[]),
         lv: run.lead_v.unwrap_or(&[]),
     };
-    let mut st = start_stepper::<M, N, D, C>(plant, lin, chain, spec, run)?;
+    let mut st = start_stepper::<M, N, D, F, C>(plant, lin, chain, spec, run)?;
     let f = |n: usize, o: &super::kernel::Obs| drive.command(n, o);
     if N == M {
         let mut sse = Sse::<false>::new(run.a, run.a, run.a, spec.weights, limit);
@@ -310,13 +310,13 @@ fn cost_chain<const M: usize, const N: usize, const D: bool, C: Chain>(
 /// The stepper of a cost or batched-simulation rollout: the closed loop starts the
 /// lower level at rest with the measured speed and position; the open loop by
 /// `spec.init` with the measured (or zero) speed and position.
-fn start_stepper<const M: usize, const N: usize, const D: bool, C: Chain>(
+fn start_stepper<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
     plant: Plant<M, N>,
     lin: &Linear,
     chain: C,
     spec: &CostSpec,
     run: &RunRef,
-) -> Result<super::kernel::Stepper<M, N, D, C>> {
+) -> Result<super::kernel::Stepper<M, N, D, F, C>> {
     let accel = spec.kind == CommandKind::Acceleration;
     let v0 = run.v.map_or(0.0, |v| v[0]);
     let p0 = run.x.map_or(0.0, |x| x[0]);
@@ -326,7 +326,7 @@ fn start_stepper<const M: usize, const N: usize, const D: bool, C: Chain>(
         let s = start(lin, spec.init, run.command.map_or(0.0, |u| u[0]))?;
         (s, if accel { [v0, p0] } else { [p0, 0.0] })
     };
-    stepper::<M, N, D, C>(plant, lin, spec.integrators(), chain, accel, &s, int0)
+    stepper::<M, N, D, F, C>(plant, lin, spec.integrators(), chain, accel, &s, int0)
 }
 
 /// Costs of `P` parameter rows (row-major, `spec.n_params()` each) on every run:
@@ -455,7 +455,7 @@ fn simulate_one(
 }
 
 #[allow(clippy::too_many_arguments)]
-fn sim_n<const M: usize, const N: usize, const D: bool>(
+fn sim_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
     effs: &[AnyEffect],
@@ -484,14 +484,14 @@ fn sim_n<const M: usize, const N: usize, const D: bool>(
     let f = |n: usize, o: &super::kernel::Obs| drive.command(n, o);
     let len = run.len();
     if effs.is_empty() {
-        let mut st = start_stepper::<M, N, D, _>(plant, lin, NoEffects, &full, run)?;
+        let mut st = start_stepper::<M, N, D, F, _>(plant, lin, NoEffects, &full, run)?;
         record(&mut st, len, f, a, v, x, spec.closed_loop);
     } else {
         let ch = Effects {
             effects: effs.to_vec(),
             exo: resolve_exo(effs, &run.exo, len)?,
         };
-        let mut st = start_stepper::<M, N, D, _>(plant, lin, ch, &full, run)?;
+        let mut st = start_stepper::<M, N, D, F, _>(plant, lin, ch, &full, run)?;
         record(&mut st, len, f, a, v, x, spec.closed_loop);
     }
     Ok(true)
@@ -499,8 +499,8 @@ fn sim_n<const M: usize, const N: usize, const D: bool>(
 
 /// Runs into the output slices: a closed loop that diverges is NaN after the
 /// divergence; an open loop is recorded as it is.
-fn record<const M: usize, const N: usize, const D: bool, C: Chain>(
-    st: &mut super::kernel::Stepper<M, N, D, C>,
+fn record<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
+    st: &mut super::kernel::Stepper<M, N, D, F, C>,
     len: usize,
     f: impl FnMut(usize, &super::kernel::Obs) -> f64,
     a: &mut [f64],

@@ -28,6 +28,17 @@ use super::plant::Plant;
 /// Responses beyond this magnitude (m/s² or m/s) count as divergence.
 pub const DIVERGED: f64 = 1e6;
 
+/// `a b + c`: one fused multiply-add when `F` (the caller runs with the `fma`
+/// target feature, see [`crate::sim::fma`]), else a multiply and an add.
+#[inline(always)]
+pub fn madd<const F: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if F {
+        a.mul_add(b, c)
+    } else {
+        a * b + c
+    }
+}
+
 /// Samples between two checks of a sink (divergence, early abandoning).
 pub const CHUNK: usize = 64;
 
@@ -46,28 +57,30 @@ pub struct Obs {
 
 /// One vehicle's lower level being stepped.
 #[derive(Debug, Clone)]
-pub struct Stepper<const M: usize, const N: usize, const D: bool, C: Chain> {
+pub struct Stepper<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain> {
     pub plant: Plant<M, N>,
     /// Braking maps and the state scaling into them (effects that switch dynamics).
     brake: Option<(Plant<M, N>, [f64; 2])>,
     pub chain: C,
     buf: Vec<f64>,
-    mask: usize,
     pub x: [f64; N],
     dv: f64,
     dp: f64,
+    wp: f64,
     accel: bool,
     b0: f64,
 }
 
-impl<const M: usize, const N: usize, const D: bool> Stepper<M, N, D, NoEffects> {
+impl<const M: usize, const N: usize, const D: bool, const F: bool> Stepper<M, N, D, F, NoEffects> {
     /// A linear stepper (no effect).
     pub fn linear(plant: Plant<M, N>, accel: bool, x0: [f64; N], w_hist: f64) -> Self {
         Self::new(plant, None, NoEffects, accel, 0.0, x0, w_hist, 0.0)
     }
 }
 
-impl<const M: usize, const N: usize, const D: bool, C: Chain> Stepper<M, N, D, C> {
+impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
+    Stepper<M, N, D, F, C>
+{
     /// A stepper at state `x0` (kernel coordinates) with the dead-time line filled
     /// with `reference(w_hist)` and the chain reset to `u_hist`.
     #[allow(clippy::too_many_arguments)]
@@ -90,10 +103,10 @@ impl<const M: usize, const N: usize, const D: bool, C: Chain> Stepper<M, N, D, C
             brake: if C::NONE { None } else { brake },
             chain,
             buf: vec![h; cap],
-            mask: cap - 1,
             x: x0,
             dv: 0.0,
             dp: 0.0,
+            wp: h,
             accel,
             b0,
         }
@@ -102,38 +115,15 @@ impl<const M: usize, const N: usize, const D: bool, C: Chain> Stepper<M, N, D, C
     /// The response and the actual speed and position at sample `n`.
     #[inline(always)]
     pub fn observe(&self, n: usize) -> Obs {
-        let x = &self.x;
-        let p = &self.plant;
-        let mut y_lin = 0.0;
-        for j in 0..M {
-            y_lin += p.c[j] * x[j];
-        }
-        if !self.accel {
-            let pos = if N > M { x[M] } else { 0.0 };
-            return Obs {
-                y_lin,
-                y: y_lin,
-                v: y_lin,
-                p: pos,
-            };
-        }
-        if C::NONE {
-            return Obs {
-                y_lin,
-                y: y_lin,
-                v: if N > M { x[M] } else { 0.0 },
-                p: if N > M + 1 { x[M + 1] } else { 0.0 },
-            };
-        }
-        let v = if N > M { x[M] + self.dv } else { 0.0 };
-        let pos = if N > M + 1 { x[M + 1] + self.dp } else { 0.0 };
-        let y = self.chain.output(y_lin) + self.chain.disturbance(v, n);
-        Obs {
-            y_lin,
-            y,
-            v,
-            p: pos,
-        }
+        observe::<M, N, F, C>(
+            &self.plant,
+            &self.chain,
+            self.accel,
+            &self.x,
+            self.dv,
+            self.dp,
+            n,
+        )
     }
 
     /// Applies the command `u` of sample `n` (observed as `o`) and steps to `n + 1`.
@@ -141,74 +131,171 @@ impl<const M: usize, const N: usize, const D: bool, C: Chain> Stepper<M, N, D, C
     /// right-limit derivative of the speed for a speed command).
     #[inline(always)]
     pub fn step(&mut self, n: usize, o: &Obs, u: f64) -> f64 {
-        let p = &self.plant;
-        let uc = if C::NONE {
-            u
-        } else {
-            self.chain.command(u, o.y)
+        let mut reg = Regs {
+            x: self.x,
+            dv: self.dv,
+            dp: self.dp,
+            wp: self.wp,
         };
-        let r = if C::NONE {
-            u + p.k * o.y
-        } else {
-            self.chain.reference(uc + p.k * o.y)
-        };
-        let i = p.delay;
-        let mask = self.mask;
-        self.buf[n & mask] = r;
-        // Without whole-sample delay the new input acts at once: keep it in a register.
-        let w0 = if i == 0 {
-            r
-        } else {
-            self.buf[n.wrapping_sub(i) & mask]
-        };
-        let w1 = self.buf[n.wrapping_sub(i + 1) & mask];
-        let wf = if p.frac > 0.0 { w1 } else { w0 };
-        if !C::NONE {
-            if let Some((bp, s)) = &self.brake {
-                let demand = if self.accel {
-                    w0
-                } else {
-                    self.b0 * w0 - o.y_lin
-                };
-                if demand < 0.0 {
-                    let mut xb = self.x;
-                    for j in 0..M {
-                        xb[j] *= s[j];
-                    }
-                    let a = if self.accel {
-                        o.y
-                    } else {
-                        deriv::<M, N>(bp, &xb, wf)
-                    };
-                    let mut nx = advance::<M, N, false>(bp, &xb, w0, w1);
-                    for j in 0..M {
-                        nx[j] /= s[j];
-                    }
-                    self.x = nx;
-                    self.correct(o);
-                    return a;
-                }
-            }
-        }
-        let a = if self.accel {
-            o.y
-        } else {
-            deriv::<M, N>(p, &self.x, wf)
-        };
-        self.x = advance::<M, N, D>(p, &self.x, w0, w1);
-        self.correct(o);
+        let a = step::<M, N, D, F, C>(self.parts(), &mut reg, n, o, u);
+        self.x = reg.x;
+        self.dv = reg.dv;
+        self.dp = reg.dp;
+        self.wp = reg.wp;
         a
     }
 
-    /// Integrates the difference between the actual and the linear acceleration.
+    /// The stepper's parts, borrowed separately (plant and braking maps shared, chain
+    /// and dead-time line mutable).
     #[inline(always)]
-    fn correct(&mut self, o: &Obs) {
-        if !C::NONE && self.accel && N > M {
-            let dt = self.plant.dt;
-            let e = o.y - o.y_lin;
-            self.dp += dt * self.dv + 0.5 * dt * dt * e;
-            self.dv += dt * e;
+    fn parts(&mut self) -> Parts<'_, M, N, C> {
+        Parts {
+            p: &self.plant,
+            brake: self.brake.as_ref(),
+            chain: &mut self.chain,
+            buf: &mut self.buf,
+            accel: self.accel,
+            b0: self.b0,
         }
+    }
+}
+
+/// The state a run keeps in registers.
+#[derive(Clone, Copy)]
+struct Regs<const N: usize> {
+    x: [f64; N],
+    dv: f64,
+    dp: f64,
+    /// The previous sample's `w0` (`u_ref[n-i-1]`, this sample's `w1`).
+    wp: f64,
+}
+
+struct Parts<'a, const M: usize, const N: usize, C: Chain> {
+    p: &'a Plant<M, N>,
+    brake: Option<&'a (Plant<M, N>, [f64; 2])>,
+    chain: &'a mut C,
+    buf: &'a mut [f64],
+    accel: bool,
+    b0: f64,
+}
+
+#[inline(always)]
+fn observe<const M: usize, const N: usize, const F: bool, C: Chain>(
+    p: &Plant<M, N>,
+    chain: &C,
+    accel: bool,
+    x: &[f64; N],
+    dv: f64,
+    dp: f64,
+    n: usize,
+) -> Obs {
+    let mut y_lin = p.c[0] * x[0];
+    for j in 1..M {
+        y_lin = madd::<F>(p.c[j], x[j], y_lin);
+    }
+    if !accel {
+        let pos = if N > M { x[M] } else { 0.0 };
+        return Obs {
+            y_lin,
+            y: y_lin,
+            v: y_lin,
+            p: pos,
+        };
+    }
+    if C::NONE {
+        return Obs {
+            y_lin,
+            y: y_lin,
+            v: if N > M { x[M] } else { 0.0 },
+            p: if N > M + 1 { x[M + 1] } else { 0.0 },
+        };
+    }
+    let v = if N > M { x[M] + dv } else { 0.0 };
+    let pos = if N > M + 1 { x[M + 1] + dp } else { 0.0 };
+    let y = chain.output(y_lin) + chain.disturbance(v, n);
+    Obs {
+        y_lin,
+        y,
+        v,
+        p: pos,
+    }
+}
+
+#[inline(always)]
+fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
+    s: Parts<'_, M, N, C>,
+    reg: &mut Regs<N>,
+    n: usize,
+    o: &Obs,
+    u: f64,
+) -> f64 {
+    let p = s.p;
+    let r = if C::NONE {
+        u + p.k * o.y
+    } else {
+        let uc = s.chain.command(u, o.y);
+        s.chain.reference(uc + p.k * o.y)
+    };
+    let i = p.delay;
+    // A power-of-two ring buffer: the mask derives from its length, so the indexing
+    // needs no bounds check.
+    let mask = s.buf.len() - 1;
+    s.buf[n & mask] = r;
+    // Without whole-sample delay the new input acts at once: keep it in a register.
+    let w0 = if i == 0 {
+        r
+    } else {
+        s.buf[n.wrapping_sub(i) & mask]
+    };
+    // u_ref[n-i-1] is the previous sample's w0: a register, not a second load.
+    let w1 = reg.wp;
+    reg.wp = w0;
+    let wf = if p.frac > 0.0 { w1 } else { w0 };
+    if !C::NONE {
+        if let Some((bp, sc)) = s.brake {
+            let demand = if s.accel { w0 } else { s.b0 * w0 - o.y_lin };
+            if demand < 0.0 {
+                let mut xb = reg.x;
+                for j in 0..M {
+                    xb[j] *= sc[j];
+                }
+                let a = if s.accel {
+                    o.y
+                } else {
+                    deriv::<M, N>(bp, &xb, wf)
+                };
+                let mut nx = advance::<M, N, false, F>(bp, &xb, w0, w1);
+                for j in 0..M {
+                    nx[j] /= sc[j];
+                }
+                reg.x = nx;
+                correct::<M, N, C>(p.dt, s.accel, reg, o);
+                return a;
+            }
+        }
+    }
+    let a = if s.accel {
+        o.y
+    } else {
+        deriv::<M, N>(p, &reg.x, wf)
+    };
+    reg.x = advance::<M, N, D, F>(p, &reg.x, w0, w1);
+    correct::<M, N, C>(p.dt, s.accel, reg, o);
+    a
+}
+
+/// Integrates the difference between the actual and the linear acceleration.
+#[inline(always)]
+fn correct<const M: usize, const N: usize, C: Chain>(
+    dt: f64,
+    accel: bool,
+    reg: &mut Regs<N>,
+    o: &Obs,
+) {
+    if !C::NONE && accel && N > M {
+        let e = o.y - o.y_lin;
+        reg.dp += dt * reg.dv + 0.5 * dt * dt * e;
+        reg.dv += dt * e;
     }
 }
 
@@ -222,9 +309,10 @@ fn deriv<const M: usize, const N: usize>(p: &Plant<M, N>, x: &[f64; N], wf: f64)
     s
 }
 
-/// One exact step in the kernel's coordinates, using the structure of `Phi`.
+/// One exact step in the kernel's coordinates, using the structure of `Phi`: each
+/// state's own term is added last, so its dependency chain is one multiply-add.
 #[inline(always)]
-fn advance<const M: usize, const N: usize, const D: bool>(
+fn advance<const M: usize, const N: usize, const D: bool, const F: bool>(
     p: &Plant<M, N>,
     x: &[f64; N],
     w0: f64,
@@ -232,27 +320,27 @@ fn advance<const M: usize, const N: usize, const D: bool>(
 ) -> [f64; N] {
     let mut o = [0.0; N];
     for r in 0..M {
-        let t = p.g0[r] * w0 + p.g1[r] * w1;
+        let t = madd::<F>(p.g1[r], w1, p.g0[r] * w0);
         o[r] = if D || M == 1 {
-            t + p.phi[r][r] * x[r]
+            madd::<F>(p.phi[r][r], x[r], t)
         } else {
-            // Own state last: one multiply-add on the row's own chain.
-            (t + p.phi[r][1 - r] * x[1 - r]) + p.phi[r][r] * x[r]
+            madd::<F>(p.phi[r][r], x[r], madd::<F>(p.phi[r][1 - r], x[1 - r], t))
         };
     }
     if N > M {
         // First integrator (speed, or position for a speed command): s' = s + ...
-        let mut t = p.g0[M] * w0 + p.g1[M] * w1;
+        let mut t = madd::<F>(p.g1[M], w1, p.g0[M] * w0);
         for j in 0..M {
-            t += p.phi[M][j] * x[j];
+            t = madd::<F>(p.phi[M][j], x[j], t);
         }
         o[M] = x[M] + t;
     }
     if N > M + 1 {
         // Position behind speed: p' = p + dt v + ...
-        let mut t = p.g0[M + 1] * w0 + p.g1[M + 1] * w1 + p.phi[M + 1][M] * x[M];
+        let mut t = madd::<F>(p.g1[M + 1], w1, p.g0[M + 1] * w0);
+        t = madd::<F>(p.phi[M + 1][M], x[M], t);
         for j in 0..M {
-            t += p.phi[M + 1][j] * x[j];
+            t = madd::<F>(p.phi[M + 1][j], x[j], t);
         }
         o[M + 1] = x[M + 1] + t;
     }
@@ -269,29 +357,43 @@ pub trait Sink {
 }
 
 /// Runs `len` samples: the command of sample `n` is `drive(n, &obs)`. Returns
-/// `false` if the sink stopped the run.
+/// `false` if the sink stopped the run. The state lives in registers for the whole
+/// run (written back at the end).
 #[inline(always)]
-pub fn run<const M: usize, const N: usize, const D: bool, C: Chain, S: Sink>(
-    st: &mut Stepper<M, N, D, C>,
+pub fn run<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain, S: Sink>(
+    st: &mut Stepper<M, N, D, F, C>,
     len: usize,
     mut drive: impl FnMut(usize, &Obs) -> f64,
     sink: &mut S,
 ) -> bool {
+    let mut reg = Regs {
+        x: st.x,
+        dv: st.dv,
+        dp: st.dp,
+        wp: st.wp,
+    };
+    let accel = st.accel;
     let mut from = 0;
+    let mut done = true;
     while from < len {
         let to = (from + CHUNK).min(len);
         for n in from..to {
-            let o = st.observe(n);
+            let o = observe::<M, N, F, C>(&st.plant, &st.chain, accel, &reg.x, reg.dv, reg.dp, n);
             let u = drive(n, &o);
-            let a = st.step(n, &o, u);
+            let a = step::<M, N, D, F, C>(st.parts(), &mut reg, n, &o, u);
             sink.put(n, a, o.v, o.p, u, o.y_lin);
         }
         if !sink.proceed(from, to) {
-            return false;
+            done = false;
+            break;
         }
         from = to;
     }
-    true
+    st.x = reg.x;
+    st.dv = reg.dv;
+    st.dp = reg.dp;
+    st.wp = reg.wp;
+    done
 }
 
 /// The one SSE accumulator of the Eq. 6 cost: squared errors of acceleration and,

@@ -33,30 +33,77 @@ pub use rollout::{
     closed_loop, platoon, simulate, simulate_full, simulate_into, Trajectory, Upper,
 };
 
+/// Whether this CPU has fused multiply-add (checked once, then cached by std).
+#[inline]
+pub fn fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        cfg!(target_feature = "fma")
+    }
+}
+
+/// Runs `f` compiled with the `fma` target feature: the kernel's `madd::<true>`
+/// calls it inlines become single instructions.
+///
+/// # Safety
+/// The CPU must support FMA ([`fma`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "fma")]
+pub unsafe fn with_fma<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+/// Without x86_64 the closure runs as it is.
+///
+/// # Safety
+/// None needed (kept `unsafe` for one signature on every target).
+#[cfg(not(target_arch = "x86_64"))]
+pub unsafe fn with_fma<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+/// Calls `$f::<M, N, D, F>(plant, args...)` with `F` the CPU's FMA support.
+macro_rules! call_fma {
+    ($f:ident, $m:literal, $n:literal, $d:expr, $p:expr $(, $arg:expr)*) => {{
+        if $crate::sim::fma() {
+            // SAFETY: the CPU supports FMA (checked just above).
+            unsafe { $crate::sim::with_fma(|| $f::<$m, $n, $d, true>($p $(, $arg)*)) }
+        } else {
+            $f::<$m, $n, $d, false>($p $(, $arg)*)
+        }
+    }};
+}
+pub(crate) use call_fma;
+
 /// Dispatches on the model order and the integrators: builds the [`plant::Plant`]
-/// and calls `$f::<M, N, D>(plant, args...)` with `D` telling whether the model
-/// block is diagonal (modal coordinates).
+/// and calls `$f::<M, N, D, F>(plant, args...)` with `D` telling whether the model
+/// block is diagonal (modal coordinates) and `F` whether the CPU has FMA.
 macro_rules! with_plant {
     ($lin:expr, $ints:expr, $dt:expr, $modal:expr, $f:ident ( $($arg:expr),* )) => {{
         use $crate::sim::discretize::Integrators as I;
         use $crate::sim::plant::Plant;
+        use $crate::sim::call_fma;
         match ($lin.order(), $ints) {
-            (1, I::None) => $f::<1, 1, true>(Plant::<1, 1>::new($lin, $ints, $dt, false)? $(, $arg)*),
-            (1, I::Position) => $f::<1, 2, true>(Plant::<1, 2>::new($lin, $ints, $dt, false)? $(, $arg)*),
+            (1, I::None) => call_fma!($f, 1, 1, true, Plant::<1, 1>::new($lin, $ints, $dt, false)? $(, $arg)*),
+            (1, I::Position) => call_fma!($f, 1, 2, true, Plant::<1, 2>::new($lin, $ints, $dt, false)? $(, $arg)*),
             (1, I::SpeedPosition) => {
-                $f::<1, 3, true>(Plant::<1, 3>::new($lin, $ints, $dt, false)? $(, $arg)*)
+                call_fma!($f, 1, 3, true, Plant::<1, 3>::new($lin, $ints, $dt, false)? $(, $arg)*)
             }
             (_, I::None) => {
                 let p = Plant::<2, 2>::new($lin, $ints, $dt, $modal)?;
-                if p.diag { $f::<2, 2, true>(p $(, $arg)*) } else { $f::<2, 2, false>(p $(, $arg)*) }
+                if p.diag { call_fma!($f, 2, 2, true, p $(, $arg)*) } else { call_fma!($f, 2, 2, false, p $(, $arg)*) }
             }
             (_, I::Position) => {
                 let p = Plant::<2, 3>::new($lin, $ints, $dt, $modal)?;
-                if p.diag { $f::<2, 3, true>(p $(, $arg)*) } else { $f::<2, 3, false>(p $(, $arg)*) }
+                if p.diag { call_fma!($f, 2, 3, true, p $(, $arg)*) } else { call_fma!($f, 2, 3, false, p $(, $arg)*) }
             }
             (_, I::SpeedPosition) => {
                 let p = Plant::<2, 4>::new($lin, $ints, $dt, $modal)?;
-                if p.diag { $f::<2, 4, true>(p $(, $arg)*) } else { $f::<2, 4, false>(p $(, $arg)*) }
+                if p.diag { call_fma!($f, 2, 4, true, p $(, $arg)*) } else { call_fma!($f, 2, 4, false, p $(, $arg)*) }
             }
         }
     }};

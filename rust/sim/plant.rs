@@ -117,6 +117,11 @@ impl<const M: usize, const N: usize> Plant<M, N> {
                 format!("internal: model order {} != {M}", lin.order()),
             ));
         }
+        if N == M {
+            if let Some(p) = Self::analytic(lin, dt, modal) {
+                return Ok(p);
+            }
+        }
         let d = discretize::<N>(lin, ints, dt)?;
         let mut p = Self::from_discrete(&d, dt);
         if modal && M == 2 {
@@ -125,6 +130,92 @@ impl<const M: usize, const N: usize> Plant<M, N> {
             }
         }
         Ok(p)
+    }
+
+    /// The modal discretization in closed form, without integrators: a first-order
+    /// part (`p = -1/a1`, canonical basis) or a second-order part with real poles
+    /// `p1, p2` at least `1/MAX_MODAL_COND` apart relative to their size
+    /// (`z_k' = p_k z_k + w`, `y = sum r_k z_k`, `x = T z`). Each mode's hold maps
+    /// are `g0 = (e^{p (1-f) dt} - 1)/p`, `g1 = e^{p (1-f) dt} (e^{p f dt} - 1)/p`, the
+    /// same exact ZOH as the matrix exponential (to rounding) at a fraction of its
+    /// cost. `None` when the closed form does not apply.
+    fn analytic(lin: &Linear, dt: f64, modal: bool) -> Option<Self> {
+        if !(dt.is_finite() && dt > 0.0 && lin.td.is_finite()) || lin.td < 0.0 {
+            return None;
+        }
+        let (i, f) = super::discretize::split_delay(lin.td, dt);
+        if i > 1 << 24 {
+            return None;
+        }
+        let (poles, res, t, tinv) = if M == 1 {
+            if !(lin.a1.is_finite() && lin.a1 != 0.0) {
+                return None;
+            }
+            let p = -1.0 / lin.a1;
+            ([p, 0.0], [lin.b0 / lin.a1, 0.0], EYE, EYE)
+        } else {
+            if !modal || lin.a2.is_nan() || lin.a2 <= 0.0 {
+                return None;
+            }
+            let disc = lin.a1 * lin.a1 - 4.0 * lin.a2;
+            if disc.is_nan() || disc <= 0.0 {
+                return None;
+            }
+            let q = -0.5 * (lin.a1 + disc.sqrt().copysign(lin.a1));
+            let (p1, p2) = (q / lin.a2, 1.0 / q);
+            let gap = (p1 - p2).abs();
+            if !(gap.is_finite() && gap * MAX_MODAL_COND >= p1.abs().max(p2.abs())) {
+                return None;
+            }
+            let d = p1 - p2;
+            let r1 = (lin.b0 + lin.b1 * p1) / (lin.a2 * d);
+            let r2 = -(lin.b0 + lin.b1 * p2) / (lin.a2 * d);
+            let t = [[1.0 / d, -1.0 / d], [p1 / d, -p2 / d]];
+            let tinv = [[-p2, 1.0], [-p1, 1.0]];
+            ([p1, p2], [r1, r2], t, tinv)
+        };
+        let mut pl = Self {
+            phi: [[0.0; N]; N],
+            g0: [0.0; N],
+            g1: [0.0; N],
+            c: [0.0; N],
+            ca: [0.0; N],
+            cb: 0.0,
+            t,
+            tinv,
+            diag: true,
+            delay: i,
+            frac: f,
+            k: lin.k,
+            dt,
+        };
+        for j in 0..M {
+            let p = poles[j];
+            let a = (p * (1.0 - f) * dt).exp();
+            pl.phi[j][j] = (p * dt).exp();
+            pl.g0[j] = (p * (1.0 - f) * dt).exp_m1() / p;
+            pl.g1[j] = if f > 0.0 {
+                a * (p * f * dt).exp_m1() / p
+            } else {
+                0.0
+            };
+            pl.c[j] = res[j];
+            // Speed response derivative: y' = sum r_k (p_k z_k + w).
+            pl.ca[j] = res[j] * p;
+            pl.cb += res[j];
+        }
+        if pl
+            .phi
+            .iter()
+            .flatten()
+            .chain(&pl.g0)
+            .chain(&pl.g1)
+            .chain(&pl.c)
+            .any(|x| !x.is_finite())
+        {
+            return None;
+        }
+        Some(pl)
     }
 
     fn from_discrete(d: &Discrete<N>, dt: f64) -> Self {
@@ -272,6 +363,78 @@ mod tests {
         // c g is basis-invariant (the Markov parameter).
         let cg = |p: &Plant<2, 4>| p.c[0] * p.g0[0] + p.c[1] * p.g0[1];
         assert!((cg(&canon) - cg(&modal)).abs() < 1e-14);
+    }
+
+    #[test]
+    fn closed_form_equals_the_matrix_exponential() {
+        for (lin, m2) in [
+            (
+                Linear {
+                    b1: 6.7893,
+                    b0: 0.3479,
+                    a2: 1.2824,
+                    a1: 8.8157,
+                    td: 0.7903,
+                    k: 0.1008,
+                },
+                true,
+            ),
+            (
+                Linear {
+                    b1: 0.0,
+                    b0: 1.0,
+                    a2: 0.0,
+                    a1: 1.0758,
+                    td: 0.0,
+                    k: 0.0,
+                },
+                false,
+            ),
+        ] {
+            for dt in [0.05, 0.1, 0.013] {
+                if m2 {
+                    let a = Plant::<2, 2>::new(&lin, Integrators::None, dt, true).unwrap();
+                    let mut e = Plant::<2, 2>::from_discrete(
+                        &discretize::<2>(&lin, Integrators::None, dt).unwrap(),
+                        dt,
+                    );
+                    let (t, tinv) =
+                        modal_basis(&discretize::<2>(&lin, Integrators::None, dt).unwrap())
+                            .unwrap();
+                    e.change_basis(t, tinv);
+                    // Different eigenvector scalings: compare basis-free quantities.
+                    for j in 0..2 {
+                        let k = if (a.phi[j][j] - e.phi[0][0]).abs() < 1e-9 {
+                            0
+                        } else {
+                            1
+                        };
+                        assert!((a.phi[j][j] - e.phi[k][k]).abs() < 1e-14);
+                        let (ma, me) = (a.c[j] * a.g0[j], e.c[k] * e.g0[k]);
+                        assert!((ma - me).abs() < 1e-13 * me.abs().max(1e-3), "{ma} {me}");
+                        let (ma, me) = (a.c[j] * a.g1[j], e.c[k] * e.g1[k]);
+                        assert!((ma - me).abs() < 1e-13 * me.abs().max(1e-3), "{ma} {me}");
+                    }
+                    // x = T z maps the closed form's states onto the canonical ones.
+                    let x = [0.3, -0.7];
+                    let z = a.to_kernel(x);
+                    let back = [
+                        a.t[0][0] * z[0] + a.t[0][1] * z[1],
+                        a.t[1][0] * z[0] + a.t[1][1] * z[1],
+                    ];
+                    assert!((back[0] - x[0]).abs() < 1e-14 && (back[1] - x[1]).abs() < 1e-14);
+                } else {
+                    let a = Plant::<1, 1>::new(&lin, Integrators::None, dt, true).unwrap();
+                    let e = Plant::<1, 1>::from_discrete(
+                        &discretize::<1>(&lin, Integrators::None, dt).unwrap(),
+                        dt,
+                    );
+                    assert!((a.phi[0][0] - e.phi[0][0]).abs() < 1e-15);
+                    assert!((a.g0[0] - e.g0[0]).abs() < 1e-15);
+                    assert!((a.c[0] - e.c[0]).abs() < 1e-15);
+                }
+            }
+        }
     }
 
     #[test]

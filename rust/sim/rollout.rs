@@ -112,7 +112,7 @@ impl<'a> EffectsRef<'a> {
 }
 
 /// A stepper for `plant` with `chain`, started at `s` with the integrators at `int0`.
-pub(crate) fn stepper<const M: usize, const N: usize, const D: bool, C: Chain>(
+pub(crate) fn stepper<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
     plant: Plant<M, N>,
     lin: &Linear,
     ints: Integrators,
@@ -120,7 +120,7 @@ pub(crate) fn stepper<const M: usize, const N: usize, const D: bool, C: Chain>(
     accel: bool,
     s: &Start,
     int0: [f64; 2],
-) -> Result<Stepper<M, N, D, C>> {
+) -> Result<Stepper<M, N, D, F, C>> {
     let r = chain.brake_time_scale();
     let brake = if !C::NONE && r != 1.0 {
         let lb = Linear {
@@ -153,7 +153,7 @@ fn check_len(arg: &str, xs: &[f64], len: usize) -> Result<()> {
     Ok(())
 }
 
-fn response_n<const M: usize, const N: usize, const D: bool>(
+fn response_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
     u: &[f64],
@@ -162,7 +162,7 @@ fn response_n<const M: usize, const N: usize, const D: bool>(
 ) -> Result<()> {
     let s = start(lin, init, u.first().copied().unwrap_or(0.0))?;
     let mut st =
-        stepper::<M, N, D, _>(plant, lin, Integrators::None, NoEffects, true, &s, [0.0; 2])?;
+        stepper::<M, N, D, F, _>(plant, lin, Integrators::None, NoEffects, true, &s, [0.0; 2])?;
     run(&mut st, u.len(), |n, _| u[n], &mut Response(y));
     Ok(())
 }
@@ -208,7 +208,7 @@ impl<'a> Out<'a> {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn full_n<const M: usize, const N: usize, const D: bool>(
+fn full_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
     eff: &EffectsRef,
@@ -225,11 +225,11 @@ fn full_n<const M: usize, const N: usize, const D: bool>(
     let int0 = if accel { [v0, p0] } else { [p0, 0.0] };
     let mut rec = Record::<false>::new(out.a, out.v, out.x, out.u);
     if eff.effects.is_empty() {
-        let mut st = stepper::<M, N, D, _>(plant, lin, ints, NoEffects, accel, &s, int0)?;
+        let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, accel, &s, int0)?;
         run(&mut st, u.len(), |n, _| u[n], &mut rec);
     } else {
         let ch = eff.chain(u.len())?;
-        let mut st = stepper::<M, N, D, _>(plant, lin, ints, ch, accel, &s, int0)?;
+        let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, ch, accel, &s, int0)?;
         run(&mut st, u.len(), |n, _| u[n], &mut rec);
     }
     Ok(())
@@ -288,7 +288,7 @@ pub fn simulate_full(
 }
 
 #[allow(clippy::too_many_arguments)]
-fn closed_n<const M: usize, const N: usize, const D: bool>(
+fn closed_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
     eff: &EffectsRef,
@@ -304,11 +304,11 @@ fn closed_n<const M: usize, const N: usize, const D: bool>(
     let mut rec = Record::<true>::new(out.a, out.v, out.x, out.u);
     let law = |n: usize, o: &super::kernel::Obs| up.command(lead_x[n], lead_v[n], o.p, o.v);
     if eff.effects.is_empty() {
-        let mut st = stepper::<M, N, D, _>(plant, lin, ints, NoEffects, true, &s, [v0, p0])?;
+        let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, true, &s, [v0, p0])?;
         run(&mut st, lead_x.len(), law, &mut rec);
     } else {
         let ch = eff.chain(lead_x.len())?;
-        let mut st = stepper::<M, N, D, _>(plant, lin, ints, ch, true, &s, [v0, p0])?;
+        let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, ch, true, &s, [v0, p0])?;
         run(&mut st, lead_x.len(), law, &mut rec);
     }
     Ok(rec.written)
@@ -392,7 +392,7 @@ pub fn closed_loop(
 }
 
 #[allow(clippy::too_many_arguments)]
-fn platoon_n<const M: usize, const N: usize, const D: bool>(
+fn platoon_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
     eff: &EffectsRef,
@@ -402,10 +402,10 @@ fn platoon_n<const M: usize, const N: usize, const D: bool>(
     outs: &mut [Out],
 ) -> Result<()> {
     if eff.effects.is_empty() {
-        platoon_chain::<M, N, D, _>(plant, lin, NoEffects, up, lead_x, lead_v, outs)
+        platoon_chain::<M, N, D, F, _>(plant, lin, NoEffects, up, lead_x, lead_v, outs)
     } else {
         let ch = eff.chain(lead_x.len())?;
-        platoon_chain::<M, N, D, _>(plant, lin, ch, up, lead_x, lead_v, outs)
+        platoon_chain::<M, N, D, F, _>(plant, lin, ch, up, lead_x, lead_v, outs)
     }
 }
 
@@ -413,7 +413,7 @@ fn platoon_n<const M: usize, const N: usize, const D: bool>(
 /// takes the upper law's command from its predecessor's observed position and speed
 /// and steps. The followers' steps within a sample are independent, so they overlap
 /// in the pipeline.
-fn platoon_chain<const M: usize, const N: usize, const D: bool, C: Chain + Clone>(
+fn platoon_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain + Clone>(
     plant: Plant<M, N>,
     lin: &Linear,
     chain: C,
@@ -430,7 +430,7 @@ fn platoon_chain<const M: usize, const N: usize, const D: bool, C: Chain + Clone
     let mut cars = Vec::with_capacity(f);
     for j in 0..f {
         let p0 = lead_x[0] - (j + 1) as f64 * gap;
-        cars.push(stepper::<M, N, D, C>(
+        cars.push(stepper::<M, N, D, F, C>(
             plant,
             lin,
             Integrators::SpeedPosition,

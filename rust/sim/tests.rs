@@ -119,7 +119,7 @@ fn second_order_step_with_fractional_delay_is_analytic() {
 fn canonical_response(lin: &Linear, u: &[f64], init: Init) -> Vec<f64> {
     let p = Plant::<2, 4>::new(lin, Integrators::SpeedPosition, 0.05, false).unwrap();
     let s = super::plant::start(lin, init, u[0]).unwrap();
-    let mut st = stepper::<2, 4, false, _>(
+    let mut st = stepper::<2, 4, false, false, _>(
         p,
         lin,
         Integrators::SpeedPosition,
