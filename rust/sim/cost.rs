@@ -289,21 +289,34 @@ fn cost_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: C
         lv: run.lead_v.unwrap_or(&[]),
     };
     let mut st = start_stepper::<M, N, D, F, C>(plant, lin, chain, spec, run)?;
-    let f = |n: usize, o: &super::kernel::Obs| drive.command(n, o);
+    // The drive is chosen outside the loop (one monomorphization each).
+    let (u, lx, lv, up) = (drive.u, drive.lx, drive.lv, drive.up);
+    macro_rules! go {
+        ($sse:expr) => {{
+            let mut sse = $sse;
+            let done = if drive.closed {
+                kernel::run(
+                    &mut st,
+                    len,
+                    |n, o| up.command(lx[n], lv[n], o.p, o.v),
+                    &mut sse,
+                )
+            } else {
+                kernel::run(&mut st, len, |n, _| u[n], &mut sse)
+            };
+            Ok(sse.cost(done, len))
+        }};
+    }
     if N == M {
-        let mut sse = Sse::<false>::new(run.a, run.a, run.a, spec.weights, limit);
-        let done = kernel::run(&mut st, len, f, &mut sse);
-        Ok(sse.cost(done, len))
+        go!(Sse::<false>::new(run.a, run.a, run.a, spec.weights, limit))
     } else {
-        let mut sse = Sse::<true>::new(
+        go!(Sse::<true>::new(
             run.a,
             run.v.unwrap_or(run.a),
             run.x.unwrap_or(run.a),
             spec.weights,
             limit,
-        );
-        let done = kernel::run(&mut st, len, f, &mut sse);
-        Ok(sse.cost(done, len))
+        ))
     }
 }
 

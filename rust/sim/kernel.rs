@@ -67,7 +67,6 @@ pub struct Stepper<const M: usize, const N: usize, const D: bool, const F: bool,
     dv: f64,
     dp: f64,
     wp: f64,
-    accel: bool,
     b0: f64,
 }
 
@@ -95,6 +94,8 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
         u_hist: f64,
     ) -> Self {
         debug_assert!(D == plant.diag || !D);
+        debug_assert!(N == M || accel == accel_kind::<M, N>());
+        let _ = accel;
         chain.reset(u_hist, plant.dt);
         let cap = (plant.delay + 2).next_power_of_two();
         let h = chain.reference(w_hist);
@@ -107,7 +108,6 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
             dv: 0.0,
             dp: 0.0,
             wp: h,
-            accel,
             b0,
         }
     }
@@ -115,15 +115,7 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
     /// The response and the actual speed and position at sample `n`.
     #[inline(always)]
     pub fn observe(&self, n: usize) -> Obs {
-        observe::<M, N, F, C>(
-            &self.plant,
-            &self.chain,
-            self.accel,
-            &self.x,
-            self.dv,
-            self.dp,
-            n,
-        )
+        observe::<M, N, F, C>(&self.plant, &self.chain, &self.x, self.dv, self.dp, n)
     }
 
     /// Applies the command `u` of sample `n` (observed as `o`) and steps to `n + 1`.
@@ -154,7 +146,6 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
             brake: self.brake.as_ref(),
             chain: &mut self.chain,
             buf: &mut self.buf,
-            accel: self.accel,
             b0: self.b0,
         }
     }
@@ -175,15 +166,22 @@ struct Parts<'a, const M: usize, const N: usize, C: Chain> {
     brake: Option<&'a (Plant<M, N>, [f64; 2])>,
     chain: &'a mut C,
     buf: &'a mut [f64],
-    accel: bool,
     b0: f64,
+}
+
+/// Whether a stepper with `M` model states and `N` states in all drives an
+/// acceleration response: a speed response carries exactly one integrator
+/// (position). Without integrators the response is `y` either way (the rollouts
+/// that read only `y` use `N == M` for both kinds).
+#[inline(always)]
+pub const fn accel_kind<const M: usize, const N: usize>() -> bool {
+    N != M + 1
 }
 
 #[inline(always)]
 fn observe<const M: usize, const N: usize, const F: bool, C: Chain>(
     p: &Plant<M, N>,
     chain: &C,
-    accel: bool,
     x: &[f64; N],
     dv: f64,
     dp: f64,
@@ -193,7 +191,7 @@ fn observe<const M: usize, const N: usize, const F: bool, C: Chain>(
     for j in 1..M {
         y_lin = madd::<F>(p.c[j], x[j], y_lin);
     }
-    if !accel {
+    if !accel_kind::<M, N>() {
         let pos = if N > M { x[M] } else { 0.0 };
         return Obs {
             y_lin,
@@ -241,25 +239,25 @@ fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
     // needs no bounds check.
     let mask = s.buf.len() - 1;
     s.buf[n & mask] = r;
-    // Without whole-sample delay the new input acts at once: keep it in a register.
-    let w0 = if i == 0 {
-        r
-    } else {
-        s.buf[n.wrapping_sub(i) & mask]
-    };
+    // Branch-free: without whole-sample delay this reads back the value just stored.
+    let w0 = s.buf[n.wrapping_sub(i) & mask];
     // u_ref[n-i-1] is the previous sample's w0: a register, not a second load.
     let w1 = reg.wp;
     reg.wp = w0;
     let wf = if p.frac > 0.0 { w1 } else { w0 };
     if !C::NONE {
         if let Some((bp, sc)) = s.brake {
-            let demand = if s.accel { w0 } else { s.b0 * w0 - o.y_lin };
+            let demand = if accel_kind::<M, N>() {
+                w0
+            } else {
+                s.b0 * w0 - o.y_lin
+            };
             if demand < 0.0 {
                 let mut xb = reg.x;
                 for j in 0..M {
                     xb[j] *= sc[j];
                 }
-                let a = if s.accel {
+                let a = if accel_kind::<M, N>() {
                     o.y
                 } else {
                     deriv::<M, N>(bp, &xb, wf)
@@ -269,30 +267,25 @@ fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
                     nx[j] /= sc[j];
                 }
                 reg.x = nx;
-                correct::<M, N, C>(p.dt, s.accel, reg, o);
+                correct::<M, N, C>(p.dt, reg, o);
                 return a;
             }
         }
     }
-    let a = if s.accel {
+    let a = if accel_kind::<M, N>() {
         o.y
     } else {
         deriv::<M, N>(p, &reg.x, wf)
     };
     reg.x = advance::<M, N, D, F>(p, &reg.x, w0, w1);
-    correct::<M, N, C>(p.dt, s.accel, reg, o);
+    correct::<M, N, C>(p.dt, reg, o);
     a
 }
 
 /// Integrates the difference between the actual and the linear acceleration.
 #[inline(always)]
-fn correct<const M: usize, const N: usize, C: Chain>(
-    dt: f64,
-    accel: bool,
-    reg: &mut Regs<N>,
-    o: &Obs,
-) {
-    if !C::NONE && accel && N > M {
+fn correct<const M: usize, const N: usize, C: Chain>(dt: f64, reg: &mut Regs<N>, o: &Obs) {
+    if !C::NONE && accel_kind::<M, N>() && N > M {
         let e = o.y - o.y_lin;
         reg.dp += dt * reg.dv + 0.5 * dt * dt * e;
         reg.dv += dt * e;
@@ -372,13 +365,12 @@ pub fn run<const M: usize, const N: usize, const D: bool, const F: bool, C: Chai
         dp: st.dp,
         wp: st.wp,
     };
-    let accel = st.accel;
     let mut from = 0;
     let mut done = true;
     while from < len {
         let to = (from + CHUNK).min(len);
         for n in from..to {
-            let o = observe::<M, N, F, C>(&st.plant, &st.chain, accel, &reg.x, reg.dv, reg.dp, n);
+            let o = observe::<M, N, F, C>(&st.plant, &st.chain, &reg.x, reg.dv, reg.dp, n);
             let u = drive(n, &o);
             let a = step::<M, N, D, F, C>(st.parts(), &mut reg, n, &o, u);
             sink.put(n, a, o.v, o.p, u, o.y_lin);
@@ -451,15 +443,27 @@ impl<const FULL: bool> Sink for Sse<'_, FULL> {
             let ex = p - self.x[n];
             self.sums[1] += ev * ev;
             self.sums[2] += ex * ex;
-            self.peak = self.peak.max(v.abs());
+            self.peak = bigger(self.peak, v.abs());
         }
-        self.peak = self.peak.max(a.abs()).max(y_lin.abs());
+        self.peak = bigger(self.peak, a.abs());
+        self.peak = bigger(self.peak, y_lin.abs());
     }
 
     #[inline(always)]
     fn proceed(&mut self, _: usize, _: usize) -> bool {
         // NaN anywhere makes the sums NaN: `!(x < y)` catches it.
         self.peak < DIVERGED && self.weighted() < self.limit
+    }
+}
+
+/// `max` as one compare-select (no NaN handling: a NaN response makes the error
+/// sums NaN, which [`Sse::proceed`] and [`Sse::cost`] catch).
+#[inline(always)]
+fn bigger(m: f64, x: f64) -> f64 {
+    if x > m {
+        x
+    } else {
+        m
     }
 }
 
