@@ -347,6 +347,10 @@ pub trait Sink {
     fn put(&mut self, n: usize, a: f64, v: f64, p: f64, u: f64, y_lin: f64);
     /// Called after samples `from..to`; `false` stops the run.
     fn proceed(&mut self, from: usize, to: usize) -> bool;
+    /// How many samples the sink can take (its slices' common length): the run
+    /// loop bounds itself by it, which also lets the compiler drop the per-sample
+    /// bounds checks.
+    fn capacity(&self) -> usize;
 }
 
 /// Runs `len` samples: the command of sample `n` is `drive(n, &obs)`. Returns
@@ -365,6 +369,8 @@ pub fn run<const M: usize, const N: usize, const D: bool, const F: bool, C: Chai
         dp: st.dp,
         wp: st.wp,
     };
+    debug_assert!(len <= sink.capacity());
+    let len = len.min(sink.capacity());
     let mut from = 0;
     let mut done = true;
     while from < len {
@@ -454,6 +460,15 @@ impl<const FULL: bool> Sink for Sse<'_, FULL> {
         // NaN anywhere makes the sums NaN: `!(x < y)` catches it.
         self.peak < DIVERGED && self.weighted() < self.limit
     }
+
+    #[inline(always)]
+    fn capacity(&self) -> usize {
+        if FULL {
+            self.a.len().min(self.v.len()).min(self.x.len())
+        } else {
+            self.a.len()
+        }
+    }
 }
 
 /// `max` as one compare-select (no NaN handling: a NaN response makes the error
@@ -519,6 +534,15 @@ impl<const STOP: bool> Sink for Record<'_, STOP> {
         self.written = to;
         true
     }
+
+    #[inline(always)]
+    fn capacity(&self) -> usize {
+        let n = self.a.len().min(self.v.len()).min(self.x.len());
+        match &self.u {
+            Some(u) => n.min(u.len()),
+            None => n,
+        }
+    }
 }
 
 /// Only the response (`simulate`): acceleration for an acceleration command, speed
@@ -534,5 +558,10 @@ impl Sink for Response<'_> {
     #[inline(always)]
     fn proceed(&mut self, _: usize, _: usize) -> bool {
         true
+    }
+
+    #[inline(always)]
+    fn capacity(&self) -> usize {
+        self.0.len()
     }
 }
