@@ -8,9 +8,10 @@ model's ``name`` is the short name used by the Rust core, the CLI and JSON files
 
 from __future__ import annotations
 
+import functools
 import math
 from abc import ABC, abstractmethod
-from dataclasses import astuple, dataclass, fields
+from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 import numpy as np
@@ -38,6 +39,12 @@ def _check(name: str, value: float, *, positive: bool = False, nonneg: bool = Fa
         raise ValueError(f"{name}: must be >= 0, got {value}")
 
 
+@functools.cache
+def _names(cls: type) -> tuple[str, ...]:
+    """A dataclass's field names, cached per class."""
+    return tuple(f.name for f in fields(cls))
+
+
 @dataclass(frozen=True)
 class LowerLevelModel(ABC):
     """Base class: a strictly proper rational part, a dead time and an inner feedback.
@@ -50,11 +57,16 @@ class LowerLevelModel(ABC):
     @classmethod
     def param_names(cls) -> tuple[str, ...]:
         """The parameter names in array order (the paper's notation)."""
-        return tuple(f.name for f in fields(cls))
+        return _names(cls)
+
+    def values(self) -> list[float]:
+        """The parameters as floats, in :meth:`param_names` order (no copy of the
+        object: cheap enough for a per-call path)."""
+        return [float(getattr(self, n)) for n in _names(type(self))]
 
     def to_array(self) -> np.ndarray:
         """The parameters as a float64 array, in :meth:`param_names` order."""
-        return np.array(astuple(self), dtype=np.float64)
+        return np.array(self.values(), dtype=np.float64)
 
     @classmethod
     def from_array(cls, values: Any) -> LowerLevelModel:
@@ -70,7 +82,7 @@ class LowerLevelModel(ABC):
 
     def to_dict(self) -> dict[str, float]:
         """The parameters by name."""
-        return {n: float(v) for n, v in zip(self.param_names(), astuple(self), strict=True)}
+        return dict(zip(_names(type(self)), self.values(), strict=True))
 
     @abstractmethod
     def linear(self) -> dict[str, float]:

@@ -57,7 +57,7 @@ def _f64(name: str, x: Any) -> np.ndarray:
 def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     if not isinstance(model, LowerLevelModel):
         raise ValueError(f"model: expected an avll model object, got {type(model).__name__}")
-    return model.name, [float(v) for v in model.to_array()]
+    return model.name, model.values()
 
 
 def simulate(model: LowerLevelModel, command: Any, dt: float, *, init: str = "rest") -> np.ndarray:

@@ -90,7 +90,9 @@ fn simulate<'py>(
     let lin = linear(model, &params)?;
     let init = guard(|| Init::from_name(init))?;
     let u = slice1("command", &command)?;
-    let y = PyArray1::<f64>::zeros(py, u.len(), false);
+    // SAFETY: uninitialised (no page-zeroing pass); `simulate_into` writes every
+    // element before Python can see the array, and on an error it is dropped unseen.
+    let y = unsafe { PyArray1::<f64>::new(py, u.len(), false) };
     {
         let mut w = y.readwrite();
         let out = w.as_slice_mut()?;
@@ -102,8 +104,15 @@ fn simulate<'py>(
 /// Four new (rows, T) arrays a, v, x, command.
 type Arrays<'py> = [Bound<'py, PyArray2<f64>>; 4];
 
+/// Four new uninitialised (rows, T) arrays for the rollouts to fill.
+///
+/// Allocating through numpy without zeroing avoids a page-zeroing pass over every
+/// output (the first version spent up to half of a long rollout page-faulting fresh
+/// zeroed buffers). Every rollout that receives them writes each element (NaN after
+/// a divergence) before returning, and an error drops them unseen.
 fn arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> Arrays<'py> {
-    std::array::from_fn(|_| PyArray2::<f64>::zeros(py, [rows, t], false))
+    // SAFETY: see above: fully written before Python sees them.
+    std::array::from_fn(|_| unsafe { PyArray2::<f64>::new(py, [rows, t], false) })
 }
 
 fn dict_of<'py>(py: Python<'py>, arrs: Arrays<'py>, flat: bool) -> PyResult<Bound<'py, PyDict>> {
@@ -377,7 +386,9 @@ fn simulate_batch<'py>(
     let rs = runs.get();
     let refs = rs.refs();
     let t = rs.len_total();
-    let out: [Bound<'py, PyArray3<f64>>; 1] = [PyArray3::<f64>::zeros(py, [3, p, t], false)];
+    // SAFETY: `simulate_batch` writes every element (NaN for invalid rows).
+    let out: [Bound<'py, PyArray3<f64>>; 1] =
+        [unsafe { PyArray3::<f64>::new(py, [3, p, t], false) }];
     {
         let mut w = out[0].readwrite();
         let s = w.as_slice_mut()?;

@@ -179,7 +179,7 @@ pub const fn accel_kind<const M: usize, const N: usize>() -> bool {
 }
 
 #[inline(always)]
-fn observe<const M: usize, const N: usize, const F: bool, C: Chain>(
+pub(crate) fn observe<const M: usize, const N: usize, const F: bool, C: Chain>(
     p: &Plant<M, N>,
     chain: &C,
     x: &[f64; N],
@@ -305,7 +305,7 @@ fn deriv<const M: usize, const N: usize>(p: &Plant<M, N>, x: &[f64; N], wf: f64)
 /// One exact step in the kernel's coordinates, using the structure of `Phi`: each
 /// state's own term is added last, so its dependency chain is one multiply-add.
 #[inline(always)]
-fn advance<const M: usize, const N: usize, const D: bool, const F: bool>(
+pub(crate) fn advance<const M: usize, const N: usize, const D: bool, const F: bool>(
     p: &Plant<M, N>,
     x: &[f64; N],
     w0: f64,

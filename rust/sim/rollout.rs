@@ -402,7 +402,7 @@ fn platoon_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     outs: &mut [Out],
 ) -> Result<()> {
     if eff.effects.is_empty() {
-        platoon_chain::<M, N, D, F, _>(plant, lin, NoEffects, up, lead_x, lead_v, outs)
+        platoon_linear::<M, N, D, F>(plant, lin, up, lead_x, lead_v, outs)
     } else {
         let ch = eff.chain(lead_x.len())?;
         platoon_chain::<M, N, D, F, _>(plant, lin, ch, up, lead_x, lead_v, outs)
@@ -461,38 +461,192 @@ fn platoon_chain<const M: usize, const N: usize, const D: bool, const F: bool, C
                 pv = ob.v;
             }
         }
-        // Divergence: the first follower whose acceleration or speed left the range.
-        let mut first = None;
-        'scan: for (j, o) in outs[..alive].iter().enumerate() {
-            for n in from..to {
-                if !(o.a[n].abs() < DIVERGED && o.v[n].abs() < DIVERGED) {
-                    first = Some((j, n));
-                    break 'scan;
-                }
-            }
-        }
-        if let Some((j, n)) = first {
-            // Follower j: NaN after sample n; followers behind it: NaN throughout.
-            let o = &mut outs[j];
-            for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
-                s[n + 1..].fill(f64::NAN);
-            }
-            if let Some(c) = o.u.as_deref_mut() {
-                c[n + 1..].fill(f64::NAN);
-            }
-            for o in outs[j + 1..alive].iter_mut() {
-                for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
-                    s.fill(f64::NAN);
-                }
-                if let Some(c) = o.u.as_deref_mut() {
-                    c.fill(f64::NAN);
-                }
-            }
-            alive = j;
-        }
+        alive = platoon_divergence(outs, alive, from, to);
         from = to;
     }
     Ok(())
+}
+
+/// The linear platoon in struct-of-arrays form: per sample, each pass (responses,
+/// commands, dead-time line, state update) runs over all followers, with each state
+/// component of all followers side by side and the followers' dead-time lines side
+/// by side in one ring (`slot * F + j`), so the passes are independent across
+/// followers and vectorize. The arithmetic, operation for operation, is the kernel's
+/// ([`crate::sim::kernel`]'s `observe` and `advance`): the result is bit-identical
+/// to followers stepped one by one (tested).
+fn platoon_linear<const M: usize, const N: usize, const D: bool, const F: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    outs: &mut [Out],
+) -> Result<()> {
+    use super::kernel::{madd, CHUNK};
+    let len = lead_x.len();
+    let f = outs.len();
+    if f == 0 {
+        return Ok(());
+    }
+    let pl = &plant;
+    let v0 = lead_v[0];
+    let s = start(lin, Init::Rest, 0.0)?;
+    let gap = up.gmin + up.tg * v0;
+    // st[k][j]: state component k of follower j (model modes, speed, position).
+    let mut st: [Vec<f64>; N] = std::array::from_fn(|_| vec![0.0; f]);
+    for j in 0..f {
+        let x = plant.state(&s, [v0, lead_x[0] - (j + 1) as f64 * gap]);
+        for k in 0..N {
+            st[k][j] = x[k];
+        }
+    }
+    let cap = (plant.delay + 2).next_power_of_two();
+    let mut ring = vec![s.w_hist; cap * f];
+    let mut wp = vec![s.w_hist; f];
+    let (mut y, mut u, mut w0) = (vec![0.0; f], vec![0.0; f], vec![0.0; f]);
+    let i = plant.delay;
+    let mut alive = f;
+    let mut from = 0;
+    while from < len && alive > 0 {
+        let to = (from + CHUNK).min(len);
+        for n in from..to {
+            let a = alive;
+            // Responses at n: y = C z (as `observe`).
+            {
+                let z0 = &st[0][..a];
+                y[..a].copy_from_slice(z0);
+                for yj in y[..a].iter_mut() {
+                    *yj *= pl.c[0];
+                }
+                if M == 2 {
+                    for (yj, z1) in y[..a].iter_mut().zip(&st[1][..a]) {
+                        *yj = madd::<F>(pl.c[1], *z1, *yj);
+                    }
+                }
+            }
+            // Commands from the predecessors' positions and speeds at n.
+            {
+                let (vs, ps) = (&st[M][..a], &st[M + 1][..a]);
+                u[0] = up.command(lead_x[n], lead_v[n], ps[0], vs[0]);
+                for (((uj, pp), pv), (p, v)) in u[1..a]
+                    .iter_mut()
+                    .zip(&ps[..a - 1])
+                    .zip(&vs[..a - 1])
+                    .zip(ps[1..].iter().zip(&vs[1..]))
+                {
+                    *uj = up.command(*pp, *pv, *p, *v);
+                }
+            }
+            // The dead-time line: this sample's row in, the row i samples back out.
+            let row = (n & (cap - 1)) * f;
+            let back = (n.wrapping_sub(i) & (cap - 1)) * f;
+            for ((r, uj), yj) in ring[row..row + a].iter_mut().zip(&u[..a]).zip(&y[..a]) {
+                *r = uj + pl.k * yj;
+            }
+            w0[..a].copy_from_slice(&ring[back..back + a]);
+            for (j, o) in outs[..a].iter_mut().enumerate() {
+                o.a[n] = y[j];
+                o.v[n] = st[M][j];
+                o.x[n] = st[M + 1][j];
+                if let Some(c) = o.u.as_deref_mut() {
+                    c[n] = u[j];
+                }
+            }
+            // The exact step (as `advance`).
+            step_soa::<M, N, D, F>(pl, &mut st, &w0[..a], &mut wp[..a]);
+        }
+        alive = platoon_divergence(outs, alive, from, to);
+        from = to;
+    }
+    Ok(())
+}
+
+/// `advance` over all followers at once (struct of arrays), then `w1 <- w0`.
+#[inline(always)]
+fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
+    pl: &Plant<M, N>,
+    st: &mut [Vec<f64>; N],
+    w0: &[f64],
+    wp: &mut [f64],
+) {
+    use super::kernel::madd;
+    let a = w0.len();
+    let (g0, g1, phi) = (&pl.g0, &pl.g1, &pl.phi);
+    // Integrators first: they read the model states before the update.
+    {
+        let (zs, ints) = st.split_at_mut(M);
+        let (vs, ps) = ints.split_at_mut(1);
+        let (vs, ps) = (&mut vs[0][..a], &mut ps[0][..a]);
+        for j in 0..a {
+            let (w0j, w1j) = (w0[j], wp[j]);
+            let mut tv = madd::<F>(g1[M], w1j, g0[M] * w0j);
+            for k in 0..M {
+                tv = madd::<F>(phi[M][k], zs[k][j], tv);
+            }
+            let mut tp = madd::<F>(g1[M + 1], w1j, g0[M + 1] * w0j);
+            tp = madd::<F>(phi[M + 1][M], vs[j], tp);
+            for k in 0..M {
+                tp = madd::<F>(phi[M + 1][k], zs[k][j], tp);
+            }
+            vs[j] += tv;
+            ps[j] += tp;
+        }
+    }
+    if D || M == 1 {
+        for r in 0..M {
+            let z = &mut st[r][..a];
+            for j in 0..a {
+                let t = madd::<F>(g1[r], wp[j], g0[r] * w0[j]);
+                z[j] = madd::<F>(phi[r][r], z[j], t);
+            }
+        }
+    } else {
+        let (z0, z1) = st.split_at_mut(1);
+        let (z0, z1) = (&mut z0[0][..a], &mut z1[0][..a]);
+        for j in 0..a {
+            let t0 = madd::<F>(g1[0], wp[j], g0[0] * w0[j]);
+            let t1 = madd::<F>(g1[1], wp[j], g0[1] * w0[j]);
+            let n0 = madd::<F>(phi[0][0], z0[j], madd::<F>(phi[0][1], z1[j], t0));
+            let n1 = madd::<F>(phi[1][1], z1[j], madd::<F>(phi[1][0], z0[j], t1));
+            z0[j] = n0;
+            z1[j] = n1;
+        }
+    }
+    wp.copy_from_slice(w0);
+}
+
+/// After samples `from..to`: the first follower (among the first `alive`) whose
+/// acceleration or speed left the range gets NaN after that sample, those behind it
+/// NaN throughout; returns how many followers stay alive.
+fn platoon_divergence(outs: &mut [Out], alive: usize, from: usize, to: usize) -> usize {
+    let mut first = None;
+    'scan: for (j, o) in outs[..alive].iter().enumerate() {
+        for n in from..to {
+            if !(o.a[n].abs() < DIVERGED && o.v[n].abs() < DIVERGED) {
+                first = Some((j, n));
+                break 'scan;
+            }
+        }
+    }
+    let Some((j, n)) = first else {
+        return alive;
+    };
+    let o = &mut outs[j];
+    for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
+        s[n + 1..].fill(f64::NAN);
+    }
+    if let Some(c) = o.u.as_deref_mut() {
+        c[n + 1..].fill(f64::NAN);
+    }
+    for o in outs[j + 1..alive].iter_mut() {
+        for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
+            s.fill(f64::NAN);
+        }
+        if let Some(c) = o.u.as_deref_mut() {
+            c.fill(f64::NAN);
+        }
+    }
+    j
 }
 
 /// A platoon of identical vehicles behind a recorded leader, one output per
