@@ -147,6 +147,17 @@ impl<const M: usize, const N: usize> Plant<M, N> {
         if i > 1 << 24 {
             return None;
         }
+        // The range the matrix exponential accepts (else it reports the error).
+        let scale = if M == 1 {
+            (1.0 / lin.a1).abs()
+        } else {
+            (1.0 / lin.a2).abs().max((lin.a1 / lin.a2).abs())
+        };
+        let limit = super::discretize::MAX_SCALED_ENTRY;
+        let scaled = scale.max(1.0) * dt;
+        if scaled.is_nan() || scaled > limit {
+            return None;
+        }
         let (poles, res, t, tinv) = if M == 1 {
             if !(lin.a1.is_finite() && lin.a1 != 0.0) {
                 return None;
