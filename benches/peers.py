@@ -81,6 +81,8 @@ __all__ = [
     "CLOSED_PEERS",
     "PLATOON_PEERS",
     "COST_PEERS",
+    "Peer",
+    "set_threads",
 ]
 
 #: A response beyond this magnitude counts as divergence (avll's threshold).
@@ -91,6 +93,10 @@ BLOCK = 256
 MAX_SCALED_ENTRY = 1e12
 
 JIT = dict(cache=True, nogil=True, error_model="numpy")
+#: The fast variants let LLVM fuse multiply-adds (FMA, one rounding instead of two:
+#: still far inside the 1e-9 check); it lengthens the plain loops' chains, so they
+#: keep numba's default.
+FAST = dict(JIT, fastmath={"contract"})
 
 
 # ---------------------------------------------------------------------------
@@ -193,9 +199,7 @@ def check_close(name: str, got: Any, want: Any, tol: float = 1e-9) -> float:
     w = np.asarray(want, dtype=np.float64)
     if g.shape != w.shape:
         raise AssertionError(f"{name}: shape {g.shape} != avll's {w.shape}")
-    if not np.array_equal(np.isnan(g), np.isnan(w)) or not np.array_equal(
-        np.isinf(g), np.isinf(w)
-    ):
+    if not np.array_equal(np.isnan(g), np.isnan(w)) or not np.array_equal(np.isinf(g), np.isinf(w)):
         raise AssertionError(f"{name}: non-finite entries differ from avll's")
     fin = np.isfinite(w)
     if not fin.any():
@@ -248,7 +252,7 @@ def _open_plain(phi, g0, g1, c, k, i, u):  # pragma: no cover - compiled
     return y
 
 
-@njit(**JIT)
+@njit(**FAST)
 def _open_modal(lam, g0, g1, c, k, i, u):  # pragma: no cover - compiled
     # Modal form: one multiply-add per mode on the state's dependency chain. The
     # delay line is one array holding i zeros (the history at rest) then u_ref, so
@@ -360,7 +364,7 @@ def _first_diverged(a, start, stop):  # pragma: no cover - compiled
     return -1
 
 
-@njit(**JIT)
+@njit(**FAST)
 def _closed_modal(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0):  # pragma: no cover
     # Modal model states z0, z1 (diagonal), then the integrators' rows:
     # v' = pv0 z0 + pv1 z1 + pvv v + inputs, x' = px0 z0 + px1 z1 + pxv v + pxx x + inputs.
@@ -730,7 +734,7 @@ def _sse_plain(phi, g0, g1, c, k, i, u, meas):  # pragma: no cover - compiled
     return s
 
 
-@njit(**JIT)
+@njit(**FAST)
 def _sse_modal(l0, l1, a0, a1, b0, b1, c0, c1, k, i, u, meas, thr):  # pragma: no cover
     # Modal form, ring-buffer delay line indexed with a mask (branch-free, stays in
     # L1), no divergence test in the hot loop: a sample with |y| >= 1e6 makes the sum
@@ -826,7 +830,91 @@ def _cost_plain(params, u, meas, offsets, dt):  # pragma: no cover - compiled
     return out
 
 
-@njit(parallel=True, **JIT)
+@njit(**JIT)
+def _modal_direct(p, dt):  # pragma: no cover - compiled
+    """The proposed model's discrete step straight in modal form, from the
+    continuous poles (no matrix exponential): ``(status, coef, i)`` with status 0
+    invalid, 1 modal, 2 poles complex or nearly repeated (use the expm path);
+    ``coef = (l0, l1, a0, a1, b0, b1, c0, c1)``.
+
+    Observable form ``A = [[-a1, 1], [-a0, 0]]`` (``a1 = m3/m2``, ``a0 = 1/m2``) has
+    the eigenvectors ``(lam, -a0)``; per mode ``z' = lam z + beta w``, so over a
+    hold of ``tau`` seconds ``z -> e^{lam tau} z + beta expm1(lam tau)/lam w``."""
+    coef = np.zeros(8)
+    m1, m2, m3, k0, td = p[0], p[1], p[2], p[3], p[4]
+    for j in range(6):
+        if not math.isfinite(p[j]):
+            return 0, coef, 0
+    if not (m2 > 0.0 and td >= 0.0):
+        return 0, coef, 0
+    a1 = m3 / m2
+    a0 = 1.0 / m2
+    bb1 = m1 / m2
+    bb0 = k0 / m2
+    big = max(max(abs(a1), abs(a0)), max(abs(bb1), abs(bb0)))
+    if not big * dt <= MAX_SCALED_ENTRY:
+        return 0, coef, 0
+    disc = a1 * a1 - 4.0 * a0
+    if not disc > 1e-8 * a1 * a1:
+        return 2, coef, 0
+    q = -0.5 * (a1 + math.copysign(math.sqrt(disc), a1))
+    lam0 = q
+    lam1 = a0 / q
+    r = td / dt
+    i = math.floor(r)
+    f = r - i
+    if f < 1e-12:
+        f = 0.0
+    if i > (1 << 24):
+        return 0, coef, 0
+    det = a0 * (lam1 - lam0)
+    beta0 = (-a0 * bb1 - lam1 * bb0) / det
+    beta1 = (a0 * bb1 + lam0 * bb0) / det
+    tr = (1.0 - f) * dt
+    tf = f * dt
+    coef[0] = math.exp(lam0 * tr) * math.exp(lam0 * tf)
+    coef[1] = math.exp(lam1 * tr) * math.exp(lam1 * tf)
+    coef[2] = beta0 * math.expm1(lam0 * tr) / lam0
+    coef[3] = beta1 * math.expm1(lam1 * tr) / lam1
+    coef[4] = math.exp(lam0 * tr) * beta0 * math.expm1(lam0 * tf) / lam0
+    coef[5] = math.exp(lam1 * tr) * beta1 * math.expm1(lam1 * tf) / lam1
+    coef[6] = lam0
+    coef[7] = lam1
+    for j in range(8):
+        if not math.isfinite(coef[j]):
+            return 0, coef, 0
+    return 1, coef, int(i)
+
+
+@njit(**JIT)
+def _modal_stable(coef, kk, b0, a1, a2, i):  # pragma: no cover - compiled
+    # avll's inner-loop test on the modal form (the polynomial is invariant):
+    # det(zI - Phi) = (z - l0)(z - l1), Nk(z) = c0 gk0 (z - l1) + c1 gk1 (z - l0).
+    if kk == 0.0:
+        return a1 > 0.0 and a2 >= 0.0
+    if kk * b0 >= 1.0:
+        return False
+    deg = i + 3
+    if deg > (1 << 14):
+        return True
+    l0, l1, g00, g01, g10, g11, c0, c1 = (
+        coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7],
+    )  # fmt: skip
+    p = np.zeros(deg + 1)
+    p[i + 1] = l0 * l1
+    p[i + 2] = -(l0 + l1)
+    p[i + 3] = 1.0
+    n01 = c0 * g00 + c1 * g01
+    n00 = -(c0 * g00 * l1 + c1 * g01 * l0)
+    n11 = c0 * g10 + c1 * g11
+    n10 = -(c0 * g10 * l1 + c1 * g11 * l0)
+    p[0] -= kk * n10
+    p[1] -= kk * (n11 + n00)
+    p[2] -= kk * n01
+    return _schur_stable(p)
+
+
+@njit(parallel=True, **FAST)
 def _cost_modal(params, u, meas, offsets, dt):  # pragma: no cover - compiled
     P = params.shape[0]
     R = offsets.size - 1
@@ -837,21 +925,28 @@ def _cost_modal(params, u, meas, offsets, dt):  # pragma: no cover - compiled
         thr[r] = 0.99 * (1e6 - big) ** 2 if big < 0.5e6 else 0.0
     for q in prange(P):
         p = params[q]
-        ok, phi, g0, g1, c, kk, i = _discretize_proposed(p, dt)
-        if ok:
-            ok = _inner_loop_stable(phi, g0, g1, c, kk, p[3], p[2], p[1], i)
-        if not ok:
+        status, coef, i = _modal_direct(p, dt)
+        if status == 2:  # complex or repeated poles: expm and the plain step
+            ok, phi, g0, g1, c, kk, i = _discretize_proposed(p, dt)
+            if ok:
+                ok = _inner_loop_stable(phi, g0, g1, c, kk, p[3], p[2], p[1], i)
+            for r in range(R):
+                lo, hi = offsets[r], offsets[r + 1]
+                if ok:
+                    s = _sse_plain(phi, g0, g1, c, kk, i, u[lo:hi], meas[lo:hi])
+                    out[q, r] = s / (hi - lo)
+                else:
+                    out[q, r] = np.inf
+            continue
+        if status == 0 or not _modal_stable(coef, p[5], p[3], p[2], p[1], i):
             out[q, :] = np.inf
             continue
-        md, l0, l1, a0, a1, b0, b1, c0, c1 = _modal2(phi, g0, g1, c)
+        l0, l1, a0, a1, b0, b1, c0, c1 = (
+            coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7],
+        )  # fmt: skip
         for r in range(R):
             lo, hi = offsets[r], offsets[r + 1]
-            if md:
-                s = _sse_modal(
-                    l0, l1, a0, a1, b0, b1, c0, c1, kk, i, u[lo:hi], meas[lo:hi], thr[r]
-                )
-            else:
-                s = _sse_plain(phi, g0, g1, c, kk, i, u[lo:hi], meas[lo:hi])
+            s = _sse_modal(l0, l1, a0, a1, b0, b1, c0, c1, p[5], i, u[lo:hi], meas[lo:hi], thr[r])
             out[q, r] = s / (hi - lo) if math.isfinite(s) else np.inf
     return out
 
@@ -881,3 +976,62 @@ def cost_modal(params: np.ndarray, packed: tuple[Any, ...]) -> np.ndarray:
     branch-free delay line, divergence tested per block."""
     u, a, offsets, dt = packed
     return _cost_modal(np.ascontiguousarray(params, dtype=np.float64), u, a, offsets, dt)
+
+
+# ---------------------------------------------------------------------------
+# The registry the benchmark iterates over.
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Peer:
+    """One peer of one workload: ``prepare`` (not timed: the discrete matrices, or the
+    packed runs) and ``run`` (timed). ``variant`` is ``"plain"`` or ``"best"``."""
+
+    name: str
+    variant: str
+    prepare: Any
+    run: Any
+
+
+def _disc(model: avll.LowerLevelModel, dt: float) -> Discrete:
+    return discretize(model, dt)
+
+
+def _modal(model: avll.LowerLevelModel, dt: float) -> Modal:
+    return modal(discretize(model, dt))
+
+
+def _disc4(model: avll.LowerLevelModel, dt: float) -> Discrete:
+    return discretize(model, dt, integrators=True)
+
+
+def _modal4(model: avll.LowerLevelModel, dt: float) -> Modal:
+    return modal(discretize(model, dt, integrators=True))
+
+
+#: run(prepared, u) -> y
+OPEN_PEERS = (
+    Peer("numba plain loop (2x2 step, ring buffer)", "plain", _disc, open_plain),
+    Peer("numba modal, branch-free delay line", "best", _modal, open_modal),
+)
+#: run(prepared, upper, lead_x, lead_v, v0, x0) -> (a, v, x, command)
+CLOSED_PEERS = (
+    Peer("numba plain loop (4x4 step, per-sample check)", "plain", _disc4, closed_plain),
+    Peer("numba modal, delay-line array, chunk checks", "best", _modal4, closed_modal),
+)
+#: run(prepared, upper, lead_x, lead_v, followers) -> (a, v, x, command), (follower, sample)
+PLATOON_PEERS = (
+    Peer("numba plain loop, follower-major", "plain", _disc4, platoon_plain),
+    Peer("numba modal, time-major (followers vectorized)", "best", _modal4, platoon_time_major),
+)
+#: run(params, prepared) -> (P, R) costs; prepare(runs) -> packed runs
+COST_PEERS = (
+    Peer("numba prange, plain loop (expm per set)", "plain", pack, cost_plain),
+    Peer("numba prange, modal from the poles, no per-sample check", "best", pack, cost_modal),
+)
+
+
+def set_threads(n: int) -> None:
+    """Threads of the prange peers (``numba.set_num_threads``)."""
+    numba.set_num_threads(int(n))
