@@ -189,8 +189,10 @@ def run_de_numba(obj: NumbaObjective, seed: int, stop_at: float, budget: float) 
     """scipy DE (defaults, polish on), the population in one numba call."""
     rec = Recorder(obj, stop_at, budget)
 
-    def f(x: np.ndarray) -> np.ndarray:  # x: (6, S)
-        return rec(np.asarray(x).T)
+    def f(x: np.ndarray) -> Any:  # x: (6, S) from DE, (6,) from the polish
+        x = np.asarray(x)
+        vals = rec(x.T)
+        return vals if x.ndim == 2 else float(vals[0])
 
     def cb(intermediate_result: object) -> bool:
         return rec.done()

@@ -210,3 +210,19 @@ def test_bench_engine_runs_and_writes_strict_json(tmp_path: Path) -> None:
         assert all(p["max_rel_diff"] <= 1e-9 for p in w["peers"])
         assert w["ratio"] == pytest.approx(w["avll"]["rate"] / max(p["rate"] for p in w["peers"]))
     assert [s["threads"] for s in doc["scaling"]] == [[1, 2], [1, 2]]
+
+
+def test_bench_calibrate_unit_box_and_recorder() -> None:
+    import bench_calibrate as bc
+
+    z = np.random.default_rng(0).random((5, len(bc.NAMES)))
+    np.testing.assert_allclose(bc.to_unit(bc.to_user(z[0])), z[0], rtol=0, atol=1e-12)
+    assert np.all(bc.to_user(z) >= bc.LO) and np.all(bc.to_user(z) <= bc.HI)
+    assert bc.speedup(2.0, 0.5) == 4.0 and bc.speedup(1.0, math.inf) == 0.0
+    assert math.isnan(bc.speedup(math.inf, math.inf))
+    rec = bc.Recorder(lambda x: x.sum(axis=1), stop_at=1.0, budget=60.0)
+    rec(np.array([[3.0, 1.0], [2.0, 2.0]]))
+    rec(np.array([[0.5, 0.25]]))
+    assert rec.trace.evals == 3 and rec.trace.best == 0.75 and rec.done()
+    assert [p[2:] for p in rec.trace.points] == [(2, 4.0), (3, 0.75)]
+    assert rec.trace.first(1.0) is not None and rec.trace.first(0.5) is None
