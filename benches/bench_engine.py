@@ -48,7 +48,12 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import peers  # noqa: E402
+try:
+    import peers
+except ImportError as e:  # numba missing: one line, not a traceback
+    if __name__ != "__main__":
+        raise
+    sys.exit(f"bench_engine: {e}")
 
 import avll  # noqa: E402
 from avll.calibrate import DEFAULT_BOUNDS  # noqa: E402
