@@ -330,9 +330,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.threads < 0:
         ap.error("--threads must be >= 0")
 
-    import cma
-    import numba
-    import peers
+    try:
+        import cma
+        import numba
+        import peers
+    except ImportError as e:  # one line, not a traceback
+        print(f"bench_calibrate: {e} (pip install 'avll[bench]')")
+        return 2
 
     threads = args.threads or (os.cpu_count() or 1)
     peers.set_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
