@@ -1,0 +1,625 @@
+"""avll's rollout engine against numba peers, side by side in one process (issue 10).
+
+    python benches/bench_engine.py [--quick] [--repeat 5] [--json OUT] [--only open,cost]
+
+Workloads (the paper's Table II proposed model, dt = 0.05 s, at rest):
+
+a. open-loop rollout (``avll.simulate``) of 1e5 and 1e6 samples;
+b. closed loop behind a recorded leader (``avll.closed_loop``, upper law Eq. 3);
+c. a 20-car platoon (``avll.platoon``);
+d. the batched Eq. 6 cost (``avll.batch_cost``): 10,000 parameter sets x one run of
+   6,000 samples, and the paper's 10 calibration runs (fewer sets), on 1 and 2
+   threads.
+
+Every peer (``benches/peers.py``: a plain numba loop and the best variant we could
+write) is first checked equal to avll to 1e-9 of the signal scale on the very inputs
+that are timed; a peer that fails stops the benchmark (exit 1). Then each call is
+warmed up and timed ``--repeat`` times: the rate is work over the best process CPU
+time (all threads included, so it is per core even on a shared machine); thread
+scaling uses the best wall time. Each table gives avll's rate, every peer's, the
+ratio avll / best peer, the issue's target (>= 1.5x the best peer on one core; the
+batched cost >= 1.8x faster on 2 threads than on 1) and by how much it is missed.
+
+Only the public API is used (``avll.simulate``, ``closed_loop``, ``platoon``,
+``batch_cost``, ``Run``), so the benchmark keeps working when the engine changes
+underneath. Build avll in release mode for meaningful numbers
+(``maturin develop --release``); numba and cma come with ``pip install avll[bench]``.
+"""
+
+from __future__ import annotations
+
+import os
+
+# Idle numba (OpenMP) workers sleep instead of spinning, so that process CPU time
+# measures work, not busy-waiting (on a loaded machine spinning doubles it).
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
+from dataclasses import dataclass, field  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+try:
+    import peers
+except ImportError as e:  # numba missing: one line, not a traceback
+    if __name__ != "__main__":
+        raise
+    sys.exit(f"bench_engine: {e}")
+
+import avll  # noqa: E402
+from avll.calibrate import DEFAULT_BOUNDS  # noqa: E402
+from avll.synth import PAPER_CAL_RUNS, paper_experiment  # noqa: E402
+
+DT = 0.05
+MODEL = avll.PAPER_TABLE_II["proposed"]
+#: A Table I law (run 3) for one follower.
+UPPER_CLOSED = avll.UpperLevel(kg=0.5, kv=0.0, Tg=1.8, Gmin=9.5)
+#: A string-stable law for the platoon (Table I's laws amplify along 20 cars of the
+#: proposed model until they diverge, which would time NaN handling, not stepping).
+UPPER_PLATOON = avll.UpperLevel(kg=0.2, kv=0.2, Tg=3.0, Gmin=9.5)
+TARGET_ONE_CORE = 1.5
+TARGET_SCALING = 1.8
+TOL = 1e-9
+#: Closed loops are compared on (at most) their first samples: positions grow to
+#: ~7e5 m over 1e6 samples, and the float rounding of two correct implementations
+#: drifts apart by a few 1e-9 m there, which the upper law turns into a few 1e-9 of
+#: the command's scale (measured: the plain 4x4 peer 2.0e-9 at 1e6 samples, 2.2e-10
+#: at 1e5). Within this prefix every peer agrees to 1e-9.
+CHECK_SAMPLES = 200_000
+NO_TARGET = "the targets apply to one core; thread scaling is reported under 'scaling'"
+
+
+class PeerMismatch(Exception):
+    """A peer does not reproduce avll's numbers; nothing is timed."""
+
+
+# ---------------------------------------------------------------------------
+# Timing and the result table.
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class Timing:
+    """Best process CPU time and best wall time (s) of ``repeat`` calls."""
+
+    cpu: float
+    wall: float
+
+
+def measure(fns: Sequence[Callable[[], object]], repeat: int) -> list[Timing]:
+    """Best CPU and wall times of each call: one warm-up call each, then ``repeat``
+    rounds calling every function once in turn (round-robin, so that load changes
+    and the allocator's state, which decides whether fresh outputs page-fault, hit
+    every implementation alike)."""
+    for fn in fns:
+        fn()
+    cpus: list[list[float]] = [[] for _ in fns]
+    walls: list[list[float]] = [[] for _ in fns]
+    for _ in range(max(1, repeat)):
+        for k, fn in enumerate(fns):
+            w0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            cpus[k].append(time.process_time() - c0)
+            walls[k].append(time.perf_counter() - w0)
+    return [Timing(min(c), min(w)) for c, w in zip(cpus, walls, strict=True)]
+
+
+@dataclass
+class Row:
+    """One implementation's result on one workload."""
+
+    name: str
+    variant: str
+    rate: float  # M steps/s
+    cpu_s: float
+    wall_s: float
+    max_rel_diff: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Table:
+    """One workload: avll's row, the peers' rows, the ratio and the target."""
+
+    key: str
+    title: str
+    steps: int
+    basis: str
+    avll: Row
+    peers: list[Row]
+    target: float | None
+    ratio_basis: str = "avll / best peer (M steps/s per core)"
+    wall_column: bool = False
+
+    def best_peer(self) -> Row:
+        """The fastest peer."""
+        return max(self.peers, key=lambda r: r.rate)
+
+    def ratio(self) -> float:
+        """avll's rate over the best peer's."""
+        return self.avll.rate / self.best_peer().rate
+
+    def to_json(self) -> dict[str, Any]:
+        """Strict-JSON-ready dict (every number finite)."""
+        best = self.best_peer()
+        ratio = self.ratio()
+        return {
+            "key": self.key,
+            "title": self.title,
+            "steps_per_call": self.steps,
+            "unit": "M steps/s",
+            "basis": self.basis,
+            "avll": _row_json(self.avll),
+            "peers": [_row_json(p) for p in self.peers],
+            "best_peer": best.name,
+            "ratio": ratio,
+            "ratio_basis": self.ratio_basis,
+            "target": self.target,
+            "met": None if self.target is None else ratio >= self.target,
+            "shortfall_factor": None if self.target is None else max(1.0, self.target / ratio),
+            "avll_rate_needed": None if self.target is None else self.target * best.rate,
+            **({} if self.target is not None else {"target_reason": NO_TARGET}),
+        }
+
+
+def _row_json(r: Row) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "name": r.name,
+        "variant": r.variant,
+        "rate": r.rate,
+        "cpu_s": r.cpu_s,
+        "wall_s": r.wall_s,
+    }
+    if r.max_rel_diff is not None:
+        d["max_rel_diff"] = r.max_rel_diff
+    d.update(r.extra)
+    return d
+
+
+def verdict(ratio: float, target: float) -> str:
+    """``met (...)`` or ``NOT MET: misses by ...``."""
+    if ratio >= target:
+        return f"met ({ratio / target:.2f}x the target)"
+    return f"NOT MET: misses by {target / ratio:.2f}x"
+
+
+def print_table(t: Table) -> None:
+    """One workload's table on stdout."""
+    print(f"\n{t.title}")
+    print(f"  {t.steps:,} steps per call; {t.basis}")
+    w = max(len(r.name) for r in [t.avll, *t.peers]) + 2
+    wall = f"{'wall M/s':>10}" if t.wall_column else ""
+    print(f"  {'implementation':<{w}}{'M steps/s':>11}{wall}{'max rel diff':>14}")
+    for r in [t.avll, *t.peers]:
+        diff = "" if r.max_rel_diff is None else f"{r.max_rel_diff:.1e}"
+        wr = f"{r.extra.get('wall_rate', float('nan')):>10.1f}" if t.wall_column else ""
+        print(f"  {r.name:<{w}}{r.rate:>11.1f}{wr}{diff:>14}")
+    best = t.best_peer()
+    line = f"  {t.ratio_basis}: {t.ratio():.2f}x (best peer: {best.name}); "
+    if t.target is None:
+        line += "no target (informational: " + NO_TARGET + ")"
+    else:
+        line += f"target >= {t.target}x: {verdict(t.ratio(), t.target)}"
+        if t.ratio() < t.target:
+            line += f"; avll needs {t.target * best.rate:.0f} M steps/s"
+    print(line)
+
+
+# ---------------------------------------------------------------------------
+# Inputs.
+# ---------------------------------------------------------------------------
+
+
+def command(n: int, seed: int = 1) -> np.ndarray:
+    """A smooth random acceleration command."""
+    rng = np.random.default_rng(seed)
+    return np.ascontiguousarray(np.convolve(rng.normal(size=n), np.ones(10) / 10, mode="same"))
+
+
+def leader(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A recorded leader: speed oscillating around 15 m/s, exact position."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * DT
+    wiggle = np.convolve(rng.normal(scale=0.3, size=n), np.ones(200) / 200, mode="same")
+    lv = 15.0 + 3.0 * np.sin(t / 20.0) + 1.5 * np.sin(t / 7.3) + wiggle
+    lx = 100.0 + np.concatenate([[0.0], np.cumsum((lv[1:] + lv[:-1]) / 2) * DT])
+    return np.ascontiguousarray(lx), np.ascontiguousarray(lv)
+
+
+def parameter_sets(p: int, seed: int = 2) -> np.ndarray:
+    """A GA-like population of the proposed model: 95 % within +-50 % of Table II
+    (nearly all stable), 5 % uniform over the calibration box (log scale for m1,
+    m2, m3: many unstable); plus, in the first rows, invalid and unstable sets and
+    sets with complex poles, so that the ``inf`` semantics are compared too."""
+    rng = np.random.default_rng(seed)
+    base = MODEL.to_array()
+    out = base * rng.uniform(0.5, 1.5, size=(p, base.size))
+    wide = rng.random(p) < 0.05
+    for j, (lo, hi, scale) in enumerate(DEFAULT_BOUNDS["proposed"].values()):
+        z = rng.random(int(wide.sum()))
+        out[wide, j] = lo * (hi / lo) ** z if scale == "log" else lo + z * (hi - lo)
+    special = np.array(
+        [
+            [6.8, -1.0, 8.8, 0.35, 0.79, 0.1],  # m2 < 0: invalid
+            [6.8, 1.28, 8.8, 0.35, -0.1, 0.1],  # Td < 0: invalid
+            [6.8, 1.28, 8.8, 0.35, 0.79, 3.0],  # K K0 > 1: no steady state
+            [6.8, 1.28, 8.8, 0.35, 0.79, -40.0],  # delayed feedback oscillates
+            [1.0, 1.28, -0.5, 0.35, 0.3, 0.0],  # negative damping
+            [0.5, 1.28, 1.0, 0.9, 0.4, 0.1],  # complex poles, stable
+            [0.5, 1.28, 0.3, 0.9, 0.2, 0.5],  # complex poles
+            [6.8, 1.28, 8.8, 0.35, 0.0, 0.1],  # no dead time
+            [6.8, 1.28, 8.8, 0.35, 0.1, 0.1],  # dead time below one sample
+        ]
+    )
+    k = min(p, special.shape[0])
+    out[:k] = special[:k]
+    return np.ascontiguousarray(out)
+
+
+# ---------------------------------------------------------------------------
+# Workloads.
+# ---------------------------------------------------------------------------
+
+
+def _checked(
+    name: str, got: Sequence[Any], want: Sequence[Any], samples: int | None = None
+) -> float:
+    """Max relative difference over the outputs (the first ``samples`` along the last
+    axis when given); raises :class:`PeerMismatch` beyond the tolerance."""
+    cut = slice(None) if samples is None else slice(0, samples)
+    try:
+        return max(
+            peers.check_close(name, np.asarray(g)[..., cut], np.asarray(w)[..., cut], TOL)
+            for g, w in zip(got, want, strict=True)
+        )
+    except AssertionError as e:
+        raise PeerMismatch(str(e)) from None
+
+
+def bench_open(n: int, repeat: int) -> Table:
+    """(a) open-loop rollout."""
+    u = command(n)
+    want = avll.simulate(MODEL, u, DT)
+    fns: list[Callable[[], object]] = [lambda: avll.simulate(MODEL, u, DT)]
+    diffs = []
+    for p in peers.OPEN_PEERS:
+        prep = p.prepare(MODEL, DT)
+        diffs.append(_checked(f"open loop, {p.name}", [p.run(prep, u)], [want]))
+        fns.append(lambda p=p, prep=prep: p.run(prep, u))
+    t, *tps = measure(fns, repeat)
+    rows = [
+        Row(p.name, p.variant, n / tp.cpu / 1e6, tp.cpu, tp.wall, d)
+        for p, tp, d in zip(peers.OPEN_PEERS, tps, diffs, strict=True)
+    ]
+    return Table(
+        f"open_{n}",
+        f"(a) open-loop rollout, proposed model, {n:,} samples",
+        n,
+        f"one thread, best CPU time of {repeat} (round-robin)",
+        Row("avll.simulate", "avll", n / t.cpu / 1e6, t.cpu, t.wall),
+        rows,
+        TARGET_ONE_CORE,
+    )
+
+
+def bench_closed(n: int, repeat: int) -> Table:
+    """(b) closed loop behind a recorded leader."""
+    lx, lv = leader(n)
+    v0, x0 = float(lv[0]), float(lx[0]) - (UPPER_CLOSED.Gmin + UPPER_CLOSED.Tg * lv[0])
+
+    def call() -> avll.Trajectory:
+        return avll.closed_loop(MODEL, lx, lv, DT, UPPER_CLOSED, v0=v0, x0=x0)
+
+    tr = call()
+    if not np.all(np.isfinite(tr.a)):
+        raise PeerMismatch("closed loop: the follower diverges on this leader; nothing timed")
+    want = (tr.a, tr.v, tr.x, tr.command)
+    fns: list[Callable[[], object]] = [call]
+    diffs = []
+    for p in peers.CLOSED_PEERS:
+        prep = p.prepare(MODEL, DT)
+        got = p.run(prep, UPPER_CLOSED, lx, lv, v0, x0)
+        diffs.append(_checked(f"closed loop, {p.name}", got, want, CHECK_SAMPLES))
+        fns.append(lambda p=p, prep=prep: p.run(prep, UPPER_CLOSED, lx, lv, v0, x0))
+    del got
+    t, *tps = measure(fns, repeat)
+    rows = [
+        Row(p.name, p.variant, n / tp.cpu / 1e6, tp.cpu, tp.wall, d)
+        for p, tp, d in zip(peers.CLOSED_PEERS, tps, diffs, strict=True)
+    ]
+    return Table(
+        f"closed_{n}",
+        f"(b) closed loop behind a recorded leader (Eq. 3, kg {UPPER_CLOSED.kg}, "
+        f"Tg {UPPER_CLOSED.Tg} s), {n:,} samples",
+        n,
+        f"one thread, best CPU time of {repeat} (round-robin)"
+        + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
+        Row("avll.closed_loop", "avll", n / t.cpu / 1e6, t.cpu, t.wall),
+        rows,
+        TARGET_ONE_CORE,
+    )
+
+
+def bench_platoon(n: int, followers: int, repeat: int) -> Table:
+    """(c) platoon behind a recorded leader."""
+    lx, lv = leader(n, seed=3)
+    up = UPPER_PLATOON
+
+    def call() -> avll.Trajectory:
+        return avll.platoon(MODEL, lx, lv, DT, up, followers)
+
+    tr = call()
+    if not np.all(np.isfinite(tr.a)):
+        raise PeerMismatch("platoon: a follower diverges on this leader; nothing timed")
+    want = (tr.a, tr.v, tr.x, tr.command)
+    steps = n * followers
+    fns: list[Callable[[], object]] = [call]
+    diffs = []
+    for p in peers.PLATOON_PEERS:
+        prep = p.prepare(MODEL, DT)
+        diffs.append(
+            _checked(f"platoon, {p.name}", p.run(prep, up, lx, lv, followers), want, CHECK_SAMPLES)
+        )
+        fns.append(lambda p=p, prep=prep: p.run(prep, up, lx, lv, followers))
+    t, *tps = measure(fns, repeat)
+    rows = [
+        Row(p.name, p.variant, steps / tp.cpu / 1e6, tp.cpu, tp.wall, d)
+        for p, tp, d in zip(peers.PLATOON_PEERS, tps, diffs, strict=True)
+    ]
+    return Table(
+        f"platoon_{followers}x{n}",
+        f"(c) {followers}-car platoon (Eq. 3, kg {up.kg}, kv {up.kv}, Tg {up.Tg} s), {n:,} samples",
+        steps,
+        f"one thread, best CPU time of {repeat} (round-robin); steps = followers x samples"
+        + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
+        Row("avll.platoon", "avll", steps / t.cpu / 1e6, t.cpu, t.wall),
+        rows,
+        TARGET_ONE_CORE,
+    )
+
+
+def bench_cost(
+    n_params: int,
+    runs: list[avll.Run],
+    key: str,
+    label: str,
+    repeat: int,
+    threads: Sequence[int],
+) -> tuple[list[Table], dict[str, Any]]:
+    """(d) batched Eq. 6 cost: one table per thread count (rates per core, CPU time)
+    and the wall-clock scaling from the first to the last thread count."""
+    params = parameter_sets(n_params)
+    samples = sum(len(r) for r in runs)
+    steps = n_params * samples
+    want = avll.batch_cost("proposed", params, runs, threads=1)
+    if not np.all(np.isfinite(want).sum(axis=0) > 0.5 * n_params):
+        raise PeerMismatch(f"batched cost ({label}): most parameter sets cost inf")
+    packed = {p.name: p.prepare(runs) for p in peers.COST_PEERS}
+    diffs = {}
+    for p in peers.COST_PEERS:
+        peers.set_threads(max(threads))
+        diffs[p.name] = _checked(
+            f"batched cost ({label}), {p.name}", [p.run(params, packed[p.name])], [want]
+        )
+    tables: list[Table] = []
+    walls: dict[str, dict[int, float]] = {"avll": {}}
+    cpus: dict[str, dict[int, float]] = {"avll": {}}
+    for th in threads:
+
+        def peer_call(p: peers.Peer, th: int = th) -> Any:
+            peers.set_threads(th)
+            return p.run(params, packed[p.name])
+
+        fns: list[Callable[[], object]] = [
+            lambda th=th: avll.batch_cost("proposed", params, runs, threads=th)
+        ]
+        fns += [lambda p=p: peer_call(p) for p in peers.COST_PEERS]
+        t, *tps = measure(fns, repeat)
+        walls["avll"][th] = t.wall
+        cpus["avll"][th] = t.cpu
+        rows = []
+        for p, tp in zip(peers.COST_PEERS, tps, strict=True):
+            walls.setdefault(p.name, {})[th] = tp.wall
+            cpus.setdefault(p.name, {})[th] = tp.cpu
+            rows.append(
+                Row(
+                    p.name, p.variant, steps / tp.cpu / 1e6, tp.cpu, tp.wall, diffs[p.name],
+                    {"wall_rate": steps / tp.wall / 1e6},
+                )
+            )  # fmt: skip
+        tables.append(
+            Table(
+                f"cost_{key}_{th}t",
+                f"(d) batched Eq. 6 cost, {n_params:,} parameter sets x {label}, {th} thread"
+                + ("s" if th > 1 else ""),
+                steps,
+                f"best CPU time of {repeat} (all threads), i.e. per core; "
+                f"{int(np.isinf(want).any(axis=1).sum())} sets cost inf",
+                Row(
+                    f"avll.batch_cost(threads={th})",
+                    "avll",
+                    steps / t.cpu / 1e6,
+                    t.cpu,
+                    t.wall,
+                    None,
+                    {"wall_rate": steps / t.wall / 1e6},
+                ),  # fmt: skip
+                rows,
+                TARGET_ONE_CORE if th == 1 else None,
+                wall_column=True,
+            )
+        )
+    lo, hi = min(threads), max(threads)
+    scaling = {
+        "key": f"cost_{key}_scaling",
+        "title": f"(d) batched Eq. 6 cost, {n_params:,} sets x {label}: "
+        f"wall-clock speed-up {hi} threads / {lo}",
+        "threads": [lo, hi],
+        "speedup": {k: v[lo] / v[hi] for k, v in walls.items()},
+        "cpu_efficiency": {k: v[lo] / v[hi] for k, v in cpus.items()},
+        "load_average": os.getloadavg()[0],
+        "target": TARGET_SCALING,
+    }
+    scaling["met"] = scaling["speedup"]["avll"] >= TARGET_SCALING
+    return tables, scaling
+
+
+def print_scaling(s: dict[str, Any]) -> None:
+    """The thread-scaling line of the batched cost."""
+    sp, eff = s["speedup"], s["cpu_efficiency"]
+    print(f"\n{s['title']} (best wall time)")
+    print(f"  {'':<60}{'wall speed-up':>14}{'CPU efficiency':>16}")
+    for k, v in sp.items():
+        print(f"  {k:<60}{v:>13.2f}x{eff[k]:>16.2f}")
+    print(f"  avll target >= {s['target']}x: {verdict(sp['avll'], s['target'])}")
+    hi = s["threads"][1]
+    if s["load_average"] > max(0.5, (os.cpu_count() or hi) - hi + 0.5):
+        print(
+            f"  WARNING: load average {s['load_average']:.1f} on {os.cpu_count()} CPUs: the "
+            f"{hi} threads did not have idle cores, so the wall speed-up is not meaningful. "
+            f"CPU efficiency (1-thread CPU time / {hi}-thread CPU time for the same work; 1.0 "
+            "= no parallel overhead) bounds what idle cores would give: speed-up <= threads "
+            "x efficiency."
+        )
+
+
+# ---------------------------------------------------------------------------
+# Main.
+# ---------------------------------------------------------------------------
+
+
+def _ints(s: str) -> list[int]:
+    try:
+        out = [int(float(x)) for x in s.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {s!r}") from None
+    if not out or min(out) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive integers, got {s!r}")
+    return out
+
+
+def write_json(path: Path, doc: dict[str, Any]) -> None:
+    """Strict JSON, written to a temporary name then renamed."""
+    text = json.dumps(doc, indent=2, allow_nan=False)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Runs the selected workloads, prints one table each; returns the exit code."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--open-samples", type=_ints, default=[100_000, 1_000_000])
+    ap.add_argument("--closed-samples", type=_ints, default=[100_000, 1_000_000])
+    ap.add_argument("--platoon-samples", type=_ints, default=[6_000, 100_000])
+    ap.add_argument("--followers", type=int, default=20)
+    ap.add_argument("--cost-params", type=int, default=10_000, help="sets x one run")
+    ap.add_argument("--cost-runs-params", type=int, default=1_000, help="sets x the 10 runs")
+    ap.add_argument("--threads", type=_ints, default=[1, 2], help="for the batched cost")
+    ap.add_argument("--repeat", type=int, default=5, help="timed calls (best kept)")
+    ap.add_argument("--quick", action="store_true", help="small sizes, 2 repeats")
+    ap.add_argument("--only", default="open,closed,platoon,cost", help="workloads to run")
+    ap.add_argument("--json", type=Path, default=None, help="write the tables here")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.open_samples, args.closed_samples = [20_000], [20_000]
+        args.platoon_samples, args.cost_params, args.cost_runs_params = [2_000], 500, 50
+        args.repeat = 2
+    if args.followers < 1:
+        ap.error("--followers must be >= 1")
+    only = {w.strip() for w in args.only.split(",") if w.strip()}
+    unknown = only - {"open", "closed", "platoon", "cost"}
+    if unknown:
+        ap.error(f"--only: unknown workloads {sorted(unknown)}")
+
+    import numba
+
+    load0 = os.getloadavg()
+    meta = {
+        "avll": avll.__version__,
+        "numba": numba.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "cpus": os.cpu_count(),
+        "numba_threading_layer_config": numba.config.THREADING_LAYER,
+        "load_average_start": list(load0),
+        "repeat": args.repeat,
+        "dt": DT,
+        "model": MODEL.to_dict(),
+        "tolerance": TOL,
+    }
+    print(
+        f"avll {avll.__version__}, numba {numba.__version__}, numpy {np.__version__}; "
+        f"{platform.machine()}, {os.cpu_count()} CPUs; load average {load0[0]:.2f} at start"
+    )
+    print(
+        "Rates are M model-steps/s per core (work / best process CPU time); on a shared "
+        "machine they are noisy: compare ratios from one run."
+    )
+    tables: list[Table] = []
+    scalings: list[dict[str, Any]] = []
+    interrupted = False
+    try:
+        if "open" in only:
+            for n in args.open_samples:
+                tables.append(bench_open(n, args.repeat))
+                print_table(tables[-1])
+        if "closed" in only:
+            for n in args.closed_samples:
+                tables.append(bench_closed(n, args.repeat))
+                print_table(tables[-1])
+        if "platoon" in only:
+            for n in args.platoon_samples:
+                tables.append(bench_platoon(n, args.followers, args.repeat))
+                print_table(tables[-1])
+        if "cost" in only:
+            runs = paper_experiment(seed=0, runs=PAPER_CAL_RUNS, duration=300.0)
+            for n_params, rs, key, label in (
+                (args.cost_params, runs[:1], "1run", f"1 run of {len(runs[0]):,} samples"),
+                (
+                    args.cost_runs_params,
+                    runs,
+                    f"{len(runs)}runs",
+                    f"the paper's {len(runs)} runs of {len(runs[0]):,} samples",
+                ),
+            ):
+                threads = sorted(set(args.threads))
+                ts, sc = bench_cost(n_params, rs, key, label, args.repeat, threads)
+                for t in ts:
+                    tables.append(t)
+                    print_table(t)
+                if len(sc["threads"]) == 2 and sc["threads"][0] != sc["threads"][1]:
+                    scalings.append(sc)
+                    print_scaling(sc)
+    except PeerMismatch as e:
+        print(f"\nbench_engine: a peer does not match avll, nothing more timed: {e}")
+        return 1
+    except KeyboardInterrupt:
+        interrupted = True
+        print("\ninterrupted: the tables above are complete, the rest was not run")
+    meta["load_average_end"] = list(os.getloadavg())
+    print(f"\nload average at end: {meta['load_average_end'][0]:.2f}")
+    if args.json is not None:
+        doc = {
+            "meta": meta,
+            "interrupted": interrupted,
+            "workloads": [t.to_json() for t in tables],
+            "scaling": scalings,
+        }
+        write_json(args.json, doc)
+        print(f"wrote {args.json}")
+    return 130 if interrupted else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
