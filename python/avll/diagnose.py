@@ -48,6 +48,8 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal, stats
 
+from .calibrate import DEFAULT_BOUNDS, DEFAULT_STARTS
+from .calibrate import UPPER_BOUNDS as _UB
 from .data import Run
 from .effects import (
     CANONICAL_ORDER,
@@ -78,24 +80,10 @@ __all__ = [
     "write_report",
 ]
 
-#: Search box of the base models: ``name -> (lower, upper, scale)``.
-BASE_BOUNDS: dict[str, dict[str, tuple[float, float, str]]] = {
-    "first": {"Td": (0.01, 3.0, "linear")},
-    "second": {
-        "K0": (0.05, 3.0, "linear"),
-        "m2": (1e-3, 100.0, "log"),
-        "m3": (1e-3, 100.0, "log"),
-        "Td": (0.0, 3.0, "linear"),
-    },
-    "proposed": {
-        "m1": (1e-4, 100.0, "log"),
-        "m2": (1e-3, 100.0, "log"),
-        "m3": (1e-3, 100.0, "log"),
-        "K0": (0.05, 3.0, "linear"),
-        "Td": (0.0, 3.0, "linear"),
-        "K": (-3.0, 3.0, "linear"),
-    },
-}
+#: Search box of the base models: ``name -> (lower, upper, scale)`` — the same box
+#: as :func:`avll.calibrate` (:data:`avll.calibrate.DEFAULT_BOUNDS`), so that a
+#: diagnosis and a calibration of the same data answer the same question.
+BASE_BOUNDS: dict[str, dict[str, tuple[float, float, str]]] = DEFAULT_BOUNDS
 
 
 # ---------------------------------------------------------------------------
@@ -245,10 +233,9 @@ def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, maxiter: int)
     return np.asarray(res.x)
 
 
-#: Search box of the upper-level law when it is calibrated (closed loop, no known law).
-UPPER_BOUNDS: dict[str, tuple[float, float]] = {
-    "kg": (0.0, 3.0), "kv": (0.0, 3.0), "Tg": (0.0, 5.0), "Gmin": (0.0, 30.0),
-}  # fmt: skip
+#: Search box of the upper-level law when it is calibrated (closed loop, no known
+#: law): the same as :func:`avll.calibrate`'s.
+UPPER_BOUNDS: dict[str, tuple[float, float]] = {k: (lo, hi) for k, (lo, hi, _) in _UB.items()}
 
 
 #: Cost weights (acceleration, speed, position) of a closed-loop calibration.
@@ -275,6 +262,7 @@ def fit_full(
     threads: int = 0,
     progress: bool = False,
     optimizer: str = "ga",
+    starts: int = DEFAULT_STARTS,
 ) -> tuple[WithEffects, UpperLevel | None]:
     """As :func:`fit`, and in closed loop with ``free_upper`` (default: when a run
     has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
@@ -283,8 +271,9 @@ def fit_full(
     :data:`SPEED_COMMAND_WEIGHTS` for a speed command and to
     :data:`CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration alone leaves
     the upper law's spacing unidentified. The loop reports acceleration MSEs.
-    ``optimizer``: ``"ga"`` (the project's Rust GA, :func:`avll.effects.calibrate_effects`)
-    or ``"de"`` (``scipy.optimize.differential_evolution`` on the batched cost)."""
+    ``optimizer``: ``"ga"`` (the project's Rust GA, :func:`avll.effects.calibrate_effects`,
+    with ``starts`` independent starts as :func:`avll.calibrate`) or ``"de"``
+    (``scipy.optimize.differential_evolution`` on the batched cost)."""
     if optimizer not in ("ga", "de"):
         raise ValueError(f"optimizer: must be 'ga' or 'de', got {optimizer!r}")
     bname = model_class(base).name
@@ -350,7 +339,7 @@ def fit_full(
                 ["log" if lg else "linear" for lg in sp.log], weights=weights, init=ini,
                 closed_loop=closed, upper_free=upper_free, initial=x0p, seed=seed,
                 max_generations=maxiter, progress=gcb if bar is not None else None,
-                threads=threads,
+                threads=threads, starts=starts,
             )  # fmt: skip
         finally:
             if bar is not None:

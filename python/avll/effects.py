@@ -476,23 +476,28 @@ def calibrate_effects(
     pop_size: int = 0,
     progress: Any = None,
     threads: int = 0,
+    starts: int = 1,
 ) -> dict[str, Any]:
     """Calibrates base + effects (+ free upper-level gains) by the project's Rust GA on
     the mean over runs of the effects cost. ``lower``, ``upper``, ``scale``
     (``"linear"``/``"log"``) give the box of the row ``[base | effects | free upper]``;
     ``initial`` rows join the first population. Returns the GA's result dict (``x``,
-    ``f``, ``generations``, ``stop``, ...). Same seed, same result whatever the
-    thread count."""
+    ``f``, ``generations``, ``stop``, ``per_run_cost``, ...): with ``starts > 1``
+    independent GA runs (seeds ``derive_seed(seed, j)``, as :func:`avll.calibrate`),
+    the best. Same seed, same result whatever the thread count."""
     cls, names, _, kw = _batch_args(base, effects, np.zeros((1, 1)), runs, weights=weights,
                                     init=init, closed_loop=closed_loop,
                                     upper_free=upper_free)  # fmt: skip
     ini = None if initial is None else np.ascontiguousarray(np.atleast_2d(initial), dtype=float)
+    if isinstance(starts, bool) or int(starts) < 1:
+        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
+    n = int(starts)
     opts = {"seed": int(seed), "max_generations": int(max_generations), "pop_size": int(pop_size)}
-    return dict(
-        _core.calibrate(
-            cls.name, lower_bounds=[float(x) for x in lower],
-            upper_bounds=[float(x) for x in upper], scale=[str(x) for x in scale],
-            effects=list(names), options=opts, initial=ini, progress=progress, derive_seeds=False,
-            threads=int(threads), **kw,
-        )[0]
+    outs = _core.calibrate(
+        cls.name, lower_bounds=[float(x) for x in lower],
+        upper_bounds=[float(x) for x in upper], scale=[str(x) for x in scale],
+        effects=list(names), options=opts, initial=ini, progress=progress,
+        problems=None if n == 1 else [list(range(len(runs)))] * n, derive_seeds=n > 1,
+        threads=int(threads), **kw,
     )  # fmt: skip
+    return dict(min(outs, key=lambda r: float(r["f"])))

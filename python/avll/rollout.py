@@ -230,10 +230,13 @@ def pack_runs(
     exo: dict[str, np.ndarray] = {}
     for name in sorted(set.intersection(*(set(r.exo) for r in runs))):
         exo[name] = np.ascontiguousarray(np.concatenate([r.exo[name] for r in runs]))
+    a = _concat(runs, "a", True)
+    if a is None:  # pragma: no cover - _concat raises when a needed column is absent
+        raise ValueError("runs: column 'a' is needed")
     packed = _core.RunSet(
         [int(o) for o in offsets],
         np.array([r.dt for r in runs], dtype=np.float64),
-        _concat(runs, "a", True),
+        a,
         command=None if closed_loop else _concat(runs, "command", True),
         lead_x=_concat(runs, "lead_x", True) if closed_loop else None,
         lead_v=_concat(runs, "lead_v", True) if closed_loop else None,
