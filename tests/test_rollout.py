@@ -396,7 +396,9 @@ PROP = [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008]
             lambda: _core.batch_cost(
                 "first",
                 np.ones((1, 1)),
-                _core.RunSet([0, 3], np.array([DT]), np.array([0, math.nan, 0]), command=np.zeros(3)),
+                _core.RunSet(
+                    [0, 3], np.array([DT]), np.array([0, math.nan, 0]), command=np.zeros(3)
+                ),
             ),
             "a",
         ),
