@@ -485,10 +485,10 @@ def print_scaling(s: dict[str, Any]) -> None:
     if s["load_average"] > max(0.5, (os.cpu_count() or hi) - hi + 0.5):
         print(
             f"  WARNING: load average {s['load_average']:.1f} on {os.cpu_count()} CPUs: the "
-            f"{hi} threads did not have idle cores, so the wall speed-up is not meaningful. "
-            f"CPU efficiency (1-thread CPU time / {hi}-thread CPU time for the same work; 1.0 "
-            "= no parallel overhead) bounds what idle cores would give: speed-up <= threads "
-            "x efficiency."
+            f"{hi} threads probably did not all have an idle core, so the wall speed-up "
+            "is likely understated. CPU efficiency (1-thread CPU time / "
+            f"{hi}-thread CPU time for the same work; 1.0 = no parallel overhead) bounds "
+            "what idle cores would give: speed-up <= threads x efficiency."
         )
 
 
