@@ -347,9 +347,39 @@ fn start_stepper<const M: usize, const N: usize, const D: bool, const F: bool, C
 /// unstable rows get `inf`. Validates the spec and the runs first.
 pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Vec<f64>> {
     spec.validate(runs)?;
-    cost_matrix(spec.n_params(), params, runs, |row, run| {
-        run_cost(spec, row, run, f64::INFINITY)
-    })
+    let np = spec.n_params();
+    let p = rows(np, params)?;
+    let r = runs.len();
+    let probe: Vec<&[f64]> = params.chunks(np).take(1).collect();
+    if lane_costs(spec, &probe, &runs[0]).is_none() {
+        return cost_matrix(np, params, runs, |row, run| {
+            run_cost(spec, row, run, f64::INFINITY)
+        });
+    }
+    // Groups of LANES rows stepped together, in parallel over (group, run).
+    let groups = p.div_ceil(LANES);
+    let parts: Vec<Vec<f64>> = (0..groups * r)
+        .into_par_iter()
+        .map(|k| {
+            let (g, j) = (k / r, k % r);
+            let rs: Vec<&[f64]> = params[g * LANES * np..((g + 1) * LANES).min(p) * np]
+                .chunks(np)
+                .collect();
+            lane_costs(spec, &rs, &runs[j]).unwrap_or_else(|| {
+                rs.iter()
+                    .map(|row| run_cost(spec, row, &runs[j], f64::INFINITY))
+                    .collect()
+            })
+        })
+        .collect();
+    let mut out = vec![0.0; p * r];
+    for (k, costs) in parts.into_iter().enumerate() {
+        let (g, j) = (k / r, k % r);
+        for (q, c) in costs.into_iter().enumerate() {
+            out[(g * LANES + q) * r + j] = c;
+        }
+    }
+    Ok(out)
 }
 
 /// Evaluates `cost(row, run)` for every parameter row (row-major, `np` values each) and
@@ -532,4 +562,151 @@ fn record<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain
     } else {
         kernel::run(st, len, f, &mut Record::<false>::new(a, v, x, None));
     }
+}
+
+// ---------------------------------------------------------------------------
+// Lanes: several parameter rows stepped together on one run.
+// ---------------------------------------------------------------------------
+
+/// Rows stepped together by [`lane_costs`].
+pub const LANES: usize = 4;
+
+/// One lane's second-order plant in kernel coordinates, with its start.
+struct Lane {
+    p: Plant<2, 2>,
+    w_hist: f64,
+    z0: [f64; 2],
+}
+
+/// The Eq. 6 costs of up to [`LANES`] rows on one run, stepped together: the
+/// linear second-order models' open-loop, acceleration-only path (the GA's and
+/// `batch_cost`'s common case). Each lane performs exactly the operations of the
+/// one kernel ([`crate::sim::kernel`]: `observe`, the dead-time line, `advance` in
+/// its full-block form, whose zero off-diagonal terms leave a modal lane's values
+/// unchanged, and the SSE sink), so each cost is bit-identical to [`run_cost`]; the
+/// lanes' independent recurrences fill the pipeline and vectorize. `None` when the
+/// path does not apply (the caller then uses [`run_cost`] per row).
+pub fn lane_costs(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<Vec<f64>> {
+    if !spec.accel_only()
+        || !spec.effects.0.is_empty()
+        || spec.model.n_params() == 1
+        || rows.len() > LANES
+    {
+        return None;
+    }
+    let u = run.command?;
+    let mut out = vec![f64::INFINITY; rows.len()];
+    let mut lanes: Vec<(usize, Lane)> = Vec::with_capacity(LANES);
+    for (k, row) in rows.iter().enumerate() {
+        let Some((lin, _, _)) = spec.prepare(row, run) else {
+            continue;
+        };
+        if lin.order() != 2 {
+            return None;
+        }
+        let Ok(p) = Plant::<2, 2>::new(&lin, Integrators::None, run.dt, true) else {
+            continue;
+        };
+        if !loop_stable(&lin, &p) {
+            continue;
+        }
+        let Ok(s) = start(&lin, spec.init, u[0]) else {
+            continue;
+        };
+        let z0 = p.to_kernel(s.x);
+        lanes.push((
+            k,
+            Lane {
+                p,
+                w_hist: s.w_hist,
+                z0,
+            },
+        ));
+    }
+    if lanes.is_empty() {
+        return Some(out);
+    }
+    let costs = if super::fma() {
+        // SAFETY: the CPU supports FMA and AVX2 (checked just above).
+        unsafe { super::with_fma(|| lane_sse::<true>(&lanes, u, run.a, spec.weights[0])) }
+    } else {
+        lane_sse::<false>(&lanes, u, run.a, spec.weights[0])
+    };
+    for ((k, _), c) in lanes.iter().zip(costs) {
+        out[*k] = c;
+    }
+    Some(out)
+}
+
+#[inline(always)]
+fn lane_sse<const F: bool>(lanes: &[(usize, Lane)], u: &[f64], meas: &[f64], wa: f64) -> Vec<f64> {
+    use super::kernel::{madd, DIVERGED};
+    const L: usize = LANES;
+    let len = u.len().min(meas.len());
+    let nl = lanes.len();
+    // Coefficients by lane (unused lanes repeat the first: their results are dropped).
+    let pick = |k: usize| &lanes[k.min(nl - 1)].1;
+    let col = |f: &dyn Fn(&Lane) -> f64| -> [f64; L] { std::array::from_fn(|k| f(pick(k))) };
+    let (c0, c1) = (col(&|l| l.p.c[0]), col(&|l| l.p.c[1]));
+    let k = col(&|l| l.p.k);
+    let (g00, g01) = (col(&|l| l.p.g0[0]), col(&|l| l.p.g0[1]));
+    let (g10, g11) = (col(&|l| l.p.g1[0]), col(&|l| l.p.g1[1]));
+    let (p00, p01) = (col(&|l| l.p.phi[0][0]), col(&|l| l.p.phi[0][1]));
+    let (p10, p11) = (col(&|l| l.p.phi[1][0]), col(&|l| l.p.phi[1][1]));
+    let delay: [usize; L] = std::array::from_fn(|k| pick(k).p.delay);
+    let cap = (delay.iter().max().copied().unwrap_or(0) + 2).next_power_of_two();
+    let mask = cap - 1;
+    let hist = col(&|l| l.w_hist);
+    let mut ring = vec![[0.0; L]; cap];
+    for slot in ring.iter_mut() {
+        *slot = hist;
+    }
+    let mut z0 = col(&|l| l.z0[0]);
+    let mut z1 = col(&|l| l.z0[1]);
+    let mut wp = hist;
+    let mut s = [0.0; L];
+    let mut peak = [0.0; L];
+    let bigger = |m: f64, x: f64| if x > m { x } else { m };
+    for n in 0..len {
+        let mut y = [0.0; L];
+        let mut w0 = [0.0; L];
+        for j in 0..L {
+            y[j] = madd::<F>(c1[j], z1[j], c0[j] * z0[j]);
+        }
+        let un = u[n];
+        let mn = meas[n];
+        for j in 0..L {
+            let e = y[j] - mn;
+            s[j] += e * e;
+            let ay = y[j].abs();
+            peak[j] = bigger(bigger(peak[j], ay), ay);
+        }
+        let row = &mut ring[n & mask];
+        for j in 0..L {
+            row[j] = un + k[j] * y[j];
+        }
+        for j in 0..L {
+            w0[j] = ring[n.wrapping_sub(delay[j]) & mask][j];
+        }
+        for j in 0..L {
+            let w1 = wp[j];
+            let t0 = madd::<F>(g10[j], w1, g00[j] * w0[j]);
+            let t1 = madd::<F>(g11[j], w1, g01[j] * w0[j]);
+            let n0 = madd::<F>(p00[j], z0[j], madd::<F>(p01[j], z1[j], t0));
+            let n1 = madd::<F>(p11[j], z1[j], madd::<F>(p10[j], z0[j], t1));
+            z0[j] = n0;
+            z1[j] = n1;
+        }
+        wp = w0;
+    }
+    (0..nl)
+        .map(|j| {
+            let c = (wa * s[j] + 0.0 * 0.0 + 0.0 * 0.0) / len as f64;
+            if peak[j] < DIVERGED && c.is_finite() {
+                c
+            } else {
+                f64::INFINITY
+            }
+        })
+        .collect()
 }

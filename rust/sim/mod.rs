@@ -33,12 +33,13 @@ pub use rollout::{
     closed_loop, platoon, simulate, simulate_full, simulate_into, Trajectory, Upper,
 };
 
-/// Whether this CPU has fused multiply-add (checked once, then cached by std).
+/// Whether this CPU has fused multiply-add and AVX2 (checked once, then cached by
+/// std): the kernels then run compiled for them.
 #[inline]
 pub fn fma() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        std::arch::is_x86_feature_detected!("fma")
+        std::arch::is_x86_feature_detected!("fma") && std::arch::is_x86_feature_detected!("avx2")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -46,13 +47,14 @@ pub fn fma() -> bool {
     }
 }
 
-/// Runs `f` compiled with the `fma` target feature: the kernel's `madd::<true>`
-/// calls it inlines become single instructions.
+/// Runs `f` compiled with the `fma` and `avx2` target features: the kernel's
+/// `madd::<true>` calls it inlines become single instructions, and lane loops
+/// vectorize four wide.
 ///
 /// # Safety
-/// The CPU must support FMA ([`fma`]).
+/// The CPU must support FMA and AVX2 ([`fma`]).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "fma")]
+#[target_feature(enable = "fma,avx2")]
 pub unsafe fn with_fma<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
@@ -70,7 +72,7 @@ pub unsafe fn with_fma<R>(f: impl FnOnce() -> R) -> R {
 macro_rules! call_fma {
     ($f:ident, $m:literal, $n:literal, $d:expr, $p:expr $(, $arg:expr)*) => {{
         if $crate::sim::fma() {
-            // SAFETY: the CPU supports FMA (checked just above).
+            // SAFETY: the CPU supports FMA and AVX2 (checked just above).
             unsafe { $crate::sim::with_fma(|| $f::<$m, $n, $d, true>($p $(, $arg)*)) }
         } else {
             $f::<$m, $n, $d, false>($p $(, $arg)*)

@@ -499,3 +499,42 @@ fn probe_speed() {
         println!("cost: {:.1} M steps/s ({s})", 2000.0 * 6000.0 / dt / 1e6);
     }
 }
+
+#[test]
+fn lanes_equal_the_kernel_bit_for_bit() {
+    let u = cmd(3000);
+    let y: Vec<f64> = simulate(&proposed(), &u, 0.05, Init::Rest)
+        .unwrap()
+        .iter()
+        .enumerate()
+        .map(|(k, v)| v + 0.05 * ((k * 7919) as f64).sin())
+        .collect();
+    for init in [Init::Rest, Init::Steady] {
+        let sp = CostSpec::linear(
+            ModelKind::Proposed,
+            CommandKind::Acceleration,
+            [1.0, 0.0, 0.0],
+            init,
+            false,
+            vec![],
+        );
+        let run = open_run(&u, &y);
+        // Modal and complex-pole rows, different dead times, an unstable and an
+        // invalid row, and a partial group.
+        let rows: Vec<Vec<f64>> = vec![
+            ROW.to_vec(),
+            vec![0.0, 0.0445, 0.1305, 0.7292, 0.7796, 0.0],
+            vec![1.0, 0.5, 2.0, 0.8, 0.33, -0.4],
+            vec![1.0, 1.0, 1.0, 1.0, 0.1, 5.0],
+            vec![1.0, -1.0, 1.0, 1.0, 0.1, 0.0],
+            vec![0.2, 0.8, 1.9, 1.1, 0.05, 0.3],
+        ];
+        let flat: Vec<f64> = rows.concat();
+        let got = batch_cost(&sp, &flat, std::slice::from_ref(&run)).unwrap();
+        for (row, g) in rows.iter().zip(&got) {
+            let want = run_cost(&sp, row, &run, f64::INFINITY);
+            assert_eq!(g.to_bits(), want.to_bits(), "{row:?}: {g} vs {want}");
+        }
+        assert!(got[0].is_finite() && got[3].is_infinite() && got[4].is_infinite());
+    }
+}
