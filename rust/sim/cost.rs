@@ -356,20 +356,38 @@ pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Ve
             run_cost(spec, row, run, f64::INFINITY)
         });
     }
-    // Groups of LANES rows stepped together, in parallel over (group, run).
+    // Groups of LANES rows stepped together, in parallel over (group, run); the
+    // plants are discretized once per group when every run has the same dt.
     let groups = p.div_ceil(LANES);
+    let group = |g: usize| -> Vec<&[f64]> {
+        params[g * LANES * np..((g + 1) * LANES).min(p) * np]
+            .chunks(np)
+            .collect()
+    };
+    let same_dt = runs.iter().all(|x| x.dt == runs[0].dt);
+    let plants: Vec<Option<Vec<(usize, Plant<2, 2>, Linear)>>> = (0..groups)
+        .into_par_iter()
+        .map(|g| {
+            if same_dt {
+                lane_plants(spec, &group(g), &runs[0])
+            } else {
+                None
+            }
+        })
+        .collect();
     let parts: Vec<Vec<f64>> = (0..groups * r)
         .into_par_iter()
         .map(|k| {
             let (g, j) = (k / r, k % r);
-            let rs: Vec<&[f64]> = params[g * LANES * np..((g + 1) * LANES).min(p) * np]
-                .chunks(np)
-                .collect();
-            lane_costs(spec, &rs, &runs[j]).unwrap_or_else(|| {
-                rs.iter()
-                    .map(|row| run_cost(spec, row, &runs[j], f64::INFINITY))
-                    .collect()
-            })
+            let rs = group(g);
+            match &plants[g] {
+                Some(pl) => lane_run(spec, pl, rs.len(), &runs[j]),
+                None => lane_costs(spec, &rs, &runs[j]).unwrap_or_else(|| {
+                    rs.iter()
+                        .map(|row| run_cost(spec, row, &runs[j], f64::INFINITY))
+                        .collect()
+                }),
+            }
         })
         .collect();
     let mut out = vec![0.0; p * r];
@@ -587,16 +605,27 @@ struct Lane {
 /// lanes' independent recurrences fill the pipeline and vectorize. `None` when the
 /// path does not apply (the caller then uses [`run_cost`] per row).
 pub fn lane_costs(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<Vec<f64>> {
+    let lanes = lane_plants(spec, rows, run)?;
+    Some(lane_run(spec, &lanes, rows.len(), run))
+}
+
+/// The lanes' plants (row index, plant, model) for runs sampled at `run.dt`; rows
+/// the cost calls invalid or unstable are left out (they cost `inf`). `None` when
+/// the lane path does not apply.
+fn lane_plants(
+    spec: &CostSpec,
+    rows: &[&[f64]],
+    run: &RunRef,
+) -> Option<Vec<(usize, Plant<2, 2>, Linear)>> {
     if !spec.accel_only()
         || !spec.effects.0.is_empty()
         || spec.model.n_params() == 1
         || rows.len() > LANES
+        || run.command.is_none()
     {
         return None;
     }
-    let u = run.command?;
-    let mut out = vec![f64::INFINITY; rows.len()];
-    let mut lanes: Vec<(usize, Lane)> = Vec::with_capacity(LANES);
+    let mut out = Vec::with_capacity(LANES);
     for (k, row) in rows.iter().enumerate() {
         let Some((lin, _, _)) = spec.prepare(row, run) else {
             continue;
@@ -607,24 +636,38 @@ pub fn lane_costs(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<Vec<
         let Ok(p) = Plant::<2, 2>::new(&lin, Integrators::None, run.dt, true) else {
             continue;
         };
-        if !loop_stable(&lin, &p) {
-            continue;
+        if loop_stable(&lin, &p) {
+            out.push((k, p, lin));
         }
-        let Ok(s) = start(&lin, spec.init, u[0]) else {
+    }
+    Some(out)
+}
+
+/// The lanes' costs on one run (same `dt` as their plants).
+fn lane_run(
+    spec: &CostSpec,
+    plants: &[(usize, Plant<2, 2>, Linear)],
+    n_rows: usize,
+    run: &RunRef,
+) -> Vec<f64> {
+    let mut out = vec![f64::INFINITY; n_rows];
+    let u = run.command.unwrap_or(&[]);
+    let mut lanes: Vec<(usize, Lane)> = Vec::with_capacity(LANES);
+    for (k, p, lin) in plants {
+        let Ok(s) = start(lin, spec.init, u.first().copied().unwrap_or(0.0)) else {
             continue;
         };
-        let z0 = p.to_kernel(s.x);
         lanes.push((
-            k,
+            *k,
             Lane {
-                p,
+                p: *p,
                 w_hist: s.w_hist,
-                z0,
+                z0: p.to_kernel(s.x),
             },
         ));
     }
     if lanes.is_empty() {
-        return Some(out);
+        return out;
     }
     let costs = if super::fma() {
         // SAFETY: the CPU supports FMA and AVX2 (checked just above).
@@ -635,7 +678,7 @@ pub fn lane_costs(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<Vec<
     for ((k, _), c) in lanes.iter().zip(costs) {
         out[*k] = c;
     }
-    Some(out)
+    out
 }
 
 #[inline(always)]

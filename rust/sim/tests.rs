@@ -536,5 +536,22 @@ fn lanes_equal_the_kernel_bit_for_bit() {
             assert_eq!(g.to_bits(), want.to_bits(), "{row:?}: {g} vs {want}");
         }
         assert!(got[0].is_finite() && got[3].is_infinite() && got[4].is_infinite());
+        // Several runs (plants shared across them), and runs of another dt.
+        let other = RunRef {
+            dt: 0.1,
+            ..open_run(&u[1000..], &y[1000..])
+        };
+        for runs in [
+            vec![run.clone(), open_run(&u[500..], &y[500..])],
+            vec![run.clone(), other],
+        ] {
+            let got = batch_cost(&sp, &flat, &runs).unwrap();
+            for (i, row) in rows.iter().enumerate() {
+                for (j, r) in runs.iter().enumerate() {
+                    let want = run_cost(&sp, row, r, f64::INFINITY);
+                    assert_eq!(got[i * runs.len() + j].to_bits(), want.to_bits());
+                }
+            }
+        }
     }
 }
