@@ -67,9 +67,9 @@ def read_runs(
     ``generic``), a folder: then every ``*.csv`` / ``*.parquet`` in it is read, in
     natural order of the names (data5, data6, data9, data10). ``openacc-astazero``
     reads its own folder layout; ``openacc`` every ``*.csv`` below a folder,
-    recursively (options ``setting``, ``car``, ``track`` filter the followers). ``command_kind`` (``"acceleration"`` or ``"speed"``)
-    overrides what the file or its sidecar says; loaders whose format fixes the kind
-    check it instead.
+    recursively (options ``setting``, ``car``, ``track`` filter the followers).
+    ``command_kind`` (``"acceleration"`` or ``"speed"``) overrides what the file or
+    its sidecar says; loaders whose format fixes the kind check it instead.
     """
     try:
         loader = FORMATS[format]
