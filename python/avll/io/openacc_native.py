@@ -73,8 +73,9 @@ Known defects handled (each recorded in ``run.meta["cleaning"]``)
   difference from its last known value, the drift to its next known value removed
   linearly. Longer gaps split the record, and the longest stretch where the
   follower, its predecessor and the spacing are all known is the run (the other
-  stretches are recorded as dropped). A stretch shorter than ``min_duration`` seconds gives no run (recorded in the
-  loader's report, see :func:`openacc_native_report`).
+  stretches are recorded as dropped). A stretch shorter than ``min_duration``
+  seconds gives no run (recorded in the loader's report, see
+  :func:`openacc_native_report`).
 * GNSS position glitches: an E/N sample whose steps in and out both imply a speed
   more than :data:`GLITCH_TOL` (3 m/s) away from the measured speed is dropped,
   with the spacings computed from it, and bridged as an empty cell (e.g. the
