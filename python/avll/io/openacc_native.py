@@ -261,6 +261,12 @@ def _parse_header(path: Path, rows: list[list[str]]) -> dict[str, Any]:
 def _to_float(path: Path, name: str, cells: Sequence[str]) -> np.ndarray:
     """Cells as float64; empty cells (and ``nan`` text) are NaN, anything else that is
     not a number is an error naming the row and line."""
+    try:  # fast path: numpy parses the numbers, empty cells become NaN
+        arr = np.array([c if c.strip() else "nan" for c in cells], dtype=np.float64)
+        if not np.isinf(arr).any():
+            return arr
+    except ValueError:
+        pass
     out = np.full(len(cells), np.nan)
     for r, c in enumerate(cells):
         c = c.strip()
@@ -493,6 +499,22 @@ def _despike(x: np.ndarray, half: int = 10, k: float = 3.0, floor: float = 0.1) 
     return out
 
 
+def _group_median(groups: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Median of ``values`` per group ``0..n-1`` (NaN for an empty group)."""
+    out = np.full(n, np.nan)
+    if groups.size == 0:
+        return out
+    order = np.lexsort((values, groups))
+    g, v = groups[order], values[order]
+    cnt = np.bincount(g, minlength=n)
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    have = cnt > 0
+    lo = start[have] + (cnt[have] - 1) // 2
+    hi = start[have] + cnt[have] // 2
+    out[have] = 0.5 * (v[lo] + v[hi])
+    return out
+
+
 def grade_from_altitude(s: np.ndarray, alt: np.ndarray, window: float = 30.0,
                         step: float = 1.0, *, e: np.ndarray | None = None,
                         n: np.ndarray | None = None,
@@ -504,8 +526,8 @@ def grade_from_altitude(s: np.ndarray, alt: np.ndarray, window: float = 30.0,
     the path's own altitudes per cell, spikes removed first (Hampel filter over 2.1
     s: further than three scaled MADs and 0.1 m from the running median); with
     ``pool = (E, N, alt)`` (e.g. every vehicle of the file, despiked) and the path's
-    east/north ``e``, ``n``, the median of the pooled altitudes within ``radius``
-    metres of each cell's point (cells without any use the path's own). The grid
+    east/north ``e``, ``n``, the median of the pooled altitudes whose nearest cell
+    point is within ``radius`` metres (cells without any use the path's own). The grid
     (linear interpolation across empty cells) is then smoothed and differentiated
     by a Savitzky–Golay filter of order 2 over ``window`` metres. NaN altitudes
     are ignored. Over less than a window, the straight-line slope."""
@@ -523,12 +545,7 @@ def grade_from_altitude(s: np.ndarray, alt: np.ndarray, window: float = 30.0,
         return np.zeros_like(s)
     cells = np.floor((s_ok - lo) / step).astype(np.int64)
     ncell = int(cells.max()) + 1
-    order = np.argsort(cells, kind="stable")
-    cs, av = cells[order], a_ok[order]
-    starts = np.flatnonzero(np.r_[True, np.diff(cs) > 0])
-    ends = np.r_[starts[1:], cs.shape[0]]
-    med = np.full(ncell, np.nan)
-    med[cs[starts]] = [np.median(av[a:b]) for a, b in zip(starts, ends, strict=True)]
+    med = _group_median(cells, a_ok, ncell)
     centre = lo + step * (np.arange(ncell) + 0.5)
     if pool is not None and e is not None and n is not None:
         from scipy.spatial import cKDTree
@@ -542,10 +559,11 @@ def grade_from_altitude(s: np.ndarray, alt: np.ndarray, window: float = 30.0,
             su, first = np.unique(s[okp], return_index=True)
             ce = np.interp(centre, su, e[okp][first])
             cn = np.interp(centre, su, n[okp][first])
-            tree = cKDTree(np.column_stack([pe[keep], pn[keep]]))
-            pak = pa[keep]
-            near = tree.query_ball_point(np.column_stack([ce, cn]), r=radius)
-            pooled = np.array([np.median(pak[ix]) if ix else np.nan for ix in near])
+            tree = cKDTree(np.column_stack([ce, cn]))
+            dist, cell = tree.query(np.column_stack([pe[keep], pn[keep]]),
+                                    distance_upper_bound=radius)
+            near = np.isfinite(dist)
+            pooled = _group_median(cell[near], pa[keep][near], ncell)
             med = np.where(np.isfinite(pooled), pooled, med)
     have = np.isfinite(med)
     grid_alt = np.interp(centre, centre[have], med[have])
