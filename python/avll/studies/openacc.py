@@ -503,12 +503,54 @@ def openacc_study(
         "model_comparison": comparison,
         "skipped": load_report["skipped"],
         "files": _files_summary(runs, cars),
+        "name_check": _name_check(runs),
+        "poor_fits": _poor_fits(runs, cars),
     }
     tables = _tables(cars, models, model, order, comparison, summary["files"])
     figs = _figures(cars, models, model) if figures else {}
     summary["seconds"] = round(time.perf_counter() - t0, 1)
     report = _report(summary, tables)
     return OpenACCStudy(summary, tables, figs, report, runs, results)
+
+
+def _name_check(runs: Sequence[Run]) -> dict[str, Any]:
+    """Evidence that the vehicle numbers index ``Vehicle_order``: the constant
+    ``distance − IVS`` of a pair of named cars, compared across the files where the
+    same two names follow each other (consistent: within 5 cm)."""
+    by: dict[str, list[tuple[str, float]]] = {}
+    for r in runs:
+        off = r.meta.get("ivs_offset")
+        if off is None:
+            continue
+        key = f"{r.meta['lead_car']} -> {r.meta['car']}"
+        by.setdefault(key, []).append((Path(r.meta["file"]).stem, float(off)))
+    pairs = {k: v for k, v in by.items() if len(v) > 1}
+    consistent = [k for k, v in pairs.items() if np.ptp([o for _, o in v]) <= 0.05]
+    return {"pairs_in_several_files": len(pairs), "consistent": len(consistent),
+            "pairs": {k: dict(v) for k, v in sorted(pairs.items())}}
+
+
+def _poor_fits(runs: Sequence[Run], cars: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Cars whose calibration cost is above three times the median of their group
+    (ACC or human), with the largest gap over the median gap (a car that stops
+    following, e.g. a disengaged ACC, shows a large ratio)."""
+    out = []
+    for acc in (True, False):
+        grp = [(r, c) for r, c in zip(runs, cars, strict=True)
+               if c["acc"] == acc and c["cal_mse"] is not None]
+        if not grp:
+            continue
+        med = float(np.median([c["cal_mse"] for _, c in grp]))
+        for r, c in grp:
+            if c["cal_mse"] > 3 * med:
+                assert r.lead_x is not None and r.x is not None
+                gap = r.lead_x - r.x
+                k = int(np.argmax(gap))
+                out.append({"run_id": r.run_id, "car": c["car"], "cal_mse": c["cal_mse"],
+                            "group_median_mse": med,
+                            "max_gap_over_median": float(gap[k] / np.median(gap)),
+                            "t_max_gap": float(r.t[k])})
+    return out
 
 
 def _short(o: Mapping[str, Any]) -> dict[str, Any]:
@@ -660,8 +702,13 @@ def _comparison(cars: Sequence[Mapping[str, Any]], models: Sequence[str]) -> dic
                           and c["amplification_measured_ci"][0] is not None
                           and c["amplification_measured_ci"][0] <= c["models"][m][key]
                           <= c["amplification_measured_ci"][1]]
+                am = [c["amplification_measured"] for c in cs
+                      if c["models"][m][f"{key}_error"] is not None]
                 d[f"{key}_{grp}"] = {
                     "n": len(errs),
+                    "underestimated": int(np.sum(np.asarray(errs) < 0)) if errs else 0,
+                    "corr_error_vs_measured": (_fin(np.corrcoef(errs, am)[0, 1])
+                                               if len(errs) > 2 else None),
                     "median_abs_error": _fin(np.median(np.abs(errs))) if errs else None,
                     "mean_error": _fin(np.mean(errs)) if errs else None,
                     "within_10pct": int(np.sum(np.abs(errs) <= 0.10)) if errs else 0,
@@ -854,6 +901,57 @@ def _md_table(df: Any, floatfmt: int = 3) -> str:
     return "\n".join(lines)
 
 
+def _findings(s: Mapping[str, Any]) -> list[str]:
+    """The main numbers of the study as Markdown bullets (generated, not typed)."""
+    main = s["model"]
+    comp = s["model_comparison"]
+    so = s["setting_order"]
+    eff = s["setting_order_effective_time_gap"]
+    hw = s["setting_order_measured_headway"]
+    fails = [c["car"] for c in so["checks"] if not c["held"]]
+    out = [f"- **Setting order**: the calibrated Tg ({main} model) is longer for the longer "
+           f"ACC setting in {so['held']} of {so['checked']} checks (car model × pair of "
+           "settings)" + (f"; not for {', '.join(fails)}" if fails else "") + ". The "
+           f"effective time gap Tg + Gmin/v̄ follows the setting in {eff['held']} of "
+           f"{eff['checked']}, the measured headway (no model) in {hw['held']} of "
+           f"{hw['checked']}."]
+    for key, lab in (("amplification_replay", "time-domain replay"),
+                     ("amplification_H", "abs H(jω)")):
+        parts = []
+        for m in s["models"]:
+            d = comp[m][f"{key}_acc"]
+            if d["n"]:
+                parts.append(f"{m} {d['within_10pct']}/{d['n']} within 10 % (median abs "
+                             f"error {_f(d['median_abs_error'], 3)}, mean error "
+                             f"{_f(d['mean_error'], 3)}, underestimated for "
+                             f"{d['underestimated']})")
+        out.append(f"- **Amplification, {lab}** (ACC cars with an excited predecessor): "
+                   + "; ".join(parts) + f". Best: **{comp['best'][key]}**.")
+    d = comp[main]["amplification_replay_acc"]
+    if d["corr_error_vs_measured"] is not None:
+        out.append(f"- The {main} model's replay error correlates with the measured "
+                   f"amplification at {_f(d['corr_error_vs_measured'])}: the more a car "
+                   "amplifies, the more the calibrated model underestimates it"
+                   if d["corr_error_vs_measured"] < 0 else
+                   f"- The {main} model's replay error correlates with the measured "
+                   f"amplification at {_f(d['corr_error_vs_measured'])}.")
+    q = comp[main]["string_stability"]
+    out.append(f"- **String stability**: the measured amplification's 95 % CI is above 1 "
+               f"for {q['measured_unstable']} ACC cars and below 1 for "
+               f"{q['measured_stable']} ({q['undecided']} undecided); the calibrated "
+               f"{main} closed loops are string-unstable (max abs H > 1, true delay) for "
+               f"{q['model_string_unstable_all']} of {q['cars_acc']} ACC cars, locally "
+               f"unstable for {q['model_locally_unstable_all']}.")
+    hum = [c for c in s["cars"] if not c["acc"]]
+    if hum:
+        dh = comp[main]["amplification_replay_human"]
+        tgs = [c["Tg"] for c in hum if c["Tg"] is not None]
+        out.append(f"- **Human control** ({len(hum)} drivers): calibrated Tg "
+                   f"{min(tgs):.2f}–{max(tgs):.2f} s; replay within 10 % for "
+                   f"{dh['within_10pct']} of {dh['n']}.")
+    return out
+
+
 def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
     main = s["model"]
     cars = s["cars"]
@@ -863,6 +961,12 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
     comp = s["model_comparison"]
     lines = [
         "# OpenACC study: calibrated time gaps and measured string stability",
+        "",
+        "## Findings",
+        "",
+        *_findings(s),
+        "",
+        "## Data and method",
         "",
         f"Data: `{s['data']}`; {len(cars)} followers with a recorded predecessor in "
         f"{len(s['files'])} files ({len(acc)} under ACC, {len(hum)} human-driven); "
@@ -910,17 +1014,18 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
     lines += ["## Amplification: measured vs predicted", ""]
     best = comp["best"]
     lines.append("| model | prediction | cars | n | median abs error | mean error | "
-                 "within 10 % | inside CI |")
-    lines.append("|---|---|---|---|---|---|---|---|")
+                 "within 10 % | inside CI | under-estimated | corr(error, measured) |")
+    lines.append("|---|---|---|---|---|---|---|---|---|---|")
     for m in s["models"]:
-        for key, lab in (("amplification_H", "|H(jω)|"), ("amplification_replay", "replay")):
+        for key, lab in (("amplification_H", "abs H(jω)"), ("amplification_replay", "replay")):
             for grp in ("acc", "human"):
                 d = comp[m][f"{key}_{grp}"]
                 if not d["n"]:
                     continue
                 lines.append(f"| {m} | {lab} | {grp} | {d['n']} | "
                              f"{_f(d['median_abs_error'], 3)} | {_f(d['mean_error'], 3)} | "
-                             f"{d['within_10pct']} | {d['inside_ci']} |")
+                             f"{d['within_10pct']} | {d['inside_ci']} | "
+                             f"{d['underestimated']} | {_f(d['corr_error_vs_measured'])} |")
     lines += ["", "String stability per car (ACC cars with a measured amplification; "
               "measured string-unstable: CI above 1, stable: CI below 1):", "",
               "| model | measured unstable | model says unstable there | measured stable | "
@@ -934,13 +1039,32 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
                      f"{q['model_string_unstable_all']} of {q['cars_acc']} | "
                      f"{q['model_locally_unstable_all']} |")
     lines += ["", f"Best predictor of the measured amplification (smallest median absolute "
-              f"error over the ACC cars): from |H(jω)|: **{best['amplification_H']}**; by "
+              f"error over the ACC cars): from abs H(jω): **{best['amplification_H']}**; by "
               f"replay: **{best['amplification_replay']}**.", ""]
     lines += ["Per car (main model):", "",
               _md_table(tables["cars"][["file", "car", "setting", "position", "Tg", "Gmin",
                                         "time_gap_effective", "headway_measured", "cal_mse",
                                         "A_measured", "A_ci_low", "A_ci_high",
                                         "A_predicted_H", "A_replay"]], 2), ""]
+    nc = s["name_check"]
+    lines += ["## Vehicle names", "",
+              f"`IVS` is the straight-line distance of the two cars' positions minus a "
+              f"constant per pair. Of the {nc['pairs_in_several_files']} pairs of named cars "
+              f"that follow each other in several files, {nc['consistent']} have the same "
+              "constant (within 5 cm) in every file, which supports reading the vehicle "
+              "numbers as positions in `Vehicle_order`:", ""]
+    lines += [f"- {k}: " + ", ".join(f"{f} {o:.3f} m" for f, o in v.items())
+              for k, v in nc["pairs"].items()]
+    lines.append("")
+    if s["poor_fits"]:
+        lines += ["## Poor fits", "",
+                  "Cars whose calibration cost is above three times their group's median "
+                  "(a large max gap / median gap suggests the car stopped following, e.g. "
+                  "a disengaged ACC):", ""]
+        lines += [f"- {p['run_id']} ({p['car']}): cost {p['cal_mse']:.3f} vs median "
+                  f"{p['group_median_mse']:.3f}; max gap {p['max_gap_over_median']:.1f} x the "
+                  f"median gap at t = {p['t_max_gap']:.1f} s" for p in s["poor_fits"]]
+        lines.append("")
     no_meas = [c for c in cars if c["amplification_measured"] is None]
     if no_meas:
         lines += ["No measured amplification: " + "; ".join(
