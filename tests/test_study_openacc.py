@@ -39,6 +39,7 @@ def test_setting_order_logic():
     assert [(c["car"], c["longer"], c["shorter"]) for c in failed] == [("B", "L", "M")]
     a = [c for c in o["checks"] if c["car"] == "A"][0]
     assert a["value_longer"] == pytest.approx(1.9) and a["n_longer"] == 2
+    assert o["file_pairs_checked"] == 5 and o["file_pairs_held"] == 4
     assert st.setting_order([])["checked"] == 0
 
 

@@ -235,7 +235,9 @@ def setting_order(rows: Iterable[Mapping[str, Any]], key: str = "Tg") -> dict[st
     of ``key`` per setting; every pair of settings seen for the car is one check,
     held when the longer setting's median is larger. Returns ``{"checked",
     "held", "checks": [{"car", "longer", "shorter", "value_longer",
-    "value_shorter", "n_longer", "n_shorter", "held"}]}``.
+    "value_shorter", "n_longer", "n_shorter", "held"}], "file_pairs_checked",
+    "file_pairs_held"}`` (the last two compare every file of the longer setting with
+    every file of the shorter one, per car).
     """
     by: dict[str, dict[str, list[float]]] = {}
     for r in rows:
@@ -244,6 +246,7 @@ def setting_order(rows: Iterable[Mapping[str, Any]], key: str = "Tg") -> dict[st
             continue
         by.setdefault(str(r["car"]), {}).setdefault(st, []).append(float(val))
     checks = []
+    pairs = held_pairs = 0
     for car in sorted(by):
         sets = sorted(by[car], key=lambda s: _RANK[s])
         for i, a in enumerate(sets):
@@ -252,7 +255,12 @@ def setting_order(rows: Iterable[Mapping[str, Any]], key: str = "Tg") -> dict[st
                 checks.append({"car": car, "longer": a, "shorter": b, "value_longer": va,
                                "value_shorter": vb, "n_longer": len(by[car][a]),
                                "n_shorter": len(by[car][b]), "held": bool(va > vb)})
-    return {"checked": len(checks), "held": sum(c["held"] for c in checks), "checks": checks}
+                for x in by[car][a]:
+                    for y in by[car][b]:
+                        pairs += 1
+                        held_pairs += int(x > y)
+    return {"checked": len(checks), "held": sum(c["held"] for c in checks), "checks": checks,
+            "file_pairs_checked": pairs, "file_pairs_held": held_pairs}
 
 
 # ---------------------------------------------------------------------------
@@ -496,6 +504,8 @@ def openacc_study(
         "cars": [_public(c) for c in cars],
         "setting_order": {"checked": order["checked"], "held": order["held"],
                           "checks": order["checks"],
+                          "file_pairs_checked": order["file_pairs_checked"],
+                          "file_pairs_held": order["file_pairs_held"],
                           "excluded": "files in a folder named 'mixed' and files without ACC"},
         "setting_order_effective_time_gap": _short(order_eff),
         "setting_order_measured_headway": _short(order_meas),
@@ -554,7 +564,8 @@ def _poor_fits(runs: Sequence[Run], cars: Sequence[Mapping[str, Any]]) -> list[d
 
 
 def _short(o: Mapping[str, Any]) -> dict[str, Any]:
-    return {"checked": o["checked"], "held": o["held"], "checks": o["checks"]}
+    return {k: o[k] for k in ("checked", "held", "checks", "file_pairs_checked",
+                              "file_pairs_held")}
 
 
 def _car_entry(i: int, r: Run, models: Sequence[str], main: str,
@@ -827,7 +838,10 @@ def _figures(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str
         xs = np.array([c["amplification_measured"] for c in meas])
         lo = np.array([c["amplification_measured_ci"][0] for c in meas])
         hi = np.array([c["amplification_measured_ci"][1] for c in meas])
-        top = max(2.5, float(np.nanmax(hi)) * 1.05)
+        ys_all = [c["models"][m][k] for c in meas for m in models
+                  for k in ("amplification_H", "amplification_replay")
+                  if c["models"][m][k] is not None]
+        top = max(2.5, 1.15 * max([float(np.max(xs)), *ys_all]))
         for ax, key, title in ((axes[0], "amplification_H", "predicted from |H(jω)|"),
                                (axes[1], "amplification_replay", "predicted by replay")):
             grid = np.array([0.0, top])
@@ -911,7 +925,9 @@ def _findings(s: Mapping[str, Any]) -> list[str]:
     fails = [c["car"] for c in so["checks"] if not c["held"]]
     out = [f"- **Setting order**: the calibrated Tg ({main} model) is longer for the longer "
            f"ACC setting in {so['held']} of {so['checked']} checks (car model × pair of "
-           "settings)" + (f"; not for {', '.join(fails)}" if fails else "") + ". The "
+           "settings)" + (f"; not for {', '.join(fails)}" if fails else "") + "; file by "
+           f"file, in {so['file_pairs_held']} of {so['file_pairs_checked']} pairs of files. "
+           "The "
            f"effective time gap Tg + Gmin/v̄ follows the setting in {eff['held']} of "
            f"{eff['checked']}, the measured headway (no model) in {hw['held']} of "
            f"{hw['checked']}."]
@@ -990,7 +1006,8 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
         "## Setting order (calibrated Tg)",
         "",
         f"Checks held: **{so['held']} of {so['checked']}** (per car model and pair of "
-        f"settings, medians over files; {so['excluded']} excluded). With the folder "
+        f"settings, medians over files; {so['excluded']} excluded); file by file: "
+        f"{so['file_pairs_held']} of {so['file_pairs_checked']}. With the folder "
         f"'mixed' included: {s['setting_order_with_mixed']['held']} of "
         f"{s['setting_order_with_mixed']['checked']}. The same check on the effective "
         f"time gap Tg + Gmin/v̄: {s['setting_order_effective_time_gap']['held']} of "
