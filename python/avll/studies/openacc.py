@@ -809,8 +809,10 @@ def _tables(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str,
                               "error_replay": d["amplification_replay_error"],
                               **{f"p_{k}": v for k, v in d["params"].items()}})
     cars_df = pd.DataFrame(rows)
-    tg = (cars_df[cars_df["setting"] != "none"]
-          .assign(folder=[c["folder"] for c in cars if c["setting"] is not None])
+    label = [("none" if c["setting"] is None else
+              f"{c['setting']} (folder mixed)" if c["_group"] is None else c["setting"])
+             for c in cars]
+    tg = (cars_df.assign(setting=label)
           .pivot_table(index="car", columns="setting", values="Tg", aggfunc="median"))
     order_df = pd.DataFrame(order["checks"]) if order["checks"] else pd.DataFrame(
         columns=["car", "longer", "shorter", "value_longer", "value_shorter", "held"])
@@ -1017,7 +1019,8 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
         "",
     ]
     if not tables["tg_by_car_setting"].empty:
-        lines += ["Calibrated Tg (s), median per car model and setting:", "",
+        lines += ["Calibrated Tg (s), median per car model and setting ('none': the human "
+                  "control; the folder 'mixed' apart):", "",
                   _md_table(tables["tg_by_car_setting"].reset_index(), 2), ""]
     fails = [c for c in so["checks"] if not c["held"]]
     if fails:
@@ -1063,6 +1066,23 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
                                         "time_gap_effective", "headway_measured", "cal_mse",
                                         "A_measured", "A_ci_low", "A_ci_high",
                                         "A_predicted_H", "A_replay"]], 2), ""]
+    out10 = [c for c in acc if c["models"][main]["amplification_replay_error"] is not None
+             and abs(c["models"][main]["amplification_replay_error"]) > 0.10]
+    if out10:
+        weak = sum(c["rms_predecessor"] < 0.1 for c in out10)
+        strong = sum(c["amplification_measured"] > 1.3 for c in out10)
+        lines += [f"ACC cars whose {main} replay misses the measured amplification by more "
+                  f"than 10 % ({len(out10)}; {strong} of them amplify by more than 1.3, "
+                  f"{weak} have a predecessor band RMS below 0.1 m/s):", ""]
+        lines += [f"- {c['run_id']} ({c['car']}, {c['setting']}): measured "
+                  f"{c['amplification_measured']:.2f} "
+                  f"[{c['amplification_measured_ci'][0]:.2f}, "
+                  f"{c['amplification_measured_ci'][1]:.2f}], replay "
+                  f"{_f(c['amplification_replay'])} "
+                  f"({c['models'][main]['amplification_replay_error']:+.0%}); predecessor band "
+                  f"RMS {c['rms_predecessor']:.2f} m/s; calibration cost {_f(c['cal_mse'], 3)}"
+                  for c in out10]
+        lines.append("")
     nc = s["name_check"]
     lines += ["## Vehicle names", "",
               f"`IVS` is the straight-line distance of the two cars' positions minus a "
