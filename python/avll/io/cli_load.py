@@ -31,25 +31,27 @@ def add_astazero_options(p: argparse.ArgumentParser) -> None:
 def astazero_options(args: argparse.Namespace) -> dict[str, Any]:
     """The loader options of :func:`add_astazero_options`; a ``ValueError`` naming
     the option when it is given for another format or is invalid."""
-    given = [name for name, on in (("--slope", args.slope is not None),
-                                   ("--no-grade", bool(args.no_grade)),
-                                   ("--lap-length", args.lap_length is not None)) if on]
+    slope = getattr(args, "slope", None)
+    no_grade = bool(getattr(args, "no_grade", False))
+    lap_length = getattr(args, "lap_length", None)
+    given = [name for name, on in (("--slope", slope is not None), ("--no-grade", no_grade),
+                                   ("--lap-length", lap_length is not None)) if on]
     if not given:
         return {}
     if args.format != "openacc-astazero":
         raise ValueError(f"{given[0]}: only for --format openacc-astazero")
     opts: dict[str, Any] = {}
-    if args.no_grade:
-        if args.slope is not None or args.lap_length is not None:
-            other = "--slope" if args.slope is not None else "--lap-length"
+    if no_grade:
+        if slope is not None or lap_length is not None:
+            other = "--slope" if slope is not None else "--lap-length"
             raise ValueError(f"{other}: conflicts with --no-grade")
         opts["grade"] = False
-    if args.slope is not None:
-        if not Path(args.slope).is_file():
-            raise FileNotFoundError(f"--slope: {args.slope}: no such file")
-        opts["slope"] = args.slope
-    if args.lap_length is not None:
-        lap = float(args.lap_length)
+    if slope is not None:
+        if not Path(slope).is_file():
+            raise FileNotFoundError(f"--slope: {slope}: no such file")
+        opts["slope"] = slope
+    if lap_length is not None:
+        lap = float(lap_length)
         if not (lap > 0 and lap < float("inf")):
             raise ValueError(f"--lap-length: must be a finite length > 0 (m), got {lap:g}")
         opts["lap_length"] = lap
