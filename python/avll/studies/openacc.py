@@ -1088,8 +1088,14 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
               f"`IVS` is the straight-line distance of the two cars' positions minus a "
               f"constant per pair. Of the {nc['pairs_in_several_files']} pairs of named cars "
               f"that follow each other in several files, {nc['consistent']} have the same "
-              "constant (within 5 cm) in every file, which supports reading the vehicle "
-              "numbers as positions in `Vehicle_order`:", ""]
+              "constant (within 5 cm) in every file"
+              + (". The constant is thus a property of the two named cars, which supports "
+                 "reading the vehicle numbers as positions in `Vehicle_order`:"
+                 if nc["consistent"] == nc["pairs_in_several_files"] else
+                 "; the others differ between files, so the constant is not a property of "
+                 "the two names alone and this check neither confirms nor refutes the "
+                 "mapping of names to vehicle numbers (the loader follows the README: "
+                 "vehicle i is the i-th name of `Vehicle_order`):"), ""]
     lines += [f"- {k}: " + ", ".join(f"{f} {o:.3f} m" for f, o in v.items())
               for k, v in nc["pairs"].items()]
     lines.append("")
