@@ -844,9 +844,10 @@ def _figures(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str
                   for k in ("amplification_H", "amplification_replay")
                   if c["models"][m][k] is not None]
         top = max(2.5, 1.15 * max([float(np.max(xs)), *ys_all]))
+        bottom = 0.8 * min([0.5, float(np.min(lo)), *[y for y in ys_all if y > 0]])
         for ax, key, title in ((axes[0], "amplification_H", "predicted from |H(jω)|"),
                                (axes[1], "amplification_replay", "predicted by replay")):
-            grid = np.array([0.0, top])
+            grid = np.array([bottom, top])
             ax.fill_between(grid, 0.9 * grid, 1.1 * grid, color="0.9", label="±10 %")
             ax.plot(grid, grid, "k-", lw=0.8)
             ax.axhline(1.0, color="0.6", lw=0.5, ls=":")
@@ -861,8 +862,8 @@ def _figures(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str
                 if hum.any():
                     ax.plot(xs[hum], ys[hum], "x", color=colors.get(m), ms=6,
                             label=f"{_LABEL.get(m, m)} (human control)")
-            ax.set(xlim=(0, top), ylim=(0, top), title=title,
-                   xlabel="measured amplification (95 % CI)")
+            ax.set(xlim=(bottom, top), ylim=(bottom, top), xscale="log", yscale="log",
+                   title=title, xlabel="measured amplification (95 % CI)")
         axes[0].set_ylabel("predicted amplification")
         axes[0].legend(fontsize="x-small", loc="upper left")
     fig.suptitle("Amplification of the predecessor's speed oscillations, per car")
