@@ -98,3 +98,83 @@ def openacc_dir(root: Path, n: int = 600, stem: str = "ASta_010101_platoon1") ->
     p = root / f"{stem}.csv"
     pd.DataFrame(cols).to_csv(p, index=False)
     return p
+
+
+ZALA = DATA / "openacc-zalazone"
+
+#: Car names of the synthetic native OpenACC files.
+NATIVE_NAMES = ("SMART_TARGET", "TESLA_MODEL3", "BMW_I3", "AUDI_A4", "MAZDA_3", "TOYOTA_RAV4")
+
+
+def native_platoon(n: int = 900, vehicles: int = 4, *, dt: float = 0.1, radius: float = 150.0,
+                   seed: int = 0, tg: float = 1.5) -> dict[str, np.ndarray]:
+    """A consistent platoon on a circle: the leader's speed oscillates at 0.05 Hz, the
+    followers run a constant-time-gap law on a first-order lag. Returns ``t`` and per
+    vehicle ``i`` (1-based) ``Speed{i}, E{i}, N{i}, Alt{i}, s{i}`` and ``IVS{i}`` (the
+    straight-line distance minus 4 m), plus the true acceleration ``a{i}``."""
+    rng = np.random.default_rng(seed)
+    t = 100.0 + dt * np.arange(n)
+    v = np.zeros((vehicles, n))
+    a = np.zeros((vehicles, n))
+    s = np.zeros((vehicles, n))
+    v[0] = 8.0 + 0.5 * np.sin(2 * np.pi * 0.05 * (t - t[0]))
+    a[0] = 0.5 * 2 * np.pi * 0.05 * np.cos(2 * np.pi * 0.05 * (t - t[0]))
+    s[0] = np.concatenate([[0.0], np.cumsum(0.5 * (v[0][1:] + v[0][:-1]) * dt)]) + 400.0
+    kg, kv, g0, lag = 0.2, 0.6, 3.0, 0.5
+    for i in range(1, vehicles):
+        v[i, 0] = v[i - 1, 0]
+        s[i, 0] = s[i - 1, 0] - 4.5 - g0 - tg * v[i, 0]
+        for k in range(n - 1):
+            gap = s[i - 1, k] - s[i, k] - 4.5
+            cmd = kg * (gap - tg * v[i, k] - g0) + kv * (v[i - 1, k] - v[i, k])
+            a[i, k + 1] = a[i, k] + dt * (cmd - a[i, k]) / lag
+            v[i, k + 1] = v[i, k] + 0.5 * dt * (a[i, k] + a[i, k + 1])
+            s[i, k + 1] = s[i, k] + 0.5 * dt * (v[i, k] + v[i, k + 1])
+    out: dict[str, np.ndarray] = {"t": t}
+    for i in range(vehicles):
+        th = s[i] / radius
+        e, nn = radius * np.cos(th), radius * np.sin(th)
+        out[f"Speed{i + 1}"] = v[i] + 0.005 * rng.standard_normal(n)
+        out[f"E{i + 1}"], out[f"N{i + 1}"] = e, nn
+        out[f"Alt{i + 1}"] = 243.0 + 0.015 * nn
+        out[f"s{i + 1}"], out[f"a{i + 1}"] = s[i], a[i]
+    for i in range(1, vehicles):
+        d = np.hypot(out[f"E{i}"] - out[f"E{i + 1}"], out[f"N{i}"] - out[f"N{i + 1}"])
+        out[f"IVS{i}"] = d - 4.0
+    return out
+
+
+def write_native(path: Path, data: dict[str, np.ndarray], *, names: tuple[str, ...] | None = None,
+                 n_vehicles: int | None = None, acc: str = "1", setting: str = "L",
+                 vehicles: tuple[int, ...] | None = None, empty: dict[str, list[int]] | None = None,
+                 date: str = "8,10,2019") -> Path:
+    """Writes ``data`` (from :func:`native_platoon`) in the native OpenACC layout;
+    ``vehicles`` the vehicle numbers whose columns are written (default all), ``empty``
+    cells to leave empty per column (data-row indices)."""
+    nv = max(int(k[5:]) for k in data if k.startswith("Speed"))
+    vehicles = tuple(range(1, nv + 1)) if vehicles is None else vehicles
+    names = NATIVE_NAMES[:nv] if names is None else names
+    n_vehicles = nv if n_vehicles is None else n_vehicles
+    cols = ["Time"]
+    for i in vehicles:
+        cols += [f"Speed{i}", f"E{i}", f"N{i}", f"Lon{i}", f"Lat{i}", f"Alt{i}"]
+    cols += [f"IVS{i}" for i in range(1, nv) if i in vehicles and i + 1 in vehicles]
+    n = data["t"].shape[0]
+    table = {"Time": data["t"]}
+    for c in cols[1:]:
+        if c.startswith(("Lon", "Lat")):
+            table[c] = np.full(n, 16.8 if c.startswith("Lon") else 46.9)
+        else:
+            table[c] = data[c]
+    lines = [f"Date,{date}", "Vehicle_order," + ",".join(names) + ",",
+             f"Number_of_vehicles,{n_vehicles}", f"ACC,{acc}", f"Distance_setting,{setting}",
+             ",".join(cols)]
+    holes = {c: set(v) for c, v in (empty or {}).items()}
+    for r in range(n):
+        cells = []
+        for c in cols:
+            cells.append("" if r in holes.get(c, ()) else repr(float(table[c][r])))
+        lines.append(",".join(cells))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path

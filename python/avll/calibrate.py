@@ -855,12 +855,14 @@ def _load_for_cli(args: Any) -> tuple[list[Run], bool, list[str], str]:
 
     from .fielddata import _UPPER0, read_carma, split_launch_cruise
     from .io import read_runs
+    from .io.cli_load import astazero_options
 
     fmt = args.format
+    opts = astazero_options(args)
     if fmt == "carma" and Path(args.data).is_dir():
         runs = read_carma(args.data, command_kind=args.command_kind)
     else:
-        runs = read_runs(args.data, command_kind=args.command_kind, format=fmt)
+        runs = read_runs(args.data, command_kind=args.command_kind, format=fmt, **opts)
     if args.regime != "all":
         if fmt != "carma":
             raise ValueError("--regime: only for --format carma")
@@ -906,7 +908,7 @@ def _load_for_cli(args: Any) -> tuple[list[Run], bool, list[str], str]:
                 "free all of kg,kv,Tg,Gmin"
             )
         runs = [r if r.upper is not None else replace(r, upper=_UPPER0) for r in runs]
-    init = args.init or ("steady" if fmt in ("carma", "openacc-astazero") else "rest")
+    init = args.init or ("steady" if fmt in ("carma", "openacc-astazero", "openacc") else "rest")
     return runs, closed, free, init
 
 
@@ -987,7 +989,8 @@ def register_cli(sub: Any) -> None:
         "--format",
         default="canonical",
         help="loader of DATA: canonical (default), generic, carma (a file or a folder), "
-        "openacc-astazero (a file or a folder; platoon pairs run in closed loop)",
+        "openacc-astazero (a file or a folder; platoon pairs run in closed loop), openacc "
+        "(native OpenACC files or a folder of them, e.g. ZalaZone; closed loop)",
     )
     p.add_argument(
         "--command-kind",
@@ -1039,6 +1042,9 @@ def register_cli(sub: Any) -> None:
         default="all",
         help="CARMA only: keep the launch or cruise parts of the stretches (default all)",
     )
+    from .io.cli_load import add_astazero_options
+
+    add_astazero_options(p)
     p.add_argument("--starts", type=int, default=2, help="independent GA starts (default 2)")
     p.add_argument("--max-generations", type=int, default=GA_OPTIONS["max_generations"])
     p.add_argument("--pop-size", type=int, default=0, help="GA population (0 = automatic)")

@@ -21,6 +21,7 @@ _COMMANDS = [
     "avll.calibrate:register_cli",
     "avll.stability:register_cli",
     "avll.reproduce:register_cli",
+    "avll.studies:register_cli",
 ]
 
 

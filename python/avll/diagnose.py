@@ -1161,8 +1161,10 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
 
 def _cmd(args: argparse.Namespace) -> int:
     from .io import read_runs
+    from .io.cli_load import astazero_options
 
-    runs = read_runs(args.data, command_kind=args.command_kind, format=args.format)
+    runs = read_runs(args.data, command_kind=args.command_kind, format=args.format,
+                     **astazero_options(args))
     ids = [s.strip() for s in args.cal_runs.split(",") if s.strip()]
     known = {r.run_id for r in runs}
     missing = [i for i in ids if i not in known]
@@ -1201,4 +1203,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--optimizer", choices=["ga", "de"], default="ga",
                    help="calibration: the Rust GA (default) or scipy's differential evolution")
     p.add_argument("--quiet", action="store_true")
+    from .io.cli_load import add_astazero_options
+
+    add_astazero_options(p)
     p.set_defaults(func=_cmd)

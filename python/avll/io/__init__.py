@@ -8,7 +8,9 @@ modified.
 Formats: ``canonical`` (the library's own long CSV/Parquet), ``generic`` (any
 CSV/Parquet with a column mapping), ``carma`` (FHWA CARMA platoon CSVs: engaged
 stretches, speed command), ``openacc-astazero`` (JRC OpenACC AstaZero: platoon pairs
-and free-flow segments, road grade). The measured-data loaders accept ``dt=`` (and
+and free-flow segments, road grade), ``openacc`` (the OpenACC database's native
+layout, e.g. ZalaZone: one closed-loop run per follower with car model, ACC gap
+setting and track in ``meta``). The measured-data loaders accept ``dt=`` (and
 ``max_gap=``) to resample.
 """
 
@@ -26,6 +28,7 @@ from .carma import carma_report, load_carma
 from .formats import LOADERS, load_format
 from .generic import load_generic
 from .openacc import load_openacc_astazero
+from .openacc_native import load_openacc_native, openacc_native_report, read_openacc_native
 from .resample import resample_arrays, resample_run
 
 __all__ = [
@@ -39,6 +42,9 @@ __all__ = [
     "carma_report",
     "load_generic",
     "load_openacc_astazero",
+    "load_openacc_native",
+    "openacc_native_report",
+    "read_openacc_native",
     "resample_arrays",
     "resample_run",
     "check_runs_for_delay",
@@ -60,9 +66,10 @@ def read_runs(
     ``path`` is a file or, for the per-file formats (``canonical``, ``carma``,
     ``generic``), a folder: then every ``*.csv`` / ``*.parquet`` in it is read, in
     natural order of the names (data5, data6, data9, data10). ``openacc-astazero``
-    reads its own folder layout. ``command_kind`` (``"acceleration"`` or ``"speed"``)
-    overrides what the file or its sidecar says; loaders whose format fixes the kind
-    check it instead.
+    reads its own folder layout; ``openacc`` every ``*.csv`` below a folder,
+    recursively (options ``setting``, ``car``, ``track`` filter the followers).
+    ``command_kind`` (``"acceleration"`` or ``"speed"``) overrides what the file or
+    its sidecar says; loaders whose format fixes the kind check it instead.
     """
     try:
         loader = FORMATS[format]

@@ -19,9 +19,11 @@ account in ``run.meta["file_report"]``):
    a sample is *missing* when the mode, the command, the speed or the acceleration
    cell is empty (or the row is missing) and *off* otherwise;
 4. holes of at most ``max_hole`` seconds of *missing* samples between two engaged
-   samples are bridged by linear interpolation of command, speed and acceleration
-   (in the published files these are single empty cells from the 10 Hz binning of
-   the 20 Hz/40 Hz CAN messages); longer holes, and any *off* sample, end a stretch:
+   samples are bridged: the empty cells of command, speed and acceleration are
+   linearly interpolated between the nearest present values of the same signal, a
+   value present in such a sample is kept as measured (in the published files
+   these are single empty cells from the 10 Hz binning of the 20 Hz/40 Hz CAN
+   messages); longer holes, and any *off* sample, end a stretch:
    nothing is interpolated across them;
 5. stretches shorter than ``min_duration`` seconds are dropped (counted).
 
@@ -273,15 +275,25 @@ def load_carma(
         known_off = ((np.isfinite(mode) & (mode != 2)) | (np.isfinite(cmd) & (cmd <= 0))
                      | overridden | ovr_off)
         missing = ~present & ~known_off
-        # bridge short holes of missing samples between engaged samples
+        # bridge short holes of missing samples between engaged samples: only the empty
+        # cells are interpolated (between the nearest present values); a measurement
+        # present in a missing sample (e.g. the speed when only the acceleration cell
+        # is empty) is kept as it is
         usable = engaged.copy()
         bridged = 0
+        filled = 0
         cmd_f, spd_f, acc_f = cmd.copy(), spd.copy(), acc.copy()
         for a, b in contiguous(~engaged):
             if a == 0 or b == n or b - a > hole_max or not missing[a:b].all():
                 continue
+            idx = np.arange(a - 1, b + 1)
             for arr in (cmd_f, spd_f, acc_f):
-                arr[a:b] = np.interp(np.arange(a, b), [a - 1, b], [arr[a - 1], arr[b]])
+                seg = arr[a - 1:b + 1]
+                ok = np.isfinite(seg)
+                if ok.all():
+                    continue
+                seg[~ok] = np.interp(idx[~ok], idx[ok], seg[ok])
+                filled += int((~ok).sum())
             usable[a:b] = True
             bridged += b - a
         long_holes = [(a, b) for a, b in contiguous(missing)
@@ -293,6 +305,7 @@ def load_carma(
             "ovr_flag_equals_mode2": bool(np.all(((ovr == 1) == (mode == 2))[
                 np.isfinite(ovr) & np.isfinite(mode)])),
             "bridged_samples": int(bridged),
+            "interpolated_cells": int(filled),
             "long_holes_split": len(long_holes),
             "kept": [], "dropped_short": 0, "dropped_short_s": 0.0,
             "a_quantum": _quantum(acc[engaged]),
@@ -311,8 +324,11 @@ def load_carma(
             nb = int((~engaged[a:b]).sum())
             cleaning = list(file_notes)
             if nb:
-                cleaning.append(f"bridged {nb} empty samples (holes <= {max_hole:g} s) by "
-                                "linear interpolation of command, speed and acceleration")
+                nc = sum(int((~np.isfinite(x[a:b]) & np.isfinite(y[a:b])).sum())
+                         for x, y in ((cmd, cmd_f), (spd, spd_f), (acc, acc_f)))
+                cleaning.append(f"bridged {nb} samples with empty cells (holes <= "
+                                f"{max_hole:g} s): {nc} empty cells of command, speed and "
+                                "acceleration linearly interpolated, present values kept")
             ends = []
             if a > 0:
                 ends.append(f"start at t={grid_t[a]:.1f} s after "

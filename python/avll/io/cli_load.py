@@ -11,7 +11,51 @@ from typing import Any
 from . import FORMATS, read_runs, write_runs
 from ._common import summarize
 
-__all__ = ["register_cli"]
+__all__ = ["register_cli", "add_astazero_options", "astazero_options"]
+
+
+def add_astazero_options(p: argparse.ArgumentParser) -> None:
+    """Add ``--slope FILE``, ``--no-grade`` and ``--lap-length M`` (the AstaZero
+    loader's ``slope``, ``grade=False`` and ``lap_length``) to a command."""
+    g = p.add_argument_group("OpenACC AstaZero (--format openacc-astazero)")
+    g.add_argument("--slope", default=None, metavar="FILE",
+                   help="road-grade profile Slope.csv (default: found beside the data, in "
+                        "../platoon, one folder up or in ../../Exp)")
+    g.add_argument("--no-grade", action="store_true",
+                   help="do not add the road grade (no Slope.csv needed)")
+    g.add_argument("--lap-length", type=float, default=None, metavar="M",
+                   help="lap length (m) at which positions wrap onto the grade profile "
+                        "(default: the last X of Slope.csv)")
+
+
+def astazero_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The loader options of :func:`add_astazero_options`; a ``ValueError`` naming
+    the option when it is given for another format or is invalid."""
+    slope = getattr(args, "slope", None)
+    no_grade = bool(getattr(args, "no_grade", False))
+    lap_length = getattr(args, "lap_length", None)
+    given = [name for name, on in (("--slope", slope is not None), ("--no-grade", no_grade),
+                                   ("--lap-length", lap_length is not None)) if on]
+    if not given:
+        return {}
+    if args.format != "openacc-astazero":
+        raise ValueError(f"{given[0]}: only for --format openacc-astazero")
+    opts: dict[str, Any] = {}
+    if no_grade:
+        if slope is not None or lap_length is not None:
+            other = "--slope" if slope is not None else "--lap-length"
+            raise ValueError(f"{other}: conflicts with --no-grade")
+        opts["grade"] = False
+    if slope is not None:
+        if not Path(slope).is_file():
+            raise FileNotFoundError(f"--slope: {slope}: no such file")
+        opts["slope"] = slope
+    if lap_length is not None:
+        lap = float(lap_length)
+        if not (lap > 0 and lap < float("inf")):
+            raise ValueError(f"--lap-length: must be a finite length > 0 (m), got {lap:g}")
+        opts["lap_length"] = lap
+    return opts
 
 
 def _cmd(args: argparse.Namespace) -> int:
@@ -28,6 +72,7 @@ def _cmd(args: argparse.Namespace) -> int:
         if args.format != "openacc-astazero":
             raise ValueError("--grade-offset: only for --format openacc-astazero")
         opts["grade_offset"] = args.grade_offset
+    opts.update(astazero_options(args))
     runs = read_runs(args.path, command_kind=args.command_kind, format=args.format, **opts)
     print(summarize(runs))
     total = sum((len(r) - 1) * r.dt for r in runs)
@@ -61,6 +106,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                    help="CARMA: shortest engaged stretch kept (s, default 10)")
     p.add_argument("--grade-offset", type=float, default=None,
                    help="OpenACC: shift (m) of the lap position where the grade is read")
+    add_astazero_options(p)
     p.add_argument("--out", default=None, help="write the runs in the canonical format")
     p.add_argument("--report", default=None, help="write the per-run cleaning as JSON")
     p.set_defaults(func=_cmd)

@@ -19,6 +19,7 @@ from ..data import Run
 from .carma import load_carma
 from .generic import load_generic
 from .openacc import load_openacc_astazero
+from .openacc_native import load_openacc_native
 from .resample import resample_run
 
 __all__ = ["LOADERS", "load_format"]
@@ -44,6 +45,7 @@ def _resampling(loader: Callable[..., list[Run]]) -> Callable[..., list[Run]]:
 LOADERS: dict[str, Callable[..., list[Run]]] = {
     "carma": _resampling(load_carma),
     "openacc-astazero": _resampling(load_openacc_astazero),
+    "openacc": _resampling(load_openacc_native),
     "generic": load_generic,
 }
 
@@ -51,7 +53,7 @@ LOADERS: dict[str, Callable[..., list[Run]]] = {
 def load_format(path: str | Path, format: str, *, command_kind: str | None = None,
                 **kw: Any) -> list[Run]:
     """Load ``path`` with the loader of ``format`` (``carma``, ``openacc-astazero``,
-    ``generic``); see the module doc for ``dt`` and ``max_gap``."""
+    ``openacc``, ``generic``); see the module doc for ``dt`` and ``max_gap``."""
     try:
         loader = LOADERS[format]
     except KeyError:

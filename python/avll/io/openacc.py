@@ -78,11 +78,19 @@ def grade_at(x: np.ndarray, slope: tuple[np.ndarray, np.ndarray, float], *,
 
 
 def _find(start: Path, name: str, given: str | Path | None) -> Path | None:
+    """A side file: ``given``, else the first that exists of ``name`` beside the data,
+    in the sibling ``platoon/`` or ``freeflow/`` folders (the shared layout), one
+    folder up or in ``../../Exp/`` (C2ART-OPT's ``Data/ASTAZERO/Exp/PyData`` and
+    ``ExpFreeFlow/PyData`` with ``Exp/Slope.csv``)."""
     if given is not None:
-        return Path(given)
+        p = Path(given)
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: no such file (given for {name})")
+        return p
     base = start if start.is_dir() else start.parent
-    for cand in (base / name, base.parent / "platoon" / name, base.parent / "freeflow" / name):
-        if cand.exists():
+    for cand in (base / name, base.parent / "platoon" / name, base.parent / "freeflow" / name,
+                 base.parent / name, base.parent.parent / "Exp" / name):
+        if cand.is_file():
             return cand
     return None
 
@@ -233,9 +241,13 @@ def load_openacc_astazero(
     directory (all ``ASta_*.csv`` below it, platoon pairs first).
 
     ``slope``, ``labels`` and ``stable_parts`` default to ``Slope.csv``, ``Labels.csv``
-    and ``FreeFlowStableParts.csv`` found beside the file or in the sibling
-    ``platoon/``/``freeflow/`` folders. ``grade=False`` skips ``exo["grade"]``;
-    ``grade_offset`` (m) shifts the position at which the lap profile is read.
+    and ``FreeFlowStableParts.csv`` found beside the file, in the sibling
+    ``platoon/``/``freeflow/`` folders (the shared layout), one folder up or in
+    ``../../Exp/`` (C2ART-OPT's layout: ``Data/ASTAZERO/Exp/PyData/*.csv`` with
+    ``Data/ASTAZERO/Exp/Slope.csv``). ``grade=False`` skips ``exo["grade"]``;
+    ``grade_offset`` (m) shifts the position at which the lap profile is read;
+    ``lap_length`` (m) overrides the lap length (default: the last ``X`` of
+    ``Slope.csv``).
     ``command_kind``, if given, keeps only the runs of that kind (``acceleration``:
     platoon pairs, ``speed``: free flow); it is an error when none is left.
     """
@@ -246,9 +258,11 @@ def load_openacc_astazero(
         raise ValueError(f"command_kind: must be 'acceleration' or 'speed', got {command_kind!r}")
     if not np.isfinite(grade_offset):
         raise ValueError(f"grade_offset: must be finite, got {grade_offset!r}")
+    if lap_length is not None and not (np.isfinite(lap_length) and lap_length > 0):
+        raise ValueError(f"lap_length: must be a finite length > 0 (m), got {lap_length!r}")
     if path.is_dir():
         files = sorted(path.glob("**/ASta_*.csv"),
-                       key=lambda p: (0 if p.parent.name == "platoon" else 1, p.name))
+                       key=lambda p: (1 if _FF_NAME.match(p.stem) else 0, p.name, str(p)))
         if not files:
             raise DataError(f"{path}: no ASta_*.csv files in this folder")
     else:
