@@ -483,7 +483,8 @@ fn bigger(m: f64, x: f64) -> f64 {
 }
 
 /// Writes the trajectory into caller-provided slices; with `STOP`, stops at the
-/// first sample whose acceleration or speed leaves `|.| < DIVERGED` (that sample is
+/// first sample whose acceleration leaves `|a| < DIVERGED` or whose speed is not
+/// finite (that sample is
 /// written; `written` says how many were).
 pub struct Record<'a, const STOP: bool> {
     pub a: &'a mut [f64],
@@ -525,7 +526,7 @@ impl<const STOP: bool> Sink for Record<'_, STOP> {
     fn proceed(&mut self, from: usize, to: usize) -> bool {
         if STOP {
             for n in from..to {
-                if !(self.a[n].abs() < DIVERGED && self.v[n].abs() < DIVERGED) {
+                if !(self.a[n].abs() < DIVERGED && self.v[n].is_finite()) {
                     self.written = n + 1;
                     return false;
                 }

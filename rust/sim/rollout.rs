@@ -322,7 +322,8 @@ fn check_leader(lead_x: &[f64], lead_v: &[f64]) -> Result<()> {
 
 /// Closed-loop car following behind a recorded leader into `out` (the upper law
 /// Eq. 3 evaluated at the samples; the lower level starts at rest). If the follower
-/// diverges (`|a|` or `|v|` reaches [`DIVERGED`]) the rest of the outputs are NaN.
+/// diverges (`|a|` reaches [`DIVERGED`] or the speed is not finite) the rest of the
+/// outputs are NaN.
 #[allow(clippy::too_many_arguments)]
 pub fn closed_loop_into(
     lin: &Linear,
@@ -616,13 +617,14 @@ fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
 }
 
 /// After samples `from..to`: the first follower (among the first `alive`) whose
-/// acceleration or speed left the range gets NaN after that sample, those behind it
+/// acceleration left the range (or whose speed is not finite) gets NaN after that
+/// sample, those behind it
 /// NaN throughout; returns how many followers stay alive.
 fn platoon_divergence(outs: &mut [Out], alive: usize, from: usize, to: usize) -> usize {
     let mut first = None;
     'scan: for (j, o) in outs[..alive].iter().enumerate() {
         for n in from..to {
-            if !(o.a[n].abs() < DIVERGED && o.v[n].abs() < DIVERGED) {
+            if !(o.a[n].abs() < DIVERGED && o.v[n].is_finite()) {
                 first = Some((j, n));
                 break 'scan;
             }
@@ -638,7 +640,7 @@ fn platoon_divergence(outs: &mut [Out], alive: usize, from: usize, to: usize) ->
     if let Some(c) = o.u.as_deref_mut() {
         c[n + 1..].fill(f64::NAN);
     }
-    for o in outs[j + 1..alive].iter_mut() {
+    for o in outs[j + 1..].iter_mut() {
         for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
             s.fill(f64::NAN);
         }

@@ -354,6 +354,22 @@ fn unstable_platoon_is_nan_after_divergence_and_behind_it() {
     let first = trs[0].a.iter().position(|a| a.is_nan()).expect("diverges");
     assert!(first > 0 && trs[0].a[..first].iter().all(|a| a.is_finite()));
     assert!(trs[1].a.iter().all(|a| a.is_nan()) && trs[2].v.iter().all(|v| v.is_nan()));
+    // A follower that diverges later than one behind it still blanks all behind it.
+    let up = Upper {
+        kg: 0.5,
+        kv: 0.0,
+        tg: 1.8,
+        gmin: 9.5,
+    };
+    let (lx, lv) = leader(2500, 0.05);
+    let trs = platoon(&proposed(), &EffectsRef::NONE, &up, &lx, &lv, 0.05, 20).unwrap();
+    let mut dead = false;
+    for tr in &trs {
+        if dead {
+            assert!(tr.x.iter().all(|x| x.is_nan()));
+        }
+        dead |= tr.x.iter().any(|x| !x.is_finite());
+    }
 }
 
 fn spec(closed: bool, weights: [f64; 3], free: Vec<usize>) -> CostSpec {
