@@ -222,6 +222,7 @@ fn stable_at<T: PointTest + ?Sized>(test: &T, p: [f64; 3], axis: Axis, t: f64, l
 
 /// Bisects the bracket `(a, b)` with `stable(a) != stable(b)`; returns the final
 /// `(a, b)` (same orientation), `|b − a| <= rtol max(|a|, |b|)` or adjacent floats.
+#[allow(clippy::too_many_arguments)]
 fn refine<T: PointTest + ?Sized>(
     test: &T,
     p: [f64; 3],

@@ -266,6 +266,70 @@ impl DelayLoop {
         Verdict::Stable
     }
 
+    /// `min (1 − |H(jω)|²)/ω² = min g(ω)/|D(jω)|²` over `n` log-spaced frequencies on
+    /// `[w_min, w_max]` and `ω → 0`, each interior local minimum refined by golden
+    /// section in `log ω` to `xtol`. A sampled figure of merit (in s²), not a proof:
+    /// [`DelayLoop::string`] decides.
+    #[allow(clippy::too_many_arguments)]
+    pub fn margin(
+        &self,
+        kg: f64,
+        tg: f64,
+        kv: f64,
+        w_min: f64,
+        w_max: f64,
+        n: usize,
+        xtol: f64,
+    ) -> f64 {
+        let (a, b, _) = self.quasi(kg, tg, kv);
+        let tau = self.lin.td;
+        let f = |w: f64| {
+            let g = self.g(kg, tg, kv, Iv::point(w));
+            let (ar, ai) = a.eval_complex(0.0, w);
+            let (br, bi) = b.eval_complex(0.0, w);
+            let (co, si) = ((w * tau).cos(), -(w * tau).sin());
+            let (dr, di) = (ar + br * co - bi * si, ai + br * si + bi * co);
+            0.5 * (g.lo + g.hi) / (dr * dr + di * di)
+        };
+        let mut best = f(0.0);
+        if best.is_nan() {
+            best = f64::NEG_INFINITY;
+        }
+        let n = n.max(3);
+        let lw: Vec<f64> = (0..n)
+            .map(|i| w_min.ln() + (w_max / w_min).ln() * i as f64 / (n - 1) as f64)
+            .collect();
+        let v: Vec<f64> = lw.iter().map(|&l| f(l.exp())).collect();
+        for (i, &x) in v.iter().enumerate() {
+            best = best.min(x);
+            if i == 0 || i + 1 == n || !(x <= v[i - 1] && x <= v[i + 1]) {
+                continue;
+            }
+            let gr = (5f64.sqrt() - 1.0) / 2.0;
+            let (mut lo, mut hi) = (lw[i - 1], lw[i + 1]);
+            let mut c = hi - gr * (hi - lo);
+            let mut d = lo + gr * (hi - lo);
+            let (mut fc, mut fd) = (f(c.exp()), f(d.exp()));
+            while hi - lo > xtol {
+                if fc < fd {
+                    hi = d;
+                    d = c;
+                    fd = fc;
+                    c = hi - gr * (hi - lo);
+                    fc = f(c.exp());
+                } else {
+                    lo = c;
+                    c = d;
+                    fc = fd;
+                    d = lo + gr * (hi - lo);
+                    fd = f(d.exp());
+                }
+            }
+            best = best.min(fc).min(fd);
+        }
+        best
+    }
+
     /// The map code (0, 1, 2) and whether it is certified.
     pub fn code(&self, kg: f64, tg: f64, kv: f64) -> (u8, bool) {
         match self.local(kg, tg, kv) {

@@ -54,7 +54,7 @@ impl Iv {
 
     /// Enclosure of `cos` over the interval.
     pub fn cos(self) -> Iv {
-        if !(self.hi - self.lo < PI) {
+        if self.hi - self.lo >= PI || self.hi.is_nan() || self.lo.is_nan() {
             return Iv::new(-1.0, 1.0);
         }
         let (c1, c2) = (self.lo.cos(), self.hi.cos());
@@ -74,7 +74,7 @@ impl Iv {
 
     /// Enclosure of `sin` over the interval.
     pub fn sin(self) -> Iv {
-        if !(self.hi - self.lo < PI) {
+        if self.hi - self.lo >= PI || self.hi.is_nan() || self.lo.is_nan() {
             return Iv::new(-1.0, 1.0);
         }
         let (s1, s2) = (self.lo.sin(), self.hi.sin());

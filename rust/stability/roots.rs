@@ -88,7 +88,7 @@ fn roots_rec(p: &Poly, lo: f64, hi: f64, out: &mut Vec<f64>) {
 /// (`lo`, `hi` finite).
 pub fn real_roots(p: &Poly, lo: f64, hi: f64) -> Vec<f64> {
     let mut out = Vec::new();
-    if p.is_zero() || !(lo < hi) {
+    if p.is_zero() || lo >= hi || lo.is_nan() || hi.is_nan() {
         return out;
     }
     let mut q = *p;

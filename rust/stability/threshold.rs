@@ -89,7 +89,7 @@ pub struct Range {
 }
 
 impl Range {
-    fn from_unit(&self, u: f64) -> f64 {
+    fn at_unit(&self, u: f64) -> f64 {
         let u = u.clamp(0.0, 1.0);
         let v = if self.log {
             (self.lo.ln() + u * (self.hi / self.lo).ln()).exp()
@@ -154,8 +154,8 @@ where
         .into_par_iter()
         .map(|k| {
             let (i, j) = (k / n, k % n);
-            let u = ru.from_unit(i as f64 / (n - 1) as f64);
-            let w = rw.from_unit(j as f64 / (n - 1) as f64);
+            let u = ru.at_unit(i as f64 / (n - 1) as f64);
+            let w = rw.at_unit(j as f64 / (n - 1) as f64);
             (key(f(u, w)), i, j)
         })
         .collect();
@@ -171,7 +171,7 @@ where
         .map(|&k| {
             let (_, i, j) = grid[k];
             let (mut x, mut y) = (i as f64 * h0, j as f64 * h0);
-            let eval = |x: f64, y: f64| f(ru.from_unit(x), rw.from_unit(y));
+            let eval = |x: f64, y: f64| f(ru.at_unit(x), rw.at_unit(y));
             let mut cur = eval(x, y);
             let mut best = key(cur);
             let mut h = h0;
@@ -210,7 +210,7 @@ where
                 }
             }
             let edge = cur.is_some_and(|(_, e)| e);
-            (best, ru.from_unit(x), rw.from_unit(y), edge, evals)
+            (best, ru.at_unit(x), rw.at_unit(y), edge, evals)
         })
         .collect();
     let total: usize = grid.len() + results.iter().map(|r| r.4).sum::<usize>();
