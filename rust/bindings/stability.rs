@@ -289,7 +289,7 @@ type ExtremumTuple = (f64, [f64; 3], bool, [bool; 2], usize);
 /// the stable kv over the (kg, Tg) box `r1 × r2`, kv in `r3`). Ranges are
 /// (lo, hi, log). Returns (value, [kg, tg, kv], value_at_range_end, on_box_edge, evaluations).
 #[pyfunction]
-#[pyo3(signature = (model, params, which, r1, r2, r3, pade_order = 2, n_scan = 256, rtol = 1e-10, n_grid = 48, starts = 4, xtol = 1e-10, budget = 20000, threads = 0))]
+#[pyo3(signature = (model, params, which, r1, r2, r3, pade_order = 2, n_scan = 256, rtol = 1e-10, n_grid = 32, starts = 3, xtol = 1e-12, budget = 20000, threads = 0))]
 #[allow(clippy::too_many_arguments)]
 fn stability_extremum(
     py: Python<'_>,

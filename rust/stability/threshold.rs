@@ -3,13 +3,17 @@
 //! stable Tg over a (kg, kv) box (an infimum) and the largest stable kv over a
 //! (kg, Tg) box (a supremum).
 //!
-//! The extrema are found by evaluating the boundary ([`super::boundary`]) on a
-//! coarse grid of the box (in parallel), then a compass search (8 directions, step
-//! halved on failure down to `xtol` of the box, in log kg when kg > 0) from the best
-//! few grid points. The value returned is a boundary value at a point of the box
-//! that the search reached, so it is an upper bound of the true infimum (lower bound
-//! of the supremum) that the search could not improve; a narrow dip of the surface
-//! between coarse grid points that the compass search does not enter can be missed.
+//! The extrema are found by nested 1-D searches of the boundary
+//! ([`super::boundary`]): for the minimum stable Tg, an outer search over kv of the
+//! inner minimum over kg of the smallest stable Tg. Each 1-D search scans
+//! `n_grid` points (log-spaced for kg > 0) and refines the best local minima of the
+//! scan by golden section to `xtol` of the range. Where nothing is stable the
+//! boundary is `+inf`, so a minimum at the edge of the stable set (the tip of a
+//! stable region that closes, as for the proposed model) is approached from the
+//! stable side. The value returned is a boundary value at a point that the search
+//! reached: an upper bound of the true infimum (a lower bound of the supremum) that
+//! the search could not improve; a local minimum narrower than the scan spacing
+//! can be missed, which the tests check against dense grids.
 
 use super::boundary::{first_stable, last_stable, Axis, PointTest, Scan};
 use crate::error::{AvllError, Result};
@@ -109,20 +113,21 @@ impl Range {
 /// Options of the 2-D search.
 #[derive(Debug, Clone, Copy)]
 pub struct Search {
-    /// Grid points per dimension of the coarse grid.
+    /// Scan points of each 1-D search.
     pub n_grid: usize,
-    /// Compass searches started from the best grid points.
+    /// Local minima of a scan refined by golden section.
     pub starts: usize,
-    /// Final step, as a fraction of the box (per dimension, in the search space).
+    /// Final bracket of a golden-section refinement, as a fraction of the range (in
+    /// the search space).
     pub xtol: f64,
 }
 
 impl Default for Search {
     fn default() -> Self {
         Self {
-            n_grid: 48,
-            starts: 4,
-            xtol: 1e-10,
+            n_grid: 32,
+            starts: 3,
+            xtol: 1e-12,
         }
     }
 }
@@ -142,83 +147,101 @@ pub struct Extremum {
     pub evaluations: usize,
 }
 
-/// Generic 2-D search of `f(u, w)` (NaN = nothing stable) for its minimum (`sign = 1`)
-/// or maximum (`sign = -1`).
+/// Minimum of `f` (`+inf` = infeasible) over the unit interval: a scan of `n` points,
+/// then golden section on the bracket around each of the `starts` best local minima of
+/// the scan. Golden section also converges onto a minimum at the edge of the feasible
+/// set (where `f` jumps to `+inf`). Returns `(value, u, evaluations)`.
+fn min1d<F: Fn(f64) -> f64 + Sync>(f: F, opt: &Search) -> (f64, f64, usize) {
+    let n = opt.n_grid.max(3);
+    let xs: Vec<f64> = (0..n).map(|i| i as f64 / (n - 1) as f64).collect();
+    let vs: Vec<f64> = xs.par_iter().map(|&x| f(x)).collect();
+    let mut evals = n;
+    let mut cand: Vec<usize> = (0..n)
+        .filter(|&i| {
+            vs[i].is_finite()
+                && (i == 0 || vs[i] <= vs[i - 1])
+                && (i + 1 == n || vs[i] <= vs[i + 1])
+        })
+        .collect();
+    cand.sort_by(|&a, &b| vs[a].total_cmp(&vs[b]));
+    cand.truncate(opt.starts.max(1));
+    let (mut best, mut bx) = (f64::INFINITY, f64::NAN);
+    if let Some(i) = (0..n)
+        .filter(|&i| vs[i].is_finite())
+        .min_by(|&a, &b| vs[a].total_cmp(&vs[b]))
+    {
+        best = vs[i];
+        bx = xs[i];
+    }
+    let refined: Vec<(f64, f64, usize)> = cand
+        .par_iter()
+        .map(|&i| {
+            let (mut a, mut b) = (xs[i.saturating_sub(1)], xs[(i + 1).min(n - 1)]);
+            let (mut vb, mut xb) = (vs[i], xs[i]);
+            let gr = (5f64.sqrt() - 1.0) / 2.0;
+            let mut c = b - gr * (b - a);
+            let mut d = a + gr * (b - a);
+            let (mut fc, mut fd) = (f(c), f(d));
+            let mut k = 2;
+            while b - a > opt.xtol && k < 400 {
+                if fc < fd || (fc == fd && fc.is_infinite() && xb < c) {
+                    b = d;
+                    d = c;
+                    fd = fc;
+                    c = b - gr * (b - a);
+                    fc = f(c);
+                } else {
+                    a = c;
+                    c = d;
+                    fc = fd;
+                    d = a + gr * (b - a);
+                    fd = f(d);
+                }
+                k += 1;
+                for (v, x) in [(fc, c), (fd, d)] {
+                    if v < vb {
+                        vb = v;
+                        xb = x;
+                    }
+                }
+            }
+            (vb, xb, k)
+        })
+        .collect();
+    for (v, x, k) in refined {
+        evals += k;
+        if v < best {
+            best = v;
+            bx = x;
+        }
+    }
+    (best, bx, evals)
+}
+
+/// Nested 2-D search of `f(u, w)` (None = nothing stable) for its minimum (`sign = 1`)
+/// or maximum (`sign = -1`): the outer 1-D search over `w` minimises the inner 1-D
+/// search over `u`.
 fn search2<F>(f: F, ru: Range, rw: Range, opt: &Search, sign: f64) -> (f64, f64, f64, bool, usize)
 where
     F: Fn(f64, f64) -> Option<(f64, bool)> + Sync,
 {
-    let n = opt.n_grid.max(2);
+    use std::sync::atomic::AtomicUsize;
+    let count = AtomicUsize::new(0);
     let key = |r: Option<(f64, bool)>| r.map_or(f64::INFINITY, |(v, _)| sign * v);
-    let grid: Vec<(f64, usize, usize)> = (0..n * n)
-        .into_par_iter()
-        .map(|k| {
-            let (i, j) = (k / n, k % n);
-            let u = ru.at_unit(i as f64 / (n - 1) as f64);
-            let w = rw.at_unit(j as f64 / (n - 1) as f64);
-            (key(f(u, w)), i, j)
-        })
-        .collect();
-    let mut order: Vec<usize> = (0..grid.len()).filter(|&k| grid[k].0.is_finite()).collect();
-    if order.is_empty() {
-        return (f64::NAN, f64::NAN, f64::NAN, false, grid.len());
+    let inner = |w: f64| {
+        let (v, u, k) = min1d(|x| key(f(ru.at_unit(x), w)), opt);
+        count.fetch_add(k, Ordering::Relaxed);
+        (v, u)
+    };
+    let (_, wx, _) = min1d(|y| inner(rw.at_unit(y)).0, opt);
+    let w = rw.at_unit(wx);
+    let (_, ux) = inner(w);
+    let u = ru.at_unit(ux);
+    let r = f(u, w);
+    match r {
+        None => (f64::NAN, f64::NAN, f64::NAN, false, count.into_inner()),
+        Some((v, e)) => (v, u, w, e, count.into_inner() + 1),
     }
-    order.sort_by(|&a, &b| grid[a].0.total_cmp(&grid[b].0));
-    let starts: Vec<usize> = order.into_iter().take(opt.starts.max(1)).collect();
-    let h0 = 1.0 / (n - 1) as f64;
-    let results: Vec<(f64, f64, f64, bool, usize)> = starts
-        .par_iter()
-        .map(|&k| {
-            let (_, i, j) = grid[k];
-            let (mut x, mut y) = (i as f64 * h0, j as f64 * h0);
-            let eval = |x: f64, y: f64| f(ru.at_unit(x), rw.at_unit(y));
-            let mut cur = eval(x, y);
-            let mut best = key(cur);
-            let mut h = h0;
-            let mut evals = 1usize;
-            const DIRS: [(f64, f64); 8] = [
-                (1.0, 0.0),
-                (-1.0, 0.0),
-                (0.0, 1.0),
-                (0.0, -1.0),
-                (1.0, 1.0),
-                (-1.0, -1.0),
-                (1.0, -1.0),
-                (-1.0, 1.0),
-            ];
-            while h > opt.xtol && evals < 100_000 {
-                let mut moved = false;
-                for (dx, dy) in DIRS {
-                    let (nx, ny) = ((x + dx * h).clamp(0.0, 1.0), (y + dy * h).clamp(0.0, 1.0));
-                    if nx == x && ny == y {
-                        continue;
-                    }
-                    let r = eval(nx, ny);
-                    evals += 1;
-                    let v = key(r);
-                    if v < best {
-                        best = v;
-                        cur = r;
-                        x = nx;
-                        y = ny;
-                        moved = true;
-                        break;
-                    }
-                }
-                if !moved {
-                    h *= 0.5;
-                }
-            }
-            let edge = cur.is_some_and(|(_, e)| e);
-            (best, ru.at_unit(x), rw.at_unit(y), edge, evals)
-        })
-        .collect();
-    let total: usize = grid.len() + results.iter().map(|r| r.4).sum::<usize>();
-    let best = results
-        .into_iter()
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .expect("at least one start");
-    (sign * best.0, best.1, best.2, best.3, total)
 }
 
 fn check_range(name: &str, r: &Range) -> Result<()> {
