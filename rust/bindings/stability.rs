@@ -490,6 +490,51 @@ fn delay_margin<'py>(
     Ok(out.into_pyarray(py))
 }
 
+/// Certified exact-delay string test alone (|H(jω)| < 1 for all ω > 0), whatever the
+/// local verdict: (stable, certified) per point.
+#[pyfunction]
+#[pyo3(signature = (model, params, kg, tg, kv, budget = 20000, threads = 0))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn delay_string<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: Vec<f64>,
+    kg: PyReadonlyArray1<'py, f64>,
+    tg: PyReadonlyArray1<'py, f64>,
+    kv: PyReadonlyArray1<'py, f64>,
+    budget: usize,
+    threads: usize,
+) -> PyResult<(Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>)> {
+    use crate::stability::delay::Verdict;
+    use rayon::prelude::*;
+    let mut dl = guard(|| DelayLoop::new(&ModelKind::from_name(model)?.linear(&params)?))?;
+    dl.budget = budget.max(1);
+    let (kg, tg, kv) = (slice1("kg", &kg)?, slice1("tg", &tg)?, slice1("kv", &kv)?);
+    if tg.len() != kg.len() || kv.len() != kg.len() {
+        return Err(PyValueError::new_err(
+            "tg: kg, tg and kv must have one length",
+        ));
+    }
+    guard(|| {
+        crate::error::check_series("kg", kg)?;
+        crate::error::check_series("tg", tg)?;
+        crate::error::check_series("kv", kv)
+    })?;
+    let v: Vec<Verdict> = py.detach(|| {
+        guard(|| {
+            crate::parallel::with_threads(threads, || {
+                (0..kg.len())
+                    .into_par_iter()
+                    .map(|i| dl.string(kg[i], tg[i], kv[i]))
+                    .collect()
+            })
+        })
+    })?;
+    let st: Vec<bool> = v.iter().map(|&x| x == Verdict::Stable).collect();
+    let ok: Vec<bool> = v.iter().map(|&x| x != Verdict::Undecided).collect();
+    Ok((st.into_pyarray(py), ok.into_pyarray(py)))
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("PADE_MAX_ORDER", pade::MAX_ORDER)?;
     m.add_function(wrap_pyfunction!(stability_map, m)?)?;
@@ -502,5 +547,6 @@ pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(kv_threshold_grid, m)?)?;
     m.add_function(wrap_pyfunction!(delay_points, m)?)?;
     m.add_function(wrap_pyfunction!(delay_margin, m)?)?;
+    m.add_function(wrap_pyfunction!(delay_string, m)?)?;
     Ok(())
 }
