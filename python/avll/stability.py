@@ -80,7 +80,7 @@ def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
 
 
 def _axis(name: str, x: Any) -> np.ndarray:
-    arr = np.ascontiguousarray(np.atleast_1d(np.asarray(x, dtype=np.float64)))
+    arr = np.require(np.atleast_1d(np.asarray(x, dtype=np.float64)), requirements=["C", "A"])
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be a scalar or 1-D, got shape {arr.shape}")
     if arr.size == 0:
