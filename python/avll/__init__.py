@@ -31,16 +31,6 @@ from .effects import (
     closed_loop_effects,
     simulate_effects,
 )
-from .models import (
-    MODELS,
-    FirstOrderLag,
-    LowerLevelModel,
-    Proposed,
-    SecondOrder,
-    UpperLevel,
-    model_class,
-)
-from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
 from .maps import (
     calibrate_many_distributed,
     map_dataset,
@@ -52,6 +42,16 @@ from .maps import (
     sweep,
     write_map,
 )
+from .models import (
+    MODELS,
+    FirstOrderLag,
+    LowerLevelModel,
+    Proposed,
+    SecondOrder,
+    UpperLevel,
+    model_class,
+)
+from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
 from .stability import (
     Extremum,
     PadeReport,

@@ -193,10 +193,8 @@ def map_thresholds(codes: Any) -> S.Thresholds:
     kg = codes["kg"].values
     tg = codes["Tg"].values
     kv = codes["kv"].values
-    # a tiny stand-in map with the same per-kv "any" structure: (kg, Tg) stable where
-    # both reductions allow it is not the same map, so compute the thresholds directly
-    a_kg = np.asarray(any_kg.values)  # (kg, kv)
-    a_tg = np.asarray(any_tg.values)  # (Tg, kv)
+    a_kg: np.ndarray = np.asarray(any_kg.values, dtype=bool)  # (kg, kv)
+    a_tg: np.ndarray = np.asarray(any_tg.values, dtype=bool)  # (Tg, kv)
     kg_max = np.array([kg[a_kg[:, j]].max() if a_kg[:, j].any() else np.nan
                        for j in range(kv.size)])
     tg_min = np.array([tg[a_tg[:, j]].min() if a_tg[:, j].any() else np.nan
@@ -529,23 +527,23 @@ def _calibrate_block(
     seed and seed derivation off is the same GA run."""
     from dataclasses import replace
 
-    from . import calibrate as C
+    from .calibrate import _per_run, _problem, _result, _run, _subset_indices
 
     pk = {k: kwargs[k] for k in _PROBLEM_KW if k in kwargs}
     ga = {k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW}
-    prob = C._problem(model, runs, **pk)
+    prob = _problem(model, runs, **pk)
     out = []
     for k, sub in block:
-        idx = C._subset_indices(prob.runs, sub, k)
+        idx = _subset_indices(prob.runs, sub, k)
         s = _core.derive_seed(int(seed), k)
-        raw = C._run(
+        raw = _run(
             prob, [idx], seed=s, derive_seeds=False, initial=kwargs.get("initial"),
             target=kwargs.get("target"), threads=threads, progress=False, desc="",
             options=ga,
         )[0]
         rs = [prob.runs[i] for i in sorted(set(idx))]
-        per_run = C._per_run(prob, np.asarray(raw["x"]), rs, threads)
-        res = C._result(prob, raw, rs, s, per_run)
+        per_run = _per_run(prob, np.asarray(raw["x"]), rs, threads)
+        res = _result(prob, raw, rs, s, per_run)
         out.append(replace(res, start_costs=(float(raw["f"]),)))
     return out
 

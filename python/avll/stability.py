@@ -62,6 +62,9 @@ __all__ = [
     "pade_report",
     "plot_regions",
     "plot_thresholds",
+    "plot_boundaries",
+    "CODE_MEANINGS",
+    "DEFAULT_RANGES",
 ]
 
 LOCAL_UNSTABLE = 0
@@ -189,8 +192,16 @@ class Thresholds:
         return {k: clean(v) for k, v in asdict(self).items()}
 
 
-def thresholds(codes: np.ndarray, kg: Any, tg: Any, kv: Any) -> Thresholds:
-    """Thresholds of a map from :func:`stability_map` over the same axes."""
+def thresholds(codes: Any, kg: Any = None, tg: Any = None, kv: Any = None) -> Thresholds:
+    """Thresholds of a map from :func:`stability_map` over the same axes, or of a
+    labelled map from :func:`avll.map_dataset` (axes from its coordinates; a
+    Dask-backed map is reduced chunk by chunk, see :func:`avll.maps.map_thresholds`)."""
+    if kg is None and tg is None and kv is None and hasattr(codes, "dims"):
+        from .maps import map_thresholds
+
+        return map_thresholds(codes)
+    if kg is None or tg is None or kv is None:
+        raise ValueError("kg, tg, kv: the axes are needed with a plain array of codes")
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     codes = np.asarray(codes)
     if codes.shape != (kg.size, tg.size, kv.size):
@@ -797,23 +808,29 @@ def _label(model: LowerLevelModel) -> str:
 
 def plot_regions(
     models: Sequence[LowerLevelModel],
-    kg: Any,
-    tg: Any,
-    kv_values: Sequence[float],
+    kg: Any = None,
+    tg: Any = None,
+    kv_values: Sequence[float] | None = None,
     pade_order: int = 2,
     *,
-    maps: Sequence[np.ndarray] | None = None,
+    maps: Sequence[Any] | None = None,
     threads: int = 0,
 ) -> Figure:
     """Stable regions (code 2) of several models in the kg–Tg plane, one panel per
     kv, overlaid (paper Figs. 5 and 7). ``maps`` may pass precomputed maps over
-    ``kg × tg × kv_values``."""
+    ``kg × tg × kv_values``, or labelled maps (:func:`avll.map_dataset`, then the axes
+    may be omitted)."""
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
+    if maps is not None and all(hasattr(mp, "dims") for mp in maps) and kg is None:
+        # labelled maps (map_dataset): the axes are their coordinates
+        first: Any = maps[0]
+        kg, tg, kv_values = (np.asarray(first.coords[d]) for d in ("kg", "Tg", "kv"))
     kg, tg, kvs = _axis("kg", kg), _axis("tg", tg), _axis("kv_values", kv_values)
     if maps is None:
         maps = [stability_map(m, kg, tg, kvs, pade_order, threads=threads) for m in models]
+    maps = [np.asarray(mp) for mp in maps]
     n = kvs.size
     ncol = min(n, 3)
     nrow = (n + ncol - 1) // ncol
@@ -867,6 +884,34 @@ def plot_thresholds(models: Sequence[LowerLevelModel], ths: Sequence[Thresholds]
     for a in (a1, a2):
         a.legend()
         a.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def plot_boundaries(boundaries: Sequence[Any], labels: Sequence[str] | None = None) -> Figure:
+    """Boundaries from :func:`boundary` drawn as curves: one panel per boundary, the
+    boundary value against the first fixed parameter (log axis for kg), one curve
+    per value of the second (e.g. ``tg_min`` against kg for each kv)."""
+    import matplotlib.pyplot as plt
+
+    bs = list(boundaries)
+    if not bs or not all(hasattr(b, "dims") and len(b.dims) == 2 for b in bs):
+        raise ValueError("boundaries: expected 2-D DataArrays from avll.boundary")
+    fig, axes = plt.subplots(1, len(bs), figsize=(4.6 * len(bs), 3.6), squeeze=False)
+    for i, b in enumerate(bs):
+        ax = axes[0][i]
+        x, c = b.dims
+        for j, cv in enumerate(b[c].values):
+            ax.plot(b[x].values, b.values[:, j], label=f"{c} = {cv:g}")
+        if x == "kg":
+            ax.set_xscale("log")
+        ax.set_xlabel(x)
+        ax.set_ylabel(str(b.name))
+        title = labels[i] if labels is not None else f"{b.attrs.get('model', '')} {b.name}"
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+        if b[c].size <= 8:
+            ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
 
