@@ -199,7 +199,7 @@ def map_thresholds(codes: Any) -> S.Thresholds:
                        for j in range(kv.size)])
     tg_min = np.array([tg[a_tg[:, j]].min() if a_tg[:, j].any() else np.nan
                        for j in range(kv.size)])
-    has = a_kg.any(axis=0)
+    has: np.ndarray = np.asarray(a_kg.any(axis=0))
     order = np.argsort(kv)
     last = first_empty = np.nan
     for pos, j in enumerate(order):

@@ -826,7 +826,8 @@ def plot_regions(
     if maps is not None and all(hasattr(mp, "dims") for mp in maps) and kg is None:
         # labelled maps (map_dataset): the axes are their coordinates
         first: Any = maps[0]
-        kg, tg, kv_values = (np.asarray(first.coords[d]) for d in ("kg", "Tg", "kv"))
+        kg, tg = np.asarray(first.coords["kg"]), np.asarray(first.coords["Tg"])
+        kv_values = [float(v) for v in np.asarray(first.coords["kv"])]
     kg, tg, kvs = _axis("kg", kg), _axis("tg", tg), _axis("kv_values", kv_values)
     if maps is None:
         maps = [stability_map(m, kg, tg, kvs, pade_order, threads=threads) for m in models]
