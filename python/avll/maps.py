@@ -529,7 +529,9 @@ def _calibrate_block(
 
     from .calibrate import _per_run, _problem, _result, _run, _subset_indices
 
-    pk = {k: kwargs[k] for k in _PROBLEM_KW if k in kwargs}
+    pk: dict[str, Any] = {"bounds": None, "closed_loop": False, "upper_free": (),
+                          "weights": (1.0, 0.0, 0.0), "init": "rest"}
+    pk.update({k: kwargs[k] for k in _PROBLEM_KW if k in kwargs})
     ga = {k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW}
     prob = _problem(model, runs, **pk)
     out = []
