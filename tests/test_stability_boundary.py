@@ -265,3 +265,19 @@ def test_boundary_bad_input() -> None:
         avll.min_stable_tg(m, kg_range=(0.0, 1.0))
     with pytest.raises(ValueError, match="model"):
         avll.boundary("proposed", "tg_min", kg=[0.1], kv=[0.1])  # type: ignore[arg-type]
+
+
+def test_cli_exact_thresholds(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from avll.cli import main
+
+    js = tmp_path / "th.json"
+    rc = main(["stability-map", "--model", "proposed", "--kg", "0.001", "2", "20",
+               "--tg", "0", "15", "31", "--kv", "0", "1", "6", "--out", "",
+               "--json", str(js), "--quiet", "--exact"])
+    assert rc == 0
+    doc = json.loads(js.read_text())
+    e = doc["exact"]["proposed"]["min_stable_tg"]
+    assert e["value"] == avll.min_stable_tg(P["proposed"], (0.001, 2.0), (0.0, 1.0)).value
+    assert "inf Tg" in capsys.readouterr().out

@@ -950,10 +950,17 @@ def _cli(args: argparse.Namespace) -> int:
     kv = _range(args.kv, "kv")
     total = kg.size * tg.size * kv.size
     show = (not args.quiet) and total >= 2_000_000
-    maps = [
-        stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads, progress=show)
-        for m in models
-    ]
+    if args.scheduler:
+        from .maps import sweep
+
+        swept = sweep({m.name: m for m in models}, kg, tg, kv, (args.pade_order,),
+                      client=args.scheduler, threads=args.threads)
+        maps = [np.asarray(swept.values[i, 0]) for i in range(len(models))]
+    else:
+        maps = [
+            stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads, progress=show)
+            for m in models
+        ]
     ths = [thresholds(mp, kg, tg, kv) for mp in maps]
     print(
         f"grid: kg {kg[0]:g}..{kg[-1]:g} ({kg.size}{', log' if args.kg_log else ''}), "
@@ -966,6 +973,19 @@ def _cli(args: argparse.Namespace) -> int:
         cap = capacity(th.tg_min_overall, args.length, args.speed)
         print(f"{m.name:<10} {th.kv_last_stable:>15.6g} {th.kv_first_empty:>15.6g} "
               f"{th.tg_min_overall:>8.4g} {cap:>10.1f}")
+    exact: dict[str, dict[str, Any]] = {}
+    if args.exact:
+        kg_r, tg_r, kv_r = (float(kg.min()), float(kg.max())), (float(tg.min()), float(
+            tg.max())), (float(kv.min()), float(kv.max()))
+        print("\nexact (not grid-bound) over the same ranges:")
+        for m in models:
+            lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
+            e1 = min_stable_tg(m, lo, kv_r, args.pade_order, tg_range=tg_r)
+            e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=(kv_r[0], 2.0))
+            exact[m.name] = {"min_stable_tg": e1.to_dict(), "kv_supremum": e2.to_dict()}
+            print(f"{m.name:<10} inf Tg {e1.value:.6f} s at kg {e1.kg:.4g}, kv {e1.kv:.4g}"
+                  f"{' (box edge: ' + ', '.join(e1.on_edge) + ')' if e1.on_edge else ''}; "
+                  f"sup kv {e2.value:.6f} at kg {e2.kg:.4g}, Tg {e2.tg:.4g}")
     print()
     head = "kv".rjust(10) + "".join(
         f"{m.name + ' kg_max':>18}{m.name + ' Tg_min':>18}" for m in models
@@ -1000,8 +1020,21 @@ def _cli(args: argparse.Namespace) -> int:
                                 else float(capacity(th.tg_min_overall, args.length, args.speed))}
                        for m, th in zip(models, ths, strict=True)},
         }
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(doc, f, indent=2)
+        if exact:
+            doc["exact"] = exact
+        import os
+        import tempfile
+
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(args.json)) or ".",
+                                   prefix=".avll-", suffix=".json")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump(doc, f, indent=2, allow_nan=False)
+            os.replace(tmp, args.json)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
     return 0
 
 
@@ -1035,4 +1068,10 @@ def register_cli(sub: Any) -> None:
     p.add_argument("--speed", type=float, default=CAPACITY_SPEED,
                    help="speed (m/s) of the capacity formula")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--exact", action="store_true",
+                   help="also compute the exact infimum of Tg and supremum of kv over the "
+                   "ranges (boundaries, not the grid)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="compute the maps on this dask.distributed scheduler "
+                   "(needs avll[dask])")
     p.set_defaults(func=_cli)
