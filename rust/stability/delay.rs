@@ -31,11 +31,12 @@
 //! `ω_c`, where `Q(ω²) = |A|² − 2|B|² − 2|C|² > 0` for good (a Fujiwara bound on
 //! the roots of the polynomial `Q`), `|A| > |B| + |C|` and so `P > 0`. On `[0, ω_c]`
 //! the sweep evaluates `g` in interval arithmetic ([`super::interval`]) over pieces
-//! of the frequency axis: a piece whose enclosure is positive is certified; a point
-//! whose enclosure is negative is a certified witness of string instability; any
-//! other piece is halved. A sweep that exceeds its budget of pieces is undecided.
+//! of the frequency axis: a piece is certified when the enclosure of `g` over it, or
+//! the mean-value bound `g(mid) − max|g'| h/2` (with `g'` enclosed by forward-mode
+//! differentiation in interval arithmetic), is positive; a point whose enclosure is
+//! negative is a certified witness of string instability; any other piece is halved. A sweep that exceeds its budget of pieces is undecided.
 
-use super::interval::{Cx, Iv};
+use super::interval::{Cx, DIv, Iv, Num};
 use super::poly::Poly;
 use super::{roots, routh};
 use crate::error::{AvllError, Result};
@@ -65,6 +66,10 @@ pub struct DelayLoop {
     ob: Poly,
     /// Interval evaluations allowed per string test.
     pub budget: usize,
+    /// The Padé-10 loop of the same model: its exact candidate boundary values (the
+    /// delay-free low-frequency condition `R(0) = 0` exactly, the local crossings
+    /// approximately) are scan hints for boundary searches; verdicts never use it.
+    hints: Option<super::LoopModel>,
 }
 
 /// `|p(jω)|²` as a polynomial in `x = ω²`.
@@ -100,6 +105,7 @@ impl DelayLoop {
             eb: b.even_jw(),
             ob: b.odd_jw(),
             budget: DEFAULT_BUDGET,
+            hints: super::LoopModel::new(lin, super::pade::MAX_ORDER).ok(),
         })
     }
 
@@ -175,7 +181,16 @@ impl DelayLoop {
 
     /// `g(ω) = (|D|² − |N|²)/ω²` enclosed over `ω ∈ om` (`om.lo >= 0`).
     pub fn g(&self, kg: f64, tg: f64, kv: f64, om: Iv) -> Iv {
-        let p = Iv::point;
+        self.g_in(kg, tg, kv, om)
+    }
+
+    /// `g` and its derivative `g'` enclosed over `om`.
+    pub fn g_d(&self, kg: f64, tg: f64, kv: f64, om: Iv) -> DIv {
+        self.g_in(kg, tg, kv, DIv::var(om))
+    }
+
+    fn g_in<T: Num>(&self, kg: f64, tg: f64, kv: f64, om: T) -> T {
+        let p = T::cst;
         let k = self.lin.k;
         let x = om.sqr();
         let horner = |q: &Poly| {
@@ -249,13 +264,24 @@ impl DelayLoop {
             if evals > self.budget {
                 return Verdict::Undecided;
             }
-            let gi = self.g(kg, tg, kv, Iv::new(lo, hi));
+            let piece = Iv::new(lo, hi);
+            let gi = self.g(kg, tg, kv, piece);
             if gi.lo > 0.0 {
                 continue;
             }
             let mid = 0.5 * (lo + hi);
-            if self.g(kg, tg, kv, Iv::point(mid)).hi < 0.0 {
+            let gm = self.g(kg, tg, kv, Iv::point(mid));
+            if gm.hi < 0.0 {
                 return Verdict::Unstable;
+            }
+            // mean-value form: g(ω) >= g(mid) − max|g'| |ω − mid| on the piece
+            // (converges quadratically near a positive minimum of g)
+            let d = self.g_d(kg, tg, kv, piece).d;
+            let slope = d.lo.abs().max(d.hi.abs());
+            let half = Iv::new(0.0, (hi - mid).max(mid - lo));
+            let bound = gm - Iv::point(slope) * half;
+            if bound.lo > 0.0 {
+                continue;
             }
             if mid <= lo || mid >= hi {
                 return Verdict::Undecided;
@@ -347,6 +373,19 @@ impl DelayLoop {
 impl super::boundary::PointTest for DelayLoop {
     fn code(&self, kg: f64, tg: f64, kv: f64) -> u8 {
         DelayLoop::code(self, kg, tg, kv).0
+    }
+
+    fn candidates(
+        &self,
+        axis: super::boundary::Axis,
+        p: [f64; 3],
+        lo: f64,
+        hi: f64,
+        out: &mut Vec<f64>,
+    ) {
+        if let Some(h) = &self.hints {
+            h.candidates(axis, p, lo, hi, out);
+        }
     }
 }
 
@@ -490,6 +529,16 @@ mod tests {
                     gi.lo - tol <= direct && direct <= gi.hi + tol,
                     "{w}: {gi:?} {direct}"
                 );
+            }
+            // the derivative enclosure holds central differences
+            for &w in &[0.05, 0.7, 3.0] {
+                let h = 1e-6;
+                let fd = (dl.g(kg, tg, kv, Iv::point(w + h)).lo
+                    - dl.g(kg, tg, kv, Iv::point(w - h)).lo)
+                    / (2.0 * h);
+                let d = dl.g_d(kg, tg, kv, Iv::new(w - h, w + h)).d;
+                let slack = 1e-6 * (1.0 + fd.abs());
+                assert!(d.lo - slack <= fd && fd <= d.hi + slack, "{w}: {d:?} {fd}");
             }
             // ω → 0: kg b0 (Tg b0 (2 kv + kg Tg) − 2 (1 − K b0))
             let g0 = dl.g(kg, tg, kv, Iv::point(0.0));

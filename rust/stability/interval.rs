@@ -134,36 +134,173 @@ impl Mul for Iv {
     }
 }
 
-/// A complex interval (rectangle).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Cx {
-    pub re: Iv,
-    pub im: Iv,
+/// The arithmetic the certified sweep is written in: intervals ([`Iv`]) or intervals
+/// with a derivative ([`DIv`], forward-mode differentiation in interval arithmetic).
+pub trait Num:
+    Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Neg<Output = Self>
+{
+    /// A constant.
+    fn cst(x: f64) -> Self;
+    /// `self * x` for a float constant.
+    fn scale(self, x: f64) -> Self;
+    /// Square.
+    fn sqr(self) -> Self;
+    fn cos(self) -> Self;
+    fn sin(self) -> Self;
 }
 
-impl Cx {
+impl Num for Iv {
     #[inline(always)]
-    pub fn new(re: Iv, im: Iv) -> Cx {
+    fn cst(x: f64) -> Iv {
+        Iv::point(x)
+    }
+    #[inline(always)]
+    fn scale(self, x: f64) -> Iv {
+        Iv::scale(self, x)
+    }
+    #[inline(always)]
+    fn sqr(self) -> Iv {
+        Iv::sqr(self)
+    }
+    #[inline(always)]
+    fn cos(self) -> Iv {
+        Iv::cos(self)
+    }
+    #[inline(always)]
+    fn sin(self) -> Iv {
+        Iv::sin(self)
+    }
+}
+
+/// An interval value with an interval derivative (with respect to one variable).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DIv {
+    pub v: Iv,
+    pub d: Iv,
+}
+
+impl DIv {
+    /// The variable itself over `x` (derivative 1).
+    pub fn var(x: Iv) -> DIv {
+        DIv {
+            v: x,
+            d: Iv::point(1.0),
+        }
+    }
+}
+
+impl Add for DIv {
+    type Output = DIv;
+    #[inline(always)]
+    fn add(self, o: DIv) -> DIv {
+        DIv {
+            v: self.v + o.v,
+            d: self.d + o.d,
+        }
+    }
+}
+
+impl Sub for DIv {
+    type Output = DIv;
+    #[inline(always)]
+    fn sub(self, o: DIv) -> DIv {
+        DIv {
+            v: self.v - o.v,
+            d: self.d - o.d,
+        }
+    }
+}
+
+impl Neg for DIv {
+    type Output = DIv;
+    #[inline(always)]
+    fn neg(self) -> DIv {
+        DIv {
+            v: -self.v,
+            d: -self.d,
+        }
+    }
+}
+
+impl Mul for DIv {
+    type Output = DIv;
+    #[inline(always)]
+    fn mul(self, o: DIv) -> DIv {
+        DIv {
+            v: self.v * o.v,
+            d: self.d * o.v + self.v * o.d,
+        }
+    }
+}
+
+impl Num for DIv {
+    #[inline(always)]
+    fn cst(x: f64) -> DIv {
+        DIv {
+            v: Iv::point(x),
+            d: Iv::point(0.0),
+        }
+    }
+    #[inline(always)]
+    fn scale(self, x: f64) -> DIv {
+        DIv {
+            v: self.v.scale(x),
+            d: self.d.scale(x),
+        }
+    }
+    #[inline(always)]
+    fn sqr(self) -> DIv {
+        DIv {
+            v: self.v.sqr(),
+            d: (self.v * self.d).scale(2.0),
+        }
+    }
+    #[inline(always)]
+    fn cos(self) -> DIv {
+        DIv {
+            v: self.v.cos(),
+            d: -(self.v.sin() * self.d),
+        }
+    }
+    #[inline(always)]
+    fn sin(self) -> DIv {
+        DIv {
+            v: self.v.sin(),
+            d: self.v.cos() * self.d,
+        }
+    }
+}
+
+/// A complex number over [`Num`] (a rectangle for intervals).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cx<T> {
+    pub re: T,
+    pub im: T,
+}
+
+impl<T: Num> Cx<T> {
+    #[inline(always)]
+    pub fn new(re: T, im: T) -> Cx<T> {
         Cx { re, im }
     }
 
     /// Complex conjugate.
     #[inline(always)]
-    pub fn conj(self) -> Cx {
+    pub fn conj(self) -> Cx<T> {
         Cx::new(self.re, -self.im)
     }
 
     /// `|z|²`.
     #[inline(always)]
-    pub fn abs2(self) -> Iv {
+    pub fn abs2(self) -> T {
         self.re.sqr() + self.im.sqr()
     }
 }
 
-impl Mul for Cx {
-    type Output = Cx;
+impl<T: Num> Mul for Cx<T> {
+    type Output = Cx<T>;
     #[inline(always)]
-    fn mul(self, o: Cx) -> Cx {
+    fn mul(self, o: Cx<T>) -> Cx<T> {
         Cx::new(
             self.re * o.re - self.im * o.im,
             self.re * o.im + self.im * o.re,
