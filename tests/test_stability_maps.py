@@ -158,3 +158,17 @@ def test_distributed_calibrations_equal_calibrate_many(client) -> None:  # type:
         assert g.params == w.params
         assert g.cost == w.cost
         assert dict(g.per_run_mse) == dict(w.per_run_mse)
+
+
+def test_cli_scheduler_address(client, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from avll.cli import main
+
+    js = tmp_path / "th.json"
+    args = ["stability-map", "--model", "second", "--kg", "0.001", "2", "30", "--tg", "0", "15",
+            "31", "--kv", "0", "1", "6", "--out", "", "--json", str(js), "--quiet"]
+    assert main(args) == 0
+    local = json.loads(js.read_text())
+    assert main([*args, "--scheduler", client.scheduler.address]) == 0
+    assert json.loads(js.read_text())["models"] == local["models"]
