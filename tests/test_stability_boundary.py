@@ -281,3 +281,21 @@ def test_cli_exact_thresholds(tmp_path, capsys) -> None:  # type: ignore[no-unty
     e = doc["exact"]["proposed"]["min_stable_tg"]
     assert e["value"] == avll.min_stable_tg(P["proposed"], (0.001, 2.0), (0.0, 1.0)).value
     assert "inf Tg" in capsys.readouterr().out
+
+
+def test_ctrl_c_stops_an_exact_delay_search() -> None:
+    """An exact-delay infimum search takes a minute; SIGINT stops it within seconds."""
+    import os
+    import signal
+    import threading
+    import time
+
+    if os.name != "posix":
+        pytest.skip("needs SIGINT delivery")
+    timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
+    t0 = time.perf_counter()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        avll.min_stable_tg(P["proposed"], (0.1, 0.4), (0.3, 0.6), None)
+    timer.cancel()
+    assert time.perf_counter() - t0 < 10.0

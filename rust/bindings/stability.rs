@@ -9,6 +9,7 @@ use crate::stability::{grid, pade, LoopModel};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Points per chunk between two GIL re-acquisitions (Ctrl-C check, progress).
 const CHUNK: usize = 1 << 20;
@@ -282,6 +283,63 @@ fn stability_intervals(
         .collect())
 }
 
+/// A point test that answers "unstable" at once after `stop` is set, so that a long
+/// search winds down quickly when Ctrl-C arrives.
+struct Cancellable<'a> {
+    inner: &'a dyn PointTest,
+    stop: &'a AtomicBool,
+}
+
+impl PointTest for Cancellable<'_> {
+    fn code(&self, kg: f64, tg: f64, kv: f64) -> u8 {
+        if self.stop.load(Ordering::Relaxed) {
+            0
+        } else {
+            self.inner.code(kg, tg, kv)
+        }
+    }
+
+    fn candidates(&self, axis: Axis, p: [f64; 3], lo: f64, hi: f64, out: &mut Vec<f64>) {
+        if !self.stop.load(Ordering::Relaxed) {
+            self.inner.candidates(axis, p, lo, hi, out);
+        }
+    }
+}
+
+/// Runs `work` on a scoped thread with the GIL released, checking for Ctrl-C every
+/// 50 ms; on a signal, sets `stop`, waits for the work to wind down and returns the
+/// signal's exception (KeyboardInterrupt).
+fn run_interruptible<T: Send>(
+    py: Python<'_>,
+    stop: &AtomicBool,
+    work: impl FnOnce() -> PyResult<T> + Send,
+) -> PyResult<T> {
+    py.detach(|| {
+        std::thread::scope(|sc| {
+            let h = sc.spawn(work);
+            let mut interrupted = None;
+            while !h.is_finished() {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+                if interrupted.is_none() {
+                    if let Err(e) = Python::attach(|py| py.check_signals()) {
+                        stop.store(true, Ordering::Relaxed);
+                        interrupted = Some(e);
+                    }
+                }
+            }
+            let out = h.join().unwrap_or_else(|_| {
+                Err(pyo3::exceptions::PyRuntimeError::new_err(
+                    "avll internal error (please report): search thread panicked",
+                ))
+            });
+            match interrupted {
+                Some(e) => Err(e),
+                None => out,
+            }
+        })
+    })
+}
+
 type ExtremumTuple = (f64, [f64; 3], bool, [bool; 2], usize);
 
 /// Extremum of a boundary surface over a box: `which = "tg_min"` (infimum of the
@@ -333,19 +391,28 @@ fn stability_extremum(
         xtol,
     };
     let rg = |r: (f64, f64, bool)| Range::new(r.0, r.1, r.2);
-    let t = &*test;
-    let e = py.detach(|| {
+    if which != "tg_min" && which != "kv_max" {
+        return Err(PyValueError::new_err(format!(
+            "which: must be 'tg_min' or 'kv_max', got {which:?}"
+        )));
+    }
+    let stop = AtomicBool::new(false);
+    let t = Cancellable {
+        inner: &*test,
+        stop: &stop,
+    };
+    let work = || {
         guard(|| {
-            crate::parallel::with_threads(threads, || match which {
-                "tg_min" => threshold::min_stable_tg(t, rg(r1), rg(r2), rg(r3), &scan, &opt),
-                "kv_max" => threshold::max_stable_kv(t, rg(r1), rg(r2), rg(r3), &scan, &opt),
-                _ => Err(crate::error::AvllError::new(
-                    "which",
-                    format!("must be 'tg_min' or 'kv_max', got {which:?}"),
-                )),
+            crate::parallel::with_threads(threads, || {
+                if which == "tg_min" {
+                    threshold::min_stable_tg(&t, rg(r1), rg(r2), rg(r3), &scan, &opt)
+                } else {
+                    threshold::max_stable_kv(&t, rg(r1), rg(r2), rg(r3), &scan, &opt)
+                }
             })?
         })
-    })?;
+    };
+    let e = run_interruptible(py, &stop, work)?;
     Ok((
         e.value,
         e.at,
