@@ -158,6 +158,13 @@ def test_distributed_calibrations_equal_calibrate_many(client) -> None:  # type:
         assert g.params == w.params
         assert g.cost == w.cost
         assert dict(g.per_run_mse) == dict(w.per_run_mse)
+    bw = avll.bootstrap("second", runs, n=3, seed=2, max_generations=10)
+    bg = M.bootstrap_distributed("second", runs, n=3, seed=2, client=client, max_generations=10)
+    np.testing.assert_array_equal(bg.samples, bw.samples)
+    # the min-Tg distribution of the bootstrap models, on the same client
+    d = avll.min_stable_tg_samples(avll.models_from_bootstrap(bg), client=client,
+                                   kg_range=(1e-2, 2.0))
+    assert d["tg_min"].shape == (3,)
 
 
 def test_cli_scheduler_address(client, tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -47,6 +47,7 @@ __all__ = [
     "min_stable_tg_samples",
     "models_from_bootstrap",
     "calibrate_many_distributed",
+    "bootstrap_distributed",
     "local_client",
 ]
 
@@ -597,3 +598,34 @@ def calibrate_many_distributed(
         ]
         res = c.gather(futs)
     return [r for block in res for r in block]
+
+
+def bootstrap_distributed(
+    model: Any,
+    runs: Sequence[Any],
+    n: int = 50,
+    *,
+    seed: int = 0,
+    level: float = 0.95,
+    client: Any = None,
+    batch: int = 1,
+    threads: int = 1,
+    **kwargs: Any,
+) -> Any:
+    """:func:`avll.bootstrap` with the resamples calibrated on a ``dask.distributed``
+    client (:func:`calibrate_many_distributed`): the same resamples (drawn from
+    ``seed``) and the same seeds, so the same :class:`avll.Bootstrap`."""
+    from .calibrate import Bootstrap
+
+    if int(n) < 2:
+        raise ValueError(f"n: must be >= 2, got {n}")
+    if not 0 < level < 1:
+        raise ValueError(f"level: must be in (0, 1), got {level}")
+    runs = list(runs)
+    rng = np.random.default_rng(int(seed))
+    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(int(n))]
+    res = calibrate_many_distributed(model, runs, subsets, client=client, seed=seed,
+                                     batch=batch, threads=threads, **kwargs)
+    names = tuple(res[0].params) + ("dc_gain",)
+    samples = np.array([[*r.params.values(), r.model.dc_gain] for r in res])
+    return Bootstrap(names, samples, float(level), res)
