@@ -299,3 +299,20 @@ def test_ctrl_c_stops_an_exact_delay_search() -> None:
         avll.min_stable_tg(P["proposed"], (0.1, 0.4), (0.3, 0.6), None)
     timer.cancel()
     assert time.perf_counter() - t0 < 10.0
+
+
+def test_generated_docs_numbers_match_the_code() -> None:
+    """docs/_generated/stability_numbers.json (benches/stability_numbers.py) is not
+    stale: a few of its numbers recomputed."""
+    import json
+    import pathlib
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "docs/_generated/stability_numbers.json"
+    if not path.exists():
+        pytest.skip("generated docs numbers absent")
+    doc = json.loads(path.read_text())
+    for name in ("second", "proposed"):
+        e = avll.min_stable_tg(P[name], kg_range=(1e-3, 2.0), kv_range=(0.0, 1.2))
+        assert doc["min_stable_tg"][f"{name}/0.001"]["value"] == pytest.approx(e.value, rel=1e-9)
+        s = avll.kv_supremum(P[name], kg_range=(1e-3, 5.0), tg_range=(0.0, 15.0))
+        assert doc["kv_supremum"][f"{name}/0.001"]["value"] == pytest.approx(s.value, rel=1e-9)
