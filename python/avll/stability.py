@@ -383,8 +383,8 @@ class PadeReport:
     """Where a Padé map differs from the exact-delay verdicts on the same grid.
 
     ``pade`` and ``exact`` are code maps (``(len(kg), len(tg), len(kv))``),
-    ``differs`` their mismatch mask, ``unsettled`` where the rising-order local test
-    did not settle; ``fraction`` the share of differing points.
+    ``differs`` their mismatch mask, ``unsettled`` where the exact-delay test could
+    not decide (a point on a boundary); ``fraction`` the share of differing points.
     """
 
     pade_order: int
@@ -422,7 +422,8 @@ def pade_report(
     **exact_kw: Any,
 ) -> PadeReport:
     """Compares the Padé-``pade_order`` map with the exact-delay verdicts on a grid
-    (the exact side runs in numpy: keep such grids moderate, e.g. 10⁴–10⁵ points)."""
+    (the exact side is the certified Rust test, much slower than the Padé map: keep
+    such grids moderate). :func:`pade_error_map` compares several orders at once."""
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     pade = stability_map(model, kg, tg, kv, pade_order, threads=threads)
     g = np.meshgrid(kg, tg, kv, indexing="ij")
