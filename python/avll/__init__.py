@@ -31,6 +31,17 @@ from .effects import (
     closed_loop_effects,
     simulate_effects,
 )
+from .maps import (
+    calibrate_many_distributed,
+    map_dataset,
+    map_thresholds,
+    min_stable_tg_samples,
+    models_from_bootstrap,
+    open_map,
+    stability_probability,
+    sweep,
+    write_map,
+)
 from .models import (
     MODELS,
     FirstOrderLag,
@@ -42,14 +53,20 @@ from .models import (
 )
 from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
 from .stability import (
+    Extremum,
     PadeReport,
     Thresholds,
+    boundary,
     capacity,
     exact_delay_codes,
+    kv_supremum,
     kv_threshold,
+    min_stable_tg,
+    pade_error_map,
     pade_report,
     stability_map,
     stability_points,
+    stable_intervals,
     thresholds,
 )
 
@@ -108,4 +125,19 @@ __all__ = [
     "stability_map",
     "stability_points",
     "thresholds",
+    "Extremum",
+    "boundary",
+    "kv_supremum",
+    "min_stable_tg",
+    "pade_error_map",
+    "stable_intervals",
+    "calibrate_many_distributed",
+    "map_dataset",
+    "map_thresholds",
+    "min_stable_tg_samples",
+    "models_from_bootstrap",
+    "open_map",
+    "stability_probability",
+    "sweep",
+    "write_map",
 ]

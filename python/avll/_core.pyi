@@ -160,6 +160,96 @@ def stability_polys(
     pade_order: int = 2,
 ) -> tuple[list[float], list[float], list[float]]: ...
 def pade_den(order: int, td: float) -> list[float]: ...
+def stability_boundary(
+    model: str,
+    params: list[float],
+    axis: int,
+    u: npt.NDArray[np.float64],
+    w: npt.NDArray[np.float64],
+    lo: float,
+    hi: float,
+    end: str,
+    pade_order: int = 2,
+    level: int = 2,
+    n_scan: int = 256,
+    log: bool = False,
+    rtol: float = 1e-10,
+    budget: int = 20000,
+    threads: int = 0,
+    progress: Callable[[int, int], Any] | None = None,
+) -> npt.NDArray[np.float64]: ...
+def stability_intervals(
+    model: str,
+    params: list[float],
+    axis: int,
+    point: list[float] | tuple[float, float, float],
+    lo: float,
+    hi: float,
+    pade_order: int = 2,
+    level: int = 2,
+    n_scan: int = 256,
+    log: bool = False,
+    rtol: float = 1e-10,
+    budget: int = 20000,
+) -> list[tuple[float, float, bool, bool]]: ...
+def stability_extremum(
+    model: str,
+    params: list[float],
+    which: str,
+    r1: tuple[float, float, bool],
+    r2: tuple[float, float, bool],
+    r3: tuple[float, float, bool],
+    pade_order: int = 2,
+    n_scan: int = 256,
+    rtol: float = 1e-10,
+    n_grid: int = 32,
+    starts: int = 3,
+    xtol: float = 1e-12,
+    budget: int = 20000,
+    threads: int = 0,
+) -> tuple[float, list[float], bool, list[bool], int]: ...
+def kv_threshold_grid(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv_lo: float,
+    kv_hi: float,
+    pade_order: int = 2,
+    tol: float = 1e-5,
+    budget: int = 20000,
+    threads: int = 0,
+) -> float: ...
+def delay_points(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    budget: int = 20000,
+    threads: int = 0,
+) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.bool_]]: ...
+def delay_string(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    budget: int = 20000,
+    threads: int = 0,
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]: ...
+def delay_margin(
+    model: str,
+    params: list[float],
+    kg: npt.NDArray[np.float64],
+    tg: npt.NDArray[np.float64],
+    kv: npt.NDArray[np.float64],
+    w_min: float,
+    w_max: float,
+    n_w: int,
+    xtol: float = 1e-9,
+    threads: int = 0,
+) -> npt.NDArray[np.float64]: ...
 
 # --- effects (rust/bindings/effects.rs) ---
 def effect_info() -> list[dict[str, object]]: ...

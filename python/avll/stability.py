@@ -13,8 +13,11 @@ Codes: ``0`` locally unstable, ``1`` locally stable but string unstable, ``2`` b
 The engine is Rust (:mod:`avll._core`); :mod:`avll.reference.stability` is the
 independent numpy oracle the tests compare it with.
 
-Beyond the paper, :func:`exact_delay_codes` tests the true delay ``e^{-jωTd}``
-(no Padé) and :func:`pade_report` shows where a Padé map differs from it.
+Beyond the paper: :func:`boundary`, :func:`min_stable_tg` and :func:`kv_supremum`
+compute boundaries and thresholds directly rather than off a grid;
+:func:`exact_delay_codes` tests the true delay ``e^{-jωTd}`` (no Padé) exactly, and
+:func:`pade_report` / :func:`pade_error_map` show where a Padé map differs from it.
+Labelled (xarray), chunked (Dask) and distributed maps are in :mod:`avll.maps`.
 """
 
 from __future__ import annotations
@@ -49,15 +52,26 @@ __all__ = [
     "CAPACITY_SPEED",
     "exact_delay_string",
     "exact_delay_codes",
+    "boundary",
+    "stable_intervals",
+    "Extremum",
+    "min_stable_tg",
+    "kv_supremum",
+    "pade_error_map",
     "PadeReport",
     "pade_report",
     "plot_regions",
     "plot_thresholds",
+    "plot_boundaries",
+    "CODE_MEANINGS",
+    "DEFAULT_RANGES",
 ]
 
 LOCAL_UNSTABLE = 0
 STRING_UNSTABLE = 1
 STABLE = 2
+#: The meaning of the map codes (stored as an attribute of labelled maps).
+CODE_MEANINGS = "0: locally unstable; 1: locally stable, string unstable; 2: stable"
 #: Highest Padé order the engine accepts.
 PADE_MAX_ORDER: int = int(_core.PADE_MAX_ORDER)
 
@@ -69,7 +83,7 @@ def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
 
 
 def _axis(name: str, x: Any) -> np.ndarray:
-    arr = np.ascontiguousarray(np.atleast_1d(np.asarray(x, dtype=np.float64)))
+    arr = np.require(np.atleast_1d(np.asarray(x, dtype=np.float64)), requirements=["C", "A"])
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be a scalar or 1-D, got shape {arr.shape}")
     if arr.size == 0:
@@ -178,8 +192,16 @@ class Thresholds:
         return {k: clean(v) for k, v in asdict(self).items()}
 
 
-def thresholds(codes: np.ndarray, kg: Any, tg: Any, kv: Any) -> Thresholds:
-    """Thresholds of a map from :func:`stability_map` over the same axes."""
+def thresholds(codes: Any, kg: Any = None, tg: Any = None, kv: Any = None) -> Thresholds:
+    """Thresholds of a map from :func:`stability_map` over the same axes, or of a
+    labelled map from :func:`avll.map_dataset` (axes from its coordinates; a
+    Dask-backed map is reduced chunk by chunk, see :func:`avll.maps.map_thresholds`)."""
+    if kg is None and tg is None and kv is None and hasattr(codes, "dims"):
+        from .maps import map_thresholds
+
+        return map_thresholds(codes)
+    if kg is None or tg is None or kv is None:
+        raise ValueError("kg, tg, kv: the axes are needed with a plain array of codes")
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     codes = np.asarray(codes)
     if codes.shape != (kg.size, tg.size, kv.size):
@@ -228,26 +250,24 @@ def kv_threshold(
 ) -> float:
     """The kv beyond which no point of the ``kg × tg`` grid is stable, refined by
     bisection between ``kv_lo`` (some point stable) and ``kv_hi`` (none stable) to
-    ``tol``. Assumes the stable set shrinks with kv (as in the paper's Fig. 5).
+    ``tol`` (the midpoint of the last bracket). Assumes the stable set shrinks with kv
+    (as in the paper's Fig. 5). The bisection runs in Rust; each "is anything stable"
+    test stops at the first stable grid point. This is a grid quantity: the
+    continuous supremum over a (kg, Tg) box is :func:`kv_supremum`.
     """
+    name, p = _model(model)
     kg, tg = _axis("kg", kg), _axis("tg", tg)
-
-    def any_stable(v: float) -> bool:
-        m = stability_map(model, kg, tg, [v], pade_order, threads=threads)
-        return bool((m == STABLE).any())
-
-    lo, hi = float(kv_lo), float(kv_hi)
-    if not any_stable(lo):
-        raise ValueError(f"kv_lo: nothing is stable at kv = {lo}")
-    if any_stable(hi):
-        raise ValueError(f"kv_hi: some point is still stable at kv = {hi}")
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        if any_stable(mid):
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
+    for n, v in (("kv_lo", kv_lo), ("kv_hi", kv_hi), ("tol", tol)):
+        if not math.isfinite(float(v)):
+            raise ValueError(f"{n}: must be finite, got {v}")
+    if int(threads) < 0:
+        raise ValueError(f"threads: must be >= 0, got {threads}")
+    return float(
+        _core.kv_threshold_grid(
+            name, p, kg, tg, float(kv_lo), float(kv_hi), _order(pade_order), float(tol),
+            threads=int(threads),
+        )
+    )
 
 
 #: Default constants of :func:`capacity`: with ``length / speed = 7/30 s`` the
@@ -277,28 +297,23 @@ def capacity(tg: Any, length: float = CAPACITY_LENGTH, speed: float = CAPACITY_S
 # Exact delay (no Padé)
 # ---------------------------------------------------------------------------
 
-#: Frequencies (rad/s) of the dense search of :func:`exact_delay_string`.
+#: Frequencies (rad/s) of the sampled margin of :func:`exact_delay_string`.
 EXACT_W_MIN = 1e-3
 EXACT_W_MAX = 60.0
 EXACT_N_W = 3000
+#: Interval evaluations allowed per certified exact-delay string test.
+EXACT_BUDGET = 20_000
 
 
-def _exact_margin_curve(
-    lin: dict[str, float], kg: np.ndarray, tg: np.ndarray, kv: np.ndarray, w: np.ndarray
-) -> np.ndarray:
-    """f(ω) = (1 − |H(jω)|²)/ω² · |D|²/D0²-free form: ``−Im(C conj B)/(ω |D|²)``
-    for points (rows) × frequencies (columns), true delay ``e^{−jωTd}``."""
-    s = 1j * w[None, :]
-    g = (lin["b1"] * s + lin["b0"]) * np.exp(-s * lin["Td"])
-    a = lin["a2"] * s * s + lin["a1"] * s + 1.0
-    m = a - lin["K"] * g
-    kg_, tg_, kv_ = kg[:, None], tg[:, None], kv[:, None]
-    mu = kv_ + tg_ * kg_
-    d = m * s * s + g * (mu * s + kg_)
-    n = g * (kv_ * s + kg_)
-    c = m * s + kg_ * tg_ * g
-    b = d + n
-    return -np.imag(c * np.conj(b)) / (w[None, :] * np.abs(d) ** 2)
+def _points(kg: Any, tg: Any, kv: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    arrs = np.broadcast_arrays(
+        *(np.atleast_1d(np.asarray(a, dtype=np.float64)).ravel() for a in (kg, tg, kv))
+    )
+    out = tuple(np.ascontiguousarray(a) for a in arrs)
+    for n, a in zip(("kg", "tg", "kv"), out, strict=True):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{n}: values must be finite")
+    return out  # type: ignore[return-value]
 
 
 def exact_delay_string(
@@ -311,60 +326,28 @@ def exact_delay_string(
     w_max: float = EXACT_W_MAX,
     n_w: int = EXACT_N_W,
     xtol: float = 1e-9,
+    budget: int = EXACT_BUDGET,
+    threads: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """String stability with the true delay: ``(stable, margin)`` per point.
 
-    ``margin = min over ω > 0 of (1 − |H(jω)|²)/ω²`` (in s², > 0 iff string stable),
-    from the exact low-frequency limit, a dense log-spaced search of ``n_w``
-    frequencies on ``[w_min, w_max]`` and a golden-section refinement of every
-    local minimum of the dense curve to a relative frequency tolerance ``xtol``
-    (in log ω). The search stops at ``w_max``: beyond it ``|H|`` of these loops falls
-    off like ``1/ω`` or faster (``G_fb`` is strictly proper and ``H ~ (kv s + kg) G_fb
-    / s²``), so a user with unusual parameters should widen the range.
+    ``stable`` is the certified verdict of the Rust engine: ``|H(jω)| < 1`` for every
+    ``ω > 0``, proven by an interval-arithmetic sweep of ``(|D|² − |N|²)/ω²`` over
+    ``[0, ω_c]`` (beyond ``ω_c`` a polynomial bound proves it), or disproven by a
+    frequency where the enclosure is negative. A point the sweep cannot settle within
+    ``budget`` interval evaluations (a point on the boundary) counts as not stable.
+    ``margin`` is the sampled figure of merit ``min (1 − |H(jω)|²)/ω²`` (s²) over
+    ``n_w`` log-spaced frequencies on ``[w_min, w_max]`` and ``ω → 0``, with each local
+    minimum refined by golden section to ``xtol`` in ``log ω``; it is informative only
+    (the verdict does not use it).
     """
-    kg, tg, kv = (np.atleast_1d(np.asarray(a, dtype=float)).ravel() for a in (kg, tg, kv))
-    kg, tg, kv = np.broadcast_arrays(kg, tg, kv)
-    lin = model.linear()
-    # exact ω -> 0 limit: R(0)/D(0)^2 with R(0) = kg b0 (Tg b0 (2 kv + kg Tg) − 2 (1 − K b0))
-    b0, k = lin["b0"], lin["K"]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        low = (tg * b0 * (2 * kv + kg * tg) - 2 * (1 - k * b0)) / (kg * b0)
-    w = np.geomspace(w_min, w_max, int(n_w))
-    margin = np.where(np.isfinite(low), low, -np.inf)
-    step = max(1, 2_000_000 // len(w))
-    for lo in range(0, kg.size, step):
-        sl = slice(lo, lo + step)
-        f = _exact_margin_curve(lin, kg[sl], tg[sl], kv[sl], w)
-        fmin = f.min(axis=1)
-        # refine interior local minima of the dense curve (golden section in log ω)
-        for i in range(f.shape[0]):
-            row = f[i]
-            best = fmin[i]
-            loc = np.nonzero((row[1:-1] <= row[:-2]) & (row[1:-1] <= row[2:]))[0] + 1
-            for j in loc:
-                a_, b_ = math.log(w[j - 1]), math.log(w[j + 1])
-                gr = (math.sqrt(5) - 1) / 2
-                pk, pt, pv = kg[sl][i : i + 1], tg[sl][i : i + 1], kv[sl][i : i + 1]
-
-                def fval(lw: float, pk: Any = pk, pt: Any = pt, pv: Any = pv) -> float:
-                    w1 = np.array([math.exp(lw)])
-                    return float(_exact_margin_curve(lin, pk, pt, pv, w1)[0, 0])
-
-                c_, d_ = b_ - gr * (b_ - a_), a_ + gr * (b_ - a_)
-                fc, fd = fval(c_), fval(d_)
-                while b_ - a_ > xtol:
-                    if fc < fd:
-                        b_, d_, fd = d_, c_, fc
-                        c_ = b_ - gr * (b_ - a_)
-                        fc = fval(c_)
-                    else:
-                        a_, c_, fc = c_, d_, fd
-                        d_ = a_ + gr * (b_ - a_)
-                        fd = fval(d_)
-                best = min(best, fc, fd)
-            fmin[i] = best
-        margin[sl] = np.minimum(margin[sl], fmin)
-    return margin > 0, margin
+    name, p = _model(model)
+    kg, tg, kv = _points(kg, tg, kv)
+    st, _ok = _core.delay_string(name, p, kg, tg, kv, int(budget), int(threads))
+    margin = _core.delay_margin(
+        name, p, kg, tg, kv, float(w_min), float(w_max), int(n_w), float(xtol), int(threads)
+    )
+    return st, margin
 
 
 def exact_delay_codes(
@@ -373,26 +356,26 @@ def exact_delay_codes(
     tg: Any,
     kv: Any,
     *,
-    orders: Sequence[int] = (6, 7, 8),
+    orders: Sequence[int] | None = None,
     threads: int = 0,
-    **string_kw: Any,
+    budget: int = EXACT_BUDGET,
+    **_ignored: Any,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Codes with the true delay at scattered points, and a flag array ``settled``.
 
-    Local stability of the quasi-polynomial: Routh–Hurwitz with Padé orders of rising
-    ``orders``; ``settled`` is False where those orders disagree (the verdict is then
-    that of the highest order). String stability: :func:`exact_delay_string`.
+    Local stability of the quasi-polynomial ``A(s) + B(s) e^{−Td s}`` is decided
+    exactly (crossing frequencies from ``|A(jω)| = |B(jω)|``, crossing directions and
+    the root count of the delay-free polynomial), string stability by the certified
+    sweep of :func:`exact_delay_string`. ``settled`` is False where a test could not
+    decide (a point on a boundary; the code is then 0 or 1, never 2). ``orders`` and
+    other keywords of the former Padé-agreement implementation are accepted and
+    ignored.
     """
-    kg, tg, kv = np.broadcast_arrays(*(np.asarray(a, dtype=float).ravel() for a in (kg, tg, kv)))
-    locs = [stability_points(model, kg, tg, kv, o, threads=threads) > 0 for o in orders]
-    local = locs[-1]
-    settled = np.all([loc == local for loc in locs], axis=0)
-    codes = np.zeros(kg.size, dtype=np.uint8)
-    idx = np.nonzero(local)[0]
-    if idx.size:
-        st, _ = exact_delay_string(model, kg[idx], tg[idx], kv[idx], **string_kw)
-        codes[idx] = np.where(st, STABLE, STRING_UNSTABLE)
-    return codes, settled
+    del orders
+    name, p = _model(model)
+    kg, tg, kv = _points(kg, tg, kv)
+    codes, ok = _core.delay_points(name, p, kg, tg, kv, int(budget), int(threads))
+    return codes, ok
 
 
 @dataclass(frozen=True)
@@ -400,8 +383,8 @@ class PadeReport:
     """Where a Padé map differs from the exact-delay verdicts on the same grid.
 
     ``pade`` and ``exact`` are code maps (``(len(kg), len(tg), len(kv))``),
-    ``differs`` their mismatch mask, ``unsettled`` where the rising-order local test
-    did not settle; ``fraction`` the share of differing points.
+    ``differs`` their mismatch mask, ``unsettled`` where the exact-delay test could
+    not decide (a point on a boundary); ``fraction`` the share of differing points.
     """
 
     pade_order: int
@@ -439,7 +422,8 @@ def pade_report(
     **exact_kw: Any,
 ) -> PadeReport:
     """Compares the Padé-``pade_order`` map with the exact-delay verdicts on a grid
-    (the exact side runs in numpy: keep such grids moderate, e.g. 10⁴–10⁵ points)."""
+    (the exact side is the certified Rust test, much slower than the Padé map: keep
+    such grids moderate). :func:`pade_error_map` compares several orders at once."""
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     pade = stability_map(model, kg, tg, kv, pade_order, threads=threads)
     g = np.meshgrid(kg, tg, kv, indexing="ij")
@@ -457,6 +441,362 @@ def pade_report(
 
 
 # ---------------------------------------------------------------------------
+# Exact boundaries
+# ---------------------------------------------------------------------------
+
+_AXES = {"kg": 0, "Tg": 1, "kv": 2}
+_ALIASES = {"kg": "kg", "tg": "Tg", "Tg": "Tg", "kv": "kv"}
+#: Default searched range of each parameter.
+DEFAULT_RANGES = {"kg": (1e-4, 10.0), "Tg": (0.0, 15.0), "kv": (-1.0, 2.0)}
+_LEVELS = {"string": 2, "local": 1}
+
+
+def _pade_arg(pade_order: int | None) -> int:
+    """0 selects the exact delay in the engine."""
+    return 0 if pade_order is None else _order(pade_order)
+
+
+def _range_arg(name: str, r: Any) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in r)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected (lo, hi), got {r!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"{name}: need finite lo < hi, got ({lo}, {hi})")
+    return lo, hi
+
+
+def _level_arg(level: str) -> int:
+    if level not in _LEVELS:
+        raise ValueError(f"level: must be 'string' or 'local', got {level!r}")
+    return _LEVELS[level]
+
+
+def _attrs(model: LowerLevelModel, pade_order: int | None) -> dict[str, Any]:
+    return {
+        "model": model.name,
+        "model_params": json.dumps(model.to_dict()),
+        "pade_order": "exact" if pade_order is None else int(pade_order),
+    }
+
+
+def boundary(
+    model: LowerLevelModel,
+    which: str,
+    *,
+    kg: Any = None,
+    tg: Any = None,
+    kv: Any = None,
+    pade_order: int | None = 2,
+    search_range: tuple[float, float] | None = None,
+    level: str = "string",
+    n_scan: int = 256,
+    rtol: float = 1e-10,
+    threads: int = 0,
+    progress: bool = False,
+) -> Any:
+    """A stability boundary computed directly (not read off a grid), as an
+    ``xarray.DataArray``.
+
+    ``which`` is ``"<axis>_min"`` or ``"<axis>_max"`` with axis ``tg``, ``kg`` or ``kv``:
+    ``"tg_min"`` is, for every ``(kg, kv)`` of the given axes, the **infimum of the
+    stable set in Tg within** ``search_range`` (default ``(0, 15)``) — stability
+    regions in Tg need not be intervals, and the infimum is the lower end of the
+    lowest stable stretch; ``"kg_max"`` the supremum of the stable kg for every
+    ``(Tg, kv)`` (default range ``(1e-4, 10)``, scanned in log); ``"kv_max"`` the
+    supremum of the stable kv for every ``(kg, Tg)``. NaN where no point of the
+    searched range is stable; a value equal to an end of the range means the range
+    itself is stable there. ``level="string"`` (code 2) or ``"local"`` (code ≥ 1).
+    ``pade_order=None`` uses the exact delay (slower).
+
+    Method: the stable set along the axis is scanned at ``n_scan`` points plus the
+    exact D-subdivision values where a root of ``D`` crosses the imaginary axis and
+    the values where ``R(0)`` or the leading coefficient of ``R`` vanish; each change
+    of verdict is bisected on the exact test until the bracket is below ``rtol``
+    relative. The returned value is the stable side of the final bracket (a point the
+    exact test calls stable, with an unstable point within ``rtol``). A stable
+    stretch narrower than the scan spacing that does not start at one of the exact
+    values can be missed (see ``docs/stability.md``).
+    """
+    import xarray as xr
+
+    if not isinstance(which, str) or "_" not in which:
+        raise ValueError(f"which: expected e.g. 'tg_min' or 'kg_max', got {which!r}")
+    ax_name, end = which.rsplit("_", 1)
+    if ax_name not in _ALIASES or end not in ("min", "max"):
+        raise ValueError(f"which: expected '<tg|kg|kv>_<min|max>', got {which!r}")
+    axis = _ALIASES[ax_name]
+    given = {"kg": kg, "Tg": tg, "kv": kv}
+    fixed = [a for a in ("kg", "Tg", "kv") if a != axis]
+    for a in fixed:
+        if given[a] is None:
+            raise ValueError(f"{a.lower() if a == 'Tg' else a}: needed for {which!r}")
+    if given[axis] is not None:
+        raise ValueError(f"{ax_name}: is the searched axis of {which!r}; use search_range")
+    u = _axis(fixed[0], given[fixed[0]])
+    w = _axis(fixed[1], given[fixed[1]])
+    lo, hi = _range_arg("search_range", search_range or DEFAULT_RANGES[axis])
+    name, p = _model(model)
+    log = axis == "kg" and lo > 0
+    lev = _level_arg(level)
+    if int(threads) < 0:
+        raise ValueError(f"threads: must be >= 0, got {threads}")
+    args = (name, p, _AXES[axis], u, w, lo, hi, "inf" if end == "min" else "sup")
+    kw: dict[str, Any] = dict(
+        pade_order=_pade_arg(pade_order), level=lev, n_scan=int(n_scan), log=log,
+        rtol=float(rtol), threads=int(threads),
+    )
+    if progress:
+        from tqdm import tqdm
+
+        with tqdm(total=u.size * w.size, unit="pt", desc=f"boundary {which}") as bar:
+
+            def cb(done: int, _total: int) -> None:
+                bar.update(done - bar.n)
+
+            vals = _core.stability_boundary(*args, progress=cb, **kw)
+    else:
+        vals = _core.stability_boundary(*args, **kw)
+    attrs = _attrs(model, pade_order)
+    attrs.update(
+        {
+            "boundary": which,
+            "definition": (
+                f"{'infimum' if end == 'min' else 'supremum'} of the "
+                f"{'locally' if lev == 1 else 'locally and string'} stable {axis} "
+                f"within the searched range (NaN: nothing stable there)"
+            ),
+            "search_range": [lo, hi],
+            "level": level,
+            "n_scan": int(n_scan),
+            "rtol": float(rtol),
+        }
+    )
+    return xr.DataArray(
+        vals, dims=tuple(fixed), coords={fixed[0]: u, fixed[1]: w}, name=which, attrs=attrs
+    )
+
+
+def stable_intervals(
+    model: LowerLevelModel,
+    axis: str,
+    *,
+    kg: float | None = None,
+    tg: float | None = None,
+    kv: float | None = None,
+    pade_order: int | None = 2,
+    search_range: tuple[float, float] | None = None,
+    level: str = "string",
+    n_scan: int = 256,
+    rtol: float = 1e-10,
+) -> list[tuple[float, float]]:
+    """The stable set along ``axis`` (``"kg"``, ``"tg"`` or ``"kv"``) through the point
+    given by the other two parameters, within ``search_range``, as a list of
+    ``(lo, hi)`` intervals (ends found as in :func:`boundary`)."""
+    if axis not in _ALIASES:
+        raise ValueError(f"axis: must be 'kg', 'tg' or 'kv', got {axis!r}")
+    ax = _ALIASES[axis]
+    given = {"kg": kg, "Tg": tg, "kv": kv}
+    point = []
+    for a in ("kg", "Tg", "kv"):
+        v = given[a]
+        if a == ax:
+            if v is not None:
+                raise ValueError(f"{axis}: is the searched axis; use search_range")
+            point.append(0.0)
+        else:
+            if v is None or not math.isfinite(float(v)):
+                raise ValueError(f"{a.lower() if a == 'Tg' else a}: a finite value is needed")
+            point.append(float(v))
+    lo, hi = _range_arg("search_range", search_range or DEFAULT_RANGES[ax])
+    name, p = _model(model)
+    ivs = _core.stability_intervals(
+        name, p, _AXES[ax], point, lo, hi, _pade_arg(pade_order), _level_arg(level),
+        int(n_scan), ax == "kg" and lo > 0, float(rtol),
+    )
+    return [(a, b) for a, b, _, _ in ivs]
+
+
+@dataclass(frozen=True)
+class Extremum:
+    """An extremum of a stability boundary over a box of two parameters.
+
+    ``value``: the infimum (``min_stable_tg``) or supremum (``kv_supremum``) found;
+    ``kg``, ``tg``, ``kv``: the boundary point where it is reached (the searched
+    coordinate equals ``value``). The stable set is open, so an infimum/supremum on a
+    boundary is approached, not attained: ``attained`` is True only when ``value`` is
+    the end of the searched range and stable there. ``on_edge`` names the box
+    coordinates that sit at an end of their range (the extremum is then approached as
+    that parameter goes to the range end, e.g. ``kg -> 0``). ``capacity`` is
+    :func:`capacity` at ``value`` (for ``min_stable_tg``).
+    """
+
+    quantity: str
+    value: float
+    kg: float
+    tg: float
+    kv: float
+    attained: bool
+    on_edge: tuple[str, ...]
+    ranges: dict[str, tuple[float, float]]
+    pade_order: int | None
+    evaluations: int
+    capacity: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary (non-finite -> None)."""
+
+        def clean(x: Any) -> Any:
+            if isinstance(x, float) and not math.isfinite(x):
+                return None
+            if isinstance(x, tuple):
+                return [clean(v) for v in x]
+            if isinstance(x, dict):
+                return {k: clean(v) for k, v in x.items()}
+            return x
+
+        return {k: clean(v) for k, v in asdict(self).items()}
+
+
+def _extremum(
+    model: LowerLevelModel,
+    which: str,
+    r1: tuple[str, tuple[float, float]],
+    r2: tuple[str, tuple[float, float]],
+    r3: tuple[str, tuple[float, float]],
+    pade_order: int | None,
+    n_scan: int,
+    n_grid: int,
+    threads: int,
+) -> Extremum:
+    name, p = _model(model)
+    rs = []
+    for label, r in (r1, r2, r3):
+        lo, hi = _range_arg(f"{label.lower()}_range", r)
+        if label == "kg" and lo <= 0:
+            raise ValueError(f"kg_range: the lower end must be > 0 (kg = 0 is never "
+                             f"asymptotically stable), got {lo}")
+        rs.append((lo, hi, label == "kg"))
+    val, at, at_end, edge, evals = _core.stability_extremum(
+        name, p, which, rs[0], rs[1], rs[2], _pade_arg(pade_order), int(n_scan),
+        n_grid=int(n_grid), threads=int(threads),
+    )
+    labels = (r1[0], r2[0])
+    coords = dict(zip(("kg", "tg", "kv"), at, strict=True))
+    return Extremum(
+        quantity=which,
+        value=float(val),
+        kg=float(coords["kg"]),
+        tg=float(coords["tg"]),
+        kv=float(coords["kv"]),
+        attained=bool(at_end) and float(val) == rs[2][0 if which == "tg_min" else 1],
+        on_edge=tuple(lab for lab, e in zip(labels, edge, strict=True) if e),
+        ranges={r1[0]: rs[0][:2], r2[0]: rs[1][:2], r3[0]: rs[2][:2]},
+        pade_order=pade_order,
+        evaluations=int(evals),
+        capacity=float(capacity(val)) if which == "tg_min" and math.isfinite(val) else None,
+    )
+
+
+def min_stable_tg(
+    model: LowerLevelModel,
+    kg_range: tuple[float, float] = (1e-3, 2.0),
+    kv_range: tuple[float, float] = (0.0, 1.2),
+    pade_order: int | None = 2,
+    *,
+    tg_range: tuple[float, float] = (0.0, 15.0),
+    n_scan: int = 256,
+    n_grid: int = 32,
+    threads: int = 0,
+) -> Extremum:
+    """The minimum stable time gap as a true infimum: the infimum of Tg over every
+    locally and string stable point with kg in ``kg_range``, kv in ``kv_range`` and Tg
+    in ``tg_range``, and where it is approached.
+
+    Nested 1-D searches of the boundary ``tg_min(kg, kv)`` (:func:`boundary`): an
+    outer search over kv of the inner minimum over kg, each a scan of ``n_grid``
+    points refined by golden section to ``1e-12`` of the range; where nothing is
+    stable the boundary counts as ``+inf``, so a minimum at the tip of a closing
+    stable region is approached from the stable side. The result is a stable point
+    of the exact test (an upper bound of the infimum the search could not improve);
+    the tests check it against dense grids.
+    """
+    return _extremum(
+        model, "tg_min", ("kg", kg_range), ("kv", kv_range), ("tg", tg_range), pade_order,
+        n_scan, n_grid, threads,
+    )
+
+
+def kv_supremum(
+    model: LowerLevelModel,
+    kg_range: tuple[float, float] = (1e-3, 5.0),
+    tg_range: tuple[float, float] = (0.0, 15.0),
+    pade_order: int | None = 2,
+    *,
+    kv_range: tuple[float, float] = (0.0, 2.0),
+    n_scan: int = 256,
+    n_grid: int = 32,
+    threads: int = 0,
+) -> Extremum:
+    """The kv threshold as a supremum: the largest kv with a locally and string stable
+    point for some kg in ``kg_range`` and Tg in ``tg_range`` (kv searched in
+    ``kv_range``), and where it is approached. Same method as :func:`min_stable_tg`
+    (outer search over Tg, inner over kg, of the boundary ``kv_max(kg, Tg)``). Unlike
+    :func:`kv_threshold` it does not depend on a grid."""
+    return _extremum(
+        model, "kv_max", ("kg", kg_range), ("tg", tg_range), ("kv", kv_range), pade_order,
+        n_scan, n_grid, threads,
+    )
+
+
+def pade_error_map(
+    model: LowerLevelModel,
+    kg: Any,
+    tg: Any,
+    kv: Any,
+    orders: Sequence[int] = tuple(range(1, 11)),
+    *,
+    threads: int = 0,
+    budget: int = EXACT_BUDGET,
+) -> Any:
+    """Padé-error map: an ``xarray.Dataset`` with the exact-delay codes ``exact``
+    (dims kg, Tg, kv), whether each is certified (``certified``), the Padé codes
+    ``pade`` (dims pade_order, kg, Tg, kv), and per order the share of certified
+    points where the Padé code differs (``fraction_differs``) and the counts of
+    Padé-stable-but-exactly-unstable (``false_stable``) and the reverse
+    (``false_unstable``) points."""
+    import xarray as xr
+
+    kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
+    orders = [_order(o) for o in orders]
+    g = np.meshgrid(kg, tg, kv, indexing="ij")
+    codes, ok = exact_delay_codes(model, *g, threads=threads, budget=budget)
+    exact = codes.reshape(g[0].shape)
+    cert = ok.reshape(g[0].shape)
+    pade = np.stack([stability_map(model, kg, tg, kv, o, threads=threads) for o in orders])
+    n_cert = max(int(cert.sum()), 1)
+    differs = (pade != exact[None]) & cert[None]
+    frac = differs.reshape(len(orders), -1).sum(axis=1) / n_cert
+    fs = ((pade == STABLE) & (exact[None] != STABLE) & cert[None]).reshape(len(orders), -1)
+    fu = ((pade != STABLE) & (exact[None] == STABLE) & cert[None]).reshape(len(orders), -1)
+    coords = {"kg": kg, "Tg": tg, "kv": kv, "pade_order": np.array(orders)}
+    attrs = _attrs(model, None)
+    attrs["codes"] = CODE_MEANINGS
+    return xr.Dataset(
+        {
+            "exact": (("kg", "Tg", "kv"), exact),
+            "certified": (("kg", "Tg", "kv"), cert),
+            "pade": (("pade_order", "kg", "Tg", "kv"), pade),
+            "fraction_differs": (("pade_order",), frac),
+            "false_stable": (("pade_order",), fs.sum(axis=1)),
+            "false_unstable": (("pade_order",), fu.sum(axis=1)),
+        },
+        coords=coords,
+        attrs=attrs,
+    )
+
+
+# ---------------------------------------------------------------------------
 # Figures (paper Figs. 5–8)
 # ---------------------------------------------------------------------------
 
@@ -469,23 +809,30 @@ def _label(model: LowerLevelModel) -> str:
 
 def plot_regions(
     models: Sequence[LowerLevelModel],
-    kg: Any,
-    tg: Any,
-    kv_values: Sequence[float],
+    kg: Any = None,
+    tg: Any = None,
+    kv_values: Sequence[float] | None = None,
     pade_order: int = 2,
     *,
-    maps: Sequence[np.ndarray] | None = None,
+    maps: Sequence[Any] | None = None,
     threads: int = 0,
 ) -> Figure:
     """Stable regions (code 2) of several models in the kg–Tg plane, one panel per
     kv, overlaid (paper Figs. 5 and 7). ``maps`` may pass precomputed maps over
-    ``kg × tg × kv_values``."""
+    ``kg × tg × kv_values``, or labelled maps (:func:`avll.map_dataset`, then the axes
+    may be omitted)."""
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
+    if maps is not None and all(hasattr(mp, "dims") for mp in maps) and kg is None:
+        # labelled maps (map_dataset): the axes are their coordinates
+        first: Any = maps[0]
+        kg, tg = np.asarray(first.coords["kg"]), np.asarray(first.coords["Tg"])
+        kv_values = [float(v) for v in np.asarray(first.coords["kv"])]
     kg, tg, kvs = _axis("kg", kg), _axis("tg", tg), _axis("kv_values", kv_values)
     if maps is None:
         maps = [stability_map(m, kg, tg, kvs, pade_order, threads=threads) for m in models]
+    maps = [np.asarray(mp) for mp in maps]
     n = kvs.size
     ncol = min(n, 3)
     nrow = (n + ncol - 1) // ncol
@@ -543,6 +890,34 @@ def plot_thresholds(models: Sequence[LowerLevelModel], ths: Sequence[Thresholds]
     return fig
 
 
+def plot_boundaries(boundaries: Sequence[Any], labels: Sequence[str] | None = None) -> Figure:
+    """Boundaries from :func:`boundary` drawn as curves: one panel per boundary, the
+    boundary value against the first fixed parameter (log axis for kg), one curve
+    per value of the second (e.g. ``tg_min`` against kg for each kv)."""
+    import matplotlib.pyplot as plt
+
+    bs = list(boundaries)
+    if not bs or not all(hasattr(b, "dims") and len(b.dims) == 2 for b in bs):
+        raise ValueError("boundaries: expected 2-D DataArrays from avll.boundary")
+    fig, axes = plt.subplots(1, len(bs), figsize=(4.6 * len(bs), 3.6), squeeze=False)
+    for i, b in enumerate(bs):
+        ax = axes[0][i]
+        x, c = b.dims
+        for j, cv in enumerate(b[c].values):
+            ax.plot(b[x].values, b.values[:, j], label=f"{c} = {cv:g}")
+        if x == "kg":
+            ax.set_xscale("log")
+        ax.set_xlabel(x)
+        ax.set_ylabel(str(b.name))
+        title = labels[i] if labels is not None else f"{b.attrs.get('model', '')} {b.name}"
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+        if b[c].size <= 8:
+            ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 # ---------------------------------------------------------------------------
 # CLI: avll stability-map
 # ---------------------------------------------------------------------------
@@ -576,10 +951,17 @@ def _cli(args: argparse.Namespace) -> int:
     kv = _range(args.kv, "kv")
     total = kg.size * tg.size * kv.size
     show = (not args.quiet) and total >= 2_000_000
-    maps = [
-        stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads, progress=show)
-        for m in models
-    ]
+    if args.scheduler:
+        from .maps import sweep
+
+        swept = sweep({m.name: m for m in models}, kg, tg, kv, (args.pade_order,),
+                      client=args.scheduler, threads=args.threads)
+        maps = [np.asarray(swept.values[i, 0]) for i in range(len(models))]
+    else:
+        maps = [
+            stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads, progress=show)
+            for m in models
+        ]
     ths = [thresholds(mp, kg, tg, kv) for mp in maps]
     print(
         f"grid: kg {kg[0]:g}..{kg[-1]:g} ({kg.size}{', log' if args.kg_log else ''}), "
@@ -592,6 +974,19 @@ def _cli(args: argparse.Namespace) -> int:
         cap = capacity(th.tg_min_overall, args.length, args.speed)
         print(f"{m.name:<10} {th.kv_last_stable:>15.6g} {th.kv_first_empty:>15.6g} "
               f"{th.tg_min_overall:>8.4g} {cap:>10.1f}")
+    exact: dict[str, dict[str, Any]] = {}
+    if args.exact:
+        kg_r, tg_r, kv_r = (float(kg.min()), float(kg.max())), (float(tg.min()), float(
+            tg.max())), (float(kv.min()), float(kv.max()))
+        print("\nexact (not grid-bound) over the same ranges:")
+        for m in models:
+            lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
+            e1 = min_stable_tg(m, lo, kv_r, args.pade_order, tg_range=tg_r)
+            e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=(kv_r[0], 2.0))
+            exact[m.name] = {"min_stable_tg": e1.to_dict(), "kv_supremum": e2.to_dict()}
+            print(f"{m.name:<10} inf Tg {e1.value:.6f} s at kg {e1.kg:.4g}, kv {e1.kv:.4g}"
+                  f"{' (box edge: ' + ', '.join(e1.on_edge) + ')' if e1.on_edge else ''}; "
+                  f"sup kv {e2.value:.6f} at kg {e2.kg:.4g}, Tg {e2.tg:.4g}")
     print()
     head = "kv".rjust(10) + "".join(
         f"{m.name + ' kg_max':>18}{m.name + ' Tg_min':>18}" for m in models
@@ -626,8 +1021,21 @@ def _cli(args: argparse.Namespace) -> int:
                                 else float(capacity(th.tg_min_overall, args.length, args.speed))}
                        for m, th in zip(models, ths, strict=True)},
         }
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(doc, f, indent=2)
+        if exact:
+            doc["exact"] = exact
+        import os
+        import tempfile
+
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(args.json)) or ".",
+                                   prefix=".avll-", suffix=".json")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump(doc, f, indent=2, allow_nan=False)
+            os.replace(tmp, args.json)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
     return 0
 
 
@@ -661,4 +1069,10 @@ def register_cli(sub: Any) -> None:
     p.add_argument("--speed", type=float, default=CAPACITY_SPEED,
                    help="speed (m/s) of the capacity formula")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--exact", action="store_true",
+                   help="also compute the exact infimum of Tg and supremum of kv over the "
+                   "ranges (boundaries, not the grid)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="compute the maps on this dask.distributed scheduler "
+                   "(needs avll[dask])")
     p.set_defaults(func=_cli)

@@ -24,12 +24,17 @@
 //!   decided by Descartes' rule when it settles it and otherwise by a Sturm count
 //!   ([`sturm::count_positive_roots`]); no frequency is sampled.
 
+pub mod boundary;
 pub mod dd;
+pub mod delay;
 pub mod grid;
+pub mod interval;
 pub mod pade;
 pub mod poly;
+pub mod roots;
 pub mod routh;
 pub mod sturm;
+pub mod threshold;
 
 use crate::error::{AvllError, Result};
 use crate::model::Linear;

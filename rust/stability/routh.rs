@@ -54,6 +54,59 @@ pub fn hurwitz(d: &Poly) -> bool {
     true
 }
 
+/// Number of roots of `d` with a positive real part, from the sign changes of the
+/// first column of the Routh array; `None` when a zero appears in that column (a
+/// root on the imaginary axis or a pair symmetric about the origin: the count is
+/// then not defined by the regular array).
+pub fn rhp_count(d: &Poly) -> Option<usize> {
+    let mut d = *d;
+    d.trim();
+    let n = d.deg;
+    let lead = d.lead();
+    if lead == 0.0 || !lead.is_finite() || d.c[0] == 0.0 {
+        return None;
+    }
+    if n == 0 {
+        return Some(0);
+    }
+    let mut top = [0.0f64; CAP / 2 + 1];
+    let mut bot = [0.0f64; CAP / 2 + 1];
+    let mut i = 0;
+    while 2 * i <= n {
+        top[i] = d.c[n - 2 * i];
+        i += 1;
+    }
+    let mut i = 0;
+    while 2 * i < n {
+        bot[i] = d.c[n - 1 - 2 * i];
+        i += 1;
+    }
+    let mut changes = 0;
+    let mut prev = top[0];
+    for k in 1..=n {
+        let cur = bot[0];
+        if cur == 0.0 || !cur.is_finite() {
+            return None;
+        }
+        if (cur > 0.0) != (prev > 0.0) {
+            changes += 1;
+        }
+        if k == n {
+            break;
+        }
+        let len = (n - k - 1) / 2 + 1;
+        let f = top[0] / bot[0];
+        let mut new = [0.0f64; CAP / 2 + 1];
+        for j in 0..len {
+            new[j] = top[j + 1] - f * bot[j + 1];
+        }
+        prev = cur;
+        top = bot;
+        bot = new;
+    }
+    Some(changes)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -111,5 +164,23 @@ mod tests {
         // third order: a2 a1 > a3 a0 boundary
         assert!(hurwitz(&Poly::from_ascending(&[5.9, 2.0, 3.0, 1.0])));
         assert!(!hurwitz(&Poly::from_ascending(&[6.0, 2.0, 3.0, 1.0])));
+    }
+
+    #[test]
+    fn rhp_counts() {
+        let cases: [(&[(f64, f64)], usize); 5] = [
+            (&[(-1.0, 0.0), (-2.0, 0.0), (-0.5, 3.0)], 0),
+            (&[(-1.0, 0.0), (0.05, 2.0), (-2.0, 0.0)], 2),
+            (&[(-1.0, 0.0), (-1.0, 1.0), (0.3, 0.0)], 1),
+            (&[(2.0, 0.0), (0.1, 1.0), (0.3, 0.0), (-4.0, 0.5)], 4),
+            (&[(3.0, 0.0)], 1),
+        ];
+        for (roots, want) in cases {
+            let p = from_roots(roots);
+            assert_eq!(rhp_count(&p), Some(want), "{roots:?}");
+            assert_eq!(rhp_count(&p.scale(-2.0)), Some(want));
+            assert_eq!(hurwitz(&p), want == 0);
+        }
+        assert_eq!(rhp_count(&from_roots(&[(-1.0, 0.0), (0.0, 1.0)])), None);
     }
 }

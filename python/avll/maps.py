@@ -1,0 +1,631 @@
+"""Labelled, chunked and distributed stability maps.
+
+* :func:`map_dataset`: a map as an ``xarray.DataArray`` of codes with dims
+  ``("kg", "Tg", "kv")`` and the model, Padé order and code meanings as attributes.
+  With ``chunks`` it is Dask-backed: every chunk is computed by the Rust kernel
+  (``dask.array.map_blocks``) on the current Dask scheduler or
+  ``distributed.Client`` when it is needed, so ``.to_zarr(...)`` streams a map larger
+  than memory with memory bounded by a few chunks.
+* :func:`map_thresholds`: the thresholds of a map (eager or Dask-backed) by
+  reductions over the chunks, without materialising the map.
+* :func:`write_map` / :func:`open_map`: Zarr or netCDF files (written to a temporary
+  name, then renamed).
+* :func:`sweep`, :func:`calibrate_many_distributed`, :func:`min_stable_tg_samples`:
+  many maps (models × Padé orders × parameter samples), many calibrations and many
+  infima on a ``dask.distributed`` client (a local cluster by default), with the same
+  results as in one process.
+* :func:`stability_probability`: the probability of stability over parameter
+  samples (e.g. bootstrap samples of a calibration, :func:`models_from_bootstrap`).
+
+xarray is a dependency of avll; Dask, distributed, Zarr and h5netcdf come with the
+``dask`` extra (``pip install avll[dask]``). All are imported inside the functions.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from . import stability as S
+from .models import LowerLevelModel
+
+__all__ = [
+    "DIMS",
+    "map_dataset",
+    "map_thresholds",
+    "write_map",
+    "open_map",
+    "sweep",
+    "stability_probability",
+    "min_stable_tg_samples",
+    "models_from_bootstrap",
+    "calibrate_many_distributed",
+    "bootstrap_distributed",
+    "local_client",
+]
+
+#: Dimension names of a map.
+DIMS = ("kg", "Tg", "kv")
+_DIM_ALIASES = {"kg": "kg", "Tg": "Tg", "tg": "Tg", "kv": "kv"}
+
+
+def _map_attrs(model: LowerLevelModel, pade_order: int | None) -> dict[str, Any]:
+    attrs = S._attrs(model, pade_order)
+    attrs["codes"] = S.CODE_MEANINGS
+    attrs["code_local_unstable"] = S.LOCAL_UNSTABLE
+    attrs["code_string_unstable"] = S.STRING_UNSTABLE
+    attrs["code_stable"] = S.STABLE
+    return attrs
+
+
+def _chunk_sizes(chunks: Mapping[str, int], shape: tuple[int, int, int]) -> tuple[int, ...]:
+    if not isinstance(chunks, Mapping):
+        raise ValueError(f"chunks: expected a dict of dim -> chunk length, got {chunks!r}")
+    sizes = dict(zip(DIMS, shape, strict=True))
+    out = dict(sizes)
+    for k, v in chunks.items():
+        if k not in _DIM_ALIASES:
+            raise ValueError(f"chunks: unknown dimension {k!r}; dims are {', '.join(DIMS)}")
+        if isinstance(v, bool) or int(v) != v or int(v) < 1:
+            raise ValueError(f"chunks: chunk length of {k!r} must be an integer >= 1, got {v!r}")
+        d = _DIM_ALIASES[k]
+        out[d] = min(int(v), sizes[d])
+    return tuple(out[d] for d in DIMS)
+
+
+def _map_block(
+    model_name: str,
+    params: list[float],
+    kg: np.ndarray,
+    tg: np.ndarray,
+    kv: np.ndarray,
+    order: int,
+    threads: int,
+    budget: int,
+    block_info: Any = None,
+) -> np.ndarray:
+    """One chunk of a map, by the Rust kernel (a Dask block function)."""
+    loc = block_info[None]["array-location"]
+    # copies: arrays that travelled through a distributed scheduler may be unaligned
+    k = np.array(kg[loc[0][0] : loc[0][1]], dtype=np.float64)
+    t = np.array(tg[loc[1][0] : loc[1][1]], dtype=np.float64)
+    v = np.array(kv[loc[2][0] : loc[2][1]], dtype=np.float64)
+    if order == 0:
+        g = [np.ascontiguousarray(a.ravel()) for a in np.meshgrid(k, t, v, indexing="ij")]
+        codes, _ = _core.delay_points(model_name, params, g[0], g[1], g[2], budget, threads)
+        return codes.reshape(k.size, t.size, v.size)
+    return _core.stability_map(model_name, params, k, t, v, order, threads)
+
+
+def map_dataset(
+    model: LowerLevelModel,
+    kg: Any,
+    tg: Any,
+    kv: Any,
+    pade_order: int | None = 2,
+    chunks: Mapping[str, int] | None = None,
+    *,
+    threads: int | None = None,
+    progress: bool = False,
+    budget: int = S.EXACT_BUDGET,
+) -> Any:
+    """A stability map as an ``xarray.DataArray`` of uint8 codes, dims
+    ``("kg", "Tg", "kv")``, with the model, its parameters, the Padé order
+    (``"exact"`` for ``pade_order=None``, the exact-delay test) and the code meanings
+    as attributes.
+
+    Without ``chunks`` the map is computed now (as :func:`avll.stability_map`, which
+    keeps returning the plain array). With ``chunks`` (a dict of dim -> chunk length,
+    e.g. ``{"kg": 500, "Tg": 500}``; missing dims are not split) the array is
+    Dask-backed and nothing is computed until it is needed: every chunk is computed
+    by the Rust kernel with ``threads`` threads (default 1 per chunk, so the
+    scheduler's workers give the parallelism) on the current Dask scheduler or
+    client. ``.to_zarr(path)`` (or :func:`write_map`) then streams it to disk with
+    memory bounded by the chunks in flight. The codes are the same as the eager
+    map's, bit for bit.
+    """
+    import xarray as xr
+
+    kg_a, tg_a, kv_a = S._axis("kg", kg), S._axis("tg", tg), S._axis("kv", kv)
+    order = S._pade_arg(pade_order)
+    name, p = S._model(model)
+    coords = {"kg": kg_a, "Tg": tg_a, "kv": kv_a}
+    attrs = _map_attrs(model, pade_order)
+    if chunks is None:
+        th = 0 if threads is None else int(threads)
+        if th < 0:
+            raise ValueError(f"threads: must be >= 0, got {threads}")
+        if order == 0:
+            g = np.meshgrid(kg_a, tg_a, kv_a, indexing="ij")
+            codes, _ = S.exact_delay_codes(model, *g, threads=th, budget=budget)
+            data = codes.reshape(g[0].shape)
+        else:
+            data = S.stability_map(model, kg_a, tg_a, kv_a, order, threads=th, progress=progress)
+        return xr.DataArray(data, dims=DIMS, coords=coords, name="codes", attrs=attrs)
+    import dask.array as da
+    from dask.base import tokenize
+
+    th = 1 if threads is None else int(threads)
+    if th < 0:
+        raise ValueError(f"threads: must be >= 0, got {threads}")
+    shape = (kg_a.size, tg_a.size, kv_a.size)
+    cs = _chunk_sizes(chunks, shape)
+    tok = tokenize(name, p, kg_a, tg_a, kv_a, order, budget)
+    arr = da.map_blocks(
+        _map_block,
+        name,
+        p,
+        kg_a,
+        tg_a,
+        kv_a,
+        order,
+        th,
+        int(budget),
+        dtype=np.uint8,
+        chunks=da.core.normalize_chunks(cs, shape),
+        meta=np.empty((0, 0, 0), dtype=np.uint8),
+        name=f"avll-stability-map-{tok}",
+    )
+    return xr.DataArray(arr, dims=DIMS, coords=coords, name="codes", attrs=attrs)
+
+
+def map_thresholds(codes: Any) -> S.Thresholds:
+    """The :class:`avll.stability.Thresholds` of a labelled map (from
+    :func:`map_dataset`, eager or Dask-backed). For a Dask-backed map only the
+    reductions ``any over Tg`` ((kg, kv)) and ``any over kg`` ((Tg, kv)) are computed,
+    chunk by chunk: the map itself is never held in memory."""
+    import xarray as xr
+
+    if not isinstance(codes, xr.DataArray) or tuple(codes.dims) != DIMS:
+        raise ValueError(f"codes: expected a DataArray with dims {DIMS} (from map_dataset)")
+    stable = codes == S.STABLE
+    any_kg, any_tg = stable.any("Tg"), stable.any("kg")
+    if hasattr(any_kg.data, "dask"):
+        import dask
+
+        any_kg, any_tg = dask.compute(any_kg, any_tg)
+    kg = codes["kg"].values
+    tg = codes["Tg"].values
+    kv = codes["kv"].values
+    a_kg: np.ndarray = np.asarray(any_kg.values, dtype=bool)  # (kg, kv)
+    a_tg: np.ndarray = np.asarray(any_tg.values, dtype=bool)  # (Tg, kv)
+    kg_max = np.array([kg[a_kg[:, j]].max() if a_kg[:, j].any() else np.nan
+                       for j in range(kv.size)])
+    tg_min = np.array([tg[a_tg[:, j]].min() if a_tg[:, j].any() else np.nan
+                       for j in range(kv.size)])
+    has: np.ndarray = np.asarray(a_kg.any(axis=0))
+    order = np.argsort(kv)
+    last = first_empty = np.nan
+    for pos, j in enumerate(order):
+        if has[j]:
+            last = float(kv[j])
+            first_empty = float(kv[order[pos + 1]]) if pos + 1 < len(order) else np.nan
+    tg_all = tg[a_tg.any(axis=1)]
+    return S.Thresholds(
+        kv=kv.copy(), kg_max=kg_max, tg_min=tg_min, kv_last_stable=last,
+        kv_first_empty=first_empty,
+        tg_min_overall=float(tg_all.min()) if tg_all.size else np.nan,
+    )
+
+
+def _format(path: str, fmt: str | None) -> str:
+    if fmt is None:
+        low = path.rstrip("/").lower()
+        if low.endswith(".zarr"):
+            return "zarr"
+        if low.endswith((".nc", ".nc4", ".netcdf")):
+            return "netcdf"
+        raise ValueError(f"path: cannot tell the format of {path!r}; use .zarr or .nc, "
+                         "or pass format='zarr' / 'netcdf'")
+    if fmt not in ("zarr", "netcdf"):
+        raise ValueError(f"format: must be 'zarr' or 'netcdf', got {fmt!r}")
+    return fmt
+
+
+def write_map(data: Any, path: str | os.PathLike[str], format: str | None = None) -> str:
+    """Writes a labelled map, boundary or dataset to Zarr (a directory) or netCDF
+    (``format`` from the suffix ``.zarr`` / ``.nc`` unless given), through a temporary
+    name renamed into place. A Dask-backed map is streamed chunk by chunk. Returns
+    the path."""
+    import xarray as xr
+
+    p = os.fspath(path)
+    fmt = _format(p, format)
+    if isinstance(data, xr.DataArray):
+        ds = data.to_dataset(name=data.name or "data", promote_attrs=True)
+    elif isinstance(data, xr.Dataset):
+        ds = data
+    else:
+        raise ValueError(f"data: expected an xarray DataArray or Dataset, got {type(data)}")
+    parent = os.path.dirname(os.path.abspath(p)) or "."
+    if fmt == "zarr":
+        tmp = tempfile.mkdtemp(prefix=".avll-", suffix=".zarr", dir=parent)
+        try:
+            ds.to_zarr(tmp, mode="w", consolidated=False)
+            if os.path.isdir(p):
+                shutil.rmtree(p)
+            os.replace(tmp, p)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    else:
+        fd, tmp = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
+        os.close(fd)
+        try:
+            ds.to_netcdf(tmp, engine="h5netcdf")
+            os.replace(tmp, p)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+    return p
+
+
+def open_map(path: str | os.PathLike[str], format: str | None = None) -> Any:
+    """Opens what :func:`write_map` wrote: a DataArray when the file holds one
+    variable, else the Dataset (lazily for Zarr)."""
+    import xarray as xr
+
+    p = os.fspath(path)
+    fmt = _format(p, format)
+    if fmt == "zarr":
+        ds = xr.open_zarr(p, consolidated=False)
+    else:
+        ds = xr.load_dataset(p, engine="h5netcdf")
+    if len(ds.data_vars) == 1:
+        (name,) = ds.data_vars
+        da = ds[name]
+        da.attrs.update(ds.attrs)
+        return da
+    return ds
+
+
+# ---------------------------------------------------------------------------
+# Distributed work
+# ---------------------------------------------------------------------------
+
+
+def local_client(n_workers: int = 2, threads_per_worker: int = 1, **kwargs: Any) -> Any:
+    """A ``dask.distributed.Client`` on a new local cluster of ``n_workers`` worker
+    processes (close it with ``client.close(); client.cluster.close()``)."""
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(
+        n_workers=int(n_workers), threads_per_worker=int(threads_per_worker),
+        processes=True, dashboard_address=None, **kwargs,
+    )
+    return Client(cluster)
+
+
+class _ClientScope:
+    """The given client, or a local one created and closed around the work."""
+
+    def __init__(self, client: Any) -> None:
+        self.given = client
+        self.client: Any = None
+
+    def __enter__(self) -> Any:
+        if self.given is not None:
+            from distributed import Client
+
+            self.client = self.given if not isinstance(self.given, str) else Client(self.given)
+        else:
+            self.client = local_client()
+        return self.client
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.given is None or isinstance(self.given, str):
+            cluster = getattr(self.client, "cluster", None)
+            self.client.close()
+            if cluster is not None and self.given is None:
+                cluster.close()
+
+
+def _members(models: Any) -> tuple[list[str], list[LowerLevelModel]]:
+    if isinstance(models, LowerLevelModel):
+        models = [models]
+    if isinstance(models, Mapping):
+        names, ms = [str(k) for k in models], list(models.values())
+    else:
+        ms = list(models)
+        names = [f"{m.name}-{i}" for i, m in enumerate(ms)] if ms else []
+    if not ms:
+        raise ValueError("models: no models given")
+    for m in ms:
+        S._model(m)
+    if len(set(names)) != len(names):
+        raise ValueError("models: member names must be unique")
+    return names, ms
+
+
+def _sweep_task(
+    model: LowerLevelModel, kg: np.ndarray, tg: np.ndarray, kv: np.ndarray, order: int | None,
+    threads: int, reduce: str | None,
+) -> Any:
+    name, p = S._model(model)
+    kg, tg, kv = (np.array(a, dtype=np.float64) for a in (kg, tg, kv))
+    codes = _map_block(
+        name, p, kg, tg, kv, S._pade_arg(order), threads, S.EXACT_BUDGET,
+        block_info={None: {"array-location": [(0, kg.size), (0, tg.size), (0, kv.size)]}},
+    )
+    if reduce is None:
+        return codes
+    th = S.thresholds(codes, kg, tg, kv)
+    return np.concatenate([th.kg_max, th.tg_min, [th.kv_last_stable, th.tg_min_overall]])
+
+
+def sweep(
+    models: Any,
+    kg: Any,
+    tg: Any,
+    kv: Any,
+    pade_orders: Sequence[int | None] = (2,),
+    *,
+    client: Any = None,
+    reduce: str | None = None,
+    threads: int = 1,
+) -> Any:
+    """Stability maps of many models (e.g. the three of Table II, or parameter samples
+    of one model) at several Padé orders, one task per (model, order) on a
+    ``dask.distributed`` client: ``client`` (a Client or a scheduler address), or a
+    local cluster of two worker processes made for the call.
+
+    ``models`` is a list of model objects (members named ``<name>-<i>``) or a dict of
+    name -> model. Returns an ``xarray.DataArray`` of codes with dims
+    ``("member", "pade_order", "kg", "Tg", "kv")``; with ``reduce="thresholds"`` an
+    ``xarray.Dataset`` of ``kg_max``, ``tg_min`` (per kv), ``kv_last_stable`` and
+    ``tg_min_overall`` per member and order instead (the maps stay on the workers).
+    Each map is the Rust kernel's, so results equal the single-process ones bit for
+    bit."""
+    import xarray as xr
+
+    names, ms = _members(models)
+    kg_a, tg_a, kv_a = S._axis("kg", kg), S._axis("tg", tg), S._axis("kv", kv)
+    orders = [None if o is None else S._order(o) for o in pade_orders]
+    if not orders:
+        raise ValueError("pade_orders: no orders given")
+    if reduce not in (None, "thresholds"):
+        raise ValueError(f"reduce: must be None or 'thresholds', got {reduce!r}")
+    tasks = [(m, o) for m in ms for o in orders]
+    with _ClientScope(client) as c:
+        futs = [
+            c.submit(_sweep_task, m, kg_a, tg_a, kv_a, o, int(threads), reduce, pure=False)
+            for m, o in tasks
+        ]
+        res = c.gather(futs)
+    order_lab = ["exact" if o is None else str(o) for o in orders]
+    coords: dict[str, Any] = {"member": names, "pade_order": order_lab}
+    attrs = {"codes": S.CODE_MEANINGS,
+             "models": ";".join(f"{n}={m.name}" for n, m in zip(names, ms, strict=True))}
+    if reduce is None:
+        arr = np.stack(res).reshape(len(ms), len(orders), kg_a.size, tg_a.size, kv_a.size)
+        coords.update({"kg": kg_a, "Tg": tg_a, "kv": kv_a})
+        return xr.DataArray(arr, dims=("member", "pade_order", *DIMS), coords=coords,
+                            name="codes", attrs=attrs)
+    arr = np.stack(res).reshape(len(ms), len(orders), -1)
+    n = kv_a.size
+    coords["kv"] = kv_a
+    return xr.Dataset(
+        {
+            "kg_max": (("member", "pade_order", "kv"), arr[:, :, :n]),
+            "tg_min": (("member", "pade_order", "kv"), arr[:, :, n : 2 * n]),
+            "kv_last_stable": (("member", "pade_order"), arr[:, :, 2 * n]),
+            "tg_min_overall": (("member", "pade_order"), arr[:, :, 2 * n + 1]),
+        },
+        coords=coords,
+        attrs=attrs,
+    )
+
+
+def stability_probability(
+    models: Any,
+    kg: Any,
+    tg: Any,
+    kv: Any,
+    pade_order: int | None = 2,
+    *,
+    chunks: Mapping[str, int] | None = None,
+) -> Any:
+    """Probability of (local and string) stability over parameter samples: the share
+    of ``models`` (e.g. :func:`models_from_bootstrap`) whose map is stable at each
+    point, as an ``xarray.DataArray`` (dims kg, Tg, kv) of float64.
+
+    With ``chunks`` every sample's map is Dask-backed (:func:`map_dataset`) and the
+    mean over samples is a lazy reduction computed on the current Dask scheduler or
+    client, chunk by chunk (memory: one chunk per sample in flight); call
+    ``.compute()`` or write it with :func:`write_map`."""
+    import xarray as xr
+
+    names, ms = _members(models)
+    maps = [map_dataset(m, kg, tg, kv, pade_order, chunks=chunks) for m in ms]
+    stacked = xr.concat([(mp == S.STABLE) for mp in maps], dim="member")
+    prob = stacked.mean("member", dtype=np.float64)
+    prob.name = "p_stable"
+    prob.attrs = {
+        "definition": "share of the parameter samples that are locally and string stable",
+        "samples": len(ms),
+        "pade_order": "exact" if pade_order is None else int(pade_order),
+        "model": ms[0].name,
+    }
+    return prob
+
+
+def _min_tg_task(model: LowerLevelModel, kw: dict[str, Any]) -> tuple[float, float, float]:
+    e = S.min_stable_tg(model, **kw)
+    return e.value, e.kg, e.kv
+
+
+def min_stable_tg_samples(
+    models: Any,
+    kg_range: tuple[float, float] = (1e-3, 2.0),
+    kv_range: tuple[float, float] = (0.0, 1.2),
+    pade_order: int | None = 2,
+    *,
+    client: Any = None,
+    distributed: bool = True,
+    tg_range: tuple[float, float] = (0.0, 15.0),
+    threads: int = 1,
+) -> Any:
+    """The minimum stable Tg (:func:`avll.min_stable_tg`) of every parameter sample: a
+    distribution rather than a number. Returns an ``xarray.Dataset`` over ``member``
+    with ``tg_min``, ``kg`` and ``kv`` (where each infimum is approached) and the 5 %,
+    50 % and 95 % quantiles of ``tg_min`` as attributes (NaN samples, where nothing is
+    stable, are left out of the quantiles and counted in ``n_unstable``). Runs one
+    task per sample on ``client`` (or a local cluster), or in this process with
+    ``distributed=False``."""
+    import xarray as xr
+
+    names, ms = _members(models)
+    kw = dict(kg_range=tuple(kg_range), kv_range=tuple(kv_range), pade_order=pade_order,
+              tg_range=tuple(tg_range), threads=int(threads))
+    if distributed:
+        with _ClientScope(client) as c:
+            res = c.gather([c.submit(_min_tg_task, m, kw, pure=False) for m in ms])
+    else:
+        res = [_min_tg_task(m, kw) for m in ms]
+    arr = np.array(res, dtype=np.float64).reshape(len(ms), 3)
+    ok = np.isfinite(arr[:, 0])
+    q = np.quantile(arr[ok, 0], [0.05, 0.5, 0.95]) if ok.any() else [math.nan] * 3
+    attrs: dict[str, Any] = {
+        "definition": "infimum of the stable Tg per parameter sample (min_stable_tg)",
+        "kg_range": list(kg_range), "kv_range": list(kv_range), "tg_range": list(tg_range),
+        "pade_order": "exact" if pade_order is None else int(pade_order),
+        "n_unstable": int((~ok).sum()),
+        "q05": float(q[0]), "q50": float(q[1]), "q95": float(q[2]),
+    }
+    return xr.Dataset(
+        {"tg_min": ("member", arr[:, 0]), "kg": ("member", arr[:, 1]),
+         "kv": ("member", arr[:, 2])},
+        coords={"member": names}, attrs=attrs,
+    )
+
+
+def models_from_bootstrap(bs: Any) -> list[LowerLevelModel]:
+    """The calibrated models of an :func:`avll.bootstrap` result (one per resample)."""
+    results = getattr(bs, "results", None)
+    if results is None:
+        raise ValueError(f"bs: expected an avll.Bootstrap, got {type(bs).__name__}")
+    return [r.model for r in results]
+
+
+_PROBLEM_KW = ("bounds", "closed_loop", "upper_free", "weights", "init")
+_RUN_KW = ("initial", "target")
+
+
+def _calibrate_block(
+    model: Any, runs: list[Any], block: list[tuple[int, list[Any]]], seed: int, threads: int,
+    kwargs: dict[str, Any],
+) -> list[Any]:
+    """Problems ``k`` of :func:`avll.calibrate_many` (one start each), each with the seed
+    that function gives it (``derive_seed(seed, k)``): a one-problem GA call with that
+    seed and seed derivation off is the same GA run."""
+    from dataclasses import replace
+
+    from .calibrate import _per_run, _problem, _result, _run, _subset_indices
+
+    pk: dict[str, Any] = {"bounds": None, "closed_loop": False, "upper_free": (),
+                          "weights": (1.0, 0.0, 0.0), "init": "rest"}
+    pk.update({k: kwargs[k] for k in _PROBLEM_KW if k in kwargs})
+    ga = {k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW}
+    prob = _problem(model, runs, **pk)
+    out = []
+    for k, sub in block:
+        idx = _subset_indices(prob.runs, sub, k)
+        s = _core.derive_seed(int(seed), k)
+        raw = _run(
+            prob, [idx], seed=s, derive_seeds=False, initial=kwargs.get("initial"),
+            target=kwargs.get("target"), threads=threads, progress=False, desc="",
+            options=ga,
+        )[0]
+        rs = [prob.runs[i] for i in sorted(set(idx))]
+        per_run = _per_run(prob, np.asarray(raw["x"]), rs, threads)
+        res = _result(prob, raw, rs, s, per_run)
+        out.append(replace(res, start_costs=(float(raw["f"]),)))
+    return out
+
+
+def calibrate_many_distributed(
+    model: Any,
+    runs: Sequence[Any],
+    subsets: Sequence[Sequence[int | str]] | str = "per_run",
+    *,
+    client: Any = None,
+    seed: int = 0,
+    batch: int = 1,
+    threads: int = 1,
+    **kwargs: Any,
+) -> list[Any]:
+    """:func:`avll.calibrate_many` with the problems spread over a
+    ``dask.distributed`` client (``client``: a Client or scheduler address; default a
+    local cluster of two worker processes), ``batch`` problems per task. Problem
+    ``k`` is calibrated with the seed :func:`avll.calibrate_many` gives it, so the
+    results are the same. ``kwargs`` are those of :func:`avll.calibrate_many` (bounds,
+    closed_loop, upper_free, weights, init, initial, target and GA options; one start
+    per problem; no progress bar)."""
+    for bad in ("starts", "progress"):
+        if bad in kwargs:
+            v = kwargs.pop(bad)
+            if (bad == "starts" and int(v) != 1) or (bad == "progress" and v):
+                raise ValueError(f"{bad}: not supported by calibrate_many_distributed")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed: must be a non-negative integer, got {seed!r}")
+    runs = list(runs)
+    if isinstance(subsets, str):
+        if subsets != "per_run":
+            raise ValueError(f"subsets: expected run lists or 'per_run', got {subsets!r}")
+        subs: list[list[Any]] = [[i] for i in range(len(runs))]
+    else:
+        subs = [list(s) for s in subsets]
+    if not subs:
+        raise ValueError("subsets: no problems given")
+    if isinstance(batch, bool) or int(batch) < 1:
+        raise ValueError(f"batch: must be an integer >= 1, got {batch!r}")
+    items = list(enumerate(subs))
+    blocks = [items[i : i + int(batch)] for i in range(0, len(items), int(batch))]
+    with _ClientScope(client) as c:
+        runs_f = c.scatter(runs, broadcast=True)
+        futs = [
+            c.submit(_calibrate_block, model, runs_f, b, int(seed), int(threads), kwargs,
+                     pure=False)
+            for b in blocks
+        ]
+        res = c.gather(futs)
+    return [r for block in res for r in block]
+
+
+def bootstrap_distributed(
+    model: Any,
+    runs: Sequence[Any],
+    n: int = 50,
+    *,
+    seed: int = 0,
+    level: float = 0.95,
+    client: Any = None,
+    batch: int = 1,
+    threads: int = 1,
+    **kwargs: Any,
+) -> Any:
+    """:func:`avll.bootstrap` with the resamples calibrated on a ``dask.distributed``
+    client (:func:`calibrate_many_distributed`): the same resamples (drawn from
+    ``seed``) and the same seeds, so the same :class:`avll.Bootstrap`."""
+    from .calibrate import Bootstrap
+
+    if int(n) < 2:
+        raise ValueError(f"n: must be >= 2, got {n}")
+    if not 0 < level < 1:
+        raise ValueError(f"level: must be in (0, 1), got {level}")
+    runs = list(runs)
+    rng = np.random.default_rng(int(seed))
+    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(int(n))]
+    res = calibrate_many_distributed(model, runs, subsets, client=client, seed=seed,
+                                     batch=batch, threads=threads, **kwargs)
+    names = tuple(res[0].params) + ("dc_gain",)
+    samples = np.array([[*r.params.values(), r.model.dc_gain] for r in res])
+    return Bootstrap(names, samples, float(level), res)
