@@ -544,8 +544,9 @@ def _calibrate_block(
             target=kwargs.get("target"), threads=threads, progress=False, desc="",
             options=ga,
         )[0]
-        rs = [prob.runs[i] for i in sorted(set(idx))]
-        per_run = _per_run(prob, np.asarray(raw["x"]), rs, threads)
+        uniq = sorted(set(idx))
+        rs = [prob.runs[i] for i in uniq]
+        per_run = _per_run(raw, len(prob.runs))[uniq]
         res = _result(prob, raw, rs, s, per_run)
         out.append(replace(res, start_costs=(float(raw["f"]),)))
     return out
