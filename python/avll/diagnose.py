@@ -58,10 +58,9 @@ from .effects import (
     batch_cost_effects,
     calibrate_effects,
     canonical,
-    closed_loop_effects,
-    simulate_effects,
 )
 from .models import LowerLevelModel, UpperLevel, model_class
+from .rollout import simulate_batch
 
 __all__ = [
     "BASE_BOUNDS",
@@ -115,25 +114,20 @@ def simulate_runs(
     or closed loop behind the recorded leader), as in the calibration cost."""
     closed = _closed(runs, closed_loop)
     init = _init(runs, init)
-    out = []
+    runs = list(runs)
     for r in runs:
-        needs = [x for x in (EFFECTS[n].exo for n in model.effect_names) if x is not None]
-        exo = {k: r.exo[k] for k in needs if k in r.exo}
-        if closed:
-            if r.upper is None or r.lead_x is None or r.lead_v is None or r.v is None:
-                raise ValueError(f"run {r.run_id!r}: closed loop needs lead_x, lead_v, v, upper")
-            tr = closed_loop_effects(model, r.lead_x, r.lead_v, r.dt, r.upper,
-                                     v0=float(r.v[0]), x0=float(r.x[0]) if r.x is not None
-                                     else 0.0, exo=exo)  # fmt: skip
-            out.append(tr.a)
-        else:
-            tr = simulate_effects(
-                model, r.command, r.dt, command_kind=r.command_kind, init=init,
-                v0=float(r.v[0]) if r.v is not None else 0.0,
-                x0=float(r.x[0]) if r.x is not None else 0.0, exo=exo,
-            )  # fmt: skip
-            out.append(tr.a)
-    return out
+        if closed and (r.upper is None or r.lead_x is None or r.lead_v is None or r.v is None):
+            raise ValueError(f"run {r.run_id!r}: closed loop needs lead_x, lead_v, v, upper")
+        for n in model.effect_names:
+            sig = EFFECTS[n].exo
+            if sig is not None and sig not in r.exo:
+                raise ValueError(f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'")
+    # One batched call for every run (the same rollouts as the cost).
+    sims = simulate_batch(
+        model.base.name, model.to_array()[None, :], runs, effects=model.effect_names,
+        init=init, closed_loop=closed,
+    )  # fmt: skip
+    return [np.asarray(a[0]) for a in sims["a"]]
 
 
 def _weights(runs: Sequence[Run], closed: bool) -> tuple[float, float, float]:

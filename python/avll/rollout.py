@@ -279,9 +279,15 @@ def simulate_batch(
     cls = model_class(model)
     p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
     runs = list(runs)
+    if not runs:
+        raise ValueError("runs: no runs given")
+    # Pack the measured speed and position whenever every run has them: they start
+    # the integrators (and the effects that read the speed), as in the cost.
+    has = [float(all(getattr(r, c) is not None for r in runs)) for c in ("v", "x")]
     kw = pack_runs(
-        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
+        runs, weights=(1.0, *has), init=init, closed_loop=closed_loop, upper_free=upper_free
     )
+    kw["weights"] = tuple(float(w) for w in weights)
     d = _core.simulate_batch(cls.name, p, effects=list(effects), threads=int(threads), **kw)
     off = kw["runs"].offsets
     out: dict[str, Any] = {}
