@@ -6,7 +6,7 @@ use super::runs::RunSet;
 use super::{guard, slice1, slice2};
 use crate::effects::{AnyEffect, EffectList};
 use crate::model::{CommandKind, Linear, ModelKind};
-use crate::sim::rollout::{self, EffectsRef, Out};
+use crate::sim::rollout::{self, EffectsRef, Out, TimeMajor};
 use crate::sim::{CostSpec, Init, Upper};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
@@ -282,7 +282,8 @@ fn closed_loop<'py>(
 }
 
 /// Platoon of `followers` identical vehicles (time-major stepping): dict of
-/// (followers, T) arrays a, v, x, command.
+/// (followers, T) arrays a, v, x, command — transposed views of sample-major (T,
+/// followers) arrays, the layout the stepping writes contiguously.
 #[pyfunction]
 #[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, followers))]
 #[allow(clippy::too_many_arguments)]
@@ -303,13 +304,28 @@ fn platoon<'py>(
     let up = Upper { kg, kv, tg, gmin };
     let lx = slice1("lead_x", &lead_x)?;
     let lv = slice1("lead_v", &lead_v)?;
-    let arrs = arrays(py, followers, lx.len());
-    with_outs(&arrs, |outs| {
+    let arrs = arrays(py, lx.len(), followers);
+    {
+        let mut ws: Vec<_> = arrs.iter().map(|a| a.readwrite()).collect();
+        let [wa, wv, wx, wu] = &mut ws[..] else {
+            unreachable!()
+        };
+        let mut tm = TimeMajor {
+            followers,
+            a: wa.as_slice_mut()?,
+            v: wv.as_slice_mut()?,
+            x: wx.as_slice_mut()?,
+            u: wu.as_slice_mut()?,
+        };
         py.detach(|| {
-            guard(|| rollout::platoon_into(&lin, &EffectsRef::NONE, &up, lx, lv, dt, outs))
-        })
-    })??;
-    dict_of(py, arrs, false)
+            guard(|| rollout::platoon_into(&lin, &EffectsRef::NONE, &up, lx, lv, dt, &mut tm))
+        })?;
+    }
+    let d = PyDict::new(py);
+    for (k, a) in ["a", "v", "x", "command"].into_iter().zip(arrs) {
+        d.set_item(k, a.as_any().getattr("T")?)?;
+    }
+    Ok(d)
 }
 
 /// Per-run costs (Eq. 6) of many parameter rows `[model | effects (canonical) | free

@@ -392,6 +392,105 @@ pub fn closed_loop(
     Ok(tr)
 }
 
+/// Where a platoon's samples go: one [`Out`] per follower, or [`TimeMajor`]
+/// arrays (sample-major, every follower's sample `n` side by side: the layout the
+/// time-major stepping writes contiguously).
+pub trait PlatoonOut {
+    /// Number of followers.
+    fn followers(&self) -> usize;
+    /// Checks every output's length against the run's.
+    fn check(&self, len: usize) -> Result<()>;
+    /// Records follower `j`'s sample `n`.
+    fn put(&mut self, j: usize, n: usize, a: f64, v: f64, x: f64, u: f64);
+    /// Follower `j`'s acceleration and speed at sample `n`.
+    fn get(&self, j: usize, n: usize) -> (f64, f64);
+    /// Fills follower `j`'s outputs from sample `from` on with NaN.
+    fn blank(&mut self, j: usize, from: usize);
+}
+
+impl PlatoonOut for [Out<'_>] {
+    fn followers(&self) -> usize {
+        self.len()
+    }
+    fn check(&self, len: usize) -> Result<()> {
+        for o in self.iter() {
+            for s in [&o.a, &o.v, &o.x] {
+                check_len("out", s, len)?;
+            }
+        }
+        Ok(())
+    }
+    #[inline(always)]
+    fn put(&mut self, j: usize, n: usize, a: f64, v: f64, x: f64, u: f64) {
+        let o = &mut self[j];
+        o.a[n] = a;
+        o.v[n] = v;
+        o.x[n] = x;
+        if let Some(c) = o.u.as_deref_mut() {
+            c[n] = u;
+        }
+    }
+    #[inline(always)]
+    fn get(&self, j: usize, n: usize) -> (f64, f64) {
+        (self[j].a[n], self[j].v[n])
+    }
+    fn blank(&mut self, j: usize, from: usize) {
+        let o = &mut self[j];
+        for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
+            s[from..].fill(f64::NAN);
+        }
+        if let Some(c) = o.u.as_deref_mut() {
+            c[from..].fill(f64::NAN);
+        }
+    }
+}
+
+/// Sample-major platoon outputs: follower `j`'s sample `n` at `n * followers + j`
+/// (a `(T, followers)` array; its transpose is the `(followers, T)` view).
+pub struct TimeMajor<'a> {
+    pub followers: usize,
+    pub a: &'a mut [f64],
+    pub v: &'a mut [f64],
+    pub x: &'a mut [f64],
+    pub u: &'a mut [f64],
+}
+
+impl PlatoonOut for TimeMajor<'_> {
+    fn followers(&self) -> usize {
+        self.followers
+    }
+    fn check(&self, len: usize) -> Result<()> {
+        for s in [&self.a, &self.v, &self.x, &self.u] {
+            check_len("out", s, len * self.followers)?;
+        }
+        Ok(())
+    }
+    #[inline(always)]
+    fn put(&mut self, j: usize, n: usize, a: f64, v: f64, x: f64, u: f64) {
+        let k = n * self.followers + j;
+        self.a[k] = a;
+        self.v[k] = v;
+        self.x[k] = x;
+        self.u[k] = u;
+    }
+    #[inline(always)]
+    fn get(&self, j: usize, n: usize) -> (f64, f64) {
+        let k = n * self.followers + j;
+        (self.a[k], self.v[k])
+    }
+    fn blank(&mut self, j: usize, from: usize) {
+        let f = self.followers;
+        let len = self.a.len() / f.max(1);
+        for n in from..len {
+            let k = n * f + j;
+            self.a[k] = f64::NAN;
+            self.v[k] = f64::NAN;
+            self.x[k] = f64::NAN;
+            self.u[k] = f64::NAN;
+        }
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn platoon_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
@@ -400,13 +499,13 @@ fn platoon_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     up: &Upper,
     lead_x: &[f64],
     lead_v: &[f64],
-    outs: &mut [Out],
+    outs: &mut (impl PlatoonOut + ?Sized),
 ) -> Result<()> {
     if eff.effects.is_empty() {
-        platoon_linear::<M, N, D, F>(plant, lin, up, lead_x, lead_v, outs)
+        platoon_linear::<M, N, D, F, _>(plant, lin, up, lead_x, lead_v, outs)
     } else {
         let ch = eff.chain(lead_x.len())?;
-        platoon_chain::<M, N, D, F, _>(plant, lin, ch, up, lead_x, lead_v, outs)
+        platoon_chain::<M, N, D, F, _, _>(plant, lin, ch, up, lead_x, lead_v, outs)
     }
 }
 
@@ -414,17 +513,24 @@ fn platoon_n<const M: usize, const N: usize, const D: bool, const F: bool>(
 /// takes the upper law's command from its predecessor's observed position and speed
 /// and steps. The followers' steps within a sample are independent, so they overlap
 /// in the pipeline.
-fn platoon_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain + Clone>(
+fn platoon_chain<
+    const M: usize,
+    const N: usize,
+    const D: bool,
+    const F: bool,
+    C: Chain + Clone,
+    P: PlatoonOut + ?Sized,
+>(
     plant: Plant<M, N>,
     lin: &Linear,
     chain: C,
     up: &Upper,
     lead_x: &[f64],
     lead_v: &[f64],
-    outs: &mut [Out],
+    outs: &mut P,
 ) -> Result<()> {
     let len = lead_x.len();
-    let f = outs.len();
+    let f = outs.followers();
     let v0 = lead_v[0];
     let s = start(lin, Init::Rest, 0.0)?;
     let gap = up.gmin + up.tg * v0;
@@ -448,16 +554,11 @@ fn platoon_chain<const M: usize, const N: usize, const D: bool, const F: bool, C
         let to = (from + super::kernel::CHUNK).min(len);
         for n in from..to {
             let (mut px, mut pv) = (lead_x[n], lead_v[n]);
-            for (car, o) in cars[..alive].iter_mut().zip(outs.iter_mut()) {
+            for (j, car) in cars[..alive].iter_mut().enumerate() {
                 let ob = car.observe(n);
                 let u = up.command(px, pv, ob.p, ob.v);
                 let a = car.step(n, &ob, u);
-                o.a[n] = a;
-                o.v[n] = ob.v;
-                o.x[n] = ob.p;
-                if let Some(c) = o.u.as_deref_mut() {
-                    c[n] = u;
-                }
+                outs.put(j, n, a, ob.v, ob.p, u);
                 px = ob.p;
                 pv = ob.v;
             }
@@ -475,17 +576,23 @@ fn platoon_chain<const M: usize, const N: usize, const D: bool, const F: bool, C
 /// followers and vectorize. The arithmetic, operation for operation, is the kernel's
 /// ([`crate::sim::kernel`]'s `observe` and `advance`): the result is bit-identical
 /// to followers stepped one by one (tested).
-fn platoon_linear<const M: usize, const N: usize, const D: bool, const F: bool>(
+fn platoon_linear<
+    const M: usize,
+    const N: usize,
+    const D: bool,
+    const F: bool,
+    P: PlatoonOut + ?Sized,
+>(
     plant: Plant<M, N>,
     lin: &Linear,
     up: &Upper,
     lead_x: &[f64],
     lead_v: &[f64],
-    outs: &mut [Out],
+    outs: &mut P,
 ) -> Result<()> {
     use super::kernel::{madd, CHUNK};
     let len = lead_x.len();
-    let f = outs.len();
+    let f = outs.followers();
     if f == 0 {
         return Ok(());
     }
@@ -545,13 +652,8 @@ fn platoon_linear<const M: usize, const N: usize, const D: bool, const F: bool>(
                 *r = uj + pl.k * yj;
             }
             w0[..a].copy_from_slice(&ring[back..back + a]);
-            for (j, o) in outs[..a].iter_mut().enumerate() {
-                o.a[n] = y[j];
-                o.v[n] = st[M][j];
-                o.x[n] = st[M + 1][j];
-                if let Some(c) = o.u.as_deref_mut() {
-                    c[n] = u[j];
-                }
+            for j in 0..a {
+                outs.put(j, n, y[j], st[M][j], st[M + 1][j], u[j]);
             }
             // The exact step (as `advance`).
             step_soa::<M, N, D, F>(pl, &mut st, &w0[..a], &mut wp[..a]);
@@ -620,11 +722,17 @@ fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
 /// acceleration left the range (or whose speed is not finite) gets NaN after that
 /// sample, those behind it
 /// NaN throughout; returns how many followers stay alive.
-fn platoon_divergence(outs: &mut [Out], alive: usize, from: usize, to: usize) -> usize {
+fn platoon_divergence<P: PlatoonOut + ?Sized>(
+    outs: &mut P,
+    alive: usize,
+    from: usize,
+    to: usize,
+) -> usize {
     let mut first = None;
-    'scan: for (j, o) in outs[..alive].iter().enumerate() {
+    'scan: for j in 0..alive {
         for n in from..to {
-            if !(o.a[n].abs() < DIVERGED && o.v[n].is_finite()) {
+            let (a, v) = outs.get(j, n);
+            if !(a.abs() < DIVERGED && v.is_finite()) {
                 first = Some((j, n));
                 break 'scan;
             }
@@ -633,37 +741,27 @@ fn platoon_divergence(outs: &mut [Out], alive: usize, from: usize, to: usize) ->
     let Some((j, n)) = first else {
         return alive;
     };
-    let o = &mut outs[j];
-    for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
-        s[n + 1..].fill(f64::NAN);
-    }
-    if let Some(c) = o.u.as_deref_mut() {
-        c[n + 1..].fill(f64::NAN);
-    }
-    for o in outs[j + 1..].iter_mut() {
-        for s in [&mut *o.a, &mut *o.v, &mut *o.x] {
-            s.fill(f64::NAN);
-        }
-        if let Some(c) = o.u.as_deref_mut() {
-            c.fill(f64::NAN);
-        }
+    outs.blank(j, n + 1);
+    for k in j + 1..outs.followers() {
+        outs.blank(k, 0);
     }
     j
 }
 
 /// A platoon of identical vehicles behind a recorded leader, one output per
-/// follower (leader excluded), written time-major. Each follower starts at the
+/// follower (leader excluded) in `outs` (per follower, or [`TimeMajor`]), stepped
+/// time-major. Each follower starts at the
 /// leader's initial speed, at the equilibrium gap `Gmin + Tg v` behind its
 /// predecessor, with the lower level at rest. A diverged follower's outputs are NaN
 /// after the divergence, and those of the followers behind it throughout.
-pub fn platoon_into(
+pub fn platoon_into<P: PlatoonOut + ?Sized>(
     lin: &Linear,
     eff: &EffectsRef,
     up: &Upper,
     lead_x: &[f64],
     lead_v: &[f64],
     dt: f64,
-    outs: &mut [Out],
+    outs: &mut P,
 ) -> Result<()> {
     up.validate()?;
     check_leader(lead_x, lead_v)?;
@@ -671,11 +769,7 @@ pub fn platoon_into(
     if lead_x.is_empty() {
         return Err(AvllError::new("lead_x", "is empty"));
     }
-    for o in outs.iter() {
-        for s in [&o.a, &o.v, &o.x] {
-            check_len("out", s, lead_x.len())?;
-        }
-    }
+    outs.check(lead_x.len())?;
     with_plant!(
         lin,
         Integrators::SpeedPosition,
@@ -699,6 +793,6 @@ pub fn platoon(
         .map(|_| Trajectory::filled(lead_x.len(), 0.0))
         .collect();
     let mut outs: Vec<Out> = trs.iter_mut().map(Out::of).collect();
-    platoon_into(lin, eff, up, lead_x, lead_v, dt, &mut outs)?;
+    platoon_into(lin, eff, up, lead_x, lead_v, dt, &mut outs[..])?;
     Ok(trs)
 }

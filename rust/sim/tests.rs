@@ -571,3 +571,43 @@ fn lanes_equal_the_kernel_bit_for_bit() {
         }
     }
 }
+
+#[test]
+fn time_major_outputs_equal_per_follower_outputs() {
+    let (lx, lv) = leader(1500, 0.05);
+    for up in [
+        UP,
+        Upper {
+            kg: 40.0,
+            kv: 0.0,
+            tg: 0.1,
+            gmin: 2.0,
+        },
+    ] {
+        let trs = platoon(&proposed(), &EffectsRef::NONE, &up, &lx, &lv, 0.05, 4).unwrap();
+        let n = lx.len();
+        let mut bufs = [
+            vec![0.0; 4 * n],
+            vec![0.0; 4 * n],
+            vec![0.0; 4 * n],
+            vec![0.0; 4 * n],
+        ];
+        let [a, v, x, u] = &mut bufs;
+        let mut tm = super::rollout::TimeMajor {
+            followers: 4,
+            a,
+            v,
+            x,
+            u,
+        };
+        super::rollout::platoon_into(&proposed(), &EffectsRef::NONE, &up, &lx, &lv, 0.05, &mut tm)
+            .unwrap();
+        for (j, tr) in trs.iter().enumerate() {
+            for k in 0..n {
+                assert_eq!(tr.a[k].to_bits(), bufs[0][k * 4 + j].to_bits());
+                assert_eq!(tr.x[k].to_bits(), bufs[2][k * 4 + j].to_bits());
+                assert_eq!(tr.command[k].to_bits(), bufs[3][k * 4 + j].to_bits());
+            }
+        }
+    }
+}
