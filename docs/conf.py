@@ -13,6 +13,7 @@ read from the installed ``avll`` argument parser), so install the package first:
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 from docutils import nodes
@@ -44,6 +45,19 @@ myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 
 nitpicky = False
+
+# Three pages come from parallel branches (guarantees, stability, findings-openacc).
+# Until they are merged they are one-line placeholders without a title, which Sphinx
+# reports as "toctree contains reference to document ... that doesn't have a title".
+# Only while such a placeholder is present is that one warning suppressed; the real
+# pages have titles, and then nothing is suppressed.
+_PLACEHOLDER = "(page arriving from a parallel branch)"
+_HERE = Path(__file__).resolve().parent
+suppress_warnings: list[str] = []
+if any((_HERE / f"{p}.md").is_file()
+       and (_HERE / f"{p}.md").read_text(encoding="utf-8").strip() == _PLACEHOLDER
+       for p in ("guarantees", "stability", "findings-openacc")):
+    suppress_warnings.append("toc.no_title")
 autodoc_member_order = "bysource"
 autodoc_default_options = {"members": True}
 autodoc_typehints = "description"
