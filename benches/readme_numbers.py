@@ -144,9 +144,9 @@ BLOCKS: dict[str, tuple[Callable[[], Any], Callable[[Any], str]]] = {
 
 def _pattern(name: str) -> re.Pattern[str]:
     return re.compile(
-        rf"(<!-- generated:{re.escape(name)}\b[^\n]*-->\n)(.*?)(\n<!-- /generated:"
-        rf"{re.escape(name)} -->)",
-        re.S,
+        rf"(^<!-- generated:{re.escape(name)}\b[^\n]*-->\n)(.*?)(^<!-- /generated:"
+        rf"{re.escape(name)} -->$)",
+        re.S | re.M,
     )
 
 
@@ -155,13 +155,14 @@ def read_block(text: str, name: str) -> str:
     mt = _pattern(name).search(text)
     if mt is None:
         raise ValueError(f"README.md: no '<!-- generated:{name} -->' block")
-    return mt.group(2)
+    return mt.group(2).rstrip("\n")
 
 
 def replace_block(text: str, name: str, content: str) -> str:
     """``text`` with block ``name``'s content replaced by ``content``."""
     read_block(text, name)
-    return _pattern(name).sub(lambda mt: mt.group(1) + content + mt.group(3), text, count=1)
+    body = content.rstrip("\n") + "\n" if content.strip() else ""
+    return _pattern(name).sub(lambda mt: mt.group(1) + body + mt.group(3), text, count=1)
 
 
 def _write_atomic(path: Path, text: str) -> None:
