@@ -1,0 +1,66 @@
+"""Renders ``bench_engine.py --json`` output as the docs' engine table.
+
+    python benches/bench_engine.py --json docs/_generated/engine_bench.json
+    python benches/render_engine.py docs/_generated/engine_bench.json docs/_generated/engine_bench.md
+
+Every number in the table comes from the JSON (rates in M steps/s per core, the
+ratio avll / best peer, the issue-10 target and whether it is met); the machine, the
+versions and the load average during the run are stated with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from pathlib import Path
+
+
+def render(d: dict) -> str:
+    m = d["meta"]
+    load = ", ".join(f"{x:.1f}" for x in m.get("load_average_start", []))
+    lines = [
+        f"Measured by `benches/bench_engine.py` (avll {m['avll']}, numba {m['numba']}, "
+        f"numpy {m['numpy']}; {m['machine']}, {m['cpus']} CPUs; load average at start "
+        f"{load}; best of {m['repeat']} calls, CPU time, so rates are per core). Every peer "
+        f"was checked equal to avll to {m['tolerance']:g} before timing.",
+        "",
+        "| workload | avll | best peer | avll / best peer | target | met |",
+        "|---|---|---|---|---|---|",
+    ]
+    for w in d["workloads"]:
+        best = max(w["peers"], key=lambda p: p["rate"])
+        target = w.get("target")
+        met = "" if target is None else ("yes" if w.get("met") else "no")
+        lines.append(
+            f"| {w['title']} | {w['avll']['rate']:.0f} | {best['rate']:.0f} ({best['name']}) "
+            f"| {w['ratio']:.2f}x | {'' if target is None else f'>= {target:g}x'} | {met} |"
+        )
+    for s in d.get("scaling", []):
+        lines.append("")
+        lines.append(
+            f"{s['title']}: avll {s['speedup']['avll']:.2f}x (CPU efficiency "
+            f"{s['cpu_efficiency']['avll']:.2f}; load average {s['load_average']:.1f} on "
+            f"{m['cpus']} CPUs); target >= {s['target']:g}x: "
+            f"{'met' if s['met'] else 'not met'}. With the cores busy with other jobs the "
+            "wall speed-up cannot show; the CPU efficiency bounds it (speed-up <= threads x "
+            "efficiency)."
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("json", type=Path)
+    ap.add_argument("out", type=Path)
+    a = ap.parse_args()
+    text = render(json.loads(a.json.read_text()))
+    fd, tmp = tempfile.mkstemp(dir=a.out.parent, prefix=a.out.name, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, a.out)
+
+
+if __name__ == "__main__":
+    main()
