@@ -16,7 +16,7 @@ from .calibrate import (
     calibrate_many,
     paper_workflow,
 )
-from .data import DataError, Run
+from .data import DataError, DataWarning, PlausibilityWarning, Run
 from .effects import (
     EFFECTS,
     Asymmetric,
@@ -65,6 +65,8 @@ __all__ = [
     "synth",
     "__version__",
     "DataError",
+    "DataWarning",
+    "PlausibilityWarning",
     "Run",
     "MODELS",
     "FirstOrderLag",

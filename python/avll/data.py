@@ -17,13 +17,26 @@ import numpy as np
 
 from .models import UpperLevel
 
-__all__ = ["Run", "DataError", "COMMAND_KINDS"]
+__all__ = ["Run", "DataError", "DataWarning", "PlausibilityWarning", "COMMAND_KINDS"]
 
 COMMAND_KINDS = ("acceleration", "speed")
 
 
 class DataError(ValueError):
     """Bad input data. The message names the file, the column and the row."""
+
+
+class DataWarning(UserWarning):
+    """Suspicious but usable input data (e.g. a sidecar entry for a run that is not
+    in the data). The message names the file, the column and the line. A loader's
+    ``strict=True`` (the CLI's ``--strict``) turns it into a :class:`DataError`."""
+
+
+class PlausibilityWarning(DataWarning):
+    """A value outside the physical range of road vehicles (speed, acceleration,
+    time step, grade; see ``avll.io.plausibility.RANGES``) that is not so far out that
+    the unit must be wrong. Names the file, the column and the line; ``strict=True``
+    turns it into a :class:`DataError`."""
 
 
 def _series(run_id: str, name: str, x: Any, n: int | None) -> np.ndarray:

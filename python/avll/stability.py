@@ -20,7 +20,6 @@ Beyond the paper, :func:`exact_delay_codes` tests the true delay ``e^{-jωTd}``
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -28,7 +27,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import _core
+from . import _atomic, _core
+from ._limits import check_memory, check_number, check_threads
 from .models import LowerLevelModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -64,12 +64,27 @@ PADE_MAX_ORDER: int = int(_core.PADE_MAX_ORDER)
 
 def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     if not isinstance(model, LowerLevelModel):
-        raise ValueError(f"model: expected an avll model object, got {type(model).__name__}")
+        raise TypeError(f"model: expected an avll model object, got {type(model).__name__}")
     return model.name, [float(v) for v in model.to_array()]
 
 
+def _floats(name: str, x: Any) -> np.ndarray:
+    if isinstance(x, (str, bytes)) or x is None:
+        raise TypeError(f"{name}: expected numbers, got {x!r:.40}")
+    try:
+        return np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"{name}: expected numbers ({e})") from None
+
+
+def _grid_memory(what: str, points: float, per_point: float) -> None:
+    check_memory(points * per_point, f"{what}: {points:.0f} points x {per_point:g} bytes",
+                 "split the grid (e.g. a few kv values per call) and concatenate",
+                 per=per_point, unit="points")
+
+
 def _axis(name: str, x: Any) -> np.ndarray:
-    arr = np.ascontiguousarray(np.atleast_1d(np.asarray(x, dtype=np.float64)))
+    arr = np.ascontiguousarray(np.atleast_1d(_floats(name, x)))
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be a scalar or 1-D, got shape {arr.shape}")
     if arr.size == 0:
@@ -104,13 +119,15 @@ def stability_map(
     output only. Ctrl-C interrupts a long map (``KeyboardInterrupt``); ``progress=True``
     shows a tqdm bar.
     """
+    nt = check_threads(threads)
     name, p = _model(model)
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     order = _order(pade_order)
-    if int(threads) < 0:
-        raise ValueError(f"threads: must be >= 0, got {threads}")
+    # the uint8 map, and as much again for what a caller derives from it (codes == 2)
+    _grid_memory(f"stability_map: {kg.size} kg x {tg.size} tg x {kv.size} kv",
+                 float(kg.size) * tg.size * kv.size, 2.0)
     if not progress:
-        return _core.stability_map(name, p, kg, tg, kv, order, int(threads))
+        return _core.stability_map(name, p, kg, tg, kv, order, nt)
     from tqdm import tqdm
 
     total = kg.size * tg.size * kv.size
@@ -119,24 +136,28 @@ def stability_map(
         def cb(done: int, _total: int) -> None:
             bar.update(done - bar.n)
 
-        return _core.stability_map(name, p, kg, tg, kv, order, int(threads), cb)
+        return _core.stability_map(name, p, kg, tg, kv, order, nt, cb)
 
 
 def stability_points(
     model: LowerLevelModel, kg: Any, tg: Any, kv: Any, pade_order: int = 2, *, threads: int = 0
 ) -> np.ndarray:
     """Codes at scattered points ``(kg[i], tg[i], kv[i])`` (arrays broadcast)."""
+    nt = check_threads(threads)
     name, p = _model(model)
-    kg, tg, kv = np.broadcast_arrays(
-        *(np.asarray(a, dtype=np.float64) for a in (kg, tg, kv))
-    )
+    try:
+        kg, tg, kv = np.broadcast_arrays(*(_floats(n, a) for n, a in
+                                           (("kg", kg), ("tg", tg), ("kv", kv))))
+    except ValueError as e:
+        raise ValueError(f"kg, tg, kv: shapes do not broadcast ({e})") from None
+    _grid_memory("stability_points", float(kg.size), 3 * 8.0 + 1.0)
     shape = kg.shape
     flat = [np.ascontiguousarray(a.ravel()) for a in (kg, tg, kv)]
     for n, a in zip(("kg", "tg", "kv"), flat, strict=True):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"{n}: values must be finite")
     out = _core.stability_points(
-        name, p, flat[0], flat[1], flat[2], _order(pade_order), int(threads)
+        name, p, flat[0], flat[1], flat[2], _order(pade_order), nt
     )
     return out.reshape(shape)
 
@@ -230,7 +251,10 @@ def kv_threshold(
     bisection between ``kv_lo`` (some point stable) and ``kv_hi`` (none stable) to
     ``tol``. Assumes the stable set shrinks with kv (as in the paper's Fig. 5).
     """
+    check_threads(threads)
     kg, tg = _axis("kg", kg), _axis("tg", tg)
+    kv_lo, kv_hi = check_number(kv_lo, "kv_lo"), check_number(kv_hi, "kv_hi")
+    tol = check_number(tol, "tol", positive=True)
 
     def any_stable(v: float) -> bool:
         m = stability_map(model, kg, tg, [v], pade_order, threads=threads)
@@ -262,15 +286,20 @@ def capacity(tg: Any, length: float = CAPACITY_LENGTH, speed: float = CAPACITY_S
     ``length`` (m, vehicle plus standstill gap) at speed ``speed`` (m/s) keeping the
     time gap ``tg``. The defaults (``length/speed = 7/30`` s) reproduce the paper's
     1687.5 (1.9 s), 964.3 (3.5 s) and 1479.5 veh/h (2.2 s); the paper does not give
-    its formula, this pair is inferred from those numbers.
+    its formula, this pair is inferred from those numbers. ``tg`` must be finite and
+    >= 0 (a ``ValueError`` otherwise; NaN, e.g. "no stable Tg", gives NaN).
     """
-    if not (length >= 0 and math.isfinite(length)):
-        raise ValueError(f"length: must be finite and >= 0, got {length}")
-    if not (speed > 0 and math.isfinite(speed)):
-        raise ValueError(f"speed: must be finite and > 0, got {speed}")
-    return 3600.0 / (np.asarray(tg, dtype=float) + length / speed) if np.ndim(tg) else (
-        3600.0 / (float(tg) + length / speed)
-    )
+    length = check_number(length, "length", nonneg=True)
+    speed = check_number(speed, "speed", positive=True)
+    t = _floats("tg", tg)
+    bad = ~np.isnan(t) & ~((t >= 0) & np.isfinite(t))
+    if np.any(bad):
+        raise ValueError(f"tg: a time gap must be finite and >= 0, got {t[bad].ravel()[0]:g}")
+    with np.errstate(divide="ignore"):
+        q = 3600.0 / (t + length / speed)
+    if np.any(np.isinf(q)):
+        raise ValueError("tg: tg = 0 with length = 0 gives an infinite capacity")
+    return q if np.ndim(tg) else float(q)
 
 
 # ---------------------------------------------------------------------------
@@ -383,6 +412,7 @@ def exact_delay_codes(
     ``orders``; ``settled`` is False where those orders disagree (the verdict is then
     that of the highest order). String stability: :func:`exact_delay_string`.
     """
+    check_threads(threads)
     kg, tg, kv = np.broadcast_arrays(*(np.asarray(a, dtype=float).ravel() for a in (kg, tg, kv)))
     locs = [stability_points(model, kg, tg, kv, o, threads=threads) > 0 for o in orders]
     local = locs[-1]
@@ -440,7 +470,9 @@ def pade_report(
 ) -> PadeReport:
     """Compares the Padé-``pade_order`` map with the exact-delay verdicts on a grid
     (the exact side runs in numpy: keep such grids moderate, e.g. 10⁴–10⁵ points)."""
+    check_threads(threads)
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
+    _grid_memory("pade_report", float(kg.size) * tg.size * kv.size, 8 * 8.0)
     pade = stability_map(model, kg, tg, kv, pade_order, threads=threads)
     g = np.meshgrid(kg, tg, kv, indexing="ij")
     codes, settled = exact_delay_codes(model, *g, threads=threads, **exact_kw)
@@ -608,10 +640,10 @@ def _cli(args: argparse.Namespace) -> int:
         idx = np.unique(np.linspace(0, kv.size - 1, min(args.panels, kv.size)).round().astype(int))
         fig = plot_regions(models, kg, tg, kv[idx], args.pade_order,
                            maps=[mp[:, :, idx] for mp in maps])
-        fig.savefig(args.out, dpi=120, bbox_inches="tight")
+        _atomic.savefig(fig, args.out, dpi=120, bbox_inches="tight")
         if args.thresholds_out:
-            plot_thresholds(models, ths).savefig(args.thresholds_out, dpi=120,
-                                                 bbox_inches="tight")
+            _atomic.savefig(plot_thresholds(models, ths), args.thresholds_out, dpi=120,
+                            bbox_inches="tight")
         print(f"\nfigure written to {args.out}")
     if args.json:
         doc = {
@@ -626,8 +658,7 @@ def _cli(args: argparse.Namespace) -> int:
                                 else float(capacity(th.tg_min_overall, args.length, args.speed))}
                        for m, th in zip(models, ths, strict=True)},
         }
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(doc, f, indent=2)
+        _atomic.write_json(args.json, _atomic.json_safe(doc))
     return 0
 
 
