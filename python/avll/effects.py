@@ -39,7 +39,7 @@ from . import _core
 from ._limits import check_int, check_memory, check_number, check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel, UpperLevel, model_class
-from .rollout import Trajectory, _f64, _upper, check_lower_level, lower_level_stable, pack_runs
+from .rollout import Trajectory, _f64, _upper, check_lower_level, pack_runs
 from .rollout import params_2d as _params_2d
 
 __all__ = [
@@ -367,10 +367,11 @@ def _check_lower(model: WithEffects | LowerLevelModel, dt: float) -> None:
     check_lower_level(model.base, dt)
     asym = [e for e in model.effects if isinstance(e, Asymmetric)]
     if asym:
-        brake = equivalent_model(WithEffects(model.base, tuple(asym)), side=-1)
-        if not lower_level_stable(brake, dt):
+        c = WithEffects(model.base, tuple(asym)).linear(side=-1)
+        if not _core.lower_level_stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"],
+                                        dt):
             raise ValueError(
-                f"model: the braking side of {model!r} (kb G(rb s) = {brake!r}) is not "
+                f"model: the braking side of {model!r} (kb G(rb s): {c}) is not "
                 f"asymptotically stable at dt={dt:g} s; its response diverges when braking, so "
                 "no trajectory is returned")
 

@@ -126,9 +126,15 @@ def simulate(model: LowerLevelModel, command: Any, dt: float, *, init: str = "re
 
     For an acceleration command the response is the acceleration; for a speed
     command, the speed. ``init`` is ``"rest"`` or ``"steady"`` (see the module doc).
+    An unstable lower level is a ``ValueError`` (see the module doc).
     """
     name, p = _model(model)
-    return _core.simulate(name, p, _f64("command", command), float(dt), init)
+    dt = check_number(dt, "dt", positive=True)
+    u = _f64("command", command)
+    check_lower_level(model, dt)
+    y = _core.simulate(name, p, u, dt, init)
+    _finite_or_raise(model, dt, y)
+    return y
 
 
 def simulate_full(
