@@ -67,11 +67,11 @@ class Trajectory:
 
 def _f64(name: str, x: Any) -> np.ndarray:
     if isinstance(x, (str, bytes)) or x is None:
-        raise TypeError(f"{name}: expected an array of numbers, got {x!r:.40}")
+        raise ValueError(f"{name}: expected an array of numbers, got {x!r:.40}")
     try:
         arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
     except (TypeError, ValueError) as e:
-        raise TypeError(f"{name}: expected an array of numbers ({e})") from None
+        raise ValueError(f"{name}: expected an array of numbers ({e})") from None
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be 1-D, got shape {arr.shape}")
     return arr
@@ -79,7 +79,7 @@ def _f64(name: str, x: Any) -> np.ndarray:
 
 def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     if not isinstance(model, LowerLevelModel):
-        raise TypeError(f"model: expected an avll model object, got {type(model).__name__}")
+        raise ValueError(f"model: expected an avll model object, got {type(model).__name__}")
     return model.name, [float(v) for v in model.to_array()]
 
 
@@ -265,14 +265,14 @@ def batch_cost(
 
 
 def params_2d(params: Any, name: str = "params") -> np.ndarray:
-    """Parameter rows as a C-contiguous (P, n) float64 array (a ``TypeError`` naming
+    """Parameter rows as a C-contiguous (P, n) float64 array (a ``ValueError`` naming
     ``name`` for anything that is not numbers; ``ValueError`` for more than 2-D)."""
     if isinstance(params, (str, bytes)) or params is None:
-        raise TypeError(f"{name}: expected an array of numbers, got {params!r:.40}")
+        raise ValueError(f"{name}: expected an array of numbers, got {params!r:.40}")
     try:
         p = np.asarray(params, dtype=np.float64)
     except (TypeError, ValueError) as e:
-        raise TypeError(f"{name}: expected an array of numbers ({e})") from None
+        raise ValueError(f"{name}: expected an array of numbers ({e})") from None
     if p.ndim > 2:
         raise ValueError(f"{name}: must be 1-D (one row) or 2-D (rows), got shape {p.shape}")
     return np.ascontiguousarray(np.atleast_2d(p))

@@ -64,17 +64,17 @@ PADE_MAX_ORDER: int = int(_core.PADE_MAX_ORDER)
 
 def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     if not isinstance(model, LowerLevelModel):
-        raise TypeError(f"model: expected an avll model object, got {type(model).__name__}")
+        raise ValueError(f"model: expected an avll model object, got {type(model).__name__}")
     return model.name, [float(v) for v in model.to_array()]
 
 
 def _floats(name: str, x: Any) -> np.ndarray:
     if isinstance(x, (str, bytes)) or x is None:
-        raise TypeError(f"{name}: expected numbers, got {x!r:.40}")
+        raise ValueError(f"{name}: expected numbers, got {x!r:.40}")
     try:
         return np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError) as e:
-        raise TypeError(f"{name}: expected numbers ({e})") from None
+        raise ValueError(f"{name}: expected numbers ({e})") from None
 
 
 def _grid_memory(what: str, points: float, per_point: float) -> None:
