@@ -97,26 +97,28 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C)."""
-    from .data import DataWarning
-    from .io._common import strict_warnings
-
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    command = "?"
     try:
+        from .data import DataWarning
+        from .io._common import strict_warnings
+
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        command = args.command
         with warnings.catch_warnings():
             warnings.simplefilter("always", DataWarning)
-            warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=args.command)
+            warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
             _check_paths(args)
             with strict_warnings(bool(getattr(args, "strict", False))):
                 return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"avll {args.command}: interrupted", file=sys.stderr)
+        print(f"avll {command}: interrupted", file=sys.stderr)
         return 130
     except (ValueError, TypeError, OSError, MemoryError) as e:
         msg = " ".join(str(e).split())
         if isinstance(e, MemoryError):
             msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
-        print(f"avll {args.command}: error: {msg}", file=sys.stderr)
+        print(f"avll {command}: error: {msg}", file=sys.stderr)
         return 2
 
 
