@@ -425,6 +425,8 @@ def reproduce(
         raise ValueError(f"data: expected synthetic, carma or openacc-astazero, got {data!r}")
     seed = check_seed(seed)
     threads = check_threads(threads)
+    if data != "synthetic":
+        _data_dir(data, data_path)  # a missing folder is an error before anything starts
     final = Path(out)
     # the folder is built in a temporary sibling and committed as a unit (MANIFEST.json
     # last): an interrupted run leaves the folder as it was (see avll._atomic)
