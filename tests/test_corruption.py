@@ -358,6 +358,13 @@ def _(d: Path, out: Path) -> list[str]:
     return _cload(_carma(d, df), out)
 
 
+@case("carma/time stamp typo", "column 'Time', row 1 (line 3): the time jumps from 0.1 to")
+def _(d: Path, out: Path) -> list[str]:
+    df = carma_frame().astype({"Time": object})
+    df.loc[1, "Time"] = "70368744177665.0"
+    return _cload(_carma(d, df), out)
+
+
 @case("carma/not a CARMA file", "column 'Time': missing column")
 def _(d: Path, out: Path) -> list[str]:
     return _cload(_carma(d, canonical_frame()), out)

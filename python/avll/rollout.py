@@ -69,12 +69,12 @@ def _f64(name: str, x: Any) -> np.ndarray:
     if isinstance(x, (str, bytes)) or x is None:
         raise ValueError(f"{name}: expected an array of numbers, got {x!r:.40}")
     try:
-        arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+        arr = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError) as e:
         raise ValueError(f"{name}: expected an array of numbers ({e})") from None
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be 1-D, got shape {arr.shape}")
-    return arr
+    return np.ascontiguousarray(arr)
 
 
 def _model(model: LowerLevelModel) -> tuple[str, list[float]]:

@@ -45,6 +45,7 @@ __all__ = [
     "check_accel_units",
     "check_runs_for_delay",
     "check_time_step",
+    "check_time_span",
     "check_signal",
     "check_columns",
     "check_unique_header",
@@ -391,6 +392,24 @@ def check_accel_units(a: np.ndarray, path: str | Path, column: str,
         raise DataError(f"{where(path, column, _row(rows, i))}: acceleration {a[i]:.4g} m/s² "
                         f"is implausible (> {MAX_PLAUSIBLE_ACCEL:g}); wrong unit or column?")
     _range_check(a, path, column, "acceleration", rows, "wrong unit or column?")
+
+
+#: Longest plausible step between two samples of one file (s).
+MAX_TIME_GAP = 86400.0
+
+
+def check_time_span(t: np.ndarray, path: str | Path, column: str,
+                    rows: np.ndarray | None = None) -> None:
+    """Sorted finite times ``t``: a step longer than a day (a typo in one time stamp)
+    is an error naming the row, before a loader builds a grid over the span."""
+    if t.shape[0] < 2:
+        return
+    d = np.diff(t)
+    i = int(np.argmax(d))
+    if d[i] > MAX_TIME_GAP:
+        raise DataError(f"{where(path, column, _row(rows, i + 1))}: the time jumps from "
+                        f"{t[i]:.10g} to {t[i + 1]:.10g} s (more than a day); a wrong time "
+                        "stamp?")
 
 
 def check_time_step(dt: float, path: str | Path, column: str, row: int | None = None) -> None:

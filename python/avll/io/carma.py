@@ -48,6 +48,7 @@ from ..data import DataError, Run
 from ._common import (
     check_accel_units,
     check_speed_units,
+    check_time_span,
     contiguous,
     numeric_column,
     read_table,
@@ -209,6 +210,7 @@ def load_carma(
         rows, t = rows[keep], t[keep]
     if t.shape[0] < 2:
         raise DataError(f"{where(path, 'Time')}: needs at least 2 rows, got {t.shape[0]}")
+    check_time_span(t, path, "Time", rows)  # before the grid over the span is built
     k = np.round((t - t[0]) / dt).astype(np.int64)
     off = np.flatnonzero(np.abs(t - t[0] - k * dt) > time_tol * dt)
     if off.size:
