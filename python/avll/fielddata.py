@@ -448,7 +448,9 @@ def carma_study(
     combination. ``out`` saves everything there (:meth:`Study.save`).
     """
     from . import PAPER_TABLE_II
+    from ._limits import check_seed, check_threads
 
+    seed, threads = check_seed(seed), check_threads(threads)
     t0 = time.perf_counter()
     for o in objectives:
         if o not in CARMA_OBJECTIVES:
@@ -642,7 +644,9 @@ def astazero_study(
     i.e. gap, MSE m²); groups are the pairs ``v1-v2``…``v4-v5``.
     """
     from . import PAPER_TABLE_II
+    from ._limits import check_seed, check_threads
 
+    seed, threads = check_seed(seed), check_threads(threads)
     t0 = time.perf_counter()
     for o in objectives:
         if o not in ASTAZERO_OBJECTIVES:

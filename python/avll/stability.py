@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import _atomic, _core
-from ._limits import check_memory, check_number, check_threads
+from ._limits import check_int, check_memory, check_number, check_threads
 from .models import LowerLevelModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -351,8 +351,11 @@ def exact_delay_string(
     off like ``1/ω`` or faster (``G_fb`` is strictly proper and ``H ~ (kv s + kg) G_fb
     / s²``), so a user with unusual parameters should widen the range.
     """
-    kg, tg, kv = (np.atleast_1d(np.asarray(a, dtype=float)).ravel() for a in (kg, tg, kv))
+    n_w = check_int(n_w, "n_w", min=2)
+    kg, tg, kv = (np.atleast_1d(_floats(n, a)).ravel()
+                  for n, a in (("kg", kg), ("tg", tg), ("kv", kv)))
     kg, tg, kv = np.broadcast_arrays(kg, tg, kv)
+    _grid_memory(f"exact_delay_string: {n_w} frequencies", float(n_w), 16 * 8.0)
     lin = model.linear()
     # exact ω -> 0 limit: R(0)/D(0)^2 with R(0) = kg b0 (Tg b0 (2 kv + kg Tg) − 2 (1 − K b0))
     b0, k = lin["b0"], lin["K"]

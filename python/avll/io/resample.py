@@ -44,6 +44,15 @@ def resample_arrays(t: np.ndarray, columns: Mapping[str, np.ndarray], dt: float,
         raise ValueError(f"max_gap: must be positive, got {max_gap!r}")
     t = np.asarray(t, dtype=np.float64)
     cols = {k: np.asarray(v, dtype=np.float64) for k, v in columns.items()}
+    fin = t[np.isfinite(t)]
+    if fin.size > 1:
+        from .._limits import check_memory
+
+        n_out = (float(fin.max()) - float(fin.min())) / dt + 1.0
+        check_memory(8.0 * n_out * (len(cols) + 2),
+                     f"resample: {fin.max() - fin.min():.6g} s at dt={dt:g} s x "
+                     f"{len(cols) + 1} columns", "resample to a coarser dt",
+                     per=8.0 * (len(cols) + 2), unit="samples")
     ok = np.isfinite(t)
     for v in cols.values():
         ok &= np.isfinite(v)
