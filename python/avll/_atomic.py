@@ -123,9 +123,12 @@ def atomic_paths(*paths: str | os.PathLike[str]) -> Iterator[list[Path]]:
         for dest in dests:
             if dest.is_dir():
                 raise IsADirectoryError(f"{dest}: is a folder, expected a file name")
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.tmp-", suffix=dest.suffix,
-                                       dir=dest.parent)
+            try:
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.tmp-", suffix=dest.suffix,
+                                           dir=dest.parent)
+            except OSError as e:
+                raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
             os.close(fd)
             tmps.append(tmp)
             os.chmod(tmp, 0o666 & ~_UMASK)

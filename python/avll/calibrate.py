@@ -158,10 +158,17 @@ def _resolve_bounds(
             raise ValueError(
                 f"bounds: unknown parameter {k!r} for model {cls.name!r}; known: {', '.join(names)}"
             )
-        b = tuple(b)
+        try:
+            b = tuple(b)
+        except TypeError:
+            raise TypeError(f"bounds[{k!r}]: expected (lower, upper) or (lower, upper, scale), "
+                            f"got {b!r}") from None
         if len(b) not in (2, 3):
             raise ValueError(f"bounds[{k!r}]: expected (lower, upper) or (lower, upper, scale)")
-        lo, hi = float(b[0]), float(b[1])
+        try:
+            lo, hi = float(b[0]), float(b[1])
+        except (TypeError, ValueError):
+            raise TypeError(f"bounds[{k!r}]: lower and upper must be numbers, got {b!r}") from None
         scale = str(b[2]) if len(b) == 3 else box[k][2]
         if scale == "log" and lo <= 0:
             scale = "linear"  # a user box reaching 0 cannot be log-scaled
@@ -254,6 +261,12 @@ def _ga_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
     for k in ("pop_size", "max_generations", "stall_generations", "tournament", "elite",
               "polish_max_evals", "local_every", "local_evals"):  # fmt: skip
         out[k] = check_int(out[k], k, min=0, max=2**63 - 1)
+    if out["pop_size"] == 1 or out["pop_size"] > 1_000_000:
+        raise ValueError(f"pop_size: must be 0 (automatic) or in 2..1000000, got "
+                         f"{out['pop_size']}")
+    for k in ("tournament",):
+        if out[k] < 1:
+            raise ValueError(f"{k}: must be >= 1, got {out[k]}")
     for k in ("ftol", "xtol", "crossover_prob", "eta_c", "mutation_prob", "eta_m"):
         v = out[k]
         if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
@@ -291,7 +304,11 @@ def _initial(prob: _Problem, initial: Sequence[Any] | None) -> np.ndarray | None
             row = list(m.to_array())
             row += [0.5 * (prob.lower[i] + prob.upper[i]) for i in range(len(row), len(prob.names))]
         else:
-            row = [float(v) for v in np.asarray(m, dtype=np.float64).ravel()]
+            try:
+                row = [float(v) for v in np.asarray(m, dtype=np.float64).ravel()]
+            except (TypeError, ValueError):
+                raise TypeError(f"initial[{k}]: expected a model or numbers, got {m!r:.60}"
+                                ) from None
         if len(row) != len(prob.names):
             raise ValueError(
                 f"initial[{k}]: expected {len(prob.names)} values ({', '.join(prob.names)})"

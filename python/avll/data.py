@@ -40,7 +40,12 @@ class PlausibilityWarning(DataWarning):
 
 
 def _series(run_id: str, name: str, x: Any, n: int | None) -> np.ndarray:
-    arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    if isinstance(x, (str, bytes)):
+        raise DataError(f"run {run_id!r}: column {name!r} must be numbers, got {x!r:.40}")
+    try:
+        arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    except (TypeError, ValueError) as e:
+        raise DataError(f"run {run_id!r}: column {name!r} must be numbers ({e})") from None
     if arr.ndim != 1:
         raise DataError(f"run {run_id!r}: column {name!r} must be 1-D, got shape {arr.shape}")
     if n is not None and arr.shape[0] != n:

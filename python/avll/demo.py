@@ -33,6 +33,10 @@ def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
     dt = check_number(dt, "dt", positive=True)
     if dt > 10.0:
         raise ValueError(f"dt: {dt:g} s is longer than the 60 s demo command; use <= 10 s")
+    from ._limits import check_memory
+
+    check_memory(8.0 * 8 * 60.0 / dt, f"simulate: 60 s at dt={dt:g} s x 8 series",
+                 "use a larger dt")
     u = demo_command(dt)
     t = np.arange(u.size) * dt
     res = {name: simulate(m, u, dt) for name, m in PAPER_TABLE_II.items()}

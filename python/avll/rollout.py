@@ -254,6 +254,8 @@ def batch_cost(
     nt = check_threads(threads)
     cls = model_class(model)
     p = params_2d(params)
+    if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__len__"):
+        raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
     nr = max(len(runs), 1)
     check_memory(8.0 * p.shape[0] * nr,
                  f"batch_cost: {p.shape[0]} parameter rows x {len(runs)} runs x 8 bytes",
@@ -291,6 +293,8 @@ def pack_runs(
     array). Every series present in all runs is passed; those the objective needs must
     be present (the command in open loop, the leader in closed loop, ``v``/``x`` when
     weighted or in closed loop)."""
+    if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__iter__"):
+        raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
     runs = list(runs)
     if not runs:
         raise ValueError("runs: no runs given")
@@ -300,9 +304,12 @@ def pack_runs(
     kinds = {r.command_kind for r in runs}
     if len(kinds) != 1:
         raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
-    if len(weights) != 3:
-        raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
-    wa, wv, wx = (float(w) for w in weights)
+    try:
+        if len(weights) != 3:
+            raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
+        wa, wv, wx = (check_number(w, "weights") for w in weights)
+    except TypeError:
+        raise TypeError(f"weights: expected 3 numbers (a, v, x), got {weights!r}") from None
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
     upper = None
     if closed_loop or any(r.upper is not None for r in runs):

@@ -95,7 +95,10 @@ def _axis(name: str, x: Any) -> np.ndarray:
 
 
 def _order(pade_order: int) -> int:
-    if isinstance(pade_order, bool) or int(pade_order) != pade_order:
+    if isinstance(pade_order, (bool, str, bytes)) or not isinstance(pade_order, (int, float,
+                                                                               np.number)):
+        raise ValueError(f"pade_order: must be an integer, got {pade_order!r}")
+    if not np.isfinite(pade_order) or int(pade_order) != pade_order:
         raise ValueError(f"pade_order: must be an integer, got {pade_order!r}")
     if not 1 <= int(pade_order) <= PADE_MAX_ORDER:
         raise ValueError(f"pade_order: must be in 1..{PADE_MAX_ORDER}, got {pade_order}")
@@ -416,7 +419,11 @@ def exact_delay_codes(
     that of the highest order). String stability: :func:`exact_delay_string`.
     """
     check_threads(threads)
-    kg, tg, kv = np.broadcast_arrays(*(np.asarray(a, dtype=float).ravel() for a in (kg, tg, kv)))
+    kg, tg, kv = np.broadcast_arrays(*(_floats(n, a).ravel()
+                                       for n, a in (("kg", kg), ("tg", tg), ("kv", kv))))
+    orders = [_order(o) for o in orders]
+    if not orders:
+        raise ValueError("orders: give at least one Padé order")
     locs = [stability_points(model, kg, tg, kv, o, threads=threads) > 0 for o in orders]
     local = locs[-1]
     settled = np.all([loc == local for loc in locs], axis=0)
@@ -600,6 +607,8 @@ def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
 def _cli(args: argparse.Namespace) -> int:
     from . import PAPER_TABLE_II
 
+    if args.panels < 1:
+        raise ValueError(f"--panels: must be >= 1, got {args.panels}")
     names = args.model or ["second", "proposed"]
     models = []
     for n in names:

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from .._limits import check_number
 from ..data import DataError, Run
 from ._common import (
     check_accel_units,
@@ -158,6 +159,9 @@ def load_carma(
     """
     if command_kind not in (None, "speed"):
         raise ValueError(f"command_kind: CARMA commands are speeds, got {command_kind!r}")
+    min_duration, max_hole, dt, time_tol = (check_number(v, n) for v, n in (
+        (min_duration, "min_duration"), (max_hole, "max_hole"), (dt, "dt"),
+        (time_tol, "time_tol")))
     if not (min_duration >= 0):
         raise ValueError(f"min_duration: must be >= 0, got {min_duration!r}")
     if not (max_hole >= 0):

@@ -15,6 +15,9 @@ __all__ = ["register_cli"]
 
 def _cmd(args: argparse.Namespace) -> int:
     opts: dict[str, Any] = {}
+    if (args.dt is not None or args.max_gap is not None) and args.format == "canonical":
+        raise ValueError("--dt: the canonical format is already uniformly sampled and is not "
+                         "resampled; use --format generic to resample a table")
     if args.dt is not None:
         opts["dt"] = args.dt
     if args.max_gap is not None:

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from .._limits import check_number
 from ..data import COMMAND_KINDS, DataError, Run
 from ._common import (
     check_columns,
@@ -76,6 +77,9 @@ def _load_generic(path: Path, mapping: Mapping[str, str] | None, command_kind: s
                   min_samples: int) -> list[Run]:
     if command_kind is not None and command_kind not in COMMAND_KINDS:
         raise ValueError(f"command_kind: must be one of {COMMAND_KINDS}, got {command_kind!r}")
+    if dt is not None:
+        dt = check_number(dt, "dt")
+    time_tol = check_number(time_tol, "time_tol")
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be a positive time step, got {dt!r}")
     if not (time_tol > 0):
