@@ -32,8 +32,9 @@ TINY = replace(R.SETTINGS["quick"], duration=30.0, max_generations=3, kg_n=16, t
 
 
 def _leftovers(folder: Path) -> list[str]:
-    """Temporary files or staging folders left behind in ``folder``."""
-    return [p.name for p in folder.iterdir() if ".tmp-" in p.name]
+    """Temporary files or staging folders left behind anywhere below ``folder``."""
+    return [p.name for p in folder.rglob("*")
+            if ".tmp-" in p.name or p.name.startswith(_atomic.STAGING_PREFIX)]
 
 
 # ------------------------------------------------------------------ files

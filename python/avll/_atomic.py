@@ -12,7 +12,8 @@ Files
 
 Folders
     :func:`output_dir` builds a folder of outputs (a report with its figures, a
-    reproduction) in a temporary sibling folder and commits it when the block ends:
+    reproduction) in a hidden temporary folder inside it (``.avll-tmp-XXXXXX``: the same
+    file system, writable wherever the folder is) and commits it when the block ends:
     the old ``MANIFEST.json`` is removed first, every new file is moved in with
     ``os.replace``, files listed in the old manifest that the new run did not write
     are removed, and the new ``MANIFEST.json`` (file names, sizes, SHA-256) is written
@@ -57,6 +58,8 @@ __all__ = [
 
 #: Name of the manifest that marks a complete output folder.
 MANIFEST = "MANIFEST.json"
+#: Prefix of the hidden staging folder inside an output folder.
+STAGING_PREFIX = ".avll-tmp-"
 
 
 def _fsync_file(path: str | os.PathLike[str]) -> None:
@@ -243,8 +246,13 @@ def _sha256(path: Path) -> str:
 
 
 def _files(root: Path) -> list[str]:
-    return sorted(str(p.relative_to(root)).replace(os.sep, "/")
-                  for p in root.rglob("*") if p.is_file() and p.name != MANIFEST)
+    out = []
+    for p in root.rglob("*"):
+        rel = p.relative_to(root)
+        if p.is_file() and p.name != MANIFEST and not any(
+                part.startswith(STAGING_PREFIX) for part in rel.parts):
+            out.append(str(rel).replace(os.sep, "/"))
+    return sorted(out)
 
 
 def _old_manifest_files(dest: Path) -> list[str]:
@@ -258,14 +266,18 @@ def _old_manifest_files(dest: Path) -> list[str]:
 @contextlib.contextmanager
 def output_dir(path: str | os.PathLike[str], *, meta: dict[str, Any] | None = None
                ) -> Iterator[Path]:
-    """Yields a temporary sibling folder to write a folder of outputs into; commits it
-    onto ``path`` with a manifest written last when the block ends normally (see the
-    module doc); removes it otherwise. ``meta`` goes into the manifest."""
+    """Yields a temporary folder (hidden, inside ``path``) to write a folder of outputs
+    into; commits it onto ``path`` with a manifest written last when the block ends
+    normally (see the module doc); removes it otherwise. ``meta`` goes into the
+    manifest."""
     dest = Path(path)
     if dest.exists() and not dest.is_dir():
         raise NotADirectoryError(f"{dest}: exists and is not a folder")
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{dest.name or 'out'}.tmp-", dir=dest.parent))
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=dest))
+    except OSError as e:
+        raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
     try:
         yield stage
         _commit(stage, dest, meta or {})
@@ -281,7 +293,6 @@ def _commit(stage: Path, dest: Path, meta: dict[str, Any]) -> None:
     for f in new:
         _fsync_file(stage / f)
     with deferred_sigint():
-        dest.mkdir(parents=True, exist_ok=True)
         old = _old_manifest_files(dest)
         with contextlib.suppress(FileNotFoundError):
             os.unlink(dest / MANIFEST)

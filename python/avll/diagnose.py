@@ -1123,7 +1123,7 @@ def plot_diagnosis(d: Diagnosis) -> list[tuple[str, Any]]:
 
 def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll diagnosis") -> Path:
     """Writes ``report.md``, ``report.html`` and PNG figures into ``out_dir`` as one
-    unit (built in a temporary sibling folder, committed with a ``MANIFEST.json``
+    unit (built in a hidden temporary folder inside it, committed with a ``MANIFEST.json``
     written last: see :mod:`avll._atomic`). Every text, run ids included, is escaped
     in the HTML."""
     import matplotlib

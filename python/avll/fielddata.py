@@ -119,7 +119,7 @@ class Study:
 
     def save(self, out: str | Path) -> list[Path]:
         """Writes tables (CSV), figures (PNG), ``summary.json`` and ``report.txt``
-        into ``out`` as one unit (built in a temporary sibling folder, committed with a
+        into ``out`` as one unit (built in a hidden temporary folder inside it, committed with a
         ``MANIFEST.json`` written last, see :mod:`avll._atomic`); returns the paths
         written."""
         from . import _atomic

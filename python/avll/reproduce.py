@@ -407,7 +407,7 @@ def reproduce(
     ``settings``: a :class:`Settings` or a key of :data:`SETTINGS`. ``progress``
     shows a stage bar (and the GA / map bars) on stderr. Ctrl-C raises
     ``KeyboardInterrupt`` after closing the bars; nothing partial is written: the
-    folder is built in a temporary sibling and committed as a unit with a
+    folder is built in a hidden staging folder and committed as a unit with a
     ``MANIFEST.json`` written last (:func:`avll._atomic.read_manifest` checks it), so an
     interrupted run leaves ``out`` exactly as it was (an earlier complete run stays
     complete). Files of ``out`` that no avll run wrote are never touched.
@@ -428,8 +428,8 @@ def reproduce(
     if data != "synthetic":
         _data_dir(data, data_path)  # a missing folder is an error before anything starts
     final = Path(out)
-    # the folder is built in a temporary sibling and committed as a unit (MANIFEST.json
-    # last): an interrupted run leaves the folder as it was (see avll._atomic)
+    # built in a hidden staging folder, committed as a unit (MANIFEST.json last): an
+    # interrupted run leaves the folder as it was (see avll._atomic)
     with _atomic.output_dir(final, meta={"command": "avll reproduce", "data": data,
                                          "seed": seed}) as outd:
         summary = _reproduce_in(outd, final, data, data_path, settings, seed, threads,
