@@ -176,6 +176,12 @@ def test_output_dir_commits_as_a_unit(tmp_path: Path) -> None:
             raise KeyboardInterrupt
     assert (d / "a.txt").read_text() == "a2" and _atomic.read_manifest(d)["run"] == 2
     assert _leftovers(tmp_path) == []
+    # interrupted before anything was committed to a new folder: no folder at all
+    with pytest.raises(KeyboardInterrupt):
+        with _atomic.output_dir(tmp_path / "new" / "out") as st:
+            (st / "a.txt").write_text("a")
+            raise KeyboardInterrupt
+    assert not (tmp_path / "new" / "out").exists()
     # a reader notices a changed or missing file
     (d / "a.txt").write_text("tampered")
     with pytest.raises(ValueError, match="a.txt differs"):

@@ -273,16 +273,22 @@ def output_dir(path: str | os.PathLike[str], *, meta: dict[str, Any] | None = No
     dest = Path(path)
     if dest.exists() and not dest.is_dir():
         raise NotADirectoryError(f"{dest}: exists and is not a folder")
+    created = not dest.exists()
     try:
         dest.mkdir(parents=True, exist_ok=True)
         stage = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=dest))
     except OSError as e:
         raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
+    ok = False
     try:
         yield stage
         _commit(stage, dest, meta or {})
+        ok = True
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+        if created and not ok:
+            with contextlib.suppress(OSError):
+                dest.rmdir()  # only if still empty: a folder this run created
 
 
 def _commit(stage: Path, dest: Path, meta: dict[str, Any]) -> None:
