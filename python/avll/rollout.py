@@ -32,6 +32,8 @@ abort the process.
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -94,15 +96,21 @@ def lower_level_stable(model: LowerLevelModel, dt: float) -> bool:
     asymptotically stable when sampled every ``dt`` seconds: the test behind the costs'
     ``inf`` (:func:`batch_cost`)."""
     c = model.linear()
-    return bool(_core.lower_level_stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"],
-                                         check_number(dt, "dt", positive=True)))
+    return _stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"],
+                   check_number(dt, "dt", positive=True))
+
+
+@functools.lru_cache(maxsize=4096)
+def _stable(b1: float, b0: float, a2: float, a1: float, td: float, k: float, dt: float) -> bool:
+    # cached: the test discretizes (a matrix exponential) and runs Schur-Cohn, ~8 us
+    return bool(_core.lower_level_stable(b1, b0, a2, a1, td, k, dt))
 
 
 def check_lower_level(model: LowerLevelModel, dt: float, *, what: str = "") -> None:
     """Raises ``ValueError`` naming the model and its parameters unless
     :func:`lower_level_stable` (the policy of every trajectory function)."""
-    if not lower_level_stable(model, dt):
-        c = model.linear()
+    c = model.linear()
+    if not _stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"], float(dt)):
         why = (f"K K0 = {c['K'] * c['b0']:.4g} >= 1: the inner loop has no steady state"
                if c["K"] * c["b0"] >= 1 else
                "a pole of G/(1 - K G), with its dead time, sampled at dt, lies on or outside "
@@ -114,8 +122,9 @@ def check_lower_level(model: LowerLevelModel, dt: float, *, what: str = "") -> N
 
 
 def _finite_or_raise(model: LowerLevelModel, dt: float, *arrays: np.ndarray) -> None:
+    # a diverged rollout is NaN from the divergence to the end: the last sample tells
     for a in arrays:
-        if not np.all(np.isfinite(a)):
+        if a.size and not math.isfinite(float(a[-1])):
             raise ValueError(f"model: the response of {model!r} at dt={dt:g} s diverged "
                              "(|y| beyond 1e9 or not finite): the lower level or the command "
                              "is out of range")
