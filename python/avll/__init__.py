@@ -6,6 +6,7 @@ automated vehicle".
 """
 
 from . import io, synth
+from ._atomic import read_manifest
 from ._core import __version__
 from .calibrate import (
     Bootstrap,
@@ -110,4 +111,5 @@ __all__ = [
     "stability_map",
     "stability_points",
     "thresholds",
+    "read_manifest",
 ]

@@ -360,21 +360,6 @@ def _real(name: str, path: str | Path | None, settings: Settings) -> _Data:
 # ---------------------------------------------------------------------------
 
 
-def _json_clean(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _json_clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_clean(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_clean(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
 def _stab_json(st: dict[str, Any]) -> dict[str, Any]:
     th = st["thresholds"]
     return {
@@ -408,7 +393,7 @@ def reproduce(
     shows a stage bar (and the GA / map bars) on stderr. Ctrl-C raises
     ``KeyboardInterrupt`` after closing the bars; nothing partial is written: the
     folder is built in a hidden staging folder and committed as a unit with a
-    ``MANIFEST.json`` written last (:func:`avll._atomic.read_manifest` checks it), so an
+    ``MANIFEST.json`` written last (:func:`avll.read_manifest` checks it), so an
     interrupted run leaves ``out`` exactly as it was (an earlier complete run stays
     complete). Files of ``out`` that no avll run wrote are never touched.
     """
@@ -435,7 +420,7 @@ def reproduce(
         summary = _reproduce_in(outd, final, data, data_path, settings, seed, threads,
                                 progress, json_path, log)
     if json_path is not None:
-        _atomic.write_json(json_path, _json_clean(summary), default=str)
+        _atomic.write_json(json_path, _atomic.json_safe(summary), default=str)
     return summary
 
 
@@ -516,7 +501,7 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
                                 "figures": figs, "summary_json": shown_json}
             _write_report(outd, d, wf, stab, diag, settings, summary, figs)
             if json_path is None:
-                _atomic.write_json(outd / "summary.json", _json_clean(summary))
+                _atomic.write_json(outd / "summary.json", _atomic.json_safe(summary))
     finally:
         stages.close()
     return summary
@@ -627,7 +612,7 @@ def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
                             "field_study": [str(x.relative_to(outd)) for x in saved]}
         _write_field_report(outd, name, st, stab, diag, diag_label, settings, summary, figs)
         if json_path is None:
-            _atomic.write_json(outd / "summary.json", _json_clean(summary), default=str)
+            _atomic.write_json(outd / "summary.json", _atomic.json_safe(summary), default=str)
     return summary
 
 
