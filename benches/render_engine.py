@@ -1,7 +1,8 @@
 """Renders ``bench_engine.py --json`` output as the docs' engine table.
 
     python benches/bench_engine.py --json docs/_generated/engine_bench.json
-    python benches/render_engine.py docs/_generated/engine_bench.json docs/_generated/engine_bench.md
+    python benches/render_engine.py docs/_generated/engine_bench.json \
+        docs/_generated/engine_bench.md
 
 Every number in the table comes from the JSON (rates in M steps/s per core, the
 ratio avll / best peer, the issue-10 target and whether it is met); the machine, the

@@ -1,13 +1,51 @@
 //! Thread pools: `threads = 0` uses rayon's global pool (all cores); any other
 //! value runs the work in a cached pool of exactly that many threads.
+//!
+//! The number of threads a call may ask for is bounded by the machine:
+//! at most [`THREADS_PER_CORE`] times the available cores ([`max_threads`]). Above
+//! that a call fails at once with an error naming `threads`, before any thread is
+//! started (a request for thousands of OS threads only starves the machine and
+//! delays Ctrl-C). `avll._limits.check_threads` applies the same bound on the
+//! Python side, reading it from [`max_threads`].
 
 use crate::error::{AvllError, Result};
 use std::sync::{Arc, Mutex};
 
 static POOL: Mutex<Option<(usize, Arc<rayon::ThreadPool>)>> = Mutex::new(None);
 
-/// Runs `f` with `threads` worker threads (0 = all cores).
+/// Multiple of the available cores a call may ask for.
+pub const THREADS_PER_CORE: usize = 4;
+
+/// Cores available to this process (affinity and cgroup quotas respected; 1 if unknown).
+pub fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// The largest accepted `threads`: `THREADS_PER_CORE * cores()`.
+pub fn max_threads() -> usize {
+    THREADS_PER_CORE * cores()
+}
+
+/// Fails unless `threads` is 0 (all cores) or at most [`max_threads`].
+pub fn check_threads(threads: usize) -> Result<()> {
+    let max = max_threads();
+    if threads > max {
+        return Err(AvllError::new(
+            "threads",
+            format!(
+                "{threads} is more than {THREADS_PER_CORE} x the {} available cores (at most \
+                 {max}); use 0 for all cores",
+                cores()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Runs `f` with `threads` worker threads (0 = all cores); `threads` above
+/// [`max_threads`] is an error and nothing runs.
 pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Result<T> {
+    check_threads(threads)?;
     if threads == 0 {
         return Ok(f());
     }
@@ -27,4 +65,29 @@ pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Re
         }
     };
     Ok(pool.install(f))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn threads_are_bounded_by_the_machine() {
+        let max = max_threads();
+        assert!(max >= THREADS_PER_CORE);
+        assert!(check_threads(0).is_ok());
+        assert!(check_threads(max).is_ok());
+        let e = check_threads(max + 1).unwrap_err();
+        assert_eq!(e.arg, "threads");
+        let ran = std::sync::atomic::AtomicBool::new(false);
+        let r = with_threads(1_000_000, || {
+            ran.store(true, std::sync::atomic::Ordering::SeqCst)
+        });
+        assert!(r.is_err());
+        assert!(
+            !ran.load(std::sync::atomic::Ordering::SeqCst),
+            "nothing may run"
+        );
+        assert_eq!(with_threads(1, || 7).unwrap(), 7);
+    }
 }

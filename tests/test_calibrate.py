@@ -235,7 +235,7 @@ def test_progress_callable_and_interrupt(proposed_data: list[avll.Run]) -> None:
     assert {"problem", "phase", "iteration", "evaluations", "best"} <= set(seen[0])
 
 
-def test_ctrl_c_returns_best_so_far(proposed_data: list[avll.Run]) -> None:
+def test_ctrl_c_returns_best_so_far(proposed_data: list[avll.Run], sigint_handler: None) -> None:
     timer = threading.Timer(0.5, _thread.interrupt_main)
     timer.start()
     try:

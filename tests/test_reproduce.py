@@ -123,9 +123,11 @@ def test_ctrl_c_stops_cleanly(tmp_path: Path, delay: float) -> None:
     import sys
     import time
 
+    from signal_helpers import SIGINT_DEFAULT
+
     p = subprocess.Popen([sys.executable, "-m", "avll.cli", "reproduce", "--out",
                           str(tmp_path), "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True)
+                         text=True, **SIGINT_DEFAULT)
     time.sleep(delay)
     if p.poll() is not None:  # pragma: no cover - a very fast machine
         p.communicate()  # close the pipes (an unclosed pipe warns, i.e. fails, later)

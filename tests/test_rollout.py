@@ -69,7 +69,11 @@ def test_open_loop_matches_reference(name: str, kind: str, init: str) -> None:
         m = random_model(rng, name)
         u = rng.normal(size=int(rng.integers(2, 250))) + rng.normal()
         want = ref.simulate_full(m, u, DT, command_kind=kind, init=init, v0=3.0, x0=-7.0)
-        if not bounded(want):  # the delayed inner loop may still be unstable
+        if not ref.lower_level_stable(m, DT):  # the delayed inner loop may be unstable
+            with pytest.raises(ValueError, match="not asymptotically stable"):
+                avll.simulate_full(m, u, DT, command_kind=kind, init=init)
+            continue
+        if not bounded(want):
             continue
         got = avll.simulate_full(m, u, DT, command_kind=kind, init=init, v0=3.0, x0=-7.0)
         floor = 1e-6 * max(1.0, float(np.max(np.abs(u))))
@@ -95,6 +99,10 @@ def test_closed_loop_matches_reference(name: str) -> None:
         lx, lv = leader(rng, int(rng.integers(2, 300)))
         v0, x0 = float(rng.uniform(5, 15)), float(rng.uniform(-20, 10))
         want = ref.closed_loop(m, lx, lv, DT, up, v0=v0, x0=x0)
+        if not ref.lower_level_stable(m, DT):
+            with pytest.raises(ValueError, match="not asymptotically stable"):
+                avll.closed_loop(m, lx, lv, DT, up, v0=v0, x0=x0)
+            continue
         if not bounded(want):
             continue
         got = avll.closed_loop(m, lx, lv, DT, up, v0=v0, x0=x0)
@@ -272,6 +280,7 @@ def _scale(y: np.ndarray) -> float:
 def test_linearity(
     m: avll.LowerLevelModel, u1: list[float], seed: int, alpha: float, beta: float
 ) -> None:
+    assume(ref.lower_level_stable(m, DT))  # unstable ones are refused (tested elsewhere)
     a = np.array(u1)
     b = np.random.default_rng(seed).normal(size=a.size)
     ya, yb = avll.simulate(m, a, DT), avll.simulate(m, b, DT)
@@ -284,6 +293,7 @@ def test_linearity(
 @given(m=linear_models(), u=st.lists(finite, min_size=1, max_size=80), shift=st.integers(1, 30))
 def test_time_invariance(m: avll.LowerLevelModel, u: list[float], shift: int) -> None:
     """At rest, delaying the input by k samples delays the output by k samples."""
+    assume(ref.lower_level_stable(m, DT))
     x = np.array(u)
     y = avll.simulate(m, x, DT)
     ys = avll.simulate(m, np.concatenate([np.zeros(shift), x]), DT)
@@ -294,6 +304,10 @@ def test_time_invariance(m: avll.LowerLevelModel, u: list[float], shift: int) ->
 @settings(max_examples=40, deadline=None)
 @given(m=linear_models(), n=st.integers(1, 200), kind=st.sampled_from(["acceleration", "speed"]))
 def test_zero_in_zero_out(m: avll.LowerLevelModel, n: int, kind: str) -> None:
+    if not ref.lower_level_stable(m, DT):
+        with pytest.raises(ValueError, match="not asymptotically stable"):
+            avll.simulate_full(m, np.zeros(n), DT, command_kind=kind)
+        return
     for init in ("rest", "steady"):
         tr = avll.simulate_full(m, np.zeros(n), DT, command_kind=kind, init=init)
         for key in ("a", "v", "x"):
@@ -544,10 +558,62 @@ def test_extreme_time_constants_raise_instead_of_hanging() -> None:
     assert math.isinf(avll.batch_cost("proposed", np.array([row]), [_one_run(20)])[0, 0])
 
 
-def test_diverging_follower_is_nan_after_the_divergence() -> None:
+def test_unstable_lower_level_is_a_value_error_everywhere() -> None:
+    """The policy of every trajectory function: a lower level that is not
+    asymptotically stable (here K K0 > 1) is a ValueError naming the model and its
+    parameters, never an array of NaN; its costs are inf."""
     m = avll.Proposed(m1=0.0, m2=1.0, m3=1.0, K0=1.0, Td=0.1, K=5.0)  # K K0 > 1
+    assert not ref.lower_level_stable(m, DT)
+    lx, lv = leader(np.random.default_rng(2), 300)
+    up = avll.UpperLevel(0.5, 0.0, 2.0, 9.5)
+    calls = [
+        lambda: avll.simulate(m, np.ones(100), DT),
+        lambda: avll.simulate_full(m, np.ones(100), DT),
+        lambda: avll.closed_loop(m, lx, lv, DT, up, v0=12.0, x0=0.0),
+        lambda: avll.platoon(m, lx, lv, DT, up, 2),
+        lambda: avll.simulate_effects(m, np.ones(100), DT),
+        lambda: avll.closed_loop_effects(m, lx, lv, DT, up, v0=12.0, x0=0.0),
+        lambda: avll.simulate_effects(avll.WithEffects(m, (avll.Saturation(2.0, 2.0),)),
+                                      np.ones(100), DT),
+    ]
+    for call in calls:
+        with pytest.raises(ValueError, match=r"Proposed\(m1=0.0, m2=1.0.*K=5.0\).*not "
+                                             "asymptotically stable"):
+            call()
+    run = avll.Run("r", np.arange(100) * DT, np.zeros(100), command=np.ones(100))
+    assert np.isinf(avll.batch_cost("proposed", m.to_array(), [run])).all()
+    # the braking side of an asymmetric lower level is checked too
+    base = avll.SecondOrder(K0=1.0, m2=0.5, m3=0.1, Td=0.0)
+    assert ref.lower_level_stable(base, DT)
+    avll.simulate_effects(avll.WithEffects(base, (avll.Asymmetric(1.0, 1.0),)), np.ones(50), DT)
+
+
+def test_binding_agrees_with_the_reference_stability_test() -> None:
+    """_core.lower_level_stable (the Rust test behind the costs' inf) against the
+    reference's spectral radius of the sampled lower level, on random parameters."""
+    rng = np.random.default_rng(11)
+    seen = {True: 0, False: 0}
+    for _ in range(400):
+        Td = float(rng.choice([0.0, rng.uniform(0, 1.5)]))
+        m = avll.Proposed(m1=float(rng.uniform(-2, 8)), m2=float(rng.uniform(0.02, 3)),
+                          m3=float(rng.uniform(-0.5, 9)), K0=float(rng.uniform(0.1, 2)),
+                          Td=Td, K=float(rng.uniform(-2, 2)))
+        rho = ref.lower_level_spectral_radius(m, DT)
+        if abs(rho - 1.0) < 1e-6:  # too close to the boundary to compare
+            continue
+        got = avll.rollout.lower_level_stable(m, DT)
+        assert got == (rho < 1.0), (m, rho)
+        seen[got] += 1
+    assert seen[True] > 50 and seen[False] > 50
+
+
+def test_diverging_follower_is_nan_after_the_divergence() -> None:
+    """A stable lower level under destabilising upper-level gains: the car-following
+    loop diverges, which is a result (NaN from the divergence on), not an error."""
+    m = avll.PAPER_TABLE_II["second"]
+    assert ref.lower_level_stable(m, DT)
     lx, lv = leader(np.random.default_rng(2), 3000)
-    tr = avll.closed_loop(m, lx, lv, DT, avll.UpperLevel(0.5, 0.0, 2.0, 9.5), v0=12.0, x0=0.0)
+    tr = avll.closed_loop(m, lx, lv, DT, avll.UpperLevel(3.0, 3.0, 0.0, 9.5), v0=12.0, x0=0.0)
     bad = np.flatnonzero(~np.isfinite(tr.a))
     assert bad.size > 0
     k = bad[0]
@@ -555,7 +621,7 @@ def test_diverging_follower_is_nan_after_the_divergence() -> None:
     assert np.all(np.isfinite(tr.a[:k])) and np.all(np.isnan(tr.a[k:]))
     for key in ("v", "x", "command"):
         assert np.all(np.isnan(getattr(tr, key)[k:])) and np.all(np.isfinite(getattr(tr, key)[:k]))
-    plat = avll.platoon(m, lx, lv, DT, avll.UpperLevel(0.5, 0.0, 2.0, 9.5), 2)
+    plat = avll.platoon(m, lx, lv, DT, avll.UpperLevel(3.0, 3.0, 0.0, 9.5), 2)
     assert np.isnan(plat.a[1, -1])  # and so are the followers behind it
 
 

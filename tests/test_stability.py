@@ -234,7 +234,7 @@ def test_progress_callback_and_interrupt_from_callback() -> None:
 
 
 @pytest.mark.skipif(os.name != "posix", reason="needs SIGINT delivery")
-def test_ctrl_c_interrupts_a_long_map() -> None:
+def test_ctrl_c_interrupts_a_long_map(sigint_handler: None) -> None:
     m = P["proposed"]
     kg = np.linspace(0.01, 1, 4000)
     tg = np.linspace(0, 15, 4000)

@@ -6,6 +6,7 @@ automated vehicle".
 """
 
 from . import io, synth
+from ._atomic import read_manifest
 from ._core import __version__
 from .calibrate import (
     Bootstrap,
@@ -16,7 +17,7 @@ from .calibrate import (
     calibrate_many,
     paper_workflow,
 )
-from .data import DataError, Run
+from .data import DataError, DataWarning, PlausibilityWarning, Run
 from .effects import (
     EFFECTS,
     Asymmetric,
@@ -82,6 +83,8 @@ __all__ = [
     "synth",
     "__version__",
     "DataError",
+    "DataWarning",
+    "PlausibilityWarning",
     "Run",
     "MODELS",
     "FirstOrderLag",
@@ -140,4 +143,5 @@ __all__ = [
     "stability_probability",
     "sweep",
     "write_map",
+    "read_manifest",
 ]

@@ -49,7 +49,8 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
+from . import _atomic, _core
+from ._limits import check_int, check_memory, check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel, UpperLevel, model_class
 from .rollout import batch_cost, closed_loop, pack_runs, simulate
@@ -162,10 +163,17 @@ def _resolve_bounds(
             raise ValueError(
                 f"bounds: unknown parameter {k!r} for model {cls.name!r}; known: {', '.join(names)}"
             )
-        b = tuple(b)
+        try:
+            b = tuple(b)
+        except TypeError:
+            raise TypeError(f"bounds[{k!r}]: expected (lower, upper) or (lower, upper, scale), "
+                            f"got {b!r}") from None
         if len(b) not in (2, 3):
             raise ValueError(f"bounds[{k!r}]: expected (lower, upper) or (lower, upper, scale)")
-        lo, hi = float(b[0]), float(b[1])
+        try:
+            lo, hi = float(b[0]), float(b[1])
+        except (TypeError, ValueError):
+            raise TypeError(f"bounds[{k!r}]: lower and upper must be numbers, got {b!r}") from None
         scale = str(b[2]) if len(b) == 3 else box[k][2]
         if scale == "log" and lo <= 0:
             scale = "linear"  # a user box reaching 0 cannot be log-scaled
@@ -257,10 +265,35 @@ def _ga_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
         out[k] = v
     for k in ("pop_size", "max_generations", "stall_generations", "tournament", "elite",
               "polish_max_evals", "local_every", "local_evals"):  # fmt: skip
-        if int(out[k]) < 0:
-            raise ValueError(f"{k}: must be >= 0, got {out[k]}")
-        out[k] = int(out[k])
+        out[k] = check_int(out[k], k, min=0, max=2**63 - 1)
+    if out["pop_size"] == 1 or out["pop_size"] > 1_000_000:
+        raise ValueError(f"pop_size: must be 0 (automatic) or in 2..1000000, got "
+                         f"{out['pop_size']}")
+    for k in ("tournament",):
+        if out[k] < 1:
+            raise ValueError(f"{k}: must be >= 1, got {out[k]}")
+    for k in ("ftol", "xtol", "crossover_prob", "eta_c", "mutation_prob", "eta_m"):
+        v = out[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+            raise TypeError(f"{k}: must be a number, got {v!r}")
+        if not math.isfinite(float(v)):
+            raise ValueError(f"{k}: must be finite, got {v!r}")
+    for k in ("plus", "polish"):
+        if not isinstance(out[k], (bool, np.bool_)):
+            raise TypeError(f"{k}: must be True or False, got {out[k]!r}")
     return out
+
+
+def _ga_memory(prob: _Problem, n_problems: int, ga: dict[str, Any]) -> None:
+    """Refuses a calibration whose populations cannot fit in memory."""
+    d = len(prob.names)
+    pop = ga["pop_size"] or max(16 * d, 40)
+    runs = len(prob.runs)
+    per = 8.0 * (4 * pop * (d + 2) + ga["max_generations"] + runs + d)
+    check_memory(per * n_problems,
+                 f"calibrate: {n_problems} problem(s) x population {pop} x {d} parameters",
+                 "solve fewer problems (bootstrap resamples, starts) per call",
+                 per=per, unit="problems")
 
 
 def _initial(prob: _Problem, initial: Sequence[Any] | None) -> np.ndarray | None:
@@ -276,7 +309,11 @@ def _initial(prob: _Problem, initial: Sequence[Any] | None) -> np.ndarray | None
             row = list(m.to_array())
             row += [0.5 * (prob.lower[i] + prob.upper[i]) for i in range(len(row), len(prob.names))]
         else:
-            row = [float(v) for v in np.asarray(m, dtype=np.float64).ravel()]
+            try:
+                row = [float(v) for v in np.asarray(m, dtype=np.float64).ravel()]
+            except (TypeError, ValueError):
+                raise TypeError(f"initial[{k}]: expected a model or numbers, got {m!r:.60}"
+                                ) from None
         if len(row) != len(prob.names):
             raise ValueError(
                 f"initial[{k}]: expected {len(prob.names)} values ({', '.join(prob.names)})"
@@ -364,11 +401,13 @@ def _run(
     options: Mapping[str, Any],
 ) -> list[dict[str, Any]]:
     ga = _ga_kwargs(options)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed: must be a non-negative integer, got {seed!r}")
-    if int(threads) < 0:
-        raise ValueError(f"threads: must be >= 0, got {threads}")
+    seed = check_seed(seed)
+    threads = check_threads(threads)
     n_problems = 1 if problems is None else len(problems)
+    _ga_memory(prob, n_problems, ga)
+    if target is not None and (isinstance(target, bool) or not isinstance(
+            target, (int, float, np.integer, np.floating)) or math.isnan(float(target))):
+        raise TypeError(f"target: must be a number or None, got {target!r}")
     bar: Any
     if callable(progress):
         bar = progress
@@ -432,14 +471,18 @@ def calibrate(
     cleanly: the best so far is returned with ``interrupted=True``. Further GA options:
     see :data:`GA_OPTIONS` (``pop_size``, ``max_generations``, ``stall_generations``,
     ``ftol``, ``polish``, ...).
+
+    A calibration in which every parameter set tried costs ``inf`` (the model diverges
+    on every candidate, or the data are out of range) raises a ``ValueError``: there is
+    no fit to return.
     """
+    check_seed(seed)
+    check_threads(threads)
+    n = check_int(starts, "starts", min=1)
     prob = _problem(
         model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
         weights=weights, init=init,
     )  # fmt: skip
-    if isinstance(starts, bool) or int(starts) < 1:
-        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
-    n = int(starts)
     all_runs = list(range(len(prob.runs)))
     raws = _run(
         prob, None if n == 1 else [all_runs] * n, seed=seed, derive_seeds=n > 1,
@@ -447,6 +490,7 @@ def calibrate(
         threads=threads, progress=progress, desc=f"calibrate {prob.cls.name}", options=ga_options,
     )  # fmt: skip
     best = min(range(n), key=lambda j: (raws[j]["f"], j))
+    _check_finite_fit(prob, raws[best], "")
     raw = dict(raws[best])
     raw["evaluations"] = sum(int(r["evaluations"]) for r in raws)
     raw["interrupted"] = any(bool(r["interrupted"]) for r in raws)
@@ -461,6 +505,19 @@ def _per_run(raw: Mapping[str, Any], n_runs: int) -> np.ndarray:
     out = np.full(n_runs, np.nan)
     out[np.asarray(raw["per_run_index"], dtype=np.int64)] = raw["per_run_cost"]
     return out
+
+
+def _check_finite_fit(prob: _Problem, raw: dict[str, Any], where: str) -> None:
+    """A best cost of inf (or NaN) is no fit: a ValueError that says why it may be."""
+    f = float(raw["f"])
+    if math.isfinite(f):
+        return
+    how = "interrupted before any finite cost was found; " if raw.get("interrupted") else ""
+    raise ValueError(
+        f"runs: the calibration of {prob.cls.name!r}{where} found no parameter set with a "
+        f"finite cost ({how}every evaluated candidate diverged or gave a non-finite "
+        f"error). Check the runs for implausible values (strict=True when loading), the "
+        f"command kind and the bounds ({', '.join(prob.names)})")
 
 
 def _subset_indices(runs: Sequence[Run], subset: Sequence[Any], k: int) -> list[int]:
@@ -509,9 +566,9 @@ def calibrate_many(
     the best. Each result's ``per_run_mse`` covers the runs of its problem (once
     each).
     """
-    if isinstance(starts, bool) or int(starts) < 1:
-        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
-    n_st = int(starts)
+    check_seed(seed)
+    check_threads(threads)
+    n_st = check_int(starts, "starts", min=1)
     prob = _problem(
         model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
         weights=weights, init=init,
@@ -534,6 +591,7 @@ def calibrate_many(
     for k, sub in enumerate(idx):
         group = raws[k * n_st : (k + 1) * n_st]
         j = min(range(n_st), key=lambda i: (group[i]["f"], i))
+        _check_finite_fit(prob, group[j], f" (problem {k})")
         raw = dict(group[j])
         raw["evaluations"] = sum(int(r["evaluations"]) for r in group)
         raw["interrupted"] = any(bool(r["interrupted"]) for r in group)
@@ -586,12 +644,20 @@ def bootstrap(
     :func:`calibrate_many`). ``kwargs`` go to :func:`calibrate_many`. The samples
     include the DC gain ``K0/(1 - K K0)``, which is identified even where the
     individual parameters trade off."""
-    if int(n) < 2:
-        raise ValueError(f"n: must be >= 2, got {n}")
-    if not 0 < level < 1:
-        raise ValueError(f"level: must be in (0, 1), got {level}")
+    n = check_int(n, "n", min=2)
+    if isinstance(level, bool) or not isinstance(level, (int, float, np.floating)) or not (
+            0 < level < 1):
+        raise ValueError(f"level: must be in (0, 1), got {level!r}")
+    seed = check_seed(seed)
+    check_threads(threads)
     runs = list(runs)
-    rng = np.random.default_rng(int(seed))
+    if not runs:
+        raise ValueError("runs: no runs given")
+    # the resample lists (Python ints) before the GA's own estimate
+    check_memory(80.0 * n * len(runs), f"bootstrap: n={n} resamples x {len(runs)} runs",
+                 "use fewer resamples per call and pool the samples", per=80.0 * len(runs),
+                 unit="resamples")
+    rng = np.random.default_rng(seed)
     subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(int(n))]
     res = calibrate_many(
         model, runs, subsets, seed=seed, threads=threads, progress=progress, **kwargs
@@ -799,6 +865,8 @@ def paper_workflow(
     validate on the rest. ``kwargs`` go to :func:`calibrate` (bounds must then be per
     model: pass ``bounds={"proposed": {...}}``). Stops after the model being
     calibrated when interrupted (Ctrl-C); the workflow is then flagged interrupted."""
+    check_seed(seed)
+    check_threads(threads)
     cal, val = split_runs(runs, cal_runs)
     bounds_by_model = kwargs.pop("bounds", None) or {}
     results: dict[str, CalibrationResult] = {}
@@ -929,12 +997,13 @@ def _cal_ids(runs: Sequence[Run], text: str) -> list[str]:
 
 
 def _cmd(args: Any) -> int:
-    import json
-
     models = _parse_list("--models", args.models)
     for m in models:
         model_class(m)  # ValueError naming the unknown model
-    weights = [float(w) for w in _parse_list("--weights", args.weights)]
+    try:
+        weights = [float(w) for w in _parse_list("--weights", args.weights)]
+    except ValueError:
+        raise ValueError(f"--weights: expected three numbers, got {args.weights!r}") from None
     if len(weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in weights):
         raise ValueError(f"--weights: expected three finite values >= 0, got {args.weights!r}")
     if sum(weights) <= 0:
@@ -957,15 +1026,12 @@ def _cmd(args: Any) -> int:
     print(f"{len(runs)} runs, {loop}, init {init}")
     print(text)
     if args.json:
-        from pathlib import Path
-
-        out = Path(args.json)
-        out.write_text(json.dumps(wf.to_json(), indent=2) + "\n")
-        print(f"wrote {out}", file=sys.stderr)
+        _atomic.write_json(args.json, _atomic.json_safe(wf.to_json()))
+        print(f"wrote {args.json}", file=sys.stderr)
     if args.figure:
         rid = args.figure_run or wf.cal[0].run_id
         fig = wf.figure(rid)
-        fig.savefig(args.figure, dpi=120)
+        _atomic.savefig(fig, args.figure, dpi=120)
         print(f"wrote {args.figure}", file=sys.stderr)
     if wf.interrupted:
         print("avll calibrate: interrupted; results are the best so far", file=sys.stderr)

@@ -17,7 +17,7 @@ import numpy as np
 
 from .models import UpperLevel
 
-__all__ = ["Run", "DataError", "COMMAND_KINDS"]
+__all__ = ["Run", "DataError", "DataWarning", "PlausibilityWarning", "COMMAND_KINDS"]
 
 COMMAND_KINDS = ("acceleration", "speed")
 
@@ -26,8 +26,26 @@ class DataError(ValueError):
     """Bad input data. The message names the file, the column and the row."""
 
 
+class DataWarning(UserWarning):
+    """Suspicious but usable input data (e.g. a sidecar entry for a run that is not
+    in the data). The message names the file, the column and the line. A loader's
+    ``strict=True`` (the CLI's ``--strict``) turns it into a :class:`DataError`."""
+
+
+class PlausibilityWarning(DataWarning):
+    """A value outside the physical range of road vehicles (speed, acceleration,
+    time step, grade; see ``avll.io.plausibility.RANGES``) that is not so far out that
+    the unit must be wrong. Names the file, the column and the line; ``strict=True``
+    turns it into a :class:`DataError`."""
+
+
 def _series(run_id: str, name: str, x: Any, n: int | None) -> np.ndarray:
-    arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    if isinstance(x, (str, bytes)):
+        raise DataError(f"run {run_id!r}: column {name!r} must be numbers, got {x!r:.40}")
+    try:
+        arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    except (TypeError, ValueError) as e:
+        raise DataError(f"run {run_id!r}: column {name!r} must be numbers ({e})") from None
     if arr.ndim != 1:
         raise DataError(f"run {run_id!r}: column {name!r} must be 1-D, got shape {arr.shape}")
     if n is not None and arr.shape[0] != n:

@@ -20,24 +20,40 @@ def demo_command(dt: float = 0.05, duration: float = 60.0) -> np.ndarray:
 
 
 def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
-    """Simulates the three Table II models; writes ``simulate.csv`` and ``simulate.png``."""
+    """Simulates the three Table II models; writes ``simulate.csv`` and ``simulate.png``
+    into ``out`` as one unit (a ``MANIFEST.json`` is written last, see
+    :mod:`avll._atomic`)."""
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    out.mkdir(parents=True, exist_ok=True)
+    from . import _atomic
+    from ._limits import check_number
+
+    dt = check_number(dt, "dt", positive=True)
+    if dt > 10.0:
+        raise ValueError(f"dt: {dt:g} s is longer than the 60 s demo command; use <= 10 s")
+    from ._limits import check_memory
+
+    check_memory(8.0 * 8 * 60.0 / dt, f"simulate: 60 s at dt={dt:g} s x 8 series",
+                 "use a larger dt")
     u = demo_command(dt)
     t = np.arange(u.size) * dt
     res = {name: simulate(m, u, dt) for name, m in PAPER_TABLE_II.items()}
     cols = np.column_stack([t, u, *res.values()])
-    np.savetxt(
-        out / "simulate.csv",
-        cols,
-        delimiter=",",
-        header="t,command," + ",".join(res),
-        comments="",
-    )
+    with _atomic.output_dir(Path(out), meta={"command": "avll simulate"}) as stage:
+        with _atomic.atomic_path(stage / "simulate.csv") as tmp:
+            np.savetxt(tmp, cols, delimiter=",", header="t,command," + ",".join(res),
+                       comments="")
+        _plot(t, u, res, stage / "simulate.png")
+    return res
+
+
+def _plot(t: np.ndarray, u: np.ndarray, res: dict[str, np.ndarray], path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from . import _atomic
+
     fig, ax = plt.subplots(figsize=(9, 3.5), layout="constrained")
     ax.plot(t, u, "k--", lw=1, label="command")
     for name, y in res.items():
@@ -45,9 +61,8 @@ def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
     ax.set_xlabel("t (s)")
     ax.set_ylabel("acceleration (m/s²)")
     ax.legend(ncols=4)
-    fig.savefig(out / "simulate.png", dpi=120)
+    _atomic.savefig(fig, path, dpi=120)
     plt.close(fig)
-    return res
 
 
 def _cmd(args: argparse.Namespace) -> int:

@@ -38,7 +38,6 @@ otherwise try the next candidate; stop when none is accepted.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -48,6 +47,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal, stats
 
+from ._limits import SEED_MAX, check_int, check_seed, check_threads
 from .calibrate import DEFAULT_BOUNDS, DEFAULT_STARTS
 from .calibrate import UPPER_BOUNDS as _UB
 from .data import Run
@@ -270,6 +270,10 @@ def fit_full(
     (``scipy.optimize.differential_evolution`` on the batched cost)."""
     if optimizer not in ("ga", "de"):
         raise ValueError(f"optimizer: must be 'ga' or 'de', got {optimizer!r}")
+    seed = check_seed(seed)
+    threads = check_threads(threads)
+    if not runs:
+        raise ValueError("runs: no runs given")
     bname = model_class(base).name
     names = canonical(list(effects))
     closed = _closed(runs, closed_loop)
@@ -941,6 +945,8 @@ def effect_loop(
     """Baseline fit -> diagnose -> add the top-ranked effect -> recalibrate -> keep it
     only if the held-out MSE falls significantly and the calibration BIC falls;
     repeat while that happens (see the module doc)."""
+    max_effects = check_int(max_effects, "max_effects", min=0, max=len(EFFECTS))
+    seed = check_int(seed, "seed", min=0, max=SEED_MAX - 1000 * (max_effects + 1))
     if not cal_runs:
         raise ValueError("cal_runs: no calibration runs")
     if not val_runs:
@@ -1099,61 +1105,55 @@ def plot_diagnosis(d: Diagnosis) -> list[tuple[str, Any]]:
 
 
 def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll diagnosis") -> Path:
-    """Writes ``report.md``, ``report.html`` and PNG figures into ``out_dir``."""
+    """Writes ``report.md``, ``report.html`` and PNG figures into ``out_dir`` as one
+    unit (built in a hidden temporary folder inside it, committed with a ``MANIFEST.json``
+    written last: see :mod:`avll._atomic`). Every text, run ids included, is escaped
+    in the HTML."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    lines = [f"# {title}", "", f"Baseline: `{result.baseline.base}`", ""]
+    from . import _atomic
+    from .report import Report
+
+    rep = Report(title)
+    rep.para(f"Baseline: `{result.baseline.base}`")
     if not result.steps:
-        lines += ["No effect was added: no candidate was significant and improved the "
-                  "held-out error.", ""]  # fmt: skip
+        rep.para("No effect was added: no candidate was significant and improved the "
+                 "held-out error.")
     for k, s in enumerate(result.steps, 1):
-        lines += [f"## Step {k}: add `{s.effect}` {s.params}", "",
-                  f"held-out likelihood-ratio p = {s.lr_p_value:.3g}; "
-                  f"BIC {s.bic_before:.1f} -> {s.bic_after:.1f}", ""]  # fmt: skip
-        lines.append(mse_table({"before": s.cal_before, "after": s.cal_after},
-                               "Calibration MSE of acceleration"))  # fmt: skip
-        lines.append(mse_table({"before": s.val_before, "after": s.val_after},
-                               "Validation MSE of acceleration"))  # fmt: skip
-    for k, d in enumerate(result.diagnoses):
-        lines += [f"## Diagnosis {k + 1} of `{d.model.name}`", "",
-                  f"residual RMS {d.residual_rms:.4f} m/s², lag-1 autocorrelation "
-                  f"{d.lag1:.3f}, effective samples {d.n_eff:.0f}, xcorr peak with the "
-                  f"command rate at {d.best_lag:+.2f} s", "",
-                  "| effect | explained | held-out | F | df | p (Bonferroni) | candidate |",
-                  "|---|---|---|---|---|---|---|"]  # fmt: skip
-        for c in d.candidates:
-            lines.append(f"| {c.effect} | {100 * c.explained:.2f} % | "
-                         f"{100 * c.val_explained:.2f} % | {c.F:.1f} | {c.df} | "
-                         f"{c.p_value:.2g} | {'yes' if c.significant else 'no'} |")  # fmt: skip
-        lines.append("")
-        for name, fig in plot_diagnosis(d):
-            fn = f"diag{k + 1}_{name}.png"
-            fig.savefig(out / fn, dpi=90)
-            plt.close(fig)
-            lines += [f"![{name}]({fn})", ""]
-    md = "\n".join(lines)
-    (out / "report.md").write_text(md, encoding="utf-8")
-    html = ["<html><head><meta charset='utf-8'><title>avll diagnosis</title></head><body>"]
-    for ln in lines:
-        if ln.startswith("!["):
-            src = ln[ln.index("(") + 1 : -1]
-            html.append(f"<img src='{src}'>")
-        elif ln.startswith("#"):
-            lvl = len(ln) - len(ln.lstrip("#"))
-            html.append(f"<h{lvl}>{ln.lstrip('#').strip()}</h{lvl}>")
-        elif ln:
-            html.append(f"<pre>{ln}</pre>")
-    html.append("</body></html>")
-    (out / "report.html").write_text("\n".join(html), encoding="utf-8")
+        rep.heading(f"Step {k}: add `{s.effect}` {s.params}")
+        rep.para(f"held-out likelihood-ratio p = {s.lr_p_value:.3g}; "
+                 f"BIC {s.bic_before:.1f} -> {s.bic_after:.1f}")
+        rep.code(mse_table({"before": s.cal_before, "after": s.cal_after},
+                           "Calibration MSE of acceleration"))
+        rep.code(mse_table({"before": s.val_before, "after": s.val_after},
+                           "Validation MSE of acceleration"))
+    out = Path(out_dir)
+    with _atomic.output_dir(out, meta={"command": "avll diagnose"}) as stage:
+        for k, d in enumerate(result.diagnoses):
+            rep.heading(f"Diagnosis {k + 1} of `{d.model.name}`")
+            rep.para(f"residual RMS {d.residual_rms:.4f} m/s², lag-1 autocorrelation "
+                     f"{d.lag1:.3f}, effective samples {d.n_eff:.0f}, xcorr peak with the "
+                     f"command rate at {d.best_lag:+.2f} s")
+            rep.table(["effect", "explained", "held-out", "F", "df", "p (Bonferroni)",
+                       "candidate"],
+                      [[c.effect, f"{100 * c.explained:.2f} %",
+                        f"{100 * c.val_explained:.2f} %", f"{c.F:.1f}", c.df,
+                        f"{c.p_value:.2g}", "yes" if c.significant else "no"]
+                       for c in d.candidates])
+            for name, fig in plot_diagnosis(d):
+                fn = f"diag{k + 1}_{name}.png"
+                _atomic.savefig(fig, stage / fn, dpi=90)
+                plt.close(fig)
+                rep.figure(fn, name)
+        rep.write(stage)
     return out / "report.md"
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    from . import _atomic
     from .io import read_runs
     from .io.cli_load import astazero_options
 
@@ -1172,7 +1172,7 @@ def _cmd(args: argparse.Namespace) -> int:
     res = effect_loop(args.model, cal, val, seed=args.seed, init=args.init,
                       optimizer=args.optimizer, progress=not args.quiet)  # fmt: skip
     d = res.to_dict()
-    Path(args.json).write_text(json.dumps(d, indent=2, default=float), encoding="utf-8")
+    _atomic.write_json(args.json, _atomic.json_safe(d), default=float)
     if args.report:
         write_report(res, args.report)
     names = ", ".join(d["effects"]) or "none"

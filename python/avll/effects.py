@@ -36,9 +36,11 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import _core
+from ._limits import check_int, check_memory, check_number, check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel, UpperLevel, model_class
-from .rollout import Trajectory, pack_runs
+from .rollout import Trajectory, _f64, _upper, check_lower_level, pack_runs
+from .rollout import params_2d as _params_2d
 
 __all__ = [
     "Effect",
@@ -355,11 +357,23 @@ def _split(model: WithEffects | LowerLevelModel) -> tuple[str, list[float], list
     )
 
 
-def _f64(name: str, x: Any) -> np.ndarray:
-    arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
-    if arr.ndim != 1:
-        raise ValueError(f"{name}: must be 1-D, got shape {arr.shape}")
-    return arr
+def _check_lower(model: WithEffects | LowerLevelModel, dt: float) -> None:
+    """The policy of the trajectory functions (see :mod:`avll.rollout`): a
+    ``ValueError`` unless the base lower level -- and, with an ``asymmetric`` effect, its
+    braking variant ``kb G(rb s)`` -- is asymptotically stable at ``dt``."""
+    if isinstance(model, LowerLevelModel):
+        check_lower_level(model, dt)
+        return
+    check_lower_level(model.base, dt)
+    asym = [e for e in model.effects if isinstance(e, Asymmetric)]
+    if asym:
+        c = WithEffects(model.base, tuple(asym)).linear(side=-1)
+        if not _core.lower_level_stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"],
+                                        dt):
+            raise ValueError(
+                f"model: the braking side of {model!r} (kb G(rb s): {c}) is not "
+                f"asymptotically stable at dt={dt:g} s; its response diverges when braking, so "
+                "no trajectory is returned")
 
 
 def _exo(exo: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
@@ -378,11 +392,15 @@ def simulate_effects(
     exo: Mapping[str, Any] | None = None,
 ) -> Trajectory:
     """Open-loop rollout of a base model with effects (as :func:`avll.simulate_full`;
-    ``exo`` maps exogenous signal names, e.g. ``"grade"``, to arrays)."""
+    ``exo`` maps exogenous signal names, e.g. ``"grade"``, to arrays). An unstable
+    lower level is a ``ValueError`` (the policy of :mod:`avll.rollout`)."""
     b, p, en, ep = _split(model)
+    dt = check_number(dt, "dt", positive=True)
+    u = _f64("command", command)
+    v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
+    _check_lower(model, dt)
     d = _core.simulate_full(
-        b, p, _f64("command", command), float(dt), command_kind, init, float(v0), float(x0),
-        effects=en, effect_params=ep, exo=_exo(exo),
+        b, p, u, dt, command_kind, init, v0, x0, effects=en, effect_params=ep, exo=_exo(exo),
     )  # fmt: skip
     return Trajectory(**d)
 
@@ -399,11 +417,16 @@ def closed_loop_effects(
     exo: Mapping[str, Any] | None = None,
 ) -> Trajectory:
     """Closed-loop car following of a base model with effects behind a recorded
-    leader (as :func:`avll.closed_loop`)."""
+    leader (as :func:`avll.closed_loop`: an unstable lower level is a ``ValueError``,
+    a car-following loop that diverges is NaN from the divergence on)."""
     b, p, en, ep = _split(model)
+    up = _upper(upper)
+    dt = check_number(dt, "dt", positive=True)
+    lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
+    v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
+    _check_lower(model, dt)
     d = _core.closed_loop(
-        b, p, _f64("lead_x", lead_x), _f64("lead_v", lead_v), float(dt),
-        upper.kg, upper.kv, upper.Tg, upper.Gmin, float(v0), float(x0),
+        b, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0,
         effects=en, effect_params=ep, exo=_exo(exo),
     )  # fmt: skip
     return Trajectory(**d)
@@ -424,9 +447,14 @@ def batch_cost_effects(
     """Per-run costs (P, R) of parameter rows ``[base | effects | free upper]`` (effects
     in the canonical order, see :data:`CANONICAL_ORDER`), as :func:`avll.batch_cost`.
     Invalid or unstable rows cost ``inf``."""
+    threads = check_threads(threads)
     cls, names, p, kw = _batch_args(base, effects, params, runs, weights=weights, init=init,
                                     closed_loop=closed_loop, upper_free=upper_free)  # fmt: skip
-    return _core.batch_cost(cls.name, p, effects=list(names), threads=int(threads), **kw)
+    nr = max(len(kw["runs"]), 1)
+    check_memory(8.0 * p.shape[0] * nr,
+                 f"batch_cost_effects: {p.shape[0]} parameter rows x {nr} runs x 8 bytes",
+                 "evaluate the parameter rows in slices", per=8.0 * nr, unit="rows")
+    return _core.batch_cost(cls.name, p, effects=list(names), threads=threads, **kw)
 
 
 def _batch_args(
@@ -446,7 +474,7 @@ def _batch_args(
     kw = pack_runs(
         runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
     )
-    p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    p = _params_2d(params)
     for n in names:
         sig = EFFECTS[n].exo
         if sig is not None:
@@ -485,6 +513,10 @@ def calibrate_effects(
     ``f``, ``generations``, ``stop``, ``per_run_cost``, ...): with ``starts > 1``
     independent GA runs (seeds ``derive_seed(seed, j)``, as :func:`avll.calibrate`),
     the best. Same seed, same result whatever the thread count."""
+    seed = check_seed(seed)
+    threads = check_threads(threads)
+    max_generations = check_int(max_generations, "max_generations", min=0)
+    pop_size = check_int(pop_size, "pop_size", min=0)
     cls, names, _, kw = _batch_args(base, effects, np.zeros((1, 1)), runs, weights=weights,
                                     init=init, closed_loop=closed_loop,
                                     upper_free=upper_free)  # fmt: skip

@@ -119,27 +119,25 @@ class Study:
 
     def save(self, out: str | Path) -> list[Path]:
         """Writes tables (CSV), figures (PNG), ``summary.json`` and ``report.txt``
-        into ``out`` (created); returns the paths written."""
-        import json
+        into ``out`` as one unit (built in a hidden temporary folder inside it, committed with a
+        ``MANIFEST.json`` written last, see :mod:`avll._atomic`); returns the paths
+        written."""
+        from . import _atomic
 
         d = Path(out)
-        d.mkdir(parents=True, exist_ok=True)
-        paths = []
-        for k, t in self.tables.items():
-            p = d / f"{self.name}_{k}.csv"
-            t.to_csv(p, float_format="%.6g")
-            paths.append(p)
-        for k, f in self.figures.items():
-            p = d / f"{self.name}_{k}.png"
-            f.savefig(p, dpi=80)
-            paths.append(p)
-        p = d / f"{self.name}_summary.json"
-        p.write_text(json.dumps(self.summary, indent=2, allow_nan=False, default=_json) + "\n")
-        paths.append(p)
-        p = d / f"{self.name}_report.txt"
-        p.write_text(self.text + "\n")
-        paths.append(p)
-        return paths
+        names: list[str] = []
+        with _atomic.output_dir(d, meta={"command": f"avll field study {self.name}"}) as st:
+            for k, t in self.tables.items():
+                names.append(f"{self.name}_{k}.csv")
+                _atomic.to_csv(t, st / names[-1], float_format="%.6g")
+            for k, f in self.figures.items():
+                names.append(f"{self.name}_{k}.png")
+                _atomic.savefig(f, st / names[-1], dpi=80)
+            names.append(f"{self.name}_summary.json")
+            _atomic.write_json(st / names[-1], self.summary, default=_json)
+            names.append(f"{self.name}_report.txt")
+            _atomic.write_text(st / names[-1], self.text + "\n")
+        return [d / n for n in names]
 
 
 def _json(o: Any) -> Any:
@@ -450,7 +448,9 @@ def carma_study(
     combination. ``out`` saves everything there (:meth:`Study.save`).
     """
     from . import PAPER_TABLE_II
+    from ._limits import check_seed, check_threads
 
+    seed, threads = check_seed(seed), check_threads(threads)
     t0 = time.perf_counter()
     for o in objectives:
         if o not in CARMA_OBJECTIVES:
@@ -644,7 +644,9 @@ def astazero_study(
     i.e. gap, MSE m²); groups are the pairs ``v1-v2``…``v4-v5``.
     """
     from . import PAPER_TABLE_II
+    from ._limits import check_seed, check_threads
 
+    seed, threads = check_seed(seed), check_threads(threads)
     t0 = time.perf_counter()
     for o in objectives:
         if o not in ASTAZERO_OBJECTIVES:

@@ -4,6 +4,12 @@
 renders the same content to ``report.md`` and ``report.html`` (figures are PNG files
 next to them, referenced by relative path). No Markdown library is needed: the HTML
 is generated from the same blocks, not converted from the Markdown text.
+
+Every text that goes into the HTML -- title, headings, paragraphs, list items, table
+headers and cells, captions, figure paths, preformatted blocks -- is escaped
+(``html.escape``) before the few inline marks (``**bold**``, ``*italic*``, backquoted
+code) are turned into tags, so a run id such as ``<img src=x onerror=alert(1)>`` is
+shown as text, never interpreted.
 """
 
 from __future__ import annotations
@@ -76,8 +82,18 @@ def _inline_html(text: str) -> str:
     return out
 
 
+_TAG = re.compile(r"<(?=[A-Za-z/!?])")
+
+
+def _md(text: str) -> str:
+    """Markdown text with anything that could open an HTML tag (``<`` before a letter,
+    ``/``, ``!`` or ``?``) escaped, so a Markdown viewer that renders raw HTML shows it
+    as text."""
+    return _TAG.sub("&lt;", str(text))
+
+
 def _cell_md(x: Any) -> str:
-    return fmt(x).replace("|", "\\|").replace("\n", " ")
+    return _md(fmt(x)).replace("|", "\\|").replace("\n", " ")
 
 
 @dataclass
@@ -114,26 +130,26 @@ class Report:
 
     def to_markdown(self) -> str:
         """The report as GitHub-flavoured Markdown."""
-        out = [f"# {self.title}", ""]
+        out = [f"# {_md(self.title)}", ""]
         for b in self.blocks:
             if b.kind == "h":
                 lvl, text = b.data
-                out += ["#" * lvl + " " + text, ""]
+                out += ["#" * lvl + " " + _md(text), ""]
             elif b.kind == "p":
-                out += [b.data, ""]
+                out += [_md(b.data), ""]
             elif b.kind == "ul":
-                out += [f"* {it}" for it in b.data] + [""]
+                out += [f"* {_md(it)}" for it in b.data] + [""]
             elif b.kind == "table":
                 head, rows, cap = b.data
                 if cap:
-                    out += [f"**{cap}**", ""]
-                out.append("| " + " | ".join(str(h) for h in head) + " |")
+                    out += [f"**{_md(cap)}**", ""]
+                out.append("| " + " | ".join(_cell_md(h) for h in head) + " |")
                 out.append("|" + "---|" * len(head))
                 out += ["| " + " | ".join(_cell_md(c) for c in r) + " |" for r in rows]
                 out.append("")
             elif b.kind == "img":
                 path, cap = b.data
-                out += [f"![{cap}]({path})", "", f"*{cap}*", ""]
+                out += [f"![{_md(cap)}]({path})", "", f"*{_md(cap)}*", ""]
             elif b.kind == "pre":
                 out += ["```", b.data.rstrip("\n"), "```", ""]
         return "\n".join(out)
@@ -186,10 +202,13 @@ class Report:
         return "\n".join(out) + "\n"
 
     def write(self, out_dir: str | Path, stem: str = "report") -> tuple[Path, Path]:
-        """Writes ``<stem>.md`` and ``<stem>.html`` into ``out_dir``; returns both paths."""
+        """Writes ``<stem>.md`` and ``<stem>.html`` into ``out_dir``, both atomically
+        (temporary names renamed together); returns both paths."""
+        from . import _atomic
+
         d = Path(out_dir)
-        d.mkdir(parents=True, exist_ok=True)
         md, ht = d / f"{stem}.md", d / f"{stem}.html"
-        md.write_text(self.to_markdown() + "\n", encoding="utf-8")
-        ht.write_text(self.to_html(), encoding="utf-8")
+        with _atomic.atomic_paths(md, ht) as (tmd, tht):
+            tmd.write_text(self.to_markdown() + "\n", encoding="utf-8")
+            tht.write_text(self.to_html(), encoding="utf-8")
         return md, ht

@@ -24,7 +24,6 @@ report says what was skipped and why.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -35,6 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from . import _atomic
+from ._limits import check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel
 from .report import Report, diff, fmt
@@ -359,21 +360,6 @@ def _real(name: str, path: str | Path | None, settings: Settings) -> _Data:
 # ---------------------------------------------------------------------------
 
 
-def _json_clean(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _json_clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_clean(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_clean(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
 def _stab_json(st: dict[str, Any]) -> dict[str, Any]:
     th = st["thresholds"]
     return {
@@ -405,13 +391,15 @@ def reproduce(
     (measured data from ``data_path``, default ``../shared/data/<data>``).
     ``settings``: a :class:`Settings` or a key of :data:`SETTINGS`. ``progress``
     shows a stage bar (and the GA / map bars) on stderr. Ctrl-C raises
-    ``KeyboardInterrupt`` after closing the bars; nothing partial is written.
+    ``KeyboardInterrupt`` after closing the bars; nothing partial is written: the
+    folder is built in a hidden staging folder and committed as a unit with a
+    ``MANIFEST.json`` written last (:func:`avll.read_manifest` checks it), so an
+    interrupted run leaves ``out`` exactly as it was (an earlier complete run stays
+    complete). Files of ``out`` that no avll run wrote are never touched.
     """
     import matplotlib
 
     matplotlib.use("Agg")
-    from . import PAPER_TABLE_II
-    from .calibrate import paper_workflow
 
     if isinstance(settings, str):
         if settings not in SETTINGS:
@@ -420,8 +408,30 @@ def reproduce(
         settings = SETTINGS[settings]
     if data not in ("synthetic", "carma", "openacc-astazero"):
         raise ValueError(f"data: expected synthetic, carma or openacc-astazero, got {data!r}")
-    outd = Path(out)
-    outd.mkdir(parents=True, exist_ok=True)
+    seed = check_seed(seed)
+    threads = check_threads(threads)
+    if data != "synthetic":
+        _data_dir(data, data_path)  # a missing folder is an error before anything starts
+    final = Path(out)
+    # built in a hidden staging folder, committed as a unit (MANIFEST.json last): an
+    # interrupted run leaves the folder as it was (see avll._atomic)
+    with _atomic.output_dir(final, meta={"command": "avll reproduce", "data": data,
+                                         "seed": seed}) as outd:
+        summary = _reproduce_in(outd, final, data, data_path, settings, seed, threads,
+                                progress, json_path, log)
+    if json_path is not None:
+        _atomic.write_json(json_path, _atomic.json_safe(summary), default=str)
+    return summary
+
+
+def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | None,
+                  settings: Settings, seed: int, threads: int, progress: bool,
+                  json_path: str | Path | None, log: Callable[[str], None] | None
+                  ) -> dict[str, Any]:
+    from . import PAPER_TABLE_II
+    from .calibrate import paper_workflow
+
+    shown_json = str(json_path) if json_path is not None else str(final / "summary.json")
     t_start = time.perf_counter()
     stages = _Stages(bool(progress), 6 + (1 if settings.diagnosis else 0))
     say = log or stages.write
@@ -434,7 +444,8 @@ def reproduce(
     if field_study is not None:
         try:
             return _reproduce_field(field_study, outd, data, data_path, settings, seed,
-                                    threads, progress, json_path, stages, say, t_start)
+                                    threads, progress, json_path, shown_json, stages, say,
+                                    t_start)
         finally:
             stages.close()
     try:
@@ -461,7 +472,7 @@ def reproduce(
             for key, rid in picks.items():
                 fig = wf.figure(rid)
                 fn = f"{key}_run_{rid.replace('/', '_')}.png"
-                fig.savefig(outd / fn, dpi=110)
+                _atomic.savefig(fig, outd / fn, dpi=110)
                 figs[key] = fn
         stab: dict[str, dict[str, dict[str, Any]]] = {}
         kg, tg, kv = settings.axes()
@@ -486,12 +497,11 @@ def reproduce(
         with stages.stage("report"):
             runtime = time.perf_counter() - t_start
             summary = _summary(d, wf, stab, diag, settings, seed, stages.times, runtime)
-            jp = Path(json_path) if json_path is not None else outd / "summary.json"
-            jp.parent.mkdir(parents=True, exist_ok=True)
             summary["files"] = {"report_md": "report.md", "report_html": "report.html",
-                                "figures": figs, "summary_json": str(jp)}
+                                "figures": figs, "summary_json": shown_json}
             _write_report(outd, d, wf, stab, diag, settings, summary, figs)
-            jp.write_text(json.dumps(_json_clean(summary), indent=2) + "\n", encoding="utf-8")
+            if json_path is None:
+                _atomic.write_json(outd / "summary.json", _atomic.json_safe(summary))
     finally:
         stages.close()
     return summary
@@ -525,7 +535,7 @@ def _field_diag_runs(F: Any, name: str, st: Any) -> tuple[str, list[Run], list[R
 
 def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
                      settings: Settings, seed: int, threads: int, progress: bool,
-                     json_path: str | Path | None, stages: _Stages,
+                     json_path: str | Path | None, shown_json: str, stages: _Stages,
                      say: Callable[[str], None], t_start: float) -> dict[str, Any]:
     """The measured-data variant (see :func:`reproduce`), on :mod:`avll.fielddata`."""
     from . import PAPER_TABLE_II
@@ -597,14 +607,12 @@ def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
         from . import __version__
 
         summary["avll_version"] = __version__
-        jp = Path(json_path) if json_path is not None else outd / "summary.json"
-        jp.parent.mkdir(parents=True, exist_ok=True)
         summary["files"] = {"report_md": "report.md", "report_html": "report.html",
-                            "figures": figs, "summary_json": str(jp),
+                            "figures": figs, "summary_json": shown_json,
                             "field_study": [str(x.relative_to(outd)) for x in saved]}
         _write_field_report(outd, name, st, stab, diag, diag_label, settings, summary, figs)
-        jp.write_text(json.dumps(_json_clean(summary), indent=2, default=str) + "\n",
-                      encoding="utf-8")
+        if json_path is None:
+            _atomic.write_json(outd / "summary.json", _atomic.json_safe(summary), default=str)
     return summary
 
 
@@ -671,12 +679,12 @@ def _stability_figures(outd: Path, which: str, models: dict[str, LowerLevelModel
             if ax.get_visible() and ax.get_xlabel():
                 ax.set_xscale("log")
         fn = f"fig{fig_no}_regions_{tag}.png"
-        f.savefig(outd / fn, dpi=100, bbox_inches="tight")
+        _atomic.savefig(f, outd / fn, dpi=100, bbox_inches="tight")
         plt.close(f)
         out[f"fig{fig_no}_{tag}"] = fn
         f = S.plot_thresholds([models[m] for m in pair], [st[m]["thresholds"] for m in pair])
         fn = f"fig{fig_no + 1}_thresholds_{tag}.png"
-        f.savefig(outd / fn, dpi=100, bbox_inches="tight")
+        _atomic.savefig(f, outd / fn, dpi=100, bbox_inches="tight")
         plt.close(f)
         out[f"fig{fig_no + 1}_{tag}"] = fn
     return out

@@ -11,10 +11,29 @@ Discretization convention (shared with :mod:`avll.reference` and the tests):
   ``init="steady"``: the equilibrium of the first command sample held forever
   (``y[0] = dc_gain * u[0]``), for runs that do not start at rest;
 * speed and position integrate the response exactly under the same hold.
+
+An unstable lower level. Every trajectory function (:func:`simulate`,
+:func:`simulate_full`, :func:`closed_loop`, :func:`platoon` and
+:func:`avll.simulate_effects` / :func:`avll.closed_loop_effects`) raises a
+``ValueError`` naming the model and its parameters when the lower level itself is not
+asymptotically stable at the sample time ``dt`` -- the same test (the inner loop
+``G/(1 - K G)`` with its dead time, discretized at ``dt``) that makes the costs
+(:func:`batch_cost`, the calibration) return ``inf``. So no trajectory function returns
+an array of NaN for such a model. A closed loop whose lower level is stable but whose
+car-following loop diverges (unstable upper-level gains) is a legitimate result: its
+trajectory is NaN from the divergence on.
+
+Memory. :func:`platoon` and :func:`batch_cost` estimate the bytes their outputs need
+(``followers x samples x 4 arrays x 8 bytes``, twice while copying; ``P x R x 8``) and
+refuse a call that cannot fit in the available memory with a ``ValueError`` that says
+how to split it (:func:`avll._limits.check_memory`), instead of letting the allocation
+abort the process.
 """
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -22,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from ._limits import check_int, check_memory, check_number, check_threads
 from .data import Run
 from .models import LowerLevelModel, UpperLevel, model_class
 
@@ -48,10 +68,15 @@ class Trajectory:
 
 
 def _f64(name: str, x: Any) -> np.ndarray:
-    arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    if isinstance(x, (str, bytes)) or x is None:
+        raise ValueError(f"{name}: expected an array of numbers, got {x!r:.40}")
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name}: expected an array of numbers ({e})") from None
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be 1-D, got shape {arr.shape}")
-    return arr
+    return np.ascontiguousarray(arr)
 
 
 def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
@@ -60,14 +85,65 @@ def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     return model.name, model.values()
 
 
+def _upper(upper: Any) -> UpperLevel:
+    if not isinstance(upper, UpperLevel):
+        raise TypeError(f"upper: expected an avll.UpperLevel, got {upper!r:.60}")
+    return upper
+
+
+def lower_level_stable(model: LowerLevelModel, dt: float) -> bool:
+    """Whether the lower level of ``model`` (``G/(1 - K G)`` with its dead time) is
+    asymptotically stable when sampled every ``dt`` seconds: the test behind the costs'
+    ``inf`` (:func:`batch_cost`)."""
+    c = model.linear()
+    return _stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"],
+                   check_number(dt, "dt", positive=True))
+
+
+@functools.lru_cache(maxsize=4096)
+def _stable(b1: float, b0: float, a2: float, a1: float, td: float, k: float, dt: float) -> bool:
+    # cached: the test discretizes (a matrix exponential) and runs Schur-Cohn, ~8 us
+    return bool(_core.lower_level_stable(b1, b0, a2, a1, td, k, dt))
+
+
+def check_lower_level(model: LowerLevelModel, dt: float, *, what: str = "") -> None:
+    """Raises ``ValueError`` naming the model and its parameters unless
+    :func:`lower_level_stable` (the policy of every trajectory function)."""
+    c = model.linear()
+    if not _stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"], float(dt)):
+        why = (f"K K0 = {c['K'] * c['b0']:.4g} >= 1: the inner loop has no steady state"
+               if c["K"] * c["b0"] >= 1 else
+               "a pole of G/(1 - K G), with its dead time, sampled at dt, lies on or outside "
+               "the unit circle")
+        raise ValueError(
+            f"model: the lower level {what}{model!r} is not asymptotically stable at "
+            f"dt={dt:g} s ({why}); its response diverges, so no trajectory is returned "
+            "(such parameters cost inf in batch_cost and the calibration)")
+
+
+def _finite_or_raise(model: LowerLevelModel, dt: float, *arrays: np.ndarray) -> None:
+    # a diverged rollout is NaN from the divergence to the end: the last sample tells
+    for a in arrays:
+        if a.size and not math.isfinite(float(a[-1])):
+            raise ValueError(f"model: the response of {model!r} at dt={dt:g} s diverged "
+                             "(|y| beyond 1e9 or not finite): the lower level or the command "
+                             "is out of range")
+
+
 def simulate(model: LowerLevelModel, command: Any, dt: float, *, init: str = "rest") -> np.ndarray:
     """Open-loop response of ``model`` to ``command`` sampled every ``dt`` seconds.
 
     For an acceleration command the response is the acceleration; for a speed
     command, the speed. ``init`` is ``"rest"`` or ``"steady"`` (see the module doc).
+    An unstable lower level is a ``ValueError`` (see the module doc).
     """
     name, p = _model(model)
-    return _core.simulate(name, p, _f64("command", command), float(dt), init)
+    dt = check_number(dt, "dt", positive=True)
+    u = _f64("command", command)
+    check_lower_level(model, dt)
+    y = _core.simulate(name, p, u, dt, init)
+    _finite_or_raise(model, dt, y)
+    return y
 
 
 def simulate_full(
@@ -81,11 +157,15 @@ def simulate_full(
     x0: float = 0.0,
 ) -> Trajectory:
     """Open-loop rollout with speed and position. For a speed command, ``a`` is the
-    time derivative of the simulated speed at each sample (right limit)."""
+    time derivative of the simulated speed at each sample (right limit). An unstable
+    lower level is a ``ValueError`` (see the module doc)."""
     name, p = _model(model)
-    d = _core.simulate_full(
-        name, p, _f64("command", command), float(dt), command_kind, init, float(v0), float(x0)
-    )
+    dt = check_number(dt, "dt", positive=True)
+    u = _f64("command", command)
+    v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
+    check_lower_level(model, dt)
+    d = _core.simulate_full(name, p, u, dt, command_kind, init, v0, x0)
+    _finite_or_raise(model, dt, d["a"], d["v"])
     return Trajectory(**d)
 
 
@@ -101,22 +181,16 @@ def closed_loop(
 ) -> Trajectory:
     """Car following behind a recorded leader: the upper law (Eq. 3) evaluated at the
     samples commands the lower level; the follower starts at speed ``v0`` and position
-    ``x0`` with the lower level at rest. A diverging follower's trajectory is NaN from
-    the divergence on."""
+    ``x0`` with the lower level at rest. An unstable lower level is a ``ValueError``; a
+    follower that diverges with a stable lower level (unstable upper-level gains) has a
+    trajectory that is NaN from the divergence on."""
     name, p = _model(model)
-    d = _core.closed_loop(
-        name,
-        p,
-        _f64("lead_x", lead_x),
-        _f64("lead_v", lead_v),
-        float(dt),
-        upper.kg,
-        upper.kv,
-        upper.Tg,
-        upper.Gmin,
-        float(v0),
-        float(x0),
-    )
+    up = _upper(upper)
+    dt = check_number(dt, "dt", positive=True)
+    lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
+    v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
+    check_lower_level(model, dt)
+    d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0)
     return Trajectory(**d)
 
 
@@ -130,22 +204,25 @@ def platoon(
 ) -> Trajectory:
     """``followers`` identical vehicles behind a recorded leader, each starting at the
     leader's initial speed and the equilibrium gap ``Gmin + Tg v``. Arrays are
-    (follower, sample)."""
-    if int(followers) < 1:
-        raise ValueError(f"followers: must be >= 1, got {followers}")
+    (follower, sample). ``followers`` must be an integer >= 1; a platoon whose arrays
+    cannot fit in memory is refused with a ``ValueError`` (simulate it in slices of
+    followers: the last follower of a slice is the leader of the next). An unstable
+    lower level is a ``ValueError``; a diverging follower (and every one behind it) is
+    NaN from the divergence on."""
+    nf = check_int(followers, "followers", min=1)
     name, p = _model(model)
-    d = _core.platoon(
-        name,
-        p,
-        _f64("lead_x", lead_x),
-        _f64("lead_v", lead_v),
-        float(dt),
-        upper.kg,
-        upper.kv,
-        upper.Tg,
-        upper.Gmin,
-        int(followers),
-    )
+    up = _upper(upper)
+    dt = check_number(dt, "dt", positive=True)
+    lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
+    per = 2 * 4 * 8 * max(lx.size, 1)
+    need = float(nf) * per
+    check_memory(
+        need, f"platoon: followers={nf} x {lx.size} samples x 4 arrays x 8 bytes (twice while "
+        "copying)",
+        "simulate fewer followers per call (the last follower's x and v lead the next slice)",
+        per=per, unit="followers")
+    check_lower_level(model, dt)
+    d = _core.platoon(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, nf)
     return Trajectory(**d)
 
 
@@ -179,14 +256,37 @@ def batch_cost(
     drives the model with each run's recorded command; closed loop drives it with the
     recorded leader through the run's upper law, whose parameters listed in
     ``upper_free`` (0 kg, 1 kv, 2 Tg, 3 Gmin) are taken from the extra columns of
-    ``params``. Invalid or unstable parameter sets cost ``inf``.
+    ``params``. Invalid or unstable parameter sets cost ``inf``. ``threads`` (0 = all
+    cores) is bounded by the machine; a ``(P, R)`` result that cannot fit in memory is
+    refused (evaluate the parameter rows in slices).
     """
+    nt = check_threads(threads)
     cls = model_class(model)
-    p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    p = params_2d(params)
+    if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__len__"):
+        raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
+    nr = max(len(runs), 1)
+    check_memory(8.0 * p.shape[0] * nr,
+                 f"batch_cost: {p.shape[0]} parameter rows x {len(runs)} runs x 8 bytes",
+                 "evaluate the parameter rows in slices", per=8.0 * nr, unit="rows")
     kw = pack_runs(
         runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
     )
-    return _core.batch_cost(cls.name, p, threads=int(threads), **kw)
+    return _core.batch_cost(cls.name, p, threads=nt, **kw)
+
+
+def params_2d(params: Any, name: str = "params") -> np.ndarray:
+    """Parameter rows as a C-contiguous (P, n) float64 array (a ``ValueError`` naming
+    ``name`` for anything that is not numbers; ``ValueError`` for more than 2-D)."""
+    if isinstance(params, (str, bytes)) or params is None:
+        raise ValueError(f"{name}: expected an array of numbers, got {params!r:.40}")
+    try:
+        p = np.asarray(params, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name}: expected an array of numbers ({e})") from None
+    if p.ndim > 2:
+        raise ValueError(f"{name}: must be 1-D (one row) or 2-D (rows), got shape {p.shape}")
+    return np.ascontiguousarray(np.atleast_2d(p))
 
 
 def pack_runs(
@@ -203,6 +303,8 @@ def pack_runs(
     exogenous series (``exo``) that all runs have; those the objective needs must be
     present (the command in open loop, the leader in closed loop, ``v``/``x`` when
     weighted or in closed loop)."""
+    if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__iter__"):
+        raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
     runs = list(runs)
     if not runs:
         raise ValueError("runs: no runs given")
@@ -212,9 +314,12 @@ def pack_runs(
     kinds = {r.command_kind for r in runs}
     if len(kinds) != 1:
         raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
-    if len(weights) != 3:
-        raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
-    wa, wv, wx = (float(w) for w in weights)
+    try:
+        if len(weights) != 3:
+            raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
+        wa, wv, wx = (check_number(w, "weights") for w in weights)
+    except TypeError:
+        raise TypeError(f"weights: expected 3 numbers (a, v, x), got {weights!r}") from None
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
     upper = None
     if closed_loop or any(r.upper is not None for r in runs):

@@ -31,7 +31,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import _core
+from . import _atomic, _core
+from ._limits import check_int, check_memory, check_number, check_threads
 from .models import LowerLevelModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -82,8 +83,23 @@ def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     return model.name, [float(v) for v in model.to_array()]
 
 
+def _floats(name: str, x: Any) -> np.ndarray:
+    if isinstance(x, (str, bytes)) or x is None:
+        raise ValueError(f"{name}: expected numbers, got {x!r:.40}")
+    try:
+        return np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name}: expected numbers ({e})") from None
+
+
+def _grid_memory(what: str, points: float, per_point: float) -> None:
+    check_memory(points * per_point, f"{what}: {points:.0f} points x {per_point:g} bytes",
+                 "split the grid (e.g. a few kv values per call) and concatenate",
+                 per=per_point, unit="points")
+
+
 def _axis(name: str, x: Any) -> np.ndarray:
-    arr = np.require(np.atleast_1d(np.asarray(x, dtype=np.float64)), requirements=["C", "A"])
+    arr = np.require(np.atleast_1d(_floats(name, x)), requirements=["C", "A"])
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be a scalar or 1-D, got shape {arr.shape}")
     if arr.size == 0:
@@ -94,7 +110,10 @@ def _axis(name: str, x: Any) -> np.ndarray:
 
 
 def _order(pade_order: int) -> int:
-    if isinstance(pade_order, bool) or int(pade_order) != pade_order:
+    if isinstance(pade_order, (bool, str, bytes)) or not isinstance(pade_order, (int, float,
+                                                                               np.number)):
+        raise ValueError(f"pade_order: must be an integer, got {pade_order!r}")
+    if not np.isfinite(pade_order) or int(pade_order) != pade_order:
         raise ValueError(f"pade_order: must be an integer, got {pade_order!r}")
     if not 1 <= int(pade_order) <= PADE_MAX_ORDER:
         raise ValueError(f"pade_order: must be in 1..{PADE_MAX_ORDER}, got {pade_order}")
@@ -118,13 +137,15 @@ def stability_map(
     output only. Ctrl-C interrupts a long map (``KeyboardInterrupt``); ``progress=True``
     shows a tqdm bar.
     """
+    nt = check_threads(threads)
     name, p = _model(model)
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     order = _order(pade_order)
-    if int(threads) < 0:
-        raise ValueError(f"threads: must be >= 0, got {threads}")
+    # the uint8 map, and as much again for what a caller derives from it (codes == 2)
+    _grid_memory(f"stability_map: {kg.size} kg x {tg.size} tg x {kv.size} kv",
+                 float(kg.size) * tg.size * kv.size, 2.0)
     if not progress:
-        return _core.stability_map(name, p, kg, tg, kv, order, int(threads))
+        return _core.stability_map(name, p, kg, tg, kv, order, nt)
     from tqdm import tqdm
 
     total = kg.size * tg.size * kv.size
@@ -133,24 +154,28 @@ def stability_map(
         def cb(done: int, _total: int) -> None:
             bar.update(done - bar.n)
 
-        return _core.stability_map(name, p, kg, tg, kv, order, int(threads), cb)
+        return _core.stability_map(name, p, kg, tg, kv, order, nt, cb)
 
 
 def stability_points(
     model: LowerLevelModel, kg: Any, tg: Any, kv: Any, pade_order: int = 2, *, threads: int = 0
 ) -> np.ndarray:
     """Codes at scattered points ``(kg[i], tg[i], kv[i])`` (arrays broadcast)."""
+    nt = check_threads(threads)
     name, p = _model(model)
-    kg, tg, kv = np.broadcast_arrays(
-        *(np.asarray(a, dtype=np.float64) for a in (kg, tg, kv))
-    )
+    try:
+        kg, tg, kv = np.broadcast_arrays(*(_floats(n, a) for n, a in
+                                           (("kg", kg), ("tg", tg), ("kv", kv))))
+    except ValueError as e:
+        raise ValueError(f"kg, tg, kv: shapes do not broadcast ({e})") from None
+    _grid_memory("stability_points", float(kg.size), 3 * 8.0 + 1.0)
     shape = kg.shape
     flat = [np.ascontiguousarray(a.ravel()) for a in (kg, tg, kv)]
     for n, a in zip(("kg", "tg", "kv"), flat, strict=True):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"{n}: values must be finite")
     out = _core.stability_points(
-        name, p, flat[0], flat[1], flat[2], _order(pade_order), int(threads)
+        name, p, flat[0], flat[1], flat[2], _order(pade_order), nt
     )
     return out.reshape(shape)
 
@@ -255,13 +280,11 @@ def kv_threshold(
     test stops at the first stable grid point. This is a grid quantity: the
     continuous supremum over a (kg, Tg) box is :func:`kv_supremum`.
     """
+    threads = check_threads(threads)
     name, p = _model(model)
     kg, tg = _axis("kg", kg), _axis("tg", tg)
-    for n, v in (("kv_lo", kv_lo), ("kv_hi", kv_hi), ("tol", tol)):
-        if not math.isfinite(float(v)):
-            raise ValueError(f"{n}: must be finite, got {v}")
-    if int(threads) < 0:
-        raise ValueError(f"threads: must be >= 0, got {threads}")
+    kv_lo, kv_hi = check_number(kv_lo, "kv_lo"), check_number(kv_hi, "kv_hi")
+    tol = check_number(tol, "tol", positive=True)
     return float(
         _core.kv_threshold_grid(
             name, p, kg, tg, float(kv_lo), float(kv_hi), _order(pade_order), float(tol),
@@ -282,15 +305,20 @@ def capacity(tg: Any, length: float = CAPACITY_LENGTH, speed: float = CAPACITY_S
     ``length`` (m, vehicle plus standstill gap) at speed ``speed`` (m/s) keeping the
     time gap ``tg``. The defaults (``length/speed = 7/30`` s) reproduce the paper's
     1687.5 (1.9 s), 964.3 (3.5 s) and 1479.5 veh/h (2.2 s); the paper does not give
-    its formula, this pair is inferred from those numbers.
+    its formula, this pair is inferred from those numbers. ``tg`` must be finite and
+    >= 0 (a ``ValueError`` otherwise; NaN, e.g. "no stable Tg", gives NaN).
     """
-    if not (length >= 0 and math.isfinite(length)):
-        raise ValueError(f"length: must be finite and >= 0, got {length}")
-    if not (speed > 0 and math.isfinite(speed)):
-        raise ValueError(f"speed: must be finite and > 0, got {speed}")
-    return 3600.0 / (np.asarray(tg, dtype=float) + length / speed) if np.ndim(tg) else (
-        3600.0 / (float(tg) + length / speed)
-    )
+    length = check_number(length, "length", nonneg=True)
+    speed = check_number(speed, "speed", positive=True)
+    t = _floats("tg", tg)
+    bad = ~np.isnan(t) & ~((t >= 0) & np.isfinite(t))
+    if np.any(bad):
+        raise ValueError(f"tg: a time gap must be finite and >= 0, got {t[bad].ravel()[0]:g}")
+    with np.errstate(divide="ignore"):
+        q = 3600.0 / (t + length / speed)
+    if np.any(np.isinf(q)):
+        raise ValueError("tg: tg = 0 with length = 0 gives an infinite capacity")
+    return q if np.ndim(tg) else float(q)
 
 
 # ---------------------------------------------------------------------------
@@ -341,6 +369,8 @@ def exact_delay_string(
     minimum refined by golden section to ``xtol`` in ``log ω``; it is informative only
     (the verdict does not use it).
     """
+    n_w = check_int(n_w, "n_w", min=2)
+    threads = check_threads(threads)
     name, p = _model(model)
     kg, tg, kv = _points(kg, tg, kv)
     st, _ok = _core.delay_string(name, p, kg, tg, kv, int(budget), int(threads))
@@ -371,6 +401,7 @@ def exact_delay_codes(
     other keywords of the former Padé-agreement implementation are accepted and
     ignored.
     """
+    threads = check_threads(threads)
     del orders
     name, p = _model(model)
     kg, tg, kv = _points(kg, tg, kv)
@@ -424,7 +455,9 @@ def pade_report(
     """Compares the Padé-``pade_order`` map with the exact-delay verdicts on a grid
     (the exact side is the certified Rust test, much slower than the Padé map: keep
     such grids moderate). :func:`pade_error_map` compares several orders at once."""
+    check_threads(threads)
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
+    _grid_memory("pade_report", float(kg.size) * tg.size * kv.size, 8 * 8.0)
     pade = stability_map(model, kg, tg, kv, pade_order, threads=threads)
     g = np.meshgrid(kg, tg, kv, indexing="ij")
     codes, settled = exact_delay_codes(model, *g, threads=threads, **exact_kw)
@@ -940,6 +973,8 @@ def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
 def _cli(args: argparse.Namespace) -> int:
     from . import PAPER_TABLE_II
 
+    if args.panels < 1:
+        raise ValueError(f"--panels: must be >= 1, got {args.panels}")
     names = args.model or ["second", "proposed"]
     models = []
     for n in names:
@@ -1003,10 +1038,10 @@ def _cli(args: argparse.Namespace) -> int:
         idx = np.unique(np.linspace(0, kv.size - 1, min(args.panels, kv.size)).round().astype(int))
         fig = plot_regions(models, kg, tg, kv[idx], args.pade_order,
                            maps=[mp[:, :, idx] for mp in maps])
-        fig.savefig(args.out, dpi=120, bbox_inches="tight")
+        _atomic.savefig(fig, args.out, dpi=120, bbox_inches="tight")
         if args.thresholds_out:
-            plot_thresholds(models, ths).savefig(args.thresholds_out, dpi=120,
-                                                 bbox_inches="tight")
+            _atomic.savefig(plot_thresholds(models, ths), args.thresholds_out, dpi=120,
+                            bbox_inches="tight")
         print(f"\nfigure written to {args.out}")
     if args.json:
         doc = {
@@ -1023,19 +1058,7 @@ def _cli(args: argparse.Namespace) -> int:
         }
         if exact:
             doc["exact"] = exact
-        import os
-        import tempfile
-
-        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(args.json)) or ".",
-                                   prefix=".avll-", suffix=".json")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                json.dump(doc, f, indent=2, allow_nan=False)
-            os.replace(tmp, args.json)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        _atomic.write_json(args.json, _atomic.json_safe(doc))
     return 0
 
 

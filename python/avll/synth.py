@@ -17,6 +17,7 @@ import argparse
 
 import numpy as np
 
+from ._limits import check_int, check_memory, check_number, check_seed
 from .data import Run
 from .models import LowerLevelModel, Proposed, UpperLevel
 from .rollout import closed_loop
@@ -90,15 +91,23 @@ def paper_experiment(
     acceleration is then rounded to multiples of ``quantization_a`` (0 = none).
     The recorded command and the leader's trajectory are exact.
     """
+    seed = check_seed(seed)
+    dt = check_number(dt, "dt", positive=True)
+    duration = check_number(duration, "duration", positive=True)
     if duration <= 10 * dt:
         raise ValueError(f"duration: must be > 10 dt, got {duration}")
+    n_runs = len(TABLE_I) if runs is None else len(runs)
+    per_run = 16 * 8.0 * (duration / dt)  # ~16 float64 series per run
+    check_memory(per_run * n_runs, f"paper_experiment: {n_runs} runs x {duration:g} s / "
+                 f"dt={dt:g} s x 16 series x 8 bytes", "use a shorter duration or fewer runs",
+                 per=per_run, unit="runs")
     for name, val in (
         ("noise_a", noise_a), ("noise_v", noise_v), ("noise_x", noise_x),
         ("quantization_a", quantization_a),
     ):  # fmt: skip
-        if not (np.isfinite(val) and val >= 0):
-            raise ValueError(f"{name}: must be finite and >= 0, got {val}")
-    chosen = tuple(TABLE_I) if runs is None else tuple(int(r) for r in runs)
+        check_number(val, name, nonneg=True)
+    chosen = tuple(TABLE_I) if runs is None else tuple(
+        check_int(r, "runs", min=1, max=len(TABLE_I)) for r in runs)
     out = []
     for r in chosen:
         if r not in TABLE_I:

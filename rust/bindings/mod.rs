@@ -5,6 +5,7 @@
 //! into `ValueError` and a panic (a bug) into `RuntimeError` rather than letting it
 //! cross into Python.
 
+mod checks;
 mod effects;
 mod ga;
 mod rollout;
@@ -66,5 +67,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     effects::register(m)?;
     ga::register(m)?;
     stability::register(m)?;
+    checks::register(m)?;
     Ok(())
 }

@@ -22,14 +22,20 @@ from pathlib import Path
 from typing import Any
 
 from ..data import DataError, Run
-from ._common import check_runs_for_delay, summarize
+from ._common import check_runs_for_delay, strict_warnings, summarize, with_strict
 from .canonical import load_canonical, write_runs
-from .carma import carma_report, load_carma
+from .carma import carma_report
+from .carma import load_carma as _load_carma
 from .formats import LOADERS, load_format
 from .generic import load_generic
-from .openacc import load_openacc_astazero
+from .openacc import load_openacc_astazero as _load_openacc_astazero
 from .openacc_native import load_openacc_native, openacc_native_report, read_openacc_native
 from .resample import resample_arrays, resample_run
+
+#: :func:`avll.io.carma.load_carma` with the ``strict=False`` option.
+load_carma = with_strict(_load_carma)
+#: :func:`avll.io.openacc.load_openacc_astazero` with the ``strict=False`` option.
+load_openacc_astazero = with_strict(_load_openacc_astazero)
 
 __all__ = [
     "read_runs",
@@ -59,7 +65,8 @@ FORMATS: dict[str, Callable[..., list[Run]]] = {
 
 
 def read_runs(
-    path: str | Path, command_kind: str | None = None, format: str = "canonical", **options: Any
+    path: str | Path, command_kind: str | None = None, format: str = "canonical", *,
+    strict: bool = False, **options: Any
 ) -> list[Run]:
     """Reads the runs in ``path`` with the loader of ``format``.
 
@@ -70,7 +77,17 @@ def read_runs(
     recursively (options ``setting``, ``car``, ``track`` filter the followers).
     ``command_kind`` (``"acceleration"`` or ``"speed"``) overrides what the file or
     its sidecar says; loaders whose format fixes the kind check it instead.
+    ``strict=True`` turns every :class:`avll.DataWarning` (implausible values,
+    sidecar entries for runs not in the data) into a :class:`avll.DataError`.
     """
+    if not isinstance(strict, bool):
+        raise TypeError(f"strict: must be True or False, got {strict!r}")
+    with strict_warnings(strict):
+        return _read_runs(path, command_kind, format, **options)
+
+
+def _read_runs(path: str | Path, command_kind: str | None, format: str,
+               **options: Any) -> list[Run]:
     try:
         loader = FORMATS[format]
     except KeyError:

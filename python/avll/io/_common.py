@@ -4,18 +4,36 @@ Every error is an :class:`avll.DataError` (a ``ValueError``) whose message names
 file, the column and the row. Rows are counted from 0 over the data rows (the header
 excluded); the message also gives the 1-based line of the file for CSV input, so a
 user can open the file at that line. Input files are only ever read.
+
+Plausibility (:data:`RANGES`): a value that cannot be in SI units for a road vehicle
+(|speed| > 70 m/s, |acceleration| > 15 m/s², a time step > 2 s, |grade| > 1, a position
+beyond 1e8 m, any other signal beyond 1e12) is a :class:`DataError` that names the
+likely unit; a value that is physically possible but outside the plausible range
+(speed below -1 or above 50 m/s, |acceleration| above 10 m/s², a time step outside
+0.001..1 s, |grade| above 0.2, a position jump faster than 70 m/s) is a
+:class:`avll.PlausibilityWarning` naming the file, the column and the line.
+:func:`strict_warnings` (the loaders' ``strict=True``, the CLI's ``--strict``) turns
+every :class:`avll.DataWarning` into a :class:`DataError`. Units are never
+converted: a speed in km/h or mph (detected from the acceleration or the position)
+and time stamps in milliseconds are errors that say so.
 """
 
 from __future__ import annotations
 
+import contextlib
+import csv
+import functools
 import math
-from collections.abc import Iterable, Sequence
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from ..data import DataError, Run
+from ..data import DataError, DataWarning, PlausibilityWarning, Run
 
 __all__ = [
     "where",
@@ -26,6 +44,14 @@ __all__ = [
     "check_speed_units",
     "check_accel_units",
     "check_runs_for_delay",
+    "check_time_step",
+    "check_time_span",
+    "check_signal",
+    "check_columns",
+    "check_unique_header",
+    "strict_warnings",
+    "with_strict",
+    "RANGES",
     "contiguous",
     "summarize",
 ]
@@ -34,6 +60,90 @@ __all__ = [
 MAX_PLAUSIBLE_SPEED = 70.0
 #: Accelerations beyond this (m/s²) are not plausible for road vehicles.
 MAX_PLAUSIBLE_ACCEL = 15.0
+
+
+@dataclass(frozen=True)
+class Range:
+    """Plausible range ``[lo, hi]`` (outside: a warning) and the hard limit ``hard``
+    on the magnitude (beyond: an error) of one kind of signal, in SI ``unit``."""
+
+    lo: float
+    hi: float
+    hard: float
+    unit: str
+
+
+#: Physical ranges by kind of signal (see the module doc).
+RANGES: dict[str, Range] = {
+    "speed": Range(-1.0, 50.0, MAX_PLAUSIBLE_SPEED, "m/s"),
+    "acceleration": Range(-10.0, 10.0, MAX_PLAUSIBLE_ACCEL, "m/s²"),
+    "time_step": Range(1e-3, 1.0, 2.0, "s"),
+    "grade": Range(-0.2, 0.2, 1.0, ""),
+    "position": Range(-1e8, 1e8, 1e8, "m"),
+    "other": Range(-1e12, 1e12, 1e12, ""),
+}
+#: Largest plausible speed implied by two consecutive positions (m/s).
+MAX_POSITION_RATE = 70.0
+
+
+def plausibility_warning(msg: str) -> None:
+    """Emits an :class:`avll.PlausibilityWarning` (an error under ``strict``)."""
+    warnings.warn(PlausibilityWarning(msg), stacklevel=3)
+
+
+@contextlib.contextmanager
+def strict_warnings(strict: bool = True) -> Iterator[None]:
+    """Within the block, every :class:`avll.DataWarning` (plausibility, sidecar
+    mismatches) raises a :class:`DataError` with the same message (``strict``), or is
+    held back and issued when the block ends normally: a load that fails with an
+    error does not also print the warnings that led up to it."""
+    if not strict:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", DataWarning)
+            yield
+        for w in caught:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWarning)
+        try:
+            yield
+        except DataWarning as w:
+            raise DataError(str(w)) from None
+
+
+def with_strict(loader: Callable[..., list[Run]]) -> Callable[..., list[Run]]:
+    """Adds the ``strict=False`` keyword to a loader (see :func:`strict_warnings`)."""
+
+    @functools.wraps(loader)
+    def wrapped(*args: Any, strict: bool = False, **kw: Any) -> list[Run]:
+        if not isinstance(strict, bool):
+            raise TypeError(f"strict: must be True or False, got {strict!r}")
+        with strict_warnings(strict):
+            return loader(*args, **kw)
+
+    return wrapped
+
+
+def check_unique_header(path: str | Path, columns: Sequence[str], *,
+                        encoding: str = "utf-8-sig") -> None:
+    """Refuses a duplicated column name (after stripping blanks): pandas would rename
+    the second ``a`` to ``a.1`` and the first would silently win. For CSV the header
+    line is read as written."""
+    p = Path(path)
+    names = [str(c).strip() for c in columns]
+    if p.suffix.lower() not in (".parquet", ".pq"):
+        try:
+            with open(p, encoding=encoding, newline="") as f:
+                names = [c.strip() for c in next(csv.reader(f), [])]
+        except (OSError, UnicodeDecodeError, csv.Error):
+            pass
+    seen: dict[str, int] = {}
+    for i, c in enumerate(names):
+        if c in seen:
+            raise DataError(f"{where(p, c)}: duplicated column (header fields {seen[c] + 1} "
+                            f"and {i + 1}); rename one")
+        seen[c] = i
 
 
 def where(path: str | Path, column: str | None = None, row: int | None = None,
@@ -75,6 +185,7 @@ def read_table(path: str | Path, *, encoding: str = "utf-8-sig") -> pd.DataFrame
             raise DataError(f"{p}: empty file (no header, no data)") from e
         except (pd.errors.ParserError, UnicodeDecodeError) as e:
             raise DataError(f"{p}: not a readable CSV file ({e})") from e
+    check_unique_header(p, list(df.columns), encoding=encoding)
     df.columns = [str(c).strip() for c in df.columns]
     if len(df) == 0:
         raise DataError(f"{p}: no data rows (only a header: {', '.join(df.columns)})")
@@ -178,43 +289,92 @@ def _slope(y: np.ndarray, x: np.ndarray) -> tuple[float, float]:
     """Least-squares slope of y on x through the origin, and the fit's R²."""
     m = np.isfinite(x) & np.isfinite(y)
     x, y = x[m], y[m]
-    sxx = float(np.dot(x, x))
-    if x.size < 20 or sxx <= 0:
-        return math.nan, 0.0
-    k = float(np.dot(x, y)) / sxx
-    syy = float(np.dot(y, y))
-    r2 = 1.0 - float(np.dot(y - k * x, y - k * x)) / syy if syy > 0 else 0.0
+    with np.errstate(all="ignore"):
+        sxx = float(np.dot(x, x))
+        if x.size < 20 or not (0 < sxx < math.inf):
+            return math.nan, 0.0
+        k = float(np.dot(x, y)) / sxx
+        syy = float(np.dot(y, y))
+        r2 = 1.0 - float(np.dot(y - k * x, y - k * x)) / syy if 0 < syy < math.inf else 0.0
     return k, r2
 
 
+def _row(rows: np.ndarray | None, i: int) -> int:
+    return int(rows[i]) if rows is not None else int(i)
+
+
+def _first(mask: np.ndarray) -> int | None:
+    idx = np.flatnonzero(mask)
+    return int(idx[0]) if idx.size else None
+
+
+def _range_check(x: np.ndarray, path: str | Path, column: str, kind: str,
+                 rows: np.ndarray | None, hint: str, what: str | None = None) -> None:
+    """Hard limit (DataError with ``hint``) then plausible range (warning)."""
+    rg = RANGES[kind]
+    what = what or kind
+    unit = f" {rg.unit}" if rg.unit else ""
+    fin = np.where(np.isfinite(x), x, 0.0)
+    i = _first(np.abs(fin) > rg.hard)
+    if i is not None:
+        raise DataError(f"{where(path, column, _row(rows, i))}: {what} {x[i]:.4g}{unit} is "
+                        f"implausible (|{what}| > {rg.hard:g}{unit}); {hint}")
+    out = (fin < rg.lo) | (fin > rg.hi)
+    i = _first(out)
+    if i is not None:
+        n = int(out.sum())
+        plausibility_warning(
+            f"{where(path, column, _row(rows, i))}: {what} {x[i]:.4g}{unit} is outside the "
+            f"plausible range {rg.lo:g}..{rg.hi:g}{unit}"
+            + (f" ({n} such rows)" if n > 1 else ""))
+
+
 def check_speed_units(v: np.ndarray, path: str | Path, column: str, *, dt: float | None = None,
-                      a: np.ndarray | None = None, x: np.ndarray | None = None) -> None:
+                      a: np.ndarray | None = None, x: np.ndarray | None = None,
+                      rows: np.ndarray | None = None) -> None:
     """Detect a speed column that is not in m/s, by plausibility.
 
-    * any |v| above 70 m/s (252 km/h) is implausible for these vehicles;
+    * any |v| above 70 m/s (252 km/h) is implausible for these vehicles (an error:
+      km/h?); a speed below -1 or above 50 m/s is a :class:`avll.PlausibilityWarning`;
     * when the acceleration is known, the slope of dv/dt on ``a`` should be about 1;
-      a slope near 3.6 (km/h) or 2.24 (mph) with a good fit reveals the unit;
-    * when the position is known, the slope of dx/dt on ``v`` should be about 1.
+      a slope near 3.6 (km/h) or 2.24 (mph) with a good fit reveals the unit, one near
+      0.001 time stamps in milliseconds;
+    * when the position is known, the slope of dx/dt on ``v`` should be about 1
+      (3.6: km/h, 2.24: mph, 1000: time in milliseconds).
+
+    ``rows`` maps the array's samples to the file's data rows (for the messages).
     """
     fin = v[np.isfinite(v)]
     if fin.size and np.max(np.abs(fin)) > MAX_PLAUSIBLE_SPEED:
         i = int(np.flatnonzero(np.abs(np.nan_to_num(v)) > MAX_PLAUSIBLE_SPEED)[0])
         raise DataError(
-            f"{where(path, column, i)}: speed {v[i]:.4g} is implausible in m/s "
+            f"{where(path, column, _row(rows, i))}: speed {v[i]:.4g} is implausible in m/s "
             f"(> {MAX_PLAUSIBLE_SPEED:g} m/s); is the column in km/h? Convert to m/s")
-    if dt is None or v.shape[0] < 40:
-        return
+    if dt is not None and v.shape[0] >= 40:
+        _unit_slopes(v, path, column, dt, a, x)
+    _range_check(v, path, column, "speed", rows, "is the column in km/h? Convert to m/s")
+
+
+def _unit_slopes(v: np.ndarray, path: str | Path, column: str, dt: float,
+                 a: np.ndarray | None, x: np.ndarray | None) -> None:
     checks = []
     if a is not None:
-        dv = np.gradient(v, dt)
-        checks.append(("acceleration", *_slope(dv, a)))
+        with np.errstate(all="ignore"):
+            dv = np.gradient(v, dt)
+        checks.append(("acceleration", 1e-3, *_slope(dv, a)))
     if x is not None:
-        dx = np.gradient(x, dt)
+        with np.errstate(all="ignore"):
+            dx = np.gradient(x, dt)
         k, r2 = _slope(v, dx)
-        checks.append(("position derivative", k, r2))
-    for what, k, r2 in checks:
+        checks.append(("position derivative", 1e3, k, r2))
+    for what, ms, k, r2 in checks:
         if not np.isfinite(k) or r2 < 0.5:
             continue
+        if abs(k / ms - 1.0) < 0.2:
+            raise DataError(
+                f"{where(path, column)}: the time stamps look like milliseconds, not seconds: "
+                f"the speed is {k:.3g} x the speed implied by the {what} (R² {r2:.2f}); "
+                "convert the time to seconds")
         for unit, f in (("km/h", 3.6), ("mph", 2.2369)):
             if abs(k / f - 1.0) < 0.2:
                 raise DataError(
@@ -222,13 +382,115 @@ def check_speed_units(v: np.ndarray, path: str | Path, column: str, *, dt: float
                     f"{k:.3g} x the speed implied by the {what} (R² {r2:.2f}); convert to m/s")
 
 
-def check_accel_units(a: np.ndarray, path: str | Path, column: str) -> None:
-    """|a| above 15 m/s² is implausible for road vehicles (wrong unit or column)."""
+def check_accel_units(a: np.ndarray, path: str | Path, column: str,
+                      rows: np.ndarray | None = None) -> None:
+    """|a| above 15 m/s² is implausible for road vehicles (wrong unit or column: an
+    error); above 10 m/s² (beyond tyre friction) a :class:`avll.PlausibilityWarning`."""
     fin = np.abs(np.nan_to_num(a, nan=0.0, posinf=np.inf, neginf=np.inf))
     if fin.size and fin.max() > MAX_PLAUSIBLE_ACCEL:
         i = int(np.argmax(fin > MAX_PLAUSIBLE_ACCEL))
-        raise DataError(f"{where(path, column, i)}: acceleration {a[i]:.4g} m/s² is implausible "
-                        f"(> {MAX_PLAUSIBLE_ACCEL:g}); wrong unit or column?")
+        raise DataError(f"{where(path, column, _row(rows, i))}: acceleration {a[i]:.4g} m/s² "
+                        f"is implausible (> {MAX_PLAUSIBLE_ACCEL:g}); wrong unit or column?")
+    _range_check(a, path, column, "acceleration", rows, "wrong unit or column?")
+
+
+#: Longest plausible step between two samples of one file (s).
+MAX_TIME_GAP = 86400.0
+
+
+def check_time_span(t: np.ndarray, path: str | Path, column: str,
+                    rows: np.ndarray | None = None) -> None:
+    """Sorted finite times ``t``: a step longer than a day (a typo in one time stamp)
+    is an error naming the row, before a loader builds a grid over the span."""
+    if t.shape[0] < 2:
+        return
+    d = np.diff(t)
+    i = int(np.argmax(d))
+    if d[i] > MAX_TIME_GAP:
+        raise DataError(f"{where(path, column, _row(rows, i + 1))}: the time jumps from "
+                        f"{t[i]:.10g} to {t[i + 1]:.10g} s (more than a day); a wrong time "
+                        "stamp?")
+
+
+def check_time_step(dt: float, path: str | Path, column: str, row: int | None = None) -> None:
+    """The (median) time step ``dt`` of a time column: above 2 s an error (time stamps
+    in milliseconds?), outside 0.001..1 s a :class:`avll.PlausibilityWarning` (too fine
+    or too coarse for a lower-level controller)."""
+    rg = RANGES["time_step"]
+    if dt > rg.hard:
+        raise DataError(f"{where(path, column, row)}: the time step is {dt:.6g}: are the time "
+                        "stamps in milliseconds? The time must be in seconds (a step "
+                        f"above {rg.hard:g} s is implausible)")
+    if not rg.lo <= dt <= rg.hi:
+        plausibility_warning(f"{where(path, column, row)}: time step {dt:.6g} s is outside the "
+                             f"plausible range {rg.lo:g}..{rg.hi:g} s")
+
+
+def check_signal(kind: str, x: np.ndarray, path: str | Path, column: str, *,
+                 rows: np.ndarray | None = None, dt: float | None = None) -> None:
+    """Range check of one column of a known ``kind``: ``speed``, ``acceleration``,
+    ``grade``, ``position`` (also: jumps faster than 70 m/s, with ``dt``) or
+    ``other`` (only the absurd magnitude of 1e12)."""
+    if kind == "speed":
+        check_speed_units(x, path, column, rows=rows)
+    elif kind == "acceleration":
+        check_accel_units(x, path, column, rows=rows)
+    elif kind == "grade":
+        _range_check(x, path, column, "grade", rows,
+                     "the grade is rise over run (0.05 = 5 %), not percent or degrees")
+    elif kind == "position":
+        _range_check(x, path, column, "position", rows, "wrong unit or column?")
+        if dt is not None and x.shape[0] > 1:
+            fin = np.isfinite(x)
+            d = np.abs(np.diff(x)) / dt
+            bad = (d > MAX_POSITION_RATE) & fin[1:] & fin[:-1]
+            i = _first(bad)
+            if i is not None:
+                plausibility_warning(
+                    f"{where(path, column, _row(rows, i + 1))}: position jumps by "
+                    f"{x[i + 1] - x[i]:.4g} m in one step ({d[i]:.4g} m/s, above "
+                    f"{MAX_POSITION_RATE:g} m/s)"
+                    + (f"; {int(bad.sum())} such steps" if bad.sum() > 1 else ""))
+    elif kind == "other":
+        fin = np.where(np.isfinite(x), x, 0.0)
+        i = _first(np.abs(fin) > RANGES["other"].hard)
+        if i is not None:
+            raise DataError(f"{where(path, column, _row(rows, i))}: value {x[i]:.4g} is not a "
+                            "plausible measurement (magnitude above 1e12)")
+    else:  # pragma: no cover - programming error
+        raise ValueError(f"kind: unknown signal kind {kind!r}")
+
+
+#: Kind of each canonical column (``command`` depends on the command kind).
+COLUMN_KINDS = {"a": "acceleration", "lead_a": "acceleration", "v": "speed",
+                "lead_v": "speed", "x": "position", "lead_x": "position"}
+
+
+def check_columns(cols: Mapping[str, np.ndarray], path: str | Path,
+                  names: Mapping[str, str], *, command_kind: str, dt: float | None,
+                  rows: np.ndarray | None = None) -> None:
+    """Plausibility and unit checks of one run's canonical columns (``t`` excluded):
+    ``cols`` by canonical name (``a``, ``command``, ``v``, ``x``, ``lead_*``,
+    ``exo_<name>``), ``names`` the file's column for each, ``rows`` the file's data
+    row of each sample. ``dt`` enables the unit checks that need the time base. The
+    speeds come last, so that the positions and accelerations they are compared with
+    are already known to be plausible."""
+    speeds_last = sorted(cols, key=lambda k: k in ("v", "lead_v"))
+    for k in speeds_last:
+        x = cols[k]
+        col = names.get(k, k)
+        if k == "command":
+            kind = "speed" if command_kind == "speed" else "acceleration"
+        elif k == "exo_grade":
+            kind = "grade"
+        else:
+            kind = COLUMN_KINDS.get(k, "other")
+        if kind == "speed" and k in ("v", "lead_v"):
+            pre = "lead_" if k == "lead_v" else ""
+            check_speed_units(x, path, col, dt=dt, a=cols.get(pre + "a"),
+                              x=cols.get(pre + "x"), rows=rows)
+        else:
+            check_signal(kind, x, path, col, rows=rows, dt=dt)
 
 
 def check_runs_for_delay(runs: Sequence[Run], td: float, *, min_extra_samples: int = 20) -> None:

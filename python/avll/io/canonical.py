@@ -9,12 +9,36 @@ may give the command kind and, per run, the upper-level law and metadata::
      "runs": {"1": {"upper": {"kg": 0.7, "kv": 0.0, "Tg": 2.0, "Gmin": 9.5},
                     "meta": {...}}}}
 
+The sidecar is validated against that schema (:func:`validate_sidecar`): an object
+with only the keys ``command_kind`` (``"acceleration"`` or ``"speed"``) and ``runs``
+(an object of run id -> object with only ``upper``, an object of finite numbers
+``kg`` (required), ``kv``, ``Tg``, ``Gmin``, and ``meta``, any JSON object); duplicated
+keys and documents nested deeper than :data:`MAX_SIDECAR_DEPTH` are refused. Every
+violation is a :class:`DataError` naming the sidecar and the JSON path
+(``runs.'1'.upper.kg``).
+
+Run ids are text, compared exactly as written in the ``run`` column (``"04"`` is
+not ``"4"``; a Parquet float column of whole numbers gives ``"3"``, not ``"3.0"``). A
+sidecar entry whose id matches no run is a :class:`DataError` when it equals a run
+of the data as a number (``"4"`` vs ``"04"`` or ``"4.0"``: the id is written
+differently, the entry would silently be lost) and a :class:`avll.DataWarning`
+otherwise (e.g. a sidecar kept for a file that was cut down); ``strict=True`` makes
+that an error too.
+
+Every column is checked for plausibility (see :mod:`avll.io._common`): a value that
+cannot be SI (a speed above 70 m/s, time stamps in milliseconds, ...) is an error, one
+outside the physical range a :class:`avll.PlausibilityWarning`. A duplicated header
+column is an error.
+
 Rows are reported as file lines (the header is line 1).
 """
 
 from __future__ import annotations
 
 import json
+import math
+import numbers
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -22,10 +46,19 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..data import COMMAND_KINDS, DataError, Run
+from .. import _atomic
+from ..data import COMMAND_KINDS, DataError, DataWarning, Run
 from ..models import UpperLevel
+from ._common import check_columns, check_time_step, check_unique_header, strict_warnings
 
-__all__ = ["load_canonical", "write_runs", "REQUIRED", "OPTIONAL", "sidecar_path"]
+__all__ = ["load_canonical", "write_runs", "validate_sidecar", "REQUIRED", "OPTIONAL",
+           "sidecar_path", "MAX_SIDECAR_DEPTH"]
+
+#: Deepest nesting of a sidecar (``runs`` -> id -> ``meta`` -> ... counts 1 each).
+MAX_SIDECAR_DEPTH = 32
+#: Largest sidecar file read (bytes).
+MAX_SIDECAR_BYTES = 64 * 2**20
+_UPPER_KEYS = ("kg", "kv", "Tg", "Gmin")
 
 REQUIRED = ("run", "t", "a")
 OPTIONAL = ("command", "v", "x", "lead_x", "lead_v", "lead_a")
@@ -55,6 +88,7 @@ def _read_table(path: Path) -> pd.DataFrame:
             raise DataError(f"{path}: the file is empty") from None
         except (pd.errors.ParserError, UnicodeDecodeError) as e:
             raise DataError(f"{path}: not a readable CSV file ({e})") from None
+    check_unique_header(path, list(df.columns), encoding="utf-8")
     df.columns = [str(c).strip() for c in df.columns]
     if df.shape[0] == 0:
         raise DataError(f"{path}: the file has a header but no data rows")
@@ -82,22 +116,159 @@ def _numeric(path: Path, df: pd.DataFrame, col: str, line0: int) -> np.ndarray:
     return arr
 
 
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in pairs:
+        if k in out:
+            raise DataError(f"duplicated key {k!r}")
+        out[k] = v
+    return out
+
+
+def _depth(x: Any) -> int:
+    """Nesting depth of a parsed JSON value (iterative: no recursion limit)."""
+    best, stack = 0, [(x, 1)]
+    while stack:
+        v, d = stack.pop()
+        if isinstance(v, dict):
+            best = max(best, d)
+            stack.extend((w, d + 1) for w in v.values())
+        elif isinstance(v, list):
+            best = max(best, d)
+            stack.extend((w, d + 1) for w in v)
+    return best
+
+
+def _number(sc: Path, at: str, v: Any) -> float:
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        raise DataError(f"{sc}: {at}: must be a number, got {v!r}")
+    f = float(v)
+    if not math.isfinite(f):
+        raise DataError(f"{sc}: {at}: must be finite, got {v!r}")
+    return f
+
+
+def validate_sidecar(doc: Any, sc: Path | str = "sidecar") -> dict[str, Any]:
+    """Checks a parsed sidecar against the schema of the module doc; returns it with
+    ``runs`` present. Raises :class:`DataError` naming ``sc`` and the JSON path."""
+    sc = Path(sc)
+    if not isinstance(doc, dict):
+        raise DataError(f"{sc}: must hold a JSON object, got {type(doc).__name__}")
+    if _depth(doc) > MAX_SIDECAR_DEPTH:
+        raise DataError(f"{sc}: nested deeper than {MAX_SIDECAR_DEPTH} levels")
+    extra = [k for k in doc if k not in ("command_kind", "runs")]
+    if extra:
+        raise DataError(f"{sc}: unknown key {extra[0]!r}; allowed: command_kind, runs")
+    kind = doc.get("command_kind")
+    if kind is not None and kind not in COMMAND_KINDS:
+        raise DataError(f"{sc}: command_kind: must be one of {COMMAND_KINDS}, got {kind!r}")
+    runs = doc.get("runs", {})
+    if not isinstance(runs, dict):
+        raise DataError(f"{sc}: runs: must be an object of run id -> entry, got "
+                        f"{type(runs).__name__} {json.dumps(runs)[:40]}")
+    for rid, entry in runs.items():
+        at = f"runs.{rid!r}"
+        if not isinstance(entry, dict):
+            raise DataError(f"{sc}: {at}: must be an object with 'upper' and/or 'meta', got "
+                            f"{json.dumps(entry)[:40]}")
+        extra = [k for k in entry if k not in ("upper", "meta")]
+        if extra:
+            raise DataError(f"{sc}: {at}: unknown key {extra[0]!r}; allowed: upper, meta")
+        if "meta" in entry and not isinstance(entry["meta"], dict):
+            raise DataError(f"{sc}: {at}.meta: must be an object, got "
+                            f"{json.dumps(entry['meta'])[:40]}")
+        if "upper" in entry:
+            up = entry["upper"]
+            if not isinstance(up, dict):
+                raise DataError(f"{sc}: {at}.upper: must be an object with kg, kv, Tg, Gmin, "
+                                f"got {json.dumps(up)[:40]}")
+            bad = [k for k in up if k not in _UPPER_KEYS]
+            if bad:
+                raise DataError(f"{sc}: {at}.upper: unknown key {bad[0]!r}; allowed: "
+                                f"{', '.join(_UPPER_KEYS)}")
+            if "kg" not in up:
+                raise DataError(f"{sc}: {at}.upper: 'kg' is required")
+            for k, v in up.items():
+                _number(sc, f"{at}.upper.{k}", v)
+    return {**doc, "runs": runs}
+
+
 def _sidecar(path: Path) -> dict[str, Any]:
     sc = sidecar_path(path)
     if not sc.exists():
-        return {}
+        return {"runs": {}}
+    if sc.is_dir():
+        raise DataError(f"{sc}: is a folder, expected the JSON sidecar")
+    if sc.stat().st_size > MAX_SIDECAR_BYTES:
+        raise DataError(f"{sc}: larger than {MAX_SIDECAR_BYTES // 2**20} MB; not a sidecar")
     try:
-        data = json.loads(sc.read_text())
+        data = json.loads(sc.read_text(encoding="utf-8"), object_pairs_hook=_no_duplicates)
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DataError(f"{sc}: not valid JSON ({e})") from None
-    if not isinstance(data, dict):
-        raise DataError(f"{sc}: must hold a JSON object")
-    return data
+    except RecursionError:
+        raise DataError(f"{sc}: nested deeper than {MAX_SIDECAR_DEPTH} levels") from None
+    except DataError as e:
+        raise DataError(f"{sc}: {e}") from None
+    return validate_sidecar(data, sc)
 
 
-def load_canonical(path: Path, command_kind: str | None = None) -> list[Run]:
-    """Reads runs in the canonical long format (see the module doc)."""
-    path = Path(path)
+def _as_number(s: str) -> float | None:
+    try:
+        f = float(s)
+    except ValueError:
+        return None
+    return f if math.isfinite(f) else None
+
+
+def _match_sidecar(path: Path, per_run: dict[str, Any], order: Sequence[str]) -> None:
+    """Sidecar ids that match no run: an error when a run has the same id as a number
+    (written differently), a DataWarning otherwise."""
+    ids = set(order)
+    unknown = [k for k in per_run if k not in ids]
+    if not unknown:
+        return
+    by_num: dict[float, str] = {}
+    for rid in order:
+        f = _as_number(rid)
+        if f is not None:
+            by_num.setdefault(f, rid)
+    sc = sidecar_path(path)
+    for k in unknown:
+        f = _as_number(k)
+        if f is not None and f in by_num:
+            raise DataError(
+                f"{sc}: runs.{k!r} matches no run of {path.name}, whose run "
+                f"{by_num[f]!r} is the same number written differently; run ids are compared "
+                f"as text: write {by_num[f]!r} in the sidecar (or rename the run)")
+    shown = ", ".join(repr(k) for k in unknown[:5]) + (" ..." if len(unknown) > 5 else "")
+    warnings.warn(DataWarning(
+        f"{sc}: names {len(unknown)} run(s) that are not in {path.name}: {shown}; their "
+        "entries are not used"),
+        stacklevel=3)
+
+
+def load_canonical(path: Path, command_kind: str | None = None, *,
+                   strict: bool = False) -> list[Run]:
+    """Reads runs in the canonical long format (see the module doc). ``strict=True``
+    turns plausibility and sidecar warnings into :class:`DataError`."""
+    if not isinstance(strict, bool):
+        raise TypeError(f"strict: must be True or False, got {strict!r}")
+    if command_kind is not None and command_kind not in COMMAND_KINDS:
+        raise ValueError(f"command_kind: must be one of {COMMAND_KINDS}, got {command_kind!r}")
+    with strict_warnings(strict):
+        return _load_canonical(Path(path), command_kind)
+
+
+def _run_ids(df: pd.DataFrame) -> np.ndarray:
+    s = df["run"]
+    if pd.api.types.is_float_dtype(s.dtype):
+        v = s.to_numpy(dtype=np.float64)
+        if np.all(np.isfinite(v)) and np.all(v == np.round(v)) and np.all(np.abs(v) < 2**53):
+            return np.array([str(int(x)) for x in v], dtype=object)
+    return s.astype(str).str.strip().to_numpy()
+
+
+def _load_canonical(path: Path, command_kind: str | None) -> list[Run]:
     df = _read_table(path)
     missing = [c for c in REQUIRED if c not in df.columns]
     if missing:
@@ -116,14 +287,16 @@ def load_canonical(path: Path, command_kind: str | None = None) -> list[Run]:
         raise DataError(f"{path}: command kind must be one of {COMMAND_KINDS}, got {kind!r}")
     line0 = 2  # header is line 1 (Parquet: row index + 2 as well, for consistency)
     cols = {c: _numeric(path, df, c, line0) for c in df.columns if c != "run"}
-    run_ids = df["run"].astype(str).str.strip().to_numpy()
-    empty = np.flatnonzero(run_ids == "")
+    run_ids = _run_ids(df)
+    empty = np.flatnonzero((run_ids == "") | (run_ids == "nan") | (run_ids == "None"))
     if empty.size:
         raise DataError(f"{path}: column 'run' line {int(empty[0]) + line0}: is empty")
     exo_cols = [c for c in df.columns if c.startswith("exo_")]
     per_run = side.get("runs", {})
     runs: list[Run] = []
     order = list(dict.fromkeys(run_ids))
+    _match_sidecar(path, per_run, order)
+    signal_cols = [c for c in df.columns if c not in ("run", "t")]
     for rid in order:
         idx = np.flatnonzero(run_ids == rid)
         if idx.size > 1 and np.any(np.diff(idx) != 1):
@@ -151,6 +324,9 @@ def load_canonical(path: Path, command_kind: str | None = None) -> list[Run]:
                 f"{path}: column 't' line {idx[i + 1] + line0}: non-uniform sampling in run "
                 f"{rid!r} (step {dts[i]:.6g} s, median {dt:.6g} s); resample it first"
             )
+        check_time_step(dt, path, "t", int(idx[1]))
+        check_columns({c: cols[c][idx] for c in signal_cols}, path, {}, command_kind=kind,
+                      dt=dt, rows=idx)
         info = per_run.get(rid, {})
         upper = None
         if "upper" in info:
@@ -198,10 +374,19 @@ def _jsonable(x: Any) -> Any:
 
 def write_runs(runs: Sequence[Run], path: str | Path) -> Path:
     """Writes runs in the canonical format (CSV, or Parquet for a ``.parquet``
-    suffix) plus the JSON sidecar; returns the data file's path."""
+    suffix) plus the JSON sidecar, atomically (temporary names renamed together);
+    returns the data file's path. Refuses to overwrite a file a run was loaded from."""
     path = Path(path)
     if not runs:
         raise ValueError("runs: nothing to write")
+    for r in runs:
+        for key in ("source", "file"):
+            src = r.meta.get(key)
+            if isinstance(src, str) and src and (
+                    _atomic.same_file(path, src)
+                    or _atomic.same_file(sidecar_path(path), sidecar_path(Path(src)))):
+                raise ValueError(f"path: {path} is the file run {r.run_id!r} was read from "
+                                 f"({src}); writing it would replace the input")
     kinds = {r.command_kind for r in runs}
     if len(kinds) != 1:
         raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
@@ -219,11 +404,6 @@ def write_runs(runs: Sequence[Run], path: str | Path) -> Path:
             d[f"exo_{k}"] = r.exo[k]
         frames.append(pd.DataFrame(d))
     df = pd.concat(frames, ignore_index=True)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix.lower() in (".parquet", ".pq"):
-        df.to_parquet(path, index=False)
-    else:
-        df.to_csv(path, index=False, float_format="%.10g")
     side = {
         "command_kind": runs[0].command_kind,
         "runs": {
@@ -246,5 +426,12 @@ def write_runs(runs: Sequence[Run], path: str | Path) -> Path:
             for r in runs
         },
     }
-    sidecar_path(path).write_text(json.dumps(side, indent=1))
+    text = json.dumps(side, indent=1, allow_nan=False)
+    # both files to temporary names first, renamed together with Ctrl-C deferred
+    with _atomic.atomic_paths(path, sidecar_path(path)) as (tmp_data, tmp_side):
+        if path.suffix.lower() in (".parquet", ".pq"):
+            df.to_parquet(tmp_data, index=False)
+        else:
+            df.to_csv(tmp_data, index=False, float_format="%.10g")
+        tmp_side.write_text(text + "\n", encoding="utf-8")
     return path

@@ -46,10 +46,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from .._limits import check_number
 from ..data import DataError, Run
 from ._common import (
     check_accel_units,
     check_speed_units,
+    check_time_span,
     contiguous,
     numeric_column,
     read_table,
@@ -159,6 +161,9 @@ def load_carma(
     """
     if command_kind not in (None, "speed"):
         raise ValueError(f"command_kind: CARMA commands are speeds, got {command_kind!r}")
+    min_duration, max_hole, dt, time_tol = (check_number(v, n) for v, n in (
+        (min_duration, "min_duration"), (max_hole, "max_hole"), (dt, "dt"),
+        (time_tol, "time_tol")))
     if not (min_duration >= 0):
         raise ValueError(f"min_duration: must be >= 0, got {min_duration!r}")
     if not (max_hole >= 0):
@@ -211,6 +216,7 @@ def load_carma(
         rows, t = rows[keep], t[keep]
     if t.shape[0] < 2:
         raise DataError(f"{where(path, 'Time')}: needs at least 2 rows, got {t.shape[0]}")
+    check_time_span(t, path, "Time", rows)  # before the grid over the span is built
     k = np.round((t - t[0]) / dt).astype(np.int64)
     off = np.flatnonzero(np.abs(t - t[0] - k * dt) > time_tol * dt)
     if off.size:

@@ -4,10 +4,10 @@ and optionally convert it to the canonical format."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
+from .. import _atomic
 from . import FORMATS, read_runs, write_runs
 from ._common import summarize
 
@@ -60,6 +60,9 @@ def astazero_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def _cmd(args: argparse.Namespace) -> int:
     opts: dict[str, Any] = {}
+    if (args.dt is not None or args.max_gap is not None) and args.format == "canonical":
+        raise ValueError("--dt: the canonical format is already uniformly sampled and is not "
+                         "resampled; use --format generic to resample a table")
     if args.dt is not None:
         opts["dt"] = args.dt
     if args.max_gap is not None:
@@ -78,14 +81,11 @@ def _cmd(args: argparse.Namespace) -> int:
     total = sum((len(r) - 1) * r.dt for r in runs)
     print(f"{len(runs)} runs, {total:.1f} s in total")
     if args.report:
-        rp = Path(args.report)
-        rp.parent.mkdir(parents=True, exist_ok=True)
-        with open(rp, "w", encoding="utf-8") as f:
-            json.dump({r.run_id: {"samples": len(r), "dt": r.dt,
-                                  "duration_s": (len(r) - 1) * r.dt,
-                                  "command_kind": r.command_kind,
-                                  "cleaning": list(r.meta.get("cleaning", []))}
-                       for r in runs}, f, indent=1)
+        _atomic.write_json(args.report, {
+            r.run_id: {"samples": len(r), "dt": r.dt, "duration_s": (len(r) - 1) * r.dt,
+                       "command_kind": r.command_kind,
+                       "cleaning": list(r.meta.get("cleaning", []))}
+            for r in runs}, indent=1)
     if args.out:
         out = write_runs(runs, args.out)
         print(f"wrote {out}")

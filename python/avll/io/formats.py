@@ -5,7 +5,8 @@ Every entry takes ``(path, command_kind=None, *, dt=None, max_gap=None, **option
 ``dt`` resamples the runs to that step (linear interpolation across gaps of at most
 ``max_gap`` seconds, default ``2.5*dt``; longer gaps split a run; see
 :mod:`avll.io.resample`). The generic loader resamples itself, so it can also fix
-non-uniform input.
+non-uniform input. Every entry also takes ``strict=False``: ``True`` turns the
+plausibility and sidecar warnings (:class:`avll.DataWarning`) into errors.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ..data import Run
+from ._common import strict_warnings
 from .carma import load_carma
 from .generic import load_generic
 from .openacc import load_openacc_astazero
@@ -29,14 +31,17 @@ def _resampling(loader: Callable[..., list[Run]]) -> Callable[..., list[Run]]:
     @functools.wraps(loader)
     def wrapped(path: str | Path, command_kind: str | None = None, *,
                 dt: float | None = None, max_gap: float | None = None,
-                **kw: Any) -> list[Run]:
-        runs = loader(path, command_kind=command_kind, **kw)
-        if dt is None:
-            return runs
-        out: list[Run] = []
-        for r in runs:
-            out += resample_run(r, dt, max_gap=max_gap)
-        return out
+                strict: bool = False, **kw: Any) -> list[Run]:
+        if not isinstance(strict, bool):
+            raise TypeError(f"strict: must be True or False, got {strict!r}")
+        with strict_warnings(strict):
+            runs = loader(path, command_kind=command_kind, **kw)
+            if dt is None:
+                return runs
+            out: list[Run] = []
+            for r in runs:
+                out += resample_run(r, dt, max_gap=max_gap)
+            return out
 
     return wrapped
 

@@ -12,6 +12,11 @@ finite. With ``dt`` each run is resampled to that step (:mod:`avll.io.resample`)
 empty cells count as missing samples, linear interpolation bridges gaps of at most
 ``max_gap`` seconds, longer gaps split the run (ids ``<run>/rNN``), all recorded in
 ``meta["cleaning"]``.
+
+Every column is checked for plausibility (:mod:`avll.io._common`): values that cannot
+be SI are errors (a speed in km/h, time stamps in milliseconds, ...), values outside
+the physical range are :class:`avll.PlausibilityWarning` (errors with ``strict=True``).
+A duplicated header column is an error.
 """
 
 from __future__ import annotations
@@ -22,14 +27,16 @@ from typing import Any
 
 import numpy as np
 
+from .._limits import check_number
 from ..data import COMMAND_KINDS, DataError, Run
 from ._common import (
-    check_accel_units,
-    check_speed_units,
+    check_columns,
     check_time,
+    check_time_step,
     numeric_column,
     read_table,
     require_columns,
+    strict_warnings,
     where,
 )
 from .resample import resample_arrays
@@ -49,16 +56,30 @@ def load_generic(
     max_gap: float | None = None,
     time_tol: float = 1e-3,
     min_samples: int = 2,
+    strict: bool = False,
 ) -> list[Run]:
     """Runs of a long CSV/Parquet table (see the module doc).
 
     ``command_kind`` (``"acceleration"`` or ``"speed"``) is required when the table has
     a command column. ``dt`` asks for resampling (``max_gap`` defaults to ``2.5*dt``).
-    Raises :class:`avll.DataError` naming the file, column and row for bad input.
+    Raises :class:`avll.DataError` naming the file, column and row for bad input;
+    ``strict=True`` turns plausibility warnings into errors.
     """
-    path = Path(path)
+    if not isinstance(strict, bool):
+        raise TypeError(f"strict: must be True or False, got {strict!r}")
+    with strict_warnings(strict):
+        return _load_generic(Path(path), mapping, command_kind, dt, max_gap, time_tol,
+                             min_samples)
+
+
+def _load_generic(path: Path, mapping: Mapping[str, str] | None, command_kind: str | None,
+                  dt: float | None, max_gap: float | None, time_tol: float,
+                  min_samples: int) -> list[Run]:
     if command_kind is not None and command_kind not in COMMAND_KINDS:
         raise ValueError(f"command_kind: must be one of {COMMAND_KINDS}, got {command_kind!r}")
+    if dt is not None:
+        dt = check_number(dt, "dt")
+    time_tol = check_number(time_tol, "time_tol")
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be a positive time step, got {dt!r}")
     if not (time_tol > 0):
@@ -118,16 +139,10 @@ def load_generic(
         else:
             check_time(cols["t"], path, tcol, rows=rows, uniform=False)
             step = dt
-        for k in ("v", "lead_v"):
-            if k in cols:
-                check_speed_units(cols[k], path, mp[k], dt=None if dt else step,
-                                  a=cols.get("a" if k == "v" else "lead_a"),
-                                  x=cols.get("x" if k == "v" else "lead_x"))
-        if has_cmd and kind == "speed":
-            check_speed_units(cols["command"], path, mp["command"])
-        for k in ("a", "lead_a") + (("command",) if has_cmd and kind == "acceleration" else ()):
-            if k in cols:
-                check_accel_units(cols[k], path, mp[k])
+        check_time_step(step if dt is None else float(np.median(np.diff(cols["t"]))),
+                        path, tcol, int(rows[1]) if rows.size > 1 else None)
+        check_columns({k: v for k, v in cols.items() if k != "t"}, path, mp,
+                      command_kind=kind, dt=None if dt else step, rows=rows)
         base_meta: dict[str, Any] = {"format": "generic", "file": str(path),
                                      "rows": [int(rows[0]), int(rows[-1])],
                                      "columns": dict(mp), "cleaning": []}

@@ -34,8 +34,10 @@ from ..data import DataError, Run
 from ._common import (
     check_accel_units,
     check_finite,
+    check_signal,
     check_speed_units,
     check_time,
+    check_time_step,
     numeric_column,
     read_table,
     require_columns,
@@ -119,6 +121,7 @@ def _read_numeric(path: Path, cols: Sequence[str]) -> tuple[dict[str, np.ndarray
     for c in cols:
         check_finite(data[c], path, c)
     dt = check_time(data["Time"], path, "Time")
+    check_time_step(dt, path, "Time", 1)
     return data, dt
 
 
@@ -135,6 +138,7 @@ def _platoon(path: Path, slope: Any, labels: Path | None, offset: float,
                        for i in range(1, nveh + 1)] + [f"Spacing{i}" for i in range(2, nveh + 1)]
     d, dt = _read_numeric(path, cols)
     for i in range(1, nveh + 1):
+        check_signal("position", d[f"X{i}"], path, f"X{i}", dt=dt)
         check_speed_units(d[f"SpeedDoppler{i}"], path, f"SpeedDoppler{i}", dt=dt,
                           x=d[f"X{i}"])
         check_accel_units(d[f"Accel{i}"], path, f"Accel{i}")
@@ -199,6 +203,7 @@ def _freeflow(path: Path, slope: Any, parts: Path | None, offset: float,
         raise DataError(f"{where(parts, 'setSpd_mps', r)}: set speed {vset:g} m/s does not match "
                         f"the file name's V{m['kmh']} km/h")
     d, dt = _read_numeric(path, ["Time", "X1", "SpeedDoppler1", "Accel1"])
+    check_signal("position", d["X1"], path, "X1")
     check_speed_units(d["SpeedDoppler1"], path, "SpeedDoppler1", dt=dt, a=d["Accel1"])
     check_accel_units(d["Accel1"], path, "Accel1")
     lap_len = slope[2] if (lap is None and slope is not None) else lap
@@ -212,6 +217,7 @@ def _freeflow(path: Path, slope: Any, parts: Path | None, offset: float,
         for j in jumps:
             x[j + 1:] += lap_len
         cleaning.append(f"unwrapped X1 at {jumps.size} lap crossing(s) (lap {lap_len:.3f} m)")
+    check_signal("position", x, path, "X1", dt=dt)
     exo = {}
     if slope is not None:
         exo["grade"] = grade_at(x, slope, offset=offset, lap_length=lap)

@@ -37,13 +37,27 @@ def resample_arrays(t: np.ndarray, columns: Mapping[str, np.ndarray], dt: float,
     seconds (default ``2.5 * dt``) and splitting at longer gaps. NaN samples are
     treated as missing (a gap). Segments with fewer than ``min_samples`` output
     samples are dropped."""
-    if not (np.isfinite(dt) and dt > 0):
+    from .._limits import check_number
+
+    dt = check_number(dt, "dt")
+    if not dt > 0:
         raise ValueError(f"dt: must be a positive time step, got {dt!r}")
+    if max_gap is not None:
+        check_number(max_gap, "max_gap")
     gap = 2.5 * dt if max_gap is None else float(max_gap)
     if not (np.isfinite(gap) and gap > 0):
         raise ValueError(f"max_gap: must be positive, got {max_gap!r}")
     t = np.asarray(t, dtype=np.float64)
     cols = {k: np.asarray(v, dtype=np.float64) for k, v in columns.items()}
+    fin = t[np.isfinite(t)]
+    if fin.size > 1:
+        from .._limits import check_memory
+
+        n_out = (float(fin.max()) - float(fin.min())) / dt + 1.0
+        check_memory(8.0 * n_out * (len(cols) + 2),
+                     f"resample: {fin.max() - fin.min():.6g} s at dt={dt:g} s x "
+                     f"{len(cols) + 1} columns", "resample to a coarser dt",
+                     per=8.0 * (len(cols) + 2), unit="samples")
     ok = np.isfinite(t)
     for v in cols.values():
         ok &= np.isfinite(v)

@@ -1,0 +1,373 @@
+"""Atomic outputs: every file the library writes goes through this module.
+
+Files
+    :func:`atomic_path` yields a temporary name in the destination's folder
+    (``.<name>.tmp-XXXXXX<suffix>``, so writers that look at the suffix still work);
+    when the block ends normally the file is flushed to disk (``fsync``) and renamed
+    onto the destination with ``os.replace`` (atomic on POSIX and Windows), otherwise
+    (an error, Ctrl-C) it is removed. A reader therefore sees the old file or the
+    complete new one, never a truncated one. :func:`write_text`, :func:`write_bytes`,
+    :func:`write_json` (strict JSON: ``allow_nan=False``), :func:`savefig`,
+    :func:`to_csv` and :func:`to_parquet` are the writers built on it.
+
+Folders
+    :func:`output_dir` builds a folder of outputs (a report with its figures, a
+    reproduction) in a hidden temporary folder inside it (``.avll-tmp-XXXXXX``: the same
+    file system, writable wherever the folder is) and commits it when the block ends:
+    the old ``MANIFEST.json`` is removed first, every new file is moved in with
+    ``os.replace``, files listed in the old manifest that the new run did not write
+    are removed, and the new ``MANIFEST.json`` (file names, sizes, SHA-256) is written
+    last. Ctrl-C is deferred for the few milliseconds of the commit. Interrupted
+    before the commit, the folder is exactly as it was (a finished earlier run stays
+    complete and consistent); files the user put in the folder are never touched.
+    :func:`read_manifest` is the check a reader runs: it fails unless the manifest is
+    there and every file matches it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import shutil
+import signal
+import tempfile
+import threading
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "MANIFEST",
+    "atomic_path",
+    "atomic_paths",
+    "write_text",
+    "write_bytes",
+    "write_json",
+    "json_safe",
+    "savefig",
+    "to_csv",
+    "to_parquet",
+    "output_dir",
+    "read_manifest",
+    "same_file",
+    "check_not_inputs",
+    "deferred_sigint",
+]
+
+#: Name of the manifest that marks a complete output folder.
+MANIFEST = "MANIFEST.json"
+#: Prefix of the hidden staging folder inside an output folder.
+STAGING_PREFIX = ".avll-tmp-"
+
+
+def _fsync_file(path: str | os.PathLike[str]) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(path: str | os.PathLike[str]) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
+
+
+def _read_umask() -> int:
+    # os.umask can only be read by setting it: done once, at import
+    m = os.umask(0o022)
+    os.umask(m)
+    return m
+
+
+_UMASK = _read_umask()
+
+
+@contextlib.contextmanager
+def deferred_sigint() -> Iterator[None]:
+    """Defers Ctrl-C (SIGINT) for the duration of the block (main thread only); a
+    signal received meanwhile is raised as ``KeyboardInterrupt`` afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[Any] = []
+    try:
+        old = signal.signal(signal.SIGINT, lambda s, f: got.append(s))
+    except ValueError:  # pragma: no cover - not the main interpreter
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+        if got and callable(old):
+            old(signal.SIGINT, None)  # the default handler raises KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def atomic_paths(*paths: str | os.PathLike[str]) -> Iterator[list[Path]]:
+    """Yields one temporary path beside each of ``paths``; when the block ends normally
+    they are flushed to disk and renamed onto ``paths`` one after the other with
+    Ctrl-C deferred (the renames take microseconds), otherwise they are removed.
+    Parent folders are created if needed."""
+    dests = [Path(p) for p in paths]
+    tmps: list[str] = []
+    try:
+        for dest in dests:
+            if dest.is_dir():
+                raise IsADirectoryError(f"{dest}: is a folder, expected a file name")
+            try:
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.tmp-", suffix=dest.suffix,
+                                           dir=dest.parent)
+            except OSError as e:
+                raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
+            os.close(fd)
+            tmps.append(tmp)
+            os.chmod(tmp, 0o666 & ~_UMASK)
+        yield [Path(t) for t in tmps]
+        for t in tmps:
+            _fsync_file(t)
+        with deferred_sigint():
+            for t, dest in zip(tmps, dests, strict=True):
+                os.replace(t, dest)
+    except BaseException:
+        for t in tmps:
+            with contextlib.suppress(OSError):
+                os.unlink(t)
+        raise
+    for d in {dest.parent for dest in dests}:
+        _fsync_dir(d)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yields a temporary path beside ``path``; renames it onto ``path`` (after
+    ``fsync``) when the block ends normally, removes it otherwise. The parent folder
+    is created if needed."""
+    with atomic_paths(path) as (tmp,):
+        yield tmp
+
+
+def write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """Writes ``data`` to ``path`` atomically; returns the path."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
+def write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
+    """Writes ``text`` to ``path`` atomically; returns the path."""
+    return write_bytes(path, text.encode(encoding))
+
+
+def json_safe(x: Any) -> Any:
+    """``x`` made strict-JSON-ready: numpy scalars and arrays become Python values and
+    lists, and a non-finite float becomes ``None`` -- in a dict with a
+    ``"<key>_note"`` beside it saying what it was (``"inf (not finite)"``)."""
+    import math
+
+    import numpy as np
+
+    def bad(v: Any) -> bool:
+        return isinstance(v, (float, np.floating)) and not math.isfinite(float(v))
+
+    if isinstance(x, np.ndarray):
+        x = x.tolist()
+    if isinstance(x, dict):
+        out: dict[str, Any] = {}
+        for k, v in x.items():
+            if isinstance(v, np.generic):
+                v = v.item()
+            if bad(v):
+                out[str(k)] = None
+                out[f"{k}_note"] = f"{float(v)} (not finite)"
+            else:
+                out[str(k)] = json_safe(v)
+        return out
+    if isinstance(x, (list, tuple)):
+        return [None if bad(v) else json_safe(v) for v in x]
+    if isinstance(x, np.generic):
+        return json_safe(x.item())
+    if bad(x):
+        return None
+    return x
+
+
+def write_json(path: str | os.PathLike[str], obj: Any, *, indent: int | None = 2,
+               default: Any = None) -> Path:
+    """Strict JSON (``allow_nan=False``: a NaN or inf is a ``ValueError``, not invalid
+    JSON) written atomically, with a final newline."""
+    text = json.dumps(obj, indent=indent, allow_nan=False, default=default)
+    return write_text(path, text + "\n")
+
+
+def savefig(fig: Any, path: str | os.PathLike[str], **kw: Any) -> Path:
+    """``fig.savefig`` to ``path`` atomically (the format from the suffix unless
+    ``format=`` is given)."""
+    p = Path(path)
+    if "format" not in kw and p.suffix:
+        kw["format"] = p.suffix[1:].lower()
+    with atomic_path(p) as tmp:
+        fig.savefig(tmp, **kw)
+    return p
+
+
+def to_csv(df: Any, path: str | os.PathLike[str], **kw: Any) -> Path:
+    """``DataFrame.to_csv`` to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        df.to_csv(tmp, **kw)
+    return Path(path)
+
+
+def to_parquet(df: Any, path: str | os.PathLike[str], **kw: Any) -> Path:
+    """``DataFrame.to_parquet`` to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        df.to_parquet(tmp, **kw)
+    return Path(path)
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _files(root: Path) -> list[str]:
+    out = []
+    for p in root.rglob("*"):
+        rel = p.relative_to(root)
+        if p.is_file() and p.name != MANIFEST and not any(
+                part.startswith(STAGING_PREFIX) for part in rel.parts):
+            out.append(str(rel).replace(os.sep, "/"))
+    return sorted(out)
+
+
+def _old_manifest_files(dest: Path) -> list[str]:
+    try:
+        doc = json.loads((dest / MANIFEST).read_text(encoding="utf-8"))
+        return [str(f) for f in doc.get("files", {})]
+    except (OSError, ValueError, AttributeError):
+        return []
+
+
+@contextlib.contextmanager
+def output_dir(path: str | os.PathLike[str], *, meta: dict[str, Any] | None = None
+               ) -> Iterator[Path]:
+    """Yields a temporary folder (hidden, inside ``path``) to write a folder of outputs
+    into; commits it onto ``path`` with a manifest written last when the block ends
+    normally (see the module doc); removes it otherwise. ``meta`` goes into the
+    manifest."""
+    dest = Path(path)
+    if dest.exists() and not dest.is_dir():
+        raise NotADirectoryError(f"{dest}: exists and is not a folder")
+    created = not dest.exists()
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=dest))
+    except OSError as e:
+        raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
+    ok = False
+    try:
+        yield stage
+        _commit(stage, dest, meta or {})
+        ok = True
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+        if created and not ok:
+            with contextlib.suppress(OSError):
+                dest.rmdir()  # only if still empty: a folder this run created
+
+
+def _commit(stage: Path, dest: Path, meta: dict[str, Any]) -> None:
+    new = _files(stage)
+    doc = {"complete": True, **meta,
+           "files": {f: {"bytes": (stage / f).stat().st_size, "sha256": _sha256(stage / f)}
+                     for f in new}}
+    for f in new:
+        _fsync_file(stage / f)
+    with deferred_sigint():
+        old = _old_manifest_files(dest)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(dest / MANIFEST)
+        _fsync_dir(dest)
+        for f in new:
+            target = dest / f
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(stage / f, target)
+        keep = set(new)
+        for f in old:
+            if f not in keep:
+                with contextlib.suppress(OSError):
+                    (dest / f).unlink()
+        write_json(dest / MANIFEST, doc)
+
+
+def read_manifest(path: str | os.PathLike[str], *, verify: bool = True) -> dict[str, Any]:
+    """The manifest of a complete output folder. Raises ``ValueError`` when the folder
+    has none (an interrupted or foreign folder) or, with ``verify``, when a listed file
+    is missing or differs from it."""
+    d = Path(path)
+    mp = d / MANIFEST
+    try:
+        doc = json.loads(mp.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"{d}: no {MANIFEST}: not a complete avll output folder "
+                         "(interrupted, or written by something else)") from None
+    except ValueError as e:
+        raise ValueError(f"{mp}: not valid JSON ({e})") from None
+    if not isinstance(doc, dict) or doc.get("complete") is not True or not isinstance(
+            doc.get("files"), dict):
+        raise ValueError(f"{mp}: not an avll manifest")
+    if verify:
+        for f, info in doc["files"].items():
+            p = d / f
+            if not p.is_file():
+                raise ValueError(f"{d}: {f} is listed in {MANIFEST} but missing")
+            if p.stat().st_size != info.get("bytes") or _sha256(p) != info.get("sha256"):
+                raise ValueError(f"{d}: {f} differs from {MANIFEST} (changed after the run)")
+    return doc
+
+
+def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    """Whether two paths name the same file (the same resolved path, or the same inode
+    through a link)."""
+    pa, pb = Path(a), Path(b)
+    try:
+        if pa.exists() and pb.exists():
+            return os.path.samefile(pa, pb)
+    except OSError:
+        pass
+    return pa.resolve() == pb.resolve()
+
+
+def check_not_inputs(outputs: Sequence[tuple[str, Any]], inputs: Sequence[tuple[str, Any]]
+                     ) -> None:
+    """Refuses (``ValueError`` naming both) an output that is the same file as an input
+    (equal resolved paths, or the same inode through a link) or the same folder as an
+    input folder. ``outputs`` / ``inputs`` are ``(label, path)`` pairs; ``None`` paths
+    are skipped. Run before any computation."""
+    ins = [(lab, Path(p)) for lab, p in inputs if p is not None]
+    for olab, o in outputs:
+        if o is None:
+            continue
+        op = Path(o)
+        for ilab, ip in ins:
+            if same_file(op, ip):
+                raise ValueError(f"{olab}: {op} is the input {ilab} ({ip}); writing it would "
+                                 "replace the input: choose another output name")
+            if ip.is_dir() and op.resolve() == ip.resolve():
+                raise ValueError(f"{olab}: {op} is the input folder {ilab}; choose another "
+                                 "output folder")

@@ -1,0 +1,218 @@
+"""Argument guards shared by every public function: integer arguments, the thread
+bound, seeds, and the memory estimate checked before a call allocates in
+proportion to its inputs.
+
+Threads
+    ``threads`` must be an integer (``bool`` and floats such as ``1.5`` are a
+    ``TypeError``), ``>= 0`` (0 = all cores) and at most
+    ``avll._core.max_threads()`` = ``THREADS_PER_CORE`` (4) x the cores available to
+    the process. The Rust core applies the same bound (``rust/parallel.rs``), so a
+    request for ``10**6`` threads fails at once, before any thread is started.
+
+Memory
+    :func:`check_memory` compares a call's estimated peak allocation with what the
+    process can still get: the smallest of ``MemAvailable`` (``/proc/meminfo``, or
+    ``os.sysconf`` elsewhere), the cgroup limit (``memory.max - memory.current``) and
+    the ``RLIMIT_AS`` / ``RLIMIT_DATA`` soft limits minus the process's current
+    address space / data size. A request above :data:`MEMORY_FRACTION` of that is
+    refused with a ``ValueError`` that says how much is needed and how to split the
+    work; the allocation in Rust (which would abort the process) never happens.
+    Calls needing less than :data:`SMALL` bytes are not checked (no file reads on the
+    fast path).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import os
+from typing import Any
+
+__all__ = [
+    "SMALL",
+    "MEMORY_FRACTION",
+    "SEED_MAX",
+    "check_int",
+    "check_number",
+    "check_threads",
+    "check_seed",
+    "available_memory",
+    "check_memory",
+    "fmt_bytes",
+]
+
+#: Allocations below this many bytes are not checked.
+SMALL = 64 * 2**20
+#: Share of the available memory one call may plan to use.
+MEMORY_FRACTION = 0.8
+#: Largest seed (the Rust core takes an unsigned 64-bit seed).
+SEED_MAX = 2**64 - 1
+
+
+def check_int(value: Any, name: str, *, min: int | None = None, max: int | None = None) -> int:
+    """``value`` as an ``int``: a ``TypeError`` naming ``name`` unless it is an integer
+    (Python or numpy; ``bool`` and ``1.5`` are refused, not truncated), a
+    ``ValueError`` outside ``[min, max]``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name}: must be an integer, got {value!r}")
+    v = int(value)
+    if min is not None and v < min:
+        raise ValueError(f"{name}: must be >= {min}, got {v}")
+    if max is not None and v > max:
+        raise ValueError(f"{name}: must be <= {max}, got {v}")
+    return v
+
+
+def check_number(value: Any, name: str, *, finite: bool = True, positive: bool = False,
+                 nonneg: bool = False) -> float:
+    """``value`` as a ``float``: a ``TypeError`` naming ``name`` unless it is a real
+    number (``bool``, ``None`` and strings are refused), a ``ValueError`` when it is not
+    finite or violates ``positive`` / ``nonneg``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name}: must be a number, got {value!r}")
+    try:
+        v = float(value)
+    except OverflowError:
+        raise ValueError(f"{name}: {value!r} is too large for a float") from None
+    if finite and not math.isfinite(v):
+        raise ValueError(f"{name}: must be finite, got {v}")
+    if positive and not v > 0:
+        raise ValueError(f"{name}: must be > 0, got {v}")
+    if nonneg and not v >= 0:
+        raise ValueError(f"{name}: must be >= 0, got {v}")
+    return v
+
+
+def max_threads() -> int:
+    """The largest accepted ``threads`` (from the Rust core: 4 x the available cores)."""
+    from . import _core
+
+    return int(_core.max_threads())
+
+
+def check_threads(threads: Any, name: str = "threads") -> int:
+    """``threads`` checked against the machine (see the module doc); returns the int."""
+    n = check_int(threads, name, min=0)
+    top = max_threads()
+    if n > top:
+        from . import _core
+
+        raise ValueError(
+            f"{name}: {n} is more than {_core.THREADS_PER_CORE} x the "
+            f"{_core.available_cores()} available cores (at most {top}); use 0 for all cores"
+        )
+    return n
+
+
+def check_seed(seed: Any, name: str = "seed") -> int:
+    """A seed: an integer in ``0 .. 2**64 - 1``."""
+    return check_int(seed, name, min=0, max=SEED_MAX)
+
+
+def _meminfo_available() -> int | None:
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _status_kb(key: str) -> int | None:
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _cgroup_available() -> int | None:
+    try:
+        with open("/proc/self/cgroup", encoding="ascii") as f:
+            rel = next((ln.split(":", 2)[2].strip() for ln in f if ln.startswith("0::")), None)
+        if rel is None:
+            return None
+        base = os.path.join("/sys/fs/cgroup", rel.lstrip("/"))
+        with open(os.path.join(base, "memory.max"), encoding="ascii") as f:
+            lim = f.read().strip()
+        if lim == "max":
+            return None
+        with open(os.path.join(base, "memory.current"), encoding="ascii") as f:
+            cur = int(f.read().strip())
+        return max(0, int(lim) - cur)
+    except (OSError, ValueError, StopIteration, IndexError):
+        return None
+
+
+def _rlimit_available() -> list[tuple[int, str]]:
+    out: list[tuple[int, str]] = []
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return out
+    for lim, key, label in ((resource.RLIMIT_AS, "VmSize", "RLIMIT_AS"),
+                            (getattr(resource, "RLIMIT_DATA", None), "VmData", "RLIMIT_DATA")):
+        if lim is None:
+            continue
+        soft, _ = resource.getrlimit(lim)
+        if soft == resource.RLIM_INFINITY or soft < 0:
+            continue
+        used = _status_kb(key) or 0
+        out.append((max(0, soft - used), f"the {label} limit of {fmt_bytes(soft)}"))
+    return out
+
+
+def available_memory() -> tuple[int | None, str]:
+    """Bytes this process can still allocate (``None`` if unknown) and what limits it."""
+    cands: list[tuple[int, str]] = []
+    m = _meminfo_available()
+    if m is not None:
+        cands.append((m, "available memory"))
+    c = _cgroup_available()
+    if c is not None:
+        cands.append((c, "the cgroup memory limit"))
+    cands += _rlimit_available()
+    if not cands:
+        return None, "unknown"
+    return min(cands)
+
+
+def fmt_bytes(n: float) -> str:
+    """``1.5 GB`` style (powers of 1000)."""
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
+        if abs(n) < 1000 or unit == "PB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} PB"  # pragma: no cover
+
+
+def check_memory(nbytes: float, what: str, hint: str, *, per: float | None = None,
+                 unit: str = "") -> None:
+    """Refuses (``ValueError``) a call whose estimated peak allocation ``nbytes`` does
+    not fit in :data:`MEMORY_FRACTION` of :func:`available_memory`. ``what`` names the
+    call and the arguments that decide its size, ``hint`` says how to chunk; with
+    ``per`` (bytes per ``unit``, e.g. per follower) the message says how many fit."""
+    if not math.isfinite(nbytes) or nbytes >= 2**62:
+        raise ValueError(f"{what}: needs about {fmt_bytes(nbytes)}, more than any machine "
+                         f"has; {hint}")
+    if nbytes < SMALL:
+        return
+    avail, source = available_memory()
+    if avail is None:
+        return
+    if nbytes > MEMORY_FRACTION * avail:
+        fit = ""
+        if per is not None and per > 0:
+            fit = f" (at most {int(MEMORY_FRACTION * avail // per)} {unit} per call fit)"
+        raise ValueError(
+            f"{what}: needs about {fmt_bytes(nbytes)} but only {fmt_bytes(avail)} can be "
+            f"allocated ({source}); {hint}{fit}"
+        )
