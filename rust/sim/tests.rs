@@ -488,34 +488,6 @@ fn batched_simulation_equals_single_rollouts() {
     assert!(c[1] > 0.0 && c[1].is_finite());
 }
 
-/// Timing probe (not a test of speed: run by hand with
-/// `cargo test --release --lib probe_speed -- --ignored --nocapture`).
-#[test]
-#[ignore]
-fn probe_speed() {
-    let n = 2_000_000;
-    let u = cmd(n);
-    let mut y = vec![0.0; n];
-    for _ in 0..3 {
-        let t = std::time::Instant::now();
-        super::rollout::simulate_into(&proposed(), &u, 0.05, Init::Rest, &mut y).unwrap();
-        let dt = t.elapsed().as_secs_f64();
-        println!("open loop: {:.1} M steps/s", n as f64 / dt / 1e6);
-    }
-    let sp = spec(false, [1.0, 0.0, 0.0], vec![]);
-    let run = open_run(&u[..6000], &y[..6000]);
-    let rows: Vec<f64> = (0..2000).flat_map(|_| ROW).collect();
-    for _ in 0..3 {
-        let t = std::time::Instant::now();
-        let mut s = 0.0;
-        for r in rows.chunks(6) {
-            s += run_cost(&sp, r, &run, f64::INFINITY);
-        }
-        let dt = t.elapsed().as_secs_f64();
-        println!("cost: {:.1} M steps/s ({s})", 2000.0 * 6000.0 / dt / 1e6);
-    }
-}
-
 #[test]
 fn lanes_equal_the_kernel_bit_for_bit() {
     let u = cmd(3000);
