@@ -1,5 +1,8 @@
 //! Thread pools: `threads = 0` uses rayon's global pool (all cores); any other
-//! value runs the work in a cached pool of exactly that many threads.
+//! value runs the work in a pool of exactly that many threads, cached per calling
+//! thread, so that callers on different threads (e.g. a Dask worker's threads, each
+//! computing one chunk with `threads = 1`) run side by side instead of queueing on
+//! one shared pool.
 //!
 //! The number of threads a call may ask for is bounded by the machine:
 //! at most [`THREADS_PER_CORE`] times the available cores ([`max_threads`]). Above
@@ -9,9 +12,13 @@
 //! Python side, reading it from [`max_threads`].
 
 use crate::error::{AvllError, Result};
-use std::sync::{Arc, Mutex};
+use std::cell::RefCell;
+use std::sync::Arc;
 
-static POOL: Mutex<Option<(usize, Arc<rayon::ThreadPool>)>> = Mutex::new(None);
+thread_local! {
+    /// This calling thread's pool and its size.
+    static POOL: RefCell<Option<(usize, Arc<rayon::ThreadPool>)>> = const { RefCell::new(None) };
+}
 
 /// Multiple of the available cores a call may ask for.
 pub const THREADS_PER_CORE: usize = 4;
@@ -49,21 +56,21 @@ pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Re
     if threads == 0 {
         return Ok(f());
     }
-    let pool = {
-        let mut guard = POOL.lock().unwrap_or_else(|e| e.into_inner());
-        match guard.as_ref() {
-            Some((n, p)) if *n == threads => p.clone(),
+    let pool = POOL.with(|cell| -> Result<Arc<rayon::ThreadPool>> {
+        let mut slot = cell.borrow_mut();
+        match slot.as_ref() {
+            Some((n, p)) if *n == threads => Ok(p.clone()),
             _ => {
                 let p = rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
                     .build()
                     .map_err(|e| AvllError::new("threads", e.to_string()))?;
                 let p = Arc::new(p);
-                *guard = Some((threads, p.clone()));
-                p
+                *slot = Some((threads, p.clone()));
+                Ok(p)
             }
         }
-    };
+    })?;
     Ok(pool.install(f))
 }
 
@@ -89,5 +96,35 @@ mod tests {
             "nothing may run"
         );
         assert_eq!(with_threads(1, || 7).unwrap(), 7);
+    }
+
+    #[test]
+    fn callers_on_different_threads_do_not_share_a_pool() {
+        // Two callers asking for one thread each must run at the same time: each
+        // announces that it started and waits (bounded) for the other's announcement.
+        // On one shared one-thread pool the second could not start while the first
+        // waits, and the first would time out.
+        use std::sync::mpsc::channel;
+        use std::time::Duration;
+        let (ta, ra) = channel::<()>();
+        let (tb, rb) = channel::<()>();
+        let met = std::thread::scope(|s| {
+            let a = s.spawn(move || {
+                with_threads(1, move || {
+                    ta.send(()).unwrap();
+                    rb.recv_timeout(Duration::from_secs(10)).is_ok()
+                })
+                .unwrap()
+            });
+            let b = s.spawn(move || {
+                with_threads(1, move || {
+                    tb.send(()).unwrap();
+                    ra.recv_timeout(Duration::from_secs(10)).is_ok()
+                })
+                .unwrap()
+            });
+            [a.join().unwrap(), b.join().unwrap()]
+        });
+        assert_eq!(met, [true, true]);
     }
 }
