@@ -5,7 +5,8 @@ Liu et al., "Experimental study and modeling of the lower-level controller of
 automated vehicle".
 """
 
-from . import io, synth
+from typing import TYPE_CHECKING, Any
+
 from ._atomic import read_manifest
 from ._core import __version__
 from .calibrate import (
@@ -145,3 +146,21 @@ __all__ = [
     "write_map",
     "read_manifest",
 ]
+
+if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
+    from . import io, synth
+
+#: Subpackages imported on first use: ``avll.io`` brings pandas (the loaders), which
+#: ``import avll`` alone does not need.
+_LAZY = ("io", "synth")
+
+
+def __getattr__(name: str) -> Any:
+    """Imports :mod:`avll.io` and :mod:`avll.synth` on first access."""
+    if name in _LAZY:
+        import importlib
+
+        mod = importlib.import_module(f".{name}", __name__)
+        globals()[name] = mod
+        return mod
+    raise AttributeError(f"module 'avll' has no attribute {name!r}")
