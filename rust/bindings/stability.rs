@@ -457,6 +457,38 @@ fn kv_threshold_grid<'py>(
     })
 }
 
+/// An exact-delay loop with its scattered points kg, tg, kv.
+type DelayPoints<'a> = (DelayLoop, &'a [f64], &'a [f64], &'a [f64]);
+
+/// The exact-delay loop of a model and its scattered points (kg, tg, kv of one length,
+/// finite), shared by the point-wise exact-delay bindings.
+fn delay_points_setup<'a>(
+    model: &str,
+    params: &[f64],
+    kg: &'a PyReadonlyArray1<'_, f64>,
+    tg: &'a PyReadonlyArray1<'_, f64>,
+    kv: &'a PyReadonlyArray1<'_, f64>,
+    budget: usize,
+) -> PyResult<DelayPoints<'a>> {
+    let mut dl = guard(|| DelayLoop::new(&ModelKind::from_name(model)?.linear(params)?))?;
+    dl.budget = budget.max(1);
+    let (kg, tg, kv) = (slice1("kg", kg)?, slice1("tg", tg)?, slice1("kv", kv)?);
+    if tg.len() != kg.len() || kv.len() != kg.len() {
+        return Err(PyValueError::new_err(format!(
+            "tg: kg, tg and kv must have one length, got {}, {}, {}",
+            kg.len(),
+            tg.len(),
+            kv.len()
+        )));
+    }
+    guard(|| {
+        crate::error::check_series("kg", kg)?;
+        crate::error::check_series("tg", tg)?;
+        crate::error::check_series("kv", kv)
+    })?;
+    Ok((dl, kg, tg, kv))
+}
+
 /// Exact-delay codes of scattered points and whether each is certified.
 #[pyfunction]
 #[pyo3(signature = (model, params, kg, tg, kv, budget = 20000, threads = 0))]
@@ -471,22 +503,7 @@ fn delay_points<'py>(
     budget: usize,
     threads: usize,
 ) -> PyResult<(Bound<'py, PyArray1<u8>>, Bound<'py, PyArray1<bool>>)> {
-    let mut dl = guard(|| DelayLoop::new(&ModelKind::from_name(model)?.linear(&params)?))?;
-    dl.budget = budget.max(1);
-    let (kg, tg, kv) = (slice1("kg", &kg)?, slice1("tg", &tg)?, slice1("kv", &kv)?);
-    if tg.len() != kg.len() || kv.len() != kg.len() {
-        return Err(PyValueError::new_err(format!(
-            "tg: kg, tg and kv must have one length, got {}, {}, {}",
-            kg.len(),
-            tg.len(),
-            kv.len()
-        )));
-    }
-    guard(|| {
-        crate::error::check_series("kg", kg)?;
-        crate::error::check_series("tg", tg)?;
-        crate::error::check_series("kv", kv)
-    })?;
+    let (dl, kg, tg, kv) = delay_points_setup(model, &params, &kg, &tg, &kv, budget)?;
     let n = kg.len();
     let mut codes = vec![0u8; n];
     let mut ok = vec![false; n];
@@ -574,19 +591,7 @@ fn delay_string<'py>(
 ) -> PyResult<(Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>)> {
     use crate::stability::delay::Verdict;
     use rayon::prelude::*;
-    let mut dl = guard(|| DelayLoop::new(&ModelKind::from_name(model)?.linear(&params)?))?;
-    dl.budget = budget.max(1);
-    let (kg, tg, kv) = (slice1("kg", &kg)?, slice1("tg", &tg)?, slice1("kv", &kv)?);
-    if tg.len() != kg.len() || kv.len() != kg.len() {
-        return Err(PyValueError::new_err(
-            "tg: kg, tg and kv must have one length",
-        ));
-    }
-    guard(|| {
-        crate::error::check_series("kg", kg)?;
-        crate::error::check_series("tg", tg)?;
-        crate::error::check_series("kv", kv)
-    })?;
+    let (dl, kg, tg, kv) = delay_points_setup(model, &params, &kg, &tg, &kv, budget)?;
     let v: Vec<Verdict> = py.detach(|| {
         guard(|| {
             crate::parallel::with_threads(threads, || {
