@@ -70,6 +70,16 @@ pub(super) fn check_rows(spec: &CostSpec, np: usize) -> PyResult<()> {
     Ok(())
 }
 
+/// The parameter rows of a batched call, checked against the spec: (P, row-major data).
+fn spec_rows<'a>(
+    spec: &CostSpec,
+    params: &'a PyReadonlyArray2<'_, f64>,
+) -> PyResult<(usize, &'a [f64])> {
+    let (p, np, rows) = slice2("params", params)?;
+    check_rows(spec, np)?;
+    Ok((p, rows))
+}
+
 /// Names of the registered models and their parameters.
 #[pyfunction]
 fn model_params(model: &str) -> PyResult<Vec<&'static str>> {
@@ -356,8 +366,7 @@ fn batch_cost<'py>(
         init,
         closed_loop,
     )?;
-    let (p, np, rows) = slice2("params", &params)?;
-    check_rows(&spec, np)?;
+    let (p, rows) = spec_rows(&spec, &params)?;
     let rs = runs.get();
     let refs = rs.refs();
     let r = refs.len();
@@ -397,8 +406,7 @@ fn simulate_batch<'py>(
         init,
         closed_loop,
     )?;
-    let (p, np, rows) = slice2("params", &params)?;
-    check_rows(&spec, np)?;
+    let (p, rows) = spec_rows(&spec, &params)?;
     let rs = runs.get();
     let refs = rs.refs();
     let t = rs.len_total();

@@ -142,6 +142,12 @@ pub fn resolve_exo<'a>(
         .collect()
 }
 
+/// Whether the modal form may be used with these effects: none switches the
+/// dynamics while braking (the braking maps live in the canonical coordinates).
+pub fn modal_ok(effects: &[AnyEffect]) -> bool {
+    effects.iter().all(|e| e.brake_time_scale() == 1.0)
+}
+
 /// Refuses effects that act on the acceleration with a speed command.
 pub fn check_kind(effects: &[AnyEffect], kind: CommandKind) -> Result<()> {
     if kind == CommandKind::Speed {

@@ -9,7 +9,7 @@
 //! on the discretized loop, see [`crate::sim::discretize::inner_loop_stable`]) and
 //! runs whose response leaves `|.| < DIVERGED`.
 
-use super::chain::{resolve_exo, Chain, Effects, NoEffects};
+use super::chain::{modal_ok, resolve_exo, Chain, Effects, NoEffects};
 use super::discretize::{loop_stable, Integrators};
 use super::kernel::{self, Record, Sse};
 use super::plant::{start, Init, Plant};
@@ -234,7 +234,7 @@ pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef, limit: f64) -> f64 {
     let Some((lin, effs, up)) = spec.prepare(row, run) else {
         return f64::INFINITY;
     };
-    let modal = effs.iter().map(|e| e.brake_time_scale()).product::<f64>() == 1.0;
+    let modal = modal_ok(&effs);
     let ints = spec.integrators();
     let r: Result<f64> = (|| {
         with_plant!(
@@ -501,7 +501,7 @@ fn simulate_one(
     let Some((lin, effs, up)) = spec.prepare(row, run) else {
         return false;
     };
-    let modal = effs.iter().map(|e| e.brake_time_scale()).product::<f64>() == 1.0;
+    let modal = modal_ok(&effs);
     let ints = Integrators::for_kind(spec.kind);
     let r: Result<bool> = (|| {
         with_plant!(

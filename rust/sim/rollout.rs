@@ -103,11 +103,7 @@ impl<'a> EffectsRef<'a> {
 
     /// Whether the modal form may be used (no effect switches the dynamics).
     pub fn modal(&self) -> bool {
-        self.effects
-            .iter()
-            .map(|e| e.brake_time_scale())
-            .product::<f64>()
-            == 1.0
+        super::chain::modal_ok(self.effects)
     }
 }
 
