@@ -270,4 +270,5 @@ def linearize_effects(
     v: float = 0.0,
     side: int = 0,
     command_kind: str = "acceleration",
+    terms: bool = False,
 ) -> dict[str, float]: ...

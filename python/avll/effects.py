@@ -2,7 +2,10 @@
 
 Each effect is a small frozen dataclass with its own bounded parameters, and the
 registry name that scripts depend on: ``asymmetric``, ``saturation``, ``rate_limit``,
-``deadband``, ``speed_drag``, ``grade``, ``delay``. A base model with effects is a
+``deadband``, ``speed_drag``, ``grade``, ``delay``, ``road_load``, ``power_limit``,
+``sensor``. The registry (names, parameter order, calibration bounds, neutral values,
+exogenous signals, canonical order) is read from the Rust core
+(``_core.effect_info()``); the classes add the physical validation. A base model with effects is a
 :class:`WithEffects`; the rollouts (:func:`simulate_effects`,
 :func:`closed_loop_effects`) and the batched cost (:func:`batch_cost_effects`) run
 in the Rust engine (``rust/effects/``), which equals the linear rollouts exactly
@@ -21,9 +24,21 @@ Definitions (``u`` command, ``u_ref = u' + K a`` the inner loop's reference inpu
   gain ratio ``kb`` and time-scale ratio ``rb`` (1, 1 = symmetric);
 * ``saturation(a_max, d_max)``: ``a = clip(a_lin, -d_max, a_max)``;
 * ``speed_drag(c0, c2)``: ``a += -(c0 s(v) + c2 v |v|)``, ``s(v) = clip(v/0.1, -1, 1)``;
-* ``grade(g_eff)``: ``a += -g_eff * exo_grade`` (``g_eff = 9.81`` m/s²: no compensation).
+* ``grade(g_eff)``: ``a += -g_eff * exo_grade`` (``g_eff = 9.81`` m/s²: no compensation);
+* ``road_load(c0, c1, c2)``: ``a += -(c0 s(v) + c1 v + c2 v |v|)``, the full coast-down
+  polynomial (``speed_drag`` is its ``c1 = 0`` case; the two are not offered together);
+* ``power_limit(p, v_b)``: ``a = min(a_lin, p / max(|v|, v_b))``, a traction limit from
+  the specific power ``p`` = P/m (W/kg) with the constant (torque) limit ``p / v_b``
+  below the base speed ``v_b``;
+* ``sensor(tau, bias)``: the *observed* acceleration is ``1/(tau s + 1) a + bias``
+  (exact ZOH of the lag); the dynamics, the speed and every feedback use the true ``a``.
 
-Command hooks apply in the canonical order above; see ``rust/effects/mod.rs``.
+Command hooks apply in the canonical order (:data:`CANONICAL_ORDER`); see
+``rust/effects/mod.rs``. The acceleration-level effects (``saturation``,
+``power_limit``, ``speed_drag``, ``road_load``, ``grade``) also apply to a speed-command
+model: they act on the acceleration that integrates into its actual speed (the
+derivative of the speed response), and the inner loop's ``K`` feeds back the actual
+speed.
 """
 
 from __future__ import annotations
@@ -51,6 +66,9 @@ __all__ = [
     "SpeedDrag",
     "Grade",
     "Delay",
+    "RoadLoad",
+    "PowerLimit",
+    "Sensor",
     "EFFECTS",
     "CANONICAL_ORDER",
     "WithEffects",
@@ -70,16 +88,35 @@ def _num(name: str, value: float) -> None:
         raise ValueError(f"{name}: must be finite, got {value}")
 
 
+#: The Rust registry by name (canonical order), as ``_core.effect_info()`` gives it.
+_INFO: dict[str, dict[str, Any]] = {str(d["name"]): dict(d) for d in _core.effect_info()}
+
+
 @dataclass(frozen=True)
 class Effect:
     """Base class of the effects. ``bounds`` are the calibration search bounds;
-    ``neutral`` the parameters at which the effect is (or tends to) the identity."""
+    ``neutral`` the parameters at which the effect is (or tends to) the identity;
+    ``exo`` the exogenous signal it reads; ``needs_speed`` whether it reads the actual
+    speed. All are taken from the Rust registry when a subclass names itself."""
 
     name: ClassVar[str] = ""
     bounds: ClassVar[tuple[tuple[float, float], ...]] = ()
     neutral: ClassVar[tuple[float, ...]] = ()
     exo: ClassVar[str | None] = None
     accel_only: ClassVar[bool] = False
+    needs_speed: ClassVar[bool] = False
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        name = cls.__dict__.get("name", "")
+        if name not in _INFO:
+            raise TypeError(f"effect class {cls.__name__}: {name!r} is not in the Rust registry")
+        info = _INFO[name]
+        cls.bounds = tuple((float(a), float(b)) for a, b in info["bounds"])
+        cls.neutral = tuple(float(x) for x in info["neutral"])
+        cls.exo = None if info["exo"] is None else str(info["exo"])
+        cls.accel_only = bool(info["accel_only"])
+        cls.needs_speed = bool(info["needs_speed"])
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -125,8 +162,6 @@ class Delay(Effect):
 
     tau: float = 0.0
     name: ClassVar[str] = "delay"
-    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.0, 2.0),)
-    neutral: ClassVar[tuple[float, ...]] = (0.0,)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -139,8 +174,6 @@ class RateLimit(Effect):
 
     j_max: float = 30.0
     name: ClassVar[str] = "rate_limit"
-    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.1, 30.0),)
-    neutral: ClassVar[tuple[float, ...]] = (30.0,)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -153,8 +186,6 @@ class Deadband(Effect):
 
     delta: float = 0.0
     name: ClassVar[str] = "deadband"
-    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.0, 1.0),)
-    neutral: ClassVar[tuple[float, ...]] = (0.0,)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -168,8 +199,6 @@ class Asymmetric(Effect):
     kb: float = 1.0
     rb: float = 1.0
     name: ClassVar[str] = "asymmetric"
-    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.3, 3.0), (0.3, 3.0))
-    neutral: ClassVar[tuple[float, ...]] = (1.0, 1.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -184,9 +213,6 @@ class Saturation(Effect):
     a_max: float = 6.0
     d_max: float = 10.0
     name: ClassVar[str] = "saturation"
-    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.2, 6.0), (0.2, 10.0))
-    neutral: ClassVar[tuple[float, ...]] = (6.0, 10.0)
-    accel_only: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -201,9 +227,6 @@ class SpeedDrag(Effect):
     c0: float = 0.0
     c2: float = 0.0
     name: ClassVar[str] = "speed_drag"
-    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((0.0, 0.6), (0.0, 0.006))
-    neutral: ClassVar[tuple[float, ...]] = (0.0, 0.0)
-    accel_only: ClassVar[bool] = True
 
 
 @dataclass(frozen=True)
@@ -212,16 +235,103 @@ class Grade(Effect):
 
     g_eff: float = 0.0
     name: ClassVar[str] = "grade"
-    bounds: ClassVar[tuple[tuple[float, float], ...]] = ((-5.0, 20.0),)
-    neutral: ClassVar[tuple[float, ...]] = (0.0,)
-    exo: ClassVar[str | None] = "grade"
-    accel_only: ClassVar[bool] = True
 
 
-#: The registered effects by name, in the canonical application order.
-EFFECTS: dict[str, type[Effect]] = {
-    c.name: c for c in (Delay, RateLimit, Deadband, Asymmetric, Saturation, SpeedDrag, Grade)
-}
+@dataclass(frozen=True)
+class RoadLoad(Effect):
+    """Uncompensated road load ``a += -(c0 s(v) + c1 v + c2 v |v|)``, ``s(v) =
+    clip(v/0.1, -1, 1)``: the coast-down polynomial ``(A + B v + C v²)/m`` with ``c0``
+    (m/s²), ``c1`` (1/s), ``c2`` (1/m), all ``>= 0`` (resistive). ``speed_drag`` is its
+    ``c1 = 0`` case; the two are refused together (not identifiable).
+
+    Calibration bounds: ``c0`` in [0, 0.6] m/s² (rolling resistance ``f_r g`` is about
+    0.1 m/s² at ``f_r = 0.01``; soft surfaces and brake drag reach a few times that);
+    ``c1`` in [0, 0.03] 1/s (coast-down fits give ``B/m`` of 0.001-0.01 1/s); ``c2`` in
+    [0, 0.002] 1/m (``rho Cd A/(2 m)`` is 2-4e-4 1/m for cars and loaded trucks; a
+    headwind as fast as the vehicle quadruples it).
+
+    Linearisation at a speed ``v``: the speed feedback ``-beta dv``, ``beta = c1 +
+    2 c2 v`` (1/s), the factor ``s/(s + beta)`` on the acceleration; exact as a base
+    model only for ``beta = 0`` (``WithEffects.linear(terms=True)`` returns ``beta``)."""
+
+    c0: float = 0.0
+    c1: float = 0.0
+    c2: float = 0.0
+    name: ClassVar[str] = "road_load"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for f in ("c0", "c1", "c2"):
+            _nonneg(f"road_load.{f}", getattr(self, f))
+
+
+@dataclass(frozen=True)
+class PowerLimit(Effect):
+    """Traction limit from power: ``a = min(a_lin, p / max(|v|, v_b))`` with the specific
+    power ``p`` = P/m (W/kg = m²/s³) at the wheels and the base speed ``v_b`` (m/s)
+    below which the cap is the constant torque limit ``p / v_b`` (and stays finite at
+    rest). Braking is not limited.
+
+    Calibration bounds: ``p`` in [5, 500] W/kg (a loaded 40-60 t truck with 300-400 kW
+    has 5-10 W/kg, hypercars about 500 W/kg); ``v_b`` in [0.5, 20] m/s (the corner of the
+    torque-power curve: a few m/s for an engine in first gear, 10-20 m/s for an
+    electric motor). At the neutral ``(500, 0.5)`` the cap exceeds the friction limit
+    (~10 m/s²) below 50 m/s.
+
+    Linearisation: the identity (small signals about cruising stay below the cap,
+    which is positive at every speed); the limit itself is amplitude dependent."""
+
+    p: float = 500.0
+    v_b: float = 0.5
+    name: ClassVar[str] = "power_limit"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive("power_limit.p", self.p)
+        _positive("power_limit.v_b", self.v_b)
+
+
+@dataclass(frozen=True)
+class Sensor(Effect):
+    """Bias and first-order lag of the *measured* acceleration: the recorded and
+    compared acceleration is ``a_obs = 1/(tau s + 1) a + bias`` (``tau`` in s, ``bias``
+    in m/s²), while the dynamics, the speed and every feedback use the true ``a``.
+    Discretized exactly for ``a[n]`` held over ``(t[n-1], t[n]]``: ``f[n] = alpha f[n-1]
+    + (1 - alpha) a[n]``, ``alpha = exp(-dt/tau)`` (``tau = 0``: no lag), ``f[-1] = a[0]``.
+
+    Calibration bounds: ``tau`` in [0, 1] s (accelerometer and CAN filtering, typically
+    0.02-0.5 s); ``bias`` in [-0.5, 0.5] m/s² (a mounting pitch of a few degrees gives
+    ``g sin(pitch)`` of a few tenths; more is a calibration error to fix in the data).
+
+    Linearisation: the identity (the vehicle is unchanged); the observation filter and
+    offset are returned by ``WithEffects.linear(terms=True)``."""
+
+    tau: float = 0.0
+    bias: float = 0.0
+    name: ClassVar[str] = "sensor"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _nonneg("sensor.tau", self.tau)
+
+
+def _registry() -> dict[str, type[Effect]]:
+    classes = {c.name: c for c in Effect.__subclasses__()}
+    missing = [n for n in _INFO if n not in classes]
+    if missing:
+        raise ImportError(f"avll.effects: no Python class for the Rust effects {missing}")
+    for n, c in classes.items():
+        if list(c.param_names()) != list(_INFO[n]["params"]):
+            raise ImportError(
+                f"avll.effects: {c.__name__} parameters {c.param_names()} differ from the "
+                f"Rust registry's {_INFO[n]['params']}"
+            )
+    return {n: classes[n] for n in _INFO}
+
+
+#: The registered effects by name, in the canonical application order (the Rust
+#: registry's).
+EFFECTS: dict[str, type[Effect]] = _registry()
 CANONICAL_ORDER: tuple[str, ...] = tuple(EFFECTS)
 
 
@@ -245,6 +355,11 @@ def canonical(names: Sequence[str]) -> tuple[str, ...]:
         effect_class(n)
     if len(set(names)) != len(names):
         raise ValueError(f"effects: duplicate effect in {list(names)}")
+    if "speed_drag" in names and "road_load" in names:
+        raise ValueError(
+            "effects: 'speed_drag' and 'road_load' together: road_load with c1 = 0 is "
+            "speed_drag, so their parameters are not identifiable; use one"
+        )
     return tuple(sorted(names, key=CANONICAL_ORDER.index))
 
 
@@ -307,11 +422,19 @@ class WithEffects:
             o += k
         return cls(bcls.from_array(vals[:nb]), tuple(out))
 
-    def linear(self, *, v: float = 0.0, side: int = 0) -> dict[str, float]:
+    def linear(self, *, v: float = 0.0, side: int = 0, terms: bool = False) -> dict[str, float]:
         """The small-signal equivalent ``b1, b0, a2, a1, Td, K`` at speed ``v`` on
         ``side`` (1 acceleration, -1 braking, 0 their average), for the stability
         engine. Raises ``ValueError`` when an effect has no such equivalent
-        (``speed_drag`` at ``c2 v != 0``, ``delay`` with ``K != 0``)."""
+        (``speed_drag``/``road_load`` with a speed feedback ``beta != 0`` at ``v``,
+        ``delay`` with ``K != 0``). ``saturation``, ``power_limit``, ``rate_limit``,
+        ``deadband``, ``grade`` and ``sensor`` are the identity in the small signal.
+
+        With ``terms=True`` the speed-dependent resistances do not fail: the result
+        is the lower level's own equivalent plus ``speed_feedback`` (``beta``, 1/s: the
+        actual acceleration gets ``-beta dv``), ``obs_tau`` (s) and ``obs_bias`` (m/s²),
+        the filter ``1/(obs_tau s + 1)`` and offset of the *observed* acceleration
+        (``sensor``; not a dynamic of the vehicle)."""
         return dict(
             _core.linearize_effects(
                 self.base.name,
@@ -320,6 +443,7 @@ class WithEffects:
                 [float(x) for e in self.effects for x in e.to_array()],
                 float(v),
                 int(side),
+                terms=bool(terms),
             )
         )
 

@@ -51,7 +51,8 @@ pub(super) fn effects_of(
     })
 }
 
-/// The registered effects: name, params, bounds, neutral values, exo, accel_only.
+/// The registered effects in the canonical order: name, params, bounds, neutral
+/// values, exo, accel_only, needs_speed.
 #[pyfunction]
 fn effect_info<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
     EffectKind::ALL
@@ -64,15 +65,19 @@ fn effect_info<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
             d.set_item("neutral", k.neutral().to_vec())?;
             d.set_item("exo", k.exo())?;
             d.set_item("accel_only", k.accel_only())?;
+            d.set_item("needs_speed", k.needs_speed())?;
             Ok(d)
         })
         .collect()
 }
 
 /// The small-signal `Linear` of base + effects at speed `v` on `side` (1 accel,
-/// -1 braking, 0 average): dict b1, b0, a2, a1, Td, K.
+/// -1 braking, 0 average): dict b1, b0, a2, a1, Td, K. With `terms`, effects whose
+/// small-signal content lies outside a `Linear` do not fail: the dict adds
+/// `speed_feedback` (1/s), `obs_tau` (s) and `obs_bias` (m/s²), see
+/// `crate::effects::Terms`.
 #[pyfunction]
-#[pyo3(signature = (model, params, effects, effect_params, v = 0.0, side = 0, command_kind = "acceleration"))]
+#[pyo3(signature = (model, params, effects, effect_params, v = 0.0, side = 0, command_kind = "acceleration", terms = false))]
 #[allow(clippy::too_many_arguments)]
 fn linearize_effects<'py>(
     py: Python<'py>,
@@ -83,11 +88,18 @@ fn linearize_effects<'py>(
     v: f64,
     side: i8,
     command_kind: &str,
+    terms: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let kind = guard(|| CommandKind::from_name(command_kind))?;
     let lin = guard(|| ModelKind::from_name(model)?.linear(&params))?;
     let effs = effects_of(&effects, &effect_params, kind)?;
-    let l = guard(|| crate::effects::linearize(&lin, &effs, &Operating { v, side }))?;
+    let op = Operating { v, side };
+    let (l, t) = if terms {
+        let (l, t) = guard(|| crate::effects::linearize_terms(&lin, &effs, &op))?;
+        (l, Some(t))
+    } else {
+        (guard(|| crate::effects::linearize(&lin, &effs, &op))?, None)
+    };
     let d = PyDict::new(py);
     for (k, x) in [
         ("b1", l.b1),
@@ -98,6 +110,11 @@ fn linearize_effects<'py>(
         ("K", l.k),
     ] {
         d.set_item(k, x)?;
+    }
+    if let Some(t) = t {
+        d.set_item("speed_feedback", t.speed_feedback)?;
+        d.set_item("obs_tau", t.obs_tau)?;
+        d.set_item("obs_bias", t.obs_bias)?;
     }
     Ok(d)
 }

@@ -21,7 +21,6 @@ impl Effect for Grade {
     const BOUNDS: &'static [(f64, f64)] = &[(-5.0, 20.0)];
     const NEUTRAL: &'static [f64] = &[0.0];
     const EXO: Option<&'static str> = Some("grade");
-    const ACCEL_ONLY: bool = true;
 
     fn new(p: &[f64], _kind: CommandKind) -> Result<Self> {
         check_range("grade.g_eff", p[0], -100.0, 100.0)?;

@@ -9,16 +9,25 @@
 //! 1. [`Effect::command`] — the command on its way to the lower level (transport
 //!    `delay`, `rate_limit`, `deadband`), in registry order;
 //! 2. [`Effect::reference`] — a static map of the reference input
-//!    `u_ref = u' + K a_act` before the dead time (`asymmetric`'s braking gain);
+//!    `u_ref = u' + K y_act` before the dead time (`asymmetric`'s braking gain);
 //! 3. [`Effect::brake_time_scale`] — the rational part runs `r` times slower while
 //!    braking (`asymmetric`): exact ZOH of `G(r s)`, switched per interval;
-//! 4. [`Effect::output`] — the lower level's acceleration (`saturation`);
+//! 4. [`Effect::output`] — the lower level's acceleration, given the actual speed
+//!    (`saturation`, `power_limit`; these maps commute);
 //! 5. [`Effect::disturbance`] — an additive acceleration from the actual speed and
-//!    an exogenous signal (`speed_drag`, `grade`).
+//!    an exogenous signal (`speed_drag`, `road_load`, `grade`);
+//! 6. [`Effect::measure`] — what is observed: the recorded and compared
+//!    acceleration (`sensor`); the dynamics and every feedback use the true one.
+//!
+//! Hooks 4-5 act on *the acceleration that integrates into the actual speed*: for
+//! an acceleration command the lower level's response `y_lin`; for a speed command
+//! the derivative of the lower level's speed response (the actual speed is then the
+//! linear response plus the integral of the difference, and the inner loop's `K`
+//! feeds back the actual speed, as it feeds back the actual acceleration for an
+//! acceleration command).
 //!
 //! With no effect the kernel runs the linear fast path; with every effect at its
 //! neutral parameters it reproduces it (tested to 1e-11).
-
 use crate::error::{check_finite, AvllError, Result};
 use crate::model::{CommandKind, Linear};
 
@@ -30,6 +39,21 @@ pub struct Operating {
     /// Which side of an acceleration/braking asymmetry: `1` acceleration, `-1`
     /// braking, `0` the average of the two.
     pub side: i8,
+}
+
+/// Small-signal terms of an effect that a [`Linear`] cannot hold (see
+/// [`linearize_terms`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Terms {
+    /// `beta` (1/s): the actual acceleration gets `-beta dv` (a speed feedback:
+    /// the factor `s / (s + beta)` on the acceleration), from speed-dependent
+    /// resistances (`speed_drag`, `road_load`).
+    pub speed_feedback: f64,
+    /// Time constant (s) of the first-order filter `1 / (tau s + 1)` on the observed
+    /// acceleration (`sensor`); not a dynamic of the vehicle.
+    pub obs_tau: f64,
+    /// Offset (m/s²) of the observed acceleration (`sensor`).
+    pub obs_bias: f64,
 }
 
 /// One effect. Parameters are validated by [`Effect::new`] (physical validity);
@@ -45,7 +69,9 @@ pub trait Effect: Clone + Send + Sync + Sized {
     const NEUTRAL: &'static [f64];
     /// Name of the exogenous signal the effect reads (e.g. `"grade"`).
     const EXO: Option<&'static str> = None;
-    /// `true` if the effect acts on the acceleration and needs an acceleration command.
+    /// `true` if the effect needs an acceleration command (none of the registered
+    /// ones since the acceleration-level effects act on the derivative of a speed
+    /// response too; kept for effects that cannot).
     const ACCEL_ONLY: bool = false;
     /// `true` if the effect reads the actual speed (the engine then integrates it
     /// even when the cost does not need it).
@@ -70,8 +96,8 @@ pub trait Effect: Clone + Send + Sync + Sized {
     fn brake_time_scale(&self) -> f64 {
         1.0
     }
-    /// Transforms the lower level's acceleration.
-    fn output(&self, a: f64) -> f64 {
+    /// Transforms the lower level's acceleration `a`; `v` is the actual speed.
+    fn output(&self, a: f64, _v: f64) -> f64 {
         a
     }
     /// Additive acceleration from the actual speed `v` and the exogenous sample
@@ -79,10 +105,19 @@ pub trait Effect: Clone + Send + Sync + Sized {
     fn disturbance(&self, _v: f64, _exo: f64) -> f64 {
         0.0
     }
+    /// The observed acceleration from the true one `a` (sample by sample, in order).
+    fn measure(&mut self, a: f64) -> f64 {
+        a
+    }
     /// The small-signal equivalent of base + this effect as a [`Linear`], or an
     /// error saying why none exists.
     fn linearize(&self, lin: &Linear, _op: &Operating) -> Result<Linear> {
         Ok(*lin)
+    }
+    /// The small-signal equivalent split into the lower level's [`Linear`] and the
+    /// [`Terms`] outside it (speed feedback, observation filter).
+    fn linearize_terms(&self, lin: &Linear, op: &Operating) -> Result<(Linear, Terms)> {
+        Ok((self.linearize(lin, op)?, Terms::default()))
     }
 }
 
@@ -163,8 +198,12 @@ macro_rules! registry {
                 match self { $(AnyEffect::$variant(e) => e.brake_time_scale()),+ }
             }
             #[inline(always)]
-            pub fn output(&self, a: f64) -> f64 {
-                match self { $(AnyEffect::$variant(e) => e.output(a)),+ }
+            pub fn output(&self, a: f64, v: f64) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.output(a, v)),+ }
+            }
+            #[inline(always)]
+            pub fn measure(&mut self, a: f64) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.measure(a)),+ }
             }
             #[inline(always)]
             pub fn disturbance(&self, v: f64, exo: f64) -> f64 {
@@ -172,6 +211,9 @@ macro_rules! registry {
             }
             pub fn linearize(&self, lin: &Linear, op: &Operating) -> Result<Linear> {
                 match self { $(AnyEffect::$variant(e) => e.linearize(lin, op)),+ }
+            }
+            pub fn linearize_terms(&self, lin: &Linear, op: &Operating) -> Result<(Linear, Terms)> {
+                match self { $(AnyEffect::$variant(e) => e.linearize_terms(lin, op)),+ }
             }
         }
     };
@@ -185,6 +227,9 @@ registry! {
     Saturation => saturation::Saturation,
     SpeedDrag => speed_drag::SpeedDrag,
     Grade => grade::Grade,
+    RoadLoad => road_load::RoadLoad,
+    PowerLimit => power_limit::PowerLimit,
+    Sensor => sensor::Sensor,
 }
 
 impl EffectKind {
@@ -215,6 +260,9 @@ pub struct EffectList(pub Vec<EffectKind>);
 
 impl EffectList {
     /// Parses names; rejects duplicates and accel-only effects with a speed command.
+    /// `speed_drag` and `road_load` are one model family (`road_load` with `c1 = 0`
+    /// is `speed_drag`) and are refused together: their parameters would not be
+    /// identifiable.
     pub fn from_names(names: &[&str], kind: CommandKind) -> Result<Self> {
         let mut v = Vec::with_capacity(names.len());
         for n in names {
@@ -234,6 +282,13 @@ impl EffectList {
                 ));
             }
             v.push(k);
+        }
+        if v.contains(&EffectKind::SpeedDrag) && v.contains(&EffectKind::RoadLoad) {
+            return Err(AvllError::new(
+                "effects",
+                "\"speed_drag\" and \"road_load\" together: road_load with c1 = 0 is \
+                 speed_drag, so their parameters are not identifiable; use one",
+            ));
         }
         v.sort();
         Ok(EffectList(v))
@@ -274,4 +329,26 @@ pub fn linearize(lin: &Linear, effects: &[AnyEffect], op: &Operating) -> Result<
         l = e.linearize(&l, op)?;
     }
     Ok(l)
+}
+
+/// As [`linearize`], but effects whose small-signal content lies outside the lower
+/// level (a speed feedback from speed-dependent resistances, a filter on the
+/// observation) contribute [`Terms`] instead of an error: the lower level's
+/// [`Linear`] (command to actuator acceleration) and the terms, summed
+/// (`speed_feedback`) or taken from the one `sensor`.
+pub fn linearize_terms(
+    lin: &Linear,
+    effects: &[AnyEffect],
+    op: &Operating,
+) -> Result<(Linear, Terms)> {
+    let mut l = *lin;
+    let mut t = Terms::default();
+    for e in effects {
+        let (l2, t2) = e.linearize_terms(&l, op)?;
+        l = l2;
+        t.speed_feedback += t2.speed_feedback;
+        t.obs_tau += t2.obs_tau;
+        t.obs_bias += t2.obs_bias;
+    }
+    Ok((l, t))
 }

@@ -19,7 +19,6 @@ impl Effect for Saturation {
     const PARAMS: &'static [&'static str] = &["a_max", "d_max"];
     const BOUNDS: &'static [(f64, f64)] = &[(0.2, 6.0), (0.2, 10.0)];
     const NEUTRAL: &'static [f64] = &[6.0, 10.0];
-    const ACCEL_ONLY: bool = true;
 
     fn new(p: &[f64], _kind: CommandKind) -> Result<Self> {
         check_range("saturation.a_max", p[0], 1e-6, 1e6)?;
@@ -31,7 +30,7 @@ impl Effect for Saturation {
     }
 
     #[inline(always)]
-    fn output(&self, a: f64) -> f64 {
+    fn output(&self, a: f64, _v: f64) -> f64 {
         a.min(self.a_max).max(-self.d_max)
     }
 }

@@ -6,9 +6,11 @@
 //! Linearisation: about a speed `v*` it adds `-2 c2 v* dv` with `dv = da / s`, i.e. the
 //! factor `s / (s + 2 c2 v*)` on the acceleration: one more state than a `Linear`
 //! holds, so none is given (it is exact only for `c2 v* = 0`, where the base is
-//! returned).
+//! returned); [`super::linearize_terms`] returns `beta = 2 c2 |v*|` separately.
+//! `road_load` is the full road-load polynomial (with a linear term `c1 v`); at
+//! `c1 = 0` it is this effect, so the two are not offered together.
 
-use super::{check_range, Effect, Operating};
+use super::{check_range, Effect, Operating, Terms};
 use crate::error::{AvllError, Result};
 use crate::model::{CommandKind, Linear};
 
@@ -26,7 +28,6 @@ impl Effect for SpeedDrag {
     const PARAMS: &'static [&'static str] = &["c0", "c2"];
     const BOUNDS: &'static [(f64, f64)] = &[(0.0, 0.6), (0.0, 0.006)];
     const NEUTRAL: &'static [f64] = &[0.0, 0.0];
-    const ACCEL_ONLY: bool = true;
     const NEEDS_SPEED: bool = true;
 
     fn new(p: &[f64], _kind: CommandKind) -> Result<Self> {
@@ -50,5 +51,15 @@ impl Effect for SpeedDrag {
                  Linear cannot hold",
             ))
         }
+    }
+
+    fn linearize_terms(&self, lin: &Linear, op: &Operating) -> Result<(Linear, Terms)> {
+        Ok((
+            *lin,
+            Terms {
+                speed_feedback: 2.0 * self.c2 * op.v.abs(),
+                ..Terms::default()
+            },
+        ))
     }
 }

@@ -20,12 +20,15 @@ pub trait Chain: Send {
     fn command(&mut self, u: f64, y: f64) -> f64;
     /// Static map of the reference input before the dead time.
     fn reference(&self, w: f64) -> f64;
-    /// The lower level's acceleration after the output maps.
-    fn output(&self, a: f64) -> f64;
+    /// The lower level's acceleration after the output maps (`v`: actual speed).
+    fn output(&self, a: f64, v: f64) -> f64;
     /// Additive acceleration at sample `n` from the actual speed.
     fn disturbance(&self, v: f64, n: usize) -> f64;
     /// Time-scale ratio of the rational part while braking (1: no switching).
     fn brake_time_scale(&self) -> f64;
+    /// The observed acceleration of this sample from the true one (called once per
+    /// sample, in order; what sinks record and costs compare).
+    fn measure(&mut self, a: f64) -> f64;
 }
 
 /// No effect: the linear lower level.
@@ -45,7 +48,7 @@ impl Chain for NoEffects {
         w
     }
     #[inline(always)]
-    fn output(&self, a: f64) -> f64 {
+    fn output(&self, a: f64, _: f64) -> f64 {
         a
     }
     #[inline(always)]
@@ -54,6 +57,10 @@ impl Chain for NoEffects {
     }
     fn brake_time_scale(&self) -> f64 {
         1.0
+    }
+    #[inline(always)]
+    fn measure(&mut self, a: f64) -> f64 {
+        a
     }
 }
 
@@ -88,10 +95,10 @@ impl Chain for Effects<'_> {
         r
     }
     #[inline(always)]
-    fn output(&self, a: f64) -> f64 {
+    fn output(&self, a: f64, v: f64) -> f64 {
         let mut o = a;
         for e in &self.effects {
-            o = e.output(o);
+            o = e.output(o, v);
         }
         o
     }
@@ -105,6 +112,14 @@ impl Chain for Effects<'_> {
     }
     fn brake_time_scale(&self) -> f64 {
         self.effects.iter().map(|e| e.brake_time_scale()).product()
+    }
+    #[inline(always)]
+    fn measure(&mut self, a: f64) -> f64 {
+        let mut o = a;
+        for e in self.effects.iter_mut() {
+            o = e.measure(o);
+        }
+        o
     }
 }
 
@@ -148,7 +163,9 @@ pub fn modal_ok(effects: &[AnyEffect]) -> bool {
     effects.iter().all(|e| e.brake_time_scale() == 1.0)
 }
 
-/// Refuses effects that act on the acceleration with a speed command.
+/// Refuses effects that need an acceleration command with a speed command (none of
+/// the registered effects does: the acceleration-level ones act on the derivative
+/// of the speed response).
 pub fn check_kind(effects: &[AnyEffect], kind: CommandKind) -> Result<()> {
     if kind == CommandKind::Speed {
         if let Some(e) = effects.iter().find(|e| e.kind().accel_only()) {

@@ -8,14 +8,21 @@
 //! Per sample `n` (the convention of [`crate::sim::discretize`]):
 //! 1. [`Stepper::observe`]: the lower level's linear response `y_lin = C x`, and
 //!    for an acceleration command the actual acceleration
-//!    `a = output(y_lin) + disturbance(v, n)` with the actual speed and position
+//!    `a = output(y_lin, v) + disturbance(v, n)` with the actual speed and position
 //!    `v = v_lin + dv`, `p = p_lin + dp` (`dv, dp` integrate `a - y_lin` with the same
-//!    hold; zero without effects); for a speed command `v = y_lin`;
+//!    hold; zero without effects); for a speed command the actual speed
+//!    `v = y_lin + dv` and position `p = p_lin + dp`;
 //! 2. the command `u[n]` (recorded, or the upper law of the actual `p, v`);
 //! 3. [`Stepper::step`]: `u' = command(u, y)`, `u_ref = reference(u' + K y)` into the
 //!    dead-time line (branch-free ring buffer), and the exact step
 //!    `x[n+1] = Phi x[n] + G0 u_ref[n-i] + G1 u_ref[n-i-1]`, with the braking maps
-//!    while braking when an effect switches the dynamics.
+//!    while braking when an effect switches the dynamics. For a speed command the
+//!    acceleration-level hooks act on the derivative of the speed response
+//!    `a_lin = y_lin'(t_n+)`: `a = output(a_lin, v) + disturbance(v, n)`, and
+//!    `dv, dp` integrate `a - a_lin` (the acceleration that integrates into the
+//!    actual speed);
+//! 4. the sample's acceleration as observed, `measure(a)` (the sinks record it and
+//!    the costs compare it; the dynamics above use the true `a`).
 //!
 //! The structural zeros and ones of the transition (model rows never read the
 //! integrators; `v' = v + ...`, `p' = p + dt v + ...`) are used as such, so each
@@ -119,8 +126,9 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
     }
 
     /// Applies the command `u` of sample `n` (observed as `o`) and steps to `n + 1`.
-    /// Returns the acceleration of sample `n` (`o.y` for an acceleration command; the
-    /// right-limit derivative of the speed for a speed command).
+    /// Returns the observed acceleration of sample `n` (`measure` of `o.y` for an
+    /// acceleration command; of the right-limit derivative of the actual speed for a
+    /// speed command).
     #[inline(always)]
     pub fn step(&mut self, n: usize, o: &Obs, u: f64) -> f64 {
         let mut reg = Regs {
@@ -193,11 +201,20 @@ pub(crate) fn observe<const M: usize, const N: usize, const F: bool, C: Chain>(
     }
     if !accel_kind::<M, N>() {
         let pos = if N > M { x[M] } else { 0.0 };
+        if C::NONE {
+            return Obs {
+                y_lin,
+                y: y_lin,
+                v: y_lin,
+                p: pos,
+            };
+        }
+        let v = y_lin + dv;
         return Obs {
             y_lin,
-            y: y_lin,
-            v: y_lin,
-            p: pos,
+            y: v,
+            v,
+            p: pos + dp,
         };
     }
     if C::NONE {
@@ -210,7 +227,7 @@ pub(crate) fn observe<const M: usize, const N: usize, const F: bool, C: Chain>(
     }
     let v = if N > M { x[M] + dv } else { 0.0 };
     let pos = if N > M + 1 { x[M + 1] + dp } else { 0.0 };
-    let y = chain.output(y_lin) + chain.disturbance(v, n);
+    let y = chain.output(y_lin, v) + chain.disturbance(v, n);
     Obs {
         y_lin,
         y,
@@ -267,8 +284,7 @@ fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
                     nx[j] /= sc[j];
                 }
                 reg.x = nx;
-                correct::<M, N, C>(p.dt, reg, o);
-                return a;
+                return settle::<M, N, C>(s.chain, p.dt, reg, o, n, a);
             }
         }
     }
@@ -278,18 +294,38 @@ fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
         deriv::<M, N>(p, &reg.x, wf)
     };
     reg.x = advance::<M, N, D, F>(p, &reg.x, w0, w1);
-    correct::<M, N, C>(p.dt, reg, o);
-    a
+    settle::<M, N, C>(s.chain, p.dt, reg, o, n, a)
 }
 
-/// Integrates the difference between the actual and the linear acceleration.
+/// After the exact step of sample `n` with the linear acceleration `a` (`o.y` for an
+/// acceleration command, already through the output maps and disturbances; the
+/// linear derivative of the speed for a speed command, which goes through them
+/// here): integrates the difference between the actual and the linear
+/// acceleration into the speed and position corrections, and returns the
+/// acceleration as observed. The identity without effects.
 #[inline(always)]
-fn correct<const M: usize, const N: usize, C: Chain>(dt: f64, reg: &mut Regs<N>, o: &Obs) {
-    if !C::NONE && accel_kind::<M, N>() && N > M {
-        let e = o.y - o.y_lin;
+fn settle<const M: usize, const N: usize, C: Chain>(
+    chain: &mut C,
+    dt: f64,
+    reg: &mut Regs<N>,
+    o: &Obs,
+    n: usize,
+    a: f64,
+) -> f64 {
+    if C::NONE {
+        return a;
+    }
+    let (a, e) = if accel_kind::<M, N>() {
+        (a, o.y - o.y_lin)
+    } else {
+        let act = chain.output(a, o.v) + chain.disturbance(o.v, n);
+        (act, act - a)
+    };
+    if N > M {
         reg.dp += dt * reg.dv + 0.5 * dt * dt * e;
         reg.dv += dt * e;
     }
+    chain.measure(a)
 }
 
 /// The derivative of a speed response at `t_n+`: `ca x + cb w(t_n+)`.
