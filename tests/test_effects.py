@@ -15,8 +15,11 @@ from avll.effects import (
     Deadband,
     Delay,
     Grade,
+    PowerLimit,
     RateLimit,
+    RoadLoad,
     Saturation,
+    Sensor,
     SpeedDrag,
     WithEffects,
     batch_cost_effects,
@@ -41,6 +44,9 @@ ACTIVE = {
     "saturation": Saturation(a_max=0.8, d_max=1.1),
     "speed_drag": SpeedDrag(c0=0.05, c2=0.003),
     "grade": Grade(g_eff=6.0),
+    "road_load": RoadLoad(c0=0.05, c1=0.01, c2=0.002),
+    "power_limit": PowerLimit(p=6.0, v_b=3.0),
+    "sensor": Sensor(tau=0.3, bias=0.1),
 }
 
 
@@ -67,6 +73,8 @@ def test_registry_matches_rust() -> None:
         assert tuple(info[name]["neutral"]) == cls.neutral
         assert info[name]["exo"] == cls.exo
         assert info[name]["accel_only"] == cls.accel_only
+        assert info[name]["needs_speed"] == cls.needs_speed
+        assert cls() == cls(*cls.neutral), "the defaults are the neutral parameters"
         lo, hi = zip(*cls.bounds, strict=True)
         assert all(a <= n <= b for a, n, b in zip(lo, cls.neutral, hi, strict=True))
 
@@ -131,11 +139,14 @@ def test_speed_command_effects_match_reference(name, init) -> None:
         np.testing.assert_allclose(getattr(got, k), ref[k], rtol=0, atol=1e-9)
 
 
-def test_all_effects_together_match_reference_closed_loop() -> None:
+@pytest.mark.parametrize("drop", ["road_load", "speed_drag"])
+def test_all_effects_together_match_reference_closed_loop(drop) -> None:
     lx, lv = _leader()
     grade = 0.02 * np.sin(np.arange(lx.size) * DT * 0.07)
     up = avll.UpperLevel(kg=0.6, kv=0.3, Tg=2.0, Gmin=9.5)
-    m = WithEffects(avll.PAPER_TABLE_II["proposed"], tuple(ACTIVE.values()))
+    # speed_drag and road_load are one family and are refused together.
+    effs = tuple(e for n, e in ACTIVE.items() if n != drop)
+    m = WithEffects(avll.PAPER_TABLE_II["proposed"], effs)
     got = closed_loop_effects(m, lx, lv, DT, up, v0=11.0, x0=lx[0] - 31.5, exo={"grade": grade})
     ref = rollout_effects(
         m, DT, lead_x=lx, lead_v=lv, upper=up, v0=11.0, x0=lx[0] - 31.5, exo={"grade": grade}
@@ -218,8 +229,6 @@ def test_bad_input_names_the_argument() -> None:
     _, u, _ = _signals(100)
     with pytest.raises(ValueError, match="exo_grade"):
         simulate_effects(WithEffects(base, (Grade(9.8),)), u, DT)
-    with pytest.raises(ValueError, match="acceleration command"):
-        simulate_effects(WithEffects(base, (Saturation(1, 1),)), u, DT, command_kind="speed")
     with pytest.raises(ValueError, match="duplicate"):
         WithEffects(base, (Delay(0.1), Delay(0.2)))
     with pytest.raises(ValueError, match="unknown effect"):

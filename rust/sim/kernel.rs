@@ -17,10 +17,11 @@
 //!    dead-time line (branch-free ring buffer), and the exact step
 //!    `x[n+1] = Phi x[n] + G0 u_ref[n-i] + G1 u_ref[n-i-1]`, with the braking maps
 //!    while braking when an effect switches the dynamics. For a speed command the
-//!    acceleration-level hooks act on the derivative of the speed response
-//!    `a_lin = y_lin'(t_n+)`: `a = output(a_lin, v) + disturbance(v, n)`, and
-//!    `dv, dp` integrate `a - a_lin` (the acceleration that integrates into the
-//!    actual speed);
+//!    acceleration-level hooks act on the acceleration that integrates into the
+//!    speed, the interval's mean `abar = (y_lin[n+1] - y_lin[n]) / dt`:
+//!    `e = output(abar, v) + disturbance(v, n) - abar`, `dv, dp` integrate `e`
+//!    (so `v[n+1] - v[n] = dt (abar + e)` exactly) and the recorded acceleration is
+//!    the linear right-limit derivative plus `e`;
 //! 4. the sample's acceleration as observed, `measure(a)` (the sinks record it and
 //!    the costs compare it; the dynamics above use the true `a`).
 //!
@@ -284,7 +285,7 @@ fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
                     nx[j] /= sc[j];
                 }
                 reg.x = nx;
-                return settle::<M, N, C>(s.chain, p.dt, reg, o, n, a);
+                return settle::<M, N, F, C>(s.chain, p, reg, o, n, a);
             }
         }
     }
@@ -294,19 +295,25 @@ fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
         deriv::<M, N>(p, &reg.x, wf)
     };
     reg.x = advance::<M, N, D, F>(p, &reg.x, w0, w1);
-    settle::<M, N, C>(s.chain, p.dt, reg, o, n, a)
+    settle::<M, N, F, C>(s.chain, p, reg, o, n, a)
 }
 
-/// After the exact step of sample `n` with the linear acceleration `a` (`o.y` for an
-/// acceleration command, already through the output maps and disturbances; the
-/// linear derivative of the speed for a speed command, which goes through them
-/// here): integrates the difference between the actual and the linear
-/// acceleration into the speed and position corrections, and returns the
+/// After the exact step of sample `n` (`reg.x` holds `x[n+1]`) with the linear
+/// acceleration `a`: `o.y` for an acceleration command (already through the output
+/// maps and disturbances); the right-limit derivative of the linear speed for a
+/// speed command. Integrates the difference `e` between the actual and the linear
+/// acceleration into the speed and position corrections and returns the
 /// acceleration as observed. The identity without effects.
+///
+/// For a speed command the output maps and disturbances act on the interval's mean
+/// linear acceleration `abar = (y_lin[n+1] - y_lin[n]) / dt`, so the actual speed
+/// moves by exactly `dt (output(abar, v) + disturbance(v, n))` over the interval; the
+/// recorded acceleration is the linear derivative plus the same difference `e`
+/// (the linear model's own when `e = 0`).
 #[inline(always)]
-fn settle<const M: usize, const N: usize, C: Chain>(
+fn settle<const M: usize, const N: usize, const F: bool, C: Chain>(
     chain: &mut C,
-    dt: f64,
+    p: &Plant<M, N>,
     reg: &mut Regs<N>,
     o: &Obs,
     n: usize,
@@ -315,11 +322,17 @@ fn settle<const M: usize, const N: usize, C: Chain>(
     if C::NONE {
         return a;
     }
+    let dt = p.dt;
     let (a, e) = if accel_kind::<M, N>() {
         (a, o.y - o.y_lin)
     } else {
-        let act = chain.output(a, o.v) + chain.disturbance(o.v, n);
-        (act, act - a)
+        let mut y1 = p.c[0] * reg.x[0];
+        for j in 1..M {
+            y1 = madd::<F>(p.c[j], reg.x[j], y1);
+        }
+        let abar = (y1 - o.y_lin) / dt;
+        let e = chain.output(abar, o.v) + chain.disturbance(o.v, n) - abar;
+        (a + e, e)
     };
     if N > M {
         reg.dp += dt * reg.dv + 0.5 * dt * dt * e;

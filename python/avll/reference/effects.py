@@ -7,7 +7,18 @@ Deliberately independent of the Rust engine's tricks: the braking dynamics of
 coordinates (the engine switches between two canonical forms instead); the
 fractional dead time is realised by integrating the interval in two pieces with
 ``scipy.linalg.expm`` (the engine precombines them); the command delay keeps the
-whole command history in a list.
+whole command history in a list; the ``sensor`` lag filters the finished true
+acceleration series with ``scipy.signal.lfilter`` (the engine filters sample by
+sample inside the run).
+
+The acceleration-level effects (saturation, power_limit, speed_drag, road_load,
+grade) act on the acceleration that integrates into the actual speed: the response
+itself for an acceleration command; for a speed command the derivative of the speed
+response over the interval, ``abar = (y[n+1] - y[n]) / dt`` (so the actual speed
+``v = y + dv`` moves by exactly ``dt (abar + e)``, ``e = actual(abar) - abar``), with
+position ``p = p_lin + dp``, ``dv, dp`` integrating ``e`` held over the interval, ``K``
+feeding back the actual speed, and the recorded acceleration ``C (A x + B w) + e``
+(the linear right-limit derivative plus the effects' change).
 """
 
 from __future__ import annotations
@@ -17,6 +28,7 @@ from typing import Any
 
 import numpy as np
 from scipy.linalg import expm
+from scipy.signal import lfilter
 
 from ..effects import WithEffects
 from ..models import LowerLevelModel, UpperLevel
@@ -120,6 +132,24 @@ def rollout_effects(
     def gain(w: float) -> float:
         return kb * w if w < 0 else w
 
+    def actual(a_lin: float, v: float, n: int) -> float:
+        """The acceleration that integrates into the actual speed."""
+        a_act = a_lin
+        if "saturation" in eff:
+            a_act = min(max(a_act, -eff["saturation"].d_max), eff["saturation"].a_max)
+        if "power_limit" in eff:
+            e = eff["power_limit"]
+            a_act = min(a_act, e.p / max(abs(v), e.v_b))
+        if "speed_drag" in eff:
+            e = eff["speed_drag"]
+            a_act -= e.c0 * min(max(v / 0.1, -1.0), 1.0) + e.c2 * v * abs(v)
+        if "road_load" in eff:
+            e = eff["road_load"]
+            a_act -= e.c0 * min(max(v / 0.1, -1.0), 1.0) + e.c1 * v + e.c2 * v * abs(v)
+        if "grade" in eff:
+            a_act -= eff["grade"].g_eff * float(exo["grade"][n])
+        return a_act
+
     refs: list[float] = []
     cmds: list[float] = []
     prev = u_hist
@@ -129,18 +159,12 @@ def rollout_effects(
     for n in range(n_samples):
         y = float(ma[2] @ x)
         if speed_cmd:
-            v, p, y_act = y, x[m], y
+            v = y + dv
+            p = x[m] + dp
+            y_act = v
         else:
             v, p = x[m] + dv, x[m + 1] + dp
-            a_act = y
-            if "saturation" in eff:
-                a_act = min(max(a_act, -eff["saturation"].d_max), eff["saturation"].a_max)
-            if "speed_drag" in eff:
-                e = eff["speed_drag"]
-                a_act -= e.c0 * min(max(v / 0.1, -1.0), 1.0) + e.c2 * v * abs(v)
-            if "grade" in eff:
-                a_act -= eff["grade"].g_eff * float(exo["grade"][n])
-            y_act = a_act
+            y_act = actual(y, v, n)
         if closed:
             assert upper is not None, "closed loop needs upper"
             u = upper.kg * (lead_x[n] - p - upper.Tg * v - upper.Gmin) + upper.kv * (lead_v[n] - v)
@@ -173,16 +197,30 @@ def rollout_effects(
         mm = mb if (rb != 1.0 and demand < 0) else ma
         a_m, b_m, c_m, pa, ga, pb, gb = mm
         wf = w1 if f > 0 else w0
-        acc = float(c_m @ (a_m @ x) + (c_m @ b_m) * wf) if speed_cmd else y_act
-        out["a"][n], out["v"][n], out["x"][n], out["command"][n] = acc, v, p, u
-        if abs(y) >= 1e6 or not np.isfinite(acc):
-            break
+        x_old = x
         if f > 0:
             x = pa @ (pb @ x + gb * w1) + ga * w0
         else:
             x = pa @ x + ga * w0
-        if not speed_cmd:
+        if speed_cmd:
+            # The interval's mean linear acceleration: the linear speed's increment.
+            abar = (float(ma[2] @ x) - y) / dt
+            e = actual(abar, v, n) - abar
+            acc = float(c_m @ (a_m @ x_old) + (c_m @ b_m) * wf) + e
+        else:
+            acc = y_act
             e = y_act - y
-            dp += dt * dv + 0.5 * dt * dt * e
-            dv += dt * e
+        out["a"][n], out["v"][n], out["x"][n], out["command"][n] = acc, v, p, u
+        if abs(y) >= 1e6 or not np.isfinite(acc):
+            break
+        dp += dt * dv + 0.5 * dt * dt * e
+        dv += dt * e
+    if "sensor" in eff:
+        # The observation: a_obs = 1/(tau s + 1) a + bias, exact for a[n] held over
+        # (t[n-1], t[n]]: f[n] = alpha f[n-1] + (1 - alpha) a[n], f[-1] = a[0].
+        sen = eff["sensor"]
+        alpha = float(np.exp(-dt / sen.tau)) if sen.tau > 0 else 0.0
+        a_true = out["a"]
+        f0 = np.array([alpha * a_true[0]])
+        out["a"] = lfilter([1.0 - alpha], [1.0, -alpha], a_true, zi=f0)[0] + sen.bias
     return out
