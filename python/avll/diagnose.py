@@ -52,12 +52,14 @@ from .calibrate import DEFAULT_BOUNDS, DEFAULT_STARTS
 from .calibrate import UPPER_BOUNDS as _UB
 from .data import Run
 from .effects import (
-    CANONICAL_ORDER,
     EFFECTS,
     WithEffects,
     batch_cost_effects,
     calibrate_effects,
     canonical,
+)
+from .effects import (
+    ISSUE6_ORDER as CANONICAL_ORDER,
 )
 from .models import LowerLevelModel, UpperLevel, model_class
 from .rollout import simulate_batch

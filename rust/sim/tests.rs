@@ -192,13 +192,155 @@ fn closed_loop_reaches_equilibrium_gap() {
 }
 
 fn neutral(names: &[&str]) -> Vec<crate::effects::AnyEffect> {
-    let list = EffectList::from_names(names, CommandKind::Acceleration).unwrap();
+    neutral_for(names, CommandKind::Acceleration)
+}
+
+fn neutral_for(names: &[&str], kind: CommandKind) -> Vec<crate::effects::AnyEffect> {
+    let list = EffectList::from_names(names, kind).unwrap();
     let p: Vec<f64> = list
         .0
         .iter()
         .flat_map(|k| k.neutral().iter().copied())
         .collect();
-    list.build(&p, CommandKind::Acceleration).unwrap()
+    list.build(&p, kind).unwrap()
+}
+
+fn built(names: &[&str], p: &[f64], kind: CommandKind) -> Vec<crate::effects::AnyEffect> {
+    EffectList::from_names(names, kind)
+        .unwrap()
+        .build(p, kind)
+        .unwrap()
+}
+
+#[test]
+fn neutral_vehicle_effects_equal_the_fast_path_for_both_command_kinds() {
+    // road_load, power_limit, sensor and (for a speed command) the acceleration-level
+    // effects at their neutral parameters.
+    let all = [
+        "saturation",
+        "power_limit",
+        "road_load",
+        "grade",
+        "sensor",
+        "delay",
+    ];
+    let u = cmd(3000);
+    let us: Vec<f64> = u.iter().map(|x| 10.0 + x).collect();
+    let g = vec![0.02; 3000];
+    let exo = [("grade", &g[..])];
+    for lin in [proposed(), second()] {
+        for (kind, u, init) in [
+            (CommandKind::Acceleration, &u, Init::Rest),
+            (CommandKind::Speed, &us, Init::Steady),
+        ] {
+            let effs = neutral_for(&all, kind);
+            let eff = EffectsRef {
+                effects: &effs,
+                exo: &exo,
+            };
+            let x = simulate_full(&lin, &EffectsRef::NONE, kind, u, 0.05, init, 3.0, 5.0).unwrap();
+            let y = simulate_full(&lin, &eff, kind, u, 0.05, init, 3.0, 5.0).unwrap();
+            assert!(
+                max_diff(&y.a, &x.a) < 1e-11,
+                "{kind:?} {}",
+                max_diff(&y.a, &x.a)
+            );
+            assert!(max_diff(&y.v, &x.v) < 1e-11, "{kind:?}");
+            assert!(max_diff(&y.x, &x.x) < 1e-11, "{kind:?}");
+        }
+    }
+}
+
+#[test]
+fn road_load_without_linear_term_is_speed_drag() {
+    let u = cmd(2000);
+    let kind = CommandKind::Acceleration;
+    let rl = built(&["road_load"], &[0.08, 0.0, 0.001], kind);
+    let sd = built(&["speed_drag"], &[0.08, 0.001], kind);
+    let run = |e: &[crate::effects::AnyEffect]| {
+        let eff = EffectsRef {
+            effects: e,
+            exo: &[],
+        };
+        simulate_full(&proposed(), &eff, kind, &u, 0.05, Init::Rest, 8.0, 0.0).unwrap()
+    };
+    let (a, b) = (run(&rl), run(&sd));
+    assert!(max_diff(&a.v, &b.v) < 1e-14 && max_diff(&a.a, &b.a) < 1e-14);
+    let rl1 = built(&["road_load"], &[0.08, 0.02, 0.001], kind);
+    assert!(max_diff(&run(&rl1).v, &b.v) > 1e-2);
+    assert!(EffectList::from_names(&["speed_drag", "road_load"], kind).is_err());
+}
+
+#[test]
+fn sensor_filters_only_the_observation() {
+    let u = cmd(2000);
+    let kind = CommandKind::Acceleration;
+    let e = built(&["sensor"], &[0.3, 0.05], kind);
+    let eff = EffectsRef {
+        effects: &e,
+        exo: &[],
+    };
+    let lin = proposed();
+    let x = simulate_full(
+        &lin,
+        &EffectsRef::NONE,
+        kind,
+        &u,
+        0.05,
+        Init::Rest,
+        4.0,
+        0.0,
+    )
+    .unwrap();
+    let y = simulate_full(&lin, &eff, kind, &u, 0.05, Init::Rest, 4.0, 0.0).unwrap();
+    assert_eq!(x.v, y.v);
+    assert_eq!(x.x, y.x);
+    let alpha = (-0.05f64 / 0.3).exp();
+    let mut f = x.a[0];
+    for n in 0..u.len() {
+        f = alpha * f + (1.0 - alpha) * x.a[n];
+        assert!((y.a[n] - f - 0.05).abs() < 1e-12);
+    }
+    let (lx, lv) = leader(2000, 0.05);
+    let a = closed_loop(&lin, &EffectsRef::NONE, &UP, &lx, &lv, 0.05, 10.0, 70.0).unwrap();
+    let b = closed_loop(&lin, &eff, &UP, &lx, &lv, 0.05, 10.0, 70.0).unwrap();
+    assert_eq!(a.command, b.command);
+    assert_eq!(a.v, b.v);
+}
+
+#[test]
+fn speed_command_effects_move_the_speed_by_the_mapped_acceleration() {
+    // Saturation on a speed command: the actual speed's slope is the clipped
+    // interval-mean acceleration of the linear speed response.
+    let lin = second();
+    let us: Vec<f64> = cmd(2000).iter().map(|x| 10.0 + 3.0 * x).collect();
+    let kind = CommandKind::Speed;
+    let e = built(&["saturation"], &[0.3, 0.4], kind);
+    let eff = EffectsRef {
+        effects: &e,
+        exo: &[],
+    };
+    let x = simulate_full(
+        &lin,
+        &EffectsRef::NONE,
+        kind,
+        &us,
+        0.05,
+        Init::Steady,
+        0.0,
+        0.0,
+    )
+    .unwrap();
+    let y = simulate_full(&lin, &eff, kind, &us, 0.05, Init::Steady, 0.0, 0.0).unwrap();
+    let mut bound = [false; 2];
+    for n in 0..us.len() - 1 {
+        let abar = (x.v[n + 1] - x.v[n]) / 0.05;
+        let slope = (y.v[n + 1] - y.v[n]) / 0.05;
+        assert!((slope - abar.clamp(-0.4, 0.3)).abs() < 1e-9, "{n}");
+        bound[0] |= abar > 0.3;
+        bound[1] |= abar < -0.4;
+    }
+    assert!(bound[0] && bound[1]);
 }
 
 #[test]

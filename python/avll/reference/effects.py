@@ -129,6 +129,8 @@ def rollout_effects(
     else:
         x[m], x[m + 1] = v0, x0
 
+    exo = exo or {}
+
     def gain(w: float) -> float:
         return kb * w if w < 0 else w
 
@@ -155,7 +157,6 @@ def rollout_effects(
     prev = u_hist
     dv = dp = 0.0
     out = {k: np.full(n_samples, np.nan) for k in ("a", "v", "x", "command")}
-    exo = exo or {}
     for n in range(n_samples):
         y = float(ma[2] @ x)
         if speed_cmd:
