@@ -58,9 +58,7 @@ from .effects import (
     calibrate_effects,
     canonical,
 )
-from .effects import (
-    ISSUE6_ORDER as CANONICAL_ORDER,
-)
+from .effects import ISSUE6_ORDER as CANONICAL_ORDER
 from .models import LowerLevelModel, UpperLevel, model_class
 from .rollout import simulate_batch
 
