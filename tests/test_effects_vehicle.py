@@ -106,6 +106,20 @@ def test_speed_command_neutral_effects_equal_base(base, init) -> None:
         np.testing.assert_allclose(getattr(got, k), getattr(want, k), rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("base", [avll.PAPER_TABLE_II["proposed"], avll.PAPER_TABLE_II["first"]],
+                         ids=lambda b: b.name)  # fmt: skip
+def test_neutral_vehicle_effects_equal_base_closed_loop(base) -> None:
+    lx, lv = _leader()
+    up = avll.UpperLevel(kg=0.5, kv=0.2, Tg=1.8, Gmin=9.5)
+    want = avll.closed_loop(base, lx, lv, DT, up, v0=11.0, x0=lx[0] - 30.0)
+    neutral = tuple(EFFECTS[n](*EFFECTS[n].neutral)
+                    for n in ("saturation", "road_load", "power_limit", "grade", "sensor"))
+    got = closed_loop_effects(WithEffects(base, neutral), lx, lv, DT, up, v0=11.0,
+                              x0=lx[0] - 30.0, exo={"grade": np.full(lx.size, 0.02)})
+    for k in ("a", "v", "x", "command"):
+        np.testing.assert_allclose(getattr(got, k), getattr(want, k), rtol=1e-12, atol=1e-12)
+
+
 def test_speed_command_saturation_caps_the_speed_slope() -> None:
     """The clip acts on the acceleration that integrates into the speed: the actual
     speed's slope over every interval stays within the limits and the speed lags the
