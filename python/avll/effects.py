@@ -108,7 +108,9 @@ class Effect:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        name = cls.__dict__.get("name", "")
+        if "name" not in cls.__dict__:
+            return  # a subclass of a registered effect keeps its registry entry
+        name = cls.__dict__["name"]
         if name not in _INFO:
             raise TypeError(f"effect class {cls.__name__}: {name!r} is not in the Rust registry")
         info = _INFO[name]
@@ -316,7 +318,7 @@ class Sensor(Effect):
 
 
 def _registry() -> dict[str, type[Effect]]:
-    classes = {c.name: c for c in Effect.__subclasses__()}
+    classes = {c.name: c for c in Effect.__subclasses__() if "name" in c.__dict__}
     missing = [n for n in _INFO if n not in classes]
     if missing:
         raise ImportError(f"avll.effects: no Python class for the Rust effects {missing}")
