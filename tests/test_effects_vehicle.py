@@ -89,6 +89,24 @@ def test_speed_command_accel_effects_match_reference(name, base, init) -> None:
         np.testing.assert_allclose(getattr(got, k), ref[k], rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("base", SPEED_BASES[:2], ids=lambda b: b.name)
+def test_speed_command_effects_together_match_reference(base) -> None:
+    """Braking dynamics switched per interval (asymmetric), a command delay and
+    deadband, and every acceleration-level effect plus the sensor on one speed-command
+    model."""
+    from avll.effects import Asymmetric, Deadband, Delay
+
+    u, grade = _speed_command()
+    effs = (Delay(0.17), Deadband(0.2), Asymmetric(1.0, 1.6),
+            *(e for n, e in SPEED_ACTIVE.items() if n != "speed_drag"))  # fmt: skip
+    m = WithEffects(base, effs)
+    exo = {"grade": grade}
+    got = simulate_effects(m, u, DT, command_kind="speed", init="steady", x0=3.0, exo=exo)
+    ref = rollout_effects(m, DT, command=u, command_kind="speed", init="steady", x0=3.0, exo=exo)
+    for k in ("a", "v", "x"):
+        np.testing.assert_allclose(getattr(got, k), ref[k], rtol=0, atol=1e-9)
+
+
 @pytest.mark.parametrize("base", SPEED_BASES, ids=lambda b: b.name)
 @pytest.mark.parametrize("init", ["rest", "steady"])
 def test_speed_command_neutral_effects_equal_base(base, init) -> None:
