@@ -143,9 +143,7 @@ def _gap_section(g: dict) -> list[str]:
                      f"{c['amplification_measured']:.2f} | {c['base_model']}, "
                      f"{_pct(c['base_amplification_replay_error'])} | " + " | ".join(cells) + " |")
     lines += ["", "Each cell: replay error of the amplification with the effect (cost change "
-              "of the fit); ✔ closes the gap. n/a: the effect needs a signal the files lack "
-              "(grade: the altitude profile of the ZalaZone files is not given as exo_grade "
-              "here)."]
+              "of the fit); ✔ closes the gap. n/a: the effect needs a signal the run lacks."]
     return lines
 
 
