@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -34,6 +35,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(root / "out" / "openacc"))
     ap.add_argument("--docs", default=str(root / "docs" / "findings-openacc.md"))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--reuse", action="store_true",
+                    help="reuse the main study pickled in --out by an earlier run")
     ap.add_argument("--effect-generations", type=int, default=150,
                     help="GA generations of each car + effect fit (default: 150)")
     a = ap.parse_args()
@@ -41,8 +44,16 @@ def main() -> None:
     os.chdir(root)  # so that the page shows the data path relative to the repository
     data = os.path.relpath(a.data, root)
     t0 = time.perf_counter()
-    study = openacc_study(data, seed=a.seed, log=_log)
-    study.save(a.out, Path(a.out) / "openacc.json")
+    cache = Path(a.out) / "study.pickle"
+    if a.reuse and cache.exists():  # the calibrations of an earlier run of this script
+        with cache.open("rb") as fh:
+            study = pickle.load(fh)
+        _log(f"reusing {cache}")
+    else:
+        study = openacc_study(data, seed=a.seed, log=_log)
+        study.save(a.out, Path(a.out) / "openacc.json")
+        with cache.open("wb") as fh:
+            pickle.dump(study, fh)
     _log(f"main study: {time.perf_counter() - t0:.0f} s")
     t1 = time.perf_counter()
     wide = openacc_study(data, seed=a.seed, models=(study.summary["model"],),

@@ -171,11 +171,16 @@ def effect_gaps(
             except ValueError as err:
                 entry["effects"][e] = {"skipped": f"calibration failed: {err}"}
                 continue
-            tr = closed_loop_effects(model, r.lead_x, r.lead_v, r.dt, up, v0=float(r.v[0]),
-                                     x0=float(r.x[0]) if r.x is not None else 0.0,
-                                     exo=r.exo)  # fmt: skip
-            a_r = (amplification(tr.v, r.lead_v, r.dt, band)[0]
-                   if np.all(np.isfinite(tr.v)) else math.nan)  # fmt: skip
+            why = None
+            try:
+                tr = closed_loop_effects(model, r.lead_x, r.lead_v, r.dt, up,
+                                         v0=float(r.v[0]),
+                                         x0=float(r.x[0]) if r.x is not None else 0.0,
+                                         exo=r.exo)  # fmt: skip
+                a_r = (amplification(tr.v, r.lead_v, r.dt, band)[0]
+                       if np.all(np.isfinite(tr.v)) else math.nan)  # fmt: skip
+            except ValueError as err:  # a calibrated model the trajectory functions refuse
+                a_r, why = math.nan, f"no replay: {err}"
             err_r = a_r / meas - 1.0 if math.isfinite(a_r) else math.nan
             base_cost = md["cal_mse"]
             better = (base_cost is not None and math.isfinite(f)
@@ -191,7 +196,7 @@ def effect_gaps(
                 "closes_gap": closes,
             }
             if not math.isfinite(a_r):
-                d["amplification_replay_reason"] = "the replay with the effect diverges"
+                d["amplification_replay_reason"] = why or "the replay with the effect diverges"
             entry["effects"][e] = d
             if closes:
                 closers.append(e)
