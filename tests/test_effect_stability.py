@@ -1,0 +1,156 @@
+"""Effects in the stability conclusions (avll.effect_stability)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import avll
+from avll.effect_stability import (
+    AMPLITUDE_DEPENDENT,
+    effect_stability,
+    frequency_response,
+)
+from avll.effects import Asymmetric, Deadband, Saturation, SpeedDrag, WithEffects
+
+SECOND = avll.PAPER_TABLE_II["second"]
+PROPOSED = avll.PAPER_TABLE_II["proposed"]
+#: Gains where the paper's second-order model is locally stable and string unstable
+#: (|H| > 1 at a 20 s period), so amplification is visible.
+UP = avll.UpperLevel(kg=0.2, kv=0.3, Tg=1.5)
+
+
+def test_frequency_response_matches_the_engine_polynomials() -> None:
+    # Without delay (first-order lag) H is rational: compare with the polynomial
+    # form built from the model's transfer function.
+    m = avll.FirstOrderLag(Td=0.8)
+    w = np.array([0.05, 0.3, 1.0, 3.0])
+    num, den = m.transfer_function()
+    s = 1j * w
+    g = np.polyval(num, s) / np.polyval(den, s)
+    mu = UP.kv + UP.Tg * UP.kg
+    want = (UP.kv * s + UP.kg) * g / (s * s + g * (mu * s + UP.kg))
+    got = frequency_response(m.linear(), UP, w)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    with pytest.raises(ValueError, match="omega"):
+        frequency_response(m.linear(), UP, [0.0])
+
+
+@pytest.mark.parametrize("model", [SECOND, PROPOSED], ids=["second", "proposed"])
+def test_linear_platoon_amplification_is_abs_h(model) -> None:
+    """The simulation method: for a linear model the per-car amplification does not
+    depend on the amplitude and equals |H(jw)| (exact delay) up to the O(dt) error of
+    evaluating the upper law at samples (it shrinks with dt)."""
+    r = effect_stability(model, UP, amplitudes=(0.05, 0.5, 3.0), n_cars=3, thresholds=False)
+    h = r.linear[0].gain_at_omega
+    assert h is not None and h > 1.0  # string unstable at this frequency
+    np.testing.assert_allclose(r.amplification, h, rtol=1e-2)
+    # amplitude-independent to 1e-6
+    np.testing.assert_allclose(r.amplification, np.broadcast_to(r.amplification[:1], (3, 3)), rtol=1e-6)
+    fine = effect_stability(model, UP, amplitudes=(0.5,), n_cars=1, thresholds=False, dt=0.01)
+    err_coarse = abs(r.amplification[1, 0] / h - 1)
+    err_fine = abs(fine.amplification[0, 0] / h - 1)
+    assert err_fine < 0.4 * err_coarse
+
+
+def test_linearised_thresholds_match_the_stability_module() -> None:
+    r = effect_stability(WithEffects(SECOND, (Saturation(0.5, 0.8),)), UP, amplitudes=(0.1,),
+                         n_cars=1)  # fmt: skip
+    base, eff = r.linear[0], r.linear[1]
+    # Saturation is the identity for small signals: same numbers.
+    assert base.min_stable_tg == eff.min_stable_tg
+    assert base.min_stable_tg == pytest.approx(avll.stability.min_stable_tg(SECOND).value)
+    assert base.kv_threshold == pytest.approx(avll.stability.kv_supremum(SECOND).value)
+    assert base.code == int(avll.stability.stability_points(SECOND, UP.kg, UP.Tg, UP.kv))
+    assert r.amplitude_dependent == ("saturation",)
+
+
+def test_asymmetric_braking_side_is_less_stable_and_reported_per_side() -> None:
+    m = WithEffects(SECOND, (Asymmetric(kb=0.7, rb=1.5),))
+    r = effect_stability(m, UP, amplitudes=(0.5,), n_cars=1)
+    labels = [e.label for e in r.linear]
+    assert labels == ["base", "with effects", "with effects, accelerating",
+                      "with effects, braking"]  # fmt: skip
+    acc, brake = r.linear[2], r.linear[3]
+    assert acc.min_stable_tg == pytest.approx(r.linear[0].min_stable_tg)
+    # A slower braking side (rb = 1.5) needs a larger time gap.
+    assert brake.min_stable_tg > acc.min_stable_tg
+    assert brake.tg_min_at_gains > acc.tg_min_at_gains
+
+
+def test_saturation_caps_the_amplification_at_large_amplitude() -> None:
+    """Verified physics: in the linear regime (leader acceleration A w well under the
+    limits) the amplification is |H(jw)|; when A w exceeds the acceleration limit the
+    first follower's acceleration is clipped, so the fundamental of its speed is at
+    most (4/pi) max(a_max, d_max) / w (the fundamental of a signal bounded by M is at
+    most 4M/pi), and the amplification falls with the amplitude."""
+    a_max, d_max = 0.5, 0.8
+    m = WithEffects(SECOND, (Saturation(a_max, d_max),))
+    amps = (0.1, 1.0, 2.0, 4.0)
+    r = effect_stability(m, UP, amplitudes=amps, n_cars=1, thresholds=False)
+    h = r.linear_gain
+    assert h is not None
+    assert r.amplification[0, 0] == pytest.approx(h, rel=1e-2)  # 0.1 m/s: linear
+    first = r.amplification[:, 0]
+    assert np.all(np.diff(first[1:]) < 0)  # falls with A once the limit acts
+    assert first[-1] < 0.6 * h
+    bound = 4 / math.pi * max(a_max, d_max) / r.omega
+    assert np.all(r.speed_amplitude[:, 1] <= bound * 1.001)
+
+
+def test_deadband_swallows_small_disturbances() -> None:
+    # A leader amplitude whose command stays inside the dead band does not move the
+    # follower: amplification ~0 and undefined behind it.
+    m = WithEffects(SECOND, (Deadband(0.1),))
+    r = effect_stability(m, UP, amplitudes=(0.05, 2.0), n_cars=2, thresholds=False)
+    assert r.amplification[0, 0] < 1e-3
+    assert math.isnan(r.amplification[0, 1])
+    assert r.amplification[1, 0] > 1.0
+    d = r.to_dict()
+    assert d["amplification"][0][1] is None and "amplification" in d["null_reasons"]
+
+
+def test_speed_drag_is_linearised_with_its_speed_feedback() -> None:
+    m = WithEffects(SECOND, (SpeedDrag(0.1, 0.003),))
+    r = effect_stability(m, UP, amplitudes=(0.1, 1.0), n_cars=2, thresholds=False)
+    eff = r.linear[1]
+    assert eff.drag == pytest.approx(2 * 0.003 * 15.0)
+    assert eff.code is None and eff.notes  # no engine form: |H| only, said so
+    np.testing.assert_allclose(r.amplification, eff.gain_at_omega, rtol=1e-2)
+    assert eff.gain_at_omega < r.linear[0].gain_at_omega  # drag damps
+
+
+def test_to_dict_is_strict_json_and_plot() -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    m = WithEffects(SECOND, (Saturation(0.5, 0.8),))
+    r = effect_stability(m, UP, amplitudes=(0.1, 2.0), n_cars=2, thresholds=False,
+                         period="peak")  # fmt: skip
+    text = json.dumps(r.to_dict(), allow_nan=False)
+    d = json.loads(text)
+    assert d["effects"] == ["saturation"] and len(d["amplification"]) == 2
+    assert 4 <= d["period"] <= 60
+    fig = r.plot()
+    assert len(fig.axes) == 2
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="amplitudes"):
+        effect_stability(SECOND, UP, amplitudes=(20.0,), v0=15.0)
+    with pytest.raises(ValueError, match="amplitudes"):
+        effect_stability(SECOND, UP, amplitudes=())
+    with pytest.raises(TypeError, match="upper"):
+        effect_stability(SECOND, {"kg": 0.2})  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="period"):
+        effect_stability(SECOND, UP, period="worst")
+    with pytest.raises(TypeError, match="n_cars"):
+        effect_stability(SECOND, UP, n_cars=1.5)  # type: ignore[arg-type]
+    assert "saturation" in AMPLITUDE_DEPENDENT
