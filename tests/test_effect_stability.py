@@ -49,7 +49,8 @@ def test_linear_platoon_amplification_is_abs_h(model) -> None:
     assert h is not None and h > 1.0  # string unstable at this frequency
     np.testing.assert_allclose(r.amplification, h, rtol=1e-2)
     # amplitude-independent to 1e-6
-    np.testing.assert_allclose(r.amplification, np.broadcast_to(r.amplification[:1], (3, 3)), rtol=1e-6)
+    same = np.broadcast_to(r.amplification[:1], (3, 3))
+    np.testing.assert_allclose(r.amplification, same, rtol=1e-6)
     fine = effect_stability(model, UP, amplitudes=(0.5,), n_cars=1, thresholds=False, dt=0.01)
     err_coarse = abs(r.amplification[1, 0] / h - 1)
     err_fine = abs(fine.amplification[0, 0] / h - 1)
@@ -79,6 +80,18 @@ def test_asymmetric_braking_side_is_less_stable_and_reported_per_side() -> None:
     # A slower braking side (rb = 1.5) needs a larger time gap.
     assert brake.min_stable_tg > acc.min_stable_tg
     assert brake.tg_min_at_gains > acc.tg_min_at_gains
+
+
+def test_asymmetric_amplification_is_amplitude_independent_between_the_sides() -> None:
+    # Positively homogeneous (gain and time scale per sign, zero equilibrium command
+    # without drag): the same amplification at every amplitude; here (verified) it lies
+    # between the accelerating and the braking linearisations' |H(jw)|.
+    m = WithEffects(SECOND, (Asymmetric(kb=0.7, rb=1.5),))
+    r = effect_stability(m, UP, amplitudes=(0.1, 1.0, 4.0), n_cars=2, thresholds=False)
+    same = np.broadcast_to(r.amplification[:1], r.amplification.shape)
+    np.testing.assert_allclose(r.amplification, same, rtol=1e-6)
+    acc, brake = r.linear[2].gain_at_omega, r.linear[3].gain_at_omega
+    assert acc < r.amplification[0, 0] < brake
 
 
 def test_saturation_caps_the_amplification_at_large_amplitude() -> None:

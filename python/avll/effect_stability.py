@@ -38,9 +38,14 @@
    next ``measure_periods`` periods is fitted by least squares with
    ``c0 + c1 t + s sin(w t) + c cos(w t)``; the **amplification of car i** is the
    ratio of its fundamental amplitude ``sqrt(s² + c²)`` to car ``i-1``'s (car 0 the
-   leader; undefined, NaN, behind a car whose amplitude is below ``1e-6 A``). For a linear model this is ``|H(jw)|`` whatever ``A`` (the tests check
-   it); an amplitude-dependent effect makes it depend on ``A``. A car whose
-   trajectory diverges (NaN) and every car behind it have no amplification.
+   leader; undefined, NaN, behind a car whose amplitude is below ``1e-6 A``). For a
+   linear model this is ``|H(jw)|`` whatever ``A`` (the tests check it, to the O(dt)
+   error of evaluating the upper law at the samples); an amplitude-dependent effect
+   makes it depend on ``A``. A car whose trajectory diverges (NaN) and every car
+   behind it have no amplification. Note that ``asymmetric`` is positively
+   homogeneous (a gain and a time scale per sign): about an equilibrium with zero
+   command its amplification does not depend on ``A`` either, although it differs
+   from each side's linearisation.
 
 The result (:class:`EffectStability`) has :meth:`~EffectStability.to_dict`
 (strict JSON) and :meth:`~EffectStability.plot`.
@@ -48,7 +53,6 @@ The result (:class:`EffectStability`) has :meth:`~EffectStability.to_dict`
 
 from __future__ import annotations
 
-import cmath
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
