@@ -377,7 +377,12 @@ def effect_stability(
         raise ValueError("amplitudes: give at least one amplitude")
     if np.any(amps >= v0):
         raise ValueError(f"amplitudes: must be < v0 = {v0:g} m/s (the leader would reverse)")
-    boxes = {"kg": tuple(kg_range), "kv": tuple(kv_range), "tg": tuple(tg_range)}
+    boxes: dict[str, tuple[float, float]] = {}
+    for key, rng in (("kg", kg_range), ("kv", kv_range), ("tg", tg_range)):
+        lo, hi = (check_number(x, f"{key}_range") for x in rng)
+        if not lo < hi:
+            raise ValueError(f"{key}_range: must be (lo, hi) with lo < hi, got {rng!r}")
+        boxes[key] = (lo, hi)
     names = model.effect_names
     notes: list[str] = []
     base = WithEffects(model.base, ())
@@ -415,7 +420,7 @@ def effect_stability(
     ramp = np.where(t < per, 0.5 * (1 - np.cos(np.pi * t / per)), 1.0)
     meas = t >= warm_periods * per
     meas &= t < (warm_periods + measure_periods) * per
-    exo = {EFFECTS[e].exo: np.zeros(n) for e in names if EFFECTS[e].exo}
+    exo = {str(EFFECTS[e].exo): np.zeros(n) for e in names if EFFECTS[e].exo}
     n_amp = amps.size
     speed_amp = np.full((n_amp, n_cars + 1), np.nan)
     half = np.full((n_amp, n_cars + 1), np.nan)

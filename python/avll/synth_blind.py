@@ -230,7 +230,8 @@ def simulate_vehicle(
     lat = p["dead_time"] + (rng_latency.uniform(0.0, p["jitter_max"], n)
                             if p["jitter_max"] > 0 else np.zeros(n))  # fmt: skip
     arrival = np.arange(n) * dt + lat
-    out = {k: np.zeros(n) for k in ("a", "v", "x", "command", "grade", "a_sensor")}
+    out: dict[str, Any] = {k: np.zeros(n) for k in ("a", "v", "x", "command", "grade",
+                                                    "a_sensor")}
     v = float(v0)
     pos = float(lead_x[0] - GMIN - upper.Tg * v0) if x0 is None else float(x0)
     f_drive = f_brake = 0.0  # actuator forces (N)
