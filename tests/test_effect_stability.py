@@ -51,6 +51,8 @@ def test_linear_platoon_amplification_is_abs_h(model) -> None:
     # amplitude-independent to 1e-6
     same = np.broadcast_to(r.amplification[:1], (3, 3))
     np.testing.assert_allclose(r.amplification, same, rtol=1e-6)
+    # a sinusoid's half range is its amplitude: the same ratio
+    np.testing.assert_allclose(r.range_amplification, r.amplification, rtol=1e-3)
     fine = effect_stability(model, UP, amplitudes=(0.5,), n_cars=1, thresholds=False, dt=0.01)
     err_coarse = abs(r.amplification[1, 0] / h - 1)
     err_fine = abs(fine.amplification[0, 0] / h - 1)
@@ -112,6 +114,18 @@ def test_saturation_caps_the_amplification_at_large_amplitude() -> None:
     assert first[-1] < 0.6 * h
     bound = 4 / math.pi * max(a_max, d_max) / r.omega
     assert np.all(r.speed_amplitude[:, 1] <= bound * 1.001)
+
+
+def test_saturated_platoon_fundamental_understates_the_swing() -> None:
+    """Verified for this case (not a general law): further down a saturated platoon
+    the fundamental stays capped while the speed swing (half range) grows beyond the
+    leader's, down to negative speeds, which the result flags."""
+    m = WithEffects(SECOND, (Saturation(0.6, 0.8),))
+    r = effect_stability(m, UP, amplitudes=(4.0,), n_cars=5, thresholds=False)
+    assert r.half_range[0, -1] > 2 * r.half_range[0, 0]
+    assert r.speed_amplitude[0, -1] < r.speed_amplitude[0, 0]
+    assert r.min_speed[0, -1] < 0
+    assert any("negative speed" in n for n in r.notes)
 
 
 def test_deadband_swallows_small_disturbances() -> None:

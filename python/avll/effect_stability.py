@@ -42,7 +42,11 @@
    linear model this is ``|H(jw)|`` whatever ``A`` (the tests check it, to the O(dt)
    error of evaluating the upper law at the samples); an amplitude-dependent effect
    makes it depend on ``A``. A car whose trajectory diverges (NaN) and every car
-   behind it have no amplification. Note that ``asymmetric`` is positively
+   behind it have no amplification. Also reported: the ratio of the half ranges
+   (half the peak-to-peak speed; with strong nonlinearity the oscillation moves
+   into harmonics and slower motion, and the fundamental alone understates it) and
+   the lowest speed (the models have no standstill: a negative speed is flagged).
+   Note that ``asymmetric`` is positively
    homogeneous (a gain and a time scale per sign): about an equilibrium with zero
    command its amplification does not depend on ``A`` either, although it differs
    from each side's linearisation.
@@ -232,6 +236,12 @@ class EffectStability:
     speed, the leader first), ``amplification`` (shape ``(n_amp, n_cars)``, car ``i``
     over car ``i-1``; NaN where a car diverged), ``half_range`` (half the
     peak-to-peak speed over the measurement window, harmonics included).
+    ``range_amplification``: the same ratio of ``half_range`` (what a driver sees:
+    with strong nonlinearity the oscillation moves into harmonics and slower
+    components, so the two ratios differ; for a linear model both are ``|H(jw)|``).
+    ``min_speed`` (shape ``(n_amp, n_cars + 1)``): the lowest speed over the
+    measurement window; the lower-level models have no standstill, so a negative value
+    is flagged in ``notes`` (the simulation is not physical there).
     ``linear_gain``: ``|H(jw)|`` of the with-effects linearisation at ``omega``
     (side average), the value a linear model's amplification equals."""
 
@@ -249,6 +259,8 @@ class EffectStability:
     speed_amplitude: np.ndarray
     amplification: np.ndarray
     half_range: np.ndarray
+    range_amplification: np.ndarray
+    min_speed: np.ndarray
     linear_gain: float | None
     notes: tuple[str, ...] = field(default=())
 
@@ -274,6 +286,12 @@ class EffectStability:
         if not np.all(np.isfinite(self.amplification)):
             reasons["amplification"] = ("null where the car (or one ahead of it) diverged or "
                                         "its fundamental amplitude is zero")
+        if not np.all(np.isfinite(self.range_amplification)):
+            reasons["range_amplification"] = ("null where the car (or one ahead of it) "
+                                              "diverged or did not move")
+        if not np.all(np.isfinite(self.speed_amplitude)):
+            reasons["speed_amplitude"] = "null for the cars behind a diverged car"
+            reasons["half_range"] = reasons["min_speed"] = reasons["speed_amplitude"]
         if self.linear_gain is None:
             reasons["linear_gain"] = "the model with effects has no small-signal form"
         return {
@@ -291,6 +309,8 @@ class EffectStability:
             "amplification": arr(self.amplification),
             "mean_amplification": arr(self.mean_amplification()),
             "half_range": arr(self.half_range),
+            "range_amplification": arr(self.range_amplification),
+            "min_speed": arr(self.min_speed),
             "notes": list(self.notes),
             "null_reasons": reasons,
         }  # fmt: skip
@@ -318,10 +338,12 @@ class EffectStability:
         ax1.legend(fontsize=7)
         cars = np.arange(n_cars + 1)
         for k, a in enumerate(self.amplitudes):
-            ax2.plot(cars, self.speed_amplitude[k] / a, "o-", ms=3, label=f"A = {a:g} m/s")
+            (ln,) = ax2.plot(cars, self.speed_amplitude[k] / a, "o-", ms=3,
+                             label=f"A = {a:g} m/s")  # fmt: skip
+            ax2.plot(cars, self.half_range[k] / a, "--", color=ln.get_color(), lw=1)
         ax2.set_yscale("log")
         ax2.set_xlabel("car (0 = leader)")
-        ax2.set_ylabel("speed amplitude / A")
+        ax2.set_ylabel("speed fundamental (—) and half range (--) / A")
         ax2.legend(fontsize=7)
         return fig
 
@@ -424,11 +446,13 @@ def effect_stability(
     n_amp = amps.size
     speed_amp = np.full((n_amp, n_cars + 1), np.nan)
     half = np.full((n_amp, n_cars + 1), np.nan)
+    vmin = np.full((n_amp, n_cars + 1), np.nan)
     for k, a in enumerate(amps):
         lv = v0 + a * ramp * np.sin(omega * t)
         lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
         speed_amp[k, 0] = _fit_amplitude(t[meas], lv[meas], omega)
         half[k, 0] = 0.5 * float(np.ptp(lv[meas]))
+        vmin[k, 0] = float(lv[meas].min())
         for i in range(1, n_cars + 1):
             gap = upper.Gmin + upper.Tg * v0
             tr = closed_loop_effects(model, lx, lv, dt, upper, v0=v0, x0=float(lx[0] - gap),
@@ -438,6 +462,7 @@ def effect_stability(
                 break
             speed_amp[k, i] = _fit_amplitude(t[meas], tr.v[meas], omega)
             half[k, i] = 0.5 * float(np.ptp(tr.v[meas]))
+            vmin[k, i] = float(tr.v[meas].min())
             lx, lv = tr.x, tr.v
     # A car whose fundamental amplitude is below 1e-6 A did not oscillate (e.g. a
     # dead band swallowed the disturbance): the ratio behind it is undefined.
@@ -446,11 +471,22 @@ def effect_stability(
     with np.errstate(invalid="ignore", divide="ignore"):
         ampl = np.where(ok, speed_amp[:, 1:] / np.where(ok, prev, 1.0), np.nan)
     ampl[~np.isfinite(ampl)] = np.nan
+    hprev = half[:, :-1]
+    hok = np.isfinite(hprev) & (hprev > 1e-6 * amps[:, None])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rampl = np.where(hok, half[:, 1:] / np.where(hok, hprev, 1.0), np.nan)
+    rampl[~np.isfinite(rampl)] = np.nan
+    for k, a in enumerate(amps):
+        neg = np.flatnonzero(vmin[k, 1:] < 0)
+        if neg.size:
+            notes.append(f"A={a:g} m/s: car {int(neg[0]) + 1} reaches a negative speed "
+                         f"({vmin[k, 1 + neg[0]]:.3g} m/s; the model has no standstill)")
     return EffectStability(
         model=model.name, effects=names,
         amplitude_dependent=tuple(e for e in names if e in AMPLITUDE_DEPENDENT),
         upper=upper, v0=float(v0), omega=omega, dt=float(dt), warm_periods=warm_periods,
         measure_periods=measure_periods, linear=tuple(entries), amplitudes=amps,
         speed_amplitude=speed_amp, amplification=ampl, half_range=half,
+        range_amplification=rampl, min_speed=vmin,
         linear_gain=lin_gain, notes=tuple(notes),
     )  # fmt: skip
