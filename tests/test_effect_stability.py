@@ -175,7 +175,15 @@ def test_bad_arguments() -> None:
     with pytest.raises(ValueError, match="amplitudes"):
         effect_stability(SECOND, UP, amplitudes=())
     with pytest.raises(TypeError, match="upper"):
-        effect_stability(SECOND, {"kg": 0.2})  # type: ignore[arg-type]
+        effect_stability(SECOND, [0.2, 0.3, 1.5])  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="upper"):
+        effect_stability(SECOND, {"kg": 0.2})
+    with pytest.raises(ValueError, match="upper"):
+        effect_stability(SECOND, {"kg": 0.2, "Tg": 1.5, "tau": 1.0})
+    # a dict as in LoopResult.to_dict()["upper"] works
+    d = effect_stability(SECOND, {"kg": 0.2, "kv": 0.3, "Tg": 1.5, "Gmin": 9.5},
+                         amplitudes=(0.5,), n_cars=1, thresholds=False)  # fmt: skip
+    assert d.upper == UP
     with pytest.raises(ValueError, match="period"):
         effect_stability(SECOND, UP, period="worst")
     with pytest.raises(TypeError, match="n_cars"):

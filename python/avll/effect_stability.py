@@ -355,9 +355,22 @@ def _fit_amplitude(t: np.ndarray, v: np.ndarray, omega: float) -> float:
     return float(math.hypot(coef[2], coef[3]))
 
 
+def _upper_arg(upper: Any) -> UpperLevel:
+    if isinstance(upper, UpperLevel):
+        return upper
+    if isinstance(upper, Mapping):
+        unknown = set(upper) - {"kg", "kv", "Tg", "Gmin"}
+        if unknown:
+            raise ValueError(f"upper: unknown keys {sorted(unknown)} (kg, kv, Tg, Gmin)")
+        if "kg" not in upper or "Tg" not in upper:
+            raise ValueError("upper: needs at least 'kg' and 'Tg'")
+        return UpperLevel(**{k: check_number(v, f"upper[{k!r}]") for k, v in upper.items()})
+    raise TypeError(f"upper: expected an avll.UpperLevel or a dict, got {type(upper).__name__}")
+
+
 def effect_stability(
     model: WithEffects | LowerLevelModel,
-    upper: UpperLevel,
+    upper: UpperLevel | Mapping[str, float],
     *,
     v0: float = 15.0,
     amplitudes: Sequence[float] = (0.1, 0.5, 1.0, 2.0, 4.0),
@@ -373,9 +386,11 @@ def effect_stability(
     tg_range: tuple[float, float] = (0.0, 15.0),
 ) -> EffectStability:
     """The stability of ``model`` (a base model or base + effects) under the
-    constant-time-gap ``upper`` level, linearised at ``v0`` (m/s) and simulated in
-    the time domain for leader speed amplitudes ``amplitudes`` (m/s) with ``n_cars``
-    followers (see the module doc for the method).
+    constant-time-gap ``upper`` level (an :class:`avll.UpperLevel` or a dict with
+    ``kg``, ``Tg`` and optionally ``kv``, ``Gmin``, as in ``LoopResult.to_dict()``),
+    linearised at ``v0`` (m/s) and simulated in the time domain for leader speed
+    amplitudes ``amplitudes`` (m/s) with ``n_cars`` followers (see the module doc for
+    the method).
 
     ``period``: the disturbance period in s, or ``"peak"`` for the frequency of the
     largest ``|H(jw)|`` of the linearised model with effects (base model if none)
@@ -387,8 +402,7 @@ def effect_stability(
         model = WithEffects(model, ())
     if not isinstance(model, WithEffects):
         raise TypeError(f"model: expected a model or WithEffects, got {type(model).__name__}")
-    if not isinstance(upper, UpperLevel):
-        raise TypeError(f"upper: expected an avll.UpperLevel, got {type(upper).__name__}")
+    upper = _upper_arg(upper)
     v0 = check_number(v0, "v0", positive=True)
     dt = check_number(dt, "dt", positive=True)
     n_cars = check_int(n_cars, "n_cars", min=1, max=200)
