@@ -150,6 +150,20 @@ def test_speed_drag_is_linearised_with_its_speed_feedback() -> None:
     assert eff.gain_at_omega < r.linear[0].gain_at_omega  # drag damps
 
 
+def test_growing_oscillation_is_flagged() -> None:
+    # Locally unstable gains (code 0): the oscillation grows; the result says so
+    # instead of presenting the ratio as a steady amplification.
+    up = avll.UpperLevel(kg=0.5, kv=0.0, Tg=4.0)
+    r = effect_stability(PROPOSED, up, amplitudes=(0.5,), n_cars=2, thresholds=False,
+                         progress=True)  # fmt: skip
+    assert r.linear[0].code == 0
+    assert r.drift[0, 1] > 0.05
+    assert any("not in a steady oscillation" in n for n in r.notes)
+    # a stable linear case has no drift
+    ok = effect_stability(SECOND, UP, amplitudes=(0.5,), n_cars=2, thresholds=False)
+    assert np.all(np.abs(ok.drift) < 1e-3) and not ok.notes
+
+
 def test_to_dict_is_strict_json_and_plot() -> None:
     pytest.importorskip("matplotlib")
     import matplotlib

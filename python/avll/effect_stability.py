@@ -75,6 +75,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "AMPLITUDE_DEPENDENT",
     "OMEGA_GRID",
+    "DRIFT_TOL",
     "LinearStability",
     "EffectStability",
     "effect_stability",
@@ -85,6 +86,9 @@ __all__ = [
 AMPLITUDE_DEPENDENT: frozenset[str] = frozenset(
     {"saturation", "power_limit", "rate_limit", "asymmetric", "deadband"}
 )
+#: Largest relative change of a car's fitted fundamental between the two halves of
+#: the measurement window that still counts as a steady oscillation.
+DRIFT_TOL = 0.05
 #: Frequencies (rad/s) over which the peak ``|H(jw)|`` is sampled.
 OMEGA_GRID: np.ndarray = np.logspace(-3, math.log10(30.0), 2000)
 
@@ -242,6 +246,11 @@ class EffectStability:
     ``min_speed`` (shape ``(n_amp, n_cars + 1)``): the lowest speed over the
     measurement window; the lower-level models have no standstill, so a negative value
     is flagged in ``notes`` (the simulation is not physical there).
+    ``drift`` (shape ``(n_amp, n_cars + 1)``): the fundamental amplitude fitted on the
+    second half of the measurement window over the first half's, minus 1; beyond
+    ``DRIFT_TOL`` in magnitude the car is not in a steady oscillation (e.g. a locally
+    unstable loop that grows) and ``notes`` says so: its amplification then describes
+    growth, not a steady ratio.
     ``linear_gain``: ``|H(jw)|`` of the with-effects linearisation at ``omega``
     (side average), the value a linear model's amplification equals."""
 
@@ -261,6 +270,7 @@ class EffectStability:
     half_range: np.ndarray
     range_amplification: np.ndarray
     min_speed: np.ndarray
+    drift: np.ndarray
     linear_gain: float | None
     notes: tuple[str, ...] = field(default=())
 
@@ -311,6 +321,7 @@ class EffectStability:
             "half_range": arr(self.half_range),
             "range_amplification": arr(self.range_amplification),
             "min_speed": arr(self.min_speed),
+            "drift": arr(self.drift),
             "notes": list(self.notes),
             "null_reasons": reasons,
         }  # fmt: skip
@@ -384,6 +395,7 @@ def effect_stability(
     kg_range: tuple[float, float] = (1e-3, 2.0),
     kv_range: tuple[float, float] = (0.0, 1.2),
     tg_range: tuple[float, float] = (0.0, 15.0),
+    progress: bool = False,
 ) -> EffectStability:
     """The stability of ``model`` (a base model or base + effects) under the
     constant-time-gap ``upper`` level (an :class:`avll.UpperLevel` or a dict with
@@ -397,7 +409,8 @@ def effect_stability(
     between periods of 4 and 60 s. ``warm_periods`` periods are simulated before the
     ``measure_periods`` whose fundamental amplitude is fitted. ``thresholds=False``
     skips the (slower, ~1 s each) extrema searches; ``kg_range``, ``kv_range`` and
-    ``tg_range`` are their boxes (the paper's: Tg in [0, 15] s)."""
+    ``tg_range`` are their boxes (the paper's: Tg in [0, 15] s). ``progress=True``
+    shows a tqdm bar over the simulated cars; Ctrl-C stops between two cars."""
     if isinstance(model, LowerLevelModel):
         model = WithEffects(model, ())
     if not isinstance(model, WithEffects):
@@ -461,23 +474,43 @@ def effect_stability(
     speed_amp = np.full((n_amp, n_cars + 1), np.nan)
     half = np.full((n_amp, n_cars + 1), np.nan)
     vmin = np.full((n_amp, n_cars + 1), np.nan)
-    for k, a in enumerate(amps):
-        lv = v0 + a * ramp * np.sin(omega * t)
-        lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
-        speed_amp[k, 0] = _fit_amplitude(t[meas], lv[meas], omega)
-        half[k, 0] = 0.5 * float(np.ptp(lv[meas]))
-        vmin[k, 0] = float(lv[meas].min())
-        for i in range(1, n_cars + 1):
-            gap = upper.Gmin + upper.Tg * v0
-            tr = closed_loop_effects(model, lx, lv, dt, upper, v0=v0, x0=float(lx[0] - gap),
-                                     exo=exo)  # fmt: skip
-            if not (np.all(np.isfinite(tr.v)) and np.all(np.isfinite(tr.x))):
-                notes.append(f"A={a:g} m/s: car {i} diverged")
-                break
-            speed_amp[k, i] = _fit_amplitude(t[meas], tr.v[meas], omega)
-            half[k, i] = 0.5 * float(np.ptp(tr.v[meas]))
-            vmin[k, i] = float(tr.v[meas].min())
-            lx, lv = tr.x, tr.v
+    drift = np.full((n_amp, n_cars + 1), np.nan)
+    tm = t[meas]
+    first_half = tm < tm[0] + 0.5 * (tm[-1] - tm[0] + dt)
+
+    def fit(v: np.ndarray) -> tuple[float, float]:
+        vm = v[meas]
+        a1 = _fit_amplitude(tm[first_half], vm[first_half], omega)
+        a2 = _fit_amplitude(tm[~first_half], vm[~first_half], omega)
+        return _fit_amplitude(tm, vm, omega), (a2 / a1 - 1.0 if a1 > 0 else math.nan)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n_amp * n_cars, desc="platoon", unit="car", leave=False)
+    try:
+        for k, a in enumerate(amps):
+            lv = v0 + a * ramp * np.sin(omega * t)
+            lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
+            speed_amp[k, 0], drift[k, 0] = fit(lv)
+            half[k, 0] = 0.5 * float(np.ptp(lv[meas]))
+            vmin[k, 0] = float(lv[meas].min())
+            for i in range(1, n_cars + 1):
+                gap = upper.Gmin + upper.Tg * v0
+                tr = closed_loop_effects(model, lx, lv, dt, upper, v0=v0, x0=float(lx[0] - gap),
+                                         exo=exo)  # fmt: skip
+                if not (np.all(np.isfinite(tr.v)) and np.all(np.isfinite(tr.x))):
+                    notes.append(f"A={a:g} m/s: car {i} diverged")
+                    break
+                speed_amp[k, i], drift[k, i] = fit(tr.v)
+                half[k, i] = 0.5 * float(np.ptp(tr.v[meas]))
+                vmin[k, i] = float(tr.v[meas].min())
+                lx, lv = tr.x, tr.v
+                if bar is not None:
+                    bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
     # A car whose fundamental amplitude is below 1e-6 A did not oscillate (e.g. a
     # dead band swallowed the disturbance): the ratio behind it is undefined.
     prev = speed_amp[:, :-1]
@@ -491,6 +524,12 @@ def effect_stability(
         rampl = np.where(hok, half[:, 1:] / np.where(hok, hprev, 1.0), np.nan)
     rampl[~np.isfinite(rampl)] = np.nan
     for k, a in enumerate(amps):
+        moving = np.flatnonzero(np.abs(drift[k, 1:]) > DRIFT_TOL)
+        if moving.size:
+            i = int(moving[0]) + 1
+            notes.append(f"A={a:g} m/s: car {i} is not in a steady oscillation (fundamental "
+                         f"{100 * drift[k, i]:+.0f} % from the first to the second half of "
+                         "the window)")
         neg = np.flatnonzero(vmin[k, 1:] < 0)
         if neg.size:
             notes.append(f"A={a:g} m/s: car {int(neg[0]) + 1} reaches a negative speed "
@@ -501,6 +540,6 @@ def effect_stability(
         upper=upper, v0=float(v0), omega=omega, dt=float(dt), warm_periods=warm_periods,
         measure_periods=measure_periods, linear=tuple(entries), amplitudes=amps,
         speed_amplitude=speed_amp, amplification=ampl, half_range=half,
-        range_amplification=rampl, min_speed=vmin,
+        range_amplification=rampl, min_speed=vmin, drift=drift,
         linear_gain=lin_gain, notes=tuple(notes),
     )  # fmt: skip
