@@ -21,8 +21,9 @@
      maximum, not a certificate).
 
    ``speed_drag`` at ``v0 > 0`` adds ``c = 2 c2 v0`` to the speed feedback of the
-   plant (``a = G (u + K a) - c v``): no second-order form holds it, so only
-   ``|H(jw)|`` is given (with ``G_fb = G / (1 - K G + c/s)``), not the engine's
+   plant (``a = G (u + K a) - c v``; ``road_load``: the ``speed_feedback`` of
+   ``WithEffects.linear(terms=True)`` where the library has it): no second-order form
+   holds it, so only ``|H(jw)|`` is given (with ``G_fb = G / (1 - K G + c/s)``), not the engine's
    thresholds; a ``delay`` with ``K != 0`` is a factor ``e^{-tau s}`` outside the
    inner loop, handled the same way. An effect that has no linearisation at all is
    reported with the reason.
@@ -57,6 +58,7 @@ The result (:class:`EffectStability`) has :meth:`~EffectStability.to_dict`
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -101,6 +103,7 @@ class _SmallSignal:
     coeffs: dict[str, float]
     drag: float = 0.0
     tau: float = 0.0
+    observation: bool = False
 
 
 def frequency_response(
@@ -122,10 +125,26 @@ def frequency_response(
     return (upper.kv * s + upper.kg) * gfb / (s * s + gfb * (mu * s + upper.kg))
 
 
+_KEYS = ("b1", "b0", "a2", "a1", "Td", "K")
+
+
+def _lin(model: WithEffects, v0: float, side: int) -> tuple[dict[str, float], float, bool]:
+    """``(coeffs, speed_feedback, observation_only)`` of :meth:`WithEffects.linear`,
+    asking for the speed feedback of the resistances (``terms=True``) where this
+    version of the library offers it."""
+    if "terms" in inspect.signature(model.linear).parameters:
+        d = dict(model.linear(v=v0, side=side, terms=True))  # type: ignore[call-arg]
+        obs = bool(d.get("obs_tau", 0.0) or d.get("obs_bias", 0.0))
+        return {k: float(d[k]) for k in _KEYS}, float(d.get("speed_feedback", 0.0)), obs
+    d = dict(model.linear(v=v0, side=side))
+    return {k: float(d[k]) for k in _KEYS}, 0.0, False
+
+
 def _small_signal(model: WithEffects, v0: float, side: int) -> _SmallSignal:
     """The small-signal form; ``ValueError`` with the reason when there is none."""
     try:
-        return _SmallSignal(dict(model.linear(v=v0, side=side)))
+        coeffs, beta, obs = _lin(model, v0, side)
+        return _SmallSignal(coeffs, beta, 0.0, obs)
     except ValueError as first:
         drag, tau, rest = 0.0, 0.0, []
         for e in model.effects:
@@ -140,10 +159,10 @@ def _small_signal(model: WithEffects, v0: float, side: int) -> _SmallSignal:
         if drag == 0.0 and tau == 0.0:
             raise ValueError(str(first)) from None
         try:
-            lin = WithEffects(model.base, tuple(rest)).linear(v=v0, side=side)
+            coeffs, beta, obs = _lin(WithEffects(model.base, tuple(rest)), v0, side)
         except ValueError as e:
             raise ValueError(str(e)) from None
-        return _SmallSignal(dict(lin), drag, tau)
+        return _SmallSignal(coeffs, drag + beta, tau, obs)
 
 
 def _none(x: float) -> float | None:
@@ -201,6 +220,9 @@ def _linear_entry(
                                           tau=ss.tau))[0])  # fmt: skip
     j = int(np.argmax(h))
     code = tg_at = tg_min = kv_thr = None
+    if ss.observation:
+        notes.append("sensor lag/bias act on the observed acceleration only: no effect on "
+                     "stability")
     if ss.drag or ss.tau:
         notes.append("speed feedback or outer command delay: the stability engine's "
                      "second-order form does not hold it; |H(jw)| only")
