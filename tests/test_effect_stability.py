@@ -203,3 +203,23 @@ def test_bad_arguments() -> None:
     with pytest.raises(TypeError, match="n_cars"):
         effect_stability(SECOND, UP, n_cars=1.5)  # type: ignore[arg-type]
     assert "saturation" in AMPLITUDE_DEPENDENT
+
+
+def test_speed_feedback_from_a_library_linear_with_terms(monkeypatch) -> None:
+    """Where ``WithEffects.linear`` offers ``terms=True`` (road_load's speed feedback),
+    that feedback is used as the drag of the small-signal form."""
+    from avll import effect_stability as es
+
+    base_lin = SECOND.linear()
+
+    def linear(self, *, v=0.0, side=0, terms=False):
+        if not terms:
+            raise ValueError("road_load: speed feedback")
+        return {**base_lin, "speed_feedback": 0.09, "obs_tau": 0.0, "obs_bias": 0.0}
+
+    monkeypatch.setattr(WithEffects, "linear", linear)
+    ss = es._small_signal(WithEffects(SECOND, (Saturation(1.0, 1.0),)), 15.0, 0)
+    assert ss.drag == 0.09 and ss.tau == 0.0 and not ss.observation
+    want = np.abs(frequency_response(base_lin, UP, [0.3], drag=0.09))
+    got = np.abs(frequency_response(ss.coeffs, UP, [0.3], drag=ss.drag))
+    np.testing.assert_allclose(got, want)
