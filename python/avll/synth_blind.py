@@ -86,6 +86,7 @@ __all__ = [
     "BLIND_RUNS",
     "blind_experiment",
     "simulate_vehicle",
+    "simulate_platoon",
 ]
 
 G = 9.81
@@ -314,6 +315,39 @@ def simulate_vehicle(
     out["limited_share"] = limited / total
     out["shift_cut_share"] = cut / total
     return out
+
+
+def simulate_platoon(
+    params: Mapping[str, Any],
+    lead_x: np.ndarray,
+    lead_v: np.ndarray,
+    dt: float,
+    upper: UpperLevel,
+    n_cars: int,
+    *,
+    v0: float,
+    seed: int = 0,
+    substeps: int = 10,
+) -> dict[str, np.ndarray]:
+    """``n_cars`` identical vehicles of the module doc (full parameter dict
+    ``params``, e.g. ``{**DEFAULTS, **SCENARIOS["power_limit"]}``) behind a recorded
+    leader, car by car: each follows the previous car's true position and speed
+    through ``upper``, starting at ``v0`` and the equilibrium gap ``Gmin + Tg v0``
+    (actuators at rest). On a flat track. Returns ``v`` and ``x`` of shape
+    ``(n_cars, samples)``; a diverging car raises ``ValueError``."""
+    n_cars = check_int(n_cars, "n_cars", min=1)
+    seed = check_seed(seed)
+    p = {**DEFAULTS, **dict(params)}
+    lx, lv = np.asarray(lead_x, dtype=float), np.asarray(lead_v, dtype=float)
+    vs, xs = [], []
+    for i in range(n_cars):
+        gap = upper.Gmin + upper.Tg * v0
+        tr = simulate_vehicle(p, lx, lv, dt, upper, rng_latency=np.random.default_rng(
+            [seed, i, 1321]), substeps=substeps, v0=v0, x0=float(lx[0] - gap))  # fmt: skip
+        vs.append(tr["v"])
+        xs.append(tr["x"])
+        lx, lv = tr["x"], tr["v"]
+    return {"v": np.array(vs), "x": np.array(xs)}
 
 
 def blind_experiment(
