@@ -155,7 +155,7 @@ def truth_text(scenario: str, p: dict[str, Any]) -> str:
     """The scenario's effect in the library's units (from the generator's parameters)."""
     m = p["mass"]
     if scenario == "power_limit":
-        return f"a ≤ {p['power'] / m:.3g}/v m/s² (power {p['power']:.3g} W, mass {m:g} kg)"
+        return f"a ≤ {p['power'] / m:.3g}/v m/s² (power {p['power']:.0f} W, mass {m:g} kg)"
     if scenario == "brake_lag":
         return f"brake lag {p['brake_lag']:g} s, drive lag {p['drive_lag']:g} s"
     if scenario == "gear_shift":

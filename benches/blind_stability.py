@@ -67,6 +67,10 @@ def _f(x: Any, fmt: str = ".4g") -> str:
     return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
+def _params(d: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in d.items())
+
+
 def _gm(a: np.ndarray) -> np.ndarray:
     return np.exp(np.mean(np.log(a), axis=1))
 
@@ -82,8 +86,9 @@ def case(scenario: str) -> list[str]:
     lines = [
         f"### {scenario}",
         "",
-        f"Baseline fit `{res.baseline.base}`; final model `{res.final.name}` "
-        f"({'; '.join(f'{e.name} {e.to_dict()}' for e in res.final.effects) or 'no effect'}).",
+        f"Baseline fit `{res.baseline.base.name}` ({_params(res.baseline.base.to_dict())}); "
+        f"final model `{res.final.name}` ({_params(res.final.base.to_dict())}; "
+        + "; ".join(f"{e.name} {_params(e.to_dict())}" for e in res.final.effects) + ").",
         "",
         "| model | linearisation | code at the gains | \\|H(jω)\\| | smallest stable Tg at "
         "kg, kv (s) | min stable Tg over the box (s) | kv threshold over the box |",
