@@ -147,8 +147,9 @@ def test_sensor_bias_and_lag() -> None:
 
 def test_ar1_noise_has_the_declared_autocorrelation_and_size() -> None:
     ov = {"quantization_a": 0.0}
-    clean = blind_experiment("clean", seed=2, overrides=ov)
-    noisy = blind_experiment("noise_ar1", seed=2, overrides=ov)
+    runs = (1, 3, 8, 15)
+    clean = blind_experiment("clean", seed=2, runs=runs, overrides=ov)
+    noisy = blind_experiment("noise_ar1", seed=2, runs=runs, overrides=ov)
     e = [n.a - c.a for n, c in zip(noisy, clean, strict=True)]
     phi, sigma = SCENARIOS["noise_ar1"]["ar1_phi"], SCENARIOS["noise_ar1"]["ar1_sigma"]
     lag1 = np.mean([np.corrcoef(x[1:], x[:-1])[0, 1] for x in e])
