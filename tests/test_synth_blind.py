@@ -3,6 +3,7 @@ each effect, and the diagnosis loop on two of its scenarios."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -56,6 +57,7 @@ def test_runs_follow_the_conventions() -> None:
         truth = r.meta["truth"]
         assert truth["scenario"] == "grade" and truth["acceptable"] == ["grade"]
         assert truth["params"]["grade_rms"] == SCENARIOS["grade"]["grade_rms"]
+        json.dumps(r.meta, allow_nan=False)  # strict-JSON metadata
     assert set(ACCEPTABLE) == set(SCENARIOS)
 
 
