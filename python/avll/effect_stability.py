@@ -21,12 +21,12 @@
      maximum, not a certificate).
 
    ``speed_drag`` at ``v0 > 0`` adds ``c = 2 c2 v0`` to the speed feedback of the
-   plant (``a = G (u + K a) - c v``; ``road_load``: the ``speed_feedback`` of
-   ``WithEffects.linear(terms=True)`` where the library has it): no second-order form
-   holds it, so only ``|H(jw)|`` is given (with ``G_fb = G / (1 - K G + c/s)``), not the engine's
-   thresholds; a ``delay`` with ``K != 0`` is a factor ``e^{-tau s}`` outside the
-   inner loop, handled the same way. An effect that has no linearisation at all is
-   reported with the reason.
+   plant (``a = G (u + K a) - c v``; for ``road_load`` the ``speed_feedback`` of
+   ``WithEffects.linear(terms=True)``, where the library has it): no second-order
+   form holds it, so only ``|H(jw)|`` is given (``G_fb = G / (1 - K G + c/s)``), not
+   the engine's thresholds; a ``delay`` with ``K != 0`` is a factor ``e^{-tau s}``
+   outside the inner loop, handled the same way. An effect that has no linearisation
+   at all is reported with the reason.
 
 2. **In the time domain** (amplitude-dependent effects: ``saturation``,
    ``power_limit``, ``rate_limit``, ``asymmetric``, ``deadband``, but computed for
@@ -44,13 +44,14 @@
    error of evaluating the upper law at the samples); an amplitude-dependent effect
    makes it depend on ``A``. A car whose trajectory diverges (NaN) and every car
    behind it have no amplification. Also reported: the ratio of the half ranges
-   (half the peak-to-peak speed; with strong nonlinearity the oscillation moves
-   into harmonics and slower motion, and the fundamental alone understates it) and
-   the lowest speed (the models have no standstill: a negative speed is flagged).
-   Note that ``asymmetric`` is positively
-   homogeneous (a gain and a time scale per sign): about an equilibrium with zero
-   command its amplification does not depend on ``A`` either, although it differs
-   from each side's linearisation.
+   (half the peak-to-peak speed; with strong nonlinearity the oscillation moves into
+   harmonics and slower motion, and the fundamental alone understates it), the
+   lowest speed (the models have no standstill: a negative speed is flagged) and the
+   drift of each car's fundamental between the two halves of the window (a car that
+   is not in a steady oscillation, e.g. a growing one, is flagged). ``asymmetric`` is
+   positively homogeneous (a gain and a time scale per sign): about an equilibrium
+   with zero command its amplification does not depend on ``A`` either, although it
+   differs from each side's linearisation.
 
 The result (:class:`EffectStability`) has :meth:`~EffectStability.to_dict`
 (strict JSON) and :meth:`~EffectStability.plot`.
