@@ -3,6 +3,7 @@ each effect, and the diagnosis loop on two of its scenarios."""
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 
@@ -191,6 +192,15 @@ def test_delay_jitter_only_adds_latency() -> None:
 # --- the loop on the generator --------------------------------------------
 
 
+def _loop_kwargs() -> dict:
+    """Seed 1, and a small GA budget where the loop exposes one (``maxiter``,
+    ``starts``), so that the cross-validated loop stays within the time of a test."""
+    params = inspect.signature(effect_loop).parameters
+    kw: dict = {"seed": 1}
+    kw.update({k: v for k, v in (("maxiter", 150), ("starts", 1)) if k in params})
+    return kw
+
+
 def _split(scenario: str) -> tuple[list, list, list]:
     runs = blind_experiment(scenario, seed=0)
     return runs[:4], runs[4:6], runs[6:]
@@ -200,7 +210,7 @@ def test_loop_accepts_nothing_on_coloured_noise_only() -> None:
     """The false-positive control: AR(1) measurement noise (phi 0.95, sigma 0.08)
     on an effect-free vehicle gets no effect."""
     cal, val, _ = _split("noise_ar1")
-    res = effect_loop("second", cal, val, seed=1)
+    res = effect_loop("second", cal, val, **_loop_kwargs())
     assert res.steps == []
 
 
@@ -210,7 +220,7 @@ def test_loop_finds_asymmetric_for_a_slow_brake() -> None:
     class; the library's form is a time scale of the whole model while braking),
     and the gain holds on test runs it never saw."""
     cal, val, test = _split("brake_lag")
-    res = effect_loop("second", cal, val, seed=1)
+    res = effect_loop("second", cal, val, **_loop_kwargs())
     assert [s.effect for s in res.steps] == ["asymmetric"]
     assert res.steps[0].params["rb"] > 1.2  # slower while braking
     before = float(np.mean(run_mse(res.baseline, test)))
