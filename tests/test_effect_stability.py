@@ -223,3 +223,35 @@ def test_speed_feedback_from_a_library_linear_with_terms(monkeypatch) -> None:
     want = np.abs(frequency_response(base_lin, UP, [0.3], drag=0.09))
     got = np.abs(frequency_response(ss.coeffs, UP, [0.3], drag=ss.drag))
     np.testing.assert_allclose(got, want)
+
+
+def _needs(*names: str) -> None:
+    from avll.effects import EFFECTS
+
+    missing = [n for n in names if n not in EFFECTS]
+    if missing:
+        pytest.skip(f"this library has no {missing} effect")
+
+
+def test_vehicle_effects_road_load_power_limit_sensor() -> None:
+    """The effects of real vehicles (when the library has them): road_load enters as
+    the speed feedback c1 + 2 c2 v0 (|H| only, matched by the simulation); the power
+    limit is the identity for small signals and caps the first follower at large
+    amplitude; the sensor changes nothing (observation only)."""
+    _needs("road_load", "power_limit", "sensor")
+    from avll.effects import effect_class
+
+    v0 = 12.0
+    rl = WithEffects(SECOND, (effect_class("road_load")(c0=0.1, c1=0.005, c2=0.0003),))
+    r = effect_stability(rl, UP, v0=v0, amplitudes=(0.1, 1.0), n_cars=2, thresholds=False)
+    assert r.linear[1].drag == pytest.approx(0.005 + 2 * 0.0003 * v0)
+    np.testing.assert_allclose(r.amplification, r.linear[1].gain_at_omega, rtol=1e-2)
+    pl = WithEffects(SECOND, (effect_class("power_limit")(p=8.0, v_b=2.0),))
+    r = effect_stability(pl, UP, v0=v0, amplitudes=(0.1, 3.0), n_cars=1, thresholds=False)
+    assert r.amplification[0, 0] == pytest.approx(r.linear[0].gain_at_omega, rel=1e-2)
+    assert r.amplification[1, 0] < 0.95 * r.amplification[0, 0]
+    se = WithEffects(SECOND, (effect_class("sensor")(tau=0.3, bias=0.1),))
+    r = effect_stability(se, UP, v0=v0, amplitudes=(1.0,), n_cars=1, thresholds=False)
+    base = effect_stability(SECOND, UP, v0=v0, amplitudes=(1.0,), n_cars=1, thresholds=False)
+    np.testing.assert_allclose(r.amplification, base.amplification, rtol=1e-9)
+    assert any("observed" in n for n in r.linear[1].notes)
