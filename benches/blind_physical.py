@@ -245,7 +245,8 @@ def summary(rows: list[dict[str, Any]]) -> list[str]:
         f"{', '.join(d['scenario'] for d in controls)})",
     ]
     lines += [f"* {d['scenario']}: {REMARKS[d['scenario']]}" for d in rows
-              if d["scenario"] in REMARKS]  # fmt: skip
+              if d["scenario"] in REMARKS
+              and not (d["scenario"] == "sensor" and "sensor" in EFFECTS)]  # fmt: skip
     clean = next((d for d in rows if d["scenario"] == "clean"), None)
     if clean is not None and len(rows) > 1:
         ref = clean["val_mse"][0]
