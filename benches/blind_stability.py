@@ -1,0 +1,166 @@
+"""Do the loop's findings fix the stability conclusions? Writes
+docs/_generated/blind_stability.md.
+
+For a scenario of the physical generator :mod:`avll.synth_blind` the diagnosis loop
+(``effect_loop('second', ...)``, calibration runs 1, 3, 8, 15, validation 12, 19)
+gives a baseline fit (no effect) and a final model (with the accepted effects). Both
+go through :func:`avll.effect_stability.effect_stability`; the *true* vehicle
+(:func:`avll.synth_blind.simulate_platoon`, the same leader, the same fit of the
+speed fundamental over the same window) gives the amplification the models should
+predict. The linearised thresholds exist only for the models.
+
+    python benches/blind_stability.py            # ~2 min
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import avll
+from avll.diagnose import effect_loop
+from avll.effect_stability import EffectStability, effect_stability
+from avll.synth_blind import DEFAULTS, SCENARIOS, blind_experiment, simulate_platoon
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "docs" / "_generated" / "blind_stability.md"
+CMD = "python benches/blind_stability.py"
+UPPER = avll.UpperLevel(kg=0.2, kv=0.3, Tg=1.5)
+V0 = 12.0  # inside the speed range of the runs
+AMPS = (0.1, 0.5, 1.0, 2.0, 3.0)
+N_CARS = 4
+SCENARIO_LIST = ("power_limit", "brake_lag")
+
+
+def _fund(t: np.ndarray, v: np.ndarray, omega: float) -> float:
+    x = np.column_stack([np.ones_like(t), t - t.mean(), np.sin(omega * t), np.cos(omega * t)])
+    c, *_ = np.linalg.lstsq(x, v, rcond=None)
+    return float(math.hypot(c[2], c[3]))
+
+
+def truth_amplification(scenario: str, r: EffectStability) -> np.ndarray:
+    """Per-car amplification of the true vehicles, same leader and method as ``r``."""
+    per, om, dt = r.period, r.omega, r.dt
+    n = int(math.ceil((r.warm_periods + r.measure_periods) * per / dt)) + 1
+    t = np.arange(n) * dt
+    ramp = np.where(t < per, 0.5 * (1 - np.cos(np.pi * t / per)), 1.0)
+    meas = (t >= r.warm_periods * per) & (t < (r.warm_periods + r.measure_periods) * per)
+    p = {**DEFAULTS, **SCENARIOS[scenario]}
+    out = np.full((len(r.amplitudes), N_CARS), np.nan)
+    for k, a in enumerate(r.amplitudes):
+        lv = V0 + a * ramp * np.sin(om * t)
+        lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
+        pl = simulate_platoon(p, lx, lv, dt, UPPER, N_CARS, v0=V0)
+        amp = [_fund(t[meas], lv[meas], om)] + [_fund(t[meas], v[meas], om) for v in pl["v"]]
+        out[k] = np.array(amp[1:]) / np.array(amp[:-1])
+    return out
+
+
+def _f(x: Any, fmt: str = ".4g") -> str:
+    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
+
+
+def _params(d: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in d.items())
+
+
+def _gm(a: np.ndarray) -> np.ndarray:
+    return np.exp(np.mean(np.log(a), axis=1))
+
+
+def case(scenario: str) -> list[str]:
+    """One scenario's section."""
+    runs = blind_experiment(scenario, seed=0)
+    res = effect_loop("second", runs[:4], runs[4:6], seed=1)
+    kw: dict[str, Any] = {"v0": V0, "amplitudes": AMPS, "n_cars": N_CARS, "period": 20.0}
+    rb = effect_stability(res.baseline, UPPER, **kw)
+    rf = effect_stability(res.final, UPPER, **kw)
+    tr = truth_amplification(scenario, rf)
+    lines = [
+        f"### {scenario}",
+        "",
+        f"Baseline fit `{res.baseline.base.name}` ({_params(res.baseline.base.to_dict())}); "
+        f"final model `{res.final.name}` ({_params(res.final.base.to_dict())}; "
+        + "; ".join(f"{e.name} {_params(e.to_dict())}" for e in res.final.effects) + ").",
+        "",
+        "| model | linearisation | code at the gains | \\|H(jω)\\| | smallest stable Tg at "
+        "kg, kv (s) | min stable Tg over the box (s) | kv threshold over the box |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for who, r in (("baseline", rb), ("final", rf)):
+        for e in r.linear:
+            if who == "final" and e.label == "base":
+                label = "base part only"
+            else:
+                label = e.label
+            lines.append(f"| {who} | {label} | {_f(e.code, 'd')} | {_f(e.gain_at_omega)} | "
+                         f"{_f(e.tg_min_at_gains, '.3f')} | {_f(e.min_stable_tg, '.3f')} | "
+                         f"{_f(e.kv_threshold, '.4f')} |")  # fmt: skip
+    lines += [
+        "",
+        "Amplification (speed fundamental, car i / car i−1; geometric mean over the "
+        f"{N_CARS} followers, then per car for the final model and the truth):",
+        "",
+        "| A (m/s) | baseline | final | true vehicle | final, per car | true vehicle, per car |",
+        "|---|---|---|---|---|---|",
+    ]
+    gb, gf, gt = _gm(rb.amplification), _gm(rf.amplification), _gm(tr)
+    for k, a in enumerate(AMPS):
+        lines.append(
+            f"| {a:g} | {_f(float(gb[k]))} | {_f(float(gf[k]))} | {_f(float(gt[k]))} | "
+            f"{', '.join(_f(float(x), '.3f') for x in rf.amplification[k])} | "
+            f"{', '.join(_f(float(x), '.3f') for x in tr[k])} |"
+        )
+    notes = [*rb.notes, *rf.notes]
+    if notes:
+        lines += ["", "Notes: " + "; ".join(notes)]
+    return lines
+
+
+def render() -> str:
+    """The generated fragment."""
+    try:
+        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+                                capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = "unknown"
+    lines = [
+        f"<!-- generated by `{CMD}`; do not edit by hand -->",
+        f"*Generated by `{CMD}` with avll {avll.__version__} (git {commit}).*",
+        "",
+        f"Upper level kg = {UPPER.kg:g}, kv = {UPPER.kv:g}, Tg = {UPPER.Tg:g} s, "
+        f"v0 = {V0:g} m/s, disturbance period 20 s, {N_CARS} followers; data seed 0, loop "
+        "seed 1. Codes: 0 locally unstable, 1 string unstable, 2 stable (Padé order 2).",
+        "",
+    ]
+    for sc in SCENARIO_LIST:
+        lines += case(sc) + [""]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    """Writes the fragment atomically and prints it."""
+    text = render()
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=OUT.parent, prefix=".blind_stability.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, OUT)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    print(text)
+    print(f"wrote {OUT.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,568 @@
+"""What the effects do to the stability conclusions (issue 13, item 6).
+
+:func:`effect_stability` answers, for a lower-level model with effects
+(:class:`avll.WithEffects`) under a constant-time-gap upper level (paper Eq. 3):
+
+1. **Linearised** (every effect that has a small-signal form; the only answer for
+   smooth effects): the base model and the model with effects linearised at the
+   operating speed ``v0`` (:meth:`avll.WithEffects.linear`; for ``asymmetric`` on
+   the accelerating side, the braking side and their average) side by side, each
+   with
+
+   * the stability code at the given gains (:func:`avll.stability.stability_points`,
+     Padé order ``pade_order``; 0 locally unstable, 1 string unstable, 2 stable);
+   * the smallest stable ``Tg`` at the given ``kg, kv``
+     (:func:`avll.stability.stable_intervals`, string level);
+   * the paper's thresholds as true extrema: the minimum stable ``Tg`` over the
+     ``kg, kv`` box (:func:`avll.stability.min_stable_tg`) and the kv threshold
+     (:func:`avll.stability.kv_supremum`);
+   * ``|H(jw)|`` of Eq. 8 with the exact delay ``e^{-jw Td}`` at the disturbance
+     frequency and its peak over a frequency grid (``OMEGA_GRID``; a sampled
+     maximum, not a certificate).
+
+   ``speed_drag`` at ``v0 > 0`` adds ``c = 2 c2 v0`` to the speed feedback of the
+   plant (``a = G (u + K a) - c v``; for ``road_load`` the ``speed_feedback`` of
+   ``WithEffects.linear(terms=True)``, where the library has it): no second-order
+   form holds it, so only ``|H(jw)|`` is given (``G_fb = G / (1 - K G + c/s)``), not
+   the engine's thresholds; a ``delay`` with ``K != 0`` is a factor ``e^{-tau s}``
+   outside the inner loop, handled the same way. An effect that has no linearisation
+   at all is reported with the reason.
+
+2. **In the time domain** (amplitude-dependent effects: ``saturation``,
+   ``power_limit``, ``rate_limit``, ``asymmetric``, ``deadband``, but computed for
+   any model): a platoon of ``n_cars`` followers behind a leader whose speed is
+   ``v0 + A w(t) sin(w t)`` (``w(t)`` a raised-cosine ramp over the first period),
+   simulated car by car with the nonlinear effects
+   (:func:`avll.effects.closed_loop_effects`; follower ``i`` follows follower
+   ``i-1``'s simulated position and speed, starting at ``v0`` and the equilibrium gap
+   ``Gmin + Tg v0``). After ``warm_periods`` periods, the speed of every car over the
+   next ``measure_periods`` periods is fitted by least squares with
+   ``c0 + c1 t + s sin(w t) + c cos(w t)``; the **amplification of car i** is the
+   ratio of its fundamental amplitude ``sqrt(s² + c²)`` to car ``i-1``'s (car 0 the
+   leader; undefined, NaN, behind a car whose amplitude is below ``1e-6 A``). For a
+   linear model this is ``|H(jw)|`` whatever ``A`` (the tests check it, to the O(dt)
+   error of evaluating the upper law at the samples); an amplitude-dependent effect
+   makes it depend on ``A``. A car whose trajectory diverges (NaN) and every car
+   behind it have no amplification. Also reported: the ratio of the half ranges
+   (half the peak-to-peak speed; with strong nonlinearity the oscillation moves into
+   harmonics and slower motion, and the fundamental alone understates it), the
+   lowest speed (the models have no standstill: a negative speed is flagged) and the
+   drift of each car's fundamental between the two halves of the window (a car that
+   is not in a steady oscillation, e.g. a growing one, is flagged). ``asymmetric`` is
+   positively homogeneous (a gain and a time scale per sign): about an equilibrium
+   with zero command its amplification does not depend on ``A`` either, although it
+   differs from each side's linearisation.
+
+The result (:class:`EffectStability`) has :meth:`~EffectStability.to_dict`
+(strict JSON) and :meth:`~EffectStability.plot`.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ._limits import check_int, check_number
+from .effects import EFFECTS, WithEffects, closed_loop_effects, equivalent_model
+from .models import LowerLevelModel, UpperLevel
+from .stability import kv_supremum, min_stable_tg, stability_points, stable_intervals
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+__all__ = [
+    "AMPLITUDE_DEPENDENT",
+    "OMEGA_GRID",
+    "DRIFT_TOL",
+    "LinearStability",
+    "EffectStability",
+    "effect_stability",
+    "frequency_response",
+]
+
+#: Effects whose action depends on the size of the disturbance.
+AMPLITUDE_DEPENDENT: frozenset[str] = frozenset(
+    {"saturation", "power_limit", "rate_limit", "asymmetric", "deadband"}
+)
+#: Largest relative change of a car's fitted fundamental between the two halves of
+#: the measurement window that still counts as a steady oscillation.
+DRIFT_TOL = 0.05
+#: Frequencies (rad/s) over which the peak ``|H(jw)|`` is sampled.
+OMEGA_GRID: np.ndarray = np.logspace(-3, math.log10(30.0), 2000)
+
+
+@dataclass(frozen=True)
+class _SmallSignal:
+    """``G = (b1 s + b0) e^{-Td s} / (a2 s² + a1 s + 1)``, inner loop
+    ``G_fb = G / (1 - K G + c/s)``, then an outer command delay ``e^{-tau s}``."""
+
+    coeffs: dict[str, float]
+    drag: float = 0.0
+    tau: float = 0.0
+    observation: bool = False
+
+
+def frequency_response(
+    lin: Mapping[str, float], upper: UpperLevel, omega: Any, *, drag: float = 0.0,
+    tau: float = 0.0,
+) -> np.ndarray:
+    """``H(jw)`` of paper Eq. 8 with the exact delay, for the linear coefficients
+    ``lin`` (``b1, b0, a2, a1, Td, K`` as :meth:`avll.LowerLevelModel.linear`), an
+    optional speed feedback ``drag`` (``a = G (u + K a) - drag v``) and an outer command
+    delay ``tau``; complex array over ``omega`` (rad/s, > 0)."""
+    w = np.asarray(omega, dtype=np.float64)
+    if np.any(~np.isfinite(w)) or np.any(w <= 0):
+        raise ValueError("omega: frequencies must be finite and > 0")
+    s = 1j * w
+    g = (lin["b1"] * s + lin["b0"]) * np.exp(-lin["Td"] * s) / (lin["a2"] * s * s
+                                                                + lin["a1"] * s + 1.0)
+    gfb = g / (1.0 - lin["K"] * g + drag / s) * np.exp(-tau * s)
+    mu = upper.kv + upper.Tg * upper.kg
+    return (upper.kv * s + upper.kg) * gfb / (s * s + gfb * (mu * s + upper.kg))
+
+
+_KEYS = ("b1", "b0", "a2", "a1", "Td", "K")
+
+
+def _lin(model: WithEffects, v0: float, side: int) -> tuple[dict[str, float], float, bool]:
+    """``(coeffs, speed_feedback, observation_only)`` of :meth:`WithEffects.linear`,
+    asking for the speed feedback of the resistances (``terms=True``) where this
+    version of the library offers it."""
+    if "terms" in inspect.signature(model.linear).parameters:
+        d = dict(model.linear(v=v0, side=side, terms=True))  # type: ignore[call-arg]
+        obs = bool(d.get("obs_tau", 0.0) or d.get("obs_bias", 0.0))
+        return {k: float(d[k]) for k in _KEYS}, float(d.get("speed_feedback", 0.0)), obs
+    d = dict(model.linear(v=v0, side=side))
+    return {k: float(d[k]) for k in _KEYS}, 0.0, False
+
+
+def _small_signal(model: WithEffects, v0: float, side: int) -> _SmallSignal:
+    """The small-signal form; ``ValueError`` with the reason when there is none."""
+    try:
+        coeffs, beta, obs = _lin(model, v0, side)
+        return _SmallSignal(coeffs, beta, 0.0, obs)
+    except ValueError as first:
+        drag, tau, rest = 0.0, 0.0, []
+        for e in model.effects:
+            if e.name == "speed_drag":
+                # d/dv (c0 s(v) + c2 v|v|) away from the fade zone of s(v).
+                c0, c2 = float(e.to_dict()["c0"]), float(e.to_dict()["c2"])
+                drag += 2.0 * c2 * abs(v0) + (c0 / 0.1 if abs(v0) < 0.1 else 0.0)
+            elif e.name == "delay":
+                tau += float(e.to_dict()["tau"])
+            else:
+                rest.append(e)
+        if drag == 0.0 and tau == 0.0:
+            raise ValueError(str(first)) from None
+        try:
+            coeffs, beta, obs = _lin(WithEffects(model.base, tuple(rest)), v0, side)
+        except ValueError as e:
+            raise ValueError(str(e)) from None
+        return _SmallSignal(coeffs, drag + beta, tau, obs)
+
+
+def _none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class LinearStability:
+    """Stability of one linearisation (``label``: ``base``, ``with effects``,
+    ``with effects, accelerating`` or ``with effects, braking``). ``None`` fields
+    are explained in ``notes``. ``gain_at_omega`` is ``|H(jw)|`` at the disturbance
+    frequency; ``peak_gain`` / ``peak_omega`` the sampled maximum over
+    :data:`OMEGA_GRID`; ``code`` the map code at the given gains; ``tg_min_at_gains``
+    the smallest string-stable ``Tg`` at the given ``kg, kv``; ``min_stable_tg`` and
+    ``kv_threshold`` the extrema over the boxes given to :func:`effect_stability`."""
+
+    label: str
+    side: int
+    coeffs: dict[str, float] | None
+    drag: float
+    outer_delay: float
+    gain_at_omega: float | None
+    peak_gain: float | None
+    peak_omega: float | None
+    code: int | None
+    tg_min_at_gains: float | None
+    min_stable_tg: float | None
+    kv_threshold: float | None
+    notes: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary."""
+        return {
+            "label": self.label, "side": self.side, "coeffs": self.coeffs,
+            "drag": self.drag, "outer_delay": self.outer_delay,
+            "gain_at_omega": self.gain_at_omega, "peak_gain": self.peak_gain,
+            "peak_omega": self.peak_omega, "code": self.code,
+            "tg_min_at_gains": self.tg_min_at_gains, "min_stable_tg": self.min_stable_tg,
+            "kv_threshold": self.kv_threshold, "notes": list(self.notes),
+        }  # fmt: skip
+
+
+def _linear_entry(
+    label: str, model: WithEffects, side: int, v0: float, upper: UpperLevel, omega: float,
+    boxes: dict[str, tuple[float, float]], pade_order: int, thresholds: bool,
+) -> LinearStability:
+    notes: list[str] = []
+    try:
+        ss = _small_signal(model, v0, side)
+    except ValueError as e:
+        return LinearStability(label, side, None, 0.0, 0.0, None, None, None, None, None, None,
+                               None, (f"no small-signal form: {e}",))  # fmt: skip
+    h = np.abs(frequency_response(ss.coeffs, upper, OMEGA_GRID, drag=ss.drag, tau=ss.tau))
+    h_w = float(np.abs(frequency_response(ss.coeffs, upper, [omega], drag=ss.drag,
+                                          tau=ss.tau))[0])  # fmt: skip
+    j = int(np.argmax(h))
+    code = tg_at = tg_min = kv_thr = None
+    if ss.observation:
+        notes.append("sensor lag/bias act on the observed acceleration only: no effect on "
+                     "stability")
+    if ss.drag or ss.tau:
+        notes.append("speed feedback or outer command delay: the stability engine's "
+                     "second-order form does not hold it; |H(jw)| only")
+    else:
+        try:
+            eq = equivalent_model(model, v=v0, side=side)
+        except ValueError as e:
+            eq = None
+            notes.append(f"no engine model: {e}")
+        if eq is not None:
+            code = int(stability_points(eq, upper.kg, upper.Tg, upper.kv, pade_order))
+            ivs = stable_intervals(eq, "tg", kg=upper.kg, kv=upper.kv, pade_order=pade_order,
+                                   search_range=boxes["tg"])  # fmt: skip
+            tg_at = float(ivs[0][0]) if ivs else None
+            if not ivs:
+                notes.append(f"no string-stable Tg in {list(boxes['tg'])} at kg={upper.kg:g}, "
+                             f"kv={upper.kv:g}")
+            if thresholds:
+                e1 = min_stable_tg(eq, boxes["kg"], boxes["kv"], pade_order,
+                                   tg_range=boxes["tg"])  # fmt: skip
+                e2 = kv_supremum(eq, boxes["kg"], boxes["tg"], pade_order)
+                tg_min, kv_thr = _none(e1.value), _none(e2.value)
+    return LinearStability(
+        label, side, {k: float(v) for k, v in ss.coeffs.items()}, float(ss.drag),
+        float(ss.tau), _none(h_w), _none(float(h[j])), float(OMEGA_GRID[j]), code, tg_at,
+        tg_min, kv_thr, tuple(notes),
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class EffectStability:
+    """The result of :func:`effect_stability`.
+
+    ``linear``: the :class:`LinearStability` entries (``base`` first).
+    ``amplitudes`` (m/s, the leader's speed amplitude) x cars: ``speed_amplitude``
+    (shape ``(n_amp, n_cars + 1)``, the fitted fundamental amplitude of each car's
+    speed, the leader first), ``amplification`` (shape ``(n_amp, n_cars)``, car ``i``
+    over car ``i-1``; NaN where a car diverged), ``half_range`` (half the
+    peak-to-peak speed over the measurement window, harmonics included).
+    ``range_amplification``: the same ratio of ``half_range`` (what a driver sees:
+    with strong nonlinearity the oscillation moves into harmonics and slower
+    components, so the two ratios differ; for a linear model both are ``|H(jw)|``).
+    ``min_speed`` (shape ``(n_amp, n_cars + 1)``): the lowest speed over the
+    measurement window; the lower-level models have no standstill, so a negative value
+    is flagged in ``notes`` (the simulation is not physical there).
+    ``drift`` (shape ``(n_amp, n_cars + 1)``): the fundamental amplitude fitted on the
+    second half of the measurement window over the first half's, minus 1; beyond
+    ``DRIFT_TOL`` in magnitude the car is not in a steady oscillation (e.g. a locally
+    unstable loop that grows) and ``notes`` says so: its amplification then describes
+    growth, not a steady ratio.
+    ``linear_gain``: ``|H(jw)|`` of the with-effects linearisation at ``omega``
+    (side average), the value a linear model's amplification equals."""
+
+    model: str
+    effects: tuple[str, ...]
+    amplitude_dependent: tuple[str, ...]
+    upper: UpperLevel
+    v0: float
+    omega: float
+    dt: float
+    warm_periods: int
+    measure_periods: int
+    linear: tuple[LinearStability, ...]
+    amplitudes: np.ndarray
+    speed_amplitude: np.ndarray
+    amplification: np.ndarray
+    half_range: np.ndarray
+    range_amplification: np.ndarray
+    min_speed: np.ndarray
+    drift: np.ndarray
+    linear_gain: float | None
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def period(self) -> float:
+        """The disturbance period ``2 pi / omega`` (s)."""
+        return 2 * math.pi / self.omega
+
+    def mean_amplification(self) -> np.ndarray:
+        """Geometric mean of the per-car amplification for each amplitude (NaN when a
+        car diverged)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.exp(np.mean(np.log(self.amplification), axis=1))
+
+    def to_dict(self) -> dict[str, Any]:
+        """A strict-JSON dict: non-finite numbers are ``null`` with the reason in
+        ``null_reasons``."""
+
+        def arr(a: np.ndarray) -> list[Any]:
+            return [arr(x) if isinstance(x, np.ndarray) else _none(float(x)) for x in a]
+
+        reasons = {}
+        if not np.all(np.isfinite(self.amplification)):
+            reasons["amplification"] = ("null where the car (or one ahead of it) diverged or "
+                                        "its fundamental amplitude is zero")
+        if not np.all(np.isfinite(self.range_amplification)):
+            reasons["range_amplification"] = ("null where the car (or one ahead of it) "
+                                              "diverged or did not move")
+        if not np.all(np.isfinite(self.speed_amplitude)):
+            reasons["speed_amplitude"] = "null for the cars behind a diverged car"
+            reasons["half_range"] = reasons["min_speed"] = reasons["speed_amplitude"]
+        if self.linear_gain is None:
+            reasons["linear_gain"] = "the model with effects has no small-signal form"
+        return {
+            "model": self.model,
+            "effects": list(self.effects),
+            "amplitude_dependent": list(self.amplitude_dependent),
+            "upper": {"kg": self.upper.kg, "kv": self.upper.kv, "Tg": self.upper.Tg,
+                      "Gmin": self.upper.Gmin},
+            "v0": self.v0, "omega": self.omega, "period": self.period, "dt": self.dt,
+            "warm_periods": self.warm_periods, "measure_periods": self.measure_periods,
+            "linear": [e.to_dict() for e in self.linear],
+            "linear_gain": self.linear_gain,
+            "amplitudes": arr(self.amplitudes),
+            "speed_amplitude": arr(self.speed_amplitude),
+            "amplification": arr(self.amplification),
+            "mean_amplification": arr(self.mean_amplification()),
+            "half_range": arr(self.half_range),
+            "range_amplification": arr(self.range_amplification),
+            "min_speed": arr(self.min_speed),
+            "drift": arr(self.drift),
+            "notes": list(self.notes),
+            "null_reasons": reasons,
+        }  # fmt: skip
+
+    def plot(self) -> Figure:
+        """Two panels: the amplification per car against the disturbance amplitude
+        (with the linearised ``|H(jw)|``), and the speed amplitude along the platoon
+        relative to the leader's. Returns the matplotlib Figure."""
+        import matplotlib.pyplot as plt
+
+        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+        n_cars = self.amplification.shape[1]
+        for i in range(n_cars):
+            ax1.plot(self.amplitudes, self.amplification[:, i], "o-", ms=3,
+                     label=f"car {i + 1}")  # fmt: skip
+        for e in self.linear:
+            if e.gain_at_omega is not None and e.label in ("base", "with effects"):
+                ax1.axhline(e.gain_at_omega, ls="--" if e.label == "base" else ":",
+                            color="k", lw=1, label=f"|H(jω)| {e.label}")  # fmt: skip
+        ax1.axhline(1.0, color="grey", lw=0.5)
+        ax1.set_xscale("log")
+        ax1.set_xlabel("leader speed amplitude A (m/s)")
+        ax1.set_ylabel("amplification (car i / car i−1)")
+        ax1.set_title(f"{self.model}, T = {self.period:.3g} s, v0 = {self.v0:g} m/s")
+        ax1.legend(fontsize=7)
+        cars = np.arange(n_cars + 1)
+        for k, a in enumerate(self.amplitudes):
+            (ln,) = ax2.plot(cars, self.speed_amplitude[k] / a, "o-", ms=3,
+                             label=f"A = {a:g} m/s")  # fmt: skip
+            ax2.plot(cars, self.half_range[k] / a, "--", color=ln.get_color(), lw=1)
+        ax2.set_yscale("log")
+        ax2.set_xlabel("car (0 = leader)")
+        ax2.set_ylabel("speed fundamental (—) and half range (--) / A")
+        ax2.legend(fontsize=7)
+        return fig
+
+
+def _fit_amplitude(t: np.ndarray, v: np.ndarray, omega: float) -> float:
+    tc = t - t.mean()
+    x = np.column_stack([np.ones_like(t), tc, np.sin(omega * t), np.cos(omega * t)])
+    coef, *_ = np.linalg.lstsq(x, v, rcond=None)
+    return float(math.hypot(coef[2], coef[3]))
+
+
+def _upper_arg(upper: Any) -> UpperLevel:
+    if isinstance(upper, UpperLevel):
+        return upper
+    if isinstance(upper, Mapping):
+        unknown = set(upper) - {"kg", "kv", "Tg", "Gmin"}
+        if unknown:
+            raise ValueError(f"upper: unknown keys {sorted(unknown)} (kg, kv, Tg, Gmin)")
+        if "kg" not in upper or "Tg" not in upper:
+            raise ValueError("upper: needs at least 'kg' and 'Tg'")
+        return UpperLevel(**{k: check_number(v, f"upper[{k!r}]") for k, v in upper.items()})
+    raise TypeError(f"upper: expected an avll.UpperLevel or a dict, got {type(upper).__name__}")
+
+
+def effect_stability(
+    model: WithEffects | LowerLevelModel,
+    upper: UpperLevel | Mapping[str, float],
+    *,
+    v0: float = 15.0,
+    amplitudes: Sequence[float] = (0.1, 0.5, 1.0, 2.0, 4.0),
+    n_cars: int = 5,
+    period: float | str = 20.0,
+    dt: float = 0.05,
+    warm_periods: int = 6,
+    measure_periods: int = 4,
+    pade_order: int = 2,
+    thresholds: bool = True,
+    kg_range: tuple[float, float] = (1e-3, 2.0),
+    kv_range: tuple[float, float] = (0.0, 1.2),
+    tg_range: tuple[float, float] = (0.0, 15.0),
+    progress: bool = False,
+) -> EffectStability:
+    """The stability of ``model`` (a base model or base + effects) under the
+    constant-time-gap ``upper`` level (an :class:`avll.UpperLevel` or a dict with
+    ``kg``, ``Tg`` and optionally ``kv``, ``Gmin``, as in ``LoopResult.to_dict()``),
+    linearised at ``v0`` (m/s) and simulated in the time domain for leader speed
+    amplitudes ``amplitudes`` (m/s) with ``n_cars`` followers (see the module doc for
+    the method).
+
+    ``period``: the disturbance period in s, or ``"peak"`` for the frequency of the
+    largest ``|H(jw)|`` of the linearised model with effects (base model if none)
+    between periods of 4 and 60 s. ``warm_periods`` periods are simulated before the
+    ``measure_periods`` whose fundamental amplitude is fitted. ``thresholds=False``
+    skips the (slower, ~1 s each) extrema searches; ``kg_range``, ``kv_range`` and
+    ``tg_range`` are their boxes (the paper's: Tg in [0, 15] s). ``progress=True``
+    shows a tqdm bar over the simulated cars; Ctrl-C stops between two cars."""
+    if isinstance(model, LowerLevelModel):
+        model = WithEffects(model, ())
+    if not isinstance(model, WithEffects):
+        raise TypeError(f"model: expected a model or WithEffects, got {type(model).__name__}")
+    upper = _upper_arg(upper)
+    v0 = check_number(v0, "v0", positive=True)
+    dt = check_number(dt, "dt", positive=True)
+    n_cars = check_int(n_cars, "n_cars", min=1, max=200)
+    warm_periods = check_int(warm_periods, "warm_periods", min=1)
+    measure_periods = check_int(measure_periods, "measure_periods", min=1)
+    amps = np.array([check_number(a, "amplitudes", positive=True) for a in amplitudes])
+    if amps.size == 0:
+        raise ValueError("amplitudes: give at least one amplitude")
+    if np.any(amps >= v0):
+        raise ValueError(f"amplitudes: must be < v0 = {v0:g} m/s (the leader would reverse)")
+    boxes: dict[str, tuple[float, float]] = {}
+    for key, rng in (("kg", kg_range), ("kv", kv_range), ("tg", tg_range)):
+        lo, hi = (check_number(x, f"{key}_range") for x in rng)
+        if not lo < hi:
+            raise ValueError(f"{key}_range: must be (lo, hi) with lo < hi, got {rng!r}")
+        boxes[key] = (lo, hi)
+    names = model.effect_names
+    notes: list[str] = []
+    base = WithEffects(model.base, ())
+    sides = (0, 1, -1) if "asymmetric" in names else (0,)
+    labels = {0: "with effects", 1: "with effects, accelerating", -1: "with effects, braking"}
+    # Frequency.
+    if period == "peak":
+        grid = np.linspace(2 * math.pi / 60.0, 2 * math.pi / 4.0, 400)
+        lin = None
+        for m in (model, base):
+            try:
+                ss = _small_signal(m, v0, 0)
+            except ValueError:
+                continue
+            lin = np.abs(frequency_response(ss.coeffs, upper, grid, drag=ss.drag, tau=ss.tau))
+            break
+        if lin is None:
+            raise ValueError("period: 'peak' needs a linearisable model; give a period in s")
+        omega = float(grid[int(np.argmax(lin))])
+    elif isinstance(period, str):
+        raise ValueError(f"period: a number of seconds or 'peak', got {period!r}")
+    else:
+        omega = 2 * math.pi / check_number(period, "period", positive=True)
+    if 2 * math.pi / omega < 20 * dt:
+        raise ValueError(f"period: {2 * math.pi / omega:g} s is under 20 samples of dt={dt:g}")
+    entries = [_linear_entry("base", base, 0, v0, upper, omega, boxes, pade_order, thresholds)]
+    if names:
+        entries += [_linear_entry(labels[s], model, s, v0, upper, omega, boxes, pade_order,
+                                  thresholds) for s in sides]  # fmt: skip
+    lin_gain = entries[1].gain_at_omega if names else entries[0].gain_at_omega
+    # Time domain.
+    per = 2 * math.pi / omega
+    n = int(math.ceil((warm_periods + measure_periods) * per / dt)) + 1
+    t = np.arange(n) * dt
+    ramp = np.where(t < per, 0.5 * (1 - np.cos(np.pi * t / per)), 1.0)
+    meas = t >= warm_periods * per
+    meas &= t < (warm_periods + measure_periods) * per
+    exo = {str(EFFECTS[e].exo): np.zeros(n) for e in names if EFFECTS[e].exo}
+    n_amp = amps.size
+    speed_amp = np.full((n_amp, n_cars + 1), np.nan)
+    half = np.full((n_amp, n_cars + 1), np.nan)
+    vmin = np.full((n_amp, n_cars + 1), np.nan)
+    drift = np.full((n_amp, n_cars + 1), np.nan)
+    tm = t[meas]
+    first_half = tm < tm[0] + 0.5 * (tm[-1] - tm[0] + dt)
+
+    def fit(v: np.ndarray) -> tuple[float, float]:
+        vm = v[meas]
+        a1 = _fit_amplitude(tm[first_half], vm[first_half], omega)
+        a2 = _fit_amplitude(tm[~first_half], vm[~first_half], omega)
+        return _fit_amplitude(tm, vm, omega), (a2 / a1 - 1.0 if a1 > 0 else math.nan)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n_amp * n_cars, desc="platoon", unit="car", leave=False)
+    try:
+        for k, a in enumerate(amps):
+            lv = v0 + a * ramp * np.sin(omega * t)
+            lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
+            speed_amp[k, 0], drift[k, 0] = fit(lv)
+            half[k, 0] = 0.5 * float(np.ptp(lv[meas]))
+            vmin[k, 0] = float(lv[meas].min())
+            for i in range(1, n_cars + 1):
+                gap = upper.Gmin + upper.Tg * v0
+                tr = closed_loop_effects(model, lx, lv, dt, upper, v0=v0, x0=float(lx[0] - gap),
+                                         exo=exo)  # fmt: skip
+                if not (np.all(np.isfinite(tr.v)) and np.all(np.isfinite(tr.x))):
+                    notes.append(f"A={a:g} m/s: car {i} diverged")
+                    break
+                speed_amp[k, i], drift[k, i] = fit(tr.v)
+                half[k, i] = 0.5 * float(np.ptp(tr.v[meas]))
+                vmin[k, i] = float(tr.v[meas].min())
+                lx, lv = tr.x, tr.v
+                if bar is not None:
+                    bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    # A car whose fundamental amplitude is below 1e-6 A did not oscillate (e.g. a
+    # dead band swallowed the disturbance): the ratio behind it is undefined.
+    prev = speed_amp[:, :-1]
+    ok = np.isfinite(prev) & (prev > 1e-6 * amps[:, None])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ampl = np.where(ok, speed_amp[:, 1:] / np.where(ok, prev, 1.0), np.nan)
+    ampl[~np.isfinite(ampl)] = np.nan
+    hprev = half[:, :-1]
+    hok = np.isfinite(hprev) & (hprev > 1e-6 * amps[:, None])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rampl = np.where(hok, half[:, 1:] / np.where(hok, hprev, 1.0), np.nan)
+    rampl[~np.isfinite(rampl)] = np.nan
+    for k, a in enumerate(amps):
+        moving = np.flatnonzero(np.abs(drift[k, 1:]) > DRIFT_TOL)
+        if moving.size:
+            i = int(moving[0]) + 1
+            notes.append(f"A={a:g} m/s: car {i} is not in a steady oscillation (fundamental "
+                         f"{100 * drift[k, i]:+.0f} % from the first to the second half of "
+                         "the window)")
+        neg = np.flatnonzero(vmin[k, 1:] < 0)
+        if neg.size:
+            notes.append(f"A={a:g} m/s: car {int(neg[0]) + 1} reaches a negative speed "
+                         f"({vmin[k, 1 + neg[0]]:.3g} m/s; the model has no standstill)")
+    return EffectStability(
+        model=model.name, effects=names,
+        amplitude_dependent=tuple(e for e in names if e in AMPLITUDE_DEPENDENT),
+        upper=upper, v0=float(v0), omega=omega, dt=float(dt), warm_periods=warm_periods,
+        measure_periods=measure_periods, linear=tuple(entries), amplitudes=amps,
+        speed_amplitude=speed_amp, amplification=ampl, half_range=half,
+        range_amplification=rampl, min_speed=vmin, drift=drift,
+        linear_gain=lin_gain, notes=tuple(notes),
+    )  # fmt: skip

@@ -1,0 +1,257 @@
+"""Effects in the stability conclusions (avll.effect_stability)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import avll
+from avll.effect_stability import (
+    AMPLITUDE_DEPENDENT,
+    effect_stability,
+    frequency_response,
+)
+from avll.effects import Asymmetric, Deadband, Saturation, SpeedDrag, WithEffects
+
+SECOND = avll.PAPER_TABLE_II["second"]
+PROPOSED = avll.PAPER_TABLE_II["proposed"]
+#: Gains where the paper's second-order model is locally stable and string unstable
+#: (|H| > 1 at a 20 s period), so amplification is visible.
+UP = avll.UpperLevel(kg=0.2, kv=0.3, Tg=1.5)
+
+
+def test_frequency_response_matches_the_engine_polynomials() -> None:
+    # Without delay (first-order lag) H is rational: compare with the polynomial
+    # form built from the model's transfer function.
+    m = avll.FirstOrderLag(Td=0.8)
+    w = np.array([0.05, 0.3, 1.0, 3.0])
+    num, den = m.transfer_function()
+    s = 1j * w
+    g = np.polyval(num, s) / np.polyval(den, s)
+    mu = UP.kv + UP.Tg * UP.kg
+    want = (UP.kv * s + UP.kg) * g / (s * s + g * (mu * s + UP.kg))
+    got = frequency_response(m.linear(), UP, w)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    with pytest.raises(ValueError, match="omega"):
+        frequency_response(m.linear(), UP, [0.0])
+
+
+@pytest.mark.parametrize("model", [SECOND, PROPOSED], ids=["second", "proposed"])
+def test_linear_platoon_amplification_is_abs_h(model) -> None:
+    """The simulation method: for a linear model the per-car amplification does not
+    depend on the amplitude and equals |H(jw)| (exact delay) up to the O(dt) error of
+    evaluating the upper law at samples (it shrinks with dt)."""
+    r = effect_stability(model, UP, amplitudes=(0.05, 0.5, 3.0), n_cars=3, thresholds=False)
+    h = r.linear[0].gain_at_omega
+    assert h is not None and h > 1.0  # string unstable at this frequency
+    np.testing.assert_allclose(r.amplification, h, rtol=1e-2)
+    # amplitude-independent to 1e-6
+    same = np.broadcast_to(r.amplification[:1], (3, 3))
+    np.testing.assert_allclose(r.amplification, same, rtol=1e-6)
+    # a sinusoid's half range is its amplitude: the same ratio
+    np.testing.assert_allclose(r.range_amplification, r.amplification, rtol=1e-3)
+    fine = effect_stability(model, UP, amplitudes=(0.5,), n_cars=1, thresholds=False, dt=0.01)
+    err_coarse = abs(r.amplification[1, 0] / h - 1)
+    err_fine = abs(fine.amplification[0, 0] / h - 1)
+    assert err_fine < 0.4 * err_coarse
+
+
+def test_linearised_thresholds_match_the_stability_module() -> None:
+    r = effect_stability(WithEffects(SECOND, (Saturation(0.5, 0.8),)), UP, amplitudes=(0.1,),
+                         n_cars=1)  # fmt: skip
+    base, eff = r.linear[0], r.linear[1]
+    # Saturation is the identity for small signals: same numbers.
+    assert base.min_stable_tg == eff.min_stable_tg
+    assert base.min_stable_tg == pytest.approx(avll.stability.min_stable_tg(SECOND).value)
+    assert base.kv_threshold == pytest.approx(avll.stability.kv_supremum(SECOND).value)
+    assert base.code == int(avll.stability.stability_points(SECOND, UP.kg, UP.Tg, UP.kv))
+    assert r.amplitude_dependent == ("saturation",)
+
+
+def test_asymmetric_braking_side_is_less_stable_and_reported_per_side() -> None:
+    m = WithEffects(SECOND, (Asymmetric(kb=0.7, rb=1.5),))
+    r = effect_stability(m, UP, amplitudes=(0.5,), n_cars=1)
+    labels = [e.label for e in r.linear]
+    assert labels == ["base", "with effects", "with effects, accelerating",
+                      "with effects, braking"]  # fmt: skip
+    acc, brake = r.linear[2], r.linear[3]
+    assert acc.min_stable_tg == pytest.approx(r.linear[0].min_stable_tg)
+    # A slower braking side (rb = 1.5) needs a larger time gap.
+    assert brake.min_stable_tg > acc.min_stable_tg
+    assert brake.tg_min_at_gains > acc.tg_min_at_gains
+
+
+def test_asymmetric_amplification_is_amplitude_independent_between_the_sides() -> None:
+    # Positively homogeneous (gain and time scale per sign, zero equilibrium command
+    # without drag): the same amplification at every amplitude; here (verified) it lies
+    # between the accelerating and the braking linearisations' |H(jw)|.
+    m = WithEffects(SECOND, (Asymmetric(kb=0.7, rb=1.5),))
+    r = effect_stability(m, UP, amplitudes=(0.1, 1.0, 4.0), n_cars=2, thresholds=False)
+    same = np.broadcast_to(r.amplification[:1], r.amplification.shape)
+    np.testing.assert_allclose(r.amplification, same, rtol=1e-6)
+    acc, brake = r.linear[2].gain_at_omega, r.linear[3].gain_at_omega
+    assert acc < r.amplification[0, 0] < brake
+
+
+def test_saturation_caps_the_amplification_at_large_amplitude() -> None:
+    """Verified physics: in the linear regime (leader acceleration A w well under the
+    limits) the amplification is |H(jw)|; when A w exceeds the acceleration limit the
+    first follower's acceleration is clipped, so the fundamental of its speed is at
+    most (4/pi) max(a_max, d_max) / w (the fundamental of a signal bounded by M is at
+    most 4M/pi), and the amplification falls with the amplitude."""
+    a_max, d_max = 0.5, 0.8
+    m = WithEffects(SECOND, (Saturation(a_max, d_max),))
+    amps = (0.1, 1.0, 2.0, 4.0)
+    r = effect_stability(m, UP, amplitudes=amps, n_cars=1, thresholds=False)
+    h = r.linear_gain
+    assert h is not None
+    assert r.amplification[0, 0] == pytest.approx(h, rel=1e-2)  # 0.1 m/s: linear
+    first = r.amplification[:, 0]
+    assert np.all(np.diff(first[1:]) < 0)  # falls with A once the limit acts
+    assert first[-1] < 0.6 * h
+    bound = 4 / math.pi * max(a_max, d_max) / r.omega
+    assert np.all(r.speed_amplitude[:, 1] <= bound * 1.001)
+
+
+def test_saturated_platoon_fundamental_understates_the_swing() -> None:
+    """Verified for this case (not a general law): further down a saturated platoon
+    the fundamental stays capped while the speed swing (half range) grows beyond the
+    leader's, down to negative speeds, which the result flags."""
+    m = WithEffects(SECOND, (Saturation(0.6, 0.8),))
+    r = effect_stability(m, UP, amplitudes=(4.0,), n_cars=5, thresholds=False)
+    assert r.half_range[0, -1] > 2 * r.half_range[0, 0]
+    assert r.speed_amplitude[0, -1] < r.speed_amplitude[0, 0]
+    assert r.min_speed[0, -1] < 0
+    assert any("negative speed" in n for n in r.notes)
+
+
+def test_deadband_swallows_small_disturbances() -> None:
+    # A leader amplitude whose command stays inside the dead band does not move the
+    # follower: amplification ~0 and undefined behind it.
+    m = WithEffects(SECOND, (Deadband(0.1),))
+    r = effect_stability(m, UP, amplitudes=(0.05, 2.0), n_cars=2, thresholds=False)
+    assert r.amplification[0, 0] < 1e-3
+    assert math.isnan(r.amplification[0, 1])
+    assert r.amplification[1, 0] > 1.0
+    d = r.to_dict()
+    assert d["amplification"][0][1] is None and "amplification" in d["null_reasons"]
+
+
+def test_speed_drag_is_linearised_with_its_speed_feedback() -> None:
+    m = WithEffects(SECOND, (SpeedDrag(0.1, 0.003),))
+    r = effect_stability(m, UP, amplitudes=(0.1, 1.0), n_cars=2, thresholds=False)
+    eff = r.linear[1]
+    assert eff.drag == pytest.approx(2 * 0.003 * 15.0)
+    assert eff.code is None and eff.notes  # no engine form: |H| only, said so
+    np.testing.assert_allclose(r.amplification, eff.gain_at_omega, rtol=1e-2)
+    assert eff.gain_at_omega < r.linear[0].gain_at_omega  # drag damps
+
+
+def test_growing_oscillation_is_flagged() -> None:
+    # Locally unstable gains (code 0): the oscillation grows; the result says so
+    # instead of presenting the ratio as a steady amplification.
+    up = avll.UpperLevel(kg=0.5, kv=0.0, Tg=4.0)
+    r = effect_stability(PROPOSED, up, amplitudes=(0.5,), n_cars=2, thresholds=False,
+                         progress=True)  # fmt: skip
+    assert r.linear[0].code == 0
+    assert r.drift[0, 1] > 0.05
+    assert any("not in a steady oscillation" in n for n in r.notes)
+    # a stable linear case has no drift
+    ok = effect_stability(SECOND, UP, amplitudes=(0.5,), n_cars=2, thresholds=False)
+    assert np.all(np.abs(ok.drift) < 1e-3) and not ok.notes
+
+
+def test_to_dict_is_strict_json_and_plot() -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    m = WithEffects(SECOND, (Saturation(0.5, 0.8),))
+    r = effect_stability(m, UP, amplitudes=(0.1, 2.0), n_cars=2, thresholds=False,
+                         period="peak")  # fmt: skip
+    text = json.dumps(r.to_dict(), allow_nan=False)
+    d = json.loads(text)
+    assert d["effects"] == ["saturation"] and len(d["amplification"]) == 2
+    assert 4 <= d["period"] <= 60
+    fig = r.plot()
+    assert len(fig.axes) == 2
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="amplitudes"):
+        effect_stability(SECOND, UP, amplitudes=(20.0,), v0=15.0)
+    with pytest.raises(ValueError, match="amplitudes"):
+        effect_stability(SECOND, UP, amplitudes=())
+    with pytest.raises(TypeError, match="upper"):
+        effect_stability(SECOND, [0.2, 0.3, 1.5])  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="upper"):
+        effect_stability(SECOND, {"kg": 0.2})
+    with pytest.raises(ValueError, match="upper"):
+        effect_stability(SECOND, {"kg": 0.2, "Tg": 1.5, "tau": 1.0})
+    # a dict as in LoopResult.to_dict()["upper"] works
+    d = effect_stability(SECOND, {"kg": 0.2, "kv": 0.3, "Tg": 1.5, "Gmin": 9.5},
+                         amplitudes=(0.5,), n_cars=1, thresholds=False)  # fmt: skip
+    assert d.upper == UP
+    with pytest.raises(ValueError, match="period"):
+        effect_stability(SECOND, UP, period="worst")
+    with pytest.raises(TypeError, match="n_cars"):
+        effect_stability(SECOND, UP, n_cars=1.5)  # type: ignore[arg-type]
+    assert "saturation" in AMPLITUDE_DEPENDENT
+
+
+def test_speed_feedback_from_a_library_linear_with_terms(monkeypatch) -> None:
+    """Where ``WithEffects.linear`` offers ``terms=True`` (road_load's speed feedback),
+    that feedback is used as the drag of the small-signal form."""
+    from avll import effect_stability as es
+
+    base_lin = SECOND.linear()
+
+    def linear(self, *, v=0.0, side=0, terms=False):
+        if not terms:
+            raise ValueError("road_load: speed feedback")
+        return {**base_lin, "speed_feedback": 0.09, "obs_tau": 0.0, "obs_bias": 0.0}
+
+    monkeypatch.setattr(WithEffects, "linear", linear)
+    ss = es._small_signal(WithEffects(SECOND, (Saturation(1.0, 1.0),)), 15.0, 0)
+    assert ss.drag == 0.09 and ss.tau == 0.0 and not ss.observation
+    want = np.abs(frequency_response(base_lin, UP, [0.3], drag=0.09))
+    got = np.abs(frequency_response(ss.coeffs, UP, [0.3], drag=ss.drag))
+    np.testing.assert_allclose(got, want)
+
+
+def _needs(*names: str) -> None:
+    from avll.effects import EFFECTS
+
+    missing = [n for n in names if n not in EFFECTS]
+    if missing:
+        pytest.skip(f"this library has no {missing} effect")
+
+
+def test_vehicle_effects_road_load_power_limit_sensor() -> None:
+    """The effects of real vehicles (when the library has them): road_load enters as
+    the speed feedback c1 + 2 c2 v0 (|H| only, matched by the simulation); the power
+    limit is the identity for small signals and caps the first follower at large
+    amplitude; the sensor changes nothing (observation only)."""
+    _needs("road_load", "power_limit", "sensor")
+    from avll.effects import effect_class
+
+    v0 = 12.0
+    rl = WithEffects(SECOND, (effect_class("road_load")(c0=0.1, c1=0.005, c2=0.0003),))
+    r = effect_stability(rl, UP, v0=v0, amplitudes=(0.1, 1.0), n_cars=2, thresholds=False)
+    assert r.linear[1].drag == pytest.approx(0.005 + 2 * 0.0003 * v0)
+    np.testing.assert_allclose(r.amplification, r.linear[1].gain_at_omega, rtol=1e-2)
+    pl = WithEffects(SECOND, (effect_class("power_limit")(p=8.0, v_b=2.0),))
+    r = effect_stability(pl, UP, v0=v0, amplitudes=(0.1, 3.0), n_cars=1, thresholds=False)
+    assert r.amplification[0, 0] == pytest.approx(r.linear[0].gain_at_omega, rel=1e-2)
+    assert r.amplification[1, 0] < 0.95 * r.amplification[0, 0]
+    se = WithEffects(SECOND, (effect_class("sensor")(tau=0.3, bias=0.1),))
+    r = effect_stability(se, UP, v0=v0, amplitudes=(1.0,), n_cars=1, thresholds=False)
+    base = effect_stability(SECOND, UP, v0=v0, amplitudes=(1.0,), n_cars=1, thresholds=False)
+    np.testing.assert_allclose(r.amplification, base.amplification, rtol=1e-9)
+    assert any("observed" in n for n in r.linear[1].notes)
