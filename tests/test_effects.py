@@ -287,3 +287,32 @@ def test_ga_calibration_recovers_effect_params_thread_independently() -> None:
     np.testing.assert_allclose(out[0]["x"], truth.to_array(), rtol=0.05)
     with pytest.raises(ValueError, match="bounds"):
         calibrate_effects("second", ["saturation"], runs, lo[:-1], hi[:-1], scale[:-1])
+
+
+def test_braking_side_unstable_costs_inf_like_the_trajectory_refuses():
+    """A row whose braking side kb G(rb s) is not asymptotically stable in the inner
+    loop costs inf exactly when the trajectory functions refuse it, whether or not
+    the run is long enough to show the divergence (found as a GA optimum of a
+    closed-loop OpenACC fit before the cost checked the braking side)."""
+    from avll import Proposed, Run
+    from avll.effects import Asymmetric, WithEffects, batch_cost_effects, simulate_effects
+
+    base = Proposed(8.1645, 0.0017358, 99.356, 1.0202, 1.33e-5, 0.98015)
+    dt = 0.1
+    t = np.arange(0.0, 0.3, dt)  # three samples: too short for any divergence to show
+    cmd = 0.5 + 0.3 * np.sin(0.5 * t)
+    run = Run(run_id="o", t=t, a=np.zeros_like(t), command=cmd)
+    grid = [(kb, rb) for kb in (0.5, 1.0, 1.5, 2.0, 2.5) for rb in (0.4, 0.6, 1.0, 2.0)]
+    models = [WithEffects(base, (Asymmetric(kb, rb),)) for kb, rb in grid]
+    cost = batch_cost_effects("proposed", ["asymmetric"],
+                              np.array([m.to_array() for m in models]), [run])[:, 0]
+    refused = []
+    for m in models:
+        try:
+            simulate_effects(m, cmd, dt)
+            refused.append(False)
+        except ValueError as e:
+            assert "braking side" in str(e)
+            refused.append(True)
+    assert any(refused) and not all(refused)
+    assert [bool(np.isinf(c)) for c in cost] == refused

@@ -118,6 +118,34 @@ pub(crate) fn stepper<const M: usize, const N: usize, const D: bool, const F: bo
     int0: [f64; 2],
 ) -> Result<Stepper<M, N, D, F, C>> {
     let r = chain.brake_time_scale();
+    if !C::NONE {
+        // The braking side `kb G(rb s)` (the reference gain map's slope below 0 and
+        // the time scale) must be asymptotically stable in the inner loop as well:
+        // the same rule as the base, so a cost is `inf` and a rollout an error
+        // exactly when the trajectory functions refuse the model.
+        let g = -chain.reference(-1.0);
+        if r != 1.0 || g != 1.0 {
+            let lk = Linear {
+                b1: g * r * lin.b1,
+                b0: g * lin.b0,
+                a2: r * r * lin.a2,
+                a1: r * lin.a1,
+                td: lin.td,
+                k: lin.k,
+            };
+            let pk = Plant::<M, N>::new(&lk, ints, plant.dt, false)?;
+            if !super::discretize::loop_stable(&lk, &pk) {
+                return Err(AvllError::new(
+                    "effects",
+                    format!(
+                        "the braking side kb G(rb s) (gain {g}, time scale {r}) is not \
+                         asymptotically stable in the inner loop at dt={} s",
+                        plant.dt
+                    ),
+                ));
+            }
+        }
+    }
     let brake = if !C::NONE && r != 1.0 {
         let lb = Linear {
             b1: r * lin.b1,
