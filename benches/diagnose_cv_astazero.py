@@ -47,12 +47,14 @@ def main() -> None:
         for tr in d["trials"]:
             print(f"   it {tr['iteration']} {tr['effect']}: fold gains "
                   + ", ".join(f"{100 * g:+.1f}%" for g in tr["fold_gains"])
-                  + f", fold_selection {tr['fold_selection']:.2f}, pooled {100 * tr['gain']:+.1f}%"
-                  f" (p={tr['p_value']:.2g}) -> {'pass' if tr['passed'] else '; '.join(tr['reasons'])}")
+                  + f", fold_selection {tr['fold_selection']:.2f}, pooled "
+                  f"{100 * tr['gain']:+.1f}% (p={tr['p_value']:.2g}) -> "
+                  + ("pass" if tr["passed"] else "; ".join(tr["reasons"])))
         for s in d["steps"]:
-            def g(a: str) -> str:
+            def g(a: str, s: dict = s) -> str:
                 b0, b1 = s.get(f"{a}_mse_before"), s.get(f"{a}_mse_after")
                 return "—" if b0 is None else f"{b0:.4g}->{b1:.4g} ({100 * (1 - b1 / b0):+.1f}%)"
+
             print(f"   step {s['effect']} {s['params']}: cal {g('cal')}, val {g('val')}, "
                   f"test {g('test')}, flags {s['flags']}, at bound "
                   f"{[a['param'] for a in s['at_bound']]}")
