@@ -420,6 +420,11 @@ def effect_loop(
                 "block_length": boot["block_length"], "n_boot": boot["n_boot"],
                 "ess_t": ttest["t"], "ess_t_p_value": ttest["p_value"], "n": ttest["n"],
                 "n_eff": ttest["n_eff"], "passed": not reasons, "reasons": reasons}  # fmt: skip
+            if not all(math.isfinite(g) for g in fold_gains):
+                rec["fold_gains_note"] = ("null: a model's simulation is not finite on that "
+                                          "held-out fold")  # fmt: skip
+            if not all(math.isfinite(x) for x in boot["ci"]):
+                rec["bootstrap_ci_note"] = "null: no finite bootstrap of the loss difference"
             trials.append(rec)
             say(f"cv {c.effect}: folds {['%.1f%%' % (100 * g) for g in fold_gains]}, "
                 f"selected in {sel:.0%}, pooled {gain:.1%} (p={p:.2g}): "
@@ -449,6 +454,7 @@ def effect_loop(
             cv = {k: rec[k] for k in ("fold_gains", "gain", "mse_before", "mse_after", "p_value",
                                       "bootstrap_ci", "block_length", "n_boot", "ess_t",
                                       "ess_t_p_value", "n", "n_eff")}
+            cv.update({k: rec[k] for k in ("fold_gains_note", "bootstrap_ci_note") if k in rec})
             cv.update(folds=len(fold_sets), fold_kind=fold_kind)
             steps.append(Step(c.effect, eff.to_dict(), new, cal0, cal1, val0, val1,
                               fold_selection=rec["fold_selection"], cv=cv,
