@@ -337,3 +337,14 @@ def test_import_avll_stays_light() -> None:
                          check=True).stdout.split("\n")  # fmt: skip
     assert out[0] == ""
     assert out[1] == "True"  # the contract functions load on first use
+
+
+def test_cli_refuses_overlapping_splits(tmp_path, capsys) -> None:
+    runs = paper_experiment_effects(FIRST, {}, seed=0, duration=20.0, runs=(1, 3, 8))
+    data = write_runs(runs, tmp_path / "runs.csv")
+    code = main(["diagnose", str(data), "--model", "first", "--cal-runs", "1,3",
+                 "--test-runs", "3,8", "--json", str(tmp_path / "o.json"), "--quiet"])  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--test-runs: run(s) ['3'] are also in --cal-runs" in err and "Traceback" not in err
+    assert not (tmp_path / "o.json").exists()
