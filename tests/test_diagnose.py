@@ -24,6 +24,8 @@ from avll.synth_effects import expected_params, paper_experiment_effects
 SECOND = avll.PAPER_TABLE_II["second"]
 FIRST = avll.FirstOrderLag(Td=0.6)
 SEED = 0
+#: GA generations of the fast cases (the heavier ones keep the default budget).
+FAST = 100
 
 
 def _loop(true, effects, base, *, speedup=1.0, extra_exo=(), seed=SEED, **kw):
@@ -57,7 +59,7 @@ def test_delay_is_found_and_recovered() -> None:
     # a little (towards the noise floor, 0.05² + quantisation), but significantly —
     # by a few per cent, below the default minimum effect size (5 %), so this case
     # asks for 2 % (tests/test_diagnose_cv.py checks that 50 % rejects it).
-    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02)
+    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, maxiter=FAST)
     tau = expected_params("delay")["tau"]
     _check_step(res, "delay", {"tau": (tau, 0.08)}, fall=0.99)
     assert [s.effect for s in res.steps] == ["delay"]
@@ -65,12 +67,12 @@ def test_delay_is_found_and_recovered() -> None:
 
 def test_rate_limit_is_found_and_recovered() -> None:
     # A jerk limit only shows in brisk manoeuvres: the leader plays 3x faster.
-    res = _loop(FIRST, {"rate_limit": {"j": 1.0}}, "first", speedup=3.0)
+    res = _loop(FIRST, {"rate_limit": {"j": 1.0}}, "first", speedup=3.0, maxiter=FAST)
     _check_step(res, "rate_limit", {"j_max": (1.0, 0.3)})
 
 
 def test_clean_data_gets_no_effect() -> None:
-    res = _loop(FIRST, {}, "first", extra_exo=("grade", "wind"))
+    res = _loop(FIRST, {}, "first", extra_exo=("grade", "wind"), maxiter=FAST)
     assert res.steps == []
     assert res.to_dict()["effects"] == []
 
@@ -103,7 +105,7 @@ def test_diagnosis_ranks_the_true_effect_without_calibration() -> None:
 
 
 def test_table_and_report(tmp_path) -> None:
-    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02)
+    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, maxiter=FAST)
     s = res.steps[0]
     tab = mse_table({"before": s.val_before, "after": s.val_after}, "Validation MSE")
     assert "| Run No. |" in tab and "Average" in tab
@@ -119,8 +121,8 @@ def test_cli_contract(tmp_path, capsys) -> None:
     data = write_runs(runs, tmp_path / "runs.csv")
     out = tmp_path / "out.json"
     code = main(["diagnose", str(data), "--command-kind", "acceleration", "--model", "first",
-                 "--cal-runs", "1,3,8", "--seed", "1", "--min-gain", "0.02", "--json", str(out),
-                 "--quiet"])  # fmt: skip
+                 "--cal-runs", "1,3,8", "--seed", "1", "--min-gain", "0.02", "--maxiter",
+                 str(FAST), "--json", str(out), "--quiet"])  # fmt: skip
     assert code == 0
     d = json.loads(out.read_text())
     assert d["base_model"] == "first"
