@@ -141,9 +141,9 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
         rep.para(f"Selection: {st['folds']} cross-validation folds ({kind}). An effect is "
                  f"accepted only if it lowers the held-out MSE by at least "
                  f"{100 * st['min_gain']:.0f} % in more than half of the folds, the pooled "
-                 f"out-of-fold gain is at least that, the one-sided loss-difference test with "
-                 f"the effective sample size gives p < {st['alpha']:g}, and the refit on all "
-                 "calibration runs lowers their error. Validation and test runs decide "
+                 f"out-of-fold gain is at least that, a moving-block bootstrap of the "
+                 f"per-sample loss difference gives p < {st['cv_alpha']:g}, and the refit on "
+                 "all calibration runs lowers their error. Validation and test runs decide "
                  "nothing.")
     rep.heading("Baseline")
     rep.para(f"Baseline: `{result.baseline.base}`"
@@ -174,9 +174,9 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
         rep.para(f"Selected in {100 * s.fold_selection:.0f} % of {cv.get('folds')} folds "
                  f"(held-out gains " + ", ".join(_pct(g) for g in cv.get("fold_gains", []))
                  + f"); pooled out-of-fold gain {_pct(cv.get('gain'))} "
-                 f"(block-bootstrap 95 % interval {_pct(lo)} to {_pct(hi)}), "
-                 f"p = {s.p_value:.2g} with {cv.get('n_eff', 0):.0f} effective of "
-                 f"{cv.get('n', 0):.0f} samples.")
+                 f"(block-bootstrap 95 % interval {_pct(lo)} to {_pct(hi)}, p = "
+                 f"{s.p_value:.2g}; t-test with {cv.get('n_eff', 0):.0f} effective of "
+                 f"{cv.get('n', 0):.0f} samples: p = {cv.get('ess_t_p_value', 1.0):.2g}).")
         rows = [["calibration", _num(_mean(s.cal_before)), _num(_mean(s.cal_after)),
                  _pct(_gain(s.cal_before, s.cal_after))]]
         if s.val_before:
