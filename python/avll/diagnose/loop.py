@@ -70,8 +70,9 @@ MIN_GAIN: float = 0.05
 DEFAULT_FOLDS: int = 5
 #: Default number of contiguous blocks when there is a single calibration run.
 DEFAULT_BLOCKS: int = 3
-#: A test gain below this share of the validation (or cross-validated) gain is
-#: flagged as "far smaller".
+#: A test gain below this share of the validation (or cross-validated) gain, or a
+#: validation gain below this share of the cross-validated gain, is flagged as "far
+#: smaller".
 FAR_SMALLER: float = 0.5
 #: A block fold needs at least this many samples.
 MIN_BLOCK: int = 50
@@ -488,6 +489,11 @@ def effect_loop(
             sflags.append("validation_gain_not_held")
             flags.append({"kind": "validation_gain_not_held", "step": k, "effect": s.effect,
                           "message": f"validation MSE not lower ({vg:+.1%})"})  # fmt: skip
+        elif s.val_before and cg > 0 and vg < FAR_SMALLER * cg:
+            sflags.append("validation_gain_far_smaller")
+            flags.append({"kind": "validation_gain_far_smaller", "step": k, "effect": s.effect,
+                          "message": f"validation gain {vg:.1%} is less than {FAR_SMALLER:.0%} "
+                                     f"of the cross-validated gain {cg:.1%}"})  # fmt: skip
         if t0:
             ref, refname = (vg, "validation") if s.val_before else (cg, "cross-validated")
             if not tg > 0:

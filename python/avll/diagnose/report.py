@@ -190,6 +190,8 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
                  "test_gain_far_smaller": "**The test gain is far smaller than the "
                                           "validation (or cross-validated) gain.**",
                  "validation_gain_not_held": "**The validation error does not fall.**",
+                 "validation_gain_far_smaller": "**The validation gain is far smaller than "
+                                                "the cross-validated gain.**",
                  "at_bound": "Some parameters are at a bound of the search box."}
         for fl in s.flags:
             rep.para(words.get(fl, fl))
