@@ -348,3 +348,25 @@ def test_cli_refuses_overlapping_splits(tmp_path, capsys) -> None:
     err = capsys.readouterr().err
     assert "--test-runs: run(s) ['3'] are also in --cal-runs" in err and "Traceback" not in err
     assert not (tmp_path / "o.json").exists()
+
+
+def test_contract_round_trip_closed_loop() -> None:
+    # No command, unknown upper law (as AstaZero): the loop calibrates the law, which
+    # final_model carries; simulate_run with it reproduces every reported MSE.
+    runs = paper_experiment_effects(FIRST, {}, seed=0, duration=40.0, runs=(1, 3, 8, 12))
+    runs = [replace(r, command=None, upper=None) for r in runs]
+    res = effect_loop("first", runs[:2], runs[2:3], test_runs=runs[3:], seed=1, maxiter=30,
+                      max_effects=1)  # fmt: skip
+    d = _strict(json.dumps(avll._atomic.json_safe(res.to_dict()), allow_nan=False))
+    fm = d["final_model"]
+    assert fm["simulation"]["closed_loop"] is True and fm["upper"] is not None
+    m = avll.model_from_dict(d)
+    up = avll.UpperLevel(**fm["upper"])
+    for key, rs in (("cal", runs[:2]), ("val", runs[2:3]), ("test", runs[3:])):
+        if d["steps"]:
+            want = d["steps"][-1][f"{key}_mse_after_per_run"]
+        else:
+            want = d["baseline_mse"][key]["per_run"]
+        for r in rs:
+            got = float(np.mean((r.a - avll.simulate_run(m, r, upper=up)) ** 2))
+            assert got == pytest.approx(want[r.run_id], rel=1e-12), (key, r.run_id)
