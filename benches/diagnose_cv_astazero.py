@@ -1,10 +1,17 @@
-"""The cross-validated residual loop on AstaZero (OpenACC, closed loop, grade):
-per predecessor->follower pair, calibration on platoon 7 (one run: three contiguous
-block folds), validation on the first half of platoon 8, test on its second half
-(simulated only after the loop). Prints the fold selections and the gains on each
-split; writes the JSON (strict) and a report per pair.
+"""The cross-validated residual loop on AstaZero (OpenACC, closed loop, grade), per
+predecessor->follower pair. Two designs (``DESIGN``):
 
-    MPLBACKEND=Agg python benches/diagnose_cv_astazero.py ../shared/data OUTDIR [PAIR ...]
+* ``blocks`` (default): calibration on platoon 7 (one run: three contiguous block
+  folds), validation on the first half of platoon 8, test on its second half;
+* ``runs``: calibration on platoon 7 and the first half of platoon 8 (two runs of two
+  days: leave-one-run-out, so "most folds" means both), no validation, test on the
+  second half of platoon 8.
+
+Test runs are simulated only after the loop. Prints the fold selections and the gains
+on each split; writes the JSON (strict) and a report per pair.
+
+    MPLBACKEND=Agg python benches/diagnose_cv_astazero.py ../shared/data OUTDIR \
+        [DESIGN] [PAIR ...]
 """
 
 from __future__ import annotations
@@ -21,7 +28,9 @@ from avll.io import read_runs
 
 def main() -> None:
     data, out = Path(sys.argv[1]), Path(sys.argv[2])
-    pairs = sys.argv[3:] or ["v1-v2", "v2-v3", "v3-v4", "v4-v5"]
+    rest = sys.argv[3:]
+    design = rest.pop(0) if rest and rest[0] in ("blocks", "runs") else "blocks"
+    pairs = rest or ["v1-v2", "v2-v3", "v3-v4", "v4-v5"]
     out.mkdir(parents=True, exist_ok=True)
     plat = data / "openacc-astazero" / "platoon"
     p7 = {r.run_id.split("/")[1]: r for r in
@@ -35,7 +44,12 @@ def main() -> None:
         half = len(b) // 2
         val, test = _block(b, 0, half), _block(b, half, len(b))
         t = time.perf_counter()
-        res = effect_loop("second", [p7[pair]], [val], test_runs=[test], seed=0, progress=True)
+        if design == "blocks":
+            cal = [p7[pair]]
+        else:
+            cal, val = [p7[pair], val], None
+        res = effect_loop("second", cal, [val] if val is not None else [], test_runs=[test],
+                          seed=0, progress=True)  # fmt: skip
         d = res.to_dict()
         d["time_s"] = time.perf_counter() - t
         _atomic.write_json(out / f"asta_{pair}.json", _atomic.json_safe(d), default=float)
@@ -53,6 +67,8 @@ def main() -> None:
         for s in d["steps"]:
             def g(a: str, s: dict = s) -> str:
                 b0, b1 = s.get(f"{a}_mse_before"), s.get(f"{a}_mse_after")
+                if b0 is None or b1 is None:
+                    return "—"
                 return "—" if b0 is None else f"{b0:.4g}->{b1:.4g} ({100 * (1 - b1 / b0):+.1f}%)"
 
             print(f"   step {s['effect']} {s['params']}: cal {g('cal')}, val {g('val')}, "
