@@ -23,6 +23,7 @@ from pathlib import Path
 from avll import _atomic
 from avll.diagnose import effect_loop, write_report
 from avll.diagnose.loop import _block
+from avll.data import Run
 from avll.io import read_runs
 
 
@@ -42,11 +43,13 @@ def main() -> None:
     for pair in pairs:
         b = p8[pair]
         half = len(b) // 2
-        val, test = _block(b, 0, half), _block(b, half, len(b))
+        val: Run | None = _block(b, 0, half)
+        test = _block(b, half, len(b))
         t = time.perf_counter()
         if design == "blocks":
             cal = [p7[pair]]
         else:
+            assert val is not None
             cal, val = [p7[pair], val], None
         res = effect_loop("second", cal, [val] if val is not None else [], test_runs=[test],
                           seed=0, progress=True)  # fmt: skip
