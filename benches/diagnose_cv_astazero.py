@@ -21,9 +21,9 @@ import time
 from pathlib import Path
 
 from avll import _atomic
+from avll.data import Run
 from avll.diagnose import effect_loop, write_report
 from avll.diagnose.loop import _block
-from avll.data import Run
 from avll.io import read_runs
 
 
