@@ -182,7 +182,8 @@ class LoopResult:
                 "Gmin": self.upper.Gmin},
             "base_model": self.baseline.base.name,
             "baseline_params": self.baseline.base.to_dict(),
-            "baseline_mse": {k: {"mean": _mean(v), "per_run": v}
+            "baseline_mse": {k: {"mean": _mean(v), "per_run": v} if v else
+                             {"mean": None, "mean_note": "no runs in this split", "per_run": {}}
                              for k, v in self.baseline_mse.items()},
             "baseline_at_bound": self.baseline_at_bound,
             "steps": [s.to_dict() for s in self.steps],
