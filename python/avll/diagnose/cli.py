@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from ..data import Run
-from ..models import model_class
-from .loop import MIN_GAIN, effect_loop
-from .report import write_report
+from .defaults import MIN_GAIN
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..data import Run
 
 __all__ = ["register_cli"]
 
@@ -34,6 +35,9 @@ def _cmd(args: argparse.Namespace) -> int:
     from .. import _atomic
     from ..io import read_runs
     from ..io.cli_load import astazero_options
+    from ..models import model_class
+    from .loop import effect_loop
+    from .report import write_report
 
     model_class(args.model)
     cal_ids = _ids("--cal-runs", args.cal_runs)
@@ -74,7 +78,7 @@ def _cmd(args: argparse.Namespace) -> int:
 def register_cli(sub: argparse._SubParsersAction) -> None:
     """Registers the ``diagnose`` sub-command with the ``avll`` parser."""
     p = sub.add_parser(
-        "diagnose", help="residual diagnosis and the cross-validated add-effect loop",
+        "diagnose", help="residual diagnosis and the add-effect loop",
         description="Fit the base model on the calibration runs, rank the library's "
         "effects by the residual, accept an effect only when cross-validation over the "
         "calibration runs says so (see docs/guide/diagnose.md), report validation and "

@@ -57,26 +57,12 @@ from ..data import Run
 from ..effects import EFFECTS, WithEffects
 from ..models import LowerLevelModel, UpperLevel, model_class
 from .contract import model_to_dict, per_run_mse
+from .defaults import DEFAULT_BLOCKS, DEFAULT_FOLDS, FAR_SMALLER, MIN_BLOCK, MIN_GAIN
 from .fitting import _closed, _init, at_bound, fit_full, simulate_runs
 from .signatures import Diagnosis, diagnose, residual_structure
 from .stats import block_bootstrap_gain, loss_difference_test
 
-__all__ = ["Step", "LoopResult", "effect_loop", "make_folds"]
-
-#: Default minimum effect size: the relative reduction of the out-of-fold MSE an
-#: effect must bring (in most folds and pooled) to be accepted.
-MIN_GAIN: float = 0.05
-#: Default number of folds (capped at the number of calibration runs).
-DEFAULT_FOLDS: int = 5
-#: Default number of contiguous blocks when there is a single calibration run.
-DEFAULT_BLOCKS: int = 3
-#: A test gain below this share of the validation (or cross-validated) gain, or a
-#: validation gain below this share of the cross-validated gain, is flagged as "far
-#: smaller".
-FAR_SMALLER: float = 0.5
-#: A block fold needs at least this many samples.
-MIN_BLOCK: int = 50
-
+__all__ = ["MIN_GAIN", "Step", "LoopResult", "effect_loop", "make_folds"]
 
 def _mean(d: dict[str, float] | None) -> float:
     return float(np.mean(list(d.values()))) if d else float("nan")
