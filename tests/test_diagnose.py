@@ -24,25 +24,28 @@ from avll.synth_effects import expected_params, paper_experiment_effects
 SECOND = avll.PAPER_TABLE_II["second"]
 FIRST = avll.FirstOrderLag(Td=0.6)
 SEED = 0
+#: GA generations of the fast cases (the heavier ones keep the default budget).
+FAST = 100
 
 
-def _loop(true, effects, base, *, speedup=1.0, extra_exo=(), seed=SEED):
+def _loop(true, effects, base, *, speedup=1.0, extra_exo=(), seed=SEED, **kw):
     runs = paper_experiment_effects(true, effects, seed=seed, leader_speedup=speedup,
                                     extra_exo=extra_exo)  # fmt: skip
-    return effect_loop(base, runs[:3], runs[3:], seed=1)
+    return effect_loop(base, runs[:3], runs[3:], seed=1, **kw)
 
 
 def _check_step(res, effect, tol, fall=0.8):
-    """The effect is ranked first, added first, the validation MSE falls (below
-    ``fall`` times its value before, and significantly by the loop's held-out
-    likelihood-ratio test), and its parameters are within ``tol`` (name ->
-    (expected, absolute tolerance))."""
+    """The effect is ranked first, added first (selected in most cross-validation
+    folds of the calibration runs, significantly by the block bootstrap), the
+    validation MSE — now only reported — falls below ``fall`` times its value before,
+    and its parameters are within ``tol`` (name -> (expected, absolute tolerance))."""
     first = res.diagnoses[0].ranked
     assert first and first[0].effect == effect, [c.effect for c in res.diagnoses[0].candidates]
     assert res.steps and res.steps[0].effect == effect
     d = res.steps[0].to_dict()
+    assert d["fold_selection"] > 0.5
+    assert d["p_value"] < 0.01 and d["cv"]["gain"] >= res.settings["min_gain"]
     assert d["val_mse_after"] < fall * d["val_mse_before"]
-    assert d["lr_p_value"] < 1e-3
     assert d["cal_mse_after"] < d["cal_mse_before"]
     for name, (want, atol) in tol.items():
         assert res.steps[0].params[name] == pytest.approx(want, abs=atol), (name, d["params"])
@@ -52,22 +55,24 @@ def _check_step(res, effect, tol, fall=0.8):
 
 
 def test_delay_is_found_and_recovered() -> None:
-    res = _loop(FIRST, {"delay": None}, "first")
-    tau = expected_params("delay")["tau"]
     # The first-order lag's time constant absorbs much of it: the error falls only
-    # a little (towards the noise floor, 0.05² + quantisation), but significantly.
+    # a little (towards the noise floor, 0.05² + quantisation), but significantly —
+    # by a few per cent, below the default minimum effect size (5 %), so this case
+    # asks for 2 % (tests/test_diagnose_cv.py checks that 50 % rejects it).
+    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, maxiter=FAST)
+    tau = expected_params("delay")["tau"]
     _check_step(res, "delay", {"tau": (tau, 0.08)}, fall=0.99)
     assert [s.effect for s in res.steps] == ["delay"]
 
 
 def test_rate_limit_is_found_and_recovered() -> None:
     # A jerk limit only shows in brisk manoeuvres: the leader plays 3x faster.
-    res = _loop(FIRST, {"rate_limit": {"j": 1.0}}, "first", speedup=3.0)
+    res = _loop(FIRST, {"rate_limit": {"j": 1.0}}, "first", speedup=3.0, maxiter=FAST)
     _check_step(res, "rate_limit", {"j_max": (1.0, 0.3)})
 
 
 def test_clean_data_gets_no_effect() -> None:
-    res = _loop(FIRST, {}, "first", extra_exo=("grade", "wind"))
+    res = _loop(FIRST, {}, "first", extra_exo=("grade", "wind"), maxiter=FAST)
     assert res.steps == []
     assert res.to_dict()["effects"] == []
 
@@ -100,7 +105,7 @@ def test_diagnosis_ranks_the_true_effect_without_calibration() -> None:
 
 
 def test_table_and_report(tmp_path) -> None:
-    res = _loop(FIRST, {"delay": None}, "first")
+    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, maxiter=FAST)
     s = res.steps[0]
     tab = mse_table({"before": s.val_before, "after": s.val_after}, "Validation MSE")
     assert "| Run No. |" in tab and "Average" in tab
@@ -116,7 +121,8 @@ def test_cli_contract(tmp_path, capsys) -> None:
     data = write_runs(runs, tmp_path / "runs.csv")
     out = tmp_path / "out.json"
     code = main(["diagnose", str(data), "--command-kind", "acceleration", "--model", "first",
-                 "--cal-runs", "1,3,8", "--seed", "1", "--json", str(out), "--quiet"])  # fmt: skip
+                 "--cal-runs", "1,3,8", "--seed", "1", "--min-gain", "0.02", "--maxiter",
+                 str(FAST), "--json", str(out), "--quiet"])  # fmt: skip
     assert code == 0
     d = json.loads(out.read_text())
     assert d["base_model"] == "first"

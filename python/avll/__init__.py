@@ -151,22 +151,33 @@ __all__ = [
     "sweep",
     "write_map",
     "read_manifest",
+    "model_from_dict",
+    "simulate_run",
 ]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
     from . import io, synth
+    from .diagnose.contract import model_from_dict, simulate_run
 
 #: Subpackages imported on first use: ``avll.io`` brings pandas (the loaders), which
 #: ``import avll`` alone does not need.
 _LAZY = ("io", "synth")
+#: Functions imported on first use from the module that defines them (the residual
+#: loop's contract brings scipy).
+_LAZY_FUNCTIONS = {"model_from_dict": ".diagnose.contract", "simulate_run": ".diagnose.contract"}
 
 
 def __getattr__(name: str) -> Any:
-    """Imports :mod:`avll.io` and :mod:`avll.synth` on first access."""
-    if name in _LAZY:
-        import importlib
+    """Imports :mod:`avll.io` and :mod:`avll.synth`, and :func:`model_from_dict` /
+    :func:`simulate_run` (from :mod:`avll.diagnose.contract`), on first access."""
+    import importlib
 
+    if name in _LAZY:
         mod = importlib.import_module(f".{name}", __name__)
         globals()[name] = mod
         return mod
+    if name in _LAZY_FUNCTIONS:
+        fn = getattr(importlib.import_module(_LAZY_FUNCTIONS[name], __name__), name)
+        globals()[name] = fn
+        return fn
     raise AttributeError(f"module 'avll' has no attribute {name!r}")

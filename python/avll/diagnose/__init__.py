@@ -1,0 +1,128 @@
+"""Residual diagnosis and the add-effect / recalibrate loop (issues 6, 13).
+
+Given a calibrated model and runs, :func:`diagnose` looks at the residual
+``e = a_measured - a_simulated``: its spectrum, autocorrelation, cross-correlation
+with the command, its dependence on candidate signals, and ranks the effects of the
+registry (:data:`avll.effects.EFFECTS`) by a score test by simulation.
+:func:`effect_loop` adds effects one at a time, accepting one only when
+cross-validation over the calibration runs says it lowers the out-of-fold error in
+most folds by a minimum effect size with a test that respects autocorrelated
+residuals; validation runs are only reported, test runs only simulated at the end;
+what the residual keeps afterwards is reported ("none of these").
+
+One module per job:
+
+* :mod:`avll.diagnose.stats` — effective sample size, binned dependence, the
+  loss-difference test, the moving-block bootstrap;
+* :mod:`avll.diagnose.signatures` — effect signatures, the score test, ranking,
+  residual structure;
+* :mod:`avll.diagnose.fitting` — simulation, per-run errors and the one fitting
+  driver (:func:`fit_full`);
+* :mod:`avll.diagnose.loop` — folds and the cross-validated loop;
+* :mod:`avll.diagnose.contract` — ``final_model`` as a dict, :func:`model_from_dict`,
+  :func:`simulate_run`;
+* :mod:`avll.diagnose.report` — tables, figures, the report;
+* :mod:`avll.diagnose.cli` — ``avll diagnose``.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
+    from .cli import register_cli
+    from .contract import model_from_dict, model_to_dict, simulate_run
+    from .fitting import (
+        BASE_BOUNDS,
+        CLOSED_LOOP_WEIGHTS,
+        SPEED_COMMAND_WEIGHTS,
+        UPPER_BOUNDS,
+        at_bound,
+        fit,
+        fit_full,
+        run_mse,
+        simulate_runs,
+    )
+    from .loop import MIN_GAIN, LoopResult, Step, effect_loop, make_folds
+    from .report import mse_table, plot_diagnosis, plot_unexplained, write_report
+    from .signatures import Candidate, Diagnosis, diagnose, offered, residual_structure
+    from .stats import (
+        SignalDependence,
+        binned_dependence,
+        block_bootstrap_gain,
+        effective_sample_size,
+        loss_difference_test,
+    )
+
+
+#: Where each public name lives: the submodules load on first use, so that
+#: ``avll diagnose --help`` (which needs only :mod:`avll.diagnose.cli`) does not import
+#: scipy.
+_WHERE = {
+    "register_cli": "cli",
+    "model_from_dict": "contract", "model_to_dict": "contract", "simulate_run": "contract",
+    "BASE_BOUNDS": "fitting", "CLOSED_LOOP_WEIGHTS": "fitting",
+    "SPEED_COMMAND_WEIGHTS": "fitting", "UPPER_BOUNDS": "fitting", "at_bound": "fitting",
+    "fit": "fitting", "fit_full": "fitting", "run_mse": "fitting", "simulate_runs": "fitting",
+    "MIN_GAIN": "defaults",
+    "LoopResult": "loop", "Step": "loop", "effect_loop": "loop", "make_folds": "loop",
+    "mse_table": "report", "plot_diagnosis": "report", "plot_unexplained": "report",
+    "write_report": "report",
+    "Candidate": "signatures", "Diagnosis": "signatures", "diagnose": "signatures",
+    "offered": "signatures", "residual_structure": "signatures",
+    "SignalDependence": "stats", "binned_dependence": "stats",
+    "block_bootstrap_gain": "stats", "effective_sample_size": "stats",
+    "loss_difference_test": "stats",
+}  # fmt: skip
+
+
+__all__ = [
+    "BASE_BOUNDS",
+    "UPPER_BOUNDS",
+    "CLOSED_LOOP_WEIGHTS",
+    "SPEED_COMMAND_WEIGHTS",
+    "MIN_GAIN",
+    "Candidate",
+    "SignalDependence",
+    "Diagnosis",
+    "Step",
+    "LoopResult",
+    "fit",
+    "fit_full",
+    "simulate_runs",
+    "run_mse",
+    "at_bound",
+    "diagnose",
+    "offered",
+    "residual_structure",
+    "effect_loop",
+    "make_folds",
+    "mse_table",
+    "plot_diagnosis",
+    "plot_unexplained",
+    "write_report",
+    "model_to_dict",
+    "model_from_dict",
+    "simulate_run",
+    "effective_sample_size",
+    "binned_dependence",
+    "loss_difference_test",
+    "block_bootstrap_gain",
+    "register_cli",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """The public names of the submodules, imported on first access."""
+    if name in _WHERE:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'avll.diagnose' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names and the lazily imported public ones."""
+    return sorted(set(globals()) | set(__all__))

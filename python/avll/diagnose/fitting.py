@@ -1,0 +1,377 @@
+"""Simulation and calibration for the residual loop: the runs' simulated
+acceleration, per-run errors, and the one fitting driver (:func:`fit_full`: the
+project's Rust GA through :func:`avll.effects.calibrate_effects` in the box of
+:data:`avll.calibrate.DEFAULT_BOUNDS` and the effects' own bounds)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from .._limits import check_seed, check_threads
+from ..calibrate import DEFAULT_BOUNDS, DEFAULT_STARTS
+from ..calibrate import UPPER_BOUNDS as _UB
+from ..data import Run
+from ..effects import EFFECTS, WithEffects, batch_cost_effects, calibrate_effects, canonical
+from ..models import LowerLevelModel, UpperLevel, model_class
+from ..rollout import simulate_batch
+
+__all__ = [
+    "BASE_BOUNDS",
+    "UPPER_BOUNDS",
+    "CLOSED_LOOP_WEIGHTS",
+    "SPEED_COMMAND_WEIGHTS",
+    "simulate_runs",
+    "run_mse",
+    "fit_full",
+    "fit",
+    "at_bound",
+]
+
+#: Search box of the base models: ``name -> (lower, upper, scale)`` — the same box
+#: as :func:`avll.calibrate` (:data:`avll.calibrate.DEFAULT_BOUNDS`), so that a
+#: diagnosis and a calibration of the same data answer the same question.
+BASE_BOUNDS: dict[str, dict[str, tuple[float, float, str]]] = DEFAULT_BOUNDS
+
+#: A fitted parameter within this share of its search box (in the box's own scale,
+#: logarithmic for log-scaled parameters) of a bound is reported "at bound": the
+#: rule of :attr:`avll.calibrate.CalibrationResult.at_bound`.
+AT_BOUND_TOL: float = 1e-3
+
+def _init(runs: Sequence[Run], init: str) -> str:
+    """``"auto"``: a speed command starts at its steady state (a run that begins
+    while driving), an acceleration command at rest (the paper's experiment)."""
+    if init == "auto":
+        return "steady" if runs and runs[0].command_kind == "speed" else "rest"
+    if init not in ("rest", "steady"):
+        raise ValueError(f"init: must be 'auto', 'rest' or 'steady', got {init!r}")
+    return init
+
+
+def _closed(runs: Sequence[Run], closed_loop: bool | None) -> bool:
+    if closed_loop is not None:
+        return bool(closed_loop)
+    return any(r.command is None for r in runs)
+
+
+def simulate_runs(
+    model: WithEffects, runs: Sequence[Run], *, closed_loop: bool | None = None,
+    init: str = "auto",
+) -> list[np.ndarray]:
+    """The simulated acceleration of every run (open loop from the recorded command,
+    or closed loop behind the recorded leader), as in the calibration cost."""
+    closed = _closed(runs, closed_loop)
+    init = _init(runs, init)
+    runs = list(runs)
+    for r in runs:
+        if closed and (r.upper is None or r.lead_x is None or r.lead_v is None or r.v is None):
+            raise ValueError(f"run {r.run_id!r}: closed loop needs lead_x, lead_v, v, upper")
+        for n in model.effect_names:
+            sig = EFFECTS[n].exo
+            if sig is not None and sig not in r.exo:
+                raise ValueError(f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'")
+    # One batched call for every run (the same rollouts as the cost).
+    sims = simulate_batch(
+        model.base.name, model.to_array()[None, :], runs, effects=model.effect_names,
+        init=init, closed_loop=closed,
+    )  # fmt: skip
+    return [np.asarray(a[0]) for a in sims["a"]]
+
+
+def run_mse(
+    model: WithEffects, runs: Sequence[Run], *, closed_loop: bool | None = None,
+    init: str = "auto", threads: int = 0,
+) -> np.ndarray:
+    """Per-run MSE of the acceleration (paper Eq. 6 per run); ``inf`` if unstable."""
+    closed = _closed(runs, closed_loop)
+    c = batch_cost_effects(
+        model.base.name, model.effect_names, model.to_array()[None, :], runs,
+        closed_loop=closed, init=_init(runs, init), threads=threads,
+    )  # fmt: skip
+    return c[0]
+
+
+
+@dataclass(frozen=True)
+class _Space:
+    names: tuple[str, ...]
+    lo: np.ndarray
+    hi: np.ndarray
+    log: np.ndarray
+
+    def to_z(self, p: np.ndarray) -> np.ndarray:
+        p = np.clip(np.asarray(p, dtype=np.float64), self.lo, self.hi)
+        z = np.where(self.log, np.log(np.where(self.log, np.maximum(p, 1e-300), 1.0)), p)
+        zl, zh = self.zbounds()
+        return (z - zl) / np.where(zh > zl, zh - zl, 1.0)
+
+    def zbounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.where(self.log, np.log(np.where(self.log, self.lo, 1.0)), self.lo)
+        hi = np.where(self.log, np.log(np.where(self.log, self.hi, 1.0)), self.hi)
+        return lo, hi
+
+    def from_z(self, z: np.ndarray) -> np.ndarray:
+        zl, zh = self.zbounds()
+        w = zl + np.asarray(z) * (zh - zl)
+        return np.where(self.log, np.exp(w), w)
+
+
+def _fixed(effect: str, param: str, kind: str) -> float | None:
+    """Parameters that a command kind fixes (a speed command has no braking gain)."""
+    if kind == "speed" and effect == "asymmetric" and param == "kb":
+        return 1.0
+    return None
+
+
+def _space(base: str, effects: Sequence[str], kind: str = "acceleration") -> _Space:
+    bb = BASE_BOUNDS[model_class(base).name]
+    names, lo, hi, lg = [], [], [], []
+    for n, (a, b, s) in bb.items():
+        names.append(n)
+        lo.append(a)
+        hi.append(b)
+        lg.append(s == "log")
+    for e in canonical(list(effects)):
+        cls = EFFECTS[e]
+        for n, (a, b) in zip(cls.param_names(), cls.bounds, strict=True):
+            fx = _fixed(e, n, kind)
+            if fx is not None:
+                a = b = fx
+            names.append(f"{e}.{n}")
+            lo.append(a)
+            hi.append(b)
+            lg.append(False)
+    return _Space(tuple(names), np.array(lo), np.array(hi), np.array(lg))
+
+
+def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, maxiter: int) -> np.ndarray:
+    h = 1e-5
+    k = z0.size
+
+    def fg(z: np.ndarray) -> tuple[float, np.ndarray]:
+        pts = [z]
+        for j in range(k):
+            e = np.zeros(k)
+            e[j] = h
+            pts.append(np.clip(z + e, 0, 1))
+            pts.append(np.clip(z - e, 0, 1))
+        v = f(np.vstack(pts))
+        g = np.empty(k)
+        for j in range(k):
+            zp, zm = pts[1 + 2 * j][j], pts[2 + 2 * j][j]
+            g[j] = (v[1 + 2 * j] - v[2 + 2 * j]) / max(zp - zm, 1e-12)
+        return float(v[0]), g
+
+    res = optimize.minimize(fg, z0, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * k,
+                            options={"maxiter": maxiter})  # fmt: skip
+    return np.asarray(res.x)
+
+
+#: Search box of the upper-level law when it is calibrated (closed loop, no known
+#: law): the same as :func:`avll.calibrate`'s.
+UPPER_BOUNDS: dict[str, tuple[float, float]] = {k: (lo, hi) for k, (lo, hi, _) in _UB.items()}
+
+
+#: Cost weights (acceleration, speed, position) of a closed-loop calibration.
+CLOSED_LOOP_WEIGHTS: tuple[float, float, float] = (1.0, 0.1, 0.01)
+#: ... and of a speed command, whose response is the speed (the acceleration alone
+#: leaves the static gain free).
+SPEED_COMMAND_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.0)
+
+
+def fit_full(
+    base: str | type[LowerLevelModel] | LowerLevelModel,
+    effects: Sequence[str],
+    runs: Sequence[Run],
+    *,
+    start: WithEffects | None = None,
+    start_upper: UpperLevel | None = None,
+    seed: int = 0,
+    closed_loop: bool | None = None,
+    free_upper: bool | None = None,
+    weights: tuple[float, float, float] | None = None,
+    popsize: int = 12,
+    maxiter: int = 300,
+    init: str = "auto",
+    threads: int = 0,
+    progress: bool = False,
+    optimizer: str = "ga",
+    starts: int = DEFAULT_STARTS,
+) -> tuple[WithEffects, UpperLevel | None]:
+    """As :func:`fit`, and in closed loop with ``free_upper`` (default: when a run
+    has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
+    Gmin`` (returned; ``None`` otherwise). ``weights`` of the acceleration, speed and
+    position MSE default to ``(1, 0, 0)`` in open loop (paper Eq. 6), to
+    :data:`SPEED_COMMAND_WEIGHTS` for a speed command and to
+    :data:`CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration alone leaves
+    the upper law's spacing unidentified. The loop reports acceleration MSEs.
+    ``optimizer``: ``"ga"`` (the project's Rust GA, :func:`avll.effects.calibrate_effects`,
+    with ``starts`` independent starts as :func:`avll.calibrate`) or ``"de"``
+    (``scipy.optimize.differential_evolution`` on the batched cost)."""
+    if optimizer not in ("ga", "de"):
+        raise ValueError(f"optimizer: must be 'ga' or 'de', got {optimizer!r}")
+    seed = check_seed(seed)
+    threads = check_threads(threads)
+    if not runs:
+        raise ValueError("runs: no runs given")
+    bname = model_class(base).name
+    names = canonical(list(effects))
+    closed = _closed(runs, closed_loop)
+    if free_upper is None:
+        free_upper = closed and any(r.upper is None for r in runs)
+    sp = _space(bname, names, runs[0].command_kind)
+    if free_upper:
+        lo = [b[0] for b in UPPER_BOUNDS.values()]
+        hi = [b[1] for b in UPPER_BOUNDS.values()]
+        sp = _Space(sp.names + tuple(UPPER_BOUNDS), np.concatenate([sp.lo, lo]),
+                    np.concatenate([sp.hi, hi]), np.concatenate([sp.log, [False] * 4]))  # fmt: skip
+        placeholder = UpperLevel(kg=0.0, kv=0.0, Tg=0.0, Gmin=0.0)
+        runs = [replace(r, upper=placeholder) for r in runs]
+    ini = _init(runs, init)
+    if weights is None:
+        if closed:
+            weights = CLOSED_LOOP_WEIGHTS
+        elif runs[0].command_kind == "speed" and all(r.v is not None for r in runs):
+            weights = SPEED_COMMAND_WEIGHTS
+        else:
+            weights = (1.0, 0.0, 0.0)
+    rows_of = sp.from_z
+    upper_free = [0, 1, 2, 3] if free_upper else []
+
+    def f(z: np.ndarray) -> np.ndarray:
+        rows = np.vstack([rows_of(zz) for zz in np.atleast_2d(z)])
+        c = batch_cost_effects(bname, names, rows, runs, closed_loop=closed, init=ini,
+                               upper_free=upper_free, weights=weights,
+                               threads=threads)  # fmt: skip
+        m = c.mean(axis=1)
+        return np.where(np.isfinite(m), m, 1e6)
+
+    rng = np.random.default_rng(seed)
+    x0 = None
+    if start is not None:
+        parts = [start.base.to_array()]
+        for n in names:
+            if n in start.effect_names:
+                parts.append(dict((e.name, e) for e in start.effects)[n].to_array())
+            else:
+                parts.append(np.array(EFFECTS[n].neutral))
+        if free_upper:
+            parts.append(start_upper.to_array() if start_upper is not None
+                         else np.array([0.5, 0.5, 1.5, 5.0]))  # fmt: skip
+        x0 = sp.to_z(np.concatenate(parts))
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=maxiter, desc="fit " + "+".join([bname, *names]), leave=False)
+    if optimizer == "ga":
+        x0p = None if x0 is None else sp.from_z(x0)[None, :]
+
+        def gcb(info: dict[str, Any]) -> None:
+            if bar is not None:
+                bar.update(int(info["iteration"]) - bar.n)
+
+        try:
+            out = calibrate_effects(
+                bname, names, runs, list(sp.lo), list(sp.hi),
+                ["log" if lg else "linear" for lg in sp.log], weights=weights, init=ini,
+                closed_loop=closed, upper_free=upper_free, initial=x0p, seed=seed,
+                max_generations=maxiter, progress=gcb if bar is not None else None,
+                threads=threads, starts=starts,
+            )  # fmt: skip
+        finally:
+            if bar is not None:
+                bar.close()
+        p = np.asarray(out["x"], dtype=np.float64)
+    else:
+
+        def cb(intermediate_result: Any) -> None:
+            if bar is not None:
+                bar.update(1)
+
+        try:
+            res = optimize.differential_evolution(
+                lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
+                popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
+                x0=x0, init="sobol", callback=cb,
+            )  # fmt: skip
+        finally:
+            if bar is not None:
+                bar.close()
+
+        p = sp.from_z(_polish(f, np.asarray(res.x), 200))
+
+    n_model = len(p) - (4 if free_upper else 0)
+    model = WithEffects.from_array(bname, names, p[:n_model])
+    up = UpperLevel(*[float(x) for x in p[n_model:]]) if free_upper else None
+    return model, up
+
+
+def fit(
+    base: str | type[LowerLevelModel] | LowerLevelModel,
+    effects: Sequence[str],
+    runs: Sequence[Run],
+    *,
+    start: WithEffects | None = None,
+    seed: int = 0,
+    closed_loop: bool | None = None,
+    popsize: int = 12,
+    maxiter: int = 300,
+    init: str = "auto",
+    threads: int = 0,
+    optimizer: str = "ga",
+) -> WithEffects:
+    """Calibrates base + effects on ``runs`` (mean of the per-run acceleration MSE,
+    paper Eq. 6; closed loop runs need their upper-level law, see :func:`fit_full`).
+
+    A global search (``scipy.optimize.differential_evolution`` on the Rust batched
+    cost, vectorised, seeded; ``start`` — e.g. the previous model with the new
+    effect at its diagnosed guess — joins the initial population) in a box scaled
+    to [0, 1] (log scale for positive time coefficients), then a bounded
+    quasi-Newton polish (L-BFGS-B on batched central differences).
+    """
+    model, _ = fit_full(base, effects, runs, start=start, seed=seed, closed_loop=closed_loop,
+                        free_upper=False, popsize=popsize, maxiter=maxiter, init=init,
+                        threads=threads, optimizer=optimizer)  # fmt: skip
+    return model
+
+
+
+
+def at_bound(
+    model: WithEffects,
+    upper: UpperLevel | None = None,
+    kind: str = "acceleration",
+    tol: float = AT_BOUND_TOL,
+) -> list[dict[str, Any]]:
+    """The parameters of ``model`` (and of a calibrated ``upper`` law) that sit within
+    ``tol`` of a bound of the box :func:`fit_full` searched (share of the box, in its
+    own linear or logarithmic scale; fixed parameters are left out). Each entry:
+    ``{"param", "value", "bound": "lower"|"upper", "lower", "upper"}``. Such a value
+    is the edge of the search, not an estimate: widen the bound or doubt the effect."""
+    sp = _space(model.base.name, model.effect_names, kind)
+    names, lo, hi, lg = list(sp.names), list(sp.lo), list(sp.hi), list(sp.log)
+    values = list(model.to_array())
+    if upper is not None:
+        for k, (a, b) in UPPER_BOUNDS.items():
+            names.append(f"upper.{k}")
+            lo.append(a)
+            hi.append(b)
+            lg.append(False)
+        values.extend(float(x) for x in upper.to_array())
+    out = []
+    for n, v, a, b, is_log in zip(names, values, lo, hi, lg, strict=True):
+        if not a < b:
+            continue
+        if is_log:
+            u = (np.log(max(v, 1e-300)) - np.log(a)) / (np.log(b) - np.log(a))
+        else:
+            u = (v - a) / (b - a)
+        if u <= tol or u >= 1.0 - tol:
+            out.append({"param": n, "value": float(v), "bound": "lower" if u <= tol else "upper",
+                        "lower": float(a), "upper": float(b)})  # fmt: skip
+    return out

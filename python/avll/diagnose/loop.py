@@ -1,0 +1,556 @@
+"""The add-effect loop with cross-validated selection (issue 13).
+
+Three disjoint sets of runs:
+
+* **calibration runs** fit every model and decide which effect is accepted, by
+  cross-validation over runs inside them;
+* **validation runs** (optional) are only reported: they decide nothing;
+* **test runs** (optional) are simulated only after the loop has finished; a gain
+  that does not hold there is flagged.
+
+Folds. With ``n >= 2`` calibration runs, ``k = min(folds, n)`` folds of whole runs
+(``folds`` defaults to 5): leave-one-run-out when ``k = n``, otherwise the runs
+shuffled by ``seed`` and cut into ``k`` groups. With a single calibration run, the
+run is cut into ``k`` contiguous blocks of equal length (``folds`` defaults to 3),
+each block a held-out fold and a run of its own (it starts from its first measured
+speed and position); neighbouring blocks are correlated, so block folds are
+weaker evidence than folds of separate runs (the JSON says which were used).
+
+One iteration: diagnose the current model on all calibration runs (the score test
+of :mod:`avll.diagnose.signatures` only *ranks* effects); for each of the ``tries``
+best-ranked effects and each fold, fit the current model and the model with the
+effect on the fold's training runs (the one fitting driver,
+:func:`avll.diagnose.fitting.fit_full`, seeded per fold; the effect's starting guess
+comes from a diagnosis on the training runs only) and compare their squared errors
+on the held-out fold. An effect is **accepted** only if all of:
+
+1. it lowers the held-out error by at least ``min_gain`` (relative MSE reduction,
+   default 5 %) in most folds: ``fold_selection`` — the share of folds where it does
+   — is above one half;
+2. the pooled out-of-fold relative MSE reduction is at least ``min_gain`` (a
+   "significant" gain below the minimum effect size is not accepted);
+3. the pooled per-sample loss difference ``e_before² - e_after²`` is positive by a
+   one-sided t-test with the effective sample size of that difference
+   (:func:`avll.diagnose.stats.loss_difference_test`), ``p < alpha``;
+4. refitted on all calibration runs, it lowers their error.
+
+Of the effects that pass, the one with the largest pooled out-of-fold gain is added
+(a moving-block bootstrap interval of that gain is reported beside it); the loop
+repeats until nothing passes or ``max_effects`` are in. Afterwards the residual is
+checked for structure no effect explains (:func:`avll.diagnose.signatures.residual_structure`):
+an honest "none of these" instead of the least-bad effect.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+from .._limits import check_int, check_number, check_seed, check_threads
+from ..calibrate import DEFAULT_STARTS
+from ..data import Run
+from ..effects import EFFECTS, WithEffects
+from ..models import LowerLevelModel, UpperLevel, model_class
+from .contract import model_to_dict, per_run_mse
+from .defaults import DEFAULT_BLOCKS, DEFAULT_FOLDS, FAR_SMALLER, MIN_BLOCK, MIN_GAIN
+from .fitting import _closed, _init, at_bound, fit_full, simulate_runs
+from .signatures import Diagnosis, diagnose, residual_structure
+from .stats import block_bootstrap_gain, loss_difference_test
+
+__all__ = ["MIN_GAIN", "Step", "LoopResult", "effect_loop", "make_folds"]
+
+def _mean(d: dict[str, float] | None) -> float:
+    return float(np.mean(list(d.values()))) if d else float("nan")
+
+
+def _gain(before: dict[str, float] | None, after: dict[str, float] | None) -> float:
+    b, a = _mean(before), _mean(after)
+    return 1.0 - a / b if b > 0 and math.isfinite(b) else float("nan")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One accepted effect: its parameters, the errors before and after (per run) on
+    the calibration, validation and test runs, its cross-validation record and the
+    parameters found at a bound of the search box."""
+
+    effect: str
+    params: dict[str, float]
+    model: WithEffects
+    cal_before: dict[str, float]
+    cal_after: dict[str, float]
+    val_before: dict[str, float]
+    val_after: dict[str, float]
+    fold_selection: float = float("nan")
+    cv: dict[str, Any] = field(default_factory=dict)
+    at_bound: list[dict[str, Any]] = field(default_factory=list)
+    test_before: dict[str, float] = field(default_factory=dict)
+    test_after: dict[str, float] = field(default_factory=dict)
+    upper: UpperLevel | None = None
+    flags: list[str] = field(default_factory=list)
+
+    @property
+    def p_value(self) -> float:
+        """The one-sided p-value of the pooled out-of-fold loss difference."""
+        return float(self.cv.get("p_value", float("nan")))
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (the ``avll diagnose`` JSON contract)."""
+        d: dict[str, Any] = {
+            "effect": self.effect,
+            "params": self.params,
+            "model": self.model.name,
+            "cal_mse_before": _mean(self.cal_before),
+            "cal_mse_after": _mean(self.cal_after),
+            "cal_mse_before_per_run": self.cal_before,
+            "cal_mse_after_per_run": self.cal_after,
+        }
+        if self.val_before:
+            d.update(val_mse_before=_mean(self.val_before), val_mse_after=_mean(self.val_after),
+                     val_mse_before_per_run=self.val_before,
+                     val_mse_after_per_run=self.val_after)  # fmt: skip
+        else:
+            d.update(val_mse_before=None, val_mse_after=None,
+                     val_note="no validation runs given")  # fmt: skip
+        if self.test_before:
+            d.update(test_mse_before=_mean(self.test_before),
+                     test_mse_after=_mean(self.test_after),
+                     test_mse_before_per_run=self.test_before,
+                     test_mse_after_per_run=self.test_after)  # fmt: skip
+        d.update(fold_selection=self.fold_selection, p_value=self.p_value, cv=self.cv,
+                 at_bound=self.at_bound, flags=list(self.flags))  # fmt: skip
+        if self.upper is not None:
+            d["upper"] = {"kg": self.upper.kg, "kv": self.upper.kv, "Tg": self.upper.Tg,
+                          "Gmin": self.upper.Gmin}  # fmt: skip
+        return d
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    """The baseline, the accepted steps, every diagnosis, every cross-validated
+    candidate (``trials``), the splits, the flags and what the residual keeps
+    (``unexplained``)."""
+
+    baseline: WithEffects
+    final: WithEffects
+    steps: list[Step]
+    diagnoses: list[Diagnosis]
+    rejected: list[dict[str, Any]] = field(default_factory=list)
+    upper: UpperLevel | None = None
+    trials: list[dict[str, Any]] = field(default_factory=list)
+    splits: dict[str, Any] = field(default_factory=dict)
+    settings: dict[str, Any] = field(default_factory=dict)
+    baseline_mse: dict[str, dict[str, float]] = field(default_factory=dict)
+    baseline_at_bound: list[dict[str, Any]] = field(default_factory=list)
+    baseline_upper: UpperLevel | None = None
+    unexplained: dict[str, Any] = field(default_factory=dict)
+    flags: list[dict[str, Any]] = field(default_factory=list)
+    init: str = "rest"
+    closed_loop: bool = False
+
+    @property
+    def final_model(self) -> dict[str, Any]:
+        """The final model as the ``final_model`` dict (:func:`avll.model_from_dict`)."""
+        return model_to_dict(self.final, upper=self.upper, init=self.init,
+                             closed_loop=self.closed_loop)  # fmt: skip
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (the ``avll diagnose`` JSON contract; non-finite numbers
+        are left to :func:`avll._atomic.json_safe`, which writes ``null`` with a note)."""
+        return {
+            "upper": None if self.upper is None else {
+                "kg": self.upper.kg, "kv": self.upper.kv, "Tg": self.upper.Tg,
+                "Gmin": self.upper.Gmin},
+            "base_model": self.baseline.base.name,
+            "baseline_params": self.baseline.base.to_dict(),
+            "baseline_mse": {k: {"mean": _mean(v), "per_run": v} if v else
+                             {"mean": None, "mean_note": "no runs in this split", "per_run": {}}
+                             for k, v in self.baseline_mse.items()},
+            "baseline_at_bound": self.baseline_at_bound,
+            "steps": [s.to_dict() for s in self.steps],
+            "effects": [s.effect for s in self.steps],
+            "final_params": {e.name: e.to_dict() for e in self.final.effects}
+            | {"base": self.final.base.to_dict()},
+            "final_model": self.final_model,
+            "splits": self.splits,
+            "selection": self.settings,
+            "trials": self.trials,
+            "rejected": self.rejected,
+            "unexplained": self.unexplained,
+            "flags": self.flags,
+            "diagnoses": [d.to_dict() for d in self.diagnoses],
+        }  # fmt: skip
+
+
+# ---------------------------------------------------------------------------
+# Folds
+# ---------------------------------------------------------------------------
+
+
+def _block(run: Run, i0: int, i1: int) -> Run:
+    def cut(x: np.ndarray | None) -> np.ndarray | None:
+        return None if x is None else x[i0:i1]
+
+    return replace(run, run_id=f"{run.run_id}[{i0}:{i1}]", t=run.t[i0:i1], a=run.a[i0:i1],
+                   command=cut(run.command), v=cut(run.v), x=cut(run.x),
+                   lead_x=cut(run.lead_x), lead_v=cut(run.lead_v), lead_a=cut(run.lead_a),
+                   exo={k: v[i0:i1] for k, v in run.exo.items()})  # fmt: skip
+
+
+def make_folds(
+    runs: Sequence[Run], folds: int | None = None, seed: int = 0
+) -> tuple[list[tuple[list[Run], list[Run]]], str]:
+    """The cross-validation folds of the calibration runs as ``[(train, held_out)]``
+    and their kind, ``"runs"`` or ``"blocks"`` (see the module doc). Deterministic
+    from ``seed``."""
+    runs = list(runs)
+    if not runs:
+        raise ValueError("cal_runs: no calibration runs")
+    if len(runs) == 1:
+        k = DEFAULT_BLOCKS if folds is None else check_int(folds, "folds", min=2)
+        r = runs[0]
+        n = len(r)
+        if n // k < MIN_BLOCK:
+            raise ValueError(
+                f"folds: a single calibration run ({r.run_id!r}, {n} samples) cut into {k} "
+                f"blocks gives blocks shorter than {MIN_BLOCK} samples; give more "
+                "calibration runs or fewer folds")
+        edges = np.linspace(0, n, k + 1).round().astype(int)
+        blocks = [_block(r, int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+        return [([b for j, b in enumerate(blocks) if j != i], [blocks[i]])
+                for i in range(k)], "blocks"  # fmt: skip
+    k = min(DEFAULT_FOLDS if folds is None else check_int(folds, "folds", min=2), len(runs))
+    if k == len(runs):
+        groups = [[i] for i in range(k)]
+    else:
+        perm = np.random.default_rng([int(seed) % 2**63, 13]).permutation(len(runs))
+        groups = [sorted(int(i) for i in g) for g in np.array_split(perm, k)]
+    out = []
+    for g in groups:
+        out.append(([r for i, r in enumerate(runs) if i not in g], [runs[i] for i in g]))
+    return out, "runs"
+
+
+def _sub(seed: int, *ks: int) -> int:
+    s = int(seed)
+    for k in ks:
+        s = int(_core.derive_seed(s, int(k)))
+    return s
+
+
+# ---------------------------------------------------------------------------
+# The loop
+# ---------------------------------------------------------------------------
+
+
+def effect_loop(
+    base: str | type[LowerLevelModel],
+    cal_runs: Sequence[Run],
+    val_runs: Sequence[Run] = (),
+    *,
+    test_runs: Sequence[Run] = (),
+    seed: int = 0,
+    closed_loop: bool | None = None,
+    alpha: float = 1e-3,
+    cv_alpha: float = 0.01,
+    min_gain: float = MIN_GAIN,
+    folds: int | None = None,
+    max_effects: int = 3,
+    tries: int = 2,
+    baseline: LowerLevelModel | None = None,
+    candidates: Sequence[str] | None = None,
+    init: str = "auto",
+    optimizer: str = "ga",
+    maxiter: int = 300,
+    starts: int = DEFAULT_STARTS,
+    structure_alpha: float = 1e-3,
+    min_structure: float = 0.02,
+    n_boot: int = 2000,
+    threads: int = 0,
+    progress: bool = False,
+) -> LoopResult:
+    """Baseline fit -> diagnose -> cross-validate the ``tries`` best-ranked effects
+    over folds of the calibration runs -> add the best one that passes the rule of
+    the module doc -> repeat; then report the validation and test runs and what the
+    residual still depends on.
+
+    ``val_runs`` (positional, optional) and ``test_runs`` are only reported.
+    ``min_gain``: minimum relative MSE reduction (default :data:`MIN_GAIN`);
+    ``alpha``: level of the diagnosis' screening and of the out-of-fold loss test;
+    ``folds``: number of folds (default ``min(5, n)`` runs, 3 blocks of a single run);
+    ``maxiter``/``starts``: the GA budget of every fit; ``candidates``: the effects
+    offered (default: every registered effect that applies);
+    ``structure_alpha``/``min_structure``: when the final residual "keeps structure"
+    (:func:`avll.diagnose.signatures.residual_structure`)."""
+    max_effects = check_int(max_effects, "max_effects", min=0, max=len(EFFECTS))
+    tries = check_int(tries, "tries", min=1)
+    seed = check_seed(seed)
+    threads = check_threads(threads)
+    maxiter = check_int(maxiter, "maxiter", min=1)
+    n_boot = check_int(n_boot, "n_boot", min=10)
+    min_gain = check_number(min_gain, "min_gain")
+    if not 0 <= min_gain < 1:
+        raise ValueError(f"min_gain: must be in [0, 1), got {min_gain}")
+    for nm, val in (("alpha", alpha), ("cv_alpha", cv_alpha)):
+        if not 0 < check_number(val, nm) < 1:
+            raise ValueError(f"{nm}: must be in (0, 1), got {val}")
+    cal_runs, val_runs, test_runs = list(cal_runs), list(val_runs), list(test_runs)
+    if not cal_runs:
+        raise ValueError("cal_runs: no calibration runs")
+    ids = {"cal_runs": [r.run_id for r in cal_runs], "val_runs": [r.run_id for r in val_runs],
+           "test_runs": [r.run_id for r in test_runs]}  # fmt: skip
+    seen: dict[str, str] = {}
+    for name, lst in ids.items():
+        for i in lst:
+            if i in seen:
+                raise ValueError(f"{name}: run {i!r} is also in {seen[i]}; the splits must be "
+                                 "disjoint")  # fmt: skip
+            seen[i] = name
+    every = [*cal_runs, *val_runs, *test_runs]
+    closed = _closed(every, closed_loop)
+    init = _init(cal_runs, init)
+    bname = model_class(base).name
+    kind = cal_runs[0].command_kind
+    fold_sets, fold_kind = make_folds(cal_runs, folds, seed)
+    if progress:
+        from tqdm.auto import tqdm
+
+        say: Callable[[str], None] = tqdm.write
+    else:
+        say = lambda msg: None  # noqa: E731
+    free_upper = closed and any(r.upper is None for r in every)
+    fit_kw: dict[str, Any] = dict(closed_loop=closed, init=init, free_upper=free_upper,
+                                  optimizer=optimizer, maxiter=maxiter, starts=starts,
+                                  threads=threads)  # fmt: skip
+
+    def with_upper(rs: Sequence[Run], up: UpperLevel | None) -> list[Run]:
+        # The calibrated upper-level law replaces the unknown one (on every run: the
+        # same vehicle's law).
+        return [replace(r, upper=up) for r in rs] if free_upper else list(rs)
+
+    def residuals(m: WithEffects, rs: Sequence[Run], up: UpperLevel | None) -> list[np.ndarray]:
+        rs = with_upper(rs, up)
+        return [r.a - s for r, s in zip(rs, simulate_runs(m, rs, closed_loop=closed,
+                                                           init=init), strict=True)]
+
+    def mse(m: WithEffects, rs: Sequence[Run], up: UpperLevel | None) -> dict[str, float]:
+        return per_run_mse(m, with_upper(rs, up), closed=closed, init=init) if rs else {}
+
+    if baseline is None:
+        current, upper = fit_full(bname, (), cal_runs, seed=seed, progress=progress, **fit_kw)
+    else:
+        if free_upper:
+            raise ValueError("baseline: give runs with their upper-level law in closed loop")
+        current, upper = WithEffects(baseline, ()), None
+    say(f"baseline {current.base}" + (f", upper {upper}" if upper is not None else ""))
+    out_base, base_upper = current, upper
+    # The fold models of the current effects (fitted on each fold's training runs).
+    fold_models: list[tuple[WithEffects, UpperLevel | None] | None] = [None] * len(fold_sets)
+    steps: list[Step] = []
+    diags: list[Diagnosis] = []
+    rejected: list[dict[str, Any]] = []
+    trials: list[dict[str, Any]] = []
+    for it in range(max_effects):
+        cal_u = with_upper(cal_runs, upper)
+        d = diagnose(current, cal_u, closed_loop=closed, alpha=alpha, init=init,
+                     candidates=candidates)  # fmt: skip
+        diags.append(d)
+        say("ranked: " + ", ".join(f"{c.effect} {c.explained:.3f} p={c.p_value:.2g}"
+                                   for c in d.candidates))  # fmt: skip
+        ranked = d.ranked[:tries]
+        if not ranked:
+            break
+        for f, (train, _) in enumerate(fold_sets):
+            if fold_models[f] is None:
+                fold_models[f] = fit_full(bname, current.effect_names, train,
+                                          seed=_sub(seed, it, f, 0), **fit_kw)  # fmt: skip
+        passed = []
+        for ci, c in enumerate(ranked):
+            names = [*current.effect_names, c.effect]
+            e0s: list[np.ndarray] = []
+            e1s: list[np.ndarray] = []
+            fold_gains, new_fold_models = [], []
+            for f, (train, held) in enumerate(fold_sets):
+                m0, u0 = fold_models[f]  # type: ignore[misc]
+                hint = _fold_hint(m0, with_upper(train, u0), c.effect, closed, init)
+                start = WithEffects(m0.base, (*m0.effects, EFFECTS[c.effect](**hint)))
+                m1, u1 = fit_full(bname, names, train, start=start, start_upper=u0,
+                                  seed=_sub(seed, it, f, ci + 1), **fit_kw)  # fmt: skip
+                r0, r1 = residuals(m0, held, u0), residuals(m1, held, u1)
+                e0s += r0
+                e1s += r1
+                s0 = sum(float(x @ x) for x in r0)
+                s1 = sum(float(x @ x) for x in r1)
+                g = 1.0 - s1 / s0 if s0 > 0 and math.isfinite(s1) else -math.inf
+                fold_gains.append(g)
+                new_fold_models.append((m1, u1))
+            sel = float(np.mean([g >= min_gain for g in fold_gains]))
+            ttest = loss_difference_test(e0s, e1s)
+            boot = block_bootstrap_gain(e0s, e1s, n_boot=n_boot, seed=_sub(seed, it, 999, ci))
+            gain, p = boot["gain"], boot["p_value"]
+            reasons = []
+            if not sel > 0.5:
+                reasons.append(f"lowers the held-out error by >= {min_gain:.0%} in "
+                               f"{sel:.0%} of the folds (needs more than half)")
+            if not gain >= min_gain:
+                reasons.append(f"pooled out-of-fold gain {gain:.1%} < minimum {min_gain:.0%}")
+            if not p < cv_alpha:
+                reasons.append(f"block-bootstrap p = {p:.2g} >= {cv_alpha:g}")
+            rec: dict[str, Any] = {
+                "iteration": it + 1, "effect": c.effect, "fold_selection": sel,
+                "fold_gains": fold_gains, "gain": gain, "mse_before": ttest["mse_before"],
+                "mse_after": ttest["mse_after"], "p_value": p, "bootstrap_ci": boot["ci"],
+                "block_length": boot["block_length"], "n_boot": boot["n_boot"],
+                "ess_t": ttest["t"], "ess_t_p_value": ttest["p_value"], "n": ttest["n"],
+                "n_eff": ttest["n_eff"], "passed": not reasons, "reasons": reasons}  # fmt: skip
+            if not all(math.isfinite(g) for g in fold_gains):
+                rec["fold_gains_note"] = ("null: a model's simulation is not finite on that "
+                                          "held-out fold")  # fmt: skip
+            if not all(math.isfinite(x) for x in boot["ci"]):
+                rec["bootstrap_ci_note"] = "null: no finite bootstrap of the loss difference"
+            trials.append(rec)
+            say(f"cv {c.effect}: folds {['%.1f%%' % (100 * g) for g in fold_gains]}, "
+                f"selected in {sel:.0%}, pooled {gain:.1%} (p={p:.2g}): "
+                f"{'passes' if not reasons else 'rejected'}")  # fmt: skip
+            if reasons:
+                rejected.append({"iteration": it + 1, "effect": c.effect, "fold_selection": sel,
+                                 "gain": gain, "p_value": p, "reasons": reasons})  # fmt: skip
+            else:
+                passed.append((gain, ci, c, rec, new_fold_models))
+        accepted = False
+        for _, ci, c, rec, new_fold_models in sorted(passed, key=lambda x: (-x[0], x[1])):
+            start = WithEffects(current.base, (*current.effects, EFFECTS[c.effect](**c.hint)))
+            new, up1 = fit_full(bname, [*current.effect_names, c.effect], cal_runs, start=start,
+                                start_upper=upper, seed=_sub(seed, it, 1000, ci),
+                                progress=progress, **fit_kw)  # fmt: skip
+            cal0, cal1 = mse(current, cal_runs, upper), mse(new, cal_runs, up1)
+            if not _mean(cal1) < _mean(cal0):
+                reason = "refitted on all calibration runs it does not lower their error"
+                rec["passed"] = False
+                rec["reasons"].append(reason)
+                rejected.append({"iteration": it + 1, "effect": c.effect,
+                                 "fold_selection": rec["fold_selection"], "gain": rec["gain"],
+                                 "p_value": rec["p_value"], "reasons": [reason]})  # fmt: skip
+                continue
+            val0, val1 = mse(current, val_runs, upper), mse(new, val_runs, up1)
+            eff = dict((e.name, e) for e in new.effects)[c.effect]
+            cv = {k: rec[k] for k in ("fold_gains", "gain", "mse_before", "mse_after", "p_value",
+                                      "bootstrap_ci", "block_length", "n_boot", "ess_t",
+                                      "ess_t_p_value", "n", "n_eff")}
+            cv.update({k: rec[k] for k in ("fold_gains_note", "bootstrap_ci_note") if k in rec})
+            cv.update(folds=len(fold_sets), fold_kind=fold_kind)
+            steps.append(Step(c.effect, eff.to_dict(), new, cal0, cal1, val0, val1,
+                              fold_selection=rec["fold_selection"], cv=cv,
+                              at_bound=at_bound(new, up1 if free_upper else None, kind),
+                              upper=up1))  # fmt: skip
+            say(f"accepted {c.effect}: cal {_mean(cal0):.4g} -> {_mean(cal1):.4g}")
+            current, upper = new, up1
+            fold_models = list(new_fold_models)
+            accepted = True
+            break
+        if not accepted:
+            break
+    # Only now: the test runs, and the flags.
+    base_mse = {"cal": mse(out_base, cal_runs, base_upper), "val": mse(out_base, val_runs,
+                                                                      base_upper),
+                "test": mse(out_base, test_runs, base_upper)}  # fmt: skip
+    prev, prev_up = out_base, base_upper
+    done: list[Step] = []
+    flags: list[dict[str, Any]] = []
+    b_at = at_bound(out_base, base_upper if free_upper else None, kind)
+    if b_at:
+        flags.append({"kind": "at_bound", "step": 0, "effect": None,
+                      "params": [a["param"] for a in b_at],
+                      "message": "baseline parameters at a bound of the search box: "
+                                 + ", ".join(a["param"] for a in b_at)})  # fmt: skip
+    for k, s in enumerate(steps, 1):
+        t0, t1 = mse(prev, test_runs, prev_up), mse(s.model, test_runs, s.upper)
+        sflags = []
+        vg, tg, cg = _gain(s.val_before, s.val_after), _gain(t0, t1), s.cv["gain"]
+        if s.val_before and not vg > 0:
+            sflags.append("validation_gain_not_held")
+            flags.append({"kind": "validation_gain_not_held", "step": k, "effect": s.effect,
+                          "message": f"validation MSE not lower ({vg:+.1%})"})  # fmt: skip
+        elif s.val_before and cg > 0 and vg < FAR_SMALLER * cg:
+            sflags.append("validation_gain_far_smaller")
+            flags.append({"kind": "validation_gain_far_smaller", "step": k, "effect": s.effect,
+                          "message": f"validation gain {vg:.1%} is less than {FAR_SMALLER:.0%} "
+                                     f"of the cross-validated gain {cg:.1%}"})  # fmt: skip
+        if t0:
+            ref, refname = (vg, "validation") if s.val_before else (cg, "cross-validated")
+            if not tg > 0:
+                sflags.append("test_gain_not_held")
+                flags.append({"kind": "test_gain_not_held", "step": k, "effect": s.effect,
+                              "message": f"test MSE not lower ({tg:+.1%}; {refname} gain "
+                                         f"{ref:+.1%})"})  # fmt: skip
+            elif ref > 0 and tg < FAR_SMALLER * ref:
+                sflags.append("test_gain_far_smaller")
+                flags.append({"kind": "test_gain_far_smaller", "step": k, "effect": s.effect,
+                              "message": f"test gain {tg:.1%} is less than {FAR_SMALLER:.0%} "
+                                         f"of the {refname} gain {ref:.1%}"})  # fmt: skip
+        if s.at_bound:
+            sflags.append("at_bound")
+            flags.append({"kind": "at_bound", "step": k, "effect": s.effect,
+                          "params": [a["param"] for a in s.at_bound],
+                          "message": "at a bound of the search box (not an estimate): "
+                                     + ", ".join(a["param"] for a in s.at_bound)})  # fmt: skip
+        done.append(replace(s, test_before=t0, test_after=t1, flags=sflags))
+        prev, prev_up = s.model, s.upper
+    # What the residual still depends on.
+    try:
+        unexplained = residual_structure(current, with_upper(cal_runs, upper), closed_loop=closed,
+                                         init=init, alpha=structure_alpha,
+                                         min_share=min_structure)  # fmt: skip
+    except ValueError as e:
+        unexplained = {"structure_found": None, "reason": str(e)}
+    if unexplained.get("structure_found"):
+        kept = [s for s in unexplained["signals"] if s["keeps_structure"]]
+        ev = "; ".join(f"{s['signal']} explains {s['explained']:.1%} of the residual variance "
+                       f"(p = {s['p_value']:.2g})" for s in kept)  # fmt: skip
+        offered = "none of the offered effects" if not done else "no further effect"
+        msg = (f"{offered} explains the remaining structure: {ev}" if done else
+               f"none of these: no offered effect passed the selection, yet the residual "
+               f"keeps structure: {ev}")  # fmt: skip
+        unexplained["message"] = msg
+        flags.append({"kind": "structure_unexplained", "step": None, "effect": None,
+                      "message": msg})  # fmt: skip
+    elif unexplained.get("structure_found") is False:
+        unexplained["message"] = ("no significant dependence of the residual on speed, time "
+                                  "or command remains")  # fmt: skip
+    splits = {**ids, "folds": [[r.run_id for r in held] for _, held in fold_sets],
+              "fold_kind": fold_kind}  # fmt: skip
+    settings = {"rule": "cross-validation over calibration folds", "min_gain": min_gain,
+                "alpha": alpha, "cv_alpha": cv_alpha, "n_boot": n_boot,
+                "majority": "fold_selection > 0.5", "folds": len(fold_sets),
+                "fold_kind": fold_kind, "tries": tries, "max_effects": max_effects,
+                "maxiter": maxiter, "starts": starts, "seed": seed,
+                "candidates": None if candidates is None else list(candidates),
+                "structure_alpha": structure_alpha, "min_structure": min_structure,
+                "far_smaller": FAR_SMALLER}  # fmt: skip
+    return LoopResult(out_base, current, done, diags, rejected, upper, trials=trials,
+                      splits=splits, settings=settings, baseline_mse=base_mse,
+                      baseline_at_bound=b_at, baseline_upper=base_upper,
+                      unexplained=unexplained, flags=flags, init=init,
+                      closed_loop=closed)  # fmt: skip
+
+
+def _fold_hint(
+    model: WithEffects, train: list[Run], effect: str, closed: bool, init: str
+) -> dict[str, float]:
+    """The starting guess of ``effect`` from a diagnosis on the fold's training runs
+    only (the effect's neutral parameters when that diagnosis cannot give one)."""
+    try:
+        d = diagnose(model, train, closed_loop=closed, alpha=0.999, init=init,
+                     candidates=[effect])  # fmt: skip
+        for c in d.candidates:
+            if c.effect == effect:
+                return dict(c.hint)
+    except ValueError:
+        pass
+    cls = EFFECTS[effect]
+    return dict(zip(cls.param_names(), cls.neutral, strict=True))

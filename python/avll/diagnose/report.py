@@ -1,0 +1,254 @@
+"""Tables, figures and the report of the residual loop (written with
+:class:`avll.report.Report`). The wording follows the JSON: a parameter at a bound
+of the search box is "at bound", a gain that does not hold on the test runs is
+flagged, and structure the effects leave in the residual is said plainly."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .loop import LoopResult, _gain, _mean
+from .signatures import Diagnosis
+
+__all__ = ["mse_table", "plot_diagnosis", "plot_unexplained", "write_report"]
+
+
+def mse_table(rows: dict[str, dict[str, float]], title: str, per_line: int = 6) -> str:
+    """A Markdown table in the paper's format (Tables III/IV): runs across, models
+    down, wrapped every ``per_line`` runs, with the average last."""
+    runs = list(next(iter(rows.values())).keys())
+    out = [f"**{title}** (unit: (m/s²)²)", ""]
+    for i in range(0, len(runs), per_line):
+        chunk = runs[i : i + per_line]
+        last = i + per_line >= len(runs)
+        head = ["Run No.", *chunk] + (["Average"] if last else [])
+        out.append("| " + " | ".join(head) + " |")
+        out.append("|" + "---|" * len(head))
+        for name, vals in rows.items():
+            cells = [f"{vals[r]:.4f}" for r in chunk]
+            if last:
+                cells.append(f"{_mean(vals):.4f}")
+            out.append(f"| {name} | " + " | ".join(cells) + " |")
+        out.append("")
+    return "\n".join(out)
+
+
+def plot_diagnosis(d: Diagnosis) -> list[tuple[str, Any]]:
+    """Figures: residual against each candidate signal (binned, 95 % bands), the
+    residual spectrum, autocorrelation and cross-correlation with the command rate."""
+    import matplotlib.pyplot as plt
+
+    figs = []
+    n = len(d.signals)
+    cols = 3
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3 * rows), squeeze=False)
+    for ax, s in zip(axes.ravel(), d.signals, strict=False):
+        ok = s.counts > 0
+        ax.errorbar(s.centers[ok], s.means[ok], yerr=s.half_width[ok], fmt="o-", capsize=3)
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set_title(f"{s.signal}\nexpl. {100 * s.explained:.1f} %, p={s.p_value:.2g}",
+                     fontsize=9)  # fmt: skip
+        ax.set_ylabel("residual (m/s²)", fontsize=8)
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    fig.tight_layout()
+    figs.append(("residual_vs_signals", fig))
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.2))
+    axes[0].semilogy(d.freq[1:], d.psd[1:])
+    axes[0].set_xlabel("frequency (Hz)")
+    axes[0].set_title("residual PSD")
+    dt = d.xcorr_lags[1] - d.xcorr_lags[0] if d.xcorr_lags.size > 1 else 1.0
+    axes[1].plot(np.arange(d.autocorr.size) * dt, d.autocorr)
+    axes[1].set_xlabel("lag (s)")
+    axes[1].set_title(f"autocorrelation (lag-1 {d.lag1:.2f})")
+    axes[2].plot(d.xcorr_lags, d.xcorr)
+    axes[2].set_xlabel("lag (s)")
+    axes[2].set_title(f"xcorr with command rate (peak {d.best_lag:+.2f} s)")
+    fig.tight_layout()
+    figs.append(("residual_spectrum", fig))
+    return figs
+
+
+_UNITS = {"speed": "m/s", "time in run": "s", "command": "", "simulated acceleration": "m/s²"}
+
+
+def plot_unexplained(unexplained: dict[str, Any]) -> Any:
+    """The final residual binned against speed, time and command (95 % bands with
+    the effective sample size), one panel each, titled with the share of residual
+    variance and the p-value; panels that keep structure are marked."""
+    import matplotlib.pyplot as plt
+
+    sigs = unexplained.get("signals", [])
+    fig, axes = plt.subplots(1, max(len(sigs), 1), figsize=(4 * max(len(sigs), 1), 3.2),
+                             squeeze=False)  # fmt: skip
+    for ax, s in zip(axes.ravel(), sigs, strict=False):
+        c, m, h = (np.asarray(s[k], dtype=float) for k in ("centers", "means", "half_width"))
+        ok = np.isfinite(c) & np.isfinite(m)
+        ax.errorbar(c[ok], m[ok], yerr=h[ok], fmt="o-", capsize=3,
+                    color="C3" if s["keeps_structure"] else "C0")  # fmt: skip
+        ax.axhline(0, color="k", lw=0.6)
+        unit = _UNITS.get(s["signal"], "")
+        ax.set_xlabel(s["signal"] + (f" ({unit})" if unit else ""))
+        ax.set_ylabel("residual (m/s²)")
+        mark = " — keeps structure" if s["keeps_structure"] else ""
+        ax.set_title(f"{100 * s['explained']:.1f} % of variance, p={s['p_value']:.2g}{mark}",
+                     fontsize=9)  # fmt: skip
+    fig.tight_layout()
+    return fig
+
+
+def _pct(x: Any) -> str:
+    return "—" if x is None or not math.isfinite(float(x)) else f"{100 * float(x):+.1f} %"
+
+
+def _num(x: Any) -> str:
+    from ..report import fmt
+
+    return fmt(x)
+
+
+def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll diagnosis") -> Path:
+    """Writes ``report.md``, ``report.html`` and PNG figures into ``out_dir`` as one
+    unit (built in a hidden temporary folder inside it, committed with a ``MANIFEST.json``
+    written last: see :mod:`avll._atomic`). Every text, run ids included, is escaped
+    in the HTML."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from .. import _atomic
+    from ..report import Report
+
+    rep = Report(title)
+    sp, st = result.splits, result.settings
+    rep.heading("Splits and rule")
+    rep.table(["set", "runs", "role"], [
+        ["calibration", ", ".join(sp.get("cal_runs", [])),
+         "fits every model; its folds decide what is accepted"],
+        ["validation", ", ".join(sp.get("val_runs", [])) or "—", "reported only"],
+        ["test", ", ".join(sp.get("test_runs", [])) or "—",
+         "simulated only after the loop finished"],
+    ])  # fmt: skip
+    if st:
+        kind = ("contiguous blocks of the single calibration run" if st["fold_kind"] == "blocks"
+                else "groups of calibration runs")  # fmt: skip
+        rep.para(f"Selection: {st['folds']} cross-validation folds ({kind}). An effect is "
+                 f"accepted only if it lowers the held-out MSE by at least "
+                 f"{100 * st['min_gain']:.0f} % in more than half of the folds, the pooled "
+                 f"out-of-fold gain is at least that, a moving-block bootstrap of the "
+                 f"per-sample loss difference gives p < {st['cv_alpha']:g}, and the refit on "
+                 "all calibration runs lowers their error. Validation and test runs decide "
+                 "nothing.")
+    rep.heading("Baseline")
+    rep.para(f"Baseline: `{result.baseline.base}`"
+             + (f", upper law {result.baseline_upper}" if result.baseline_upper else ""))
+    bm = result.baseline_mse
+    rep.table(["set", "MSE (m/s²)²"], [[k, _num(_mean(v)) if v else "—"]
+                                        for k, v in bm.items()])  # fmt: skip
+    if result.baseline_at_bound:
+        rep.para("At bound (the edge of the search box, not an estimate): "
+                 + ", ".join(f"`{a['param']}` = {_num(a['value'])} ({a['bound']} bound)"
+                             for a in result.baseline_at_bound))  # fmt: skip
+    rep.heading("Accepted effects")
+    if not result.steps:
+        rep.para("No effect was accepted: none passed the cross-validated selection.")
+    for k, s in enumerate(result.steps, 1):
+        rep.heading(f"Step {k}: add `{s.effect}`", level=3)
+        ab = {a["param"].split(".", 1)[-1]: a for a in s.at_bound
+              if a["param"].startswith(s.effect + ".")}  # fmt: skip
+        rep.table(["parameter", "value", "note"],
+                  [[p, _num(v), f"at {ab[p]['bound']} bound" if p in ab else ""]
+                   for p, v in s.params.items()])  # fmt: skip
+        others = [a for a in s.at_bound if not a["param"].startswith(s.effect + ".")]
+        if others:
+            rep.para("Also at a bound of the search box (not estimates): "
+                     + ", ".join(f"`{a['param']}` = {_num(a['value'])}" for a in others))
+        cv = s.cv
+        lo, hi = cv.get("bootstrap_ci", [None, None])
+        rep.para(f"Selected in {100 * s.fold_selection:.0f} % of {cv.get('folds')} folds "
+                 f"(held-out gains " + ", ".join(_pct(g) for g in cv.get("fold_gains", []))
+                 + f"); pooled out-of-fold gain {_pct(cv.get('gain'))} "
+                 f"(block-bootstrap 95 % interval {_pct(lo)} to {_pct(hi)}, p = "
+                 f"{s.p_value:.2g}; t-test with {cv.get('n_eff', 0):.0f} effective of "
+                 f"{cv.get('n', 0):.0f} samples: p = {cv.get('ess_t_p_value', 1.0):.2g}).")
+        rows = [["calibration", _num(_mean(s.cal_before)), _num(_mean(s.cal_after)),
+                 _pct(_gain(s.cal_before, s.cal_after))]]
+        if s.val_before:
+            rows.append(["validation", _num(_mean(s.val_before)), _num(_mean(s.val_after)),
+                         _pct(_gain(s.val_before, s.val_after))])
+        if s.test_before:
+            rows.append(["test", _num(_mean(s.test_before)), _num(_mean(s.test_after)),
+                         _pct(_gain(s.test_before, s.test_after))])
+        rep.table(["set", "MSE before (m/s²)²", "MSE after (m/s²)²", "gain"], rows)
+        words = {"test_gain_not_held": "**The gain does not hold on the test runs.**",
+                 "test_gain_far_smaller": "**The test gain is far smaller than the "
+                                          "validation (or cross-validated) gain.**",
+                 "validation_gain_not_held": "**The validation error does not fall.**",
+                 "validation_gain_far_smaller": "**The validation gain is far smaller than "
+                                                "the cross-validated gain.**",
+                 "at_bound": "Some parameters are at a bound of the search box."}
+        for fl in s.flags:
+            rep.para(words.get(fl, fl))
+        rep.code(mse_table({"before": s.cal_before, "after": s.cal_after},
+                           "Calibration MSE of acceleration"))
+        if s.val_before:
+            rep.code(mse_table({"before": s.val_before, "after": s.val_after},
+                               "Validation MSE of acceleration"))
+        if s.test_before:
+            rep.code(mse_table({"before": s.test_before, "after": s.test_after},
+                               "Test MSE of acceleration"))
+    if result.trials:
+        rep.heading("Every cross-validated candidate")
+        rep.table(["iteration", "effect", "fold selection", "pooled gain", "p", "decision"],
+                  [[t["iteration"], t["effect"], f"{100 * t['fold_selection']:.0f} %",
+                    _pct(t["gain"]), f"{t['p_value']:.2g}",
+                    "accepted" if t["passed"] and any(
+                        s.effect == t["effect"] for s in result.steps) else
+                    "; ".join(t["reasons"]) or "passed, not the best"]
+                   for t in result.trials])  # fmt: skip
+    if result.flags:
+        rep.heading("Flags")
+        rep.bullets([f["message"] for f in result.flags])
+    out = Path(out_dir)
+    with _atomic.output_dir(out, meta={"command": "avll diagnose"}) as stage:
+        un = result.unexplained
+        rep.heading("What the residual keeps")
+        if un.get("signals"):
+            rep.para(un.get("message", ""))
+            rep.table(["signal", "share of residual variance", "p (effective n)",
+                       "keeps structure"],
+                      [[s["signal"], f"{100 * s['explained']:.2f} %", f"{s['p_value']:.2g}",
+                        s["keeps_structure"]] for s in un["signals"]])  # fmt: skip
+            rep.para(f"Unexplained structured share: {100 * un['unexplained_share']:.1f} % of "
+                     f"the residual variance; residual lag-1 autocorrelation "
+                     f"{un['lag1_autocorrelation']:.2f}, {un['n_eff']:.0f} effective of "
+                     f"{un['n']} samples (descriptive).")
+            fig = plot_unexplained(un)
+            _atomic.savefig(fig, stage / "unexplained.png", dpi=90)
+            plt.close(fig)
+            rep.figure("unexplained.png", "final residual against speed, time and command")
+        else:
+            rep.para(un.get("reason", "not computed"))
+        for k, d in enumerate(result.diagnoses):
+            rep.heading(f"Diagnosis {k + 1} of `{d.model.name}`")
+            rep.para(f"residual RMS {d.residual_rms:.4f} m/s², lag-1 autocorrelation "
+                     f"{d.lag1:.3f}, effective samples {d.n_eff:.0f}, xcorr peak with the "
+                     f"command rate at {d.best_lag:+.2f} s. The ranking only chooses which "
+                     "effects are cross-validated.")
+            rep.table(["effect", "explained", "F", "df", "p (Bonferroni)", "ranked"],
+                      [[c.effect, f"{100 * c.explained:.2f} %", f"{c.F:.1f}", c.df,
+                        f"{c.p_value:.2g}", "yes" if c.significant else "no"]
+                       for c in d.candidates])  # fmt: skip
+            for name, fig in plot_diagnosis(d):
+                fn = f"diag{k + 1}_{name}.png"
+                _atomic.savefig(fig, stage / fn, dpi=90)
+                plt.close(fig)
+                rep.figure(fn, name)
+        rep.write(stage)
+    return out / "report.md"
