@@ -370,3 +370,23 @@ def test_contract_round_trip_closed_loop() -> None:
         for r in rs:
             got = float(np.mean((r.a - avll.simulate_run(m, r, upper=up)) ** 2))
             assert got == pytest.approx(want[r.run_id], rel=1e-12), (key, r.run_id)
+
+
+def test_report_shows_what_the_effects_do_to_stability(rate_result, tmp_path) -> None:
+    """Issue 13 item 6: the report of a loop that accepted an effect evaluates the
+    baseline fit and the final model with its effects, linearised and in a
+    time-domain platoon, under the reference upper law (a recorded command)."""
+    from avll.diagnose.report import REFERENCE_UPPER, stability_section
+
+    sec = stability_section(rate_result, v0=12.0)
+    assert sec is not None and sec["upper"] == REFERENCE_UPPER
+    base, final = sec["baseline"], sec["final"]
+    assert final.effects == tuple(rate_result.final.effect_names) and base.effects == ()
+    # the baseline is linear: its amplification does not depend on the amplitude and
+    # equals |H(jw)| of its linearisation at the disturbance frequency
+    mb = base.mean_amplification()
+    assert np.all(np.isfinite(mb))
+    assert np.ptp(mb) < 1e-3 * mb[0]
+    text = write_report(rate_result, tmp_path / "rep").read_text()
+    assert "What the accepted effects do to stability" in text
+    assert "reference law" in text and (tmp_path / "rep" / "stability.png").exists()

@@ -6,6 +6,8 @@ import argparse
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from .defaults import MIN_GAIN
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -67,7 +69,8 @@ def _cmd(args: argparse.Namespace) -> int:
     d = res.to_dict()
     _atomic.write_json(args.json, _atomic.json_safe(d), default=float)
     if args.report:
-        write_report(res, args.report)
+        speeds = [float(np.mean(r.v)) for r in cal if r.v is not None]
+        write_report(res, args.report, v0=float(np.mean(speeds)) if speeds else None)
     names = ", ".join(d["effects"]) or "none"
     extra = f"; {len(d['flags'])} flag(s): " + "; ".join(f["kind"] for f in d["flags"]) \
         if d["flags"] else ""

@@ -14,7 +14,14 @@ import numpy as np
 from .loop import LoopResult, _gain, _mean
 from .signatures import Diagnosis
 
-__all__ = ["mse_table", "plot_diagnosis", "plot_unexplained", "write_report"]
+__all__ = ["REFERENCE_UPPER", "mse_table", "plot_diagnosis", "plot_unexplained",
+           "stability_section", "write_report"]
+
+#: Upper-level law at which the report evaluates the stability consequences of the
+#: accepted effects when the data have no calibrated one (a recorded command): a
+#: constant-time-gap law inside the paper's box, string stable for the paper's
+#: calibrated second-order model at 15 m/s.
+REFERENCE_UPPER = {"kg": 0.2, "kv": 0.3, "Tg": 1.5, "Gmin": 2.0}
 
 
 def mse_table(rows: dict[str, dict[str, float]], title: str, per_line: int = 6) -> str:
@@ -112,11 +119,80 @@ def _num(x: Any) -> str:
     return fmt(x)
 
 
-def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll diagnosis") -> Path:
+def stability_section(result: LoopResult, v0: float = 15.0) -> dict[str, Any] | None:
+    """What the accepted effects do to the stability conclusions (issue 13, item 6):
+    :func:`avll.effect_stability.effect_stability` of the baseline fit and of the
+    final model (with its effects) under the calibrated upper-level law (or
+    :data:`REFERENCE_UPPER` when there is none), at ``v0``. ``None`` when no effect
+    was accepted. Returns ``{"upper", "upper_source", "v0", "baseline", "final"}``
+    (the two results)."""
+    if not result.steps:
+        return None
+    from ..effect_stability import effect_stability
+
+    if result.upper is not None:
+        up: Any = result.upper
+        src = "the calibrated upper-level law"
+    else:
+        up = dict(REFERENCE_UPPER)
+        src = ("a reference law (the runs have a recorded command, no upper level): "
+               + ", ".join(f"{k} = {v:g}" for k, v in REFERENCE_UPPER.items()))
+    amps = (0.25, 0.5, 1.0, 2.0, 4.0)
+    base = effect_stability(result.baseline, up, v0=v0, amplitudes=amps)
+    final = effect_stability(result.final, up, v0=v0, amplitudes=amps)
+    return {"upper": up, "upper_source": src, "v0": v0, "baseline": base, "final": final}
+
+
+def _stability_report(rep: Any, sec: dict[str, Any], stage: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from .. import _atomic
+
+    base, final = sec["baseline"], sec["final"]
+    rep.heading("What the accepted effects do to stability")
+    rep.para(f"Evaluated at {sec['v0']:g} m/s under {sec['upper_source']}. Linearised "
+             "(smooth effects; for asymmetric each side): the stability code at these gains "
+             "(0 locally unstable, 1 string unstable, 2 string stable), the smallest "
+             "string-stable Tg at these kg, kv, the paper's thresholds over the kg-kv box "
+             "(minimum stable Tg, kv threshold) and |H(jω)| at the disturbance frequency. "
+             "— means not computable for that form (see the notes).")
+    rows = []
+    for label, es in (("baseline fit", base), ("final", final)):
+        for e in es.linear:
+            rows.append([f"{label}: {e.label}", "—" if e.code is None else e.code,
+                         _num(e.tg_min_at_gains), _num(e.min_stable_tg),
+                         _num(e.kv_threshold), _num(e.gain_at_omega),
+                         "; ".join(e.notes)])
+    rep.table(["model", "code", "smallest stable Tg (s)", "min stable Tg, box (s)",
+               "kv threshold", "|H(jω)|", "notes"], rows)
+    rep.para("In the time domain (nonlinear effects included): a platoon of "
+             f"{final.amplification.shape[1]} followers behind a leader oscillating with "
+             f"period {final.period:.1f} s; the geometric-mean amplification per car of the "
+             "speed's fundamental, per leader amplitude. A linear model's does not depend "
+             "on the amplitude.")
+    mb, mf = base.mean_amplification(), final.mean_amplification()
+    rep.table(["leader amplitude (m/s)", "baseline fit", "final model"],
+              [[f"{a:g}", _num(float(x)), _num(float(y))]
+               for a, x, y in zip(final.amplitudes, mb, mf, strict=True)])  # fmt: skip
+    notes = [*(f"baseline: {n}" for n in base.notes), *(f"final: {n}" for n in final.notes)]
+    if notes:
+        rep.bullets(notes)
+    fig = final.plot()
+    _atomic.savefig(fig, stage / "stability.png", dpi=90)
+    plt.close(fig)
+    rep.figure("stability.png", "final model: amplification per car against the leader's "
+               "amplitude")
+
+
+def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll diagnosis",
+                 *, stability: bool = True, v0: float | None = None) -> Path:
     """Writes ``report.md``, ``report.html`` and PNG figures into ``out_dir`` as one
     unit (built in a hidden temporary folder inside it, committed with a ``MANIFEST.json``
     written last: see :mod:`avll._atomic`). Every text, run ids included, is escaped
-    in the HTML."""
+    in the HTML. With ``stability`` (and an accepted effect) the report adds what the
+    effects do to the stability conclusions (:func:`stability_section`) at ``v0``
+    (m/s; default 15; ``avll diagnose`` passes the mean speed of the calibration
+    runs where they have one)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -215,8 +291,13 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
     if result.flags:
         rep.heading("Flags")
         rep.bullets([f["message"] for f in result.flags])
+    sec = None
+    if stability and result.steps:
+        sec = stability_section(result, v0=15.0 if v0 is None else float(v0))
     out = Path(out_dir)
     with _atomic.output_dir(out, meta={"command": "avll diagnose"}) as stage:
+        if sec is not None:
+            _stability_report(rep, sec, stage)
         un = result.unexplained
         rep.heading("What the residual keeps")
         if un.get("signals"):
