@@ -7,6 +7,7 @@ automated vehicle".
 
 from typing import TYPE_CHECKING, Any
 
+from . import paper as _paper
 from ._atomic import read_manifest
 from ._core import __version__
 from .calibrate import (
@@ -72,12 +73,9 @@ from .stability import (
     thresholds,
 )
 
-#: Table II of the paper: the calibrated parameters of the three models.
-PAPER_TABLE_II = {
-    "first": FirstOrderLag(Td=1.0758),
-    "second": SecondOrder(K0=0.7292, m2=0.0445, m3=0.1305, Td=0.7796),
-    "proposed": Proposed(m1=6.7893, m2=1.2824, m3=8.8157, K0=0.3479, Td=0.7903, K=0.1008),
-}
+#: Table II of the paper: the calibrated parameters of the three models
+#: (:data:`avll.paper.TABLE_II`).
+PAPER_TABLE_II = _paper.TABLE_II
 
 __all__ = [
     "io",
@@ -150,13 +148,15 @@ __all__ = [
 if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
     from . import io, synth
 
-#: Subpackages imported on first use: ``avll.io`` brings pandas (the loaders), which
-#: ``import avll`` alone does not need.
-_LAZY = ("io", "synth")
+#: Submodules imported on first use: ``avll.io`` brings pandas (the loaders), which
+#: ``import avll`` alone does not need; ``avll.plotting`` the figures (matplotlib on
+#: first drawing), ``avll.progress`` the progress display, ``avll.cli`` the command.
+_LAZY = ("io", "synth", "plotting", "progress", "cli")
 
 
 def __getattr__(name: str) -> Any:
-    """Imports :mod:`avll.io` and :mod:`avll.synth` on first access."""
+    """Imports the submodules of ``_LAZY`` (:mod:`avll.io`, :mod:`avll.synth`, ...) on
+    first access."""
     if name in _LAZY:
         import importlib
 
