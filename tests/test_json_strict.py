@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 
 from avll._atomic import dumps, json_safe, write_json
 from avll.cli import main

@@ -7,9 +7,10 @@ automated vehicle".
 
 from typing import TYPE_CHECKING, Any
 
-from . import paper as _paper
-from ._atomic import read_manifest
 from ._core import __version__
+
+# eager: ``avll.calibrate`` must stay the function, which the submodule of the same
+# name would replace if it were first imported from elsewhere
 from .calibrate import (
     Bootstrap,
     CalibrationResult,
@@ -20,31 +21,6 @@ from .calibrate import (
     paper_workflow,
 )
 from .data import DataError, DataWarning, PlausibilityWarning, Run
-from .effects import (
-    EFFECTS,
-    Asymmetric,
-    Deadband,
-    Delay,
-    Grade,
-    RateLimit,
-    Saturation,
-    SpeedDrag,
-    WithEffects,
-    batch_cost_effects,
-    closed_loop_effects,
-    simulate_effects,
-)
-from .maps import (
-    calibrate_many_distributed,
-    map_dataset,
-    map_thresholds,
-    min_stable_tg_samples,
-    models_from_bootstrap,
-    open_map,
-    stability_probability,
-    sweep,
-    write_map,
-)
 from .models import (
     MODELS,
     FirstOrderLag,
@@ -54,28 +30,24 @@ from .models import (
     UpperLevel,
     model_class,
 )
-from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
-from .stability import (
-    Extremum,
-    PadeReport,
-    Thresholds,
-    boundary,
-    capacity,
-    exact_delay_codes,
-    kv_supremum,
-    kv_threshold,
-    min_stable_tg,
-    pade_error_map,
-    pade_report,
-    stability_map,
-    stability_points,
-    stable_intervals,
-    thresholds,
-)
 
-#: Table II of the paper: the calibrated parameters of the three models
-#: (:data:`avll.paper.TABLE_II`).
-PAPER_TABLE_II = _paper.TABLE_II
+#: Public names imported from their module on first use (``import avll`` loads only
+#: the Rust core, the models and the data class; see ``benches/bench_import.py``).
+_LAZY_NAMES: dict[str, str] = {
+    "read_manifest": "_atomic",
+    **dict.fromkeys(("EFFECTS", "Asymmetric", "Deadband", "Delay", "Grade", "RateLimit",
+                     "Saturation", "SpeedDrag", "WithEffects", "batch_cost_effects",
+                     "closed_loop_effects", "simulate_effects"), "effects"),
+    **dict.fromkeys(("calibrate_many_distributed", "map_dataset", "map_thresholds",
+                     "min_stable_tg_samples", "models_from_bootstrap", "open_map",
+                     "stability_probability", "sweep", "write_map"), "maps"),
+    **dict.fromkeys(("Trajectory", "batch_cost", "closed_loop", "platoon", "simulate",
+                     "simulate_full"), "rollout"),
+    **dict.fromkeys(("Extremum", "PadeReport", "Thresholds", "boundary", "capacity",
+                     "exact_delay_codes", "kv_supremum", "kv_threshold", "min_stable_tg",
+                     "pade_error_map", "pade_report", "stability_map", "stability_points",
+                     "stable_intervals", "thresholds"), "stability"),
+}
 
 __all__ = [
     "io",
@@ -146,7 +118,55 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
+    from . import cli as cli
     from . import io, synth
+    from . import plotting as plotting
+    from . import progress as progress
+    from ._atomic import read_manifest
+    from .effects import (
+        EFFECTS,
+        Asymmetric,
+        Deadband,
+        Delay,
+        Grade,
+        RateLimit,
+        Saturation,
+        SpeedDrag,
+        WithEffects,
+        batch_cost_effects,
+        closed_loop_effects,
+        simulate_effects,
+    )
+    from .maps import (
+        calibrate_many_distributed,
+        map_dataset,
+        map_thresholds,
+        min_stable_tg_samples,
+        models_from_bootstrap,
+        open_map,
+        stability_probability,
+        sweep,
+        write_map,
+    )
+    from .paper import TABLE_II as PAPER_TABLE_II
+    from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
+    from .stability import (
+        Extremum,
+        PadeReport,
+        Thresholds,
+        boundary,
+        capacity,
+        exact_delay_codes,
+        kv_supremum,
+        kv_threshold,
+        min_stable_tg,
+        pade_error_map,
+        pade_report,
+        stability_map,
+        stability_points,
+        stable_intervals,
+        thresholds,
+    )
 
 #: Submodules imported on first use: ``avll.io`` brings pandas (the loaders), which
 #: ``import avll`` alone does not need; ``avll.plotting`` the figures (matplotlib on
@@ -155,12 +175,25 @@ _LAZY = ("io", "synth", "plotting", "progress", "cli")
 
 
 def __getattr__(name: str) -> Any:
-    """Imports the submodules of ``_LAZY`` (:mod:`avll.io`, :mod:`avll.synth`, ...) on
-    first access."""
-    if name in _LAZY:
-        import importlib
+    """Imports the public names of ``_LAZY_NAMES`` (from their module), the submodules
+    of ``_LAZY`` and ``PAPER_TABLE_II`` (Table II of the paper, :data:`avll.paper.TABLE_II`)
+    on first access."""
+    import importlib
 
+    if name in _LAZY:
         mod = importlib.import_module(f".{name}", __name__)
         globals()[name] = mod
         return mod
-    raise AttributeError(f"module 'avll' has no attribute {name!r}")
+    if name == "PAPER_TABLE_II":
+        val: Any = importlib.import_module(".paper", __name__).TABLE_II
+    elif name in _LAZY_NAMES:
+        val = getattr(importlib.import_module(f".{_LAZY_NAMES[name]}", __name__), name)
+    else:
+        raise AttributeError(f"module 'avll' has no attribute {name!r}")
+    globals()[name] = val
+    return val
+
+
+def __dir__() -> list[str]:
+    """The module's names including the lazily imported ones."""
+    return sorted(set(globals()) | set(__all__) | set(_LAZY))

@@ -45,9 +45,11 @@ import numpy as np
 
 from .calibrate import CalibrationResult, calibrate_many
 from .data import Run
+from .defaults import UPPER_NAMES as _UPPER
 from .defaults import UPPER_PLACEHOLDER
+from .models import LowerLevelModel, UpperLevel, model_class
+from .paper import MODELS as _MODELS
 from .plotting import model_color, model_linestyle
-from .models import MODELS, LowerLevelModel, UpperLevel, model_class
 from .rollout import batch_cost, closed_loop, simulate_full
 
 __all__ = [
@@ -92,9 +94,7 @@ CARMA_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {"first": {"Td": (0.01
 #: CARMA files whose stretches calibrate (the others validate).
 CARMA_CAL_FILES: tuple[str, ...] = ("data5", "data9")
 
-_MODELS = ("first", "second", "proposed")
 _LABEL = {"first": "First-order lag", "second": "Second-order", "proposed": "Proposed"}
-_UPPER = ("kg", "kv", "Tg", "Gmin")
 #: Placeholder upper law of runs without one (every gain is calibrated).
 
 
@@ -139,6 +139,11 @@ class Study:
             names.append(f"{self.name}_report.txt")
             _atomic.write_text(st / names[-1], self.text + "\n")
         return [d / n for n in names]
+
+
+def _style(m: str) -> dict[str, Any]:
+    """The line of model ``m`` in a figure (its colour and style, :mod:`avll.plotting`)."""
+    return {"color": model_color(m), "ls": model_linestyle(m), "lw": 1.0}
 
 
 def _finite(x: float) -> float | None:
@@ -587,8 +592,8 @@ def _carma_figure(
                 continue
             mod = _model(m, per[g].params)
             tr = simulate_full(mod, run.command, run.dt, command_kind="speed", init="steady")
-            axes[i, 0].plot(t, tr.v[:n], color=model_color(m), ls=model_linestyle(m), lw=1.0, label=_LABEL[m])
-            axes[i, 1].plot(t, tr.a[:n], color=model_color(m), ls=model_linestyle(m), lw=1.0, label=_LABEL[m])
+            axes[i, 0].plot(t, tr.v[:n], **_style(m), label=_LABEL[m])
+            axes[i, 1].plot(t, tr.a[:n], **_style(m), label=_LABEL[m])
         axes[i, 0].set_ylabel(f"{g}\nspeed (m/s)")
         axes[i, 1].set_ylabel("accel. (m/s²)")
         axes[i, 0].set_title(f"{run.run_id} ({role})", fontsize="small", loc="left")
@@ -782,8 +787,8 @@ def _astazero_figure(
             up = UpperLevel(*(f.params[k] for k in _UPPER))
             tr = closed_loop(mod, run.lead_x, run.lead_v, run.dt, up, v0=float(run.v[0]),
                              x0=float(run.x[0]))  # fmt: skip
-            axes[i, 0].plot(t, tr.v[lo:hi], color=model_color(m), ls=model_linestyle(m), lw=1.0, label=_LABEL[m])
-            axes[i, 1].plot(t, (run.lead_x - tr.x)[lo:hi], color=model_color(m), ls=model_linestyle(m), lw=1.0,
+            axes[i, 0].plot(t, tr.v[lo:hi], **_style(m), label=_LABEL[m])
+            axes[i, 1].plot(t, (run.lead_x - tr.x)[lo:hi], **_style(m),
                             label=_LABEL[m])  # fmt: skip
         axes[i, 0].set_ylabel(f"{g}\nspeed (m/s)")
         axes[i, 1].set_ylabel("gap (m)")

@@ -87,7 +87,7 @@ def _new(nrow: int = 1, ncol: int = 1, size: tuple[float, float] = (6.0, 4.0)) -
     return fig, axes
 
 
-def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Sequence[float],
+def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Any,
             maps: Sequence[Any], pade_order: int = 2, *,
             labels: Sequence[str] | None = None) -> Figure:
     """Stable regions (code 2) of several models in the kg-Tg plane, one panel per kv,
@@ -142,7 +142,7 @@ def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Sequence[float],
     return fig
 
 
-def classes(codes: Any, kg: Any, tg: Any, kv_values: Sequence[float], *,
+def classes(codes: Any, kg: Any, tg: Any, kv_values: Any, *,
             title: str = "") -> Figure:
     """The three stability classes of one model (locally unstable, string unstable,
     stable) in the kg-Tg plane, one panel per kv; ``codes`` has the shape

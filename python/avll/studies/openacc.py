@@ -67,7 +67,9 @@ from .._compat import moved as _moved
 from ..calibrate import calibrate_many
 from ..data import Run
 from ..defaults import MODEL_COLORS, UPPER_PLACEHOLDER
+from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
+from ..paper import MODELS as _MODELS
 from ..rollout import closed_loop
 from ..stability import exact_delay_codes
 
@@ -107,9 +109,7 @@ MIN_EXCITATION = 0.05
 GMIN_MAX = 10.0
 #: The measured time headway uses the samples faster than this (m/s).
 HEADWAY_MIN_SPEED = 3.0
-_UPPER = ("kg", "kv", "Tg", "Gmin")
 #: Placeholder upper law of the runs (every gain is calibrated).
-_MODELS = ("first", "second", "proposed")
 _LABEL = {"first": "First-order lag", "second": "Second-order", "proposed": "Proposed"}
 _RANK = {"L": 0, "M": 1, "S": 2}
 
