@@ -129,3 +129,30 @@ def test_help_exits_zero(capsys: pytest.CaptureFixture[str]) -> None:
     assert e.value.code == 0
     out = capsys.readouterr().out
     assert "--from CAL.json" in out and "(default: 0.001 2 400)" in out
+
+
+def test_help_does_not_import_scipy_or_pandas() -> None:
+    code = ("import sys; from avll.cli import main\n"
+            "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+            "try:\n    main(['stability-map', '--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('scipy', 'pandas', 'matplotlib') if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_lazy_diagnose_entry_is_the_full_one() -> None:
+    from avll.cli.diagnose import HELP
+
+    full = build_parser()
+    lazy = build_parser(only="calibrate")
+
+    def entry(p: argparse.ArgumentParser) -> tuple[str, str]:
+        sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+        act = next(a for a in sub._choices_actions if a.dest == "diagnose")
+        return act.help or "", sub.choices["diagnose"].description or ""
+
+    assert entry(full) == entry(lazy) and entry(full)[0] == HELP
+    # the full registration is used when diagnose runs
+    assert len(build_parser(only="diagnose")._subparsers._group_actions[0]
+               .choices["diagnose"]._actions) > 5

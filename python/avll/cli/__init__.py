@@ -40,8 +40,11 @@ _COMMANDS = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``avll`` argument parser with every registered sub-command."""
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``avll`` argument parser with every registered sub-command. With ``only``
+    (the command about to run), commands whose registration is costly (``diagnose``
+    imports scipy) are registered in full only when they are ``only``; their entry in
+    ``avll --help`` is the same either way."""
     from .. import __version__
 
     parser = argparse.ArgumentParser(
@@ -54,7 +57,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for spec in _COMMANDS:
         mod, fn = spec.split(":")
-        getattr(importlib.import_module(mod), fn)(sub)
+        register = getattr(importlib.import_module(mod), fn)
+        name = mod.rsplit(".", 1)[1]
+        if only is not None and name in _COSTLY and name != only:
+            register(sub, full=False)
+        else:
+            register(sub)
     for p in _all_parsers(parser):
         if p is parser or any(isinstance(a, argparse._SubParsersAction) for a in p._actions):
             continue
@@ -63,6 +71,15 @@ def build_parser() -> argparse.ArgumentParser:
                            help="treat warnings about the data (implausible values, sidecar "
                            "entries for missing runs) as errors (default: off)")
     return parser
+
+
+#: Commands whose full registration imports heavy packages (see build_parser).
+_COSTLY = ("diagnose",)
+
+
+def _command_of(argv: Sequence[str]) -> str:
+    """The sub-command named in ``argv`` (the first word that is not an option)."""
+    return next((a for a in argv if not a.startswith("-")), "")
 
 
 def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
@@ -85,13 +102,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C)."""
     command = "?"
     try:
+        argv = list(sys.argv[1:] if argv is None else argv)
+        parser = build_parser(only=_command_of(argv))
+        args = parser.parse_args(argv)
+        command = args.command
+
+        # imported after parsing: `avll --help` does not load the loaders (pandas)
         from ..data import DataWarning
         from ..io._common import strict_warnings
         from ._common import check_io
 
-        parser = build_parser()
-        args = parser.parse_args(argv)
-        command = args.command
         with warnings.catch_warnings():
             warnings.simplefilter("always", DataWarning)
             warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)

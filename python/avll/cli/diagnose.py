@@ -36,9 +36,18 @@ _HELP = {
 }
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+#: The one-line help of ``avll diagnose`` (as :func:`avll.diagnose.register_cli` gives it;
+#: a test checks the two agree).
+HELP = "residual diagnosis and the add-effect loop"
+
+
+def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     """Registers ``avll diagnose`` through :func:`avll.diagnose.register_cli` and
-    completes its help."""
+    completes its help. ``full=False`` registers only its name, help and description
+    (for ``avll --help`` and the other commands, without importing scipy)."""
+    if not full:
+        sub.add_parser("diagnose", help=HELP, description=_DESCRIPTION)
+        return
     from ..diagnose import register_cli
 
     register_cli(sub)
