@@ -136,7 +136,8 @@ class _Stages:
         self._bar.update(1)
 
     def close(self) -> None:
-        self._bar.close(complete=False)
+        # complete when every stage ran; otherwise (an error, Ctrl-C) where it stopped
+        self._bar.close(complete=self._bar.n >= self._bar.total)
 
 
 # ---------------------------------------------------------------------------
@@ -259,68 +260,6 @@ def _synthetic(seed: int, settings: Settings) -> _Data:
     return _Data("synthetic", runs, cal, val, desc, {}, [], True)
 
 
-def _real(name: str, path: str | Path | None, settings: Settings) -> _Data:
-    from .calibrate import split_runs
-    from .io import read_runs
-
-    p = Path(path) if path is not None else Path("..") / "shared" / "data" / name
-    if not p.exists():
-        raise ValueError(f"--data-path: {p} does not exist (the {name} data are not shipped "
-                         "with avll; give the folder with --data-path)")
-    if p.is_dir() and name == "carma":  # the CARMA loader reads one file at a time
-        files = sorted(p.glob("*.csv"))
-        if not files:
-            raise ValueError(f"--data-path: no CSV files in {p}")
-        runs = [r for f in files for r in read_runs(f, format=name)]
-    else:
-        runs = read_runs(p, format=name)
-    notes = ["The paper's Table I split (runs 3, 4, 5, 9, 10, 11, 15, 16, 17, 19) does not "
-             "exist in these data: alternate runs (1st, 3rd, ...) calibrate, the others "
-             "validate.",
-             "The paper's Tables III–IV are per-run MSEs of other runs on other vehicles; "
-             "only their averages and the ranking of the models are set beside ours."]
-    kw: dict[str, Any] = {}
-    with_cmd = [r for r in runs if r.command is not None]
-    if with_cmd:
-        kinds = {r.command_kind for r in with_cmd}
-        if len(with_cmd) < len(runs):
-            notes.append(f"{len(runs) - len(with_cmd)} run(s) without a recorded command "
-                         "were left out.")
-        runs = with_cmd
-        if "speed" in kinds:
-            kw["init"] = "steady"
-            notes.append("The recorded command is a speed command (not the paper's "
-                         "acceleration command): the models are driven open loop by it, "
-                         "starting at its steady state (`init=\"steady\"`); the models' "
-                         "parameters then describe speed tracking, not acceleration "
-                         "tracking, and are not comparable with Table II.")
-    else:
-        pairs = [r for r in runs if r.lead_x is not None and r.lead_v is not None]
-        if not pairs:
-            raise ValueError(f"--data: the {name} data have neither a recorded command nor "
-                             "a leader; nothing to calibrate")
-        if len(pairs) < len(runs):
-            notes.append(f"{len(runs) - len(pairs)} run(s) without a leader were left out.")
-        runs = pairs
-        kw.update(closed_loop=True, upper_free=("kg", "kv", "Tg", "Gmin"))
-        notes.append("No recorded command: open-loop calibration (the paper's) is "
-                     "impossible; the models are calibrated in closed loop behind the "
-                     "recorded leader, with the unknown upper-level gains kg, kv, Tg, Gmin "
-                     "calibrated too (they absorb part of the lower level's behaviour).")
-    if len(runs) < 2:
-        raise ValueError(f"--data: need at least 2 usable runs, found {len(runs)} in {p}")
-    cal, val = split_runs(runs, None)
-    desc = (f"measured data `{name}` from `{p}`: {len(runs)} usable runs "
-            f"({sum(r.t[-1] - r.t[0] for r in runs):.0f} s in all); {len(cal)} calibrate, "
-            f"{len(val)} validate.")
-    return _Data(name, runs, cal, val, desc, kw, notes, False)
-
-
-# ---------------------------------------------------------------------------
-# The pipeline
-# ---------------------------------------------------------------------------
-
-
 def _stab_json(st: dict[str, Any]) -> dict[str, Any]:
     th = st["thresholds"]
     return {
@@ -396,13 +335,9 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
     t_start = time.perf_counter()
     stages = _Stages(progress, 6 + (1 if settings.diagnosis else 0))
     say = log or stages.write
-    field_study: Any = None
     if data != "synthetic":
-        try:
-            from . import fielddata as field_study  # the field-data studies (issue 5)
-        except ImportError:  # pragma: no cover - older builds: the simple path below
-            field_study = None
-    if field_study is not None:
+        from . import fielddata as field_study  # the field-data studies
+
         try:
             return _reproduce_field(field_study, outd, data, data_path, settings, seed,
                                     threads, progress, json_path, shown_json, stages, say,
@@ -411,8 +346,7 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
             stages.close()
     try:
         with stages.stage("data"):
-            d = (_synthetic(seed, settings) if data == "synthetic"
-                 else _real(data, data_path, settings))
+            d = _synthetic(seed, settings)
         with stages.stage("calibration (Tables II-IV)"):
             wf = paper_workflow(
                 d.runs, cal_runs=[r.run_id for r in d.cal], seed=seed, threads=threads,

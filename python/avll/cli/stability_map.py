@@ -92,7 +92,9 @@ def _cmd(args: argparse.Namespace) -> int:
     else:
         models = [PAPER_TABLE_II[n] for n in models_of(args)]
         source = "Table II"
-    labels = [f"{m.name}, {source}" for m in models]
+    from ..plotting import model_label
+
+    labels = [f"{model_label(m.name)}, {source}" for m in models]
     kg = _range(args.kg, "kg", log=args.kg_log)
     tg = _range(args.tg, "tg")
     kv = _range(args.kv, "kv")
