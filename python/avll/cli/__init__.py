@@ -107,15 +107,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
         command = args.command
 
-        # imported after parsing: `avll --help` does not load the loaders (pandas)
         from ..data import DataWarning
-        from ..io._common import strict_warnings
         from ._common import check_io
+
+        check_io(args)  # before any work (and before loading the loaders)
+        # imported after parsing: `avll --help` does not load the loaders (pandas)
+        from ..io._common import strict_warnings
 
         with warnings.catch_warnings():
             warnings.simplefilter("always", DataWarning)
             warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
-            check_io(args)
             with strict_warnings(bool(getattr(args, "strict", False))):
                 return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -269,12 +269,12 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
     folders = set(getattr(args, "io_folders", ()))
     inputs = [(_label(d, positional), getattr(args, d, None)) for d in ins]
     outputs = [(_label(d, positional), getattr(args, d, None), d in folders) for d in outs]
-    for lab, pth, folder in outputs:
-        if pth is not None:
-            _writable_target(lab, Path(pth), folder)
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
     given = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
     for i, (la, pa) in enumerate(given):
         for lb, pb in given[i + 1:]:
             if same_file(pa, pb):
                 raise ValueError(f"{lb}: {pb} is also the output of {la}; choose distinct names")
+    for lab, pth, folder in outputs:
+        if pth is not None:
+            _writable_target(lab, Path(pth), folder)
