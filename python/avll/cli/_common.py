@@ -267,8 +267,12 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
     ins = tuple(getattr(args, "io_inputs", ()))
     outs = tuple(getattr(args, "io_outputs", ()))
     folders = set(getattr(args, "io_folders", ()))
-    inputs = [(_label(d, positional), getattr(args, d, None)) for d in ins]
-    outputs = [(_label(d, positional), getattr(args, d, None), d in folders) for d in outs]
+    def given(d: str) -> Any:
+        v = getattr(args, d, None)
+        return None if v == "" else v  # an empty path means "not written" (--out "")
+
+    inputs = [(_label(d, positional), given(d)) for d in ins]
+    outputs = [(_label(d, positional), given(d), d in folders) for d in outs]
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
     given = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
     for i, (la, pa) in enumerate(given):

@@ -27,7 +27,7 @@ from ._common import (
 
 
 def _openacc(args: argparse.Namespace) -> int:
-    from ..studies.openacc import _check_band, openacc_study
+    from ..studies.openacc import _check_band, check_outputs, openacc_study
 
     quiet = args.progress == "none"
 
@@ -51,6 +51,7 @@ def _openacc(args: argparse.Namespace) -> int:
     _check_band(band, 0.1)
     if not Path(args.path).exists():
         raise FileNotFoundError(f"{args.path}: no such file or folder")
+    check_outputs(args.out, args.json)  # creates the folders, tries a write in each
     load: dict[str, Any] = {}
     for key in ("setting", "car", "track"):
         val = getattr(args, key)
