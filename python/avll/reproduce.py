@@ -777,14 +777,13 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
                         "The paper's numbers are shown for orientation only."))
         _section4(rep, st, ratios, settings)
         if which == "table2":
-            rep.para("The paper's kv thresholds 0.8085/0.7395 lie 3–5e-4 below the converged "
-                     "values (0.8090/0.7398 for kg down to 1e-3 or 1e-4); near the threshold "
-                     "only very small kg are stable, so the value read off a grid depends on "
-                     "its smallest kg (0.8047/0.7335 with kg ≥ 0.01). The minimum Tg values "
-                     "are the smallest stable values on the 0.1 s grid (exact boundaries "
-                     "1.857/3.449/2.189 s). The capacity constants 7 m / 30 m/s are inferred "
-                     "from the paper's numbers (it does not state them). See "
-                     "README § Stability maps.")
+            rep.para("Near the kv threshold only very small kg are stable, so a threshold "
+                     "read off a grid depends on the grid's smallest kg (given above); the "
+                     "minimum Tg values are the smallest stable values on the grid's Tg "
+                     "step, not the exact boundaries (avll.min_stable_tg computes those). "
+                     "The capacity constants 7 m / 30 m/s are inferred from the paper's "
+                     "numbers (it does not state them). See the stability guide of the "
+                     "documentation.")
         else:
             rep.para(_calibrated_comment(summary))
         tag = which
