@@ -45,8 +45,6 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "_generated"
 sys.path.insert(0, str(ROOT / "benches"))
 
-_NAMES = {"first": "first-order lag", "second": "second-order", "proposed": "proposed"}
-
 
 def _stamp(command: str) -> str:
     import avll

@@ -31,7 +31,6 @@ ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 
 _MODELS = ("second", "proposed", "first")
-_LABEL = {"second": "second-order", "proposed": "proposed", "first": "first-order lag"}
 
 #: Where each sub-command is explained in the docs (commands not listed link to the
 #: command-line reference page).

@@ -142,8 +142,15 @@ class AvllHelp(SphinxDirective):
                 raise self.error(f"avll has no sub-command {name!r}")
             return [self._block(sub.choices[name])]
         out: list[nodes.Node] = [self._block(parser)]
-        for name, p in sub.choices.items():
-            out += [nodes.rubric(text=f"avll {name}"), self._block(p)]
+
+        def walk(prefix: str, choices: dict[str, Any]) -> None:
+            for name, p in choices.items():
+                out.extend([nodes.rubric(text=f"{prefix} {name}"), self._block(p)])
+                for a in p._actions:
+                    if isinstance(a, argparse._SubParsersAction):
+                        walk(f"{prefix} {name}", a.choices)
+
+        walk("avll", sub.choices)
         return out
 
 

@@ -50,12 +50,16 @@ def test_write_helpers_replace_whole_files(tmp_path: Path) -> None:
     assert oct(p.stat().st_mode & 0o777) != oct(0o600)  # not the mkstemp mode
 
 
-def test_strict_json_refuses_nan_and_json_safe_notes_it(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="Out of range float values are not JSON compliant"):
-        _atomic.write_json(tmp_path / "n.json", {"cost": math.inf})
-    assert not (tmp_path / "n.json").exists() and _leftovers(tmp_path) == []
+def test_strict_json_nulls_nan_with_a_note(tmp_path: Path) -> None:
+    """write_json goes through json_safe: a non-finite number is written as null with a
+    note beside it (never a NaN/Infinity token); the text is strict JSON."""
+    p = _atomic.write_json(tmp_path / "n.json", {"cost": math.inf})
+    assert json.loads(p.read_text(), parse_constant=lambda t: 1 / 0) == {
+        "cost": None, "cost_note": "inf (not finite)"}
+    assert _leftovers(tmp_path) == []
     doc = _atomic.json_safe({"cost": math.inf, "xs": [1.0, float("nan")], "n": np.int64(3)})
-    assert doc == {"cost": None, "cost_note": "inf (not finite)", "xs": [1.0, None], "n": 3}
+    assert doc == {"cost": None, "cost_note": "inf (not finite)", "xs": [1.0, None],
+                   "xs_note": "null at 1 position(s) (1): not finite (nan or inf)", "n": 3}
 
 
 class _HalfThenCtrlC:

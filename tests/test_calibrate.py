@@ -105,8 +105,12 @@ def test_models_rank_as_in_the_paper(proposed_data: list[avll.Run]) -> None:
     assert t4.shape == (3, 12)
     assert t3.loc["The proposed model", "Average"] == pytest.approx(wf.results["proposed"].cost)
     assert "Table IV" in wf.to_text()
-    fig = wf.figure(17)
+    fig = wf.plot(17)
     assert len(fig.axes[0].lines) == 4
+    # the synthetic recording is labelled so, not "measured"
+    assert fig.axes[0].lines[0].get_label() == "synthetic"
+    with pytest.warns(DeprecationWarning, match="Workflow.plot"):
+        assert len(wf.figure(17).axes[0].lines) == 4
     js = wf.to_json()["models"]["second"]
     assert set(js["per_run_mse"]) == {str(i) for i in range(1, 22)}
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from avll import cli
-from avll.calibrate import _load_for_cli
+from avll.cli.calibrate import load_runs as _load_for_cli
 from avll.fielddata import (
     ASTAZERO_OBJECTIVES,
     HANDOVER_SPEED,

@@ -27,7 +27,10 @@ def tiny(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
 
 def test_summary_keys(tiny: tuple[Path, dict]) -> None:
     out, s = tiny
-    on_disk = json.loads((out / "summary.json").read_text())
+    def refuse(token: str) -> None:
+        raise ValueError(f"non-strict JSON token {token}")
+
+    on_disk = json.loads((out / "summary.json").read_text(), parse_constant=refuse)
     for doc in (s, on_disk):
         assert set(R.MODELS) <= set(doc["stability"])
         assert set(R.MODELS) <= set(doc["calibration"])

@@ -7,8 +7,10 @@ automated vehicle".
 
 from typing import TYPE_CHECKING, Any
 
-from ._atomic import read_manifest
 from ._core import __version__
+
+# eager: ``avll.calibrate`` must stay the function, which the submodule of the same
+# name would replace if it were first imported from elsewhere
 from .calibrate import (
     Bootstrap,
     CalibrationResult,
@@ -19,34 +21,6 @@ from .calibrate import (
     paper_workflow,
 )
 from .data import DataError, DataWarning, PlausibilityWarning, Run
-from .effects import (
-    EFFECTS,
-    Asymmetric,
-    Deadband,
-    Delay,
-    Grade,
-    PowerLimit,
-    RateLimit,
-    RoadLoad,
-    Saturation,
-    Sensor,
-    SpeedDrag,
-    WithEffects,
-    batch_cost_effects,
-    closed_loop_effects,
-    simulate_effects,
-)
-from .maps import (
-    calibrate_many_distributed,
-    map_dataset,
-    map_thresholds,
-    min_stable_tg_samples,
-    models_from_bootstrap,
-    open_map,
-    stability_probability,
-    sweep,
-    write_map,
-)
 from .models import (
     MODELS,
     FirstOrderLag,
@@ -56,30 +30,25 @@ from .models import (
     UpperLevel,
     model_class,
 )
-from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
-from .stability import (
-    Extremum,
-    PadeReport,
-    Thresholds,
-    boundary,
-    capacity,
-    exact_delay_codes,
-    kv_supremum,
-    kv_threshold,
-    min_stable_tg,
-    pade_error_map,
-    pade_report,
-    stability_map,
-    stability_points,
-    stable_intervals,
-    thresholds,
-)
 
-#: Table II of the paper: the calibrated parameters of the three models.
-PAPER_TABLE_II = {
-    "first": FirstOrderLag(Td=1.0758),
-    "second": SecondOrder(K0=0.7292, m2=0.0445, m3=0.1305, Td=0.7796),
-    "proposed": Proposed(m1=6.7893, m2=1.2824, m3=8.8157, K0=0.3479, Td=0.7903, K=0.1008),
+#: Public names imported from their module on first use (``import avll`` loads only
+#: the Rust core, the models and the data class; see ``benches/bench_import.py``).
+_LAZY_NAMES: dict[str, str] = {
+    "read_manifest": "_atomic",
+    **dict.fromkeys(("EFFECTS", "Asymmetric", "Deadband", "Delay", "Grade", "PowerLimit",
+                     "RateLimit", "RoadLoad", "Saturation", "Sensor", "SpeedDrag",
+                     "WithEffects", "batch_cost_effects", "closed_loop_effects",
+                     "simulate_effects"), "effects"),
+    **dict.fromkeys(("model_from_dict", "simulate_run"), "diagnose.contract"),
+    **dict.fromkeys(("calibrate_many_distributed", "map_dataset", "map_thresholds",
+                     "min_stable_tg_samples", "models_from_bootstrap", "open_map",
+                     "stability_probability", "sweep", "write_map"), "maps"),
+    **dict.fromkeys(("Trajectory", "batch_cost", "closed_loop", "platoon", "simulate",
+                     "simulate_full"), "rollout"),
+    **dict.fromkeys(("Extremum", "PadeReport", "Thresholds", "boundary", "capacity",
+                     "exact_delay_codes", "kv_supremum", "kv_threshold", "min_stable_tg",
+                     "pade_error_map", "pade_report", "stability_map", "stability_points",
+                     "stable_intervals", "thresholds"), "stability"),
 }
 
 __all__ = [
@@ -109,11 +78,8 @@ __all__ = [
     "Deadband",
     "Delay",
     "Grade",
-    "PowerLimit",
     "RateLimit",
-    "RoadLoad",
     "Saturation",
-    "Sensor",
     "SpeedDrag",
     "WithEffects",
     "batch_cost_effects",
@@ -151,33 +117,94 @@ __all__ = [
     "sweep",
     "write_map",
     "read_manifest",
+    "PowerLimit",
+    "RoadLoad",
+    "Sensor",
     "model_from_dict",
     "simulate_run",
 ]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
+    from . import cli as cli
     from . import io, synth
+    from . import plotting as plotting
+    from . import progress as progress
+    from ._atomic import read_manifest
+    from .effects import (
+        EFFECTS,
+        Asymmetric,
+        Deadband,
+        Delay,
+        Grade,
+        PowerLimit,
+        RateLimit,
+        RoadLoad,
+        Saturation,
+        Sensor,
+        SpeedDrag,
+        WithEffects,
+        batch_cost_effects,
+        closed_loop_effects,
+        simulate_effects,
+    )
     from .diagnose.contract import model_from_dict, simulate_run
+    from .maps import (
+        calibrate_many_distributed,
+        map_dataset,
+        map_thresholds,
+        min_stable_tg_samples,
+        models_from_bootstrap,
+        open_map,
+        stability_probability,
+        sweep,
+        write_map,
+    )
+    from .paper import TABLE_II as PAPER_TABLE_II
+    from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
+    from .stability import (
+        Extremum,
+        PadeReport,
+        Thresholds,
+        boundary,
+        capacity,
+        exact_delay_codes,
+        kv_supremum,
+        kv_threshold,
+        min_stable_tg,
+        pade_error_map,
+        pade_report,
+        stability_map,
+        stability_points,
+        stable_intervals,
+        thresholds,
+    )
 
-#: Subpackages imported on first use: ``avll.io`` brings pandas (the loaders), which
-#: ``import avll`` alone does not need.
-_LAZY = ("io", "synth")
-#: Functions imported on first use from the module that defines them (the residual
-#: loop's contract brings scipy).
-_LAZY_FUNCTIONS = {"model_from_dict": ".diagnose.contract", "simulate_run": ".diagnose.contract"}
+#: Submodules imported on first use: ``avll.io`` brings pandas (the loaders), which
+#: ``import avll`` alone does not need; ``avll.plotting`` the figures (matplotlib on
+#: first drawing), ``avll.progress`` the progress display, ``avll.cli`` the command.
+_LAZY = ("io", "synth", "plotting", "progress", "cli")
 
 
 def __getattr__(name: str) -> Any:
-    """Imports :mod:`avll.io` and :mod:`avll.synth`, and :func:`model_from_dict` /
-    :func:`simulate_run` (from :mod:`avll.diagnose.contract`), on first access."""
+    """Imports the public names of ``_LAZY_NAMES`` (from their module), the submodules
+    of ``_LAZY`` and ``PAPER_TABLE_II`` (Table II of the paper, :data:`avll.paper.TABLE_II`)
+    on first access."""
     import importlib
 
     if name in _LAZY:
         mod = importlib.import_module(f".{name}", __name__)
         globals()[name] = mod
         return mod
-    if name in _LAZY_FUNCTIONS:
-        fn = getattr(importlib.import_module(_LAZY_FUNCTIONS[name], __name__), name)
-        globals()[name] = fn
-        return fn
-    raise AttributeError(f"module 'avll' has no attribute {name!r}")
+    if name == "PAPER_TABLE_II":
+        val: Any = importlib.import_module(".paper", __name__).TABLE_II
+    elif name in _LAZY_NAMES:
+        val = getattr(importlib.import_module(f".{_LAZY_NAMES[name]}", __name__), name)
+    else:
+        raise AttributeError(f"module 'avll' has no attribute {name!r}")
+    globals()[name] = val
+    return val
+
+
+def __dir__() -> list[str]:
+    """The module's names including the lazily imported ones."""
+    return sorted(set(globals()) | set(__all__) | set(_LAZY))

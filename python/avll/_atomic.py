@@ -46,6 +46,7 @@ __all__ = [
     "write_bytes",
     "write_json",
     "json_safe",
+    "dumps",
     "savefig",
     "to_csv",
     "to_parquet",
@@ -171,45 +172,69 @@ def write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8")
     return write_bytes(path, text.encode(encoding))
 
 
-def json_safe(x: Any) -> Any:
-    """``x`` made strict-JSON-ready: numpy scalars and arrays become Python values and
-    lists, and a non-finite float becomes ``None`` -- in a dict with a
-    ``"<key>_note"`` beside it saying what it was (``"inf (not finite)"``)."""
+def _non_finite(v: Any) -> bool:
     import math
 
-    import numpy as np
+    return isinstance(v, float) and not math.isfinite(v)
 
-    def bad(v: Any) -> bool:
-        return isinstance(v, (float, np.floating)) and not math.isfinite(float(v))
 
-    if isinstance(x, np.ndarray):
-        x = x.tolist()
+def _plain(v: Any) -> Any:
+    """numpy scalars and arrays as Python values and lists (anything else unchanged)."""
+    if type(v).__module__ == "numpy":
+        import numpy as np
+
+        if isinstance(v, np.ndarray):
+            return v.tolist()
+        if isinstance(v, np.generic):
+            return v.item()
+    return v
+
+
+def json_safe(x: Any) -> Any:
+    """``x`` made strict-JSON-ready -- the one helper every JSON output of avll goes
+    through (:func:`dumps`, :func:`write_json`): numpy scalars and arrays become Python
+    values and lists, tuples lists, keys strings; a non-finite float becomes ``None``
+    with a reason beside it: in a dict, ``"<key>_note": "nan (not finite)"``; in a
+    list held by a dict, one ``"<key>_note"`` saying which entries are null because
+    they were not finite."""
+    x = _plain(x)
     if isinstance(x, dict):
         out: dict[str, Any] = {}
         for k, v in x.items():
-            if isinstance(v, np.generic):
-                v = v.item()
-            if bad(v):
+            v = _plain(v)
+            if _non_finite(v):
                 out[str(k)] = None
-                out[f"{k}_note"] = f"{float(v)} (not finite)"
+                out[f"{k}_note"] = f"{v} (not finite)"
+            elif isinstance(v, (list, tuple)):
+                items = [_plain(e) for e in v]
+                bad = [i for i, e in enumerate(items) if _non_finite(e)]
+                out[str(k)] = json_safe(items)
+                if bad and f"{k}_note" not in x:
+                    shown = ", ".join(str(i) for i in bad[:10]) + (", ..." if len(bad) > 10
+                                                                    else "")
+                    out[f"{k}_note"] = (f"null at {len(bad)} position(s) ({shown}): "
+                                        "not finite (nan or inf)")
             else:
                 out[str(k)] = json_safe(v)
         return out
     if isinstance(x, (list, tuple)):
-        return [None if bad(v) else json_safe(v) for v in x]
-    if isinstance(x, np.generic):
-        return json_safe(x.item())
-    if bad(x):
+        return [None if _non_finite(_plain(v)) else json_safe(v) for v in x]
+    if _non_finite(x):
         return None
     return x
 
 
+def dumps(obj: Any, *, indent: int | None = 2, default: Any = None) -> str:
+    """Strict JSON text of ``obj`` after :func:`json_safe` (``allow_nan=False``: no
+    ``NaN``/``Infinity`` tokens can appear)."""
+    return json.dumps(json_safe(obj), indent=indent, allow_nan=False, default=default)
+
+
 def write_json(path: str | os.PathLike[str], obj: Any, *, indent: int | None = 2,
                default: Any = None) -> Path:
-    """Strict JSON (``allow_nan=False``: a NaN or inf is a ``ValueError``, not invalid
-    JSON) written atomically, with a final newline."""
-    text = json.dumps(obj, indent=indent, allow_nan=False, default=default)
-    return write_text(path, text + "\n")
+    """Strict JSON of ``obj`` (:func:`dumps`: non-finite numbers become ``null`` with a
+    note beside them) written atomically, with a final newline."""
+    return write_text(path, dumps(obj, indent=indent, default=default) + "\n")
 
 
 def savefig(fig: Any, path: str | os.PathLike[str], **kw: Any) -> Path:

@@ -42,17 +42,23 @@ paper's last remark: ``bounds={"m1": (0, 0)}``).
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from . import _atomic, _core
+from . import _core
+from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_seed, check_threads
 from .data import Run
+
+# the defaults and the paper's calibration runs, re-exported here (their old home)
+from .defaults import DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS, UPPER_BOUNDS, Bound
+from .defaults import UPPER_NAMES as _UPPER_NAMES
 from .models import LowerLevelModel, UpperLevel, model_class
+from .paper import MODEL_TITLES as _LABELS
+from .paper import PAPER_CAL_RUNS
 from .rollout import batch_cost, closed_loop, pack_runs, simulate
 
 __all__ = [
@@ -70,63 +76,6 @@ __all__ = [
     "paper_workflow",
     "split_runs",
 ]
-
-#: The paper's calibration runs (Table III); the other runs validate (Table IV).
-PAPER_CAL_RUNS: tuple[int, ...] = (3, 4, 5, 9, 10, 11, 15, 16, 17, 19)
-
-Bound = tuple[float, float, str]
-
-#: Default search box per model: ``name -> (lower, upper, scale)``; see the module doc.
-DEFAULT_BOUNDS: dict[str, dict[str, Bound]] = {
-    "first": {"Td": (0.01, 3.0, "linear")},
-    "second": {
-        "K0": (0.0, 3.0, "linear"),
-        "m2": (1e-3, 100.0, "log"),
-        "m3": (1e-3, 100.0, "log"),
-        "Td": (0.0, 3.0, "linear"),
-    },
-    "proposed": {
-        "m1": (1e-4, 100.0, "log"),
-        "m2": (1e-3, 100.0, "log"),
-        "m3": (1e-3, 100.0, "log"),
-        "K0": (0.0, 3.0, "linear"),
-        "Td": (0.0, 3.0, "linear"),
-        "K": (-3.0, 3.0, "linear"),
-    },
-}
-
-#: Independent GA starts of a calibration (the best is kept): on the proposed model
-#: about one start in ten settles in a corner local minimum, so two by default.
-DEFAULT_STARTS: int = 2
-
-#: Default box of the upper-level gains when they are calibrated (``upper_free``).
-UPPER_BOUNDS: dict[str, Bound] = {
-    "kg": (0.0, 3.0, "linear"),
-    "kv": (0.0, 3.0, "linear"),
-    "Tg": (0.0, 5.0, "linear"),
-    "Gmin": (0.0, 30.0, "linear"),
-}
-_UPPER_NAMES = ("kg", "kv", "Tg", "Gmin")
-
-#: GA options passed through to the Rust core, with their defaults.
-GA_OPTIONS: dict[str, Any] = {
-    "pop_size": 0,
-    "max_generations": 300,
-    "stall_generations": 20,
-    "ftol": 1e-4,
-    "xtol": 1e-8,
-    "tournament": 2,
-    "crossover_prob": 0.9,
-    "eta_c": 10.0,
-    "mutation_prob": 0.0,
-    "eta_m": 20.0,
-    "plus": True,
-    "elite": 0,
-    "polish": True,
-    "polish_max_evals": 0,
-    "local_every": 3,
-    "local_evals": 0,
-}
 
 
 def _upper_index(u: int | str) -> int:
@@ -219,6 +168,15 @@ class CalibrationResult:
     def params(self) -> dict[str, float]:
         """The calibrated parameters by name (model, then free upper-level gains)."""
         return {**self.model.to_dict(), **self.upper}
+
+    def plot(self) -> Any:
+        """The GA's convergence: best cost per generation (a Figure,
+        :func:`avll.plotting.convergence`)."""
+        from . import plotting
+
+        return plotting.convergence(self.history, model=self.model.name,
+                                    title=f"{self.model.name}: cost {self.cost:.4g} "
+                                    f"after {self.generations} generations ({self.stop})")
 
 
 @dataclass(frozen=True)
@@ -323,29 +281,25 @@ def _initial(prob: _Problem, initial: Sequence[Any] | None) -> np.ndarray | None
 
 
 class _Bar:
-    """tqdm progress on stderr over generations (and finished problems)."""
+    """GA progress over generations (and finished problems): one
+    :class:`avll.progress.Progress` stage that ends at 100 % when the search finishes,
+    even when it converged before its generation budget."""
 
-    def __init__(self, enabled: bool, total: int, desc: str, problems: int) -> None:
-        self.bar: Any = None
+    def __init__(self, enabled: Any, total: int, desc: str, problems: int) -> None:
+        from .progress import Progress
+
+        self.bar = Progress(total, desc or "calibrate", unit="gen", mode=enabled)
         self.problems = problems
         self.seen: dict[int, int] = {}
-        if enabled:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(total=total, desc=desc, file=sys.stderr, leave=True, unit="gen")
 
     def __call__(self, info: dict[str, Any]) -> None:
-        if self.bar is None:
-            return
         if info["phase"] == "ga":
             self.seen[info["problem"]] = info["iteration"]
-            done = sum(self.seen.values())
-            self.bar.update(max(0, done - self.bar.n))
-        self.bar.set_postfix(best=f"{info['best']:.5g}", phase=info["phase"], refresh=False)
+            self.bar.advance_to(sum(self.seen.values()))
+        self.bar.set_postfix(f"best={info['best']:.5g}, phase={info['phase']}")
 
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+    def close(self, complete: bool = True) -> None:
+        self.bar.close(complete=complete)
 
 
 def _result(
@@ -396,7 +350,7 @@ def _run(
     target: float | None,
     stop_all_at_target: bool = False,
     threads: int,
-    progress: bool | Callable[[dict[str, Any]], Any],
+    progress: bool | str | Callable[[dict[str, Any]], Any],
     desc: str,
     options: Mapping[str, Any],
 ) -> list[dict[str, Any]]:
@@ -412,11 +366,12 @@ def _run(
     if callable(progress):
         bar = progress
     else:
-        bar = _Bar(bool(progress), n_problems * ga["max_generations"], desc, n_problems)
+        bar = _Bar(progress, n_problems * ga["max_generations"], desc, n_problems)
+    done = False
     try:
         ga["seed"] = int(seed)
         ga["target"] = -math.inf if target is None else float(target)
-        return _core.calibrate(
+        out = _core.calibrate(
             prob.cls.name,
             lower_bounds=prob.lower,
             upper_bounds=prob.upper,
@@ -426,13 +381,15 @@ def _run(
             stop_all_at_target=stop_all_at_target,
             options=ga,
             initial=_initial(prob, initial),
-            progress=bar if (callable(progress) or progress) else None,
+            progress=bar if (callable(progress) or bar.bar.mode != "none") else None,
             threads=int(threads),
             **prob.kw,
         )
+        done = not any(bool(r.get("interrupted")) for r in out)
+        return out
     finally:
         if isinstance(bar, _Bar):
-            bar.close()
+            bar.close(complete=done)
 
 
 def calibrate(
@@ -449,7 +406,7 @@ def calibrate(
     target: float | None = None,
     starts: int = DEFAULT_STARTS,
     threads: int = 0,
-    progress: bool | Callable[[dict[str, Any]], Any] = False,
+    progress: bool | str | Callable[[dict[str, Any]], Any] = False,
     **ga_options: Any,
 ) -> CalibrationResult:
     """Calibrates ``model`` on ``runs`` by minimising Eq. 6 with the GA.
@@ -466,8 +423,10 @@ def calibrate(
     model about one start in ten settles in a local minimum at a bound corner
     (e.g. ``K0 = 3, K = -1.2``) with several times the cost, so two starts are the
     default.
-    ``threads`` (0 = all cores) does not change the result. ``progress`` shows a tqdm
-    bar on stderr (or is a callable receiving a dict per generation). Ctrl-C stops
+    ``threads`` (0 = all cores) does not change the result. ``progress`` shows the
+    generations on stderr (``True``/``"auto"``: a bar on a terminal, log lines otherwise;
+    ``"bar"``, ``"log"``, ``False``/``"none"``: see :mod:`avll.progress`), or is a
+    callable receiving a dict per generation. Ctrl-C stops
     cleanly: the best so far is returned with ``interrupted=True``. Further GA options:
     see :data:`GA_OPTIONS` (``pop_size``, ``max_generations``, ``stall_generations``,
     ``ftol``, ``polish``, ...).
@@ -544,7 +503,7 @@ def calibrate_many(
     *,
     seed: int = 0,
     threads: int = 0,
-    progress: bool | Callable[[dict[str, Any]], Any] = False,
+    progress: bool | str | Callable[[dict[str, Any]], Any] = False,
     bounds: Mapping[str, Sequence[Any]] | None = None,
     closed_loop: bool = False,
     upper_free: Sequence[int | str] = (),
@@ -636,7 +595,7 @@ def bootstrap(
     seed: int = 0,
     level: float = 0.95,
     threads: int = 0,
-    progress: bool | Callable[[dict[str, Any]], Any] = False,
+    progress: bool | str | Callable[[dict[str, Any]], Any] = False,
     **kwargs: Any,
 ) -> Bootstrap:
     """Percentile bootstrap over runs: ``n`` resamples of the runs with replacement
@@ -702,13 +661,6 @@ def split_runs(
     cal = [r for r in runs if r.run_id in want]
     val = [r for r in runs if r.run_id not in want]
     return cal, val
-
-
-_LABELS = {
-    "first": "First-order lag model",
-    "second": "Second-order response model",
-    "proposed": "The proposed model",
-}
 
 
 @dataclass(frozen=True)
@@ -827,27 +779,29 @@ class Workflow:
             raise ValueError(f"run {run.run_id!r}: has no recorded command")
         return simulate(res.model, run.command, run.dt, init=self.init)
 
-    def figure(self, run_id: Any, models: Sequence[str] | None = None) -> Any:
-        """Measured vs simulated acceleration of one run (cf. Figs. 3–4): a Figure."""
-        from matplotlib.figure import Figure
+    def plot(self, run_id: Any, models: Sequence[str] | None = None) -> Any:
+        """Recorded vs simulated acceleration of one run (cf. Figs. 3–4), a Figure drawn
+        by :func:`avll.plotting.traces`; the recording is labelled "synthetic" for
+        generated runs and "measured" otherwise."""
+        from . import plotting
 
         runs = {r.run_id: r for r in self.cal + self.val}
         rid = str(run_id)
         if rid not in runs:
             raise ValueError(f"run_id: unknown run {run_id!r}; known: {', '.join(runs)}")
         run = runs[rid]
-        fig = Figure(figsize=(8, 3.5), layout="constrained")
-        ax = fig.add_subplot()
-        ax.plot(run.t, run.a, color="k", lw=1.0, label="measured")
-        styles = {"first": ":", "second": "--", "proposed": "-"}
-        for m in models or list(self.results):
-            ax.plot(run.t, self.simulated(m, run), styles.get(m, "-"), lw=1.0,
-                    label=_LABELS.get(m, m))  # fmt: skip
+        sims = {m: self.simulated(m, run) for m in (models or list(self.results))}
         role = "calibration" if any(r.run_id == rid for r in self.cal) else "validation"
-        ax.set(xlabel="time (s)", ylabel="acceleration (m/s²)",
-               title=f"Run {rid} ({role})")  # fmt: skip
-        ax.legend(loc="best", fontsize="small")
-        return fig
+        return plotting.traces(run.t, run.a, sims, data=plotting.data_label(run),
+                               title=f"Run {rid} ({role})")
+
+    def figure(self, run_id: Any, models: Sequence[str] | None = None) -> Any:
+        """Deprecated name of :meth:`plot`."""
+        import warnings
+
+        warnings.warn("Workflow.figure is deprecated; use Workflow.plot", DeprecationWarning,
+                      stacklevel=2)
+        return self.plot(run_id, models)
 
 
 def paper_workflow(
@@ -857,7 +811,7 @@ def paper_workflow(
     models: Sequence[str] = ("first", "second", "proposed"),
     seed: int = 0,
     threads: int = 0,
-    progress: bool = False,
+    progress: bool | str = False,
     **kwargs: Any,
 ) -> Workflow:
     """The paper's workflow: calibrate each of ``models`` on the ``cal_runs`` (default:
@@ -893,233 +847,4 @@ def paper_workflow(
                     str(kwargs.get("init", "rest")))  # fmt: skip
 
 
-# ---------------------------------------------------------------------------
-# The `avll calibrate` command.
-# ---------------------------------------------------------------------------
-
-
-def _parse_list(opt: str, text: str) -> list[str]:
-    items = [t.strip() for t in text.split(",")]
-    if not text.strip() or any(not t for t in items):
-        raise ValueError(f"{opt}: expected a comma-separated list, got {text!r}")
-    return items
-
-
-def _load_for_cli(args: Any) -> tuple[list[Run], bool, list[str], str]:
-    """Runs, closed loop, free upper gains and initial state for ``avll calibrate``.
-
-    * ``--format carma`` also reads a folder of CARMA files; ``--regime`` keeps the
-      launch or cruise parts (:func:`avll.fielddata.split_launch_cruise`).
-    * Mixed command kinds (the OpenACC folder: platoon pairs without a command and
-      free-flow runs with a set speed) keep the kind given by ``--command-kind``, or
-      else the closed-loop pairs (a note on stderr says so).
-    * Runs without a command but with a leader run in closed loop; runs without an
-      upper law get a placeholder and all four gains are calibrated (unless
-      ``--upper-free`` says otherwise).
-    * ``--init`` defaults to ``steady`` for the field-data formats (stretches cut out
-      of longer drives) and ``rest`` otherwise.
-    """
-    from pathlib import Path
-
-    from .fielddata import _UPPER0, read_carma, split_launch_cruise
-    from .io import read_runs
-    from .io.cli_load import astazero_options
-
-    fmt = args.format
-    opts = astazero_options(args)
-    if fmt == "carma" and Path(args.data).is_dir():
-        runs = read_carma(args.data, command_kind=args.command_kind)
-    else:
-        runs = read_runs(args.data, command_kind=args.command_kind, format=fmt, **opts)
-    if args.regime != "all":
-        if fmt != "carma":
-            raise ValueError("--regime: only for --format carma")
-        launch, cruise = split_launch_cruise(runs)
-        runs = launch if args.regime == "launch" else cruise
-        if not runs:
-            raise ValueError(f"--regime: no {args.regime} stretches in {args.data}")
-    kinds = {r.command_kind for r in runs}
-    if len(kinds) > 1:
-        keep = [r for r in runs if r.command is None and r.lead_x is not None]
-        if not keep:
-            raise ValueError(
-                f"{args.data}: mixed command kinds {sorted(kinds)}; pass --command-kind"
-            )
-        print(f"avll calibrate: {args.data} mixes command kinds; calibrating the "
-              f"{len(keep)} closed-loop pairs (pass --command-kind speed for the others)",
-              file=sys.stderr)  # fmt: skip
-        runs = keep
-    no_cmd = [r for r in runs if r.command is None]
-    closed = bool(args.closed_loop) or bool(no_cmd)
-    if no_cmd and len(no_cmd) != len(runs):
-        raise ValueError(f"run {no_cmd[0].run_id!r}: has no command while other runs have one")
-    if closed:
-        bad = [r for r in runs if r.lead_x is None or r.lead_v is None]
-        if bad:
-            raise ValueError(
-                f"run {bad[0].run_id!r}: has no command and no leader (lead_x, lead_v): "
-                "cannot calibrate it"
-            )
-    if args.upper_free is None:
-        free = list(_UPPER_NAMES) if closed and any(r.upper is None for r in runs) else []
-    elif args.upper_free == "none":
-        free = []
-    else:
-        free = _parse_list("--upper-free", args.upper_free)
-        for u in free:
-            _upper_index(u)
-    if closed:
-        missing = [r for r in runs if r.upper is None]
-        if missing and len(free) < 4:
-            raise ValueError(
-                f"run {missing[0].run_id!r}: has no upper-level law; --upper-free must "
-                "free all of kg,kv,Tg,Gmin"
-            )
-        runs = [r if r.upper is not None else replace(r, upper=_UPPER0) for r in runs]
-    init = args.init or ("steady" if fmt in ("carma", "openacc-astazero", "openacc") else "rest")
-    return runs, closed, free, init
-
-
-def _cal_ids(runs: Sequence[Run], text: str) -> list[str]:
-    """``--cal-runs`` ids; entries with ``*``, ``?`` or ``[`` are glob patterns."""
-    import fnmatch
-
-    out: list[str] = []
-    for item in _parse_list("--cal-runs", text):
-        if any(c in item for c in "*?["):
-            hit = [r.run_id for r in runs if fnmatch.fnmatchcase(r.run_id, item)]
-            if not hit:
-                raise ValueError(f"--cal-runs: pattern {item!r} matches no run")
-            out += [h for h in hit if h not in out]
-        elif item not in out:
-            out.append(item)
-    return out
-
-
-def _cmd(args: Any) -> int:
-    models = _parse_list("--models", args.models)
-    for m in models:
-        model_class(m)  # ValueError naming the unknown model
-    try:
-        weights = [float(w) for w in _parse_list("--weights", args.weights)]
-    except ValueError:
-        raise ValueError(f"--weights: expected three numbers, got {args.weights!r}") from None
-    if len(weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in weights):
-        raise ValueError(f"--weights: expected three finite values >= 0, got {args.weights!r}")
-    if sum(weights) <= 0:
-        raise ValueError("--weights: at least one weight must be > 0")
-    runs, closed, free, init = _load_for_cli(args)
-    cal_runs: Any = None
-    if args.cal_runs is not None:
-        cal_runs = "paper" if args.cal_runs == "paper" else _cal_ids(runs, args.cal_runs)
-    wf = paper_workflow(
-        runs, cal_runs=cal_runs, models=models, seed=args.seed, threads=args.threads,
-        progress=not args.quiet, closed_loop=closed, upper_free=free, init=init,
-        weights=tuple(weights), starts=args.starts,
-        max_generations=args.max_generations, pop_size=args.pop_size,
-    )  # fmt: skip
-    text = wf.to_text()
-    if tuple(weights) != (1.0, 0.0, 0.0):
-        text = text.replace("MSE (m/s^2)^2", f"cost wa MSE(a) + wv MSE(v) + wx MSE(x), "
-                            f"(wa, wv, wx) = ({', '.join(f'{w:g}' for w in weights)})")  # fmt: skip
-    loop = f"closed loop, free upper gains {','.join(free) or 'none'}" if closed else "open loop"
-    print(f"{len(runs)} runs, {loop}, init {init}")
-    print(text)
-    if args.json:
-        _atomic.write_json(args.json, _atomic.json_safe(wf.to_json()))
-        print(f"wrote {args.json}", file=sys.stderr)
-    if args.figure:
-        rid = args.figure_run or wf.cal[0].run_id
-        fig = wf.figure(rid)
-        _atomic.savefig(fig, args.figure, dpi=120)
-        print(f"wrote {args.figure}", file=sys.stderr)
-    if wf.interrupted:
-        print("avll calibrate: interrupted; results are the best so far", file=sys.stderr)
-        return 130
-    return 0
-
-
-def register_cli(sub: Any) -> None:
-    """Registers ``avll calibrate``."""
-    p = sub.add_parser(
-        "calibrate",
-        help="calibrate lower-level models on runs and validate them (Tables II-IV)",
-        description="Calibrate the lower-level models by the GA on the calibration runs "
-        "(Eq. 6) and validate them on the other runs. Tables go to stdout, the "
-        "progress bar to stderr. Without --cal-runs, alternate runs calibrate (the 1st, "
-        "3rd, ... in file order) and the others validate; --cal-runs paper takes the "
-        "paper's runs 3,4,5,9,10,11,15,16,17,19.",
-    )
-    p.add_argument("data", metavar="DATA", help="runs file (canonical CSV/Parquet, or --format)")
-    p.add_argument(
-        "--format",
-        default="canonical",
-        help="loader of DATA: canonical (default), generic, carma (a file or a folder), "
-        "openacc-astazero (a file or a folder; platoon pairs run in closed loop), openacc "
-        "(native OpenACC files or a folder of them, e.g. ZalaZone; closed loop)",
-    )
-    p.add_argument(
-        "--command-kind",
-        choices=("acceleration", "speed"),
-        default=None,
-        help="kind of the recorded command (default: from the file's sidecar)",
-    )
-    p.add_argument(
-        "--models",
-        default="first,second,proposed",
-        help="comma-separated models (default first,second,proposed)",
-    )
-    p.add_argument(
-        "--cal-runs",
-        default=None,
-        help="comma-separated calibration run ids or glob patterns (e.g. 'data5/*,data9/*'), "
-        "or 'paper' (default: alternate)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="GA seed (default 0)")
-    p.add_argument("--json", default=None, metavar="OUT.json", help="write results as JSON")
-    p.add_argument("--threads", type=int, default=0, help="worker threads (0 = all cores)")
-    p.add_argument(
-        "--closed-loop",
-        action="store_true",
-        help="drive the model by the leader through the upper law (Eq. 3)",
-    )
-    p.add_argument(
-        "--init",
-        choices=("rest", "steady"),
-        default=None,
-        help="initial state of each open-loop rollout (default: steady for --format carma "
-        "and openacc-astazero, whose runs are cut out of longer drives; rest otherwise)",
-    )
-    p.add_argument(
-        "--weights",
-        default="1,0,0",
-        metavar="WA,WV,WX",
-        help="weights of the acceleration, speed and position MSE (default 1,0,0: Eq. 6)",
-    )
-    p.add_argument(
-        "--upper-free",
-        default=None,
-        help="closed loop: upper-level gains to calibrate, e.g. kg,kv,Tg,Gmin or 'none' "
-        "(default: all four when the runs have no upper law, as OpenACC pairs)",
-    )
-    p.add_argument(
-        "--regime",
-        choices=("all", "cruise", "launch"),
-        default="all",
-        help="CARMA only: keep the launch or cruise parts of the stretches (default all)",
-    )
-    from .io.cli_load import add_astazero_options
-
-    add_astazero_options(p)
-    p.add_argument("--starts", type=int, default=2, help="independent GA starts (default 2)")
-    p.add_argument("--max-generations", type=int, default=GA_OPTIONS["max_generations"])
-    p.add_argument("--pop-size", type=int, default=0, help="GA population (0 = automatic)")
-    p.add_argument(
-        "--figure",
-        default=None,
-        metavar="PATH",
-        help="save measured vs simulated acceleration (PNG/SVG)",
-    )
-    p.add_argument("--figure-run", default=None, help="run of --figure (default: first cal run)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=_cmd)
+__getattr__ = _moved(__name__, {"register_cli": "avll.cli.calibrate:register"})

@@ -1,13 +1,13 @@
-"""``avll simulate``: the paper's three Table II models on a built-in command."""
+"""The paper's three Table II models on a built-in command (``avll simulate``)."""
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
 from . import PAPER_TABLE_II
+from ._compat import moved as _moved
 from .rollout import simulate
 
 
@@ -50,32 +50,11 @@ def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
 
 
 def _plot(t: np.ndarray, u: np.ndarray, res: dict[str, np.ndarray], path: Path) -> None:
-    import matplotlib.pyplot as plt
+    from . import _atomic, plotting
 
-    from . import _atomic
-
-    fig, ax = plt.subplots(figsize=(9, 3.5), layout="constrained")
-    ax.plot(t, u, "k--", lw=1, label="command")
-    for name, y in res.items():
-        ax.plot(t, y, label=name)
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("acceleration (m/s²)")
-    ax.legend(ncols=4)
+    fig = plotting.traces(t, None, res, command=u,
+                          title="Table II models on the built-in command (simulated)")
     _atomic.savefig(fig, path, dpi=120)
-    plt.close(fig)
 
 
-def _cmd(args: argparse.Namespace) -> int:
-    res = run(Path(args.out), args.dt)
-    for name, y in res.items():
-        print(f"{name:9s} peak {y.max():+.3f}  trough {y.min():+.3f} m/s²")
-    print(f"wrote {Path(args.out) / 'simulate.csv'} and simulate.png")
-    return 0
-
-
-def register_cli(sub: argparse._SubParsersAction) -> None:
-    """Registers this module's sub-command with the ``avll`` parser."""
-    p = sub.add_parser("simulate", help="simulate the paper's three models on a built-in command")
-    p.add_argument("--out", default="avll-out", help="output folder (default: avll-out)")
-    p.add_argument("--dt", type=float, default=0.05, help="sample time in s (default: 0.05)")
-    p.set_defaults(func=_cmd)
+__getattr__ = _moved(__name__, {"register_cli": "avll.cli.simulate:register"})

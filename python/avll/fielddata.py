@@ -45,7 +45,11 @@ import numpy as np
 
 from .calibrate import CalibrationResult, calibrate_many
 from .data import Run
-from .models import MODELS, LowerLevelModel, UpperLevel, model_class
+from .defaults import UPPER_NAMES as _UPPER
+from .defaults import UPPER_PLACEHOLDER
+from .models import LowerLevelModel, UpperLevel, model_class
+from .paper import MODELS as _MODELS
+from .plotting import model_color, model_linestyle
 from .rollout import batch_cost, closed_loop, simulate_full
 
 __all__ = [
@@ -90,11 +94,8 @@ CARMA_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {"first": {"Td": (0.01
 #: CARMA files whose stretches calibrate (the others validate).
 CARMA_CAL_FILES: tuple[str, ...] = ("data5", "data9")
 
-_MODELS = ("first", "second", "proposed")
 _LABEL = {"first": "First-order lag", "second": "Second-order", "proposed": "Proposed"}
-_UPPER = ("kg", "kv", "Tg", "Gmin")
 #: Placeholder upper law of runs without one (every gain is calibrated).
-_UPPER0 = UpperLevel(kg=0.1, kv=0.5, Tg=1.0, Gmin=5.0)
 
 
 @dataclass
@@ -134,16 +135,15 @@ class Study:
                 names.append(f"{self.name}_{k}.png")
                 _atomic.savefig(f, st / names[-1], dpi=80)
             names.append(f"{self.name}_summary.json")
-            _atomic.write_json(st / names[-1], self.summary, default=_json)
+            _atomic.write_json(st / names[-1], self.summary)
             names.append(f"{self.name}_report.txt")
             _atomic.write_text(st / names[-1], self.text + "\n")
         return [d / n for n in names]
 
 
-def _json(o: Any) -> Any:
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    raise TypeError(f"not JSON-able: {type(o).__name__}")
+def _style(m: str) -> dict[str, Any]:
+    """The line of model ``m`` in a figure (its colour and style, :mod:`avll.plotting`)."""
+    return {"color": model_color(m), "ls": model_linestyle(m), "lw": 1.0}
 
 
 def _finite(x: float) -> float | None:
@@ -222,7 +222,7 @@ def read_astazero_pairs(path: str | Path, **options: Any) -> list[Run]:
     from .io import read_runs
 
     runs = read_runs(path, format="openacc-astazero", command_kind="acceleration", **options)
-    return [replace(r, upper=r.upper or _UPPER0) for r in runs]
+    return [replace(r, upper=r.upper or UPPER_PLACEHOLDER) for r in runs]
 
 
 # ---------------------------------------------------------------------------
@@ -577,7 +577,6 @@ def _carma_figure(
     veh = list(groups)
     fig = Figure(figsize=(11, 1.9 * len(veh) + 0.6), layout="constrained")
     axes = fig.subplots(len(veh), 2, squeeze=False)
-    styles = {"first": ":", "second": "--", "proposed": "-"}
     for i, g in enumerate(veh):
         cal, val = groups[g]
         run = val[0] if val else cal[0]
@@ -593,8 +592,8 @@ def _carma_figure(
                 continue
             mod = _model(m, per[g].params)
             tr = simulate_full(mod, run.command, run.dt, command_kind="speed", init="steady")
-            axes[i, 0].plot(t, tr.v[:n], styles.get(m, "-"), lw=1.0, label=_LABEL[m])
-            axes[i, 1].plot(t, tr.a[:n], styles.get(m, "-"), lw=1.0, label=_LABEL[m])
+            axes[i, 0].plot(t, tr.v[:n], **_style(m), label=_LABEL[m])
+            axes[i, 1].plot(t, tr.a[:n], **_style(m), label=_LABEL[m])
         axes[i, 0].set_ylabel(f"{g}\nspeed (m/s)")
         axes[i, 1].set_ylabel("accel. (m/s²)")
         axes[i, 0].set_title(f"{run.run_id} ({role})", fontsize="small", loc="left")
@@ -771,7 +770,6 @@ def _astazero_figure(
     pairs = list(groups)
     fig = Figure(figsize=(11, 1.9 * len(pairs) + 0.6), layout="constrained")
     axes = fig.subplots(len(pairs), 2, squeeze=False)
-    styles = {"first": ":", "second": "--", "proposed": "-"}
     for i, g in enumerate(pairs):
         cal, val = groups[g]
         run = val[0] if val else cal[0]
@@ -789,8 +787,8 @@ def _astazero_figure(
             up = UpperLevel(*(f.params[k] for k in _UPPER))
             tr = closed_loop(mod, run.lead_x, run.lead_v, run.dt, up, v0=float(run.v[0]),
                              x0=float(run.x[0]))  # fmt: skip
-            axes[i, 0].plot(t, tr.v[lo:hi], styles.get(m, "-"), lw=1.0, label=_LABEL[m])
-            axes[i, 1].plot(t, (run.lead_x - tr.x)[lo:hi], styles.get(m, "-"), lw=1.0,
+            axes[i, 0].plot(t, tr.v[lo:hi], **_style(m), label=_LABEL[m])
+            axes[i, 1].plot(t, (run.lead_x - tr.x)[lo:hi], **_style(m),
                             label=_LABEL[m])  # fmt: skip
         axes[i, 0].set_ylabel(f"{g}\nspeed (m/s)")
         axes[i, 1].set_ylabel("gap (m)")
@@ -800,7 +798,3 @@ def _astazero_figure(
     axes[0, 0].legend(fontsize="x-small", ncol=3, loc="best")
     fig.suptitle(f"AstaZero closed loop: measured vs simulated, fitted on {objective}")
     return fig
-
-
-def _models_known() -> tuple[str, ...]:
-    return tuple(MODELS)

@@ -212,6 +212,8 @@ def map_thresholds(codes: Any) -> S.Thresholds:
         kv=kv.copy(), kg_max=kg_max, tg_min=tg_min, kv_last_stable=last,
         kv_first_empty=first_empty,
         tg_min_overall=float(tg_all.min()) if tg_all.size else np.nan,
+        kg_edge=float(np.max(kg)) if kg.size else np.nan,
+        tg_edge=float(np.min(tg)) if tg.size else np.nan,
     )
 
 

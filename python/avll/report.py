@@ -120,6 +120,11 @@ class Report:
         """Adds a table; cells are formatted by :func:`fmt`."""
         self.blocks.append(_Block("table", (list(header), [list(r) for r in rows], caption)))
 
+    def columns(self, meanings: Sequence[tuple[str, str]]) -> None:
+        """A paragraph giving the meaning and unit of each column of the table above
+        (``(column, "meaning (unit)")`` pairs)."""
+        self.para("Columns: " + "; ".join(f"*{c}*: {m}" for c, m in meanings) + ".")
+
     def figure(self, path: str, caption: str) -> None:
         """Adds a figure by its path relative to the report."""
         self.blocks.append(_Block("img", (path, caption)))

@@ -23,18 +23,18 @@ report says what was skipped and why.
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from . import _atomic
+from ._compat import moved as _moved
 from ._limits import check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel
@@ -48,45 +48,10 @@ __all__ = [
     "reproduce",
     "stability_summary",
     "run_diagnosis",
-    "register_cli",
 ]
 
-#: The three models, in the paper's order of presentation.
-MODELS: tuple[str, ...] = ("first", "second", "proposed")
-_NAMES = {"first": "first-order lag", "second": "second-order", "proposed": "proposed"}
-
-#: The paper's published numbers (Tables II–IV, Section IV).
-PAPER: dict[str, Any] = {
-    "params": {
-        "first": {"Td": 1.0758},
-        "second": {"K0": 0.7292, "m2": 0.0445, "m3": 0.1305, "Td": 0.7796},
-        "proposed": {"m1": 6.7893, "m2": 1.2824, "m3": 8.8157, "K0": 0.3479, "Td": 0.7903,
-                     "K": 0.1008},
-    },
-    "cal_mse": {"proposed": 0.0398, "second": 0.0551, "first": 0.1232},
-    "val_mse": {"proposed": 0.0871, "second": 0.1213, "first": 0.2587},
-    "cal_runs": {  # Table III
-        "proposed": {"3": 0.03, "4": 0.03, "5": 0.05, "9": 0.04, "10": 0.05, "11": 0.06,
-                     "15": 0.04, "16": 0.03, "17": 0.03, "19": 0.05},
-        "second": {"3": 0.04, "4": 0.04, "5": 0.07, "9": 0.06, "10": 0.07, "11": 0.07,
-                   "15": 0.05, "16": 0.04, "17": 0.04, "19": 0.06},
-        "first": {"3": 0.09, "4": 0.08, "5": 0.14, "9": 0.17, "10": 0.17, "11": 0.18,
-                  "15": 0.12, "16": 0.09, "17": 0.09, "19": 0.12},
-    },
-    "val_runs": {  # Table IV
-        "proposed": {"1": 0.11, "2": 0.10, "6": 0.08, "7": 0.16, "8": 0.07, "12": 0.06,
-                     "13": 0.07, "14": 0.07, "18": 0.06, "20": 0.07, "21": 0.11},
-        "second": {"1": 0.16, "2": 0.13, "6": 0.13, "7": 0.22, "8": 0.09, "12": 0.08,
-                   "13": 0.09, "14": 0.10, "18": 0.09, "20": 0.10, "21": 0.15},
-        "first": {"1": 0.37, "2": 0.30, "6": 0.25, "7": 0.41, "8": 0.23, "12": 0.19,
-                  "13": 0.22, "14": 0.24, "18": 0.18, "20": 0.19, "21": 0.27},
-    },
-    "kv_threshold": {"second": 0.8085, "proposed": 0.7395, "first": None},
-    "min_tg": {"second": 1.9, "proposed": 3.5, "first": 2.2},
-    "capacity": {"second": 1687.5, "proposed": 964.3, "first": 1479.5},
-    "capacity_proposed_vs_second_pct": 42.86,  # % lower
-    "capacity_first_vs_proposed_pct": 53.42,  # % larger
-}
+from .paper import MODEL_LABELS as _NAMES
+from .paper import MODELS, PAPER
 
 
 @dataclass(frozen=True)
@@ -145,39 +110,34 @@ SETTINGS: dict[str, Settings] = {
 
 
 class _Stages:
-    def __init__(self, enabled: bool, total: int) -> None:
-        self.times: dict[str, float] = {}
-        self._bar: Any = None
-        if enabled:
-            from tqdm.auto import tqdm
+    """The reproduction's stages as one :class:`avll.progress.Progress` (one step per
+    stage), with the time spent in each."""
 
-            self._bar = tqdm(total=total, desc="avll reproduce", unit="stage",
-                             bar_format="{desc}: {n}/{total} stages |{bar}| {elapsed}")
+    def __init__(self, enabled: Any, total: int) -> None:
+        from .progress import Progress
+
+        self.times: dict[str, float] = {}
+        self._bar = Progress(total, "avll reproduce", unit="stage", mode=enabled)
 
     def set_total(self, total: int) -> None:
-        if self._bar is not None:
-            self._bar.total = total
-            self._bar.refresh()
+        self._bar.set_total(total)
 
     def write(self, msg: str) -> None:
-        if self._bar is not None:
-            self._bar.write(msg)
+        self._bar.write(msg)
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
-        if self._bar is not None:
-            self._bar.set_description(f"avll reproduce: {name}")
+        self._bar.set_description(f"avll reproduce: {name}")
         t0 = time.perf_counter()
         try:
             yield
         finally:
             self.times[name] = self.times.get(name, 0.0) + time.perf_counter() - t0
-        if self._bar is not None:
-            self._bar.update(1)
+        self._bar.update(1)
 
     def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
+        # complete when every stage ran; otherwise (an error, Ctrl-C) where it stopped
+        self._bar.close(complete=self._bar.n >= self._bar.total)
 
 
 # ---------------------------------------------------------------------------
@@ -187,7 +147,7 @@ class _Stages:
 
 def stability_summary(
     model: LowerLevelModel, settings: Settings = SETTINGS["default"], *, threads: int = 0,
-    progress: bool = False,
+    progress: bool | str = False,
 ) -> dict[str, Any]:
     """Section IV numbers of one model: the map over the settings' grid, its
     thresholds, the kv threshold (bisection between the map's last stable and first
@@ -248,7 +208,7 @@ def run_diagnosis(
     *,
     seed: int = 0,
     max_effects: int = 2,
-    progress: bool = False,
+    progress: bool | str = False,
 ) -> dict[str, Any]:
     """The residual diagnosis / add-effect loop of :mod:`avll.diagnose` on ``model``
     (starting from the calibrated ``baseline`` when given), as the JSON of
@@ -259,8 +219,10 @@ def run_diagnosis(
     except ImportError as e:  # pragma: no cover - depends on the build
         return {"available": False, "reason": f"avll.diagnose not available ({e})",
                 "base_model": model, "steps": [], "effects": []}
+    from .progress import resolve_mode
+
     res = effect_loop(model, list(cal), list(val), seed=seed, baseline=baseline,
-                      max_effects=max_effects, progress=progress)
+                      max_effects=max_effects, progress=resolve_mode(progress) != "none")
     d = res.to_dict()
     d["available"] = True
     return d
@@ -298,68 +260,6 @@ def _synthetic(seed: int, settings: Settings) -> _Data:
     return _Data("synthetic", runs, cal, val, desc, {}, [], True)
 
 
-def _real(name: str, path: str | Path | None, settings: Settings) -> _Data:
-    from .calibrate import split_runs
-    from .io import read_runs
-
-    p = Path(path) if path is not None else Path("..") / "shared" / "data" / name
-    if not p.exists():
-        raise ValueError(f"--data-path: {p} does not exist (the {name} data are not shipped "
-                         "with avll; give the folder with --data-path)")
-    if p.is_dir() and name == "carma":  # the CARMA loader reads one file at a time
-        files = sorted(p.glob("*.csv"))
-        if not files:
-            raise ValueError(f"--data-path: no CSV files in {p}")
-        runs = [r for f in files for r in read_runs(f, format=name)]
-    else:
-        runs = read_runs(p, format=name)
-    notes = ["The paper's Table I split (runs 3, 4, 5, 9, 10, 11, 15, 16, 17, 19) does not "
-             "exist in these data: alternate runs (1st, 3rd, ...) calibrate, the others "
-             "validate.",
-             "The paper's Tables III–IV are per-run MSEs of other runs on other vehicles; "
-             "only their averages and the ranking of the models are set beside ours."]
-    kw: dict[str, Any] = {}
-    with_cmd = [r for r in runs if r.command is not None]
-    if with_cmd:
-        kinds = {r.command_kind for r in with_cmd}
-        if len(with_cmd) < len(runs):
-            notes.append(f"{len(runs) - len(with_cmd)} run(s) without a recorded command "
-                         "were left out.")
-        runs = with_cmd
-        if "speed" in kinds:
-            kw["init"] = "steady"
-            notes.append("The recorded command is a speed command (not the paper's "
-                         "acceleration command): the models are driven open loop by it, "
-                         "starting at its steady state (`init=\"steady\"`); the models' "
-                         "parameters then describe speed tracking, not acceleration "
-                         "tracking, and are not comparable with Table II.")
-    else:
-        pairs = [r for r in runs if r.lead_x is not None and r.lead_v is not None]
-        if not pairs:
-            raise ValueError(f"--data: the {name} data have neither a recorded command nor "
-                             "a leader; nothing to calibrate")
-        if len(pairs) < len(runs):
-            notes.append(f"{len(runs) - len(pairs)} run(s) without a leader were left out.")
-        runs = pairs
-        kw.update(closed_loop=True, upper_free=("kg", "kv", "Tg", "Gmin"))
-        notes.append("No recorded command: open-loop calibration (the paper's) is "
-                     "impossible; the models are calibrated in closed loop behind the "
-                     "recorded leader, with the unknown upper-level gains kg, kv, Tg, Gmin "
-                     "calibrated too (they absorb part of the lower level's behaviour).")
-    if len(runs) < 2:
-        raise ValueError(f"--data: need at least 2 usable runs, found {len(runs)} in {p}")
-    cal, val = split_runs(runs, None)
-    desc = (f"measured data `{name}` from `{p}`: {len(runs)} usable runs "
-            f"({sum(r.t[-1] - r.t[0] for r in runs):.0f} s in all); {len(cal)} calibrate, "
-            f"{len(val)} validate.")
-    return _Data(name, runs, cal, val, desc, kw, notes, False)
-
-
-# ---------------------------------------------------------------------------
-# The pipeline
-# ---------------------------------------------------------------------------
-
-
 def _stab_json(st: dict[str, Any]) -> dict[str, Any]:
     th = st["thresholds"]
     return {
@@ -380,7 +280,7 @@ def reproduce(
     settings: Settings | str = "default",
     seed: int = 0,
     threads: int = 0,
-    progress: bool = True,
+    progress: bool | str = True,
     json_path: str | Path | None = None,
     log: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
@@ -425,7 +325,7 @@ def reproduce(
 
 
 def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | None,
-                  settings: Settings, seed: int, threads: int, progress: bool,
+                  settings: Settings, seed: int, threads: int, progress: bool | str,
                   json_path: str | Path | None, log: Callable[[str], None] | None
                   ) -> dict[str, Any]:
     from . import PAPER_TABLE_II
@@ -433,15 +333,11 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
 
     shown_json = str(json_path) if json_path is not None else str(final / "summary.json")
     t_start = time.perf_counter()
-    stages = _Stages(bool(progress), 6 + (1 if settings.diagnosis else 0))
+    stages = _Stages(progress, 6 + (1 if settings.diagnosis else 0))
     say = log or stages.write
-    field_study: Any = None
     if data != "synthetic":
-        try:
-            from . import fielddata as field_study  # the field-data studies (issue 5)
-        except ImportError:  # pragma: no cover - older builds: the simple path below
-            field_study = None
-    if field_study is not None:
+        from . import fielddata as field_study  # the field-data studies
+
         try:
             return _reproduce_field(field_study, outd, data, data_path, settings, seed,
                                     threads, progress, json_path, shown_json, stages, say,
@@ -450,12 +346,11 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
             stages.close()
     try:
         with stages.stage("data"):
-            d = (_synthetic(seed, settings) if data == "synthetic"
-                 else _real(data, data_path, settings))
+            d = _synthetic(seed, settings)
         with stages.stage("calibration (Tables II-IV)"):
             wf = paper_workflow(
                 d.runs, cal_runs=[r.run_id for r in d.cal], seed=seed, threads=threads,
-                progress=bool(progress), max_generations=settings.max_generations,
+                progress=progress, max_generations=settings.max_generations,
                 starts=settings.starts, **d.calibrate_kwargs,
             )
             if wf.interrupted:
@@ -470,7 +365,7 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
             else:
                 picks = {"fig3": d.cal[0].run_id, "fig4": d.val[0].run_id}
             for key, rid in picks.items():
-                fig = wf.figure(rid)
+                fig = wf.plot(rid)
                 fn = f"{key}_run_{rid.replace('/', '_')}.png"
                 _atomic.savefig(fig, outd / fn, dpi=110)
                 figs[key] = fn
@@ -481,7 +376,7 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
                               ("calibrated", {m: wf.results[m].model for m in MODELS})):
             with stages.stage(f"stability ({'Table II' if which == 'table2' else 'calibrated'})"):
                 stab[which] = {m: stability_summary(models[m], settings, threads=threads,
-                                                    progress=bool(progress) and big)
+                                                    progress=progress if big else False)
                                for m in MODELS}
                 say(f"stability ({which}): " + ", ".join(
                     f"{m} kv* {fmt(stab[which][m]['kv_threshold'])} "
@@ -493,7 +388,7 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
             with stages.stage("diagnosis (residual loop)"):
                 diag = run_diagnosis("proposed", wf.results["proposed"].model, d.cal, d.val,
                                      seed=seed, max_effects=settings.max_effects,
-                                     progress=bool(progress))
+                                     progress=progress)
         with stages.stage("report"):
             runtime = time.perf_counter() - t_start
             summary = _summary(d, wf, stab, diag, settings, seed, stages.times, runtime)
@@ -534,7 +429,7 @@ def _field_diag_runs(F: Any, name: str, st: Any) -> tuple[str, list[Run], list[R
 
 
 def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
-                     settings: Settings, seed: int, threads: int, progress: bool,
+                     settings: Settings, seed: int, threads: int, progress: bool | str,
                      json_path: str | Path | None, shown_json: str, stages: _Stages,
                      say: Callable[[str], None], t_start: float) -> dict[str, Any]:
     """The measured-data variant (see :func:`reproduce`), on :mod:`avll.fielddata`."""
@@ -547,7 +442,7 @@ def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
         kw: dict[str, Any] = {}
         if settings.field_max_generations is not None:
             kw["max_generations"] = settings.field_max_generations
-        st = fn(p, seed=seed, threads=threads, progress=bool(progress), **kw)
+        st = fn(p, seed=seed, threads=threads, progress=progress, **kw)
         saved = st.save(outd / "fielddata")
     figs = {f"field_{k}": f"fielddata/{st.name}_{k}.png" for k in st.figures}
     stab: dict[str, dict[str, Any]] = {}
@@ -556,7 +451,7 @@ def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
         big = kg.size * tg.size * kv.size >= 2_000_000
         models = {m: PAPER_TABLE_II[m] for m in MODELS}
         stab = {m: stability_summary(models[m], settings, threads=threads,
-                                     progress=bool(progress) and big) for m in MODELS}
+                                     progress=progress if big else False) for m in MODELS}
         figs.update(_stability_figures(outd, "table2", models, stab, settings))
     diag: dict[str, Any] = {"available": False, "reason": "disabled by the settings",
                             "base_model": "proposed", "steps": [], "effects": []}
@@ -566,7 +461,7 @@ def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
             diag_label, cal, val = _field_diag_runs(F, name, st)
             if cal and val:
                 diag = run_diagnosis("proposed", None, cal, val, seed=seed,
-                                     max_effects=settings.max_effects, progress=bool(progress))
+                                     max_effects=settings.max_effects, progress=progress)
                 diag["runs"] = {"label": diag_label, "cal": [r.run_id for r in cal],
                                 "val": [r.run_id for r in val]}
             else:
@@ -662,30 +557,27 @@ def _field_notes(name: str) -> list[str]:
 
 def _stability_figures(outd: Path, which: str, models: dict[str, LowerLevelModel],
                        st: dict[str, dict[str, Any]], settings: Settings) -> dict[str, str]:
-    import matplotlib.pyplot as plt
-
     from . import stability as S
 
     kg, tg, kv = settings.axes()
     idx = [int(np.argmin(np.abs(kv - v))) for v in settings.panels]
     idx = sorted(set(idx))
     tag = "table2" if which == "table2" else "calibrated"
+    src = "Table II" if which == "table2" else "calibrated"
     out: dict[str, str] = {}
     for fig_no, pair in ((5, ("proposed", "second")), (7, ("proposed", "first"))):
+        labels = [f"{_NAMES[m]}, {src}" for m in pair]
+        # the kg grid is log-spaced: plotting draws it on a log axis
         f = S.plot_regions([models[m] for m in pair], kg, tg, [float(kv[i]) for i in idx],
                            settings.pade_order,
-                           maps=[st[m]["codes"][:, :, idx] for m in pair])
-        for ax in f.axes:
-            if ax.get_visible() and ax.get_xlabel():
-                ax.set_xscale("log")
+                           maps=[st[m]["codes"][:, :, idx] for m in pair], labels=labels)
         fn = f"fig{fig_no}_regions_{tag}.png"
-        _atomic.savefig(f, outd / fn, dpi=100, bbox_inches="tight")
-        plt.close(f)
+        _atomic.savefig(f, outd / fn, dpi=100)
         out[f"fig{fig_no}_{tag}"] = fn
-        f = S.plot_thresholds([models[m] for m in pair], [st[m]["thresholds"] for m in pair])
+        f = S.plot_thresholds([models[m] for m in pair], [st[m]["thresholds"] for m in pair],
+                              labels=labels)
         fn = f"fig{fig_no + 1}_thresholds_{tag}.png"
-        _atomic.savefig(f, outd / fn, dpi=100, bbox_inches="tight")
-        plt.close(f)
+        _atomic.savefig(f, outd / fn, dpi=100)
         out[f"fig{fig_no + 1}_{tag}"] = fn
     return out
 
@@ -795,6 +687,10 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
             if k not in PAPER["params"][m]:
                 rows.append([_NAMES[m], k, None, _p4(ov), "—"])
     rep.table(["model", "parameter", "paper", "avll", "difference"], rows)
+    rep.columns([("parameter", "Td, m1, m3 in s, m2 in s², K0 and K dimensionless; "
+                  "'(at bound)': within 0.1 % of the search box's edge"),
+                 ("paper", "Table II of the paper"), ("avll", "calibrated here"),
+                 ("difference", _DIFF)])
 
     # --- Tables III / IV
     for key, title, runs_key in (("cal_mse", "Table III — calibration MSE (m/s²)²", "cal_runs"),
@@ -810,13 +706,21 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
                 rows.append([f"{_NAMES[m]} — avll"] + [cal[m][per].get(i) for i in ids]
                             + [cal[m][key]])
             rep.table(["run", *ids, "average"], rows)
+            rep.columns([("run", "model and source, then one column per run id: that "
+                          "run's MSE of the acceleration in (m/s²)² (the paper prints two "
+                          "decimals)"), ("average", "mean over the runs, (m/s²)²")])
         else:
             rows = [[_NAMES[m]] + [cal[m][per].get(i) for i in ids] + [cal[m][key]]
                     for m in ("proposed", "second", "first")]
             rep.table(["run (avll)", *ids, "average"], rows)
+            rep.columns([("run (avll)", "model, then one column per run id: that run's "
+                          "MSE of the acceleration in (m/s²)²"),
+                         ("average", "mean over the runs, (m/s²)²")])
         rows = [[_NAMES[m], PAPER[key][m], cal[m][key], diff(cal[m][key], PAPER[key][m])]
                 for m in ("proposed", "second", "first")]
         rep.table(["average", "paper", "avll", "difference"], rows)
+        rep.columns([("paper", "the paper's average MSE, (m/s²)²"),
+                     ("avll", "average MSE here, (m/s²)²"), ("difference", _DIFF)])
 
     rep.heading("Comparable: ranking and ratios of the MSEs")
     rows = []
@@ -829,6 +733,8 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
         ours = cal["first"][key] / cal["second"][key] if cal["second"][key] > 0 else None
         rows.append([f"{lab}: first-order / second-order", pr, ours])
     rep.table(["ratio of average MSEs", "paper", "avll"], rows)
+    rep.columns([("paper", "ratio of the paper's average MSEs (dimensionless)"),
+                 ("avll", "the same ratio here (dimensionless)")])
     rk = summary["ranking"]
     ok = rk["cal"] == rk["paper"] and rk["val"] == rk["paper"]
     rep.para(f"Ranking (best first) — paper: {' < '.join(rk['paper'])}; avll calibration: "
@@ -838,7 +744,8 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
                 "common to all models: the proposed model is exact up to the noise."
                 if d.name == "synthetic" else ""))
 
-    rep.heading("Figs. 3–4 — measured and simulated acceleration")
+    rep.heading("Figs. 3–4 — " + ("synthetic" if d.name == "synthetic" else "measured")
+                + " and simulated acceleration")
     lab3 = "run 17 (calibration), as the paper's Fig. 3" if d.paper_split else "a calibration run"
     lab4 = "run 6 (validation), as the paper's Fig. 4" if d.paper_split else "a validation run"
     rep.figure(figs["fig3"], f"Fig. 3: {lab3}")
@@ -870,14 +777,13 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
                         "The paper's numbers are shown for orientation only."))
         _section4(rep, st, ratios, settings)
         if which == "table2":
-            rep.para("The paper's kv thresholds 0.8085/0.7395 lie 3–5e-4 below the converged "
-                     "values (0.8090/0.7398 for kg down to 1e-3 or 1e-4); near the threshold "
-                     "only very small kg are stable, so the value read off a grid depends on "
-                     "its smallest kg (0.8047/0.7335 with kg ≥ 0.01). The minimum Tg values "
-                     "are the smallest stable values on the 0.1 s grid (exact boundaries "
-                     "1.857/3.449/2.189 s). The capacity constants 7 m / 30 m/s are inferred "
-                     "from the paper's numbers (it does not state them). See "
-                     "README § Stability maps.")
+            rep.para("Near the kv threshold only very small kg are stable, so a threshold "
+                     "read off a grid depends on the grid's smallest kg (given above); the "
+                     "minimum Tg values are the smallest stable values on the grid's Tg "
+                     "step, not the exact boundaries (avll.min_stable_tg computes those). "
+                     "The capacity constants 7 m / 30 m/s are inferred from the paper's "
+                     "numbers (it does not state them). See the stability guide of the "
+                     "documentation.")
         else:
             rep.para(_calibrated_comment(summary))
         tag = which
@@ -887,7 +793,8 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
                    "vs second-order")
         rep.figure(figs[f"fig7_{tag}"], "Fig. 7: stable regions, proposed vs first-order lag")
         rep.figure(figs[f"fig8_{tag}"], "Fig. 8: thresholds against kv, proposed vs "
-                   "first-order lag (the first-order lag has no kg threshold within the grid)")
+                   "first-order lag (open markers: the value is the grid's edge, the true "
+                   "threshold lies at or beyond it)")
 
     _diag_section(rep, diag, d.name == "synthetic")
 
@@ -900,9 +807,22 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
         f"Figures 5 and 7 show kv = {', '.join(f'{v:g}' for v in settings.panels)} 1/s.",
         f"Diagnosis: {'on' if settings.diagnosis else 'off'}, at most "
         f"{settings.max_effects} effect(s).",
-        "Machine: measured on the shared 2-core development machine.",
+        f"Run on: {_machine()}.",
     ])
     rep.write(outd)
+
+
+_DIFF = ("avll minus paper, in the quantity's unit, and that difference relative to the "
+         "paper's value (%)")
+
+
+def _machine() -> str:
+    """What this process can know about where it ran (no claim about quietness)."""
+    import os
+    import platform
+
+    return (f"{platform.system()} {platform.machine()}, {os.cpu_count()} logical CPU(s), "
+            f"Python {platform.python_version()}")
 
 
 def _section4(rep: Report, st: dict[str, Any], ratios: dict[str, Any],
@@ -928,6 +848,9 @@ def _section4(rep: Report, st: dict[str, Any], ratios: dict[str, Any],
                       "capacity of first-order vs proposed (% larger)")):
         rows.append([lab, PAPER[key], ratios[key], diff(ratios[key], PAPER[key], 3)])
     rep.table(["quantity", "paper", "avll", "difference"], rows)
+    rep.columns([("quantity", "the Section IV number, its unit in brackets"),
+                 ("paper", "as published"), ("avll", "computed here on the grid below"),
+                 ("difference", _DIFF)])
 
 
 def _diag_section(rep: Report, diag: dict[str, Any], synthetic: bool, label: str = "") -> None:
@@ -956,11 +879,23 @@ def _diag_section(rep: Report, diag: dict[str, Any], synthetic: bool, label: str
     if rows:
         rep.table(["effect", "cal MSE before", "cal MSE after", "val MSE before",
                    "val MSE after", "p (LR)"], rows)
+        rep.columns([("effect", "the effect added to the model at this step"),
+                     ("cal MSE before / after", "mean squared error of the acceleration on "
+                      "the calibration runs without / with the effect, (m/s²)²"),
+                     ("val MSE before / after", "the same on the held-out runs, (m/s²)²"),
+                     ("p (LR)", "p-value of the likelihood-ratio test of the effect on the "
+                      "held-out runs (dimensionless; small: the effect is real)")])
     ds = diag.get("diagnoses", [])
     if ds and ds[0].get("candidates"):
         rep.table(["candidate (first diagnosis)", "explained", "p", "val explained"],
                   [[c.get("effect"), c.get("explained"), c.get("p_value"),
                     c.get("val_explained")] for c in ds[0]["candidates"]])
+        rep.columns([("candidate", "an effect whose signature was tested in the residuals"),
+                     ("explained", "fraction of the calibration residuals' variance its "
+                      "signature explains (0-1)"),
+                     ("p", "p-value of that fit (dimensionless, Bonferroni-corrected when "
+                      "the loop says so)"),
+                     ("val explained", "the same fraction on the held-out runs (0-1)")])
 
 
 def _write_field_report(outd: Path, name: str, st: Any, stab: dict[str, Any],
@@ -1057,52 +992,4 @@ def _mean(x: Any) -> Any:
     return x
 
 
-# ---------------------------------------------------------------------------
-# CLI
-# ---------------------------------------------------------------------------
-
-
-def _cmd(args: argparse.Namespace) -> int:
-    settings = SETTINGS["quick" if args.quick else "default"]
-    if args.no_diagnosis:
-        settings = replace(settings, diagnosis=False)
-    s = reproduce(args.out, data=args.data, data_path=args.data_path, settings=settings,
-                  seed=args.seed, threads=args.threads, progress=not args.quiet,
-                  json_path=args.json)
-    out = Path(args.out)
-    print(f"report: {out / 'report.md'} and {out / 'report.html'}; summary: "
-          f"{s['files']['summary_json']} ({s['timing_s']['total']:.0f} s)")
-    for m in ("proposed", "second", "first"):
-        c, st = s["calibration"][m], s["stability"][m]
-        print(f"  {m:9s} cal {c['cal_mse']:.4g} val {c['val_mse']:.4g} | Table II: kv* "
-              f"{fmt(st['kv_threshold'])} min Tg {fmt(st['min_tg'])} capacity "
-              f"{fmt(st['capacity'])}")
-    return 0
-
-
-def register_cli(sub: Any) -> None:
-    """Registers ``avll reproduce``."""
-    p = sub.add_parser(
-        "reproduce",
-        help="the paper end to end (Tables II-IV, Figs. 3-8, Section IV) with a report",
-        description="Generate the synthetic 21-run experiment (or load measured data), "
-        "calibrate and validate the three models, compute the stability maps and "
-        "thresholds with Table II's and the calibrated parameters, run the residual "
-        "loop, and write report.md/report.html/summary.json with the paper's numbers "
-        "side by side.",
-    )
-    p.add_argument("--out", default="avll-out", help="output folder (default avll-out)")
-    p.add_argument("--json", default=None, metavar="PATH",
-                   help="summary JSON (default OUT/summary.json)")
-    p.add_argument("--data", default="synthetic",
-                   choices=("synthetic", "carma", "openacc-astazero"),
-                   help="built-in synthetic experiment (default) or measured data")
-    p.add_argument("--data-path", default=None,
-                   help="folder of the measured data (default ../shared/data/<data>)")
-    p.add_argument("--seed", type=int, default=0, help="seed of data and GA (default 0)")
-    p.add_argument("--threads", type=int, default=0, help="worker threads (0 = all cores)")
-    p.add_argument("--quick", action="store_true",
-                   help="coarse grids and a small GA (seconds; numbers not meaningful)")
-    p.add_argument("--no-diagnosis", action="store_true", help="skip the residual loop")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress display")
-    p.set_defaults(func=_cmd)
+__getattr__ = _moved(__name__, {"register_cli": "avll.cli.reproduce:register"})

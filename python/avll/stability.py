@@ -22,8 +22,6 @@ Labelled (xarray), chunked (Dask) and distributed maps are in :mod:`avll.maps`.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -32,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import _atomic, _core
+from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_number, check_threads
 from .models import LowerLevelModel
 
@@ -128,14 +127,15 @@ def stability_map(
     pade_order: int = 2,
     *,
     threads: int = 0,
-    progress: bool = False,
+    progress: bool | str = False,
 ) -> np.ndarray:
     """Stability codes over the grid ``kg × tg × kv``: a uint8 array of shape
     ``(len(kg), len(tg), len(kv))`` (0 locally unstable, 1 string unstable, 2 stable).
 
     Runs in parallel with the GIL released (``threads=0``: all cores); memory is the
-    output only. Ctrl-C interrupts a long map (``KeyboardInterrupt``); ``progress=True``
-    shows a tqdm bar.
+    output only. Ctrl-C interrupts a long map (``KeyboardInterrupt``); ``progress``
+    (``True``, ``"auto"``, ``"bar"``, ``"log"``) shows the points done on stderr
+    (:mod:`avll.progress`).
     """
     nt = check_threads(threads)
     name, p = _model(model)
@@ -144,15 +144,16 @@ def stability_map(
     # the uint8 map, and as much again for what a caller derives from it (codes == 2)
     _grid_memory(f"stability_map: {kg.size} kg x {tg.size} tg x {kv.size} kv",
                  float(kg.size) * tg.size * kv.size, 2.0)
-    if not progress:
-        return _core.stability_map(name, p, kg, tg, kv, order, nt)
-    from tqdm import tqdm
+    from .progress import Progress, resolve_mode
 
+    if resolve_mode(progress) == "none":
+        return _core.stability_map(name, p, kg, tg, kv, order, nt)
     total = kg.size * tg.size * kv.size
-    with tqdm(total=total, unit="pt", unit_scale=True, desc=f"stability {name}") as bar:
+    with Progress(total, f"stability {name}", unit="pt", unit_scale=True,
+                  mode=progress) as bar:
 
         def cb(done: int, _total: int) -> None:
-            bar.update(done - bar.n)
+            bar.advance_to(done)
 
         return _core.stability_map(name, p, kg, tg, kv, order, nt, cb)
 
@@ -194,7 +195,10 @@ class Thresholds:
     ``kv_last_stable``: largest kv of the grid with a stable point, and
     ``kv_first_empty``: the next grid value, from which on nothing is stable in the
     given ranges (NaN when the last kv still has stable points);
-    ``tg_min_overall``: smallest stable Tg anywhere on the grid.
+    ``tg_min_overall``: smallest stable Tg anywhere on the grid;
+    ``kg_edge`` / ``tg_edge``: the largest kg and smallest Tg of the grid (NaN when
+    unknown): a ``kg_max`` equal to ``kg_edge`` (a ``tg_min`` equal to ``tg_edge``) is
+    the grid's edge, the true threshold lies at or beyond it.
     """
 
     kv: np.ndarray
@@ -203,18 +207,22 @@ class Thresholds:
     kv_last_stable: float
     kv_first_empty: float
     tg_min_overall: float
+    kg_edge: float = math.nan
+    tg_edge: float = math.nan
+
+    def plot(self, model: Any = None, label: str | None = None) -> Figure:
+        """The thresholds against kv (:func:`avll.plotting.thresholds`); ``model`` (a
+        model or its name) picks the colour."""
+        from . import plotting
+
+        m = model if model is not None else "model"
+        return plotting.thresholds([m], [self], labels=None if label is None else [label])
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (NaN -> None)."""
-
-        def clean(x: Any) -> Any:
-            if isinstance(x, np.ndarray):
-                return [clean(v) for v in x.tolist()]
-            if isinstance(x, float) and not math.isfinite(x):
-                return None
-            return x
-
-        return {k: clean(v) for k, v in asdict(self).items()}
+        """JSON-ready dictionary: NaN -> None with a ``"<key>_note"`` beside it
+        (:func:`avll._atomic.json_safe`)."""
+        out: dict[str, Any] = _atomic.json_safe(asdict(self))
+        return out
 
 
 def thresholds(codes: Any, kg: Any = None, tg: Any = None, kv: Any = None) -> Thresholds:
@@ -259,6 +267,8 @@ def thresholds(codes: Any, kg: Any = None, tg: Any = None, kv: Any = None) -> Th
         kv_last_stable=last,
         kv_first_empty=first_empty,
         tg_min_overall=float(tg_all.min()) if tg_all.size else np.nan,
+        kg_edge=float(kg.max()),
+        tg_edge=float(tg.min()),
     )
 
 
@@ -508,7 +518,7 @@ def _level_arg(level: str) -> int:
 def _attrs(model: LowerLevelModel, pade_order: int | None) -> dict[str, Any]:
     return {
         "model": model.name,
-        "model_params": json.dumps(model.to_dict()),
+        "model_params": _atomic.dumps(model.to_dict(), indent=None),
         "pade_order": "exact" if pade_order is None else int(pade_order),
     }
 
@@ -526,7 +536,7 @@ def boundary(
     n_scan: int = 256,
     rtol: float = 1e-10,
     threads: int = 0,
-    progress: bool = False,
+    progress: bool | str = False,
 ) -> Any:
     """A stability boundary computed directly (not read off a grid), as an
     ``xarray.DataArray``.
@@ -579,13 +589,13 @@ def boundary(
         pade_order=_pade_arg(pade_order), level=lev, n_scan=int(n_scan), log=log,
         rtol=float(rtol), threads=int(threads),
     )
-    if progress:
-        from tqdm import tqdm
+    from .progress import Progress, resolve_mode
 
-        with tqdm(total=u.size * w.size, unit="pt", desc=f"boundary {which}") as bar:
+    if resolve_mode(progress) != "none":
+        with Progress(u.size * w.size, f"boundary {which}", unit="pt", mode=progress) as bar:
 
             def cb(done: int, _total: int) -> None:
-                bar.update(done - bar.n)
+                bar.advance_to(done)
 
             vals = _core.stability_boundary(*args, progress=cb, **kw)
     else:
@@ -834,12 +844,6 @@ def pade_error_map(
 # ---------------------------------------------------------------------------
 
 
-def _label(model: LowerLevelModel) -> str:
-    return {"first": "first-order lag", "second": "second-order", "proposed": "proposed"}.get(
-        model.name, model.name
-    )
-
-
 def plot_regions(
     models: Sequence[LowerLevelModel],
     kg: Any = None,
@@ -849,13 +853,14 @@ def plot_regions(
     *,
     maps: Sequence[Any] | None = None,
     threads: int = 0,
+    labels: Sequence[str] | None = None,
 ) -> Figure:
     """Stable regions (code 2) of several models in the kg–Tg plane, one panel per
-    kv, overlaid (paper Figs. 5 and 7). ``maps`` may pass precomputed maps over
-    ``kg × tg × kv_values``, or labelled maps (:func:`avll.map_dataset`, then the axes
-    may be omitted)."""
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
+    kv, overlaid (paper Figs. 5 and 7; drawn by :func:`avll.plotting.regions`: one
+    colour per model, a log kg axis for a log-spaced grid). ``maps`` may pass
+    precomputed maps over ``kg × tg × kv_values``, or labelled maps
+    (:func:`avll.map_dataset`, then the axes may be omitted)."""
+    from . import plotting
 
     if maps is not None and all(hasattr(mp, "dims") for mp in maps) and kg is None:
         # labelled maps (map_dataset): the axes are their coordinates
@@ -865,62 +870,18 @@ def plot_regions(
     kg, tg, kvs = _axis("kg", kg), _axis("tg", tg), _axis("kv_values", kv_values)
     if maps is None:
         maps = [stability_map(m, kg, tg, kvs, pade_order, threads=threads) for m in models]
-    maps = [np.asarray(mp) for mp in maps]
-    n = kvs.size
-    ncol = min(n, 3)
-    nrow = (n + ncol - 1) // ncol
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.6 * nrow), squeeze=False)
-    colors = ["tab:blue", "tab:red", "tab:green", "tab:orange"]
-    for j in range(n):
-        ax = axes[j // ncol][j % ncol]
-        for i, mp in enumerate(maps):
-            st = (mp[:, :, j] == STABLE).astype(float).T  # (tg, kg)
-            c = colors[i % len(colors)]
-            if st.any():
-                ax.contourf(kg, tg, st, levels=[0.5, 1.5], colors=[c], alpha=0.3)
-                if 0 < st.mean() < 1:
-                    ax.contour(kg, tg, st, levels=[0.5], colors=[c], linewidths=1.2)
-        if not any((mp[:, :, j] == STABLE).any() for mp in maps):
-            ax.text(0.5, 0.5, "nothing stable", ha="center", va="center",
-                    transform=ax.transAxes)
-        ax.set_xlim(kg[0], kg[-1])
-        ax.set_ylim(tg[0], tg[-1])
-        ax.set_title(f"kv = {kvs[j]:g} 1/s")
-        ax.set_xlabel("kg (1/s²)")
-        ax.set_ylabel("Tg (s)")
-    for j in range(n, nrow * ncol):
-        axes[j // ncol][j % ncol].set_visible(False)
-    handles = [
-        Patch(color=colors[i % len(colors)], alpha=0.4, label=f"{_label(m)}: stable")
-        for i, m in enumerate(models)
-    ]
-    fig.suptitle(f"Stable regions (local and string), Padé order {pade_order}")
-    fig.tight_layout()
-    fig.legend(handles=handles, loc="upper center", ncol=len(models), frameon=False,
-               bbox_to_anchor=(0.5, 0.0))
-    return fig
+    return plotting.regions(models, kg, tg, kvs, [np.asarray(mp) for mp in maps], pade_order,
+                            labels=labels)
 
 
-def plot_thresholds(models: Sequence[LowerLevelModel], ths: Sequence[Thresholds]) -> Figure:
+def plot_thresholds(models: Sequence[LowerLevelModel], ths: Sequence[Thresholds], *,
+                    labels: Sequence[str] | None = None) -> Figure:
     """Thresholds of kg (largest stable) and Tg (smallest stable) against kv for several
-    models (paper Figs. 6 and 8)."""
-    import matplotlib.pyplot as plt
+    models (paper Figs. 6 and 8; :func:`avll.plotting.thresholds`: values on the grid's
+    edge drawn as open markers)."""
+    from . import plotting
 
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.6))
-    for m, th in zip(models, ths, strict=True):
-        a1.plot(th.kv, th.kg_max, label=_label(m))
-        a2.plot(th.kv, th.tg_min, label=_label(m))
-    a1.set_xlabel("kv (1/s)")
-    a1.set_ylabel("threshold of kg (1/s²)")
-    a1.set_title("(a) largest stable kg")
-    a2.set_xlabel("kv (1/s)")
-    a2.set_ylabel("threshold of Tg (s)")
-    a2.set_title("(b) smallest stable Tg")
-    for a in (a1, a2):
-        a.legend()
-        a.grid(alpha=0.3)
-    fig.tight_layout()
-    return fig
+    return plotting.thresholds(models, ths, labels=labels)
 
 
 def plot_boundaries(boundaries: Sequence[Any], labels: Sequence[str] | None = None) -> Figure:
@@ -951,151 +912,4 @@ def plot_boundaries(boundaries: Sequence[Any], labels: Sequence[str] | None = No
     return fig
 
 
-# ---------------------------------------------------------------------------
-# CLI: avll stability-map
-# ---------------------------------------------------------------------------
-
-
-def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
-    try:
-        lo, hi, n = float(spec[0]), float(spec[1]), int(spec[2])
-    except (ValueError, IndexError):
-        raise ValueError(f"--{name}: expected MIN MAX N, got {' '.join(spec)}") from None
-    if n < 1 or not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
-        raise ValueError(f"--{name}: need finite MIN <= MAX and N >= 1, got {lo} {hi} {n}")
-    if log:
-        if lo <= 0:
-            raise ValueError(f"--{name}: a log-spaced axis needs MIN > 0, got {lo}")
-        return np.geomspace(lo, hi, n)
-    return np.linspace(lo, hi, n)
-
-
-def _cli(args: argparse.Namespace) -> int:
-    from . import PAPER_TABLE_II
-
-    if args.panels < 1:
-        raise ValueError(f"--panels: must be >= 1, got {args.panels}")
-    names = args.model or ["second", "proposed"]
-    models = []
-    for n in names:
-        if n not in PAPER_TABLE_II:
-            raise ValueError(f"--model: unknown model {n!r}; known: {', '.join(PAPER_TABLE_II)}")
-        models.append(PAPER_TABLE_II[n])
-    kg = _range(args.kg, "kg", log=args.kg_log)
-    tg = _range(args.tg, "tg")
-    kv = _range(args.kv, "kv")
-    total = kg.size * tg.size * kv.size
-    show = (not args.quiet) and total >= 2_000_000
-    if args.scheduler:
-        from .maps import sweep
-
-        swept = sweep({m.name: m for m in models}, kg, tg, kv, (args.pade_order,),
-                      client=args.scheduler, threads=args.threads)
-        maps = [np.asarray(swept.values[i, 0]) for i in range(len(models))]
-    else:
-        maps = [
-            stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads, progress=show)
-            for m in models
-        ]
-    ths = [thresholds(mp, kg, tg, kv) for mp in maps]
-    print(
-        f"grid: kg {kg[0]:g}..{kg[-1]:g} ({kg.size}{', log' if args.kg_log else ''}), "
-        f"Tg {tg[0]:g}..{tg[-1]:g} ({tg.size}), kv {kv[0]:g}..{kv[-1]:g} ({kv.size}), "
-        f"Padé order {args.pade_order}"
-    )
-    print(f"{'model':<10} {'kv last stable':>15} {'kv first empty':>15} {'min Tg':>8} "
-          f"{'capacity':>10}")
-    for m, th in zip(models, ths, strict=True):
-        cap = capacity(th.tg_min_overall, args.length, args.speed)
-        print(f"{m.name:<10} {th.kv_last_stable:>15.6g} {th.kv_first_empty:>15.6g} "
-              f"{th.tg_min_overall:>8.4g} {cap:>10.1f}")
-    exact: dict[str, dict[str, Any]] = {}
-    if args.exact:
-        kg_r, tg_r, kv_r = (float(kg.min()), float(kg.max())), (float(tg.min()), float(
-            tg.max())), (float(kv.min()), float(kv.max()))
-        print("\nexact (not grid-bound) over the same ranges:")
-        for m in models:
-            lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
-            e1 = min_stable_tg(m, lo, kv_r, args.pade_order, tg_range=tg_r)
-            e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=(kv_r[0], 2.0))
-            exact[m.name] = {"min_stable_tg": e1.to_dict(), "kv_supremum": e2.to_dict()}
-            print(f"{m.name:<10} inf Tg {e1.value:.6f} s at kg {e1.kg:.4g}, kv {e1.kv:.4g}"
-                  f"{' (box edge: ' + ', '.join(e1.on_edge) + ')' if e1.on_edge else ''}; "
-                  f"sup kv {e2.value:.6f} at kg {e2.kg:.4g}, Tg {e2.tg:.4g}")
-    print()
-    head = "kv".rjust(10) + "".join(
-        f"{m.name + ' kg_max':>18}{m.name + ' Tg_min':>18}" for m in models
-    )
-    print(head)
-    for j in range(kv.size):
-        print(f"{kv[j]:>10.4g}" + "".join(
-            f"{th.kg_max[j]:>18.6g}{th.tg_min[j]:>18.6g}" for th in ths
-        ))
-    if args.out:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        idx = np.unique(np.linspace(0, kv.size - 1, min(args.panels, kv.size)).round().astype(int))
-        fig = plot_regions(models, kg, tg, kv[idx], args.pade_order,
-                           maps=[mp[:, :, idx] for mp in maps])
-        _atomic.savefig(fig, args.out, dpi=120, bbox_inches="tight")
-        if args.thresholds_out:
-            _atomic.savefig(plot_thresholds(models, ths), args.thresholds_out, dpi=120,
-                            bbox_inches="tight")
-        print(f"\nfigure written to {args.out}")
-    if args.json:
-        doc = {
-            "grid": {"kg": [float(kg[0]), float(kg[-1]), kg.size, "log" if args.kg_log else "lin"],
-                     "tg": [float(tg[0]), float(tg[-1]), tg.size],
-                     "kv": [float(kv[0]), float(kv[-1]), kv.size],
-                     "pade_order": args.pade_order},
-            "capacity": {"formula": "3600 / (Tg + length / speed)", "length": args.length,
-                         "speed": args.speed},
-            "models": {m.name: {**th.to_dict(),
-                                "capacity_at_min_tg": None if math.isnan(th.tg_min_overall)
-                                else float(capacity(th.tg_min_overall, args.length, args.speed))}
-                       for m, th in zip(models, ths, strict=True)},
-        }
-        if exact:
-            doc["exact"] = exact
-        _atomic.write_json(args.json, _atomic.json_safe(doc))
-    return 0
-
-
-def register_cli(sub: Any) -> None:
-    """Registers ``avll stability-map``."""
-    p = sub.add_parser(
-        "stability-map",
-        help="stability regions and thresholds over a kg-Tg-kv grid (paper Section IV)",
-        description="Local (Routh-Hurwitz) and exact string stability of the paper's "
-        "Table II models over a kg x Tg x kv grid; prints the thresholds, writes the "
-        "region figure and optionally JSON.",
-    )
-    p.add_argument("--model", action="append", choices=["first", "second", "proposed"],
-                   help="model(s) to map (repeat; default: second and proposed)")
-    p.add_argument("--kg", nargs=3, default=["0.001", "2", "400"], metavar=("MIN", "MAX", "N"),
-                   help="kg axis (1/s^2); default 0.001 2 400, log-spaced")
-    p.add_argument("--kg-linear", dest="kg_log", action="store_false",
-                   help="space the kg axis linearly instead of logarithmically")
-    p.add_argument("--tg", nargs=3, default=["0", "15", "151"], metavar=("MIN", "MAX", "N"),
-                   help="Tg axis (s); default 0 15 151 (0.1 s)")
-    p.add_argument("--kv", nargs=3, default=["0", "1", "101"], metavar=("MIN", "MAX", "N"),
-                   help="kv axis (1/s); default 0 1 101")
-    p.add_argument("--pade-order", type=int, default=2, help="Padé order of the delay (1..10)")
-    p.add_argument("--threads", type=int, default=0, help="worker threads (0: all cores)")
-    p.add_argument("--out", default="stability-map.png", help="region figure (PNG/SVG)")
-    p.add_argument("--thresholds-out", default=None, help="thresholds-vs-kv figure")
-    p.add_argument("--panels", type=int, default=3, help="kv panels in the region figure")
-    p.add_argument("--json", default=None, metavar="PATH", help="write the thresholds as JSON")
-    p.add_argument("--length", type=float, default=CAPACITY_LENGTH,
-                   help="effective vehicle length (m) of the capacity formula")
-    p.add_argument("--speed", type=float, default=CAPACITY_SPEED,
-                   help="speed (m/s) of the capacity formula")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--exact", action="store_true",
-                   help="also compute the exact infimum of Tg and supremum of kv over the "
-                   "ranges (boundaries, not the grid)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="compute the maps on this dask.distributed scheduler "
-                   "(needs avll[dask])")
-    p.set_defaults(func=_cli)
+__getattr__ = _moved(__name__, {"register_cli": "avll.cli.stability_map:register"})

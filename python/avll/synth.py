@@ -13,13 +13,13 @@ configurable size. Every run has its own random stream derived from
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 
+from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_number, check_seed
 from .data import Run
-from .models import LowerLevelModel, Proposed, UpperLevel
+from .models import LowerLevelModel, UpperLevel
+from .paper import GMIN, PAPER_CAL_RUNS, PAPER_VAL_RUNS, TABLE_I, TABLE_II
 from .rollout import closed_loop
 
 __all__ = [
@@ -31,21 +31,8 @@ __all__ = [
     "paper_experiment",
 ]
 
-#: Table I: (kg in s^-2, Tg in s) of each run, in chronological order.
-TABLE_I: dict[int, tuple[float, float]] = {
-    1: (0.7, 2.0), 2: (0.7, 2.0), 3: (0.5, 1.8), 4: (0.5, 1.8), 5: (0.5, 1.8),
-    6: (0.5, 1.8), 7: (0.5, 1.8), 8: (0.6, 2.0), 9: (0.6, 2.0), 10: (0.6, 2.0),
-    11: (0.6, 2.0), 12: (0.6, 2.0), 13: (0.6, 2.0), 14: (0.6, 2.0), 15: (0.5, 2.0),
-    16: (0.5, 2.0), 17: (0.5, 2.0), 18: (0.5, 2.0), 19: (0.4, 2.0), 20: (0.4, 2.0),
-    21: (0.4, 2.0),
-}  # fmt: skip
-#: The paper's calibration runs (Table III); the others are its validation runs (Table IV).
-PAPER_CAL_RUNS = (3, 4, 5, 9, 10, 11, 15, 16, 17, 19)
-PAPER_VAL_RUNS = tuple(r for r in TABLE_I if r not in PAPER_CAL_RUNS)
-#: Standstill spacing of the experiment (m).
-GMIN = 9.5
 #: The proposed model with Table II's parameters (the default true lower level).
-TABLE_II_PROPOSED = Proposed(m1=6.7893, m2=1.2824, m3=8.8157, K0=0.3479, Td=0.7903, K=0.1008)
+TABLE_II_PROPOSED = TABLE_II["proposed"]
 
 
 def leader_profile(
@@ -150,37 +137,4 @@ def paper_experiment(
     return out
 
 
-def _cmd(args: argparse.Namespace) -> int:
-    from . import PAPER_TABLE_II
-    from .io import write_runs
-    from .models import MODELS
-
-    if args.model not in MODELS:
-        raise ValueError(f"--model: unknown model {args.model!r}; known: {', '.join(MODELS)}")
-    runs = paper_experiment(
-        PAPER_TABLE_II[args.model],
-        seed=args.seed,
-        duration=args.duration,
-        noise_a=args.noise_a,
-        quantization_a=args.quantization,
-    )
-    path = write_runs(runs, args.out)
-    n = sum(len(r) for r in runs)
-    print(f"wrote {len(runs)} runs ({n} samples, model {args.model}, seed {args.seed}) to {path}")
-    return 0
-
-
-def register_cli(sub: argparse._SubParsersAction) -> None:
-    """Registers this module's sub-command with the ``avll`` parser."""
-    p = sub.add_parser(
-        "synth", help="write the synthetic 21-run experiment in the canonical format"
-    )
-    p.add_argument("--out", required=True, help="output CSV or Parquet file")
-    p.add_argument(
-        "--model", default="proposed", help="true lower level (Table II): first|second|proposed"
-    )
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=180.0, help="seconds per run (default 180)")
-    p.add_argument("--noise-a", type=float, default=0.05, help="acceleration noise std (m/s²)")
-    p.add_argument("--quantization", type=float, default=0.01, help="acceleration step (m/s²)")
-    p.set_defaults(func=_cmd)
+__getattr__ = _moved(__name__, {"register_cli": "avll.cli.synth:register"})

@@ -165,23 +165,23 @@ def validate_sidecar(doc: Any, sc: Path | str = "sidecar") -> dict[str, Any]:
     runs = doc.get("runs", {})
     if not isinstance(runs, dict):
         raise DataError(f"{sc}: runs: must be an object of run id -> entry, got "
-                        f"{type(runs).__name__} {json.dumps(runs)[:40]}")
+                        f"{type(runs).__name__} {_atomic.dumps(runs, indent=None)[:40]}")
     for rid, entry in runs.items():
         at = f"runs.{rid!r}"
         if not isinstance(entry, dict):
             raise DataError(f"{sc}: {at}: must be an object with 'upper' and/or 'meta', got "
-                            f"{json.dumps(entry)[:40]}")
+                            f"{_atomic.dumps(entry, indent=None)[:40]}")
         extra = [k for k in entry if k not in ("upper", "meta")]
         if extra:
             raise DataError(f"{sc}: {at}: unknown key {extra[0]!r}; allowed: upper, meta")
         if "meta" in entry and not isinstance(entry["meta"], dict):
             raise DataError(f"{sc}: {at}.meta: must be an object, got "
-                            f"{json.dumps(entry['meta'])[:40]}")
+                            f"{_atomic.dumps(entry['meta'], indent=None)[:40]}")
         if "upper" in entry:
             up = entry["upper"]
             if not isinstance(up, dict):
                 raise DataError(f"{sc}: {at}.upper: must be an object with kg, kv, Tg, Gmin, "
-                                f"got {json.dumps(up)[:40]}")
+                                f"got {_atomic.dumps(up, indent=None)[:40]}")
             bad = [k for k in up if k not in _UPPER_KEYS]
             if bad:
                 raise DataError(f"{sc}: {at}.upper: unknown key {bad[0]!r}; allowed: "
@@ -426,7 +426,7 @@ def write_runs(runs: Sequence[Run], path: str | Path) -> Path:
             for r in runs
         },
     }
-    text = json.dumps(side, indent=1, allow_nan=False)
+    text = _atomic.dumps(side, indent=1)
     # both files to temporary names first, renamed together with Ctrl-C deferred
     with _atomic.atomic_paths(path, sidecar_path(path)) as (tmp_data, tmp_side):
         if path.suffix.lower() in (".parquet", ".pq"):

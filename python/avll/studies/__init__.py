@@ -1,24 +1,15 @@
-"""Studies on measured data, run as ``avll study NAME ...``.
+"""Studies on measured data, run as ``avll study NAME ...`` (the commands are in
+:mod:`avll.cli.study`).
 
-* ``avll study openacc PATH --out DIR --json OUT.json``: every follower of native
-  OpenACC files (e.g. ZalaZone) calibrated in closed loop, the calibrated time gap
-  against the known ACC setting, and the measured against the predicted
-  amplification of the predecessor's speed oscillations
-  (:func:`avll.studies.openacc.openacc_study`).
+* :mod:`avll.studies.openacc`: native OpenACC files (e.g. ZalaZone), closed-loop
+  calibration per car, the calibrated time gap against the ACC setting, measured
+  against predicted string stability.
 """
 
 from __future__ import annotations
 
-import argparse
+from .._compat import moved as _moved
 
-__all__ = ["register_cli"]
+__all__: list[str] = []
 
-
-def register_cli(sub: argparse._SubParsersAction) -> None:
-    """Registers ``avll study`` and its studies."""
-    from . import openacc
-
-    p = sub.add_parser("study", help="studies on measured data (openacc)",
-                       description="Studies on measured data; see `avll study NAME -h`.")
-    studies = p.add_subparsers(dest="study", required=True, metavar="STUDY")
-    openacc.register_cli(studies)
+__getattr__ = _moved(__name__, {"register_cli": "avll.cli.study:register"})

@@ -51,11 +51,8 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import os
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -65,9 +62,14 @@ from typing import Any
 
 import numpy as np
 
+from .._atomic import dumps as _dumps
+from .._compat import moved as _moved
 from ..calibrate import calibrate_many
 from ..data import Run
+from ..defaults import MODEL_COLORS, UPPER_PLACEHOLDER
+from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
+from ..paper import MODELS as _MODELS
 from ..rollout import closed_loop
 from ..stability import exact_delay_codes
 
@@ -89,7 +91,6 @@ __all__ = [
     "predicted_amplification",
     "replay_amplification",
     "setting_order",
-    "register_cli",
 ]
 
 #: Objective weights (wa, wv, wx) of the closed-loop calibration.
@@ -108,10 +109,7 @@ MIN_EXCITATION = 0.05
 GMIN_MAX = 10.0
 #: The measured time headway uses the samples faster than this (m/s).
 HEADWAY_MIN_SPEED = 3.0
-_UPPER = ("kg", "kv", "Tg", "Gmin")
 #: Placeholder upper law of the runs (every gain is calibrated).
-_UPPER0 = UpperLevel(kg=0.1, kv=0.5, Tg=1.0, Gmin=5.0)
-_MODELS = ("first", "second", "proposed")
 _LABEL = {"first": "First-order lag", "second": "Second-order", "proposed": "Proposed"}
 _RANK = {"L": 0, "M": 1, "S": 2}
 
@@ -315,7 +313,7 @@ class OpenACCStudy:
             paths.append(_atomic(d / f"{k}.csv", _writer(t.to_csv(float_format="%.6g"))))
         for k, fig in self.figures.items():
             paths.append(_atomic(d / f"{k}.png", _savefig(fig), binary=True))
-        text = json.dumps(_clean(self.summary), indent=1, allow_nan=False) + "\n"
+        text = _dumps(_clean(self.summary), indent=1) + "\n"
         paths.append(_atomic(d / "report.md", _writer(self.report)))
         paths.append(_atomic(d / "summary.json", _writer(text)))
         if json_path is not None:
@@ -414,7 +412,7 @@ def openacc_study(
     models: Sequence[str] = _MODELS,
     seed: int = 0,
     threads: int = 0,
-    progress: bool = False,
+    progress: bool | str = False,
     log: Callable[[str], Any] | None = None,
     max_generations: int = 300,
     pop_size: int = 0,
@@ -455,7 +453,7 @@ def openacc_study(
         raise ValueError(f"{path}: no follower with a recorded predecessor")
     for r in runs:
         _check_band(band, r.dt)
-    runs = [replace(r, upper=_UPPER0) for r in runs]
+    runs = [replace(r, upper=UPPER_PLACEHOLDER) for r in runs]
     say(f"{len(runs)} followers in {len({r.meta['file'] for r in runs})} files; "
         f"{len(load_report['skipped'])} followers skipped")
     results: dict[str, list[Any]] = {}
@@ -834,7 +832,7 @@ def _figures(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str
     figs: dict[str, Any] = {}
     fig = Figure(figsize=(11, 5), layout="constrained")
     axes = fig.subplots(1, 2, sharex=True, sharey=True)
-    colors = {"first": "tab:orange", "second": "tab:green", "proposed": "tab:blue"}
+    colors = MODEL_COLORS
     meas = [c for c in cars if c["amplification_measured"] is not None]
     if meas:
         xs = np.array([c["amplification_measured"] for c in meas])
@@ -1122,92 +1120,4 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-# ---------------------------------------------------------------------------
-# CLI
-# ---------------------------------------------------------------------------
-
-
-def _cmd(args: argparse.Namespace) -> int:
-    quiet = bool(args.quiet)
-
-    def log(msg: str) -> None:
-        if not quiet:
-            print(f"avll study openacc: {msg}", file=sys.stderr, flush=True)
-
-    if args.generations < 1:
-        raise ValueError(f"--generations: must be >= 1, got {args.generations}")
-    if args.pop_size < 0:
-        raise ValueError(f"--pop-size: must be >= 0, got {args.pop_size}")
-    if args.starts < 1:
-        raise ValueError(f"--starts: must be >= 1, got {args.starts}")
-    models = [m.strip() for m in args.models.split(",") if m.strip()]
-    if not models:
-        raise ValueError(f"--models: expected a comma-separated list, got {args.models!r}")
-    for m in [args.model, *models]:
-        model_class(m)
-    try:
-        band = tuple(float(b) for b in args.band.split(","))
-    except ValueError:
-        raise ValueError(f"--band: expected LOW,HIGH in Hz, got {args.band!r}") from None
-    if len(band) != 2:
-        raise ValueError(f"--band: expected LOW,HIGH in Hz, got {args.band!r}")
-    _check_band(band, 0.1)
-    if not Path(args.path).exists():
-        raise FileNotFoundError(f"{args.path}: no such file or folder")
-    check_outputs(args.out, args.json)
-    load: dict[str, Any] = {}
-    for key in ("setting", "car", "track"):
-        val = getattr(args, key)
-        if val is not None:
-            load[key] = [v.strip() for v in val.split(",") if v.strip()]
-    st = openacc_study(args.path, model=args.model, models=models, seed=args.seed,
-                       threads=args.threads, progress=not quiet, log=log,
-                       max_generations=args.generations, pop_size=args.pop_size,
-                       starts=args.starts, band=band, n_boot=args.bootstrap,
-                       gmin_max=args.gmin_max, **load)  # fmt: skip
-    log(f"writing {args.out}" + (f" and {args.json}" if args.json else ""))
-    st.save(args.out, args.json)
-    so = st.summary["setting_order"]
-    best = st.summary["model_comparison"]["best"]
-    print(f"{len(st.summary['cars'])} cars; setting order held {so['held']} of "
-          f"{so['checked']}; best amplification predictor: |H| {best['amplification_H']}, "
-          f"replay {best['amplification_replay']}; wrote {args.out}")
-    return 0
-
-
-def register_cli(sub: argparse._SubParsersAction) -> None:
-    """Registers ``avll study openacc``."""
-    p = sub.add_parser(
-        "openacc", help="native OpenACC files: closed-loop calibration per car, Tg vs the "
-        "ACC setting, measured vs predicted string stability",
-        description="Calibrate every follower of native OpenACC files (e.g. ZalaZone) in "
-        "closed loop behind its measured predecessor, check the calibrated time gap "
-        "against the known ACC setting, and compare the measured amplification of the "
-        "predecessor's speed oscillations with what the calibrated models predict. Writes "
-        "tables (CSV), figures (PNG), report.md and summary.json into --out.")
-    p.add_argument("path", metavar="PATH", help="a native OpenACC file or a folder of them")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--json", default=None, metavar="OUT.json",
-                   help="also write the JSON summary here")
-    p.add_argument("--model", default="proposed",
-                   help="lower-level model of the contract's params/Tg/prediction "
-                        "(default proposed)")
-    p.add_argument("--models", default=",".join(_MODELS),
-                   help="models compared (default first,second,proposed)")
-    p.add_argument("--seed", type=int, default=0, help="GA and bootstrap seed (default 0)")
-    p.add_argument("--threads", type=int, default=0, help="worker threads (0 = all cores)")
-    p.add_argument("--generations", type=int, default=300,
-                   help="GA generations (default 300, the full budget; less for a quick look)")
-    p.add_argument("--pop-size", type=int, default=0, help="GA population (0 = automatic)")
-    p.add_argument("--starts", type=int, default=2, help="GA starts per car (default 2)")
-    p.add_argument("--band", default=f"{DEFAULT_BAND[0]:g},{DEFAULT_BAND[1]:g}",
-                   metavar="LOW,HIGH", help="amplification band in Hz (default 0.02,0.2)")
-    p.add_argument("--bootstrap", type=int, default=N_BOOT,
-                   help=f"bootstrap resamples (default {N_BOOT})")
-    p.add_argument("--gmin-max", type=float, default=GMIN_MAX,
-                   help=f"upper bound of Gmin in m (default {GMIN_MAX:g})")
-    p.add_argument("--setting", default=None, help="keep these settings (e.g. L,S or none)")
-    p.add_argument("--car", default=None, help="keep these car models (comma-separated)")
-    p.add_argument("--track", default=None, help="keep these tracks (dynamic, handling)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    p.set_defaults(func=_cmd)
+__getattr__ = _moved(__name__, {"register_cli": "avll.cli.study:register_openacc"})

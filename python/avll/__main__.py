@@ -1,0 +1,7 @@
+"""``python -m avll``: the ``avll`` command."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

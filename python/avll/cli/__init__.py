@@ -1,0 +1,132 @@
+"""The ``avll`` command: one module per sub-command in this package (each a
+``register(subparsers)`` listed in ``_COMMANDS``), the options they share in
+:mod:`avll.cli._common`.
+
+Shared behaviour of every sub-command (see docs/guarantees.md):
+
+* errors in the input (``ValueError``, ``TypeError``, ``OSError``, ``MemoryError``) end
+  the command with a one-line message on stderr and exit code 2, without a traceback;
+  Ctrl-C exits with 130;
+* warnings about the data (:class:`avll.DataWarning`, e.g. implausible values) are
+  printed as one line each; ``--strict`` turns them into errors (exit 2);
+* every output path is checked before any computation: it can be written (its
+  nearest existing folder is writable, a file is not a folder and the reverse), it is
+  not one of the command's inputs (no command writes over its input) and not another
+  output. A sub-command names its paths with :func:`avll.cli._common.declare_io`;
+* progress goes to stderr: a bar on a terminal, a few plain log lines otherwise
+  (``--progress``), nothing with ``-q``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+# "module:function" registering one or more sub-commands, in help order: one module
+# per command in this package (diagnose's registration still lives in avll.diagnose).
+_COMMANDS = [
+    "avll.cli.simulate:register",
+    "avll.cli.synth:register",
+    "avll.cli.load:register",
+    "avll.cli.diagnose:register",
+    "avll.cli.calibrate:register",
+    "avll.cli.stability_map:register",
+    "avll.cli.reproduce:register",
+    "avll.cli.study:register",
+]
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``avll`` argument parser with every registered sub-command. With ``only``
+    (the command about to run), commands whose registration is costly (``diagnose``
+    imports scipy) are registered in full only when they are ``only``; their entry in
+    ``avll --help`` is the same either way."""
+    from .. import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="avll",
+        description="Lower-level controller models of automated vehicles: "
+        "simulation, calibration, stability maps.",
+    )
+    parser.add_argument("--version", action="version", version=f"avll {__version__}",
+                        help="print the version and exit")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for spec in _COMMANDS:
+        mod, fn = spec.split(":")
+        register = getattr(importlib.import_module(mod), fn)
+        name = mod.rsplit(".", 1)[1]
+        if only is not None and name in _COSTLY and name != only:
+            register(sub, full=False)
+        else:
+            register(sub)
+    for p in _all_parsers(parser):
+        if p is parser or any(isinstance(a, argparse._SubParsersAction) for a in p._actions):
+            continue
+        if not any("--strict" in a.option_strings for a in p._actions):
+            p.add_argument("--strict", action="store_true",
+                           help="treat warnings about the data (implausible values, sidecar "
+                           "entries for missing runs) as errors (default: off)")
+    return parser
+
+
+#: Commands whose full registration imports heavy packages (see build_parser).
+_COSTLY = ("diagnose",)
+
+
+def _command_of(argv: Sequence[str]) -> str:
+    """The sub-command named in ``argv`` (the first word that is not an option)."""
+    return next((a for a in argv if not a.startswith("-")), "")
+
+
+def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """``parser`` and every sub-command parser below it."""
+    out = [parser]
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for p in dict.fromkeys(a.choices.values()):
+                out += _all_parsers(p)
+    return out
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: Any = None, line: str | None = None, *, command: str = "") -> None:
+    text = " ".join(str(message).split())
+    print(f"avll {command}: warning: {text}", file=sys.stderr)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C)."""
+    command = "?"
+    try:
+        argv = list(sys.argv[1:] if argv is None else argv)
+        parser = build_parser(only=_command_of(argv))
+        args = parser.parse_args(argv)
+        command = args.command
+
+        from ..data import DataWarning
+        from ._common import check_io
+
+        check_io(args)  # before any work (and before loading the loaders)
+        # imported after parsing: `avll --help` does not load the loaders (pandas)
+        from ..io._common import strict_warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", DataWarning)
+            warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
+            with strict_warnings(bool(getattr(args, "strict", False))):
+                return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print(f"avll {command}: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, TypeError, OSError, MemoryError) as e:
+        msg = " ".join(str(e).split())
+        if isinstance(e, MemoryError):
+            msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
+        print(f"avll {command}: error: {msg}", file=sys.stderr)
+        return 2
+
+

@@ -1,0 +1,284 @@
+"""Options shared by the ``avll`` sub-commands, defined once.
+
+* model selection: ``--models M[,M...]`` (comma-separated and/or repeated) on the
+  commands that take several models; ``--model`` is the same option under its old
+  spelling (accepted, with a deprecation note on stderr). Commands about one model
+  take ``--model M``.
+* run selection: ``--cal-runs`` -- run ids or glob patterns (``data5/*``), comma
+  separated (:func:`select_runs`);
+* ``--seed``, ``--threads``, ``--json PATH``;
+* ``--progress {auto,bar,log,none}`` and ``-q/--quiet`` (= ``--progress none``), see
+  :mod:`avll.progress`;
+* input and output paths: a command declares them with :func:`declare_io`; the
+  ``avll`` entry point checks them all before any computation (:func:`check_io`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from ..models import MODELS as _MODELS
+
+__all__ = [
+    "MODEL_NAMES",
+    "FORMAT_NAMES",
+    "add_models",
+    "add_model",
+    "models_of",
+    "add_cal_runs",
+    "select_runs",
+    "add_seed",
+    "add_threads",
+    "add_json",
+    "add_progress",
+    "add_format",
+    "add_command_kind",
+    "add_astazero_options",
+    "astazero_options",
+    "declare_io",
+    "check_io",
+    "parse_list",
+]
+
+#: The lower-level models the commands know (the registry :data:`avll.models.MODELS`).
+MODEL_NAMES: tuple[str, ...] = tuple(_MODELS)
+
+#: The loaders of ``--format`` (the keys of :data:`avll.io.FORMATS`, listed here so that
+#: ``avll --help`` does not import the loaders; a test checks the two agree).
+FORMAT_NAMES: tuple[str, ...] = ("canonical", "carma", "generic", "openacc",
+                                 "openacc-astazero")
+
+
+def parse_list(opt: str, text: str) -> list[str]:
+    """``text`` split at commas; a ``ValueError`` naming ``opt`` for an empty item."""
+    items = [t.strip() for t in text.split(",")]
+    if not text.strip() or any(not t for t in items):
+        raise ValueError(f"{opt}: expected a comma-separated list, got {text!r}")
+    return items
+
+
+class _Models(argparse.Action):
+    """``--models a,b --models c``: names accumulated, checked against the known
+    models; the ``--model`` spelling prints a deprecation note."""
+
+    def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        if option_string == "--model":
+            print(f"{parser.prog}: note: --model is deprecated here; use --models "
+                  "(comma-separated or repeated)", file=sys.stderr)
+        got = list(getattr(ns, self.dest) or [])
+        for name in parse_list(option_string or "--models", str(values)):
+            if name not in MODEL_NAMES:
+                parser.error(f"{option_string}: unknown model {name!r}; known: "
+                             f"{', '.join(MODEL_NAMES)}")
+            if name not in got:
+                got.append(name)
+        setattr(ns, self.dest, got)
+
+
+def add_models(p: argparse.ArgumentParser, default: Sequence[str], *, alias: bool = True,
+               what: str = "models") -> None:
+    """``--models`` (with ``alias``, also under its deprecated spelling ``--model``):
+    several models; ``models_of`` gives the selection or ``default``."""
+    names = ("--models", "--model") if alias else ("--models",)
+    note = "; --model is the deprecated spelling" if alias else ""
+    p.add_argument(*names, dest="models", action=_Models, default=None,
+                   metavar="M[,M...]",
+                   help=f"{what}, comma-separated or repeated, from {', '.join(MODEL_NAMES)} "
+                   f"(default: {','.join(default)}){note}")
+    p.set_defaults(models_default=tuple(default))
+
+
+def models_of(args: argparse.Namespace) -> list[str]:
+    """The models selected by :func:`add_models` (its default when none given)."""
+    return list(args.models or args.models_default)
+
+
+def add_model(p: argparse.ArgumentParser, default: str, what: str) -> None:
+    """``--model M``: one model (``what`` says which role it plays)."""
+    p.add_argument("--model", default=default, choices=MODEL_NAMES,
+                   help=f"{what} (default: {default})")
+
+
+def add_cal_runs(p: argparse.ArgumentParser, default_text: str, extra: str = "") -> None:
+    """``--cal-runs``: calibration runs as ids or glob patterns."""
+    p.add_argument("--cal-runs", default=None, metavar="IDS",
+                   help="calibration runs: comma-separated run ids or glob patterns "
+                   f"(e.g. 'data5/*,data9/*'){extra} (default: {default_text})")
+
+
+def select_runs(run_ids: Sequence[str], text: str, opt: str = "--cal-runs") -> list[str]:
+    """Run ids selected by ``text`` (comma-separated ids or glob patterns with
+    ``*``, ``?`` or ``[``), in the order given; a ``ValueError`` naming ``opt`` for a
+    pattern that matches nothing or an unknown id."""
+    out: list[str] = []
+    known = list(run_ids)
+    for item in parse_list(opt, text):
+        if any(c in item for c in "*?["):
+            hit = [r for r in known if fnmatch.fnmatchcase(r, item)]
+            if not hit:
+                raise ValueError(f"{opt}: pattern {item!r} matches no run")
+            out += [h for h in hit if h not in out]
+        elif item not in out:
+            out.append(item)
+    return out
+
+
+def add_seed(p: argparse.ArgumentParser, what: str = "GA") -> None:
+    """``--seed N`` (default 0)."""
+    p.add_argument("--seed", type=int, default=0,
+                   help=f"seed of the {what}; the same seed gives the same result on any "
+                   "number of threads (default: 0)")
+
+
+def add_threads(p: argparse.ArgumentParser) -> None:
+    """``--threads N`` (default 0: all cores)."""
+    p.add_argument("--threads", type=int, default=0,
+                   help="worker threads (default: 0, all cores)")
+
+
+def add_json(p: argparse.ArgumentParser, what: str, default: str = "not written") -> None:
+    """``--json PATH``: the command's results as strict JSON."""
+    p.add_argument("--json", default=None, metavar="PATH",
+                   help=f"write {what} as strict JSON (non-finite numbers are null with "
+                   f"a note beside them) (default: {default})")
+
+
+def add_progress(p: argparse.ArgumentParser) -> None:
+    """``--progress {auto,bar,log,none}`` and ``-q/--quiet``."""
+    from ..progress import MODES
+
+    p.add_argument("--progress", choices=MODES, default="auto",
+                   help="progress on stderr: a bar, plain log lines, or nothing (default: "
+                   "auto, a bar on a terminal and log lines otherwise)")
+    p.add_argument("-q", "--quiet", dest="progress", action="store_const", const="none",
+                   help="no progress output (same as --progress none; default: off)")
+
+
+def add_format(p: argparse.ArgumentParser, default: str = "canonical") -> None:
+    """``--format``: the loader of the data."""
+    p.add_argument("--format", default=default, choices=FORMAT_NAMES,
+                   help="loader of the data: canonical CSV/Parquet, generic, carma (a file "
+                   "or folder), openacc-astazero (a file or folder; platoon pairs run in "
+                   "closed loop), openacc (native OpenACC files, e.g. ZalaZone) "
+                   f"(default: {default})")
+
+
+def add_command_kind(p: argparse.ArgumentParser) -> None:
+    """``--command-kind {acceleration,speed}``."""
+    p.add_argument("--command-kind", choices=("acceleration", "speed"), default=None,
+                   help="kind of the recorded command (default: from the file's sidecar "
+                   "or the loader)")
+
+
+def add_astazero_options(p: argparse.ArgumentParser) -> None:
+    """Adds ``--slope FILE``, ``--no-grade`` and ``--lap-length M`` (the AstaZero
+    loader's ``slope``, ``grade=False`` and ``lap_length``) to a command."""
+    g = p.add_argument_group("OpenACC AstaZero (--format openacc-astazero)")
+    g.add_argument("--slope", default=None, metavar="FILE",
+                   help="road-grade profile Slope.csv (default: found beside the data, in "
+                        "../platoon, one folder up or in ../../Exp)")
+    g.add_argument("--no-grade", action="store_true",
+                   help="do not add the road grade, no Slope.csv needed (default: off)")
+    g.add_argument("--lap-length", type=float, default=None, metavar="M",
+                   help="lap length (m) at which positions wrap onto the grade profile "
+                        "(default: the last X of Slope.csv)")
+
+
+def astazero_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The loader options of :func:`add_astazero_options`; a ``ValueError`` naming
+    the option when it is given for another format or is invalid."""
+    slope = getattr(args, "slope", None)
+    no_grade = bool(getattr(args, "no_grade", False))
+    lap_length = getattr(args, "lap_length", None)
+    given = [name for name, on in (("--slope", slope is not None), ("--no-grade", no_grade),
+                                   ("--lap-length", lap_length is not None)) if on]
+    if not given:
+        return {}
+    if args.format != "openacc-astazero":
+        raise ValueError(f"{given[0]}: only for --format openacc-astazero")
+    opts: dict[str, Any] = {}
+    if no_grade:
+        if slope is not None or lap_length is not None:
+            other = "--slope" if slope is not None else "--lap-length"
+            raise ValueError(f"{other}: conflicts with --no-grade")
+        opts["grade"] = False
+    if slope is not None:
+        if not Path(slope).is_file():
+            raise FileNotFoundError(f"--slope: {slope}: no such file")
+        opts["slope"] = slope
+    if lap_length is not None:
+        lap = float(lap_length)
+        if not (lap > 0 and lap < float("inf")):
+            raise ValueError(f"--lap-length: must be a finite length > 0 (m), got {lap:g}")
+        opts["lap_length"] = lap
+    return opts
+
+
+# ---------------------------------------------------------------------------
+# Input and output paths, checked before any computation
+# ---------------------------------------------------------------------------
+
+
+def declare_io(p: argparse.ArgumentParser, inputs: Sequence[str] = (),
+               files: Sequence[str] = (), folders: Sequence[str] = ()) -> None:
+    """Declares a command's input paths and its output files and folders (argparse
+    ``dest`` names) for :func:`check_io`."""
+    p.set_defaults(io_inputs=tuple(inputs), io_outputs=tuple(files) + tuple(folders),
+                   io_folders=tuple(folders))
+
+
+def _label(dest: str, positional: Sequence[str]) -> str:
+    return dest.upper() if dest in positional else "--" + dest.replace("_", "-")
+
+
+def _writable_target(label: str, path: Path, folder: bool) -> None:
+    if folder:
+        if path.exists() and not path.is_dir():
+            raise ValueError(f"{label}: {path} exists and is not a folder")
+    elif path.is_dir():
+        raise ValueError(f"{label}: {path} is a folder, expected a file name")
+    # the writers create missing parent folders: the nearest existing one must be a
+    # writable folder
+    anc = path if (folder and path.is_dir()) else path.parent
+    anc = Path(os.path.abspath(anc))
+    while not anc.exists():
+        anc = anc.parent
+    if not anc.is_dir():
+        raise ValueError(f"{label}: {path}: {anc} is a file, not a folder")
+    if not os.access(anc, os.W_OK | os.X_OK):
+        raise PermissionError(f"{label}: {path}: folder {anc} is not writable")
+
+
+def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "data")) -> None:
+    """Checks the paths :func:`declare_io` named, before any computation: every output
+    can be written (not a folder where a file is expected or the reverse, its nearest
+    existing folder writable), none is one of the inputs (no command writes over its
+    input), and no two outputs are the same file. Raises ``ValueError``/``OSError``
+    naming the option and the path."""
+    from .._atomic import check_not_inputs, same_file
+
+    ins = tuple(getattr(args, "io_inputs", ()))
+    outs = tuple(getattr(args, "io_outputs", ()))
+    folders = set(getattr(args, "io_folders", ()))
+    def given(d: str) -> Any:
+        v = getattr(args, d, None)
+        return None if v == "" else v  # an empty path means "not written" (--out "")
+
+    inputs = [(_label(d, positional), given(d)) for d in ins]
+    outputs = [(_label(d, positional), given(d), d in folders) for d in outs]
+    check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
+    given = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
+    for i, (la, pa) in enumerate(given):
+        for lb, pb in given[i + 1:]:
+            if same_file(pa, pb):
+                raise ValueError(f"{lb}: {pb} is also the output of {la}; choose distinct names")
+    for lab, pth, folder in outputs:
+        if pth is not None:
+            _writable_target(lab, Path(pth), folder)

@@ -1,0 +1,215 @@
+"""``avll calibrate``: calibrate lower-level models on runs and validate them (the
+paper's Tables II-IV)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import replace
+from typing import Any
+
+from ._common import (
+    add_astazero_options,
+    add_cal_runs,
+    add_command_kind,
+    add_format,
+    add_json,
+    add_models,
+    add_progress,
+    add_seed,
+    add_threads,
+    astazero_options,
+    declare_io,
+    models_of,
+    parse_list,
+    select_runs,
+)
+
+_UPPER_NAMES = ("kg", "kv", "Tg", "Gmin")
+
+
+def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str]:
+    """Runs, closed loop, free upper gains and initial state for ``avll calibrate``.
+
+    * ``--format carma`` also reads a folder of CARMA files; ``--regime`` keeps the
+      launch or cruise parts (:func:`avll.fielddata.split_launch_cruise`).
+    * Mixed command kinds (the OpenACC folder: platoon pairs without a command and
+      free-flow runs with a set speed) keep the kind given by ``--command-kind``, or
+      else the closed-loop pairs (a note on stderr says so).
+    * Runs without a command but with a leader run in closed loop; runs without an
+      upper law get a placeholder and all four gains are calibrated (unless
+      ``--upper-free`` says otherwise).
+    * ``--init`` defaults to ``steady`` for the field-data formats (stretches cut out
+      of longer drives) and ``rest`` otherwise.
+    """
+    from pathlib import Path
+
+    from ..defaults import UPPER_PLACEHOLDER
+    from ..fielddata import read_carma, split_launch_cruise
+    from ..io import read_runs
+
+    fmt = args.format
+    opts = astazero_options(args)
+    if fmt == "carma" and Path(args.data).is_dir():
+        runs = read_carma(args.data, command_kind=args.command_kind)
+    else:
+        runs = read_runs(args.data, command_kind=args.command_kind, format=fmt, **opts)
+    if args.regime != "all":
+        if fmt != "carma":
+            raise ValueError("--regime: only for --format carma")
+        launch, cruise = split_launch_cruise(runs)
+        runs = launch if args.regime == "launch" else cruise
+        if not runs:
+            raise ValueError(f"--regime: no {args.regime} stretches in {args.data}")
+    kinds = {r.command_kind for r in runs}
+    if len(kinds) > 1:
+        keep = [r for r in runs if r.command is None and r.lead_x is not None]
+        if not keep:
+            raise ValueError(
+                f"{args.data}: mixed command kinds {sorted(kinds)}; pass --command-kind"
+            )
+        print(f"avll calibrate: {args.data} mixes command kinds; calibrating the "
+              f"{len(keep)} closed-loop pairs (pass --command-kind speed for the others)",
+              file=sys.stderr)  # fmt: skip
+        runs = keep
+    no_cmd = [r for r in runs if r.command is None]
+    closed = bool(args.closed_loop) or bool(no_cmd)
+    if no_cmd and len(no_cmd) != len(runs):
+        raise ValueError(f"run {no_cmd[0].run_id!r}: has no command while other runs have one")
+    if closed:
+        bad = [r for r in runs if r.lead_x is None or r.lead_v is None]
+        if bad:
+            raise ValueError(
+                f"run {bad[0].run_id!r}: has no command and no leader (lead_x, lead_v): "
+                "cannot calibrate it"
+            )
+    if args.upper_free is None:
+        free = list(_UPPER_NAMES) if closed and any(r.upper is None for r in runs) else []
+    elif args.upper_free == "none":
+        free = []
+    else:
+        free = parse_list("--upper-free", args.upper_free)
+        for u in free:
+            if u not in _UPPER_NAMES:
+                raise ValueError(f"--upper-free: unknown gain {u!r}; known: "
+                                 f"{', '.join(_UPPER_NAMES)}")
+    if closed:
+        missing = [r for r in runs if r.upper is None]
+        if missing and len(free) < 4:
+            raise ValueError(
+                f"run {missing[0].run_id!r}: has no upper-level law; --upper-free must "
+                "free all of kg,kv,Tg,Gmin"
+            )
+        runs = [r if r.upper is not None else replace(r, upper=UPPER_PLACEHOLDER)
+                for r in runs]
+    init = args.init or ("steady" if fmt in ("carma", "openacc-astazero", "openacc") else "rest")
+    return runs, closed, free, init
+
+
+def _weights(text: str) -> tuple[float, float, float]:
+    try:
+        weights = [float(w) for w in parse_list("--weights", text)]
+    except ValueError:
+        raise ValueError(f"--weights: expected three numbers, got {text!r}") from None
+    if len(weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in weights):
+        raise ValueError(f"--weights: expected three finite values >= 0, got {text!r}")
+    if sum(weights) <= 0:
+        raise ValueError("--weights: at least one weight must be > 0")
+    return weights[0], weights[1], weights[2]
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    from .. import _atomic
+    from ..calibrate import paper_workflow
+
+    models = models_of(args)
+    weights = _weights(args.weights)
+    runs, closed, free, init = load_runs(args)
+    cal_runs: Any = None
+    if args.cal_runs is not None:
+        cal_runs = ("paper" if args.cal_runs == "paper"
+                    else select_runs([r.run_id for r in runs], args.cal_runs))
+    wf = paper_workflow(
+        runs, cal_runs=cal_runs, models=models, seed=args.seed, threads=args.threads,
+        progress=args.progress, closed_loop=closed, upper_free=free, init=init,
+        weights=weights, starts=args.starts,
+        max_generations=args.max_generations, pop_size=args.pop_size,
+    )  # fmt: skip
+    text = wf.to_text()
+    if weights != (1.0, 0.0, 0.0):
+        text = text.replace("MSE (m/s^2)^2", f"cost wa MSE(a) + wv MSE(v) + wx MSE(x), "
+                            f"(wa, wv, wx) = ({', '.join(f'{w:g}' for w in weights)})")  # fmt: skip
+    loop = f"closed loop, free upper gains {','.join(free) or 'none'}" if closed else "open loop"
+    print(f"{len(runs)} runs, {loop}, init {init}")
+    print(text)
+    if args.json:
+        _atomic.write_json(args.json, _atomic.json_safe(wf.to_json()))
+        print(f"wrote {args.json}", file=sys.stderr)
+    if args.figure:
+        rid = args.figure_run or wf.cal[0].run_id
+        fig = wf.plot(rid)
+        _atomic.savefig(fig, args.figure, dpi=120)
+        print(f"wrote {args.figure}", file=sys.stderr)
+    if wf.interrupted:
+        print("avll calibrate: interrupted; results are the best so far", file=sys.stderr)
+        return 130
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Registers ``avll calibrate``."""
+    from ..defaults import DEFAULT_STARTS, GA_OPTIONS
+
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate lower-level models on runs and validate them (Tables II-IV)",
+        description="Calibrate the lower-level models by the GA on the calibration runs "
+        "(Eq. 6) and validate them on the other runs. Tables go to stdout, progress to "
+        "stderr. Without --cal-runs, alternate runs calibrate (the 1st, 3rd, ... in file "
+        "order) and the others validate; --cal-runs paper takes the paper's runs "
+        "3,4,5,9,10,11,15,16,17,19.",
+    )
+    p.add_argument("data", metavar="DATA",
+                   help="runs file or folder (canonical CSV/Parquet, or see --format)")
+    add_format(p)
+    add_command_kind(p)
+    add_models(p, ("first", "second", "proposed"))
+    add_cal_runs(p, "alternate runs", ", or 'paper'")
+    add_seed(p)
+    add_json(p, "the calibrated parameters and the MSE per run")
+    add_threads(p)
+    p.add_argument("--closed-loop", action="store_true",
+                   help="drive the model by the leader through the upper law, Eq. 3 "
+                   "(default: off, open loop; on when the runs have no command)")
+    p.add_argument("--init", choices=("rest", "steady"), default=None,
+                   help="initial state of each open-loop rollout (default: steady for "
+                   "--format carma, openacc-astazero and openacc, whose runs are cut out of "
+                   "longer drives; rest otherwise)")
+    p.add_argument("--weights", default="1,0,0", metavar="WA,WV,WX",
+                   help="weights of the acceleration, speed and position MSE (default: "
+                   "1,0,0, the paper's Eq. 6)")
+    p.add_argument("--upper-free", default=None, metavar="GAINS",
+                   help="closed loop: upper-level gains to calibrate, e.g. kg,kv,Tg,Gmin or "
+                   "'none' (default: all four when the runs have no upper law, as OpenACC "
+                   "pairs; none otherwise)")
+    p.add_argument("--regime", choices=("all", "cruise", "launch"), default="all",
+                   help="CARMA only: keep the launch or cruise parts of the stretches "
+                   "(default: all)")
+    add_astazero_options(p)
+    p.add_argument("--starts", type=int, default=DEFAULT_STARTS,
+                   help=f"independent GA starts, the best kept (default: {DEFAULT_STARTS})")
+    p.add_argument("--max-generations", type=int, default=GA_OPTIONS["max_generations"],
+                   help="GA generation budget per start (default: "
+                   f"{GA_OPTIONS['max_generations']})")
+    p.add_argument("--pop-size", type=int, default=GA_OPTIONS["pop_size"],
+                   help=f"GA population (default: {GA_OPTIONS['pop_size']}, automatic: "
+                   "max(16 x parameters, 40))")
+    p.add_argument("--figure", default=None, metavar="PATH",
+                   help="save measured vs simulated acceleration of one run, PNG/SVG "
+                   "(default: not drawn)")
+    p.add_argument("--figure-run", default=None, metavar="RUN",
+                   help="run of --figure (default: the first calibration run)")
+    add_progress(p)
+    declare_io(p, inputs=("data",), files=("json", "figure"))
+    p.set_defaults(func=_cmd)

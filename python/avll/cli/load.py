@@ -1,0 +1,85 @@
+"""``avll load``: read measured data with any loader, report what the cleaning did,
+and optionally convert it to the canonical format."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ._common import (
+    add_astazero_options,
+    add_command_kind,
+    add_format,
+    astazero_options,
+    declare_io,
+)
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    from .. import _atomic
+    from ..io import read_runs, write_runs
+    from ..io._common import summarize
+
+    opts: dict[str, Any] = {}
+    if (args.dt is not None or args.max_gap is not None) and args.format == "canonical":
+        raise ValueError("--dt: the canonical format is already uniformly sampled and is not "
+                         "resampled; use --format generic to resample a table")
+    if args.dt is not None:
+        opts["dt"] = args.dt
+    if args.max_gap is not None:
+        opts["max_gap"] = args.max_gap
+    if args.min_duration is not None:
+        if args.format != "carma":
+            raise ValueError("--min-duration: only for --format carma")
+        opts["min_duration"] = args.min_duration
+    if args.grade_offset is not None:
+        if args.format != "openacc-astazero":
+            raise ValueError("--grade-offset: only for --format openacc-astazero")
+        opts["grade_offset"] = args.grade_offset
+    opts.update(astazero_options(args))
+    runs = read_runs(args.path, command_kind=args.command_kind, format=args.format, **opts)
+    print(summarize(runs))
+    total = sum((len(r) - 1) * r.dt for r in runs)
+    print(f"{len(runs)} runs, {total:.1f} s in total")
+    if args.report:
+        _atomic.write_json(args.report, _atomic.json_safe({
+            r.run_id: {"samples": len(r), "dt": r.dt, "duration_s": (len(r) - 1) * r.dt,
+                       "command_kind": r.command_kind,
+                       "cleaning": list(r.meta.get("cleaning", []))}
+            for r in runs}), indent=1)
+    if args.out:
+        out = write_runs(runs, args.out)
+        print(f"wrote {out}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Registers ``avll load``."""
+    p = sub.add_parser(
+        "load", help="read measured data, report the cleaning, convert to the canonical "
+        "format",
+        description="Read measured data with one of the loaders, print a per-run summary "
+        "and what the cleaning did (gaps, resampling, implausible values), and optionally "
+        "write the runs in the canonical format (--out) and the cleaning as JSON "
+        "(--report).")
+    p.add_argument("path", metavar="PATH", help="data file or folder (required)")
+    add_format(p)
+    add_command_kind(p)
+    p.add_argument("--dt", type=float, default=None,
+                   help="resample to this step in s (default: not resampled)")
+    p.add_argument("--max-gap", type=float, default=None,
+                   help="longest gap in s bridged by interpolation when resampling "
+                   "(default: 2.5 x --dt)")
+    p.add_argument("--min-duration", type=float, default=None,
+                   help="CARMA: shortest engaged stretch kept, in s (default: 10)")
+    p.add_argument("--grade-offset", type=float, default=None,
+                   help="OpenACC AstaZero: shift in m of the lap position where the grade "
+                   "is read (default: 0)")
+    add_astazero_options(p)
+    p.add_argument("--out", default=None, metavar="FILE",
+                   help="write the runs in the canonical format, CSV or Parquet (default: "
+                   "not written)")
+    p.add_argument("--report", default=None, metavar="PATH",
+                   help="write the per-run cleaning as strict JSON (default: not written)")
+    declare_io(p, inputs=("path",), files=("out", "report"))
+    p.set_defaults(func=_cmd)

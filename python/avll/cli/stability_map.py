@@ -1,0 +1,228 @@
+"""``avll stability-map``: local and exact string stability over a kg x Tg x kv grid,
+for the paper's Table II models or the models of a calibration JSON (``--from``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._common import add_json, add_models, add_progress, add_threads, declare_io, models_of
+
+_DEFAULT_MODELS = ("second", "proposed")
+
+
+def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
+    try:
+        lo, hi, n = float(spec[0]), float(spec[1]), int(spec[2])
+    except (ValueError, IndexError):
+        raise ValueError(f"--{name}: expected MIN MAX N, got {' '.join(spec)}") from None
+    if n < 1 or not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
+        raise ValueError(f"--{name}: need finite MIN <= MAX and N >= 1, got {lo} {hi} {n}")
+    if log:
+        if lo <= 0:
+            raise ValueError(f"--{name}: a log-spaced axis needs MIN > 0, got {lo}")
+        return np.geomspace(lo, hi, n)
+    return np.linspace(lo, hi, n)
+
+
+def models_from_json(path: str | Path, names: Sequence[str] | None = None) -> dict[str, Any]:
+    """The calibrated models of a calibration JSON (what ``avll calibrate --json``
+    writes: ``{"models": {name: {"params": {...}}}}``), by model name; ``names``
+    keeps only those. A ``ValueError`` naming the file and the entry when it is not
+    such a file."""
+    from ..models import model_class
+
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"--from: {p}: not JSON (line {e.lineno}: {e.msg})") from None
+    entries = doc.get("models") if isinstance(doc, dict) else None
+    if not isinstance(entries, dict) or not entries:
+        raise ValueError(f"--from: {p}: expected a calibration JSON with a \"models\" object "
+                         "(as written by avll calibrate --json)")
+    out: dict[str, Any] = {}
+    for name, entry in entries.items():
+        if names and name not in names:
+            continue
+        cls = model_class(name)
+        params = entry.get("params") if isinstance(entry, dict) else None
+        if not isinstance(params, dict):
+            raise ValueError(f"--from: {p}: models.{name}: has no \"params\" object")
+        vals = {}
+        for k in cls.param_names():
+            v = params.get(k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"--from: {p}: models.{name}.params.{k}: expected a finite "
+                                 f"number, got {v!r}")
+            vals[k] = float(v)
+        out[name] = cls(**vals)
+    if names:
+        missing = [n for n in names if n not in out]
+        if missing:
+            raise ValueError(f"--models: {', '.join(missing)} not in {p} (it has "
+                             f"{', '.join(entries)})")
+    return out
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    from .. import PAPER_TABLE_II, _atomic
+    from ..stability import (
+        capacity,
+        kv_supremum,
+        min_stable_tg,
+        plot_regions,
+        plot_thresholds,
+        stability_map,
+        thresholds,
+    )
+
+    if args.panels < 1:
+        raise ValueError(f"--panels: must be >= 1, got {args.panels}")
+    if args.source:
+        chosen = models_from_json(args.source, args.models)
+        models = list(chosen.values())
+        source = f"calibrated ({Path(args.source).name})"
+    else:
+        models = [PAPER_TABLE_II[n] for n in models_of(args)]
+        source = "Table II"
+    from ..plotting import model_label
+
+    labels = [f"{model_label(m.name)}, {source}" for m in models]
+    kg = _range(args.kg, "kg", log=args.kg_log)
+    tg = _range(args.tg, "tg")
+    kv = _range(args.kv, "kv")
+    total = kg.size * tg.size * kv.size
+    show = args.progress if total >= 2_000_000 else "none"
+    if args.scheduler:
+        from ..maps import sweep
+
+        swept = sweep({m.name: m for m in models}, kg, tg, kv, (args.pade_order,),
+                      client=args.scheduler, threads=args.threads)
+        maps = [np.asarray(swept.values[i, 0]) for i in range(len(models))]
+    else:
+        maps = [
+            stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads, progress=show)
+            for m in models
+        ]
+    ths = [thresholds(mp, kg, tg, kv) for mp in maps]
+    print(f"models: {source}")
+    print(
+        f"grid: kg {kg[0]:g}..{kg[-1]:g} ({kg.size}{', log' if args.kg_log else ''}), "
+        f"Tg {tg[0]:g}..{tg[-1]:g} ({tg.size}), kv {kv[0]:g}..{kv[-1]:g} ({kv.size}), "
+        f"Padé order {args.pade_order}"
+    )
+    print(f"{'model':<10} {'kv last stable':>15} {'kv first empty':>15} {'min Tg':>8} "
+          f"{'capacity':>10}")
+    for m, th in zip(models, ths, strict=True):
+        cap = capacity(th.tg_min_overall, args.length, args.speed)
+        print(f"{m.name:<10} {th.kv_last_stable:>15.6g} {th.kv_first_empty:>15.6g} "
+              f"{th.tg_min_overall:>8.4g} {cap:>10.1f}")
+    exact: dict[str, dict[str, Any]] = {}
+    if args.exact:
+        kg_r, tg_r, kv_r = (float(kg.min()), float(kg.max())), (float(tg.min()), float(
+            tg.max())), (float(kv.min()), float(kv.max()))
+        print("\nexact (not grid-bound) over the same ranges:")
+        for m in models:
+            lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
+            e1 = min_stable_tg(m, lo, kv_r, args.pade_order, tg_range=tg_r)
+            e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=(kv_r[0], 2.0))
+            exact[m.name] = {"min_stable_tg": e1.to_dict(), "kv_supremum": e2.to_dict()}
+            print(f"{m.name:<10} inf Tg {e1.value:.6f} s at kg {e1.kg:.4g}, kv {e1.kv:.4g}"
+                  f"{' (box edge: ' + ', '.join(e1.on_edge) + ')' if e1.on_edge else ''}; "
+                  f"sup kv {e2.value:.6f} at kg {e2.kg:.4g}, Tg {e2.tg:.4g}")
+    print()
+    head = "kv".rjust(10) + "".join(
+        f"{m.name + ' kg_max':>18}{m.name + ' Tg_min':>18}" for m in models
+    )
+    print(head)
+    for j in range(kv.size):
+        print(f"{kv[j]:>10.4g}" + "".join(
+            f"{th.kg_max[j]:>18.6g}{th.tg_min[j]:>18.6g}" for th in ths
+        ))
+    if args.out:
+        idx = np.unique(np.linspace(0, kv.size - 1, min(args.panels, kv.size)).round().astype(int))
+        fig = plot_regions(models, kg, tg, kv[idx], args.pade_order,
+                           maps=[mp[:, :, idx] for mp in maps], labels=labels)
+        _atomic.savefig(fig, args.out, dpi=120)
+        print(f"\nfigure written to {args.out}")
+    if args.thresholds_out:
+        _atomic.savefig(plot_thresholds(models, ths, labels=labels), args.thresholds_out,
+                        dpi=120)
+    if args.json:
+        doc = {
+            "source": {"kind": "calibration" if args.source else "paper_table_ii",
+                       "path": str(args.source) if args.source else None},
+            "grid": {"kg": [float(kg[0]), float(kg[-1]), kg.size, "log" if args.kg_log else "lin"],
+                     "tg": [float(tg[0]), float(tg[-1]), tg.size],
+                     "kv": [float(kv[0]), float(kv[-1]), kv.size],
+                     "pade_order": args.pade_order},
+            "capacity": {"formula": "3600 / (Tg + length / speed)", "length": args.length,
+                         "speed": args.speed},
+            "models": {m.name: {"params": m.to_dict(), **th.to_dict(),
+                                "capacity_at_min_tg": None if math.isnan(th.tg_min_overall)
+                                else float(capacity(th.tg_min_overall, args.length, args.speed))}
+                       for m, th in zip(models, ths, strict=True)},
+        }
+        if exact:
+            doc["exact"] = exact
+        _atomic.write_json(args.json, doc)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Registers ``avll stability-map``."""
+    from ..stability import CAPACITY_LENGTH, CAPACITY_SPEED
+
+    p = sub.add_parser(
+        "stability-map",
+        help="stability regions and thresholds over a kg-Tg-kv grid (paper Section IV)",
+        description="Local (Routh-Hurwitz) and exact string stability over a kg x Tg x kv "
+        "grid, of the paper's Table II models or of the models of a calibration JSON "
+        "(--from, what avll calibrate --json writes); prints the thresholds, writes the "
+        "region figure and optionally the thresholds figure and JSON.",
+    )
+    add_models(p, _DEFAULT_MODELS)
+    p.add_argument("--from", dest="source", default=None, metavar="CAL.json",
+                   help="map the calibrated models of this JSON (avll calibrate --json) "
+                   "instead of Table II; --models then picks among them (default: Table "
+                   "II's models)")
+    p.add_argument("--kg", nargs=3, default=["0.001", "2", "400"], metavar=("MIN", "MAX", "N"),
+                   help="kg axis in 1/s², log-spaced (default: 0.001 2 400)")
+    p.add_argument("--kg-linear", dest="kg_log", action="store_false",
+                   help="space the kg axis linearly instead of logarithmically (default: "
+                   "off, log-spaced)")
+    p.add_argument("--tg", nargs=3, default=["0", "15", "151"], metavar=("MIN", "MAX", "N"),
+                   help="Tg axis in s (default: 0 15 151, a 0.1 s step)")
+    p.add_argument("--kv", nargs=3, default=["0", "1", "101"], metavar=("MIN", "MAX", "N"),
+                   help="kv axis in 1/s (default: 0 1 101)")
+    p.add_argument("--pade-order", type=int, default=2,
+                   help="Padé order of the dead time, 1..10 (default: 2, the paper's)")
+    add_threads(p)
+    p.add_argument("--out", default="stability-map.png", metavar="PATH",
+                   help="region figure, PNG/SVG (default: stability-map.png)")
+    p.add_argument("--thresholds-out", default=None, metavar="PATH",
+                   help="thresholds-vs-kv figure, PNG/SVG (default: not drawn)")
+    p.add_argument("--panels", type=int, default=3,
+                   help="kv panels in the region figure (default: 3)")
+    add_json(p, "the thresholds")
+    p.add_argument("--length", type=float, default=CAPACITY_LENGTH,
+                   help=f"effective vehicle length in m of the capacity formula "
+                   f"(default: {CAPACITY_LENGTH:g})")
+    p.add_argument("--speed", type=float, default=CAPACITY_SPEED,
+                   help=f"speed in m/s of the capacity formula (default: {CAPACITY_SPEED:g})")
+    add_progress(p)
+    p.add_argument("--exact", action="store_true",
+                   help="also compute the exact infimum of Tg and supremum of kv over the "
+                   "ranges, boundaries rather than the grid (default: off)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="compute the maps on this dask.distributed scheduler, needs "
+                   "avll[dask] (default: in this process)")
+    declare_io(p, inputs=("source",), files=("out", "thresholds_out", "json"))
+    p.set_defaults(func=_cmd)

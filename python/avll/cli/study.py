@@ -1,0 +1,126 @@
+"""``avll study NAME``: studies on measured data.
+
+* ``avll study openacc PATH --out DIR --json OUT.json``: every follower of native
+  OpenACC files (e.g. ZalaZone) calibrated in closed loop, the calibrated time gap
+  against the known ACC setting, and the measured against the predicted
+  amplification of the predecessor's speed oscillations
+  (:func:`avll.studies.openacc.openacc_study`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from ._common import (
+    add_json,
+    add_model,
+    add_models,
+    add_progress,
+    add_seed,
+    add_threads,
+    declare_io,
+    models_of,
+)
+
+
+def _openacc(args: argparse.Namespace) -> int:
+    from ..studies.openacc import _check_band, check_outputs, openacc_study
+
+    quiet = args.progress == "none"
+
+    def log(msg: str) -> None:
+        if not quiet:
+            print(f"avll study openacc: {msg}", file=sys.stderr, flush=True)
+
+    if args.generations < 1:
+        raise ValueError(f"--generations: must be >= 1, got {args.generations}")
+    if args.pop_size < 0:
+        raise ValueError(f"--pop-size: must be >= 0, got {args.pop_size}")
+    if args.starts < 1:
+        raise ValueError(f"--starts: must be >= 1, got {args.starts}")
+    models = models_of(args)
+    try:
+        band = tuple(float(b) for b in args.band.split(","))
+    except ValueError:
+        raise ValueError(f"--band: expected LOW,HIGH in Hz, got {args.band!r}") from None
+    if len(band) != 2:
+        raise ValueError(f"--band: expected LOW,HIGH in Hz, got {args.band!r}")
+    _check_band(band, 0.1)
+    if not Path(args.path).exists():
+        raise FileNotFoundError(f"{args.path}: no such file or folder")
+    check_outputs(args.out, args.json)  # creates the folders, tries a write in each
+    load: dict[str, Any] = {}
+    for key in ("setting", "car", "track"):
+        val = getattr(args, key)
+        if val is not None:
+            load[key] = [v.strip() for v in val.split(",") if v.strip()]
+    st = openacc_study(args.path, model=args.model, models=models, seed=args.seed,
+                       threads=args.threads, progress=args.progress, log=log,
+                       max_generations=args.generations, pop_size=args.pop_size,
+                       starts=args.starts, band=band, n_boot=args.bootstrap,
+                       gmin_max=args.gmin_max, **load)  # fmt: skip
+    log(f"writing {args.out}" + (f" and {args.json}" if args.json else ""))
+    st.save(args.out, args.json)
+    so = st.summary["setting_order"]
+    best = st.summary["model_comparison"]["best"]
+    print(f"{len(st.summary['cars'])} cars; setting order held {so['held']} of "
+          f"{so['checked']}; best amplification predictor: |H| {best['amplification_H']}, "
+          f"replay {best['amplification_replay']}; wrote {args.out}")
+    return 0
+
+
+def register_openacc(sub: argparse._SubParsersAction) -> None:
+    """Registers ``avll study openacc``."""
+    from ..studies.openacc import DEFAULT_BAND, GMIN_MAX, N_BOOT
+
+    p = sub.add_parser(
+        "openacc", help="native OpenACC files: closed-loop calibration per car, Tg vs the "
+        "ACC setting, measured vs predicted string stability",
+        description="Calibrate every follower of native OpenACC files (e.g. ZalaZone) in "
+        "closed loop behind its measured predecessor, check the calibrated time gap "
+        "against the known ACC setting, and compare the measured amplification of the "
+        "predecessor's speed oscillations with what the calibrated models predict. Writes "
+        "tables (CSV), figures (PNG), report.md and summary.json into --out.")
+    p.add_argument("path", metavar="PATH",
+                   help="a native OpenACC file or a folder of them (required)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder (required; no default)")
+    add_json(p, "the summary (also written to DIR/summary.json)")
+    add_model(p, "proposed", "lower-level model of the contract's params, Tg and prediction")
+    add_models(p, ("first", "second", "proposed"), alias=False, what="models compared")
+    add_seed(p, "GA and the bootstrap")
+    add_threads(p)
+    p.add_argument("--generations", type=int, default=300,
+                   help="GA generations (default: 300, the full budget; less for a quick "
+                   "look)")
+    p.add_argument("--pop-size", type=int, default=0,
+                   help="GA population (default: 0, automatic)")
+    p.add_argument("--starts", type=int, default=2, help="GA starts per car (default: 2)")
+    p.add_argument("--band", default=f"{DEFAULT_BAND[0]:g},{DEFAULT_BAND[1]:g}",
+                   metavar="LOW,HIGH",
+                   help=f"amplification band in Hz (default: {DEFAULT_BAND[0]:g},"
+                   f"{DEFAULT_BAND[1]:g})")
+    p.add_argument("--bootstrap", type=int, default=N_BOOT,
+                   help=f"bootstrap resamples (default: {N_BOOT})")
+    p.add_argument("--gmin-max", type=float, default=GMIN_MAX,
+                   help=f"upper bound of Gmin in m (default: {GMIN_MAX:g})")
+    p.add_argument("--setting", default=None,
+                   help="keep these ACC settings, e.g. L,S or none (default: all)")
+    p.add_argument("--car", default=None,
+                   help="keep these car models, comma-separated (default: all)")
+    p.add_argument("--track", default=None,
+                   help="keep these tracks, e.g. dynamic,handling (default: all)")
+    add_progress(p)
+    declare_io(p, inputs=("path",), files=("json",), folders=("out",))
+    p.set_defaults(func=_openacc)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Registers ``avll study`` and its studies."""
+    p = sub.add_parser("study", help="studies on measured data (openacc)",
+                       description="Studies on measured data; see `avll study NAME -h`.")
+    studies = p.add_subparsers(dest="study", required=True, metavar="STUDY")
+    register_openacc(studies)

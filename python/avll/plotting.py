@@ -1,0 +1,256 @@
+"""Figures, drawn in one place: every command, the report and the ``.plot()`` methods
+of the result objects go through these functions, so a model has one colour and one
+line style and a stability class one colour everywhere (:mod:`avll.defaults`).
+
+Conventions: functions return a matplotlib ``Figure`` (never ``pyplot`` state: safe in
+threads and in a server); an axis whose grid is log-spaced is drawn on a log scale; a
+threshold that sits on the edge of the searched grid is drawn as an open marker and
+labelled "at the grid edge" (the true value is beyond it); data are labelled
+"measured" only when they are measured (a run whose metadata say ``synthetic`` is
+labelled "synthetic").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .defaults import (
+    CLASS_COLORS,
+    CLASS_LABELS,
+    MEASURED_COLOR,
+    MODEL_COLORS,
+    MODEL_LINESTYLES,
+)
+from .paper import MODEL_LABELS
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+__all__ = [
+    "model_color",
+    "model_label",
+    "model_linestyle",
+    "data_label",
+    "is_log_spaced",
+    "regions",
+    "classes",
+    "thresholds",
+    "traces",
+    "convergence",
+]
+
+_EXTRA = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:red")
+
+
+def model_color(name: str, k: int = 0) -> str:
+    """The colour of model ``name`` (a fixed one per known model; others cycle)."""
+    return MODEL_COLORS.get(name, _EXTRA[k % len(_EXTRA)])
+
+
+def model_linestyle(name: str) -> str:
+    """The line style of model ``name`` in traces."""
+    return MODEL_LINESTYLES.get(name, "-.")
+
+
+def model_label(name: str) -> str:
+    """The legend name of model ``name`` (``"first-order lag"``, ...)."""
+    return MODEL_LABELS.get(name, name)
+
+
+def data_label(run: Any) -> str:
+    """``"synthetic"`` for a run whose metadata say it is synthetic, else
+    ``"measured"``."""
+    meta = getattr(run, "meta", None) or {}
+    return "synthetic" if meta.get("synthetic") else "measured"
+
+
+def is_log_spaced(x: Any) -> bool:
+    """Whether axis values ``x`` (at least three, all > 0) are geometrically spaced,
+    i.e. best drawn on a log scale."""
+    a = np.asarray(x, dtype=np.float64)
+    if a.size < 3 or not np.all(a > 0) or not np.all(np.diff(a) > 0):
+        return False
+    r = np.diff(np.log(a))
+    d = np.diff(a)
+    return bool(np.allclose(r, r[0], rtol=1e-6) and not np.allclose(d, d[0], rtol=1e-6))
+
+
+def _new(nrow: int = 1, ncol: int = 1, size: tuple[float, float] = (6.0, 4.0)) -> tuple[
+        Figure, Any]:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(size[0] * ncol, size[1] * nrow), layout="constrained")
+    axes = fig.subplots(nrow, ncol, squeeze=False)
+    return fig, axes
+
+
+def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Any,
+            maps: Sequence[Any], pade_order: int = 2, *,
+            labels: Sequence[str] | None = None) -> Figure:
+    """Stable regions (code 2) of several models in the kg-Tg plane, one panel per kv,
+    overlaid (paper Figs. 5 and 7): each model filled in its colour with its boundary
+    drawn; a log kg axis when the kg grid is log-spaced. ``maps[i]`` has the shape
+    ``(kg, tg, kv_values)``; ``labels`` name the models in the legend (default: their
+    names)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    kg, tg = np.asarray(kg, dtype=float), np.asarray(tg, dtype=float)
+    kvs = np.atleast_1d(np.asarray(kv_values, dtype=float))
+    names = [getattr(m, "name", str(m)) for m in models]
+    labs = list(labels) if labels is not None else [model_label(n) for n in names]
+    n = kvs.size
+    ncol = min(n, 3)
+    nrow = (n + ncol - 1) // ncol
+    fig, axes = _new(nrow, ncol, (4.2, 3.6))
+    log = is_log_spaced(kg)
+    for j in range(n):
+        ax = axes[j // ncol][j % ncol]
+        any_stable = False
+        for i, mp in enumerate(maps):
+            st = (np.asarray(mp)[:, :, j] == 2).astype(float).T  # (tg, kg)
+            c = model_color(names[i], i)
+            if st.any():
+                any_stable = True
+                ax.contourf(kg, tg, st, levels=[0.5, 1.5], colors=[c], alpha=0.3)
+                if 0 < st.mean() < 1:
+                    ax.contour(kg, tg, st, levels=[0.5], colors=[c], linewidths=1.2)
+        if not any_stable:
+            ax.text(0.5, 0.5, "nothing stable", ha="center", va="center",
+                    transform=ax.transAxes)
+        if log:
+            ax.set_xscale("log")
+        ax.set_xlim(kg[0], kg[-1])
+        ax.set_ylim(tg[0], tg[-1])
+        ax.set_title(f"kv = {kvs[j]:g} 1/s")
+        ax.set_xlabel("kg (1/s²)" + (", log scale" if log else ""))
+        ax.set_ylabel("Tg (s)")
+    for j in range(n, nrow * ncol):
+        axes[j // ncol][j % ncol].set_visible(False)
+    handles: list[Any] = [
+        Patch(color=model_color(nm, i), alpha=0.4, label=f"{lab}: locally and string stable")
+        for i, (nm, lab) in enumerate(zip(names, labs, strict=True))
+    ]
+    handles.append(Line2D([], [], color="0.3", lw=1.2, label="boundary of the stable region "
+                          "(a region touching the frame continues beyond the grid)"))
+    fig.suptitle(f"Stable regions (local and string), Padé order {pade_order}")
+    fig.legend(handles=handles, loc="outside lower center", ncol=1, frameon=False,
+               fontsize="small")
+    return fig
+
+
+def classes(codes: Any, kg: Any, tg: Any, kv_values: Any, *,
+            title: str = "") -> Figure:
+    """The three stability classes of one model (locally unstable, string unstable,
+    stable) in the kg-Tg plane, one panel per kv; ``codes`` has the shape
+    ``(kg, tg, kv_values)``."""
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+    from matplotlib.patches import Patch
+
+    kg, tg = np.asarray(kg, dtype=float), np.asarray(tg, dtype=float)
+    kvs = np.atleast_1d(np.asarray(kv_values, dtype=float))
+    c = np.asarray(codes)
+    n = kvs.size
+    ncol = min(n, 3)
+    nrow = (n + ncol - 1) // ncol
+    fig, axes = _new(nrow, ncol, (4.2, 3.6))
+    cmap = ListedColormap([CLASS_COLORS[k] for k in (0, 1, 2)])
+    norm = BoundaryNorm([-0.5, 0.5, 1.5, 2.5], 3)
+    log = is_log_spaced(kg)
+    for j in range(n):
+        ax = axes[j // ncol][j % ncol]
+        ax.pcolormesh(kg, tg, c[:, :, j].T, cmap=cmap, norm=norm, shading="nearest")
+        if log:
+            ax.set_xscale("log")
+        ax.set_title(f"kv = {kvs[j]:g} 1/s")
+        ax.set_xlabel("kg (1/s²)" + (", log scale" if log else ""))
+        ax.set_ylabel("Tg (s)")
+    for j in range(n, nrow * ncol):
+        axes[j // ncol][j % ncol].set_visible(False)
+    fig.legend(handles=[Patch(color=CLASS_COLORS[k], label=f"{k}: {CLASS_LABELS[k]}")
+                        for k in (0, 1, 2)],
+               loc="outside lower center", ncol=3, frameon=False, fontsize="small")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def thresholds(models: Sequence[Any], ths: Sequence[Any], *,
+               labels: Sequence[str] | None = None) -> Figure:
+    """Largest stable kg and smallest stable Tg against kv for several models (paper
+    Figs. 6 and 8). A value on the edge of the searched grid (``Thresholds.kg_edge``,
+    ``Thresholds.tg_edge``) is drawn as an open marker: the true threshold lies at or
+    beyond it. A kg axis is logarithmic when the thresholds span more than a decade."""
+    from matplotlib.lines import Line2D
+
+    fig, axes = _new(1, 2, (4.6, 3.8))
+    a1, a2 = axes[0]
+    names = [getattr(m, "name", str(m)) for m in models]
+    labs = list(labels) if labels is not None else [model_label(n) for n in names]
+    any_edge = False
+    for i, (nm, lab, th) in enumerate(zip(names, labs, ths, strict=True)):
+        c = model_color(nm, i)
+        kv = np.asarray(th.kv, dtype=float)
+        for ax, y, edge in ((a1, np.asarray(th.kg_max, float), getattr(th, "kg_edge", np.nan)),
+                            (a2, np.asarray(th.tg_min, float), getattr(th, "tg_edge", np.nan))):
+            on_edge = np.isfinite(y) & np.isfinite(edge) & np.isclose(y, edge, rtol=1e-12)
+            inner = np.where(on_edge, np.nan, y)
+            ax.plot(kv, inner, color=c, ls=model_linestyle(nm), label=lab)
+            if on_edge.any():
+                any_edge = True
+                ax.plot(kv[on_edge], y[on_edge], ls="none", marker="o", mfc="none", ms=4,
+                        color=c)
+    a1.set(xlabel="kv (1/s)", ylabel="largest stable kg (1/s²)",
+           title="(a) largest stable kg")
+    a2.set(xlabel="kv (1/s)", ylabel="smallest stable Tg (s)", title="(b) smallest stable Tg")
+    k = np.concatenate([np.asarray(t.kg_max, float) for t in ths]) if ths else np.array([])
+    k = k[np.isfinite(k) & (k > 0)]
+    if k.size and k.max() / k.min() > 10:
+        a1.set_yscale("log")
+    handles, _ = a1.get_legend_handles_labels()
+    if any_edge:
+        handles.append(Line2D([], [], ls="none", marker="o", mfc="none", color="0.3",
+                              label="at the grid edge (true value at or beyond)"))
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 4),
+               frameon=False, fontsize="small")
+    return fig
+
+
+def traces(t: Any, measured: Any, simulated: Mapping[str, Any], *, data: str = "measured",
+           title: str = "", ylabel: str = "acceleration (m/s²)",
+           command: Any = None) -> Figure:
+    """A recorded (``data``: ``"measured"`` or ``"synthetic"``) trace against the
+    models' simulations (paper Figs. 3-4); ``command`` adds the command input."""
+    fig, axes = _new(1, 1, (8.0, 3.5))
+    ax = axes[0][0]
+    if measured is not None:
+        ax.plot(t, measured, color=MEASURED_COLOR, lw=1.0, label=data)
+    if command is not None:
+        ax.plot(t, command, color="0.5", lw=0.8, ls="--", label="command")
+    for i, (m, y) in enumerate(simulated.items()):
+        ax.plot(t, y, color=model_color(m, i), ls=model_linestyle(m), lw=1.0,
+                label=f"{model_label(m)} (simulated)")
+    ax.set(xlabel="time (s)", ylabel=ylabel, title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def convergence(history: Any, *, model: str = "", title: str = "") -> Figure:
+    """Best cost against GA generation (log scale when positive)."""
+    fig, axes = _new(1, 1, (5.0, 3.5))
+    ax = axes[0][0]
+    h = np.asarray(history, dtype=float)
+    ax.plot(np.arange(1, h.size + 1), h, color=model_color(model), label=model_label(model)
+            if model else "best cost")
+    if h.size and np.all(h[np.isfinite(h)] > 0):
+        ax.set_yscale("log")
+    ax.set(xlabel="generation", ylabel="best cost (Eq. 6)", title=title or "GA convergence")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+    return fig
