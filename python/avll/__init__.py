@@ -130,6 +130,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
     from . import plotting as plotting
     from . import progress as progress
     from ._atomic import read_manifest
+    from .diagnose.contract import model_from_dict, simulate_run
     from .effects import (
         EFFECTS,
         Asymmetric,
@@ -147,7 +148,6 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
         closed_loop_effects,
         simulate_effects,
     )
-    from .diagnose.contract import model_from_dict, simulate_run
     from .maps import (
         calibrate_many_distributed,
         map_dataset,

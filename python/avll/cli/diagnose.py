@@ -1,5 +1,5 @@
-"""``avll diagnose``: registered by :func:`avll.diagnose.register_cli` (the diagnosis
-package is being rewritten; its command moves here afterwards). This module adds what
+"""``avll diagnose``: registered by :func:`avll.diagnose.register_cli` (the command
+lives with the diagnosis package, :mod:`avll.diagnose.cli`). This module adds what
 the shared CLI conventions need on top of it: a description, help text stating every
 default, and the declaration of the input and output paths checked before any work."""
 
@@ -10,11 +10,10 @@ import argparse
 from ._common import declare_io
 
 _DESCRIPTION = (
-    "Residual diagnosis and the add-effect loop: calibrate the base model on the "
-    "calibration runs, test the residuals for the signature of each candidate effect "
-    "(dead band, rate limit, saturation, ...), add the significant ones one at a time and "
-    "keep an effect only when it also helps on the held-out runs. Writes the steps as "
-    "JSON (--json) and optionally a Markdown/HTML report (--report)."
+    "Fit the base model on the calibration runs, rank the library's effects by the "
+    "residual, accept an effect only when cross-validation over the calibration runs says "
+    "so (see docs/guide/diagnose.md), report validation and test runs, and say what the "
+    "residual still depends on."
 )
 
 #: Help of the options avll.diagnose registers without one (argparse dest -> help).
@@ -24,8 +23,8 @@ _HELP = {
                     "the loader)",
     "format": "data format, see avll load (default: canonical)",
     "model": "base model: first, second or proposed (default: proposed)",
-    "cal_runs": "comma-separated calibration run ids; the other runs are held out "
-                "(required; no default)",
+    "cal_runs": "comma-separated calibration run ids: fitting and the cross-validated "
+                "selection (required; no default)",
     "seed": "seed of the calibrations (default: 0)",
     "json": "output JSON file (required; no default)",
     "report": "folder for a Markdown/HTML report (default: not written)",

@@ -65,7 +65,7 @@ def _cmd(args: argparse.Namespace) -> int:
     res = effect_loop(args.model, cal, val, test_runs=test, seed=args.seed, init=args.init,
                       optimizer=args.optimizer, folds=args.folds, min_gain=args.min_gain,
                       max_effects=args.max_effects, maxiter=args.maxiter,
-                      candidates=cands, progress=not args.quiet)  # fmt: skip
+                      candidates=cands, progress=args.progress != "none")  # fmt: skip
     d = res.to_dict()
     _atomic.write_json(args.json, _atomic.json_safe(d), default=float)
     if args.report:
@@ -121,8 +121,10 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                    help="initial state (auto: steady for a speed command, else rest)")
     p.add_argument("--optimizer", choices=["ga", "de"], default="ga",
                    help="calibration: the Rust GA (default) or scipy's differential evolution")
-    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    from ..cli._common import add_progress
     from ..io.cli_load import add_astazero_options
+
+    add_progress(p)
 
     add_astazero_options(p)
     p.set_defaults(func=_cmd)
