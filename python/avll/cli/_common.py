@@ -267,6 +267,7 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
     ins = tuple(getattr(args, "io_inputs", ()))
     outs = tuple(getattr(args, "io_outputs", ()))
     folders = set(getattr(args, "io_folders", ()))
+
     def given(d: str) -> Any:
         v = getattr(args, d, None)
         return None if v == "" else v  # an empty path means "not written" (--out "")
@@ -274,9 +275,9 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
     inputs = [(_label(d, positional), given(d)) for d in ins]
     outputs = [(_label(d, positional), given(d), d in folders) for d in outs]
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
-    given = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
-    for i, (la, pa) in enumerate(given):
-        for lb, pb in given[i + 1:]:
+    named = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
+    for i, (la, pa) in enumerate(named):
+        for lb, pb in named[i + 1:]:
             if same_file(pa, pb):
                 raise ValueError(f"{lb}: {pb} is also the output of {la}; choose distinct names")
     for lab, pth, folder in outputs:
