@@ -6,6 +6,7 @@
 
 use super::ga::{derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Progress};
 use crate::error::{AvllError, Result};
+use crate::sim::cost::{lane_plants, lane_run, LanePlants, LANES};
 use crate::sim::{run_cost, CostSpec, RunRef};
 use rayon::prelude::*;
 
@@ -65,6 +66,101 @@ impl Objective for Eq6<'_> {
             costs.push(c);
         }
         combine(&costs, &self.w)
+    }
+
+    /// Offspring in groups of [`LANES`] stepped together through the lane kernel
+    /// (the linear second-order open-loop acceleration cost; any other cost is
+    /// evaluated point by point), in parallel over groups. Each value is bit-identical
+    /// to `eval`/`eval_bounded` of the point alone (same per-run costs, same
+    /// abandoning checks, same combination), whatever the grouping or the threads.
+    fn eval_many(&self, xs: &[Vec<f64>], bound: f64) -> Vec<f64> {
+        let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
+        let groups = rows.len().div_ceil(LANES);
+        let parts: Vec<Vec<f64>> = (0..groups)
+            .into_par_iter()
+            .map(|g| {
+                let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
+                self.lane_group(rs, bound).unwrap_or_else(|| {
+                    rs.iter()
+                        .map(|x| {
+                            if bound.is_finite() {
+                                self.eval_bounded(x, bound)
+                            } else {
+                                self.eval(x)
+                            }
+                        })
+                        .collect()
+                })
+            })
+            .collect();
+        parts.concat()
+    }
+}
+
+impl Eq6<'_> {
+    /// Up to [`LANES`] rows through the lane kernel, run after run with each row's
+    /// own abandoning limit (as [`Eq6::eval_bounded`]); `None` when the lane path
+    /// does not apply. The plants are discretized once per distinct `dt`.
+    fn lane_group(&self, rows: &[&[f64]], bound: f64) -> Option<Vec<f64>> {
+        let nr = rows.len();
+        let mut plants: Vec<(f64, LanePlants)> = Vec::new();
+        let mut done = vec![0.0; nr];
+        let mut alive = vec![true; nr];
+        let mut costs: Vec<Vec<f64>> = vec![Vec::with_capacity(self.w.len()); nr];
+        let mut limits = [f64::INFINITY; LANES];
+        for &(j, wj) in &self.w {
+            let run = &self.runs[j];
+            let pi = match plants.iter().position(|p| p.0 == run.dt) {
+                Some(i) => i,
+                None => {
+                    plants.push((run.dt, lane_plants(self.spec, rows, run)?));
+                    plants.len() - 1
+                }
+            };
+            let live: LanePlants = plants[pi]
+                .1
+                .iter()
+                .filter(|p| alive[p.0])
+                .copied()
+                .collect();
+            for k in 0..nr {
+                limits[k] = if bound.is_finite() {
+                    (bound * self.total - done[k]) * run.len() as f64 / wj
+                } else {
+                    f64::INFINITY
+                };
+            }
+            let c = if live.is_empty() {
+                vec![f64::INFINITY; nr]
+            } else {
+                lane_run(self.spec, &live, nr, run, &limits)
+            };
+            for k in 0..nr {
+                if !alive[k] {
+                    continue;
+                }
+                if c[k].is_finite() {
+                    done[k] += wj * c[k];
+                    costs[k].push(c[k]);
+                } else {
+                    alive[k] = false;
+                }
+            }
+            if !alive.iter().any(|&a| a) {
+                break;
+            }
+        }
+        Some(
+            (0..nr)
+                .map(|k| {
+                    if alive[k] {
+                        combine(&costs[k], &self.w)
+                    } else {
+                        f64::INFINITY
+                    }
+                })
+                .collect(),
+        )
     }
 }
 
@@ -301,5 +397,110 @@ mod tests {
         assert_eq!(r1.x, r2.x);
         assert_eq!(r1.history, r2.history);
         assert!(r2.f < 0.01, "{}", r2.f);
+    }
+
+    #[test]
+    fn lane_groups_equal_the_point_by_point_values_bit_for_bit() {
+        let (us, ys) = synthetic_runs();
+        let mut runs = refs(&us, &ys);
+        // A run of another dt (plants per dt) and a shorter run.
+        runs[2].dt = 0.1;
+        runs[1].a = &ys[1][..900];
+        runs[1].command = Some(&us[1][..900]);
+        let sp = spec();
+        let w = vec![(0, 2.0), (1, 1.0), (2, 1.0)];
+        let f = Eq6 {
+            spec: &sp,
+            runs: &runs,
+            w,
+            total: 4.0,
+        };
+        // Modal, complex-pole, unstable and invalid rows, near and far from the fit;
+        // 7 rows: a full group and a partial one.
+        let xs: Vec<Vec<f64>> = vec![
+            vec![6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008],
+            vec![0.0, 0.0445, 0.1305, 0.7292, 0.7796, 0.0],
+            vec![1.0, 0.5, 2.0, 0.8, 0.33, -0.4],
+            vec![1.0, 1.0, 1.0, 1.0, 0.1, 5.0],
+            vec![1.0, -1.0, 1.0, 1.0, 0.1, 0.0],
+            vec![6.0, 1.3, 8.0, 0.35, 0.8, 0.1],
+            vec![0.2, 0.8, 1.9, 1.1, 0.05, 0.3],
+        ];
+        let exact: Vec<f64> = xs.iter().map(|x| f.eval(x)).collect();
+        let finite: Vec<f64> = exact.iter().copied().filter(|v| v.is_finite()).collect();
+        assert!(finite.len() >= 4, "{exact:?}");
+        let mid = {
+            let mut s = finite.clone();
+            s.sort_by(f64::total_cmp);
+            s[s.len() / 2]
+        };
+        for bound in [f64::INFINITY, 1e300, mid, mid * 0.5, finite[0] * 1.0001] {
+            let got = f.eval_many(&xs, bound);
+            let want: Vec<f64> = xs
+                .iter()
+                .map(|x| {
+                    if bound.is_finite() {
+                        f.eval_bounded(x, bound)
+                    } else {
+                        f.eval(x)
+                    }
+                })
+                .collect();
+            for (i, (g, e)) in got.iter().zip(&want).enumerate() {
+                assert_eq!(g.to_bits(), e.to_bits(), "row {i}, bound {bound}: {g} vs {e}");
+            }
+            // Abandoned values are >= the bound; the others exact.
+            for (g, e) in got.iter().zip(&exact) {
+                assert!(g.to_bits() == e.to_bits() || *g >= bound);
+            }
+            if bound == mid * 0.5 {
+                let abandoned = got
+                    .iter()
+                    .zip(&exact)
+                    .filter(|(g, e)| g.is_infinite() && e.is_finite())
+                    .count();
+                assert!(abandoned >= 2, "{got:?} {exact:?}");
+            }
+        }
+        // The lane path was taken (not the point-by-point fallback).
+        assert!(f.lane_group(&[&xs[0], &xs[1]], f64::INFINITY).is_some());
+    }
+
+    #[test]
+    fn calibration_is_bit_identical_for_any_thread_count() {
+        let (us, ys) = synthetic_runs();
+        let runs = refs(&us, &ys);
+        let sp = spec();
+        let b = Bounds::new(
+            vec![1e-4, 1e-3, 1e-3, 0.0, 0.0, -3.0],
+            vec![100.0, 100.0, 100.0, 3.0, 3.0, 3.0],
+            vec![
+                Scale::Log,
+                Scale::Log,
+                Scale::Log,
+                Scale::Linear,
+                Scale::Linear,
+                Scale::Linear,
+            ],
+        )
+        .unwrap();
+        let o = GaOptions {
+            seed: 11,
+            max_generations: 12,
+            polish_max_evals: 200,
+            ..Default::default()
+        };
+        let problems = vec![vec![0, 1, 2], vec![0, 0, 2], vec![1]];
+        let run = |t: usize| {
+            crate::parallel::with_threads(t, || {
+                calibrate_many(&sp, &runs, &problems, &b, &o, true, |_, _| None)
+            })
+            .unwrap()
+            .unwrap()
+        };
+        let (r1, r2, r3) = (run(1), run(2), run(3));
+        assert_eq!(r1, r2);
+        assert_eq!(r1, r3);
+        assert!(r1.iter().all(|c| c.ga.f.is_finite()));
     }
 }

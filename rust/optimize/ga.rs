@@ -438,6 +438,22 @@ pub trait Objective: Sync {
         let _ = bound;
         self.eval(x)
     }
+    /// The values of many points: `eval` (infinite `bound`) or `eval_bounded` of each,
+    /// in order. The default evaluates them in parallel one by one; an objective may
+    /// batch them (e.g. several points stepped together) as long as every value is
+    /// the one `eval`/`eval_bounded` would give, so the result does not depend on how
+    /// the points are grouped or on the number of threads.
+    fn eval_many(&self, xs: &[Vec<f64>], bound: f64) -> Vec<f64> {
+        xs.par_iter()
+            .map(|x| {
+                if bound.is_finite() {
+                    self.eval_bounded(x, bound)
+                } else {
+                    self.eval(x)
+                }
+            })
+            .collect()
+    }
 }
 
 impl<F: Fn(&[f64]) -> f64 + Sync> Objective for F {
@@ -465,19 +481,53 @@ impl<F: Objective + ?Sized> Evaluator<'_, F> {
     }
 
     fn many_bounded(&mut self, zs: &[Vec<f64>], bound: f64) -> Vec<f64> {
-        self.evaluations += zs.len();
-        let (f, b) = (self.f, self.bounds);
-        zs.par_iter()
-            .map(|z| {
-                let mut x = vec![0.0; z.len()];
-                b.to_user(z, &mut x);
-                if bound.is_finite() {
-                    clean(f.eval_bounded(&x, bound))
-                } else {
-                    clean(f.eval(&x))
-                }
-            })
-            .collect()
+        self.many_known(zs, bound, &[], &[])
+    }
+
+    /// [`Self::many_bounded`] that evaluates each distinct point once: a point equal
+    /// (in parameter coordinates, bit for bit) to one of `known` (with values
+    /// `known_f`, exact) or to an earlier point of `zs` takes that value without
+    /// an evaluation. Only distinct new points count as evaluations.
+    fn many_known(
+        &mut self,
+        zs: &[Vec<f64>],
+        bound: f64,
+        known: &[Vec<f64>],
+        known_f: &[f64],
+    ) -> Vec<f64> {
+        let b = self.bounds;
+        let user = |z: &Vec<f64>| {
+            let mut x = vec![0.0; z.len()];
+            b.to_user(z, &mut x);
+            x
+        };
+        let key = |x: &[f64]| x.iter().map(|v| v.to_bits()).collect::<Vec<u64>>();
+        let mut seen: std::collections::HashMap<Vec<u64>, usize> =
+            std::collections::HashMap::with_capacity(known.len() + zs.len());
+        let mut vals: Vec<f64> = Vec::with_capacity(known.len() + zs.len());
+        for (z, &f) in known.iter().zip(known_f) {
+            if f.is_finite() {
+                seen.entry(key(&user(z))).or_insert_with(|| {
+                    vals.push(f);
+                    vals.len() - 1
+                });
+            }
+        }
+        let mut todo: Vec<Vec<f64>> = Vec::with_capacity(zs.len());
+        let mut slot: Vec<usize> = Vec::with_capacity(zs.len());
+        for z in zs {
+            let x = user(z);
+            let n = vals.len() + todo.len();
+            let s = *seen.entry(key(&x)).or_insert_with(|| {
+                todo.push(x);
+                n
+            });
+            slot.push(s);
+        }
+        self.evaluations += todo.len();
+        let fresh = self.f.eval_many(&todo, bound);
+        vals.extend(fresh.into_iter().map(clean));
+        slot.into_iter().map(|s| vals[s]).collect()
     }
 }
 
@@ -639,7 +689,7 @@ where
         // (mu + lambda): an offspring whose value reaches the current worst cannot
         // survive, so its evaluation may stop early (exact values otherwise).
         let bound = if opts.plus { fit[n - 1] } else { f64::INFINITY };
-        let kid_fit = ev.many_bounded(&kids, bound);
+        let kid_fit = ev.many_known(&kids, bound, &pop, &fit);
         if !opts.plus {
             pop.truncate(n_elite);
             fit.truncate(n_elite);
