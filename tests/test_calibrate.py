@@ -149,6 +149,33 @@ def test_many_problems_equal_single_problems(proposed_data: list[avll.Run]) -> N
     assert rep.cost == pytest.approx((2 * c[0] + c[1]) / 3, rel=1e-12)
 
 
+def test_workflow_packs_the_runs_once(
+    proposed_data: list[avll.Run], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """paper_workflow packs the calibration runs and the validation runs once each for
+    all models (issue 10, item 4), with the same results as packing per call."""
+    cm = sys.modules["avll.calibrate"]  # the module (avll.calibrate is the function)
+    calls: list[int] = []
+    real = cm.pack_runs
+
+    def counting(runs: list[avll.Run], **kw: object) -> dict:
+        calls.append(len(runs))
+        return real(runs, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(cm, "pack_runs", counting)
+    runs = proposed_data[:6]
+    models = ("first", "second", "proposed")
+    wf = paper_workflow(runs, cal_runs=None, models=models, seed=2, max_generations=4,
+                        polish=False, starts=1)  # fmt: skip
+    assert sorted(calls) == [3, 3]  # cal (3 runs) once, val (3 runs) once
+    for m in models:
+        # The same numbers as a calibration and a validation packed on their own.
+        r = calibrate(m, wf.cal, seed=2, max_generations=4, polish=False, starts=1)
+        assert r.params == wf.results[m].params and r.cost == wf.results[m].cost
+        v = avll.batch_cost(m, np.array(list(r.params.values()))[None], wf.val)[0]
+        assert list(wf.val_mse[m].values()) == [float(x) for x in v]
+
+
 def test_bootstrap_intervals() -> None:
     runs = paper_experiment(TRUE["first"], seed=5, runs=(1, 2, 3, 4, 5, 6), duration=60.0)
     b = bootstrap("first", runs, n=8, seed=0, max_generations=40)
