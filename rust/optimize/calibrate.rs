@@ -6,7 +6,7 @@
 
 use super::ga::{derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Progress};
 use crate::error::{AvllError, Result};
-use crate::sim::cost::{lane_plants, lane_run, LanePlants, LANES};
+use crate::sim::cost::{lane_plants, lane_run, run_groups, run_lanes_group, LanePlants, LANES};
 use crate::sim::{run_cost, CostSpec, RunRef};
 use rayon::prelude::*;
 
@@ -14,11 +14,29 @@ use rayon::prelude::*;
 /// `weights` (run index, multiplicity), evaluated in parallel and summed in a fixed
 /// order; `inf` if any run's cost is.
 pub fn subset_cost(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(usize, f64)]) -> f64 {
-    let costs: Vec<f64> = weights
+    combine(&run_costs(spec, row, runs, weights), weights)
+}
+
+/// The run costs of `row` on the runs of `weights` (in that order), exactly
+/// [`run_cost`] each: runs sharing `dt` and length are stepped together through the
+/// lanes ([`run_lanes_group`]), the groups in parallel.
+fn run_costs(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(usize, f64)]) -> Vec<f64> {
+    let sel: Vec<&RunRef> = weights.iter().map(|&(j, _)| &runs[j]).collect();
+    let groups = run_groups(&sel);
+    let parts: Vec<Vec<f64>> = groups
         .par_iter()
-        .map(|&(j, _)| run_cost(spec, row, &runs[j], f64::INFINITY))
+        .map(|g| {
+            let rs: Vec<&RunRef> = g.iter().map(|&q| sel[q]).collect();
+            run_lanes_group(spec, row, &rs, &vec![f64::INFINITY; rs.len()])
+        })
         .collect();
-    combine(&costs, weights)
+    let mut out = vec![f64::INFINITY; sel.len()];
+    for (g, cs) in groups.iter().zip(parts) {
+        for (&q, c) in g.iter().zip(cs) {
+            out[q] = c;
+        }
+    }
+    out
 }
 
 /// The weighted mean of per-run costs (fixed summation order).
@@ -245,8 +263,9 @@ fn calibrate_one(
     };
     let ga = minimize(&f, bounds, opts, callback)?;
     let per_run =
-        f.w.par_iter()
-            .map(|&(j, _)| (j, run_cost(spec, &ga.x, &runs[j], f64::INFINITY)))
+        f.w.iter()
+            .map(|p| p.0)
+            .zip(run_costs(spec, &ga.x, runs, &f.w))
             .collect();
     Ok(Calibration { ga, per_run })
 }
@@ -447,7 +466,11 @@ mod tests {
                 })
                 .collect();
             for (i, (g, e)) in got.iter().zip(&want).enumerate() {
-                assert_eq!(g.to_bits(), e.to_bits(), "row {i}, bound {bound}: {g} vs {e}");
+                assert_eq!(
+                    g.to_bits(),
+                    e.to_bits(),
+                    "row {i}, bound {bound}: {g} vs {e}"
+                );
             }
             // Abandoned values are >= the bound; the others exact.
             for (g, e) in got.iter().zip(&exact) {
