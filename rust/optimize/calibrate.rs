@@ -14,22 +14,30 @@ use rayon::prelude::*;
 /// `weights` (run index, multiplicity), evaluated in parallel and summed in a fixed
 /// order; `inf` if any run's cost is.
 pub fn subset_cost(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(usize, f64)]) -> f64 {
-    combine(&run_costs(spec, row, runs, weights), weights)
+    combine(&run_costs(spec, row, runs, weights, true), weights)
 }
 
 /// The run costs of `row` on the runs of `weights` (in that order), exactly
 /// [`run_cost`] each: runs sharing `dt` and length are stepped together through the
-/// lanes ([`run_lanes_group`]), the groups in parallel.
-fn run_costs(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(usize, f64)]) -> Vec<f64> {
+/// lanes ([`run_lanes_group`]), the groups in parallel when `par`.
+fn run_costs(
+    spec: &CostSpec,
+    row: &[f64],
+    runs: &[RunRef],
+    weights: &[(usize, f64)],
+    par: bool,
+) -> Vec<f64> {
     let sel: Vec<&RunRef> = weights.iter().map(|&(j, _)| &runs[j]).collect();
     let groups = run_groups(&sel);
-    let parts: Vec<Vec<f64>> = groups
-        .par_iter()
-        .map(|g| {
-            let rs: Vec<&RunRef> = g.iter().map(|&q| sel[q]).collect();
-            run_lanes_group(spec, row, &rs, &vec![f64::INFINITY; rs.len()])
-        })
-        .collect();
+    let one = |g: &Vec<usize>| {
+        let rs: Vec<&RunRef> = g.iter().map(|&q| sel[q]).collect();
+        run_lanes_group(spec, row, &rs, &vec![f64::INFINITY; rs.len()])
+    };
+    let parts: Vec<Vec<f64>> = if par {
+        groups.par_iter().map(one).collect()
+    } else {
+        groups.iter().map(one).collect()
+    };
     let mut out = vec![f64::INFINITY; sel.len()];
     for (g, cs) in groups.iter().zip(parts) {
         for (&q, c) in g.iter().zip(cs) {
@@ -59,11 +67,19 @@ struct Eq6<'a> {
     runs: &'a [RunRef<'a>],
     w: Vec<(usize, f64)>,
     total: f64,
+    /// Whether a single point's runs are evaluated in parallel. Off when independent
+    /// problems (starts) already occupy the threads: a point's run groups are too
+    /// small to be worth a rendezvous of threads (and on a loaded machine each one
+    /// waits for a descheduled thread). Values do not depend on it.
+    par: bool,
 }
 
 impl Objective for Eq6<'_> {
     fn eval(&self, x: &[f64]) -> f64 {
-        subset_cost(self.spec, x, self.runs, &self.w)
+        combine(
+            &run_costs(self.spec, x, self.runs, &self.w, self.par),
+            &self.w,
+        )
     }
 
     /// The same per-run costs as [`subset_cost`] and the same combination (so an
@@ -227,7 +243,7 @@ pub fn calibrate(
 ) -> Result<Calibration> {
     spec.validate(runs)?;
     let all: Vec<usize> = (0..runs.len()).collect();
-    calibrate_one(spec, runs, &all, bounds, opts, 0, callback)
+    calibrate_one(spec, runs, &all, bounds, opts, 0, true, callback)
 }
 
 fn calibrate_one(
@@ -237,6 +253,7 @@ fn calibrate_one(
     bounds: &Bounds,
     opts: &GaOptions,
     problem: usize,
+    par: bool,
     callback: impl FnMut(&Progress) -> bool,
 ) -> Result<Calibration> {
     if bounds.dim() != spec.n_params() {
@@ -260,12 +277,13 @@ fn calibrate_one(
         runs,
         w,
         total,
+        par,
     };
     let ga = minimize(&f, bounds, opts, callback)?;
     let per_run =
         f.w.iter()
             .map(|p| p.0)
-            .zip(run_costs(spec, &ga.x, runs, &f.w))
+            .zip(run_costs(spec, &ga.x, runs, &f.w, par))
             .collect();
     Ok(Calibration { ga, per_run })
 }
@@ -289,6 +307,8 @@ pub fn calibrate_many(
     for (k, p) in problems.iter().enumerate() {
         multiplicities(p, runs.len(), k)?;
     }
+    // With at least as many problems as threads, the problems keep the threads busy.
+    let par = problems.len() < rayon::current_num_threads();
     problems
         .par_iter()
         .enumerate()
@@ -297,7 +317,7 @@ pub fn calibrate_many(
             if derive {
                 o.seed = derive_seed(opts.seed, k as u64);
             }
-            calibrate_one(spec, runs, subset, bounds, &o, k, |p| {
+            calibrate_one(spec, runs, subset, bounds, &o, k, par, |p| {
                 callback(k, p).unwrap_or(true)
             })
         })
@@ -377,6 +397,7 @@ mod tests {
             runs: &runs,
             w: w.clone(),
             total: 4.0,
+            par: true,
         };
         for row in [
             [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008],
@@ -433,6 +454,7 @@ mod tests {
             runs: &runs,
             w,
             total: 4.0,
+            par: false,
         };
         // Modal, complex-pole, unstable and invalid rows, near and far from the fit;
         // 7 rows: a full group and a partial one.
