@@ -30,6 +30,14 @@ objective in one run per seed that stops at the 0.1 % target.
 
     python benches/bench_calibrate.py [--seed N] [--seeds 5] [--threads 0]
         [--budget 30] [--repeats 1] [--ga-seeds 8] [--full] [--lfilter] [--json OUT]
+        [--md OUT]
+
+The docs' table is generated from the JSON (never typed by hand):
+
+    python benches/bench_calibrate.py --json docs/_generated/calibrate_bench.json \
+        --md docs/_generated/calibrate_bench.md
+    python benches/bench_calibrate.py --render docs/_generated/calibrate_bench.json \
+        --md docs/_generated/calibrate_bench.md    # re-render only
 """
 
 from __future__ import annotations
@@ -310,6 +318,62 @@ def _json_num(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def render(doc: dict[str, Any]) -> str:
+    """The docs' Markdown table of a ``--json`` result: per tolerance, each method's
+    median wall and CPU time and success rate, and avll's ratio to the best peer."""
+    m = doc["meta"]
+    tols = list(doc["methods"]["avll.calibrate"]["median_wall_s"])
+    load0 = ", ".join(f"{x:.1f}" for x in m.get("load_average_start", []))
+    load1 = ", ".join(f"{x:.1f}" for x in m.get("load_average_end", []))
+
+    def sec(x: float | None) -> str:
+        return "never" if x is None else f"{x:.3f}"
+
+    lines = [
+        f"Measured by `benches/bench_calibrate.py` (avll {m['avll']}, numba {m['numba']}, "
+        f"cma {m['cma']}, Python {m['python']}; {m['cpus']} CPUs, {m['threads']} threads for "
+        f"every method; load average (1, 5, 15 min) {load0} at start and {load1} at the end). "
+        f"Proposed model, {m['samples_per_evaluation']} samples per evaluation; seeds "
+        f"{m['seed']}..{m['seed'] + m['seeds'] - 1} (median; a seed that misses counts as "
+        f"infinitely slow; peers stop after {m['budget_s']:g} s); best MSE "
+        f"{doc.get('best_mse', float('nan')):.8g}. Wall time is what the target is about; "
+        "CPU time is less sensitive to other jobs on the machine.",
+        "",
+        "| tolerance | method | median wall (s) | median CPU (s) | successes |",
+        "|---|---|---|---|---|",
+    ]
+    for tol in tols:
+        for name, r in doc["methods"].items():
+            lines.append(
+                f"| {float(tol):.1%} | {name} | {sec(r['median_wall_s'][tol])} | "
+                f"{sec(r['median_cpu_s'][tol])} | {r['successes'][tol]}/{m['seeds']} |"
+            )
+    ratios = doc.get("ratio_best_peer_over_avll", {})
+    if ratios:
+        lines += [
+            "",
+            "| tolerance | best peer / avll (wall) | (CPU) | target | met |",
+            "|---|---|---|---|---|",
+        ]
+        for tol, v in ratios.items():
+            w, c = v["wall"], v["cpu"]
+            lines.append(
+                f"| {float(tol):.1%} | {'n/a' if w is None else f'{w:.2f}x'} | "
+                f"{'n/a' if c is None else f'{c:.2f}x'} | >= {doc['target']:g}x | "
+                f"{'yes' if doc['met'][tol] else 'no'} |"
+            )
+    if doc.get("interrupted"):
+        lines += ["", "(interrupted: partial results)"]
+    return "\n".join(lines) + "\n"
+
+
+def _write(path: Path, text: str) -> None:
+    """Writes ``text`` to a temporary name beside ``path``, then renames it."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the comparison and prints the tables; returns the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -324,7 +388,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--full", action="store_true", help="also the peers' full default runs (no target)"
     )
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
+    ap.add_argument("--md", type=Path, default=None, help="write the docs' Markdown table here")
+    ap.add_argument("--render", type=Path, default=None, metavar="JSON",
+                    help="only render a previous --json result (to --md, else stdout)")
     args = ap.parse_args(argv)
+    if args.render is not None:
+        text = render(json.loads(args.render.read_text(encoding="utf-8")))
+        if args.md is None:
+            print(text, end="")
+        else:
+            _write(args.md, text)
+            print(f"wrote {args.md}")
+        return 0
     if args.seeds < 1 or args.repeats < 1 or args.ga_seeds < 0 or args.budget <= 0:
         ap.error("--seeds and --repeats must be >= 1, --ga-seeds >= 0, --budget > 0")
     if args.threads < 0:
@@ -338,6 +413,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"bench_calibrate: {e} (pip install 'avll[bench]')")
         return 2
 
+    load_start = list(os.getloadavg())
     threads = args.threads or (os.cpu_count() or 1)
     peers.set_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     runs = paper_experiment(seed=args.seed, runs=PAPER_CAL_RUNS, duration=300.0)
@@ -522,7 +598,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         interrupted = True
         print("\ninterrupted: results so far only")
 
-    if args.json is not None and results:
+    if (args.json is not None or args.md is not None) and results:
         doc = {
             "meta": {
                 "avll": avll.__version__,
@@ -531,6 +607,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 "python": platform.python_version(),
                 "cpus": os.cpu_count(),
                 "threads": threads,
+                "load_average_start": load_start,
                 "load_average_end": list(os.getloadavg()),
                 "samples_per_evaluation": n,
                 "budget_s": args.budget,
@@ -572,11 +649,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             }
             doc["target"] = TARGET
             doc["met"] = {f"{tol:g}": bool(v[0] >= TARGET) for tol, v in verdicts.items()}
-        text = json.dumps(doc, indent=2, allow_nan=False)
-        tmp = args.json.with_name(args.json.name + ".tmp")
-        tmp.write_text(text + "\n", encoding="utf-8")
-        os.replace(tmp, args.json)
-        print(f"wrote {args.json}")
+        if args.json is not None:
+            _write(args.json, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+            print(f"wrote {args.json}")
+        if args.md is not None:
+            _write(args.md, render(doc))
+            print(f"wrote {args.md}")
     return 130 if interrupted else 0
 
 

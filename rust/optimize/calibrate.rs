@@ -110,23 +110,21 @@ impl Objective for Eq6<'_> {
     fn eval_many(&self, xs: &[Vec<f64>], bound: f64) -> Vec<f64> {
         let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
         let groups = rows.len().div_ceil(LANES);
-        let parts: Vec<Vec<f64>> = (0..groups)
-            .into_par_iter()
-            .map(|g| {
-                let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
-                self.lane_group(rs, bound).unwrap_or_else(|| {
-                    rs.iter()
-                        .map(|x| {
-                            if bound.is_finite() {
-                                self.eval_bounded(x, bound)
-                            } else {
-                                self.eval(x)
-                            }
-                        })
-                        .collect()
-                })
+        let one = |g: usize| {
+            let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
+            self.lane_group(rs, bound).unwrap_or_else(|| {
+                rs.iter()
+                    .map(|x| {
+                        if bound.is_finite() {
+                            self.eval_bounded(x, bound)
+                        } else {
+                            self.eval(x)
+                        }
+                    })
+                    .collect()
             })
-            .collect();
+        };
+        let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
         parts.concat()
     }
 }

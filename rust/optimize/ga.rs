@@ -642,8 +642,8 @@ where
         let pairs = n_off.div_ceil(2);
         let g = generation as u64;
         let (popr, fitr) = (&pop, &fit);
+        // Breeding is cheap: on the calling thread (no rendezvous of threads).
         let children: Vec<[Vec<f64>; 2]> = (0..pairs)
-            .into_par_iter()
             .map(|k| {
                 let mut r = stream(opts.seed, g, k as u64, TAG_BREED);
                 let mut pick = || {
