@@ -244,6 +244,7 @@ pub fn calibrate(
     calibrate_one(spec, runs, &all, bounds, opts, 0, true, callback)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn calibrate_one(
     spec: &CostSpec,
     runs: &[RunRef],
