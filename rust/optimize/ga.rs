@@ -531,6 +531,34 @@ impl<F: Objective + ?Sized> Evaluator<'_, F> {
     }
 }
 
+/// Waves in which a generation's offspring are evaluated (see [`minimize`]).
+const WAVES: usize = 3;
+
+/// The value an individual must beat to survive a (mu + lambda) selection of `n`
+/// from `pop`: the `n`-th best finite value counting clones (equal individuals with
+/// equal values, which [`survive_unique`] keeps last) once; `inf` when there are
+/// fewer than `n` distinct finite individuals. An individual added after these with
+/// a value `>=` it is not among the survivors.
+fn survival_bound(pop: &[Vec<f64>], fit: &[f64], n: usize) -> f64 {
+    let mut idx: Vec<usize> = (0..pop.len()).filter(|&i| fit[i].is_finite()).collect();
+    idx.sort_by(|&a, &b| fit[a].total_cmp(&fit[b]).then(a.cmp(&b)));
+    let mut distinct = 0;
+    for (q, &i) in idx.iter().enumerate() {
+        let clone = idx[..q]
+            .iter()
+            .rev()
+            .take_while(|&&k| fit[k] == fit[i])
+            .any(|&k| pop[k] == pop[i]);
+        if !clone {
+            distinct += 1;
+            if distinct == n {
+                return fit[i];
+            }
+        }
+    }
+    f64::INFINITY
+}
+
 /// Sorts a population by value (stable: ties keep their order).
 fn sort_pop(pop: &mut Vec<Vec<f64>>, fit: &mut Vec<f64>) {
     let mut idx: Vec<usize> = (0..pop.len()).collect();
@@ -686,10 +714,27 @@ where
             })
             .collect();
         let mut kids: Vec<Vec<f64>> = children.into_iter().flatten().take(n_off).collect();
-        // (mu + lambda): an offspring whose value reaches the current worst cannot
-        // survive, so its evaluation may stop early (exact values otherwise).
-        let bound = if opts.plus { fit[n - 1] } else { f64::INFINITY };
-        let kid_fit = ev.many_known(&kids, bound, &pop, &fit);
+        // (mu + lambda): an offspring whose value reaches the survival bound (the
+        // n-th best distinct value among the parents and the offspring evaluated so
+        // far) cannot survive, so its evaluation may stop early (exact values
+        // otherwise). The offspring go in WAVES fixed waves, each with the bound the
+        // earlier ones leave, so the bound tightens as the generation proceeds.
+        let kid_fit = if opts.plus {
+            let wave = n_off.div_ceil(WAVES).next_multiple_of(8).max(1);
+            let mut known = pop.clone();
+            let mut known_f = fit.clone();
+            let mut kf = Vec::with_capacity(n_off);
+            for chunk in kids.chunks(wave) {
+                let bound = survival_bound(&known, &known_f, n);
+                let f = ev.many_known(chunk, bound, &known, &known_f);
+                known.extend(chunk.iter().cloned());
+                known_f.extend(f.iter().copied());
+                kf.extend(f);
+            }
+            kf
+        } else {
+            ev.many_known(&kids, f64::INFINITY, &pop, &fit)
+        };
         if !opts.plus {
             pop.truncate(n_elite);
             fit.truncate(n_elite);
@@ -1063,5 +1108,50 @@ mod tests {
         let f = |x: &[f64]| if x[0] < 0.0 { f64::NAN } else { sphere(x) };
         let r = minimize(&f, &b, &GaOptions::default(), |_| true).unwrap();
         assert!(r.f.is_finite() && r.x[0] >= 0.0);
+    }
+
+    /// Abandons every value that reaches the bound (the most an objective may do).
+    struct Abandoning;
+
+    impl Objective for Abandoning {
+        fn eval(&self, x: &[f64]) -> f64 {
+            rosenbrock(x)
+        }
+        fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
+            let f = rosenbrock(x);
+            if f >= bound {
+                f64::INFINITY
+            } else {
+                f
+            }
+        }
+    }
+
+    #[test]
+    fn abandoning_at_the_survival_bound_does_not_change_the_search() {
+        // Coarse bounds on a small box make clones and ties frequent.
+        let b = Bounds::linear(vec![-2.0; 3], vec![2.0; 3]).unwrap();
+        for seed in 0..6 {
+            let o = GaOptions {
+                seed,
+                max_generations: 40,
+                pop_size: 24,
+                polish: false,
+                ..Default::default()
+            };
+            let exact = minimize(&rosenbrock, &b, &o, |_| true).unwrap();
+            let abandoning = minimize(&Abandoning, &b, &o, |_| true).unwrap();
+            assert_eq!(exact.x, abandoning.x, "seed {seed}");
+            assert_eq!(exact.history, abandoning.history, "seed {seed}");
+            assert_eq!(exact.evaluations, abandoning.evaluations, "seed {seed}");
+        }
+        let pop = vec![vec![0.1], vec![0.1], vec![0.2], vec![0.3]];
+        // The clone of 0.1 counts once: the 3rd best distinct is 0.3's value.
+        assert_eq!(survival_bound(&pop, &[1.0, 1.0, 2.0, 3.0], 3), 3.0);
+        assert_eq!(
+            survival_bound(&pop, &[1.0, 1.0, 2.0, 3.0], 4),
+            f64::INFINITY
+        );
+        assert_eq!(survival_bound(&pop, &[1.0, 5.0, 2.0, 3.0], 2), 2.0);
     }
 }
