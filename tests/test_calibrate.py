@@ -132,6 +132,22 @@ def test_same_seed_same_result_for_any_thread_count(proposed_data: list[avll.Run
     assert r3.params != r1.params
 
 
+def test_starts_stopped_at_a_target_are_the_same_for_any_thread_count(
+    proposed_data: list[avll.Run],
+) -> None:
+    """With a target, the starts stop together at the first step at which one reaches
+    it: the result does not depend on the threads (or on which start ran first)."""
+    cal = proposed_data[:4]
+    full = calibrate("proposed", cal, seed=3, max_generations=30)
+    kw = dict(seed=3, max_generations=30, target=full.cost * 1.2, starts=3)
+    r1 = calibrate("proposed", cal, threads=1, **kw)
+    r2 = calibrate("proposed", cal, threads=2, **kw)
+    assert r1.cost <= full.cost * 1.2 and r1.stop == "target"
+    assert r1.params == r2.params and r1.cost == r2.cost
+    assert r1.evaluations == r2.evaluations and r1.start_costs == r2.start_costs
+    np.testing.assert_array_equal(r1.history, r2.history)
+
+
 def test_many_problems_equal_single_problems(proposed_data: list[avll.Run]) -> None:
     runs = proposed_data[:4]
     many1 = calibrate_many("second", runs, "per_run", seed=9, threads=1, max_generations=30)

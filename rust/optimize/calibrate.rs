@@ -4,11 +4,14 @@
 //! (multi)set, one problem or many solved in parallel. Every result carries the
 //! per-run costs of its best parameters, so nothing is re-simulated to fill a table.
 
-use super::ga::{derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Progress};
+use super::ga::{
+    derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Phase, Progress, StopReason,
+};
 use crate::error::{AvllError, Result};
 use crate::sim::cost::{lane_plants, lane_run, run_groups, run_lanes_group, LanePlants, LANES};
 use crate::sim::{run_cost, CostSpec, RunRef};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Eq. 6 over a (multi)set of runs: the weighted mean of the per-run costs over
 /// `weights` (run index, multiplicity), evaluated in parallel and summed in a fixed
@@ -287,11 +290,29 @@ fn calibrate_one(
     Ok(Calibration { ga, per_run })
 }
 
+/// The best point of a problem after one of its steps (GA generations, then polish
+/// iterations, numbered on from 1).
+struct Snapshot {
+    step: usize,
+    phase: Phase,
+    iteration: usize,
+    evaluations: usize,
+    f: f64,
+    x: Vec<f64>,
+}
+
 /// Solves many independent calibration problems in parallel: problem `k` is Eq. 6
 /// over the runs `problems[k]` (repeats allowed), with the seed
 /// `derive_seed(opts.seed, k)` when `derive` is true (else `opts.seed` for all).
 /// `callback(k, progress)` returns `None`/`Some(true)` to continue and `Some(false)`
 /// to stop every problem (each then returns its best so far).
+///
+/// With `stop_all_at_target` (independent starts of one problem), every problem
+/// stops once any reaches `opts.target`, deterministically: with `s` the first step
+/// at which some problem reached the target, every problem still running at step
+/// `s` returns its best point of step `s` (stop reason [`StopReason::Target`]),
+/// whatever the threads and however far it got meanwhile.
+#[allow(clippy::too_many_arguments)]
 pub fn calibrate_many(
     spec: &CostSpec,
     runs: &[RunRef],
@@ -299,6 +320,7 @@ pub fn calibrate_many(
     bounds: &Bounds,
     opts: &GaOptions,
     derive: bool,
+    stop_all_at_target: bool,
     callback: impl Fn(usize, &Progress) -> Option<bool> + Sync,
 ) -> Result<Vec<Calibration>> {
     spec.validate(runs)?;
@@ -308,7 +330,9 @@ pub fn calibrate_many(
     }
     // With at least as many problems as threads, the problems keep the threads busy.
     let par = problems.len() < rayon::current_num_threads();
-    problems
+    // The first step at which a problem reached the target (usize::MAX: none yet).
+    let first_hit = AtomicUsize::new(usize::MAX);
+    let done: Vec<(Calibration, Vec<Snapshot>)> = problems
         .par_iter()
         .enumerate()
         .map(|(k, subset)| {
@@ -316,9 +340,59 @@ pub fn calibrate_many(
             if derive {
                 o.seed = derive_seed(opts.seed, k as u64);
             }
-            calibrate_one(spec, runs, subset, bounds, &o, k, par, |p| {
-                callback(k, p).unwrap_or(true)
-            })
+            let mut snaps: Vec<Snapshot> = Vec::new();
+            let c = calibrate_one(spec, runs, subset, bounds, &o, k, par, |p| {
+                let go = callback(k, p).unwrap_or(true);
+                if !stop_all_at_target {
+                    return go;
+                }
+                let step = snaps.len() + 1;
+                snaps.push(Snapshot {
+                    step,
+                    phase: p.phase,
+                    iteration: p.iteration,
+                    evaluations: p.evaluations,
+                    f: p.best_f,
+                    x: p.best_x.to_vec(),
+                });
+                if p.best_f <= opts.target {
+                    first_hit.fetch_min(step, Ordering::Relaxed);
+                }
+                go && first_hit.load(Ordering::Relaxed) > step
+            })?;
+            Ok((c, snaps))
+        })
+        .collect::<Result<_>>()?;
+    let hit = first_hit.load(Ordering::Relaxed);
+    done.into_iter()
+        .zip(problems)
+        .map(|((c, snaps), subset)| {
+            if hit == usize::MAX || snaps.len() < hit {
+                return Ok(c); // ended before the first step that reached the target
+            }
+            let s = &snaps[hit - 1];
+            debug_assert_eq!(s.step, hit);
+            let mut ga = c.ga;
+            let generations = match s.phase {
+                Phase::Ga => s.iteration,
+                Phase::Polish => ga.generations,
+            };
+            if s.phase == Phase::Ga {
+                ga.f_ga = s.f;
+            }
+            ga.history.truncate(generations + 1);
+            ga.generations = generations;
+            ga.evaluations = s.evaluations;
+            ga.f = s.f;
+            ga.x.clone_from(&s.x);
+            ga.stop = StopReason::Target;
+            let w = multiplicities(subset, runs.len(), 0)?;
+            let per_run = w
+                .iter()
+                .map(|p| p.0)
+                .zip(run_costs(spec, &ga.x, runs, &w, true))
+                .collect();
+            Ok(Calibration { ga, per_run })
         })
         .collect()
 }
@@ -537,7 +611,7 @@ mod tests {
         let problems = vec![vec![0, 1, 2], vec![0, 0, 2], vec![1]];
         let run = |t: usize| {
             crate::parallel::with_threads(t, || {
-                calibrate_many(&sp, &runs, &problems, &b, &o, true, |_, _| None)
+                calibrate_many(&sp, &runs, &problems, &b, &o, true, false, |_, _| None)
             })
             .unwrap()
             .unwrap()
@@ -546,5 +620,31 @@ mod tests {
         assert_eq!(r1, r2);
         assert_eq!(r1, r3);
         assert!(r1.iter().all(|c| c.ga.f.is_finite()));
+        // Starts of one problem stopped together at a target: the same for any threads.
+        let all = vec![vec![0, 1, 2]; 3];
+        let f_best = r1[0].ga.f;
+        let o2 = GaOptions {
+            target: f_best * 1.5,
+            ..o.clone()
+        };
+        let run2 = |t: usize| {
+            crate::parallel::with_threads(t, || {
+                calibrate_many(&sp, &runs, &all, &b, &o2, true, true, |_, _| None)
+            })
+            .unwrap()
+            .unwrap()
+        };
+        let (t1, t2, t3) = (run2(1), run2(2), run2(3));
+        assert_eq!(t1, t2);
+        assert_eq!(t1, t3);
+        assert!(t1.iter().any(|c| c.ga.f <= o2.target));
+        assert!(t1.iter().all(|c| c.ga.stop == StopReason::Target));
+        // Every start stopped at the same step (the first that reached the target).
+        let steps: Vec<usize> = t1.iter().map(|c| c.ga.generations).collect();
+        assert!(steps.windows(2).all(|w| w[0] == w[1]), "{steps:?}");
+        for c in &t1 {
+            let w = multiplicities(&all[0], runs.len(), 0).unwrap();
+            assert_eq!(c.ga.f, subset_cost(&sp, &c.ga.x, &runs, &w));
+        }
     }
 }
