@@ -8,7 +8,9 @@ use super::ga::{
     derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Phase, Progress, StopReason,
 };
 use crate::error::{AvllError, Result};
-use crate::sim::cost::{lane_plants, lane_run, run_groups, run_lanes_group, LanePlants, LANES};
+use crate::sim::cost::{
+    lane_plants, lane_run, lanes_apply, run_groups, run_lanes_group, LanePlants, LANES,
+};
 use crate::sim::{run_cost, CostSpec, RunRef};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -31,6 +33,15 @@ fn run_costs(
     par: bool,
 ) -> Vec<f64> {
     let sel: Vec<&RunRef> = weights.iter().map(|&(j, _)| &runs[j]).collect();
+    if !sel.iter().all(|r| lanes_apply(spec, r)) {
+        // No lanes (closed loop, effects, ...): one task per run.
+        let one = |r: &&RunRef| run_cost(spec, row, r, f64::INFINITY);
+        return if par {
+            sel.par_iter().map(one).collect()
+        } else {
+            sel.iter().map(one).collect()
+        };
+    }
     let groups = run_groups(&sel);
     let one = |g: &Vec<usize>| {
         let rs: Vec<&RunRef> = g.iter().map(|&q| sel[q]).collect();

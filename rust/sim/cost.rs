@@ -618,16 +618,20 @@ pub fn lane_costs(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<Vec<
 /// The lanes' plants of a group of rows: (row index, plant, model).
 pub type LanePlants = Vec<(usize, Plant<2, 2>, Linear)>;
 
+/// Whether the lane path covers this cost on this run: the linear second-order
+/// models' open-loop, acceleration-only cost with a recorded command.
+pub fn lanes_apply(spec: &CostSpec, run: &RunRef) -> bool {
+    spec.accel_only()
+        && spec.effects.0.is_empty()
+        && spec.model.n_params() != 1
+        && run.command.is_some()
+}
+
 /// The lanes' plants (row index, plant, model) for runs sampled at `run.dt` (they
 /// depend on the run only through `dt`); rows the cost calls invalid or unstable are
 /// left out (they cost `inf`). `None` when the lane path does not apply.
 pub fn lane_plants(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<LanePlants> {
-    if !spec.accel_only()
-        || !spec.effects.0.is_empty()
-        || spec.model.n_params() == 1
-        || rows.len() > LANES
-        || run.command.is_none()
-    {
+    if !lanes_apply(spec, run) || rows.len() > LANES {
         return None;
     }
     let mut out = Vec::with_capacity(LANES);
