@@ -136,6 +136,22 @@ def test_same_seed_same_result_for_any_thread_count(proposed_data: list[avll.Run
     assert r3.params != r1.params
 
 
+def test_starts_stopped_at_a_target_are_the_same_for_any_thread_count(
+    proposed_data: list[avll.Run],
+) -> None:
+    """With a target, the starts stop together at the first step at which one reaches
+    it: the result does not depend on the threads (or on which start ran first)."""
+    cal = proposed_data[:4]
+    full = calibrate("proposed", cal, seed=3, max_generations=30)
+    kw = dict(seed=3, max_generations=30, target=full.cost * 1.2, starts=3)
+    r1 = calibrate("proposed", cal, threads=1, **kw)
+    r2 = calibrate("proposed", cal, threads=2, **kw)
+    assert r1.cost <= full.cost * 1.2 and r1.stop == "target"
+    assert r1.params == r2.params and r1.cost == r2.cost
+    assert r1.evaluations == r2.evaluations and r1.start_costs == r2.start_costs
+    np.testing.assert_array_equal(r1.history, r2.history)
+
+
 def test_many_problems_equal_single_problems(proposed_data: list[avll.Run]) -> None:
     runs = proposed_data[:4]
     many1 = calibrate_many("second", runs, "per_run", seed=9, threads=1, max_generations=30)
@@ -151,6 +167,33 @@ def test_many_problems_equal_single_problems(proposed_data: list[avll.Run]) -> N
     rep = calibrate_many("first", runs, [[0, 0, 1]], seed=1)[0]
     c = avll.batch_cost("first", rep.model.to_array()[None], runs[:2])[0]
     assert rep.cost == pytest.approx((2 * c[0] + c[1]) / 3, rel=1e-12)
+
+
+def test_workflow_packs_the_runs_once(
+    proposed_data: list[avll.Run], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """paper_workflow packs the calibration runs and the validation runs once each for
+    all models (issue 10, item 4), with the same results as packing per call."""
+    cm = sys.modules["avll.calibrate"]  # the module (avll.calibrate is the function)
+    calls: list[int] = []
+    real = cm.pack_runs
+
+    def counting(runs: list[avll.Run], **kw: object) -> dict:
+        calls.append(len(runs))
+        return real(runs, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(cm, "pack_runs", counting)
+    runs = proposed_data[:6]
+    models = ("first", "second", "proposed")
+    wf = paper_workflow(runs, cal_runs=None, models=models, seed=2, max_generations=4,
+                        polish=False, starts=1)  # fmt: skip
+    assert sorted(calls) == [3, 3]  # cal (3 runs) once, val (3 runs) once
+    for m in models:
+        # The same numbers as a calibration and a validation packed on their own.
+        r = calibrate(m, wf.cal, seed=2, max_generations=4, polish=False, starts=1)
+        assert r.params == wf.results[m].params and r.cost == wf.results[m].cost
+        v = avll.batch_cost(m, np.array(list(r.params.values()))[None], wf.val)[0]
+        assert list(wf.val_mse[m].values()) == [float(x) for x in v]
 
 
 def test_bootstrap_intervals() -> None:

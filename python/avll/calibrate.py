@@ -59,7 +59,7 @@ from .defaults import UPPER_NAMES as _UPPER_NAMES
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import MODEL_TITLES as _LABELS
 from .paper import PAPER_CAL_RUNS
-from .rollout import batch_cost, closed_loop, pack_runs, simulate
+from .rollout import closed_loop, pack_runs, simulate
 
 __all__ = [
     "DEFAULT_BOUNDS",
@@ -194,6 +194,49 @@ class _Problem:
     closed_loop: bool
 
 
+class _Packs:
+    """Run sets packed once (``pack_runs``: one ``_core.RunSet`` each) and reused for
+    the rest of one top-level call (e.g. :func:`paper_workflow` calibrating several
+    models on the same runs and validating each on the same other runs). Keyed by the
+    runs' identities and the cost options; the entries hold the runs, so the
+    identities stay valid while the cache lives."""
+
+    def __init__(self) -> None:
+        self._packed: dict[Any, tuple[list[Run], dict[str, Any]]] = {}
+        #: How many run sets were built and how many calls reused one.
+        self.built = 0
+        self.reused = 0
+
+    def get(
+        self,
+        runs: Sequence[Run],
+        *,
+        weights: Sequence[float],
+        init: str,
+        closed_loop: bool,
+        upper_free: Sequence[int],
+    ) -> dict[str, Any]:
+        """``pack_runs(runs, ...)``, built on the first request only."""
+        runs = list(runs)
+        try:
+            opts = (tuple(float(w) for w in weights), str(init), bool(closed_loop),
+                    tuple(int(i) for i in upper_free))  # fmt: skip
+        except (TypeError, ValueError):
+            opts = None  # pack_runs names the bad argument
+        key = (tuple(id(r) for r in runs), opts)
+        hit = self._packed.get(key) if opts is not None else None
+        if hit is not None:
+            self.reused += 1
+            return dict(hit[1])
+        kw = pack_runs(
+            runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
+        )
+        self.built += 1
+        if opts is not None:
+            self._packed[key] = (runs, kw)
+        return dict(kw)
+
+
 def _problem(
     model: Any,
     runs: Sequence[Run],
@@ -203,13 +246,16 @@ def _problem(
     upper_free: Sequence[int | str],
     weights: Sequence[float],
     init: str,
+    packs: _Packs | None = None,
 ) -> _Problem:
     cls = model_class(model)
     runs = list(runs)
     free = [_upper_index(u) for u in upper_free]
     if free and not closed_loop:
         raise ValueError("upper_free: the upper-level gains can only be calibrated in closed loop")
-    kw = pack_runs(runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=free)
+    kw = (packs or _Packs()).get(
+        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=free
+    )
     w = kw["weights"]
     names, lo, hi, sc = _resolve_bounds(cls, free, bounds)
     return _Problem(cls, runs, free, names, lo, hi, sc, kw, w, init, closed_loop)
@@ -435,12 +481,38 @@ def calibrate(
     on every candidate, or the data are out of range) raises a ``ValueError``: there is
     no fit to return.
     """
+    return _calibrate(
+        model, runs, bounds=bounds, seed=seed, closed_loop=closed_loop, upper_free=upper_free,
+        weights=weights, init=init, initial=initial, target=target, starts=starts,
+        threads=threads, progress=progress, ga_options=ga_options,
+    )  # fmt: skip
+
+
+def _calibrate(
+    model: str | type[LowerLevelModel],
+    runs: Sequence[Run],
+    *,
+    bounds: Mapping[str, Sequence[Any]] | None,
+    seed: int,
+    closed_loop: bool,
+    upper_free: Sequence[int | str],
+    weights: Sequence[float],
+    init: str,
+    initial: Sequence[Any] | None,
+    target: float | None,
+    starts: int,
+    threads: int,
+    progress: bool | Callable[[dict[str, Any]], Any],
+    ga_options: Mapping[str, Any],
+    packs: _Packs | None = None,
+) -> CalibrationResult:
+    """:func:`calibrate` with the run sets of ``packs`` (packed on first use)."""
     check_seed(seed)
     check_threads(threads)
     n = check_int(starts, "starts", min=1)
     prob = _problem(
         model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
-        weights=weights, init=init,
+        weights=weights, init=init, packs=packs,
     )  # fmt: skip
     all_runs = list(range(len(prob.runs)))
     raws = _run(
@@ -825,26 +897,38 @@ def paper_workflow(
     bounds_by_model = kwargs.pop("bounds", None) or {}
     results: dict[str, CalibrationResult] = {}
     val_mse: dict[str, dict[str, float]] = {}
+    # The calibration runs and the validation runs are each packed once for all models.
+    packs = _Packs()
+    cost_kw = {
+        "weights": tuple(kwargs.get("weights", (1.0, 0.0, 0.0))),
+        "init": kwargs.get("init", "rest"),
+        "closed_loop": bool(kwargs.get("closed_loop", False)),
+    }
+    free = [_upper_index(u) for u in kwargs.get("upper_free", ())]
+    names = ("closed_loop", "upper_free", "weights", "init", "initial", "target", "starts")
+    opts = {k: kwargs.pop(k) for k in names if k in kwargs}
     for m in models:
         cls = model_class(m)
-        res = calibrate(cls, cal, seed=seed, threads=threads, progress=progress,
-                        bounds=bounds_by_model.get(cls.name), **kwargs)  # fmt: skip
+        res = _calibrate(
+            cls, cal, seed=seed, threads=threads, progress=progress,
+            bounds=bounds_by_model.get(cls.name),
+            closed_loop=opts.get("closed_loop", False), upper_free=opts.get("upper_free", ()),
+            weights=opts.get("weights", (1.0, 0.0, 0.0)), init=opts.get("init", "rest"),
+            initial=opts.get("initial"), target=opts.get("target"),
+            starts=opts.get("starts", DEFAULT_STARTS), ga_options=kwargs, packs=packs,
+        )  # fmt: skip
         results[cls.name] = res
         if val:
-            c = batch_cost(
-                cls, np.array(list(res.params.values()))[None, :], val,
-                weights=tuple(kwargs.get("weights", (1.0, 0.0, 0.0))),
-                init=kwargs.get("init", "rest"), closed_loop=kwargs.get("closed_loop", False),
-                upper_free=[_upper_index(u) for u in kwargs.get("upper_free", ())],
-                threads=threads,
-            )[0]  # fmt: skip
+            kw = packs.get(val, upper_free=free, **cost_kw)
+            row = np.ascontiguousarray(np.array(list(res.params.values()), dtype=np.float64))
+            c = _core.batch_cost(cls.name, row[None, :], threads=check_threads(threads), **kw)[0]
             val_mse[cls.name] = {r.run_id: float(x) for r, x in zip(val, c, strict=True)}
         else:
             val_mse[cls.name] = {}
         if res.interrupted:
             break
-    return Workflow(results, cal, val, val_mse, bool(kwargs.get("closed_loop", False)),
-                    str(kwargs.get("init", "rest")))  # fmt: skip
+    return Workflow(results, cal, val, val_mse, bool(opts.get("closed_loop", False)),
+                    str(opts.get("init", "rest")))  # fmt: skip
 
 
 __getattr__ = _moved(__name__, {"register_cli": "avll.cli.calibrate:register"})

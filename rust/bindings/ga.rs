@@ -168,15 +168,14 @@ fn calibrate<'py>(
     let n_problems = problems.len();
 
     let stop = AtomicBool::new(false);
-    let target_hit = AtomicBool::new(false);
     let (tx, rx) = mpsc::channel::<Msg>();
     let mut interrupted_by_user = false;
     let mut py_error: Option<PyErr> = None;
     let outcome = py.detach(|| {
         let rx = rx;
         std::thread::scope(|s| {
-            let (spec, runs, problems, bounds, opts, stop, target_hit) =
-                (&spec, &runs, &problems, &bounds, &opts, &stop, &target_hit);
+            let (spec, runs, problems, bounds, opts, stop) =
+                (&spec, &runs, &problems, &bounds, &opts, &stop);
             let worker = s.spawn(move || {
                 let tx = std::sync::Mutex::new(tx);
                 let res = guard(|| {
@@ -188,6 +187,7 @@ fn calibrate<'py>(
                             bounds,
                             opts,
                             derive_seeds,
+                            stop_all_at_target,
                             {
                                 let tx = &tx;
                                 move |k, p| {
@@ -200,13 +200,7 @@ fn calibrate<'py>(
                                             best: p.best_f,
                                         });
                                     }
-                                    if stop_all_at_target && p.best_f <= opts.target {
-                                        target_hit.store(true, Ordering::Relaxed);
-                                    }
-                                    Some(
-                                        !(stop.load(Ordering::Relaxed)
-                                            || target_hit.load(Ordering::Relaxed)),
-                                    )
+                                    Some(!stop.load(Ordering::Relaxed))
                                 }
                             },
                         )

@@ -4,20 +4,61 @@
 //! (multi)set, one problem or many solved in parallel. Every result carries the
 //! per-run costs of its best parameters, so nothing is re-simulated to fill a table.
 
-use super::ga::{derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Progress};
+use super::ga::{
+    derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Phase, Progress, StopReason,
+};
 use crate::error::{AvllError, Result};
+use crate::sim::cost::{
+    lane_plants, lane_run, lanes_apply, run_groups, run_lanes_group, LanePlants, LANES,
+};
 use crate::sim::{run_cost, CostSpec, RunRef};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Eq. 6 over a (multi)set of runs: the weighted mean of the per-run costs over
 /// `weights` (run index, multiplicity), evaluated in parallel and summed in a fixed
 /// order; `inf` if any run's cost is.
 pub fn subset_cost(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(usize, f64)]) -> f64 {
-    let costs: Vec<f64> = weights
-        .par_iter()
-        .map(|&(j, _)| run_cost(spec, row, &runs[j], f64::INFINITY))
-        .collect();
-    combine(&costs, weights)
+    combine(&run_costs(spec, row, runs, weights, true), weights)
+}
+
+/// The run costs of `row` on the runs of `weights` (in that order), exactly
+/// [`run_cost`] each: runs sharing `dt` and length are stepped together through the
+/// lanes ([`run_lanes_group`]), the groups in parallel when `par`.
+fn run_costs(
+    spec: &CostSpec,
+    row: &[f64],
+    runs: &[RunRef],
+    weights: &[(usize, f64)],
+    par: bool,
+) -> Vec<f64> {
+    let sel: Vec<&RunRef> = weights.iter().map(|&(j, _)| &runs[j]).collect();
+    if !sel.iter().all(|r| lanes_apply(spec, r)) {
+        // No lanes (closed loop, effects, ...): one task per run.
+        let one = |r: &&RunRef| run_cost(spec, row, r, f64::INFINITY);
+        return if par {
+            sel.par_iter().map(one).collect()
+        } else {
+            sel.iter().map(one).collect()
+        };
+    }
+    let groups = run_groups(&sel);
+    let one = |g: &Vec<usize>| {
+        let rs: Vec<&RunRef> = g.iter().map(|&q| sel[q]).collect();
+        run_lanes_group(spec, row, &rs, &vec![f64::INFINITY; rs.len()])
+    };
+    let parts: Vec<Vec<f64>> = if par {
+        groups.par_iter().map(one).collect()
+    } else {
+        groups.iter().map(one).collect()
+    };
+    let mut out = vec![f64::INFINITY; sel.len()];
+    for (g, cs) in groups.iter().zip(parts) {
+        for (&q, c) in g.iter().zip(cs) {
+            out[q] = c;
+        }
+    }
+    out
 }
 
 /// The weighted mean of per-run costs (fixed summation order).
@@ -40,11 +81,19 @@ struct Eq6<'a> {
     runs: &'a [RunRef<'a>],
     w: Vec<(usize, f64)>,
     total: f64,
+    /// Whether a single point's runs are evaluated in parallel. Off when independent
+    /// problems (starts) already occupy the threads: a point's run groups are too
+    /// small to be worth a rendezvous of threads (and on a loaded machine each one
+    /// waits for a descheduled thread). Values do not depend on it.
+    par: bool,
 }
 
 impl Objective for Eq6<'_> {
     fn eval(&self, x: &[f64]) -> f64 {
-        subset_cost(self.spec, x, self.runs, &self.w)
+        combine(
+            &run_costs(self.spec, x, self.runs, &self.w, self.par),
+            &self.w,
+        )
     }
 
     /// The same per-run costs as [`subset_cost`] and the same combination (so an
@@ -65,6 +114,99 @@ impl Objective for Eq6<'_> {
             costs.push(c);
         }
         combine(&costs, &self.w)
+    }
+
+    /// Offspring in groups of [`LANES`] stepped together through the lane kernel
+    /// (the linear second-order open-loop acceleration cost; any other cost is
+    /// evaluated point by point), in parallel over groups. Each value is bit-identical
+    /// to `eval`/`eval_bounded` of the point alone (same per-run costs, same
+    /// abandoning checks, same combination), whatever the grouping or the threads.
+    fn eval_many(&self, xs: &[Vec<f64>], bound: f64) -> Vec<f64> {
+        let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
+        let groups = rows.len().div_ceil(LANES);
+        let one = |g: usize| {
+            let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
+            self.lane_group(rs, bound).unwrap_or_else(|| {
+                rs.iter()
+                    .map(|x| {
+                        if bound.is_finite() {
+                            self.eval_bounded(x, bound)
+                        } else {
+                            self.eval(x)
+                        }
+                    })
+                    .collect()
+            })
+        };
+        let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
+        parts.concat()
+    }
+}
+
+impl Eq6<'_> {
+    /// Up to [`LANES`] rows through the lane kernel, run after run with each row's
+    /// own abandoning limit (as [`Eq6::eval_bounded`]); `None` when the lane path
+    /// does not apply. The plants are discretized once per distinct `dt`.
+    fn lane_group(&self, rows: &[&[f64]], bound: f64) -> Option<Vec<f64>> {
+        let nr = rows.len();
+        let mut plants: Vec<(f64, LanePlants)> = Vec::new();
+        let mut done = vec![0.0; nr];
+        let mut alive = vec![true; nr];
+        let mut costs: Vec<Vec<f64>> = vec![Vec::with_capacity(self.w.len()); nr];
+        let mut limits = [f64::INFINITY; LANES];
+        for &(j, wj) in &self.w {
+            let run = &self.runs[j];
+            let pi = match plants.iter().position(|p| p.0 == run.dt) {
+                Some(i) => i,
+                None => {
+                    plants.push((run.dt, lane_plants(self.spec, rows, run)?));
+                    plants.len() - 1
+                }
+            };
+            let live: LanePlants = plants[pi]
+                .1
+                .iter()
+                .filter(|p| alive[p.0])
+                .copied()
+                .collect();
+            for k in 0..nr {
+                limits[k] = if bound.is_finite() {
+                    (bound * self.total - done[k]) * run.len() as f64 / wj
+                } else {
+                    f64::INFINITY
+                };
+            }
+            let c = if live.is_empty() {
+                vec![f64::INFINITY; nr]
+            } else {
+                lane_run(self.spec, &live, nr, run, &limits)
+            };
+            for k in 0..nr {
+                if !alive[k] {
+                    continue;
+                }
+                if c[k].is_finite() {
+                    done[k] += wj * c[k];
+                    costs[k].push(c[k]);
+                } else {
+                    alive[k] = false;
+                }
+            }
+            if !alive.iter().any(|&a| a) {
+                break;
+            }
+        }
+        Some(
+            (0..nr)
+                .map(|k| {
+                    if alive[k] {
+                        combine(&costs[k], &self.w)
+                    } else {
+                        f64::INFINITY
+                    }
+                })
+                .collect(),
+        )
     }
 }
 
@@ -113,9 +255,10 @@ pub fn calibrate(
 ) -> Result<Calibration> {
     spec.validate(runs)?;
     let all: Vec<usize> = (0..runs.len()).collect();
-    calibrate_one(spec, runs, &all, bounds, opts, 0, callback)
+    calibrate_one(spec, runs, &all, bounds, opts, 0, true, callback)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn calibrate_one(
     spec: &CostSpec,
     runs: &[RunRef],
@@ -123,6 +266,7 @@ fn calibrate_one(
     bounds: &Bounds,
     opts: &GaOptions,
     problem: usize,
+    par: bool,
     callback: impl FnMut(&Progress) -> bool,
 ) -> Result<Calibration> {
     if bounds.dim() != spec.n_params() {
@@ -146,13 +290,26 @@ fn calibrate_one(
         runs,
         w,
         total,
+        par,
     };
     let ga = minimize(&f, bounds, opts, callback)?;
     let per_run =
-        f.w.par_iter()
-            .map(|&(j, _)| (j, run_cost(spec, &ga.x, &runs[j], f64::INFINITY)))
+        f.w.iter()
+            .map(|p| p.0)
+            .zip(run_costs(spec, &ga.x, runs, &f.w, par))
             .collect();
     Ok(Calibration { ga, per_run })
+}
+
+/// The best point of a problem after one of its steps (GA generations, then polish
+/// iterations, numbered on from 1).
+struct Snapshot {
+    step: usize,
+    phase: Phase,
+    iteration: usize,
+    evaluations: usize,
+    f: f64,
+    x: Vec<f64>,
 }
 
 /// Solves many independent calibration problems in parallel: problem `k` is Eq. 6
@@ -160,6 +317,13 @@ fn calibrate_one(
 /// `derive_seed(opts.seed, k)` when `derive` is true (else `opts.seed` for all).
 /// `callback(k, progress)` returns `None`/`Some(true)` to continue and `Some(false)`
 /// to stop every problem (each then returns its best so far).
+///
+/// With `stop_all_at_target` (independent starts of one problem), every problem
+/// stops once any reaches `opts.target`, deterministically: with `s` the first step
+/// at which some problem reached the target, every problem still running at step
+/// `s` returns its best point of step `s` (stop reason [`StopReason::Target`]),
+/// whatever the threads and however far it got meanwhile.
+#[allow(clippy::too_many_arguments)]
 pub fn calibrate_many(
     spec: &CostSpec,
     runs: &[RunRef],
@@ -167,6 +331,7 @@ pub fn calibrate_many(
     bounds: &Bounds,
     opts: &GaOptions,
     derive: bool,
+    stop_all_at_target: bool,
     callback: impl Fn(usize, &Progress) -> Option<bool> + Sync,
 ) -> Result<Vec<Calibration>> {
     spec.validate(runs)?;
@@ -174,7 +339,11 @@ pub fn calibrate_many(
     for (k, p) in problems.iter().enumerate() {
         multiplicities(p, runs.len(), k)?;
     }
-    problems
+    // With at least as many problems as threads, the problems keep the threads busy.
+    let par = problems.len() < rayon::current_num_threads();
+    // The first step at which a problem reached the target (usize::MAX: none yet).
+    let first_hit = AtomicUsize::new(usize::MAX);
+    let done: Vec<(Calibration, Vec<Snapshot>)> = problems
         .par_iter()
         .enumerate()
         .map(|(k, subset)| {
@@ -182,9 +351,59 @@ pub fn calibrate_many(
             if derive {
                 o.seed = derive_seed(opts.seed, k as u64);
             }
-            calibrate_one(spec, runs, subset, bounds, &o, k, |p| {
-                callback(k, p).unwrap_or(true)
-            })
+            let mut snaps: Vec<Snapshot> = Vec::new();
+            let c = calibrate_one(spec, runs, subset, bounds, &o, k, par, |p| {
+                let go = callback(k, p).unwrap_or(true);
+                if !stop_all_at_target {
+                    return go;
+                }
+                let step = snaps.len() + 1;
+                snaps.push(Snapshot {
+                    step,
+                    phase: p.phase,
+                    iteration: p.iteration,
+                    evaluations: p.evaluations,
+                    f: p.best_f,
+                    x: p.best_x.to_vec(),
+                });
+                if p.best_f <= opts.target {
+                    first_hit.fetch_min(step, Ordering::Relaxed);
+                }
+                go && first_hit.load(Ordering::Relaxed) > step
+            })?;
+            Ok((c, snaps))
+        })
+        .collect::<Result<_>>()?;
+    let hit = first_hit.load(Ordering::Relaxed);
+    done.into_iter()
+        .zip(problems)
+        .map(|((c, snaps), subset)| {
+            if hit == usize::MAX || snaps.len() < hit {
+                return Ok(c); // ended before the first step that reached the target
+            }
+            let s = &snaps[hit - 1];
+            debug_assert_eq!(s.step, hit);
+            let mut ga = c.ga;
+            let generations = match s.phase {
+                Phase::Ga => s.iteration,
+                Phase::Polish => ga.generations,
+            };
+            if s.phase == Phase::Ga {
+                ga.f_ga = s.f;
+            }
+            ga.history.truncate(generations + 1);
+            ga.generations = generations;
+            ga.evaluations = s.evaluations;
+            ga.f = s.f;
+            ga.x.clone_from(&s.x);
+            ga.stop = StopReason::Target;
+            let w = multiplicities(subset, runs.len(), 0)?;
+            let per_run = w
+                .iter()
+                .map(|p| p.0)
+                .zip(run_costs(spec, &ga.x, runs, &w, true))
+                .collect();
+            Ok(Calibration { ga, per_run })
         })
         .collect()
 }
@@ -262,6 +481,7 @@ mod tests {
             runs: &runs,
             w: w.clone(),
             total: 4.0,
+            par: true,
         };
         for row in [
             [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008],
@@ -301,5 +521,141 @@ mod tests {
         assert_eq!(r1.x, r2.x);
         assert_eq!(r1.history, r2.history);
         assert!(r2.f < 0.01, "{}", r2.f);
+    }
+
+    #[test]
+    fn lane_groups_equal_the_point_by_point_values_bit_for_bit() {
+        let (us, ys) = synthetic_runs();
+        let mut runs = refs(&us, &ys);
+        // A run of another dt (plants per dt) and a shorter run.
+        runs[2].dt = 0.1;
+        runs[1].a = &ys[1][..900];
+        runs[1].command = Some(&us[1][..900]);
+        let sp = spec();
+        let w = vec![(0, 2.0), (1, 1.0), (2, 1.0)];
+        let f = Eq6 {
+            spec: &sp,
+            runs: &runs,
+            w,
+            total: 4.0,
+            par: false,
+        };
+        // Modal, complex-pole, unstable and invalid rows, near and far from the fit;
+        // 7 rows: a full group and a partial one.
+        let xs: Vec<Vec<f64>> = vec![
+            vec![6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008],
+            vec![0.0, 0.0445, 0.1305, 0.7292, 0.7796, 0.0],
+            vec![1.0, 0.5, 2.0, 0.8, 0.33, -0.4],
+            vec![1.0, 1.0, 1.0, 1.0, 0.1, 5.0],
+            vec![1.0, -1.0, 1.0, 1.0, 0.1, 0.0],
+            vec![6.0, 1.3, 8.0, 0.35, 0.8, 0.1],
+            vec![0.2, 0.8, 1.9, 1.1, 0.05, 0.3],
+        ];
+        let exact: Vec<f64> = xs.iter().map(|x| f.eval(x)).collect();
+        let finite: Vec<f64> = exact.iter().copied().filter(|v| v.is_finite()).collect();
+        assert!(finite.len() >= 4, "{exact:?}");
+        let mid = {
+            let mut s = finite.clone();
+            s.sort_by(f64::total_cmp);
+            s[s.len() / 2]
+        };
+        for bound in [f64::INFINITY, 1e300, mid, mid * 0.5, finite[0] * 1.0001] {
+            let got = f.eval_many(&xs, bound);
+            let want: Vec<f64> = xs
+                .iter()
+                .map(|x| {
+                    if bound.is_finite() {
+                        f.eval_bounded(x, bound)
+                    } else {
+                        f.eval(x)
+                    }
+                })
+                .collect();
+            for (i, (g, e)) in got.iter().zip(&want).enumerate() {
+                assert_eq!(
+                    g.to_bits(),
+                    e.to_bits(),
+                    "row {i}, bound {bound}: {g} vs {e}"
+                );
+            }
+            // Abandoned values are >= the bound; the others exact.
+            for (g, e) in got.iter().zip(&exact) {
+                assert!(g.to_bits() == e.to_bits() || *g >= bound);
+            }
+            if bound == mid * 0.5 {
+                let abandoned = got
+                    .iter()
+                    .zip(&exact)
+                    .filter(|(g, e)| g.is_infinite() && e.is_finite())
+                    .count();
+                assert!(abandoned >= 2, "{got:?} {exact:?}");
+            }
+        }
+        // The lane path was taken (not the point-by-point fallback).
+        assert!(f.lane_group(&[&xs[0], &xs[1]], f64::INFINITY).is_some());
+    }
+
+    #[test]
+    fn calibration_is_bit_identical_for_any_thread_count() {
+        let (us, ys) = synthetic_runs();
+        let runs = refs(&us, &ys);
+        let sp = spec();
+        let b = Bounds::new(
+            vec![1e-4, 1e-3, 1e-3, 0.0, 0.0, -3.0],
+            vec![100.0, 100.0, 100.0, 3.0, 3.0, 3.0],
+            vec![
+                Scale::Log,
+                Scale::Log,
+                Scale::Log,
+                Scale::Linear,
+                Scale::Linear,
+                Scale::Linear,
+            ],
+        )
+        .unwrap();
+        let o = GaOptions {
+            seed: 11,
+            max_generations: 12,
+            polish_max_evals: 200,
+            ..Default::default()
+        };
+        let problems = vec![vec![0, 1, 2], vec![0, 0, 2], vec![1]];
+        let run = |t: usize| {
+            crate::parallel::with_threads(t, || {
+                calibrate_many(&sp, &runs, &problems, &b, &o, true, false, |_, _| None)
+            })
+            .unwrap()
+            .unwrap()
+        };
+        let (r1, r2, r3) = (run(1), run(2), run(3));
+        assert_eq!(r1, r2);
+        assert_eq!(r1, r3);
+        assert!(r1.iter().all(|c| c.ga.f.is_finite()));
+        // Starts of one problem stopped together at a target: the same for any threads.
+        let all = vec![vec![0, 1, 2]; 3];
+        let f_best = r1[0].ga.f;
+        let o2 = GaOptions {
+            target: f_best * 1.5,
+            ..o.clone()
+        };
+        let run2 = |t: usize| {
+            crate::parallel::with_threads(t, || {
+                calibrate_many(&sp, &runs, &all, &b, &o2, true, true, |_, _| None)
+            })
+            .unwrap()
+            .unwrap()
+        };
+        let (t1, t2, t3) = (run2(1), run2(2), run2(3));
+        assert_eq!(t1, t2);
+        assert_eq!(t1, t3);
+        assert!(t1.iter().any(|c| c.ga.f <= o2.target));
+        assert!(t1.iter().all(|c| c.ga.stop == StopReason::Target));
+        // Every start stopped at the same step (the first that reached the target).
+        let steps: Vec<usize> = t1.iter().map(|c| c.ga.generations).collect();
+        assert!(steps.windows(2).all(|w| w[0] == w[1]), "{steps:?}");
+        for c in &t1 {
+            let w = multiplicities(&all[0], runs.len(), 0).unwrap();
+            assert_eq!(c.ga.f, subset_cost(&sp, &c.ga.x, &runs, &w));
+        }
     }
 }

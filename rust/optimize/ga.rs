@@ -438,6 +438,22 @@ pub trait Objective: Sync {
         let _ = bound;
         self.eval(x)
     }
+    /// The values of many points: `eval` (infinite `bound`) or `eval_bounded` of each,
+    /// in order. The default evaluates them in parallel one by one; an objective may
+    /// batch them (e.g. several points stepped together) as long as every value is
+    /// the one `eval`/`eval_bounded` would give, so the result does not depend on how
+    /// the points are grouped or on the number of threads.
+    fn eval_many(&self, xs: &[Vec<f64>], bound: f64) -> Vec<f64> {
+        xs.par_iter()
+            .map(|x| {
+                if bound.is_finite() {
+                    self.eval_bounded(x, bound)
+                } else {
+                    self.eval(x)
+                }
+            })
+            .collect()
+    }
 }
 
 impl<F: Fn(&[f64]) -> f64 + Sync> Objective for F {
@@ -465,20 +481,82 @@ impl<F: Objective + ?Sized> Evaluator<'_, F> {
     }
 
     fn many_bounded(&mut self, zs: &[Vec<f64>], bound: f64) -> Vec<f64> {
-        self.evaluations += zs.len();
-        let (f, b) = (self.f, self.bounds);
-        zs.par_iter()
-            .map(|z| {
-                let mut x = vec![0.0; z.len()];
-                b.to_user(z, &mut x);
-                if bound.is_finite() {
-                    clean(f.eval_bounded(&x, bound))
-                } else {
-                    clean(f.eval(&x))
-                }
-            })
-            .collect()
+        self.many_known(zs, bound, &[], &[])
     }
+
+    /// [`Self::many_bounded`] that evaluates each distinct point once: a point equal
+    /// (in parameter coordinates, bit for bit) to one of `known` (with values
+    /// `known_f`, exact) or to an earlier point of `zs` takes that value without
+    /// an evaluation. Only distinct new points count as evaluations.
+    fn many_known(
+        &mut self,
+        zs: &[Vec<f64>],
+        bound: f64,
+        known: &[Vec<f64>],
+        known_f: &[f64],
+    ) -> Vec<f64> {
+        let b = self.bounds;
+        let user = |z: &Vec<f64>| {
+            let mut x = vec![0.0; z.len()];
+            b.to_user(z, &mut x);
+            x
+        };
+        let key = |x: &[f64]| x.iter().map(|v| v.to_bits()).collect::<Vec<u64>>();
+        let mut seen: std::collections::HashMap<Vec<u64>, usize> =
+            std::collections::HashMap::with_capacity(known.len() + zs.len());
+        let mut vals: Vec<f64> = Vec::with_capacity(known.len() + zs.len());
+        for (z, &f) in known.iter().zip(known_f) {
+            if f.is_finite() {
+                seen.entry(key(&user(z))).or_insert_with(|| {
+                    vals.push(f);
+                    vals.len() - 1
+                });
+            }
+        }
+        let mut todo: Vec<Vec<f64>> = Vec::with_capacity(zs.len());
+        let mut slot: Vec<usize> = Vec::with_capacity(zs.len());
+        for z in zs {
+            let x = user(z);
+            let n = vals.len() + todo.len();
+            let s = *seen.entry(key(&x)).or_insert_with(|| {
+                todo.push(x);
+                n
+            });
+            slot.push(s);
+        }
+        self.evaluations += todo.len();
+        let fresh = self.f.eval_many(&todo, bound);
+        vals.extend(fresh.into_iter().map(clean));
+        slot.into_iter().map(|s| vals[s]).collect()
+    }
+}
+
+/// Waves in which a generation's offspring are evaluated (see [`minimize`]).
+const WAVES: usize = 3;
+
+/// The value an individual must beat to survive a (mu + lambda) selection of `n`
+/// from `pop`: the `n`-th best finite value counting clones (equal individuals with
+/// equal values, which [`survive_unique`] keeps last) once; `inf` when there are
+/// fewer than `n` distinct finite individuals. An individual added after these with
+/// a value `>=` it is not among the survivors.
+fn survival_bound(pop: &[Vec<f64>], fit: &[f64], n: usize) -> f64 {
+    let mut idx: Vec<usize> = (0..pop.len()).filter(|&i| fit[i].is_finite()).collect();
+    idx.sort_by(|&a, &b| fit[a].total_cmp(&fit[b]).then(a.cmp(&b)));
+    let mut distinct = 0;
+    for (q, &i) in idx.iter().enumerate() {
+        let clone = idx[..q]
+            .iter()
+            .rev()
+            .take_while(|&&k| fit[k] == fit[i])
+            .any(|&k| pop[k] == pop[i]);
+        if !clone {
+            distinct += 1;
+            if distinct == n {
+                return fit[i];
+            }
+        }
+    }
+    f64::INFINITY
 }
 
 /// Sorts a population by value (stable: ties keep their order).
@@ -592,8 +670,8 @@ where
         let pairs = n_off.div_ceil(2);
         let g = generation as u64;
         let (popr, fitr) = (&pop, &fit);
+        // Breeding is cheap: on the calling thread (no rendezvous of threads).
         let children: Vec<[Vec<f64>; 2]> = (0..pairs)
-            .into_par_iter()
             .map(|k| {
                 let mut r = stream(opts.seed, g, k as u64, TAG_BREED);
                 let mut pick = || {
@@ -636,10 +714,27 @@ where
             })
             .collect();
         let mut kids: Vec<Vec<f64>> = children.into_iter().flatten().take(n_off).collect();
-        // (mu + lambda): an offspring whose value reaches the current worst cannot
-        // survive, so its evaluation may stop early (exact values otherwise).
-        let bound = if opts.plus { fit[n - 1] } else { f64::INFINITY };
-        let kid_fit = ev.many_bounded(&kids, bound);
+        // (mu + lambda): an offspring whose value reaches the survival bound (the
+        // n-th best distinct value among the parents and the offspring evaluated so
+        // far) cannot survive, so its evaluation may stop early (exact values
+        // otherwise). The offspring go in WAVES fixed waves, each with the bound the
+        // earlier ones leave, so the bound tightens as the generation proceeds.
+        let kid_fit = if opts.plus {
+            let wave = n_off.div_ceil(WAVES).next_multiple_of(8).max(1);
+            let mut known = pop.clone();
+            let mut known_f = fit.clone();
+            let mut kf = Vec::with_capacity(n_off);
+            for chunk in kids.chunks(wave) {
+                let bound = survival_bound(&known, &known_f, n);
+                let f = ev.many_known(chunk, bound, &known, &known_f);
+                known.extend(chunk.iter().cloned());
+                known_f.extend(f.iter().copied());
+                kf.extend(f);
+            }
+            kf
+        } else {
+            ev.many_known(&kids, f64::INFINITY, &pop, &fit)
+        };
         if !opts.plus {
             pop.truncate(n_elite);
             fit.truncate(n_elite);
@@ -1013,5 +1108,50 @@ mod tests {
         let f = |x: &[f64]| if x[0] < 0.0 { f64::NAN } else { sphere(x) };
         let r = minimize(&f, &b, &GaOptions::default(), |_| true).unwrap();
         assert!(r.f.is_finite() && r.x[0] >= 0.0);
+    }
+
+    /// Abandons every value that reaches the bound (the most an objective may do).
+    struct Abandoning;
+
+    impl Objective for Abandoning {
+        fn eval(&self, x: &[f64]) -> f64 {
+            rosenbrock(x)
+        }
+        fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
+            let f = rosenbrock(x);
+            if f >= bound {
+                f64::INFINITY
+            } else {
+                f
+            }
+        }
+    }
+
+    #[test]
+    fn abandoning_at_the_survival_bound_does_not_change_the_search() {
+        // Coarse bounds on a small box make clones and ties frequent.
+        let b = Bounds::linear(vec![-2.0; 3], vec![2.0; 3]).unwrap();
+        for seed in 0..6 {
+            let o = GaOptions {
+                seed,
+                max_generations: 40,
+                pop_size: 24,
+                polish: false,
+                ..Default::default()
+            };
+            let exact = minimize(&rosenbrock, &b, &o, |_| true).unwrap();
+            let abandoning = minimize(&Abandoning, &b, &o, |_| true).unwrap();
+            assert_eq!(exact.x, abandoning.x, "seed {seed}");
+            assert_eq!(exact.history, abandoning.history, "seed {seed}");
+            assert_eq!(exact.evaluations, abandoning.evaluations, "seed {seed}");
+        }
+        let pop = vec![vec![0.1], vec![0.1], vec![0.2], vec![0.3]];
+        // The clone of 0.1 counts once: the 3rd best distinct is 0.3's value.
+        assert_eq!(survival_bound(&pop, &[1.0, 1.0, 2.0, 3.0], 3), 3.0);
+        assert_eq!(
+            survival_bound(&pop, &[1.0, 1.0, 2.0, 3.0], 4),
+            f64::INFINITY
+        );
+        assert_eq!(survival_bound(&pop, &[1.0, 5.0, 2.0, 3.0], 2), 2.0);
     }
 }

@@ -381,7 +381,7 @@ pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Ve
             let (g, j) = (k / r, k % r);
             let rs = group(g);
             match &plants[g] {
-                Some(pl) => lane_run(spec, pl, rs.len(), &runs[j]),
+                Some(pl) => lane_run(spec, pl, rs.len(), &runs[j], &[f64::INFINITY; LANES]),
                 None => lane_costs(spec, &rs, &runs[j]).unwrap_or_else(|| {
                     rs.iter()
                         .map(|row| run_cost(spec, row, &runs[j], f64::INFINITY))
@@ -606,23 +606,32 @@ struct Lane {
 /// path does not apply (the caller then uses [`run_cost`] per row).
 pub fn lane_costs(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<Vec<f64>> {
     let lanes = lane_plants(spec, rows, run)?;
-    Some(lane_run(spec, &lanes, rows.len(), run))
+    Some(lane_run(
+        spec,
+        &lanes,
+        rows.len(),
+        run,
+        &[f64::INFINITY; LANES],
+    ))
 }
 
-/// The lanes' plants (row index, plant, model) for runs sampled at `run.dt`; rows
-/// the cost calls invalid or unstable are left out (they cost `inf`). `None` when
-/// the lane path does not apply.
-fn lane_plants(
-    spec: &CostSpec,
-    rows: &[&[f64]],
-    run: &RunRef,
-) -> Option<Vec<(usize, Plant<2, 2>, Linear)>> {
-    if !spec.accel_only()
-        || !spec.effects.0.is_empty()
-        || spec.model.n_params() == 1
-        || rows.len() > LANES
-        || run.command.is_none()
-    {
+/// The lanes' plants of a group of rows: (row index, plant, model).
+pub type LanePlants = Vec<(usize, Plant<2, 2>, Linear)>;
+
+/// Whether the lane path covers this cost on this run: the linear second-order
+/// models' open-loop, acceleration-only cost with a recorded command.
+pub fn lanes_apply(spec: &CostSpec, run: &RunRef) -> bool {
+    spec.accel_only()
+        && spec.effects.0.is_empty()
+        && spec.model.n_params() != 1
+        && run.command.is_some()
+}
+
+/// The lanes' plants (row index, plant, model) for runs sampled at `run.dt` (they
+/// depend on the run only through `dt`); rows the cost calls invalid or unstable are
+/// left out (they cost `inf`). `None` when the lane path does not apply.
+pub fn lane_plants(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<LanePlants> {
+    if !lanes_apply(spec, run) || rows.len() > LANES {
         return None;
     }
     let mut out = Vec::with_capacity(LANES);
@@ -643,12 +652,17 @@ fn lane_plants(
     Some(out)
 }
 
-/// The lanes' costs on one run (same `dt` as their plants).
-fn lane_run(
+/// The lanes' costs on one run (same `dt` as their plants): `out[k]` is row `k`'s
+/// run cost, exactly [`run_cost`]`(spec, rows[k], run, limits[k])` — the same value,
+/// and `inf` once the weighted sum of squared errors reaches `limits[k]` at the same
+/// checks (every [`super::kernel::CHUNK`] samples); rows left out of `plants` cost
+/// `inf`. The group stops as soon as every lane is abandoned or diverged.
+pub fn lane_run(
     spec: &CostSpec,
     plants: &[(usize, Plant<2, 2>, Linear)],
     n_rows: usize,
     run: &RunRef,
+    limits: &[f64],
 ) -> Vec<f64> {
     let mut out = vec![f64::INFINITY; n_rows];
     let u = run.command.unwrap_or(&[]);
@@ -669,11 +683,15 @@ fn lane_run(
     if lanes.is_empty() {
         return out;
     }
+    let lim: [f64; LANES] =
+        std::array::from_fn(|j| lanes.get(j).map_or(f64::INFINITY, |l| limits[l.0]));
+    let (us, ms) = ([u; LANES], [run.a; LANES]);
+    let wa = spec.weights[0];
     let costs = if super::fma() {
         // SAFETY: the CPU supports FMA and AVX2 (checked just above).
-        unsafe { super::with_fma(|| lane_sse::<true>(&lanes, u, run.a, spec.weights[0])) }
+        unsafe { super::with_fma(|| lane_sse::<true, true>(&lanes, us, ms, wa, lim)) }
     } else {
-        lane_sse::<false>(&lanes, u, run.a, spec.weights[0])
+        lane_sse::<false, true>(&lanes, us, ms, wa, lim)
     };
     for ((k, _), c) in lanes.iter().zip(costs) {
         out[*k] = c;
@@ -681,11 +699,118 @@ fn lane_run(
     out
 }
 
+/// The run costs of one row on several runs, stepped together (one run per lane):
+/// `out[q]` is exactly [`run_cost`]`(spec, row, runs[q], limits[q])`, like
+/// [`lane_run`] with the roles of rows and runs exchanged. Runs that share `dt` and
+/// length go through the lanes in groups of [`LANES`]; the others, and costs the
+/// lane path does not cover, through [`run_cost`].
+pub fn run_lanes(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &[f64]) -> Vec<f64> {
+    let mut out = vec![f64::INFINITY; runs.len()];
+    for g in run_groups(runs) {
+        let rs: Vec<&RunRef> = g.iter().map(|&j| runs[j]).collect();
+        let ls: Vec<f64> = g.iter().map(|&j| limits[j]).collect();
+        for (&j, c) in g.iter().zip(run_lanes_group(spec, row, &rs, &ls)) {
+            out[j] = c;
+        }
+    }
+    out
+}
+
+/// The runs in groups of up to [`LANES`] that share `dt` and length (in order of
+/// their first run): the groups [`run_lanes`] steps together.
+pub fn run_groups(runs: &[&RunRef]) -> Vec<Vec<usize>> {
+    let mut done = vec![false; runs.len()];
+    let mut out = Vec::new();
+    for q in 0..runs.len() {
+        if done[q] {
+            continue;
+        }
+        let group: Vec<usize> = (q..runs.len())
+            .filter(|&j| !done[j] && runs[j].dt == runs[q].dt && runs[j].len() == runs[q].len())
+            .take(LANES)
+            .collect();
+        for &j in &group {
+            done[j] = true;
+        }
+        out.push(group);
+    }
+    out
+}
+
+/// [`run_lanes`] on one group of [`run_groups`] (up to [`LANES`] runs sharing `dt`
+/// and length; anything else goes through [`run_cost`] run by run).
+pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &[f64]) -> Vec<f64> {
+    let mut out = vec![f64::INFINITY; runs.len()];
+    let alike = runs
+        .iter()
+        .all(|r| r.dt == runs[0].dt && r.len() == runs[0].len());
+    let lanes = if alike && runs.len() > 1 && runs.len() <= LANES {
+        lane_plants(spec, &[row], runs[0])
+    } else {
+        None
+    };
+    let Some(pl) = lanes else {
+        for (j, run) in runs.iter().enumerate() {
+            out[j] = run_cost(spec, row, run, limits[j]);
+        }
+        return out;
+    };
+    let Some((_, p, lin)) = pl.first() else {
+        return out; // invalid or unstable: inf on every run
+    };
+    let mut ls: Vec<(usize, Lane)> = Vec::with_capacity(LANES);
+    for (j, run) in runs.iter().enumerate() {
+        let u0 = run.command.and_then(|u| u.first().copied()).unwrap_or(0.0);
+        let Ok(s) = start(lin, spec.init, u0) else {
+            continue;
+        };
+        let lane = Lane {
+            p: *p,
+            w_hist: s.w_hist,
+            z0: p.to_kernel(s.x),
+        };
+        ls.push((j, lane));
+    }
+    if ls.is_empty() {
+        return out;
+    }
+    let pick = |k: usize| ls[k.min(ls.len() - 1)].0;
+    let us: [&[f64]; LANES] = std::array::from_fn(|k| runs[pick(k)].command.unwrap_or(&[]));
+    let ms: [&[f64]; LANES] = std::array::from_fn(|k| runs[pick(k)].a);
+    let lim: [f64; LANES] =
+        std::array::from_fn(|k| ls.get(k).map_or(f64::INFINITY, |l| limits[l.0]));
+    let wa = spec.weights[0];
+    let costs = if super::fma() {
+        // SAFETY: the CPU supports FMA and AVX2 (checked just above).
+        unsafe { super::with_fma(|| lane_sse::<true, false>(&ls, us, ms, wa, lim)) }
+    } else {
+        lane_sse::<false, false>(&ls, us, ms, wa, lim)
+    };
+    for ((j, _), c) in ls.iter().zip(costs) {
+        out[*j] = c;
+    }
+    out
+}
+
+/// The lanes' weighted SSE loop. With `SAME` every lane reads the same command and
+/// measurement (several rows on one run: `us[0]`, `ms[0]`); otherwise lane `j` reads
+/// its own (one row on several runs of equal length).
 #[inline(always)]
-fn lane_sse<const F: bool>(lanes: &[(usize, Lane)], u: &[f64], meas: &[f64], wa: f64) -> Vec<f64> {
-    use super::kernel::{madd, DIVERGED};
+fn lane_sse<const F: bool, const SAME: bool>(
+    lanes: &[(usize, Lane)],
+    us: [&[f64]; LANES],
+    ms: [&[f64]; LANES],
+    wa: f64,
+    lim: [f64; LANES],
+) -> Vec<f64> {
+    use super::kernel::{madd, CHUNK, DIVERGED};
     const L: usize = LANES;
-    let len = u.len().min(meas.len());
+    let len = (0..L)
+        .map(|j| us[j].len().min(ms[j].len()))
+        .min()
+        .unwrap_or(0);
+    let us: [&[f64]; L] = std::array::from_fn(|j| &us[j][..len]);
+    let ms: [&[f64]; L] = std::array::from_fn(|j| &ms[j][..len]);
     let nl = lanes.len();
     // Coefficients by lane (unused lanes repeat the first: their results are dropped).
     let pick = |k: usize| &lanes[k.min(nl - 1)].1;
@@ -710,42 +835,68 @@ fn lane_sse<const F: bool>(lanes: &[(usize, Lane)], u: &[f64], meas: &[f64], wa:
     let mut s = [0.0; L];
     let mut peak = [0.0; L];
     let bigger = |m: f64, x: f64| if x > m { x } else { m };
-    for n in 0..len {
-        let mut y = [0.0; L];
-        let mut w0 = [0.0; L];
-        for j in 0..L {
-            y[j] = madd::<F>(c1[j], z1[j], c0[j] * z0[j]);
+    // The kernel's checks (every CHUNK samples, as `Sse::proceed`): a lane whose
+    // response diverged or whose weighted SSE reached its limit is abandoned; the
+    // group stops once every lane is.
+    let mut alive = [true; L];
+    let mut from = 0;
+    while from < len {
+        let to = (from + CHUNK).min(len);
+        for n in from..to {
+            let mut y = [0.0; L];
+            let mut w0 = [0.0; L];
+            for j in 0..L {
+                y[j] = madd::<F>(c1[j], z1[j], c0[j] * z0[j]);
+            }
+            let un: [f64; L] = if SAME {
+                [us[0][n]; L]
+            } else {
+                std::array::from_fn(|j| us[j][n])
+            };
+            let mn: [f64; L] = if SAME {
+                [ms[0][n]; L]
+            } else {
+                std::array::from_fn(|j| ms[j][n])
+            };
+            for j in 0..L {
+                let e = y[j] - mn[j];
+                s[j] += e * e;
+                let ay = y[j].abs();
+                peak[j] = bigger(bigger(peak[j], ay), ay);
+            }
+            let row = &mut ring[n & mask];
+            for j in 0..L {
+                row[j] = un[j] + k[j] * y[j];
+            }
+            for j in 0..L {
+                w0[j] = ring[n.wrapping_sub(delay[j]) & mask][j];
+            }
+            for j in 0..L {
+                let w1 = wp[j];
+                let t0 = madd::<F>(g10[j], w1, g00[j] * w0[j]);
+                let t1 = madd::<F>(g11[j], w1, g01[j] * w0[j]);
+                let n0 = madd::<F>(p00[j], z0[j], madd::<F>(p01[j], z1[j], t0));
+                let n1 = madd::<F>(p11[j], z1[j], madd::<F>(p10[j], z0[j], t1));
+                z0[j] = n0;
+                z1[j] = n1;
+            }
+            wp = w0;
         }
-        let un = u[n];
-        let mn = meas[n];
-        for j in 0..L {
-            let e = y[j] - mn;
-            s[j] += e * e;
-            let ay = y[j].abs();
-            peak[j] = bigger(bigger(peak[j], ay), ay);
+        let mut any = false;
+        for j in 0..nl {
+            let ok = peak[j] < DIVERGED && wa * s[j] + 0.0 * 0.0 + 0.0 * 0.0 < lim[j];
+            alive[j] &= ok;
+            any |= alive[j];
         }
-        let row = &mut ring[n & mask];
-        for j in 0..L {
-            row[j] = un + k[j] * y[j];
+        if !any {
+            break;
         }
-        for j in 0..L {
-            w0[j] = ring[n.wrapping_sub(delay[j]) & mask][j];
-        }
-        for j in 0..L {
-            let w1 = wp[j];
-            let t0 = madd::<F>(g10[j], w1, g00[j] * w0[j]);
-            let t1 = madd::<F>(g11[j], w1, g01[j] * w0[j]);
-            let n0 = madd::<F>(p00[j], z0[j], madd::<F>(p01[j], z1[j], t0));
-            let n1 = madd::<F>(p11[j], z1[j], madd::<F>(p10[j], z0[j], t1));
-            z0[j] = n0;
-            z1[j] = n1;
-        }
-        wp = w0;
+        from = to;
     }
     (0..nl)
         .map(|j| {
             let c = (wa * s[j] + 0.0 * 0.0 + 0.0 * 0.0) / len as f64;
-            if peak[j] < DIVERGED && c.is_finite() {
+            if alive[j] && peak[j] < DIVERGED && c.is_finite() {
                 c
             } else {
                 f64::INFINITY

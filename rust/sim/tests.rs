@@ -725,3 +725,65 @@ fn time_major_outputs_equal_per_follower_outputs() {
         }
     }
 }
+
+#[test]
+fn run_lanes_equal_the_kernel_bit_for_bit() {
+    use super::cost::{run_groups, run_lanes};
+    let u = cmd(3000);
+    let y: Vec<f64> = simulate(&proposed(), &u, 0.05, Init::Rest)
+        .unwrap()
+        .iter()
+        .enumerate()
+        .map(|(k, v)| v + 0.05 * ((k * 7919) as f64).sin())
+        .collect();
+    // Five runs of 1000 samples (two lane groups), one shorter run and one of another
+    // dt (each alone), different first commands (the steady start differs per lane).
+    let mut runs: Vec<RunRef> = (0..5)
+        .map(|q| open_run(&u[q * 300..q * 300 + 1000], &y[q * 300..q * 300 + 1000]))
+        .collect();
+    runs.push(open_run(&u[..700], &y[..700]));
+    runs.push(RunRef {
+        dt: 0.1,
+        ..open_run(&u[1000..2000], &y[1000..2000])
+    });
+    let refs: Vec<&RunRef> = runs.iter().collect();
+    let groups = run_groups(&refs);
+    assert_eq!(groups, vec![vec![0, 1, 2, 3], vec![4], vec![5], vec![6]]);
+    let two: Vec<&RunRef> = refs[..3].iter().chain(&refs[4..5]).copied().collect();
+    assert_eq!(run_groups(&two), vec![vec![0, 1, 2, 3]]);
+    for init in [Init::Rest, Init::Steady] {
+        let sp = CostSpec::linear(
+            ModelKind::Proposed,
+            CommandKind::Acceleration,
+            [1.0, 0.0, 0.0],
+            init,
+            false,
+            vec![],
+        );
+        for row in [
+            ROW.to_vec(),
+            vec![0.0, 0.0445, 0.1305, 0.7292, 0.7796, 0.0],
+            vec![1.0, 0.5, 2.0, 0.8, 0.33, -0.4],
+            vec![1.0, 1.0, 1.0, 1.0, 0.1, 5.0],
+            vec![1.0, -1.0, 1.0, 1.0, 0.1, 0.0],
+        ] {
+            let exact: Vec<f64> = refs
+                .iter()
+                .map(|r| run_cost(&sp, &row, r, f64::INFINITY))
+                .collect();
+            // Unbounded, and with limits that abandon some runs and not others.
+            let tight: Vec<f64> = exact
+                .iter()
+                .enumerate()
+                .map(|(q, c)| c * 1000.0 * if q % 2 == 0 { 0.5 } else { 1.0001 })
+                .collect();
+            for limits in [vec![f64::INFINITY; refs.len()], tight] {
+                let got = run_lanes(&sp, &row, &refs, &limits);
+                for (q, r) in refs.iter().enumerate() {
+                    let want = run_cost(&sp, &row, r, limits[q]);
+                    assert_eq!(got[q].to_bits(), want.to_bits(), "{row:?} run {q}");
+                }
+            }
+        }
+    }
+}
