@@ -502,7 +502,7 @@ def _calibrate(
     target: float | None,
     starts: int,
     threads: int,
-    progress: bool | Callable[[dict[str, Any]], Any],
+    progress: bool | str | Callable[[dict[str, Any]], Any],
     ga_options: Mapping[str, Any],
     packs: _Packs | None = None,
 ) -> CalibrationResult:
