@@ -35,13 +35,15 @@ def _loop(true, effects, base, *, speedup=1.0, extra_exo=(), seed=SEED, **kw):
 
 
 def _check_step(res, effect, tol, fall=0.8):
-    """The effect is ranked first, added first (selected in most cross-validation
-    folds of the calibration runs, significantly by the block bootstrap), the
-    validation MSE — now only reported — falls below ``fall`` times its value before,
-    and its parameters are within ``tol`` (name -> (expected, absolute tolerance))."""
+    """The effect (or one of the names in a tuple ``effect``: equivalent forms) is
+    ranked first, added first (selected in most cross-validation folds of the
+    calibration runs, significantly by the block bootstrap), the validation MSE — now
+    only reported — falls below ``fall`` times its value before, and its parameters are
+    within ``tol`` (name -> (expected, absolute tolerance))."""
+    ok = effect if isinstance(effect, tuple) else (effect,)
     first = res.diagnoses[0].ranked
-    assert first and first[0].effect == effect, [c.effect for c in res.diagnoses[0].candidates]
-    assert res.steps and res.steps[0].effect == effect
+    assert first and first[0].effect in ok, [c.effect for c in res.diagnoses[0].candidates]
+    assert res.steps and res.steps[0].effect == first[0].effect
     d = res.steps[0].to_dict()
     assert d["fold_selection"] > 0.5
     assert d["p_value"] < 0.01 and d["cv"]["gain"] >= res.settings["min_gain"]
@@ -164,9 +166,19 @@ def test_deadband_is_found_and_recovered() -> None:
 
 @pytest.mark.slow
 def test_speed_drag_is_found_and_recovered() -> None:
+    # A drag c0 + c2 v² is road_load's polynomial with c1 = 0: since road_load is in
+    # the library, either name is the right answer. The coefficients trade against
+    # each other over the speeds driven (c1 v against c0 and c2 v²), so what is
+    # compared is the resistance itself over the speeds of the runs.
     e = expected_params("speed_drag")
     res = _loop(SECOND, {"speed_drag": None}, "second")
-    _check_step(res, "speed_drag", {"c2": (e["c2"], 0.4 * e["c2"]), "c0": (e["c0"], 0.08)})
+    _check_step(res, ("speed_drag", "road_load"), {})
+    p = res.steps[0].params
+    runs = paper_experiment_effects(SECOND, {"speed_drag": None}, seed=SEED)
+    v = np.linspace(0.0, max(float(np.max(r.v)) for r in runs), 50)
+    fitted = p["c0"] + p.get("c1", 0.0) * v + p["c2"] * v * v
+    true = e["c0"] + e["c2"] * v * v
+    assert np.max(np.abs(fitted - true)) < 0.1 * np.max(true), (p, e)
 
 
 @pytest.mark.slow

@@ -230,10 +230,11 @@ def test_none_of_these_with_evidence(tmp_path) -> None:
 
 @pytest.mark.slow
 def test_road_load_found_when_offered() -> None:
-    # The contrast to the case above: the whole library offered, the drag is found.
+    # The contrast to the case above: the whole library offered, the drag is found
+    # (as speed_drag or as road_load, whose polynomial contains it).
     runs = paper_experiment_effects(SECOND, {"speed_drag": None}, seed=0, runs=RUNS[:4])
     full = effect_loop("second", runs[:3], runs[3:], seed=1, maxiter=MAXITER, max_effects=1)
-    assert [s.effect for s in full.steps] == ["speed_drag"]
+    assert [s.effect for s in full.steps] in (["speed_drag"], ["road_load"])
     assert full.steps[0].fold_selection > 0.5
 
 
