@@ -15,16 +15,15 @@ predict. The linearised thresholds exist only for the models.
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import avll
+from avll import _atomic
 from avll.diagnose import effect_loop
 from avll.effect_stability import EffectStability, effect_stability
 from avll.synth_blind import DEFAULTS, SCENARIOS, blind_experiment, simulate_platoon
@@ -149,14 +148,7 @@ def main() -> int:
     """Writes the fragment atomically and prints it."""
     text = render()
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=OUT.parent, prefix=".blind_stability.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, OUT)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    _atomic.write_text(OUT, text)
     print(text)
     print(f"wrote {OUT.relative_to(ROOT)}")
     return 0

@@ -7,14 +7,13 @@ and the amplification per car against the disturbance amplitude).
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import avll
+from avll import _atomic
 from avll.effect_stability import EffectStability, effect_stability
 from avll.effects import Asymmetric, Saturation, WithEffects
 
@@ -117,14 +116,7 @@ def main() -> int:
     """Writes the fragment atomically."""
     text = render()
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=OUT.parent, prefix=".effect_stability.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, OUT)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    _atomic.write_text(OUT, text)
     print(text)
     print(f"wrote {OUT.relative_to(ROOT)}")
     return 0
