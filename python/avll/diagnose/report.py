@@ -122,7 +122,7 @@ def _num(x: Any) -> str:
 def stability_section(result: LoopResult, v0: float = 15.0) -> dict[str, Any] | None:
     """What the accepted effects do to the stability conclusions (issue 13, item 6):
     :func:`avll.effect_stability.effect_stability` of the baseline fit and of the
-    final model (with its effects) under the calibrated upper-level law (or
+    final model (with its effects), each under its calibrated upper-level law (or
     :data:`REFERENCE_UPPER` when there is none), at ``v0``. ``None`` when no effect
     was accepted. Returns ``{"upper", "upper_source", "v0", "baseline", "final"}``
     (the two results)."""
@@ -138,7 +138,9 @@ def stability_section(result: LoopResult, v0: float = 15.0) -> dict[str, Any] | 
         src = ("a reference law (the runs have a recorded command, no upper level): "
                + ", ".join(f"{k} = {v:g}" for k, v in REFERENCE_UPPER.items()))
     amps = (0.25, 0.5, 1.0, 2.0, 4.0)
-    base = effect_stability(result.baseline, up, v0=v0, amplitudes=amps)
+    # the baseline fit with its own calibrated upper law where it has one
+    up0 = result.baseline_upper if result.baseline_upper is not None else up
+    base = effect_stability(result.baseline, up0, v0=v0, amplitudes=amps)
     final = effect_stability(result.final, up, v0=v0, amplitudes=amps)
     return {"upper": up, "upper_source": src, "v0": v0, "baseline": base, "final": final}
 
