@@ -13,13 +13,13 @@ page is typed by hand.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import pickle
 import sys
 import time
 from pathlib import Path
 
+from avll import _atomic
 from avll.studies.openacc import GMIN_MAX, openacc_study
 from avll.studies.openacc_effects import effect_gaps
 
@@ -63,7 +63,7 @@ def main() -> None:
     t2 = time.perf_counter()
     gaps = effect_gaps(study, seed=a.seed, max_generations=a.effect_generations, log=_log)
     _log(f"effects on the cars outside 10 %: {time.perf_counter() - t2:.0f} s")
-    _write_json(Path(a.out) / "effect_gaps.json", gaps)
+    _atomic.write_json(Path(a.out) / "effect_gaps.json", _atomic.json_safe(gaps))
 
     s, w = study.summary, wide.summary
     so, wo = s["setting_order"], w["setting_order"]
@@ -105,13 +105,6 @@ def main() -> None:
     tmp.write_text("\n".join(page), encoding="utf-8")
     tmp.replace(out)
     _log(f"wrote {out} ({time.perf_counter() - t0:.0f} s in total)")
-
-
-def _write_json(path: Path, obj: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=False), encoding="utf-8")
-    tmp.replace(path)
 
 
 def _pct(x: float | None) -> str:

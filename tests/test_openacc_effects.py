@@ -96,3 +96,12 @@ def test_effect_gaps_rejects_bad_arguments(saturated_car):
         effect_gaps(s, min_gain=-1)
     with pytest.raises(ValueError, match="unknown effect 'nope'"):
         effect_gaps(s, effects=("nope",))
+
+
+def test_fit_full_upper_bounds_name_a_known_gain(saturated_car):
+    from avll.diagnose.fitting import fit_full
+
+    run = saturated_car[0]
+    with pytest.raises(ValueError, match="upper_bounds: unknown gain 'G0'"):
+        fit_full("second", [], [run], closed_loop=True, free_upper=True, maxiter=2,
+                 upper_bounds={"G0": (0.0, 1.0)})

@@ -5,7 +5,7 @@ project's Rust GA through :func:`avll.effects.calibrate_effects` in the box of
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -201,6 +201,7 @@ def fit_full(
     progress: bool = False,
     optimizer: str = "ga",
     starts: int = DEFAULT_STARTS,
+    upper_bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> tuple[WithEffects, UpperLevel | None]:
     """As :func:`fit`, and in closed loop with ``free_upper`` (default: when a run
     has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
@@ -211,7 +212,9 @@ def fit_full(
     the upper law's spacing unidentified. The loop reports acceleration MSEs.
     ``optimizer``: ``"ga"`` (the project's Rust GA, :func:`avll.effects.calibrate_effects`,
     with ``starts`` independent starts as :func:`avll.calibrate`) or ``"de"``
-    (``scipy.optimize.differential_evolution`` on the batched cost)."""
+    (``scipy.optimize.differential_evolution`` on the batched cost).
+    ``upper_bounds`` (name -> ``(lo, hi)``) replaces entries of
+    :data:`avll.calibrate.UPPER_BOUNDS` for the free upper-level gains."""
     if optimizer not in ("ga", "de"):
         raise ValueError(f"optimizer: must be 'ga' or 'de', got {optimizer!r}")
     seed = check_seed(seed)
@@ -225,8 +228,13 @@ def fit_full(
         free_upper = closed and any(r.upper is None for r in runs)
     sp = _space(bname, names, runs[0].command_kind)
     if free_upper:
-        lo = [b[0] for b in UPPER_BOUNDS.values()]
-        hi = [b[1] for b in UPPER_BOUNDS.values()]
+        ub = {k: (b[0], b[1]) for k, b in UPPER_BOUNDS.items()}
+        for k, b in (upper_bounds or {}).items():
+            if k not in ub:
+                raise ValueError(f"upper_bounds: unknown gain {k!r}; known: {', '.join(ub)}")
+            ub[k] = (float(b[0]), float(b[1]))
+        lo = [b[0] for b in ub.values()]
+        hi = [b[1] for b in ub.values()]
         sp = _Space(sp.names + tuple(UPPER_BOUNDS), np.concatenate([sp.lo, lo]),
                     np.concatenate([sp.hi, hi]), np.concatenate([sp.log, [False] * 4]))  # fmt: skip
         placeholder = UpperLevel(kg=0.0, kv=0.0, Tg=0.0, Gmin=0.0)

@@ -33,15 +33,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from ..calibrate import default_bounds
 from ..data import Run
-from ..effects import EFFECTS, WithEffects, calibrate_effects, closed_loop_effects
-from ..models import UpperLevel, model_class
-from .openacc import WEIGHTS, OpenACCStudy, amplification
+from ..effects import EFFECTS, WithEffects, batch_cost_effects, closed_loop_effects
+from ..models import UpperLevel
+from .openacc import WEIGHTS, OpenACCStudy, _model_of, _upper_of, amplification
 
 __all__ = ["EFFECT_CANDIDATES", "effect_gaps"]
 
@@ -51,7 +51,6 @@ EFFECT_CANDIDATES: tuple[str, ...] = (
     "delay", "rate_limit", "deadband", "asymmetric", "saturation", "power_limit",
     "road_load", "sensor", "grade",
 )  # fmt: skip
-_UPPER = ("kg", "kv", "Tg", "Gmin")
 
 
 def _fin(x: float) -> float | None:
@@ -78,30 +77,23 @@ def _gap_cars(study: OpenACCStudy, tol: float) -> list[tuple[int, str]]:
 def _fit_effect(run: Run, base: str, params: Mapping[str, float], effect: str, *,
                 gmin_max: float, seed: int, max_generations: int, starts: int,
                 threads: int) -> tuple[WithEffects, UpperLevel, float]:
-    cls = model_class(base)
-    eff = EFFECTS[effect]
-    box = default_bounds(cls, _UPPER)
-    box["Gmin"] = (0.0, float(gmin_max), "linear")
-    base_names = list(cls.param_names())
-    lo = [box[n][0] for n in base_names] + [b[0] for b in eff.bounds] + [box[u][0] for u in _UPPER]
-    hi = [box[n][1] for n in base_names] + [b[1] for b in eff.bounds] + [box[u][1] for u in _UPPER]
-    sc = ([box[n][2] for n in base_names] + ["linear"] * len(eff.bounds)
-          + [box[u][2] for u in _UPPER])  # fmt: skip
-    # The car's linear calibration with the effect at its neutral value (clipped
-    # into the effect's box) joins the first population.
-    neutral = [min(max(v, b[0]), b[1]) for v, b in zip(eff.neutral, eff.bounds, strict=True)]
-    x0 = [float(params[n]) for n in base_names] + neutral + [float(params[u]) for u in _UPPER]
-    x0 = [min(max(v, a), b) for v, a, b in zip(x0, lo, hi, strict=True)]
-    out = calibrate_effects(
-        cls, [effect], [run], lo, hi, sc, weights=WEIGHTS, init="rest", closed_loop=True,
-        upper_free=list(range(4)), initial=np.array([x0]), seed=seed,
-        max_generations=max_generations, starts=starts, threads=threads,
+    """The residual loop's fit (:func:`avll.diagnose.fitting.fit_full`) of base +
+    ``effect`` + the upper law in the study's box and objective, started from the
+    car's linear calibration (the effect at its neutral value); returns the model, the
+    law and its cost (the study's Eq. 6 with :data:`WEIGHTS`)."""
+    from ..diagnose.fitting import fit_full
+
+    model, up = fit_full(
+        base, [effect], [run], start=WithEffects(_model_of(base, params), ()),
+        start_upper=_upper_of(params), seed=seed, closed_loop=True, free_upper=True,
+        weights=WEIGHTS, maxiter=max_generations, init="rest", threads=threads,
+        starts=starts, upper_bounds={"Gmin": (0.0, gmin_max)},
     )  # fmt: skip
-    x = np.asarray(out["x"], dtype=np.float64)
-    nb, ne = len(base_names), len(eff.bounds)
-    model = WithEffects.from_array(cls, [effect], x[: nb + ne])
-    up = UpperLevel(*(float(v) for v in x[nb + ne:]))
-    return model, up, float(out["f"])
+    assert up is not None
+    cost = batch_cost_effects(base, [effect], model.to_array()[None, :],
+                              [replace(run, upper=up)], weights=WEIGHTS, init="rest",
+                              closed_loop=True, threads=threads)  # fmt: skip
+    return model, up, float(cost[0, 0])
 
 
 def effect_gaps(
