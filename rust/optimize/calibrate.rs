@@ -497,19 +497,7 @@ mod tests {
             assert!(f.eval_bounded(&row, exact * 0.5) >= exact * 0.5);
         }
         // The GA with abandoning finds the same as with exact values throughout.
-        let b = Bounds::new(
-            vec![1e-4, 1e-3, 1e-3, 0.0, 0.0, -3.0],
-            vec![100.0, 100.0, 100.0, 3.0, 3.0, 3.0],
-            vec![
-                Scale::Log,
-                Scale::Log,
-                Scale::Log,
-                Scale::Linear,
-                Scale::Linear,
-                Scale::Linear,
-            ],
-        )
-        .unwrap();
+        let b = proposed_box();
         let o = GaOptions {
             seed: 3,
             max_generations: 25,
@@ -595,12 +583,9 @@ mod tests {
         assert!(f.lane_group(&[&xs[0], &xs[1]], f64::INFINITY).is_some());
     }
 
-    #[test]
-    fn calibration_is_bit_identical_for_any_thread_count() {
-        let (us, ys) = synthetic_runs();
-        let runs = refs(&us, &ys);
-        let sp = spec();
-        let b = Bounds::new(
+    /// The default search box of the proposed model (log for m1..m3).
+    fn proposed_box() -> Bounds {
+        Bounds::new(
             vec![1e-4, 1e-3, 1e-3, 0.0, 0.0, -3.0],
             vec![100.0, 100.0, 100.0, 3.0, 3.0, 3.0],
             vec![
@@ -612,7 +597,15 @@ mod tests {
                 Scale::Linear,
             ],
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    #[test]
+    fn calibration_is_bit_identical_for_any_thread_count() {
+        let (us, ys) = synthetic_runs();
+        let runs = refs(&us, &ys);
+        let sp = spec();
+        let b = proposed_box();
         let o = GaOptions {
             seed: 11,
             max_generations: 12,
