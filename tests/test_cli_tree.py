@@ -106,6 +106,7 @@ def test_format_names_match_the_loaders() -> None:
     ("avll.reproduce", "avll.cli.reproduce"),
     ("avll.studies", "avll.cli.study"),
     ("avll.studies.openacc", "avll.cli.study"),
+    ("avll.diagnose", "avll.cli.diagnose"),
 ])
 def test_old_register_cli_warns_and_works(module: str, new: str) -> None:
     mod = importlib.import_module(module)

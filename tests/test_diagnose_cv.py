@@ -347,7 +347,7 @@ def test_cli_refuses_overlapping_splits(tmp_path, capsys) -> None:
                  "--test-runs", "3,8", "--json", str(tmp_path / "o.json"), "--quiet"])  # fmt: skip
     assert code == 2
     err = capsys.readouterr().err
-    assert "--test-runs: run(s) ['3'] are also in --cal-runs" in err and "Traceback" not in err
+    assert "--test-runs: run(s) 3 are also in --cal-runs" in err and "Traceback" not in err
     assert not (tmp_path / "o.json").exists()
 
 
@@ -391,3 +391,40 @@ def test_report_shows_what_the_effects_do_to_stability(rate_result, tmp_path) ->
     text = write_report(rate_result, tmp_path / "rep").read_text()
     assert "What the accepted effects do to stability" in text
     assert "reference law" in text and (tmp_path / "rep" / "stability.png").exists()
+
+
+def test_cli_globs_threads_and_log_progress(tmp_path, capsys) -> None:
+    # Run selections take glob patterns (shared with the other commands); with stderr
+    # not a terminal the default progress is plain "avll:" lines without escape codes,
+    # and every fit's stage ends at 100 %.
+    runs = paper_experiment_effects(FIRST, {}, seed=0, duration=20.0, runs=(1, 3, 8, 12))
+    runs = [replace(r, run_id=f"day{i // 2}/{r.run_id}") for i, r in enumerate(runs)]
+    data = write_runs(runs, tmp_path / "runs.csv")
+    out = tmp_path / "o.json"
+    code = main(["diagnose", str(data), "--model", "first", "--cal-runs", "day0/*",
+                 "--test-runs", "day1/1?", "--json", str(out), "--maxiter", "5",
+                 "--max-effects", "0", "--threads", "1"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 0, err
+    d = json.loads(out.read_text())
+    sp = d["splits"]
+    assert sp["cal_runs"] == ["day0/1", "day0/3"]
+    assert sp["test_runs"] == ["day1/12"] and sp["val_runs"] == ["day1/8"]
+    assert "\x1b" not in err and "\r" not in err
+    lines = [ln for ln in err.splitlines() if ln.startswith("avll: fit first")]
+    assert lines and all("100%" in ln for ln in lines if ": done " in ln)
+    assert any(": done 100%" in ln for ln in lines)
+    assert "avll: diagnose: baseline" in err
+
+
+def test_cli_json_is_required_and_patterns_must_match(tmp_path, capsys) -> None:
+    runs = paper_experiment_effects(FIRST, {}, seed=0, duration=20.0, runs=(1, 3))
+    data = write_runs(runs, tmp_path / "runs.csv")
+    with pytest.raises(SystemExit) as e:
+        main(["diagnose", str(data), "--cal-runs", "1"])
+    assert e.value.code == 2 and "--json" in capsys.readouterr().err
+    code = main(["diagnose", str(data), "--cal-runs", "x*", "--json",
+                 str(tmp_path / "o.json"), "-q"])  # fmt: skip
+    assert code == 2
+    assert "--cal-runs: pattern 'x*' matches no run" in capsys.readouterr().err
+    assert not (tmp_path / "o.json").exists()

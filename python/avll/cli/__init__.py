@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from typing import Any
 
 # "module:function" registering one or more sub-commands, in help order: one module
-# per command in this package (diagnose's registration still lives in avll.diagnose).
+# per command in this package.
 _COMMANDS = [
     "avll.cli.simulate:register",
     "avll.cli.synth:register",
@@ -41,10 +41,9 @@ _COMMANDS = [
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The ``avll`` argument parser with every registered sub-command. With ``only``
-    (the command about to run), commands whose registration is costly (``diagnose``
-    imports scipy) are registered in full only when they are ``only``; their entry in
-    ``avll --help`` is the same either way."""
+    """The ``avll`` argument parser with every registered sub-command (no
+    registration imports a heavy package; ``only``, the command about to run, is
+    accepted for compatibility and changes nothing)."""
     from .. import __version__
 
     parser = argparse.ArgumentParser(
@@ -57,12 +56,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for spec in _COMMANDS:
         mod, fn = spec.split(":")
-        register = getattr(importlib.import_module(mod), fn)
-        name = mod.rsplit(".", 1)[1]
-        if only is not None and name in _COSTLY and name != only:
-            register(sub, full=False)
-        else:
-            register(sub)
+        getattr(importlib.import_module(mod), fn)(sub)
     for p in _all_parsers(parser):
         if p is parser or any(isinstance(a, argparse._SubParsersAction) for a in p._actions):
             continue
@@ -71,10 +65,6 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
                            help="treat warnings about the data (implausible values, sidecar "
                            "entries for missing runs) as errors (default: off)")
     return parser
-
-
-#: Commands whose full registration imports heavy packages (see build_parser).
-_COSTLY = ("diagnose",)
 
 
 def _command_of(argv: Sequence[str]) -> str:

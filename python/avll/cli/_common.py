@@ -143,11 +143,14 @@ def add_threads(p: argparse.ArgumentParser) -> None:
                    help="worker threads (default: 0, all cores)")
 
 
-def add_json(p: argparse.ArgumentParser, what: str, default: str = "not written") -> None:
-    """``--json PATH``: the command's results as strict JSON."""
-    p.add_argument("--json", default=None, metavar="PATH",
+def add_json(p: argparse.ArgumentParser, what: str, default: str = "not written",
+             required: bool = False) -> None:
+    """``--json PATH``: the command's results as strict JSON (``required``: the
+    command's main output, no default)."""
+    p.add_argument("--json", default=None, metavar="PATH", required=required,
                    help=f"write {what} as strict JSON (non-finite numbers are null with "
-                   f"a note beside them) (default: {default})")
+                   "a note beside them) ("
+                   + ("required; no default)" if required else f"default: {default})"))
 
 
 def add_progress(p: argparse.ArgumentParser) -> None:

@@ -22,7 +22,7 @@ One module per job:
 * :mod:`avll.diagnose.contract` — ``final_model`` as a dict, :func:`model_from_dict`,
   :func:`simulate_run`;
 * :mod:`avll.diagnose.report` — tables, figures, the report;
-* :mod:`avll.diagnose.cli` — ``avll diagnose``.
+* the command ``avll diagnose`` is :mod:`avll.cli.diagnose`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
-    from .cli import register_cli
     from .contract import model_from_dict, model_to_dict, simulate_run
     from .fitting import (
         BASE_BOUNDS,
@@ -56,10 +55,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
 
 
 #: Where each public name lives: the submodules load on first use, so that
-#: ``avll diagnose --help`` (which needs only :mod:`avll.diagnose.cli`) does not import
-#: scipy.
+#: importing the package (e.g. for :data:`MIN_GAIN`) does not import scipy.
 _WHERE = {
-    "register_cli": "cli",
     "model_from_dict": "contract", "model_to_dict": "contract", "simulate_run": "contract",
     "BASE_BOUNDS": "fitting", "CLOSED_LOOP_WEIGHTS": "fitting",
     "SPEED_COMMAND_WEIGHTS": "fitting", "UPPER_BOUNDS": "fitting", "at_bound": "fitting",
@@ -108,12 +105,15 @@ __all__ = [
     "binned_dependence",
     "loss_difference_test",
     "block_bootstrap_gain",
-    "register_cli",
 ]
 
 
 def __getattr__(name: str) -> Any:
     """The public names of the submodules, imported on first access."""
+    if name == "register_cli":
+        from .._compat import moved
+
+        return moved(__name__, {"register_cli": "avll.cli.diagnose:register"})(name)
     if name in _WHERE:
         import importlib
 

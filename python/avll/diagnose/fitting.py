@@ -198,7 +198,7 @@ def fit_full(
     maxiter: int = 300,
     init: str = "auto",
     threads: int = 0,
-    progress: bool = False,
+    progress: Any = False,
     optimizer: str = "ga",
     starts: int = DEFAULT_STARTS,
     upper_bounds: Mapping[str, tuple[float, float]] | None = None,
@@ -271,47 +271,41 @@ def fit_full(
             parts.append(start_upper.to_array() if start_upper is not None
                          else np.array([0.5, 0.5, 1.5, 5.0]))  # fmt: skip
         x0 = sp.to_z(np.concatenate(parts))
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
+    from ..progress import Progress
 
-        bar = tqdm(total=maxiter, desc="fit " + "+".join([bname, *names]), leave=False)
-    if optimizer == "ga":
-        x0p = None if x0 is None else sp.from_z(x0)[None, :]
+    # One stage per fit, over GA generations (DE: iterations); it ends at 100 % when
+    # the search converges before its budget and stops where it was when interrupted.
+    bar = Progress(maxiter, "fit " + "+".join([bname, *names]), unit="gen", mode=progress)
+    done = False
+    try:
+        if optimizer == "ga":
+            x0p = None if x0 is None else sp.from_z(x0)[None, :]
 
-        def gcb(info: dict[str, Any]) -> None:
-            if bar is not None:
-                bar.update(int(info["iteration"]) - bar.n)
+            def gcb(info: dict[str, Any]) -> None:
+                bar.advance_to(float(info["iteration"]))
 
-        try:
             out = calibrate_effects(
                 bname, names, runs, list(sp.lo), list(sp.hi),
                 ["log" if lg else "linear" for lg in sp.log], weights=weights, init=ini,
                 closed_loop=closed, upper_free=upper_free, initial=x0p, seed=seed,
-                max_generations=maxiter, progress=gcb if bar is not None else None,
+                max_generations=maxiter, progress=gcb if bar.mode != "none" else None,
                 threads=threads, starts=starts,
             )  # fmt: skip
-        finally:
-            if bar is not None:
-                bar.close()
-        p = np.asarray(out["x"], dtype=np.float64)
-    else:
+            p = np.asarray(out["x"], dtype=np.float64)
+        else:
 
-        def cb(intermediate_result: Any) -> None:
-            if bar is not None:
+            def cb(intermediate_result: Any) -> None:
                 bar.update(1)
 
-        try:
             res = optimize.differential_evolution(
                 lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
                 popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
                 x0=x0, init="sobol", callback=cb,
             )  # fmt: skip
-        finally:
-            if bar is not None:
-                bar.close()
-
-        p = sp.from_z(_polish(f, np.asarray(res.x), 200))
+            p = sp.from_z(_polish(f, np.asarray(res.x), 200))
+        done = True
+    finally:
+        bar.close(complete=done)
 
     n_model = len(p) - (4 if free_upper else 0)
     model = WithEffects.from_array(bname, names, p[:n_model])

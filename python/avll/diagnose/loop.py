@@ -44,6 +44,7 @@ an honest "none of these" instead of the least-bad effect.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -248,6 +249,21 @@ def _sub(seed: int, *ks: int) -> int:
 # ---------------------------------------------------------------------------
 
 
+def _say(progress: Any) -> Callable[[str], None]:
+    """Where the loop's step messages go for a progress mode (:mod:`avll.progress`):
+    above the bars, as plain ``avll: diagnose:`` lines in a log, nowhere in ``none``."""
+    from ..progress import resolve_mode
+
+    mode = resolve_mode(progress)
+    if mode == "none":
+        return lambda msg: None
+    if mode == "bar":
+        from tqdm.auto import tqdm
+
+        return lambda msg: tqdm.write(f"avll: diagnose: {msg}", file=sys.stderr)
+    return lambda msg: print(f"avll: diagnose: {msg}", file=sys.stderr, flush=True)
+
+
 def effect_loop(
     base: str | type[LowerLevelModel],
     cal_runs: Sequence[Run],
@@ -272,7 +288,7 @@ def effect_loop(
     min_structure: float = 0.02,
     n_boot: int = 2000,
     threads: int = 0,
-    progress: bool = False,
+    progress: Any = False,
 ) -> LoopResult:
     """Baseline fit -> diagnose -> cross-validate the ``tries`` best-ranked effects
     over folds of the calibration runs -> add the best one that passes the rule of
@@ -286,7 +302,9 @@ def effect_loop(
     ``maxiter``/``starts``: the GA budget of every fit; ``candidates``: the effects
     offered (default: every registered effect that applies);
     ``structure_alpha``/``min_structure``: when the final residual "keeps structure"
-    (:func:`avll.diagnose.signatures.residual_structure`)."""
+    (:func:`avll.diagnose.signatures.residual_structure`); ``progress``: ``True``,
+    ``False`` or a mode of :mod:`avll.progress` (a stage per fit, step messages on
+    stderr)."""
     max_effects = check_int(max_effects, "max_effects", min=0, max=len(EFFECTS))
     tries = check_int(tries, "tries", min=1)
     seed = check_seed(seed)
@@ -317,12 +335,7 @@ def effect_loop(
     bname = model_class(base).name
     kind = cal_runs[0].command_kind
     fold_sets, fold_kind = make_folds(cal_runs, folds, seed)
-    if progress:
-        from tqdm.auto import tqdm
-
-        say: Callable[[str], None] = tqdm.write
-    else:
-        say = lambda msg: None  # noqa: E731
+    say = _say(progress)
     free_upper = closed and any(r.upper is None for r in every)
     fit_kw: dict[str, Any] = dict(closed_loop=closed, init=init, free_upper=free_upper,
                                   optimizer=optimizer, maxiter=maxiter, starts=starts,
