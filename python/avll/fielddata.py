@@ -48,8 +48,8 @@ from .data import Run
 from .defaults import UPPER_NAMES as _UPPER
 from .defaults import UPPER_PLACEHOLDER
 from .models import LowerLevelModel, UpperLevel, model_class
+from .paper import MODEL_LABELS
 from .paper import MODELS as _MODELS
-from .plotting import model_color, model_linestyle
 from .rollout import batch_cost, closed_loop, simulate_full
 
 __all__ = [
@@ -94,7 +94,8 @@ CARMA_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {"first": {"Td": (0.01
 #: CARMA files whose stretches calibrate (the others validate).
 CARMA_CAL_FILES: tuple[str, ...] = ("data5", "data9")
 
-_LABEL = {"first": "First-order lag", "second": "Second-order", "proposed": "Proposed"}
+#: Table row names of the models ("First-order lag", ...: the paper's short labels).
+_LABEL = {m: lab.capitalize() for m, lab in MODEL_LABELS.items()}
 #: Placeholder upper law of runs without one (every gain is calibrated).
 
 
@@ -139,11 +140,6 @@ class Study:
             names.append(f"{self.name}_report.txt")
             _atomic.write_text(st / names[-1], self.text + "\n")
         return [d / n for n in names]
-
-
-def _style(m: str) -> dict[str, Any]:
-    """The line of model ``m`` in a figure (its colour and style, :mod:`avll.plotting`)."""
-    return {"color": model_color(m), "ls": model_linestyle(m), "lw": 1.0}
 
 
 def _finite(x: float) -> float | None:
@@ -572,36 +568,27 @@ def _carma_figure(
     regime: str,
     objective: str,
 ) -> Any:
-    from matplotlib.figure import Figure
+    from .plotting import measured_vs_simulated
 
-    veh = list(groups)
-    fig = Figure(figsize=(11, 1.9 * len(veh) + 0.6), layout="constrained")
-    axes = fig.subplots(len(veh), 2, squeeze=False)
-    for i, g in enumerate(veh):
-        cal, val = groups[g]
+    rows = []
+    for g, (cal, val) in groups.items():
         run = val[0] if val else cal[0]
-        role = "validation" if val else "calibration"
         n = len(run) if regime == "launch" else min(len(run), round(120.0 / run.dt))
-        t = run.t[:n] - run.t[0]
         assert run.v is not None and run.command is not None
-        axes[i, 0].plot(t, run.v[:n], "k", lw=1.0, label="measured")
-        axes[i, 0].plot(t, run.command[:n], color="0.6", lw=0.8, label="command")
-        axes[i, 1].plot(t, run.a[:n], "k", lw=0.8, label="measured")
-        for m, per in fits.items():
-            if g not in per:
-                continue
-            mod = _model(m, per[g].params)
-            tr = simulate_full(mod, run.command, run.dt, command_kind="speed", init="steady")
-            axes[i, 0].plot(t, tr.v[:n], **_style(m), label=_LABEL[m])
-            axes[i, 1].plot(t, tr.a[:n], **_style(m), label=_LABEL[m])
-        axes[i, 0].set_ylabel(f"{g}\nspeed (m/s)")
-        axes[i, 1].set_ylabel("accel. (m/s²)")
-        axes[i, 0].set_title(f"{run.run_id} ({role})", fontsize="small", loc="left")
-    axes[-1, 0].set_xlabel("time in run (s)")
-    axes[-1, 1].set_xlabel("time in run (s)")
-    axes[0, 0].legend(fontsize="x-small", ncol=3, loc="best")
-    fig.suptitle(f"CARMA {regime}: measured vs simulated, fitted on {objective}")
-    return fig
+        sims = {m: simulate_full(_model(m, per[g].params), run.command, run.dt,
+                                 command_kind="speed", init="steady")
+                for m, per in fits.items() if g in per}  # fmt: skip
+        rows.append({
+            "name": g, "title": f"{run.run_id} ({'validation' if val else 'calibration'})",
+            "t": run.t[:n] - run.t[0],
+            "left": {"ylabel": "speed (m/s)", "measured": run.v[:n],
+                     "reference": ("command", run.command[:n]),
+                     "simulated": {m: tr.v[:n] for m, tr in sims.items()}},
+            "right": {"ylabel": "accel. (m/s²)", "measured": run.a[:n],
+                      "simulated": {m: tr.a[:n] for m, tr in sims.items()}},
+        })  # fmt: skip
+    return measured_vs_simulated(rows, xlabel="time in run (s)", title=f"CARMA {regime}: "
+                                 f"measured vs simulated, fitted on {objective}")
 
 
 # ---------------------------------------------------------------------------
@@ -765,36 +752,28 @@ def _astazero_figure(
     groups: Mapping[str, tuple[list[Run], list[Run]]],
     objective: str,
 ) -> Any:
-    from matplotlib.figure import Figure
+    from .plotting import measured_vs_simulated
 
-    pairs = list(groups)
-    fig = Figure(figsize=(11, 1.9 * len(pairs) + 0.6), layout="constrained")
-    axes = fig.subplots(len(pairs), 2, squeeze=False)
-    for i, g in enumerate(pairs):
-        cal, val = groups[g]
+    rows = []
+    for g, (cal, val) in groups.items():
         run = val[0] if val else cal[0]
-        role = "validation" if val else "calibration"
         lo, hi = round(100 / run.dt), min(len(run), round(300 / run.dt))
-        t = run.t[lo:hi]
         assert run.v is not None and run.x is not None and run.lead_x is not None
         assert run.lead_v is not None
-        axes[i, 0].plot(t, run.v[lo:hi], "k", lw=1.0, label="measured")
-        axes[i, 0].plot(t, run.lead_v[lo:hi], color="0.6", lw=0.8, label="predecessor")
-        axes[i, 1].plot(t, (run.lead_x - run.x)[lo:hi], "k", lw=1.0, label="measured")
+        sims = {}
         for m, per in fits.items():
             f = per[g]
-            mod = _model(m, f.params)
             up = UpperLevel(*(f.params[k] for k in _UPPER))
-            tr = closed_loop(mod, run.lead_x, run.lead_v, run.dt, up, v0=float(run.v[0]),
-                             x0=float(run.x[0]))  # fmt: skip
-            axes[i, 0].plot(t, tr.v[lo:hi], **_style(m), label=_LABEL[m])
-            axes[i, 1].plot(t, (run.lead_x - tr.x)[lo:hi], **_style(m),
-                            label=_LABEL[m])  # fmt: skip
-        axes[i, 0].set_ylabel(f"{g}\nspeed (m/s)")
-        axes[i, 1].set_ylabel("gap (m)")
-        axes[i, 0].set_title(f"{run.run_id} ({role})", fontsize="small", loc="left")
-    axes[-1, 0].set_xlabel("time (s)")
-    axes[-1, 1].set_xlabel("time (s)")
-    axes[0, 0].legend(fontsize="x-small", ncol=3, loc="best")
-    fig.suptitle(f"AstaZero closed loop: measured vs simulated, fitted on {objective}")
-    return fig
+            sims[m] = closed_loop(_model(m, f.params), run.lead_x, run.lead_v, run.dt, up,
+                                  v0=float(run.v[0]), x0=float(run.x[0]))  # fmt: skip
+        rows.append({
+            "name": g, "title": f"{run.run_id} ({'validation' if val else 'calibration'})",
+            "t": run.t[lo:hi],
+            "left": {"ylabel": "speed (m/s)", "measured": run.v[lo:hi],
+                     "reference": ("predecessor", run.lead_v[lo:hi]),
+                     "simulated": {m: tr.v[lo:hi] for m, tr in sims.items()}},
+            "right": {"ylabel": "gap (m)", "measured": (run.lead_x - run.x)[lo:hi],
+                      "simulated": {m: (run.lead_x - tr.x)[lo:hi] for m, tr in sims.items()}},
+        })  # fmt: skip
+    return measured_vs_simulated(rows, title="AstaZero closed loop: measured vs simulated, "
+                                 f"fitted on {objective}")

@@ -40,6 +40,9 @@ __all__ = [
     "thresholds",
     "traces",
     "convergence",
+    "measured_vs_simulated",
+    "amplification_per_car",
+    "time_gap_per_car",
 ]
 
 _EXTRA = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:red")
@@ -253,4 +256,109 @@ def convergence(history: Any, *, model: str = "", title: str = "") -> Figure:
     ax.set(xlabel="generation", ylabel="best cost (Eq. 6)", title=title or "GA convergence")
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
+    return fig
+
+
+def measured_vs_simulated(rows: Sequence[Mapping[str, Any]], *, title: str,
+                          xlabel: str = "time (s)", data: str = "measured") -> Figure:
+    """One row of two panels per run: recorded (``data``) against simulated signals
+    (the field-data studies' figures). Each row is a mapping with ``name`` (row label),
+    ``title`` (the run), ``t`` and ``left``/``right`` panels, each a mapping with
+    ``ylabel``, ``measured`` (array), optional ``reference`` (``(label, array)``, e.g.
+    the command or the predecessor's speed) and ``simulated`` (model name -> array)."""
+    n = max(len(rows), 1)
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 1.9 * n + 0.6), layout="constrained")
+    axes = fig.subplots(n, 2, squeeze=False)
+    for i, row in enumerate(rows):
+        for j, side in enumerate(("left", "right")):
+            ax, panel = axes[i, j], row[side]
+            ax.plot(row["t"], panel["measured"], color=MEASURED_COLOR, lw=1.0, label=data)
+            ref = panel.get("reference")
+            if ref is not None:
+                ax.plot(row["t"], ref[1], color="0.6", lw=0.8, label=ref[0])
+            for k, (m, y) in enumerate(panel.get("simulated", {}).items()):
+                ax.plot(row["t"], y, color=model_color(m, k), ls=model_linestyle(m), lw=1.0,
+                        label=f"{model_label(m)} (simulated)")
+            ax.set_ylabel(f"{row['name']}\n{panel['ylabel']}" if j == 0 else panel["ylabel"])
+        axes[i, 0].set_title(row["title"], fontsize="small", loc="left")
+    axes[-1, 0].set_xlabel(xlabel)
+    axes[-1, 1].set_xlabel(xlabel)
+    axes[0, 0].legend(fontsize="x-small", ncol=3, loc="best")
+    fig.suptitle(title)
+    return fig
+
+
+def amplification_per_car(cars: Sequence[Mapping[str, Any]], models: Sequence[str]) -> Figure:
+    """Measured (with its 95 % interval) against predicted amplification of the
+    predecessor's speed oscillations, per car, from |H(jω)| and by replay (the OpenACC
+    study's ``cars`` entries); cars under human control are crosses."""
+    fig, axes = _new(1, 2, (5.5, 5.0))
+    axes = axes[0]
+    axes[1].sharex(axes[0])
+    axes[1].sharey(axes[0])
+    meas = [c for c in cars if c["amplification_measured"] is not None]
+    if meas:
+        xs = np.array([c["amplification_measured"] for c in meas])
+        lo = np.array([c["amplification_measured_ci"][0] for c in meas])
+        hi = np.array([c["amplification_measured_ci"][1] for c in meas])
+        ys_all = [c["models"][m][k] for c in meas for m in models
+                  for k in ("amplification_H", "amplification_replay")
+                  if c["models"][m][k] is not None]
+        top = max(2.5, 1.15 * max([float(np.max(xs)), *ys_all]))
+        bottom = 0.8 * min([0.5, float(np.min(lo)), *[y for y in ys_all if y > 0]])
+        hum = np.array([not c["acc"] for c in meas])
+        for ax, key, title in ((axes[0], "amplification_H", "predicted from |H(jω)|"),
+                               (axes[1], "amplification_replay", "predicted by replay")):
+            grid = np.array([bottom, top])
+            ax.fill_between(grid, 0.9 * grid, 1.1 * grid, color="0.9", label="±10 %")
+            ax.plot(grid, grid, "k-", lw=0.8)
+            ax.axhline(1.0, color="0.6", lw=0.5, ls=":")
+            ax.axvline(1.0, color="0.6", lw=0.5, ls=":")
+            for k, m in enumerate(models):
+                ys = np.array([c["models"][m][key] if c["models"][m][key] is not None
+                               else np.nan for c in meas])
+                ax.errorbar(xs[~hum], ys[~hum], xerr=[xs[~hum] - lo[~hum], hi[~hum] - xs[~hum]],
+                            fmt="o", ms=4, lw=0.6, color=model_color(m, k),
+                            label=model_label(m), alpha=0.8)
+                if hum.any():
+                    ax.plot(xs[hum], ys[hum], "x", color=model_color(m, k), ms=6,
+                            label=f"{model_label(m)} (human control)")
+            ax.set(xlim=(bottom, top), ylim=(bottom, top), xscale="log", yscale="log",
+                   title=title, xlabel="measured amplification (95 % CI)")
+        axes[0].set_ylabel("predicted amplification")
+        axes[0].legend(fontsize="x-small", loc="upper left")
+    fig.suptitle("Amplification of the predecessor's speed oscillations, per car")
+    return fig
+
+
+#: Marker, colour and offset of the OpenACC ACC settings (long, medium, short; None:
+#: no ACC, a human driver) in :func:`time_gap_per_car`.
+_SETTINGS = {"L": ("tab:red", "o", -0.2, "long"), "M": ("tab:green", "s", 0.0, "medium"),
+             "S": ("tab:blue", "^", 0.2, "short"), None: ("0.4", "x", 0.0, "no ACC (human)")}
+
+
+def time_gap_per_car(cars: Sequence[Mapping[str, Any]], model: str) -> Figure:
+    """The calibrated time gap ``Tg`` of ``model`` per car and ACC setting (the
+    OpenACC study's ``cars`` entries); cars without a finite ``Tg`` are left out."""
+    fig, axes = _new(1, 1, (11.0, 4.5))
+    ax = axes[0][0]
+    names = sorted({c["car"] for c in cars})
+    pos = {n: i for i, n in enumerate(names)}
+    seen = set()
+    for c in cars:
+        col, mk, off, lab = _SETTINGS.get(c["setting"] if c["acc"] else None, _SETTINGS[None])
+        if c["folder"].lower() == "mixed" and c["acc"]:
+            mk, lab = "D", f"{lab} (folder 'mixed')"
+        if c["Tg"] is None:
+            continue
+        ax.plot(pos[c["car"]] + off, c["Tg"], mk, color=col, ms=6, mfc="none",
+                label=None if lab in seen else lab)
+        seen.add(lab)
+    ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize="small")
+    ax.set_ylabel(f"calibrated Tg (s), {model_label(model)} model")
+    if seen:
+        ax.legend(fontsize="small")
+    ax.set_title("Calibrated time gap per car model and ACC setting")
     return fig

@@ -25,9 +25,10 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from typing import Any, TextIO
 
-__all__ = ["MODES", "LOG_INTERVAL", "Progress", "resolve_mode"]
+__all__ = ["MODES", "LOG_INTERVAL", "Progress", "resolve_mode", "messages"]
 
 #: The display modes (see the module doc).
 MODES: tuple[str, ...] = ("auto", "bar", "log", "none")
@@ -54,6 +55,26 @@ def resolve_mode(progress: Any, file: TextIO | None = None) -> str:
     except (AttributeError, ValueError):
         tty = False
     return "bar" if tty else "log"
+
+
+def messages(prefix: str, progress: Any, file: TextIO | None = None) -> Callable[[str], None]:
+    """A function printing a stage's messages for a progress mode: ``"<prefix>: msg"``
+    lines on ``file`` (default stderr), written above any bar in ``bar`` mode,
+    nothing in ``none`` mode (``-q``)."""
+    mode = resolve_mode(progress, file)
+    if mode == "none":
+        return lambda msg: None
+
+    def say(msg: str) -> None:
+        out = sys.stderr if file is None else file
+        if mode == "bar":
+            from tqdm.auto import tqdm
+
+            tqdm.write(f"{prefix}: {msg}", file=out)
+        else:
+            print(f"{prefix}: {msg}", file=out, flush=True)
+
+    return say
 
 
 class Progress:

@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -27,13 +26,10 @@ from ._common import (
 
 
 def _openacc(args: argparse.Namespace) -> int:
-    from ..studies.openacc import _check_band, check_outputs, openacc_study
+    from ..progress import messages
+    from ..studies.openacc import _check_band, openacc_study
 
-    quiet = args.progress == "none"
-
-    def log(msg: str) -> None:
-        if not quiet:
-            print(f"avll study openacc: {msg}", file=sys.stderr, flush=True)
+    log = messages("avll study openacc", args.progress)
 
     if args.generations < 1:
         raise ValueError(f"--generations: must be >= 1, got {args.generations}")
@@ -51,7 +47,6 @@ def _openacc(args: argparse.Namespace) -> int:
     _check_band(band, 0.1)
     if not Path(args.path).exists():
         raise FileNotFoundError(f"{args.path}: no such file or folder")
-    check_outputs(args.out, args.json)  # creates the folders, tries a write in each
     load: dict[str, Any] = {}
     for key in ("setting", "car", "track"):
         val = getattr(args, key)

@@ -44,8 +44,7 @@ an honest "none of these" instead of the least-bad effect.
 from __future__ import annotations
 
 import math
-import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -57,6 +56,7 @@ from ..calibrate import DEFAULT_STARTS
 from ..data import Run
 from ..effects import EFFECTS, WithEffects
 from ..models import LowerLevelModel, UpperLevel, model_class
+from ..progress import messages
 from .contract import model_to_dict, per_run_mse
 from .defaults import DEFAULT_BLOCKS, DEFAULT_FOLDS, FAR_SMALLER, MIN_BLOCK, MIN_GAIN
 from .fitting import _closed, _init, at_bound, fit_full, simulate_runs
@@ -249,21 +249,6 @@ def _sub(seed: int, *ks: int) -> int:
 # ---------------------------------------------------------------------------
 
 
-def _say(progress: Any) -> Callable[[str], None]:
-    """Where the loop's step messages go for a progress mode (:mod:`avll.progress`):
-    above the bars, as plain ``avll: diagnose:`` lines in a log, nowhere in ``none``."""
-    from ..progress import resolve_mode
-
-    mode = resolve_mode(progress)
-    if mode == "none":
-        return lambda msg: None
-    if mode == "bar":
-        from tqdm.auto import tqdm
-
-        return lambda msg: tqdm.write(f"avll: diagnose: {msg}", file=sys.stderr)
-    return lambda msg: print(f"avll: diagnose: {msg}", file=sys.stderr, flush=True)
-
-
 def effect_loop(
     base: str | type[LowerLevelModel],
     cal_runs: Sequence[Run],
@@ -335,7 +320,7 @@ def effect_loop(
     bname = model_class(base).name
     kind = cal_runs[0].command_kind
     fold_sets, fold_kind = make_folds(cal_runs, folds, seed)
-    say = _say(progress)
+    say = messages("avll: diagnose", progress)
     free_upper = closed and any(r.upper is None for r in every)
     fit_kw: dict[str, Any] = dict(closed_loop=closed, init=init, free_upper=free_upper,
                                   optimizer=optimizer, maxiter=maxiter, starts=starts,

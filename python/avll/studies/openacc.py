@@ -52,8 +52,6 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -62,12 +60,12 @@ from typing import Any
 
 import numpy as np
 
-from .._atomic import dumps as _dumps
+from .. import _atomic
 from .._compat import moved as _moved
 from ..calibrate import calibrate_many
 from ..data import Run
-from ..defaults import MODEL_COLORS, UPPER_PLACEHOLDER
 from ..defaults import UPPER_NAMES as _UPPER
+from ..defaults import UPPER_PLACEHOLDER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODELS as _MODELS
 from ..rollout import closed_loop
@@ -110,7 +108,6 @@ GMIN_MAX = 10.0
 #: The measured time headway uses the samples faster than this (m/s).
 HEADWAY_MIN_SPEED = 3.0
 #: Placeholder upper law of the runs (every gain is calibrated).
-_LABEL = {"first": "First-order lag", "second": "Second-order", "proposed": "Proposed"}
 _RANK = {"L": 0, "M": 1, "S": 2}
 
 
@@ -274,21 +271,6 @@ def _fin(x: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _clean(o: Any) -> Any:
-    """JSON-ready: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    if isinstance(o, (np.bool_, bool)):
-        return bool(o)
-    if isinstance(o, (np.integer, int)):
-        return int(o)
-    if isinstance(o, (np.floating, float)):
-        return _fin(o)
-    return o
-
-
 @dataclass
 class OpenACCStudy:
     """Result of :func:`openacc_study`: ``summary`` (the JSON contract),
@@ -304,79 +286,20 @@ class OpenACCStudy:
 
     def save(self, out: str | Path, json_path: str | Path | None = None) -> list[Path]:
         """Writes the tables (CSV), figures (PNG), ``report.md`` and ``summary.json``
-        into ``out`` (and the JSON to ``json_path`` when given), each to a temporary
-        file renamed into place. Returns the paths written."""
+        (strict JSON: a non-finite number is ``null`` with a note) into ``out`` (and
+        the JSON to ``json_path`` when given), each atomically (:mod:`avll._atomic`).
+        Returns the paths written."""
         d = Path(out)
         d.mkdir(parents=True, exist_ok=True)
-        paths = []
-        for k, t in self.tables.items():
-            paths.append(_atomic(d / f"{k}.csv", _writer(t.to_csv(float_format="%.6g"))))
-        for k, fig in self.figures.items():
-            paths.append(_atomic(d / f"{k}.png", _savefig(fig), binary=True))
-        text = _dumps(_clean(self.summary), indent=1) + "\n"
-        paths.append(_atomic(d / "report.md", _writer(self.report)))
-        paths.append(_atomic(d / "summary.json", _writer(text)))
+        paths = [_atomic.to_csv(t, d / f"{k}.csv", float_format="%.6g")
+                 for k, t in self.tables.items()]
+        paths += [_atomic.savefig(fig, d / f"{k}.png", dpi=90) for k, fig in self.figures.items()]
+        text = _atomic.dumps(self.summary, indent=1) + "\n"
+        paths.append(_atomic.write_text(d / "report.md", self.report))
+        paths.append(_atomic.write_text(d / "summary.json", text))
         if json_path is not None:
-            paths.append(_atomic(Path(json_path), _writer(text)))
+            paths.append(_atomic.write_text(Path(json_path), text))
         return paths
-
-
-def _writer(text: str) -> Callable[[Any], Any]:
-    def write(f: Any) -> None:
-        f.write(text)
-
-    return write
-
-
-def _savefig(fig: Any) -> Callable[[Any], Any]:
-    def write(f: Any) -> None:
-        fig.savefig(f, format="png", dpi=90)
-
-    return write
-
-
-def _atomic(path: Path, write: Callable[[Any], Any], binary: bool = False) -> Path:
-    """Writes through ``write(file)`` to a temporary file beside ``path``, then
-    renames it into place (no partial file on error or Ctrl-C)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        f: Any
-        if binary:
-            with os.fdopen(fd, "wb") as f:
-                write(f)
-        else:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def check_outputs(out: str | Path, json_path: str | Path | None = None) -> None:
-    """Validates the output folder and JSON path before any work: the folder is
-    created if needed and must be writable; the JSON path must not be a folder and
-    its folder must exist (or be creatable) and be writable. Raises ``ValueError``
-    or ``OSError`` naming the path."""
-    d = Path(out)
-    if d.exists() and not d.is_dir():
-        raise ValueError(f"--out: {d} exists and is not a folder")
-    d.mkdir(parents=True, exist_ok=True)
-    targets = [d]
-    if json_path is not None:
-        j = Path(json_path)
-        if j.is_dir():
-            raise ValueError(f"--json: {j} is a folder, expected a file path")
-        j.parent.mkdir(parents=True, exist_ok=True)
-        targets.append(j.parent)
-    for t in targets:
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=".avll-write-test.", dir=t)
-        except OSError as e:
-            raise OSError(f"{t}: not writable ({e.strerror})") from e
-        os.close(fd)
-        os.unlink(tmp)
 
 
 def _upper_of(params: Mapping[str, float]) -> UpperLevel:
@@ -827,72 +750,10 @@ def _tables(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str,
 
 def _figures(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str
              ) -> dict[str, Any]:
-    from matplotlib.figure import Figure
+    from ..plotting import amplification_per_car, time_gap_per_car
 
-    figs: dict[str, Any] = {}
-    fig = Figure(figsize=(11, 5), layout="constrained")
-    axes = fig.subplots(1, 2, sharex=True, sharey=True)
-    colors = MODEL_COLORS
-    meas = [c for c in cars if c["amplification_measured"] is not None]
-    if meas:
-        xs = np.array([c["amplification_measured"] for c in meas])
-        lo = np.array([c["amplification_measured_ci"][0] for c in meas])
-        hi = np.array([c["amplification_measured_ci"][1] for c in meas])
-        ys_all = [c["models"][m][k] for c in meas for m in models
-                  for k in ("amplification_H", "amplification_replay")
-                  if c["models"][m][k] is not None]
-        top = max(2.5, 1.15 * max([float(np.max(xs)), *ys_all]))
-        bottom = 0.8 * min([0.5, float(np.min(lo)), *[y for y in ys_all if y > 0]])
-        for ax, key, title in ((axes[0], "amplification_H", "predicted from |H(jω)|"),
-                               (axes[1], "amplification_replay", "predicted by replay")):
-            grid = np.array([bottom, top])
-            ax.fill_between(grid, 0.9 * grid, 1.1 * grid, color="0.9", label="±10 %")
-            ax.plot(grid, grid, "k-", lw=0.8)
-            ax.axhline(1.0, color="0.6", lw=0.5, ls=":")
-            ax.axvline(1.0, color="0.6", lw=0.5, ls=":")
-            for m in models:
-                ys = np.array([c["models"][m][key] if c["models"][m][key] is not None
-                               else np.nan for c in meas])
-                hum = np.array([not c["acc"] for c in meas])
-                ax.errorbar(xs[~hum], ys[~hum], xerr=[xs[~hum] - lo[~hum], hi[~hum] - xs[~hum]],
-                            fmt="o", ms=4, lw=0.6, color=colors.get(m), label=_LABEL.get(m, m),
-                            alpha=0.8)
-                if hum.any():
-                    ax.plot(xs[hum], ys[hum], "x", color=colors.get(m), ms=6,
-                            label=f"{_LABEL.get(m, m)} (human control)")
-            ax.set(xlim=(bottom, top), ylim=(bottom, top), xscale="log", yscale="log",
-                   title=title, xlabel="measured amplification (95 % CI)")
-        axes[0].set_ylabel("predicted amplification")
-        axes[0].legend(fontsize="x-small", loc="upper left")
-    fig.suptitle("Amplification of the predecessor's speed oscillations, per car")
-    figs["amplification"] = fig
-
-    fig2 = Figure(figsize=(11, 4.5), layout="constrained")
-    ax = fig2.subplots()
-    names = sorted({c["car"] for c in cars})
-    pos = {n: i for i, n in enumerate(names)}
-    styles = {"L": ("tab:red", "o", -0.2), "M": ("tab:green", "s", 0.0),
-              "S": ("tab:blue", "^", 0.2), None: ("0.4", "x", 0.0)}
-    seen = set()
-    for c in cars:
-        st = c["setting"] if c["acc"] else None
-        col, mk, off = styles.get(st, styles[None])
-        if c["folder"].lower() == "mixed" and c["acc"]:
-            mk = "D"
-        lab = {"L": "long", "M": "medium", "S": "short", None: "no ACC (human)"}[st]
-        if c["folder"].lower() == "mixed" and c["acc"]:
-            lab = f"{lab} (folder 'mixed')"
-        if c["Tg"] is None:
-            continue
-        ax.plot(pos[c["car"]] + off, c["Tg"], mk, color=col, ms=6, mfc="none",
-                label=None if lab in seen else lab)
-        seen.add(lab)
-    ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize="small")
-    ax.set_ylabel(f"calibrated Tg (s), {main} model")
-    ax.legend(fontsize="small")
-    ax.set_title("Calibrated time gap per car model and ACC setting")
-    figs["tg_setting"] = fig2
-    return figs
+    return {"amplification": amplification_per_car(cars, models),
+            "tg_setting": time_gap_per_car(cars, main)}
 
 
 def _f(x: Any, nd: int = 2) -> str:
