@@ -51,7 +51,7 @@ DATA_SEED = 0
 LOOP_SEED = 1
 N_CAL, N_VAL = 4, 2
 #: A small GA budget, used when the loop exposes these keywords.
-BUDGET = {"maxiter": 150, "max_generations": 150, "starts": 1}
+BUDGET = {"max_generations": 150, "starts": 1}
 
 
 def loop_kwargs(test_runs: list[Any]) -> tuple[dict[str, Any], list[str]]:

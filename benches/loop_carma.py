@@ -8,7 +8,7 @@ strict JSON per vehicle into OUT and the table ``docs/_generated/loop_carma.md``
 every JSON present (so a partial run still renders what finished).
 
     MPLBACKEND=Agg python benches/loop_carma.py [--data ../shared/data/carma] [--out OUT]
-        [--maxiter 150] [--vehicles leader,follower1,...] [--render-only]
+        [--max-generations 150] [--vehicles leader,follower1,...] [--render-only]
 """
 
 from __future__ import annotations
@@ -95,7 +95,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "carma"))
     ap.add_argument("--out", default=str(ROOT / "out" / "loop_carma"))
-    ap.add_argument("--maxiter", type=int, default=150, help="GA generations per fit")
+    ap.add_argument("--max-generations", type=int, default=150, help="GA generations per fit")
     ap.add_argument("--vehicles", default=",".join(VEHICLES))
     ap.add_argument("--render-only", action="store_true")
     a = ap.parse_args()
@@ -114,8 +114,9 @@ def main() -> int:
 
             t0 = time.perf_counter()
             res = effect_loop("second", pick(SPLIT["cal"]), pick(SPLIT["val"]),
-                              test_runs=pick(SPLIT["test"]), seed=0, maxiter=a.maxiter,
-                              max_effects=2, progress=False)  # fmt: skip
+                              test_runs=pick(SPLIT["test"]), seed=0,
+                              max_generations=a.max_generations, max_effects=2,
+                              progress=False)  # fmt: skip
             d = res.to_dict()
             d["seconds"] = round(time.perf_counter() - t0, 1)
             _atomic.write_json(dest, _atomic.json_safe(d))

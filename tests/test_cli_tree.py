@@ -157,3 +157,37 @@ def test_lazy_diagnose_entry_is_the_full_one() -> None:
     # the full registration is used when diagnose runs
     assert len(build_parser(only="diagnose")._subparsers._group_actions[0]
                .choices["diagnose"]._actions) > 5
+
+
+def test_ga_budget_named_alike_old_spellings_work(capsys: pytest.CaptureFixture[str]) -> None:
+    # One name per idea: --max-generations / --starts on calibrate, diagnose and study;
+    # the old spellings still parse, with a note on stderr.
+    from avll.cli import build_parser
+
+    parser = build_parser()
+    for argv, gen in ((["calibrate", "d.csv", "--max-generations", "7"], 7),
+                      (["diagnose", "d.csv", "--cal-runs", "1", "--json", "o.json",
+                        "--maxiter", "9", "--starts", "3"], 9),
+                      (["study", "openacc", "d", "--out", "o", "--generations", "4"], 4)):
+        ns = parser.parse_args(argv)
+        assert ns.max_generations == gen
+    err = capsys.readouterr().err
+    assert "--maxiter is deprecated; use --max-generations" in err
+    assert "--generations is deprecated; use --max-generations" in err
+    with pytest.raises(ValueError, match="--starts: must be >= 1, got 0"):
+        parser.parse_args(["diagnose", "d.csv", "--cal-runs", "1", "--json", "o", "--starts",
+                           "0"])
+
+
+def test_renamed_keywords_warn_and_work() -> None:
+    from avll._compat import renamed_kwargs
+
+    @renamed_kwargs(maxiter="max_generations")
+    def f(*, max_generations: int = 1) -> int:
+        return max_generations
+
+    with pytest.warns(DeprecationWarning, match="'maxiter' is deprecated; use 'max_generations'"):
+        assert f(maxiter=5) == 5
+    with pytest.raises(TypeError, match="give 'max_generations' only"):
+        f(maxiter=5, max_generations=6)
+    assert f(max_generations=3) == 3

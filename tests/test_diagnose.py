@@ -61,7 +61,7 @@ def test_delay_is_found_and_recovered() -> None:
     # a little (towards the noise floor, 0.05² + quantisation), but significantly —
     # by a few per cent, below the default minimum effect size (5 %), so this case
     # asks for 2 % (tests/test_diagnose_cv.py checks that 50 % rejects it).
-    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, maxiter=FAST)
+    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, max_generations=FAST)
     tau = expected_params("delay")["tau"]
     _check_step(res, "delay", {"tau": (tau, 0.08)}, fall=0.99)
     assert [s.effect for s in res.steps] == ["delay"]
@@ -69,12 +69,12 @@ def test_delay_is_found_and_recovered() -> None:
 
 def test_rate_limit_is_found_and_recovered() -> None:
     # A jerk limit only shows in brisk manoeuvres: the leader plays 3x faster.
-    res = _loop(FIRST, {"rate_limit": {"j": 1.0}}, "first", speedup=3.0, maxiter=FAST)
+    res = _loop(FIRST, {"rate_limit": {"j": 1.0}}, "first", speedup=3.0, max_generations=FAST)
     _check_step(res, "rate_limit", {"j_max": (1.0, 0.3)})
 
 
 def test_clean_data_gets_no_effect() -> None:
-    res = _loop(FIRST, {}, "first", extra_exo=("grade", "wind"), maxiter=FAST)
+    res = _loop(FIRST, {}, "first", extra_exo=("grade", "wind"), max_generations=FAST)
     assert res.steps == []
     assert res.to_dict()["effects"] == []
 
@@ -107,7 +107,7 @@ def test_diagnosis_ranks_the_true_effect_without_calibration() -> None:
 
 
 def test_table_and_report(tmp_path) -> None:
-    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, maxiter=FAST)
+    res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, max_generations=FAST)
     s = res.steps[0]
     tab = mse_table({"before": s.val_before, "after": s.val_after}, "Validation MSE")
     assert "| Run No. |" in tab and "Average" in tab
@@ -123,7 +123,7 @@ def test_cli_contract(tmp_path, capsys) -> None:
     data = write_runs(runs, tmp_path / "runs.csv")
     out = tmp_path / "out.json"
     code = main(["diagnose", str(data), "--command-kind", "acceleration", "--model", "first",
-                 "--cal-runs", "1,3,8", "--seed", "1", "--min-gain", "0.02", "--maxiter",
+                 "--cal-runs", "1,3,8", "--seed", "1", "--min-gain", "0.02", "--max-generations",
                  str(FAST), "--json", str(out), "--quiet"])  # fmt: skip
     assert code == 0
     d = json.loads(out.read_text())

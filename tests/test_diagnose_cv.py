@@ -4,7 +4,7 @@ calibration runs, the three-way split, flags, "none of these", and the JSON cont
 reported test MSE).
 
 Data: :func:`avll.synth_effects.paper_experiment_effects` (effects realised
-differently from the library's); GA budgets are small (``maxiter=MAXITER``).
+differently from the library's); GA budgets are small (``max_generations=MAXITER``).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def rate_runs():
 @pytest.fixture(scope="module")
 def rate_result(rate_runs):
     return effect_loop("first", rate_runs[:3], rate_runs[3:5], test_runs=rate_runs[5:], seed=1,
-                       maxiter=MAXITER)  # fmt: skip
+                       max_generations=MAXITER)  # fmt: skip
 
 
 # --- selection ----------------------------------------------------------------
@@ -92,7 +92,7 @@ def test_coloured_noise_only_accepts_nothing() -> None:
             e[i] = 0.95 * e[i - 1] + w[i]
         noisy.append(replace(r, a=r.a + e))
     res = effect_loop("first", noisy[:3], noisy[3:4], test_runs=noisy[4:], seed=1,
-                      maxiter=MAXITER)  # fmt: skip
+                      max_generations=MAXITER)  # fmt: skip
     assert res.steps == []
     assert res.unexplained["structure_found"] is False
     assert res.unexplained["lag1_autocorrelation"] > 0.8  # the noise is coloured
@@ -104,12 +104,12 @@ def test_min_gain_rejects_a_significant_small_gain() -> None:
     # per cent, significantly: accepted with a 2 % minimum, not with 50 %.
     runs = paper_experiment_effects(FIRST, {"delay": None}, seed=0, runs=RUNS[:4])
     low = effect_loop("first", runs[:3], runs[3:], seed=1, min_gain=0.02, max_effects=1,
-                      maxiter=MAXITER)  # fmt: skip
+                      max_generations=MAXITER)  # fmt: skip
     assert [s.effect for s in low.steps] == ["delay"]
     gain = low.steps[0].cv["gain"]
     assert 0.02 <= gain < 0.5 and low.steps[0].p_value < 0.01
     high = effect_loop("first", runs[:3], runs[3:], seed=1, min_gain=0.5, max_effects=1,
-                       maxiter=MAXITER)  # fmt: skip
+                       max_generations=MAXITER)  # fmt: skip
     assert high.steps == []
     rej = [r for r in high.rejected if r["effect"] == "delay"]
     assert rej and any("minimum" in why for why in rej[0]["reasons"])
@@ -128,7 +128,7 @@ def test_gain_that_does_not_hold_on_test_runs_is_flagged(tmp_path) -> None:
     test = [replace(c, exo={"grade": g.exo["grade"]}) for c, g in zip(clean, graded[5:],
                                                                     strict=True)]  # fmt: skip
     res = effect_loop("first", graded[:3], graded[3:5], test_runs=test, seed=1,
-                      maxiter=MAXITER, max_effects=1)  # fmt: skip
+                      max_generations=MAXITER, max_effects=1)  # fmt: skip
     assert [s.effect for s in res.steps] == ["grade"]
     d = res.to_dict()
     st = d["steps"][0]
@@ -143,7 +143,7 @@ def test_gain_that_does_not_hold_on_test_runs_is_flagged(tmp_path) -> None:
 
 def test_splits_must_be_disjoint(rate_runs) -> None:
     with pytest.raises(ValueError, match="test_runs: run '1' is also in cal_runs"):
-        effect_loop("first", rate_runs[:3], test_runs=rate_runs[:1], maxiter=5)
+        effect_loop("first", rate_runs[:3], test_runs=rate_runs[:1], max_generations=5)
 
 
 def test_folds_are_deterministic() -> None:
@@ -169,7 +169,7 @@ def test_folds_are_deterministic() -> None:
 
 
 def test_single_calibration_run_uses_blocks(rate_runs) -> None:
-    res = effect_loop("first", rate_runs[:1], rate_runs[1:2], seed=1, maxiter=MAXITER,
+    res = effect_loop("first", rate_runs[:1], rate_runs[1:2], seed=1, max_generations=MAXITER,
                       max_effects=1)  # fmt: skip
     assert res.splits["fold_kind"] == "blocks" and len(res.splits["folds"]) == 3
     assert [s.effect for s in res.steps] == ["rate_limit"]
@@ -212,7 +212,7 @@ def test_none_of_these_with_evidence(tmp_path) -> None:
     # reported with its evidence instead of a least-bad effect.
     runs = paper_experiment_effects(SECOND, {"speed_drag": None}, seed=0, runs=RUNS[:6])
     res = effect_loop("second", runs[:3], runs[3:4], test_runs=runs[4:], seed=1,
-                      candidates=["delay", "deadband"], maxiter=MAXITER)  # fmt: skip
+                      candidates=["delay", "deadband"], max_generations=MAXITER)  # fmt: skip
     assert res.steps == []
     un = res.unexplained
     assert un["structure_found"] is True
@@ -233,7 +233,7 @@ def test_road_load_found_when_offered() -> None:
     # The contrast to the case above: the whole library offered, the drag is found
     # (as speed_drag or as road_load, whose polynomial contains it).
     runs = paper_experiment_effects(SECOND, {"speed_drag": None}, seed=0, runs=RUNS[:4])
-    full = effect_loop("second", runs[:3], runs[3:], seed=1, maxiter=MAXITER, max_effects=1)
+    full = effect_loop("second", runs[:3], runs[3:], seed=1, max_generations=MAXITER, max_effects=1)
     assert [s.effect for s in full.steps] in (["speed_drag"], ["road_load"])
     assert full.steps[0].fold_selection > 0.5
 
@@ -294,7 +294,7 @@ def test_contract_round_trip(tmp_path, capsys) -> None:
     out = tmp_path / "out.json"
     code = main(["diagnose", str(data), "--command-kind", "acceleration", "--model", "first",
                  "--cal-runs", "1,3,8", "--val-runs", "12,15", "--test-runs", "19,5",
-                 "--seed", "1", "--maxiter", str(MAXITER), "--json", str(out), "--quiet",
+                 "--seed", "1", "--max-generations", str(MAXITER), "--json", str(out), "--quiet",
                  "--report", str(tmp_path / "rep")])  # fmt: skip
     assert code == 0, capsys.readouterr().err
     d = _strict(out.read_text())
@@ -356,7 +356,7 @@ def test_contract_round_trip_closed_loop() -> None:
     # final_model carries; simulate_run with it reproduces every reported MSE.
     runs = paper_experiment_effects(FIRST, {}, seed=0, duration=40.0, runs=(1, 3, 8, 12))
     runs = [replace(r, command=None, upper=None) for r in runs]
-    res = effect_loop("first", runs[:2], runs[2:3], test_runs=runs[3:], seed=1, maxiter=30,
+    res = effect_loop("first", runs[:2], runs[2:3], test_runs=runs[3:], seed=1, max_generations=30,
                       max_effects=1)  # fmt: skip
     d = _strict(json.dumps(avll._atomic.json_safe(res.to_dict()), allow_nan=False))
     fm = d["final_model"]
@@ -402,7 +402,7 @@ def test_cli_globs_threads_and_log_progress(tmp_path, capsys) -> None:
     data = write_runs(runs, tmp_path / "runs.csv")
     out = tmp_path / "o.json"
     code = main(["diagnose", str(data), "--model", "first", "--cal-runs", "day0/*",
-                 "--test-runs", "day1/1?", "--json", str(out), "--maxiter", "5",
+                 "--test-runs", "day1/1?", "--json", str(out), "--max-generations", "5",
                  "--max-effects", "0", "--threads", "1"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 0, err

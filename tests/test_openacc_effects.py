@@ -103,5 +103,5 @@ def test_fit_full_upper_bounds_name_a_known_gain(saturated_car):
 
     run = saturated_car[0]
     with pytest.raises(ValueError, match="upper_bounds: unknown gain 'G0'"):
-        fit_full("second", [], [run], closed_loop=True, free_upper=True, maxiter=2,
+        fit_full("second", [], [run], closed_loop=True, upper_free=True, max_generations=2,
                  upper_bounds={"G0": (0.0, 1.0)})

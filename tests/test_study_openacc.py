@@ -16,7 +16,7 @@ from avll.cli import main
 from avll.reference.stability import closed_loop_polys
 from avll.studies import openacc as st
 
-FAST = ["--generations", "3", "--pop-size", "8", "--starts", "1", "--bootstrap", "100",
+FAST = ["--max-generations", "3", "--pop-size", "8", "--starts", "1", "--bootstrap", "100",
         "--model", "first", "--models", "first", "-q"]
 CONTRACT = {"file", "car", "setting", "position", "params", "Tg", "cal_mse",
             "amplification_measured", "amplification_measured_ci", "amplification_predicted"}
@@ -156,7 +156,7 @@ def test_cli_exit_codes(study_dir, tmp_path, capsys, monkeypatch):
                  "0.3,0.1", *FAST]) == 2
     assert "band" in capsys.readouterr().err
     assert main(["study", "openacc", str(study_dir), "--out", str(tmp_path / "o"),
-                 "--generations", "0", "-q"]) == 2
+                 "--max-generations", "0", "-q"]) == 2
     assert main(["study", "openacc", str(study_dir), "--out", str(tmp_path / "o"), "--car",
                  "VOLVO", *FAST]) == 2
     assert "no follower runs match" in capsys.readouterr().err

@@ -193,11 +193,11 @@ def test_delay_jitter_only_adds_latency() -> None:
 
 
 def _loop_kwargs() -> dict:
-    """Seed 1, and a small GA budget where the loop exposes one (``maxiter``,
+    """Seed 1, and a small GA budget where the loop exposes one (``max_generations``,
     ``starts``), so that the cross-validated loop stays within the time of a test."""
     params = inspect.signature(effect_loop).parameters
     kw: dict = {"seed": 1}
-    kw.update({k: v for k, v in (("maxiter", 150), ("starts", 1)) if k in params})
+    kw.update({k: v for k, v in (("max_generations", 150), ("starts", 1)) if k in params})
     return kw
 
 

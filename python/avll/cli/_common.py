@@ -36,6 +36,7 @@ __all__ = [
     "add_seed",
     "add_threads",
     "add_json",
+    "add_ga_budget",
     "add_progress",
     "add_format",
     "add_command_kind",
@@ -141,6 +142,52 @@ def add_threads(p: argparse.ArgumentParser) -> None:
     """``--threads N`` (default 0: all cores)."""
     p.add_argument("--threads", type=int, default=0,
                    help="worker threads (default: 0, all cores)")
+
+
+class _Count(argparse.Action):
+    """An integer option (``>= minimum``) whose old spellings (``deprecated``) still
+    work with a deprecation note on stderr."""
+
+    def __init__(self, *a: Any, minimum: int = 1, deprecated: Sequence[str] = (),
+                 **k: Any) -> None:
+        super().__init__(*a, **k)
+        self.minimum = minimum
+        self.deprecated = tuple(deprecated)
+
+    def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        name = self.option_strings[0]
+        if option_string in self.deprecated:
+            print(f"{parser.prog}: note: {option_string} is deprecated; use {name}",
+                  file=sys.stderr)
+        # ValueError: the avll entry point reports it in one line with exit code 2
+        try:
+            n = int(str(values))
+        except ValueError:
+            raise ValueError(f"{name}: expected an integer, got {values!r}") from None
+        if n < self.minimum:
+            raise ValueError(f"{name}: must be >= {self.minimum}, got {n}")
+        setattr(ns, self.dest, n)
+
+
+def add_ga_budget(p: argparse.ArgumentParser, *, generations: int, starts: int,
+                  pop_size: int | None = None, what: str = "",
+                  old_generations: Sequence[str] = ()) -> None:
+    """The GA budget, named alike on every command: ``--max-generations`` (per start;
+    ``old_generations`` are accepted old spellings), ``--starts`` and, with
+    ``pop_size``, ``--pop-size`` (0: automatic)."""
+    of = f" of {what}" if what else ""
+    p.add_argument("--max-generations", *old_generations, dest="max_generations",
+                   action=_Count, deprecated=tuple(old_generations), default=generations,
+                   metavar="N", help=f"GA generation budget per start{of} (default: "
+                   f"{generations})" + (f"; {', '.join(old_generations)} is the deprecated "
+                                        "spelling" if old_generations else ""))
+    p.add_argument("--starts", action=_Count, default=starts, metavar="N",
+                   help=f"independent GA starts{of}, the best kept (default: {starts})")
+    if pop_size is not None:
+        p.add_argument("--pop-size", action=_Count, minimum=0, default=pop_size, metavar="N",
+                       help=f"GA population (default: {pop_size}; 0 is automatic: "
+                       "max(16 x parameters, 40))")
 
 
 def add_json(p: argparse.ArgumentParser, what: str, default: str = "not written",

@@ -14,6 +14,7 @@ from ._common import (
     add_cal_runs,
     add_command_kind,
     add_format,
+    add_ga_budget,
     add_json,
     add_models,
     add_progress,
@@ -197,14 +198,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="CARMA only: keep the launch or cruise parts of the stretches "
                    "(default: all)")
     add_astazero_options(p)
-    p.add_argument("--starts", type=int, default=DEFAULT_STARTS,
-                   help=f"independent GA starts, the best kept (default: {DEFAULT_STARTS})")
-    p.add_argument("--max-generations", type=int, default=GA_OPTIONS["max_generations"],
-                   help="GA generation budget per start (default: "
-                   f"{GA_OPTIONS['max_generations']})")
-    p.add_argument("--pop-size", type=int, default=GA_OPTIONS["pop_size"],
-                   help=f"GA population (default: {GA_OPTIONS['pop_size']}, automatic: "
-                   "max(16 x parameters, 40))")
+    add_ga_budget(p, generations=GA_OPTIONS["max_generations"], starts=DEFAULT_STARTS,
+                  pop_size=GA_OPTIONS["pop_size"])
     p.add_argument("--figure", default=None, metavar="PATH",
                    help="save measured vs simulated acceleration of one run, PNG/SVG "
                    "(default: not drawn)")

@@ -19,11 +19,13 @@ import argparse
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+from ..defaults import DEFAULT_STARTS
 from ..diagnose.defaults import MIN_GAIN
 from ._common import (
     add_astazero_options,
     add_command_kind,
     add_format,
+    add_ga_budget,
     add_json,
     add_model,
     add_progress,
@@ -114,7 +116,8 @@ def _cmd(args: argparse.Namespace) -> int:
                                  "selections must be disjoint")
     res = effect_loop(args.model, cal, val, test_runs=test, seed=args.seed, init=args.init,
                       optimizer=args.optimizer, folds=args.folds, min_gain=args.min_gain,
-                      max_effects=args.max_effects, maxiter=args.maxiter,
+                      max_effects=args.max_effects, max_generations=args.max_generations,
+                      starts=args.starts,
                       candidates=cands, threads=args.threads,
                       progress=args.progress)  # fmt: skip
     d = res.to_dict()
@@ -147,8 +150,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"effect (default: {MIN_GAIN})")
     p.add_argument("--max-effects", type=int, default=3,
                    help="at most this many effects (default: 3)")
-    p.add_argument("--maxiter", type=int, default=300,
-                   help="GA generations of every fit (default: 300)")
+    add_ga_budget(p, generations=300, starts=DEFAULT_STARTS, what="every fit",
+                  old_generations=("--maxiter",))
     p.add_argument("--candidates", default=None, metavar="E[,E...]",
                    help="effects offered, comma-separated (default: every registered "
                    "effect that applies to the data)")

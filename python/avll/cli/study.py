@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from ._common import (
+    add_ga_budget,
     add_json,
     add_model,
     add_models,
@@ -31,12 +32,6 @@ def _openacc(args: argparse.Namespace) -> int:
 
     log = messages("avll study openacc", args.progress)
 
-    if args.generations < 1:
-        raise ValueError(f"--generations: must be >= 1, got {args.generations}")
-    if args.pop_size < 0:
-        raise ValueError(f"--pop-size: must be >= 0, got {args.pop_size}")
-    if args.starts < 1:
-        raise ValueError(f"--starts: must be >= 1, got {args.starts}")
     models = models_of(args)
     try:
         band = tuple(float(b) for b in args.band.split(","))
@@ -54,7 +49,7 @@ def _openacc(args: argparse.Namespace) -> int:
             load[key] = [v.strip() for v in val.split(",") if v.strip()]
     st = openacc_study(args.path, model=args.model, models=models, seed=args.seed,
                        threads=args.threads, progress=args.progress, log=log,
-                       max_generations=args.generations, pop_size=args.pop_size,
+                       max_generations=args.max_generations, pop_size=args.pop_size,
                        starts=args.starts, band=band, n_boot=args.bootstrap,
                        gmin_max=args.gmin_max, **load)  # fmt: skip
     log(f"writing {args.out}" + (f" and {args.json}" if args.json else ""))
@@ -88,12 +83,8 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
     add_models(p, ("first", "second", "proposed"), alias=False, what="models compared")
     add_seed(p, "GA and the bootstrap")
     add_threads(p)
-    p.add_argument("--generations", type=int, default=300,
-                   help="GA generations (default: 300, the full budget; less for a quick "
-                   "look)")
-    p.add_argument("--pop-size", type=int, default=0,
-                   help="GA population (default: 0, automatic)")
-    p.add_argument("--starts", type=int, default=2, help="GA starts per car (default: 2)")
+    add_ga_budget(p, generations=300, starts=2, pop_size=0, what="each car",
+                  old_generations=("--generations",))
     p.add_argument("--band", default=f"{DEFAULT_BAND[0]:g},{DEFAULT_BAND[1]:g}",
                    metavar="LOW,HIGH",
                    help=f"amplification band in Hz (default: {DEFAULT_BAND[0]:g},"

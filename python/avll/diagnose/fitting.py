@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
+from .._compat import renamed_kwargs
 from .._limits import check_seed, check_threads
 from ..calibrate import DEFAULT_BOUNDS, DEFAULT_STARTS
 from ..calibrate import UPPER_BOUNDS as _UB
@@ -148,7 +149,7 @@ def _space(base: str, effects: Sequence[str], kind: str = "acceleration") -> _Sp
     return _Space(tuple(names), np.array(lo), np.array(hi), np.array(lg))
 
 
-def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, maxiter: int) -> np.ndarray:
+def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, max_iter: int) -> np.ndarray:
     h = 1e-5
     k = z0.size
 
@@ -167,7 +168,7 @@ def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, maxiter: int)
         return float(v[0]), g
 
     res = optimize.minimize(fg, z0, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * k,
-                            options={"maxiter": maxiter})  # fmt: skip
+                            options={"maxiter": max_iter})  # fmt: skip
     return np.asarray(res.x)
 
 
@@ -183,6 +184,7 @@ CLOSED_LOOP_WEIGHTS: tuple[float, float, float] = (1.0, 0.1, 0.01)
 SPEED_COMMAND_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.0)
 
 
+@renamed_kwargs(free_upper="upper_free", popsize="pop_size", maxiter="max_generations")
 def fit_full(
     base: str | type[LowerLevelModel] | LowerLevelModel,
     effects: Sequence[str],
@@ -192,10 +194,10 @@ def fit_full(
     start_upper: UpperLevel | None = None,
     seed: int = 0,
     closed_loop: bool | None = None,
-    free_upper: bool | None = None,
+    upper_free: bool | None = None,
     weights: tuple[float, float, float] | None = None,
-    popsize: int = 12,
-    maxiter: int = 300,
+    pop_size: int = 12,
+    max_generations: int = 300,
     init: str = "auto",
     threads: int = 0,
     progress: Any = False,
@@ -203,7 +205,7 @@ def fit_full(
     starts: int = DEFAULT_STARTS,
     upper_bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> tuple[WithEffects, UpperLevel | None]:
-    """As :func:`fit`, and in closed loop with ``free_upper`` (default: when a run
+    """As :func:`fit`, and in closed loop with ``upper_free`` (default: when a run
     has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
     Gmin`` (returned; ``None`` otherwise). ``weights`` of the acceleration, speed and
     position MSE default to ``(1, 0, 0)`` in open loop (paper Eq. 6), to
@@ -224,10 +226,10 @@ def fit_full(
     bname = model_class(base).name
     names = canonical(list(effects))
     closed = _closed(runs, closed_loop)
-    if free_upper is None:
-        free_upper = closed and any(r.upper is None for r in runs)
+    if upper_free is None:
+        upper_free = closed and any(r.upper is None for r in runs)
     sp = _space(bname, names, runs[0].command_kind)
-    if free_upper:
+    if upper_free:
         ub = {k: (b[0], b[1]) for k, b in UPPER_BOUNDS.items()}
         for k, b in (upper_bounds or {}).items():
             if k not in ub:
@@ -248,12 +250,12 @@ def fit_full(
         else:
             weights = (1.0, 0.0, 0.0)
     rows_of = sp.from_z
-    upper_free = [0, 1, 2, 3] if free_upper else []
+    free_idx = [0, 1, 2, 3] if upper_free else []
 
     def f(z: np.ndarray) -> np.ndarray:
         rows = np.vstack([rows_of(zz) for zz in np.atleast_2d(z)])
         c = batch_cost_effects(bname, names, rows, runs, closed_loop=closed, init=ini,
-                               upper_free=upper_free, weights=weights,
+                               upper_free=free_idx, weights=weights,
                                threads=threads)  # fmt: skip
         m = c.mean(axis=1)
         return np.where(np.isfinite(m), m, 1e6)
@@ -267,7 +269,7 @@ def fit_full(
                 parts.append(dict((e.name, e) for e in start.effects)[n].to_array())
             else:
                 parts.append(np.array(EFFECTS[n].neutral))
-        if free_upper:
+        if upper_free:
             parts.append(start_upper.to_array() if start_upper is not None
                          else np.array([0.5, 0.5, 1.5, 5.0]))  # fmt: skip
         x0 = sp.to_z(np.concatenate(parts))
@@ -275,7 +277,8 @@ def fit_full(
 
     # One stage per fit, over GA generations (DE: iterations); it ends at 100 % when
     # the search converges before its budget and stops where it was when interrupted.
-    bar = Progress(maxiter, "fit " + "+".join([bname, *names]), unit="gen", mode=progress)
+    bar = Progress(max_generations, "fit " + "+".join([bname, *names]), unit="gen",
+                   mode=progress)
     done = False
     try:
         if optimizer == "ga":
@@ -287,8 +290,8 @@ def fit_full(
             out = calibrate_effects(
                 bname, names, runs, list(sp.lo), list(sp.hi),
                 ["log" if lg else "linear" for lg in sp.log], weights=weights, init=ini,
-                closed_loop=closed, upper_free=upper_free, initial=x0p, seed=seed,
-                max_generations=maxiter, progress=gcb if bar.mode != "none" else None,
+                closed_loop=closed, upper_free=free_idx, initial=x0p, seed=seed,
+                max_generations=max_generations, progress=gcb if bar.mode != "none" else None,
                 threads=threads, starts=starts,
             )  # fmt: skip
             p = np.asarray(out["x"], dtype=np.float64)
@@ -299,7 +302,8 @@ def fit_full(
 
             res = optimize.differential_evolution(
                 lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
-                popsize=popsize, maxiter=maxiter, tol=1e-7, polish=False, updating="deferred",
+                popsize=pop_size, maxiter=max_generations, tol=1e-7, polish=False,
+                updating="deferred",
                 x0=x0, init="sobol", callback=cb,
             )  # fmt: skip
             p = sp.from_z(_polish(f, np.asarray(res.x), 200))
@@ -307,12 +311,13 @@ def fit_full(
     finally:
         bar.close(complete=done)
 
-    n_model = len(p) - (4 if free_upper else 0)
+    n_model = len(p) - (4 if upper_free else 0)
     model = WithEffects.from_array(bname, names, p[:n_model])
-    up = UpperLevel(*[float(x) for x in p[n_model:]]) if free_upper else None
+    up = UpperLevel(*[float(x) for x in p[n_model:]]) if upper_free else None
     return model, up
 
 
+@renamed_kwargs(popsize="pop_size", maxiter="max_generations")
 def fit(
     base: str | type[LowerLevelModel] | LowerLevelModel,
     effects: Sequence[str],
@@ -321,8 +326,8 @@ def fit(
     start: WithEffects | None = None,
     seed: int = 0,
     closed_loop: bool | None = None,
-    popsize: int = 12,
-    maxiter: int = 300,
+    pop_size: int = 12,
+    max_generations: int = 300,
     init: str = "auto",
     threads: int = 0,
     optimizer: str = "ga",
@@ -337,8 +342,8 @@ def fit(
     quasi-Newton polish (L-BFGS-B on batched central differences).
     """
     model, _ = fit_full(base, effects, runs, start=start, seed=seed, closed_loop=closed_loop,
-                        free_upper=False, popsize=popsize, maxiter=maxiter, init=init,
-                        threads=threads, optimizer=optimizer)  # fmt: skip
+                        upper_free=False, pop_size=pop_size, max_generations=max_generations,
+                        init=init, threads=threads, optimizer=optimizer)  # fmt: skip
     return model
 
 

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from .. import _core
+from .._compat import renamed_kwargs
 from .._limits import check_int, check_number, check_seed, check_threads
 from ..calibrate import DEFAULT_STARTS
 from ..data import Run
@@ -249,6 +250,7 @@ def _sub(seed: int, *ks: int) -> int:
 # ---------------------------------------------------------------------------
 
 
+@renamed_kwargs(maxiter="max_generations")
 def effect_loop(
     base: str | type[LowerLevelModel],
     cal_runs: Sequence[Run],
@@ -267,7 +269,7 @@ def effect_loop(
     candidates: Sequence[str] | None = None,
     init: str = "auto",
     optimizer: str = "ga",
-    maxiter: int = 300,
+    max_generations: int = 300,
     starts: int = DEFAULT_STARTS,
     structure_alpha: float = 1e-3,
     min_structure: float = 0.02,
@@ -284,7 +286,7 @@ def effect_loop(
     ``min_gain``: minimum relative MSE reduction (default :data:`MIN_GAIN`);
     ``alpha``: level of the diagnosis' screening and of the out-of-fold loss test;
     ``folds``: number of folds (default ``min(5, n)`` runs, 3 blocks of a single run);
-    ``maxiter``/``starts``: the GA budget of every fit; ``candidates``: the effects
+    ``max_generations``/``starts``: the GA budget of every fit; ``candidates``: the effects
     offered (default: every registered effect that applies);
     ``structure_alpha``/``min_structure``: when the final residual "keeps structure"
     (:func:`avll.diagnose.signatures.residual_structure`); ``progress``: ``True``,
@@ -294,7 +296,7 @@ def effect_loop(
     tries = check_int(tries, "tries", min=1)
     seed = check_seed(seed)
     threads = check_threads(threads)
-    maxiter = check_int(maxiter, "maxiter", min=1)
+    max_generations = check_int(max_generations, "max_generations", min=1)
     n_boot = check_int(n_boot, "n_boot", min=10)
     min_gain = check_number(min_gain, "min_gain")
     if not 0 <= min_gain < 1:
@@ -321,15 +323,15 @@ def effect_loop(
     kind = cal_runs[0].command_kind
     fold_sets, fold_kind = make_folds(cal_runs, folds, seed)
     say = messages("avll: diagnose", progress)
-    free_upper = closed and any(r.upper is None for r in every)
-    fit_kw: dict[str, Any] = dict(closed_loop=closed, init=init, free_upper=free_upper,
-                                  optimizer=optimizer, maxiter=maxiter, starts=starts,
-                                  threads=threads)  # fmt: skip
+    upper_free = closed and any(r.upper is None for r in every)
+    fit_kw: dict[str, Any] = dict(closed_loop=closed, init=init, upper_free=upper_free,
+                                  optimizer=optimizer, max_generations=max_generations,
+                                  starts=starts, threads=threads)  # fmt: skip
 
     def with_upper(rs: Sequence[Run], up: UpperLevel | None) -> list[Run]:
         # The calibrated upper-level law replaces the unknown one (on every run: the
         # same vehicle's law).
-        return [replace(r, upper=up) for r in rs] if free_upper else list(rs)
+        return [replace(r, upper=up) for r in rs] if upper_free else list(rs)
 
     def residuals(m: WithEffects, rs: Sequence[Run], up: UpperLevel | None) -> list[np.ndarray]:
         rs = with_upper(rs, up)
@@ -342,7 +344,7 @@ def effect_loop(
     if baseline is None:
         current, upper = fit_full(bname, (), cal_runs, seed=seed, progress=progress, **fit_kw)
     else:
-        if free_upper:
+        if upper_free:
             raise ValueError("baseline: give runs with their upper-level law in closed loop")
         current, upper = WithEffects(baseline, ()), None
     say(f"baseline {current.base}" + (f", upper {upper}" if upper is not None else ""))
@@ -444,7 +446,7 @@ def effect_loop(
             cv.update(folds=len(fold_sets), fold_kind=fold_kind)
             steps.append(Step(c.effect, eff.to_dict(), new, cal0, cal1, val0, val1,
                               fold_selection=rec["fold_selection"], cv=cv,
-                              at_bound=at_bound(new, up1 if free_upper else None, kind),
+                              at_bound=at_bound(new, up1 if upper_free else None, kind),
                               upper=up1))  # fmt: skip
             say(f"accepted {c.effect}: cal {_mean(cal0):.4g} -> {_mean(cal1):.4g}")
             current, upper = new, up1
@@ -460,7 +462,7 @@ def effect_loop(
     prev, prev_up = out_base, base_upper
     done: list[Step] = []
     flags: list[dict[str, Any]] = []
-    b_at = at_bound(out_base, base_upper if free_upper else None, kind)
+    b_at = at_bound(out_base, base_upper if upper_free else None, kind)
     if b_at:
         flags.append({"kind": "at_bound", "step": 0, "effect": None,
                       "params": [a["param"] for a in b_at],
@@ -526,7 +528,7 @@ def effect_loop(
                 "alpha": alpha, "cv_alpha": cv_alpha, "n_boot": n_boot,
                 "majority": "fold_selection > 0.5", "folds": len(fold_sets),
                 "fold_kind": fold_kind, "tries": tries, "max_effects": max_effects,
-                "maxiter": maxiter, "starts": starts, "seed": seed,
+                "max_generations": max_generations, "starts": starts, "seed": seed,
                 "candidates": None if candidates is None else list(candidates),
                 "structure_alpha": structure_alpha, "min_structure": min_structure,
                 "far_smaller": FAR_SMALLER}  # fmt: skip

@@ -85,8 +85,8 @@ def _fit_effect(run: Run, base: str, params: Mapping[str, float], effect: str, *
 
     model, up = fit_full(
         base, [effect], [run], start=WithEffects(_model_of(base, params), ()),
-        start_upper=_upper_of(params), seed=seed, closed_loop=True, free_upper=True,
-        weights=WEIGHTS, maxiter=max_generations, init="rest", threads=threads,
+        start_upper=_upper_of(params), seed=seed, closed_loop=True, upper_free=True,
+        weights=WEIGHTS, max_generations=max_generations, init="rest", threads=threads,
         starts=starts, upper_bounds={"Gmin": (0.0, gmin_max)},
     )  # fmt: skip
     assert up is not None
