@@ -631,3 +631,9 @@ def test_rust_and_python_model_registries_agree() -> None:
         assert tuple(_core.model_params(name)) == cls.param_names()
     with pytest.raises(ValueError, match="unknown model"):
         _core.model_params("third")
+
+
+def test_model_registry_is_the_cores() -> None:
+    from avll.models import MODELS
+
+    assert list(MODELS) == list(_core.model_names())

@@ -237,10 +237,25 @@ def pade(td: float, order: int) -> tuple[np.ndarray, np.ndarray]:
     return num, den
 
 
-#: The registered base models by short name.
-MODELS: dict[str, type[LowerLevelModel]] = {
-    m.name: m for m in (FirstOrderLag, SecondOrder, Proposed)
-}
+def _registry() -> dict[str, type[LowerLevelModel]]:
+    """The base models the Rust core registers (``_core.model_names()``, in its order),
+    each with its Python class; a class whose parameters differ from the core's is an
+    error at import, not a wrong result later."""
+    from . import _core
+
+    classes = {m.name: m for m in (FirstOrderLag, SecondOrder, Proposed)}
+    out: dict[str, type[LowerLevelModel]] = {}
+    for name in _core.model_names():
+        cls = classes.get(name)
+        if cls is None or tuple(_core.model_params(name)) != cls.param_names():
+            raise ImportError(f"avll: the compiled core's model {name!r} does not match the "
+                              "Python layer (rebuild the extension)")
+        out[name] = cls
+    return out
+
+
+#: The registered base models by short name (the Rust core's registry).
+MODELS: dict[str, type[LowerLevelModel]] = _registry()
 
 
 def model_class(name: str | type[LowerLevelModel] | LowerLevelModel) -> type[LowerLevelModel]:

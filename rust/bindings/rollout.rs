@@ -80,7 +80,13 @@ fn spec_rows<'a>(
     Ok((p, rows))
 }
 
-/// Names of the registered models and their parameters.
+/// Short names of the registered base models, in registry order.
+#[pyfunction]
+fn model_names() -> Vec<&'static str> {
+    ModelKind::ALL.iter().map(|k| k.name()).collect()
+}
+
+/// Parameter names of a registered model, in array order.
 #[pyfunction]
 fn model_params(model: &str) -> PyResult<Vec<&'static str>> {
     guard(|| Ok(ModelKind::from_name(model)?.params().to_vec()))
@@ -435,6 +441,7 @@ fn simulate_batch<'py>(
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(model_names, m)?)?;
     m.add_function(wrap_pyfunction!(model_params, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_full, m)?)?;
