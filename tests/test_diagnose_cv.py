@@ -428,3 +428,17 @@ def test_cli_json_is_required_and_patterns_must_match(tmp_path, capsys) -> None:
     assert code == 2
     assert "--cal-runs: pattern 'x*' matches no run" in capsys.readouterr().err
     assert not (tmp_path / "o.json").exists()
+
+
+def test_result_objects_plot(rate_result) -> None:
+    # .plot() on the loop's result and on a diagnosis: matplotlib Figures from
+    # avll.plotting (no pyplot state), one panel per binned signal.
+    from matplotlib.figure import Figure
+
+    fig = rate_result.plot()
+    assert isinstance(fig, Figure)
+    n = len(rate_result.unexplained.get("signals", []))
+    assert len([ax for ax in fig.axes if ax.get_visible()]) == max(n, 1)
+    figs = dict(rate_result.diagnoses[0].plot())
+    assert set(figs) == {"residual_vs_signals", "residual_spectrum"}
+    assert all(isinstance(f, Figure) for f in figs.values())

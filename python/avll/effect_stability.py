@@ -352,34 +352,10 @@ class EffectStability:
     def plot(self) -> Figure:
         """Two panels: the amplification per car against the disturbance amplitude
         (with the linearised ``|H(jw)|``), and the speed amplitude along the platoon
-        relative to the leader's. Returns the matplotlib Figure."""
-        import matplotlib.pyplot as plt
+        relative to the leader's (:func:`avll.plotting.amplitude_amplification`)."""
+        from .plotting import amplitude_amplification
 
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
-        n_cars = self.amplification.shape[1]
-        for i in range(n_cars):
-            ax1.plot(self.amplitudes, self.amplification[:, i], "o-", ms=3,
-                     label=f"car {i + 1}")  # fmt: skip
-        for e in self.linear:
-            if e.gain_at_omega is not None and e.label in ("base", "with effects"):
-                ax1.axhline(e.gain_at_omega, ls="--" if e.label == "base" else ":",
-                            color="k", lw=1, label=f"|H(jω)| {e.label}")  # fmt: skip
-        ax1.axhline(1.0, color="grey", lw=0.5)
-        ax1.set_xscale("log")
-        ax1.set_xlabel("leader speed amplitude A (m/s)")
-        ax1.set_ylabel("amplification (car i / car i−1)")
-        ax1.set_title(f"{self.model}, T = {self.period:.3g} s, v0 = {self.v0:g} m/s")
-        ax1.legend(fontsize=7)
-        cars = np.arange(n_cars + 1)
-        for k, a in enumerate(self.amplitudes):
-            (ln,) = ax2.plot(cars, self.speed_amplitude[k] / a, "o-", ms=3,
-                             label=f"A = {a:g} m/s")  # fmt: skip
-            ax2.plot(cars, self.half_range[k] / a, "--", color=ln.get_color(), lw=1)
-        ax2.set_yscale("log")
-        ax2.set_xlabel("car (0 = leader)")
-        ax2.set_ylabel("speed fundamental (—) and half range (--) / A")
-        ax2.legend(fontsize=7)
-        return fig
+        return amplitude_amplification(self)
 
 
 def _fit_amplitude(t: np.ndarray, v: np.ndarray, omega: float) -> float:

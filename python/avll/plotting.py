@@ -43,6 +43,10 @@ __all__ = [
     "measured_vs_simulated",
     "amplification_per_car",
     "time_gap_per_car",
+    "residual_diagnosis",
+    "residual_unexplained",
+    "amplitude_amplification",
+    "boundaries",
 ]
 
 _EXTRA = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:red")
@@ -361,4 +365,117 @@ def time_gap_per_car(cars: Sequence[Mapping[str, Any]], model: str) -> Figure:
     if seen:
         ax.legend(fontsize="small")
     ax.set_title("Calibrated time gap per car model and ACC setting")
+    return fig
+
+
+def residual_diagnosis(d: Any) -> list[tuple[str, Figure]]:
+    """The figures of a residual diagnosis (:class:`avll.diagnose.Diagnosis`):
+    ``residual_vs_signals`` (the residual binned against each candidate signal, 95 %
+    bands) and ``residual_spectrum`` (spectrum, autocorrelation, cross-correlation
+    with the command rate)."""
+    n = len(d.signals)
+    cols = 3
+    fig, axes = _new((n + cols - 1) // cols or 1, cols, (4.0, 3.0))
+    for ax, s in zip(axes.ravel(), d.signals, strict=False):
+        ok = s.counts > 0
+        ax.errorbar(s.centers[ok], s.means[ok], yerr=s.half_width[ok], fmt="o-", capsize=3,
+                    color=MEASURED_COLOR)
+        ax.axhline(0, color="0.5", lw=0.6)
+        ax.set_title(f"{s.signal}\nexpl. {100 * s.explained:.1f} %, p={s.p_value:.2g}",
+                     fontsize=9)  # fmt: skip
+        ax.set_ylabel("residual (m/s²)", fontsize=8)
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    fig2, axes2 = _new(1, 3, (4.3, 3.2))
+    ax0, ax1, ax2 = axes2[0]
+    ax0.semilogy(d.freq[1:], d.psd[1:], color=MEASURED_COLOR)
+    ax0.set(xlabel="frequency (Hz)", ylabel="(m/s²)²/Hz", title="residual PSD")
+    dt = d.xcorr_lags[1] - d.xcorr_lags[0] if d.xcorr_lags.size > 1 else 1.0
+    ax1.plot(np.arange(d.autocorr.size) * dt, d.autocorr, color=MEASURED_COLOR)
+    ax1.set(xlabel="lag (s)", title=f"autocorrelation (lag-1 {d.lag1:.2f})")
+    ax2.plot(d.xcorr_lags, d.xcorr, color=MEASURED_COLOR)
+    ax2.set(xlabel="lag (s)", title=f"xcorr with command rate (peak {d.best_lag:+.2f} s)")
+    return [("residual_vs_signals", fig), ("residual_spectrum", fig2)]
+
+
+#: Units of the signals the final residual is binned against.
+_SIGNAL_UNITS = {"speed": "m/s", "time in run": "s", "command": "",
+                 "simulated acceleration": "m/s²"}
+
+
+def residual_unexplained(unexplained: Mapping[str, Any]) -> Figure:
+    """The final residual of the loop binned against speed, time and command (95 %
+    bands with the effective sample size), one panel each, titled with the share of
+    residual variance and the p-value; panels that keep structure are drawn in the
+    "keeps structure" colour and say so."""
+    sigs = list(unexplained.get("signals", []))
+    fig, axes = _new(1, max(len(sigs), 1), (4.0, 3.2))
+    for ax, s in zip(axes.ravel(), sigs, strict=False):
+        c, m, h = (np.asarray(s[k], dtype=float) for k in ("centers", "means", "half_width"))
+        ok = np.isfinite(c) & np.isfinite(m)
+        ax.errorbar(c[ok], m[ok], yerr=h[ok], fmt="o-", capsize=3,
+                    color="tab:red" if s["keeps_structure"] else MEASURED_COLOR)
+        ax.axhline(0, color="0.5", lw=0.6)
+        unit = _SIGNAL_UNITS.get(s["signal"], "")
+        ax.set_xlabel(s["signal"] + (f" ({unit})" if unit else ""))
+        ax.set_ylabel("residual (m/s²)")
+        mark = " — keeps structure" if s["keeps_structure"] else ""
+        ax.set_title(f"{100 * s['explained']:.1f} % of variance, p={s['p_value']:.2g}{mark}",
+                     fontsize=9)  # fmt: skip
+    return fig
+
+
+def amplitude_amplification(res: Any) -> Figure:
+    """An amplitude study (:class:`avll.effect_stability.AmplitudeStudy`): the
+    amplification per car against the disturbance amplitude (with the linearised
+    ``|H(jω)|``), and the speed amplitude along the platoon relative to the
+    leader's."""
+    fig, axes = _new(1, 2, (5.0, 4.0))
+    ax1, ax2 = axes[0]
+    n_cars = res.amplification.shape[1]
+    for i in range(n_cars):
+        ax1.plot(res.amplitudes, res.amplification[:, i], "o-", ms=3, label=f"car {i + 1}")
+    for e in res.linear:
+        if e.gain_at_omega is not None and e.label in ("base", "with effects"):
+            ax1.axhline(e.gain_at_omega, ls="--" if e.label == "base" else ":",
+                        color="k", lw=1, label=f"|H(jω)| {e.label}")  # fmt: skip
+    ax1.axhline(1.0, color="grey", lw=0.5)
+    ax1.set_xscale("log")
+    ax1.set_xlabel("leader speed amplitude A (m/s)")
+    ax1.set_ylabel("amplification (car i / car i−1)")
+    ax1.set_title(f"{res.model}, T = {res.period:.3g} s, v0 = {res.v0:g} m/s")
+    ax1.legend(fontsize=7)
+    cars = np.arange(n_cars + 1)
+    for a, sp, hr in zip(res.amplitudes, res.speed_amplitude, res.half_range, strict=True):
+        (ln,) = ax2.plot(cars, sp / a, "o-", ms=3, label=f"A = {a:g} m/s")
+        ax2.plot(cars, hr / a, "--", color=ln.get_color(), lw=1)
+    ax2.set_yscale("log")
+    ax2.set_xlabel("car (0 = leader)")
+    ax2.set_ylabel("speed fundamental (—) and half range (--) / A")
+    ax2.legend(fontsize=7)
+    return fig
+
+
+def boundaries(bounds: Sequence[Any], labels: Sequence[str] | None = None) -> Figure:
+    """Boundaries from :func:`avll.stability.boundary` drawn as curves: one panel per
+    boundary, the boundary value against the first fixed parameter (log axis for a
+    log-spaced one, as kg), one curve per value of the second (e.g. ``tg_min``
+    against kg for each kv)."""
+    bs = list(bounds)
+    if not bs or not all(hasattr(b, "dims") and len(b.dims) == 2 for b in bs):
+        raise ValueError("boundaries: expected 2-D DataArrays from avll.boundary")
+    fig, axes = _new(1, len(bs), (4.6, 3.6))
+    for i, b in enumerate(bs):
+        ax = axes[0][i]
+        x, c = b.dims
+        for j, cv in enumerate(b[c].values):
+            ax.plot(b[x].values, b.values[:, j], label=f"{c} = {cv:g}")
+        if x == "kg" or is_log_spaced(b[x].values):
+            ax.set_xscale("log")
+        ax.set_xlabel(x)
+        ax.set_ylabel(str(b.name))
+        ax.set_title(labels[i] if labels is not None else f"{b.attrs.get('model', '')} {b.name}")
+        ax.grid(alpha=0.3)
+        if b[c].size <= 8:
+            ax.legend(fontsize=8)
     return fig

@@ -885,31 +885,11 @@ def plot_thresholds(models: Sequence[LowerLevelModel], ths: Sequence[Thresholds]
 
 
 def plot_boundaries(boundaries: Sequence[Any], labels: Sequence[str] | None = None) -> Figure:
-    """Boundaries from :func:`boundary` drawn as curves: one panel per boundary, the
-    boundary value against the first fixed parameter (log axis for kg), one curve
-    per value of the second (e.g. ``tg_min`` against kg for each kv)."""
-    import matplotlib.pyplot as plt
+    """Boundaries from :func:`boundary` drawn as curves
+    (:func:`avll.plotting.boundaries`)."""
+    from .plotting import boundaries as draw
 
-    bs = list(boundaries)
-    if not bs or not all(hasattr(b, "dims") and len(b.dims) == 2 for b in bs):
-        raise ValueError("boundaries: expected 2-D DataArrays from avll.boundary")
-    fig, axes = plt.subplots(1, len(bs), figsize=(4.6 * len(bs), 3.6), squeeze=False)
-    for i, b in enumerate(bs):
-        ax = axes[0][i]
-        x, c = b.dims
-        for j, cv in enumerate(b[c].values):
-            ax.plot(b[x].values, b.values[:, j], label=f"{c} = {cv:g}")
-        if x == "kg":
-            ax.set_xscale("log")
-        ax.set_xlabel(x)
-        ax.set_ylabel(str(b.name))
-        title = labels[i] if labels is not None else f"{b.attrs.get('model', '')} {b.name}"
-        ax.set_title(title)
-        ax.grid(alpha=0.3)
-        if b[c].size <= 8:
-            ax.legend(fontsize=8)
-    fig.tight_layout()
-    return fig
+    return draw(boundaries, labels)
 
 
 __getattr__ = _moved(__name__, {"register_cli": "avll.cli.stability_map:register"})

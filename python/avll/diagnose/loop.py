@@ -161,6 +161,13 @@ class LoopResult:
         return model_to_dict(self.final, upper=self.upper, init=self.init,
                              closed_loop=self.closed_loop)  # fmt: skip
 
+    def plot(self) -> Any:
+        """The final residual against speed, time and command, what the accepted
+        effects leave unexplained (:func:`avll.plotting.residual_unexplained`)."""
+        from ..plotting import residual_unexplained
+
+        return residual_unexplained(self.unexplained)
+
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict (the ``avll diagnose`` JSON contract; non-finite numbers
         are left to :func:`avll._atomic.json_safe`, which writes ``null`` with a note)."""

@@ -9,8 +9,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from .loop import LoopResult, _gain, _mean
 from .signatures import Diagnosis
 
@@ -45,68 +43,19 @@ def mse_table(rows: dict[str, dict[str, float]], title: str, per_line: int = 6) 
 
 
 def plot_diagnosis(d: Diagnosis) -> list[tuple[str, Any]]:
-    """Figures: residual against each candidate signal (binned, 95 % bands), the
-    residual spectrum, autocorrelation and cross-correlation with the command rate."""
-    import matplotlib.pyplot as plt
+    """Figures of a diagnosis (:func:`avll.plotting.residual_diagnosis`): the
+    residual against each candidate signal, and its spectrum and correlations."""
+    from ..plotting import residual_diagnosis
 
-    figs = []
-    n = len(d.signals)
-    cols = 3
-    rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3 * rows), squeeze=False)
-    for ax, s in zip(axes.ravel(), d.signals, strict=False):
-        ok = s.counts > 0
-        ax.errorbar(s.centers[ok], s.means[ok], yerr=s.half_width[ok], fmt="o-", capsize=3)
-        ax.axhline(0, color="k", lw=0.6)
-        ax.set_title(f"{s.signal}\nexpl. {100 * s.explained:.1f} %, p={s.p_value:.2g}",
-                     fontsize=9)  # fmt: skip
-        ax.set_ylabel("residual (m/s²)", fontsize=8)
-    for ax in axes.ravel()[n:]:
-        ax.set_visible(False)
-    fig.tight_layout()
-    figs.append(("residual_vs_signals", fig))
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.2))
-    axes[0].semilogy(d.freq[1:], d.psd[1:])
-    axes[0].set_xlabel("frequency (Hz)")
-    axes[0].set_title("residual PSD")
-    dt = d.xcorr_lags[1] - d.xcorr_lags[0] if d.xcorr_lags.size > 1 else 1.0
-    axes[1].plot(np.arange(d.autocorr.size) * dt, d.autocorr)
-    axes[1].set_xlabel("lag (s)")
-    axes[1].set_title(f"autocorrelation (lag-1 {d.lag1:.2f})")
-    axes[2].plot(d.xcorr_lags, d.xcorr)
-    axes[2].set_xlabel("lag (s)")
-    axes[2].set_title(f"xcorr with command rate (peak {d.best_lag:+.2f} s)")
-    fig.tight_layout()
-    figs.append(("residual_spectrum", fig))
-    return figs
-
-
-_UNITS = {"speed": "m/s", "time in run": "s", "command": "", "simulated acceleration": "m/s²"}
+    return residual_diagnosis(d)
 
 
 def plot_unexplained(unexplained: dict[str, Any]) -> Any:
-    """The final residual binned against speed, time and command (95 % bands with
-    the effective sample size), one panel each, titled with the share of residual
-    variance and the p-value; panels that keep structure are marked."""
-    import matplotlib.pyplot as plt
+    """The final residual against speed, time and command
+    (:func:`avll.plotting.residual_unexplained`)."""
+    from ..plotting import residual_unexplained
 
-    sigs = unexplained.get("signals", [])
-    fig, axes = plt.subplots(1, max(len(sigs), 1), figsize=(4 * max(len(sigs), 1), 3.2),
-                             squeeze=False)  # fmt: skip
-    for ax, s in zip(axes.ravel(), sigs, strict=False):
-        c, m, h = (np.asarray(s[k], dtype=float) for k in ("centers", "means", "half_width"))
-        ok = np.isfinite(c) & np.isfinite(m)
-        ax.errorbar(c[ok], m[ok], yerr=h[ok], fmt="o-", capsize=3,
-                    color="C3" if s["keeps_structure"] else "C0")  # fmt: skip
-        ax.axhline(0, color="k", lw=0.6)
-        unit = _UNITS.get(s["signal"], "")
-        ax.set_xlabel(s["signal"] + (f" ({unit})" if unit else ""))
-        ax.set_ylabel("residual (m/s²)")
-        mark = " — keeps structure" if s["keeps_structure"] else ""
-        ax.set_title(f"{100 * s['explained']:.1f} % of variance, p={s['p_value']:.2g}{mark}",
-                     fontsize=9)  # fmt: skip
-    fig.tight_layout()
-    return fig
+    return residual_unexplained(unexplained)
 
 
 def _pct(x: Any) -> str:
@@ -146,7 +95,6 @@ def stability_section(result: LoopResult, v0: float = 15.0) -> dict[str, Any] | 
 
 
 def _stability_report(rep: Any, sec: dict[str, Any], stage: Path) -> None:
-    import matplotlib.pyplot as plt
 
     from .. import _atomic
 
@@ -181,7 +129,6 @@ def _stability_report(rep: Any, sec: dict[str, Any], stage: Path) -> None:
         rep.bullets(notes)
     fig = final.plot()
     _atomic.savefig(fig, stage / "stability.png", dpi=90)
-    plt.close(fig)
     rep.figure("stability.png", "final model: amplification per car against the leader's "
                "amplitude")
 
@@ -195,11 +142,6 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
     effects do to the stability conclusions (:func:`stability_section`) at ``v0``
     (m/s; default 15; ``avll diagnose`` passes the mean speed of the calibration
     runs where they have one)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     from .. import _atomic
     from ..report import Report
 
@@ -314,7 +256,6 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
                      f"{un['n']} samples (descriptive).")
             fig = plot_unexplained(un)
             _atomic.savefig(fig, stage / "unexplained.png", dpi=90)
-            plt.close(fig)
             rep.figure("unexplained.png", "final residual against speed, time and command")
         else:
             rep.para(un.get("reason", "not computed"))
@@ -331,7 +272,6 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
             for name, fig in plot_diagnosis(d):
                 fn = f"diag{k + 1}_{name}.png"
                 _atomic.savefig(fig, stage / fn, dpi=90)
-                plt.close(fig)
                 rep.figure(fn, name)
         rep.write(stage)
     return out / "report.md"

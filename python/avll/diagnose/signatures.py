@@ -79,6 +79,12 @@ class Diagnosis:
         """Significant candidates, best first."""
         return [c for c in self.candidates if c.significant]
 
+    def plot(self) -> list[tuple[str, Any]]:
+        """The diagnosis' figures by name (:func:`avll.plotting.residual_diagnosis`)."""
+        from ..plotting import residual_diagnosis
+
+        return residual_diagnosis(self)
+
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict (the ``avll diagnose`` JSON contract)."""
         return {
