@@ -1,5 +1,5 @@
-"""Field-data studies (issue 5): runs :func:`avll.fielddata.carma_study` and
-:func:`avll.fielddata.astazero_study` on ``../shared/data`` and saves their tables
+"""Field-data studies (issue 5): runs :func:`avll.studies.fielddata.carma_study` and
+:func:`avll.studies.fielddata.astazero_study` on ``../shared/data`` and saves their tables
 (CSV), figures (PNG), ``*_summary.json`` and ``*_report.txt`` to ``--out``
 (default ``out/fielddata``, git-ignored). Prints the wall times, the average
 calibration and validation MSE per model, and the closed-loop amplification of the
@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from avll.fielddata import _UPPER, _model, astazero_study, carma_study
 from avll.models import UpperLevel
 from avll.rollout import closed_loop
+from avll.studies.fielddata import _UPPER, _model, astazero_study, carma_study
 
 
 def _avg(st, key: str) -> None:

@@ -22,7 +22,7 @@ from pathlib import Path
 import avll
 from avll import _atomic
 from avll.diagnose import effect_loop
-from avll.fielddata import read_carma, split_launch_cruise
+from avll.studies.fielddata import read_carma, split_launch_cruise
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "_generated" / "loop_carma.md"

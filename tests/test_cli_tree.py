@@ -191,3 +191,11 @@ def test_renamed_keywords_warn_and_work() -> None:
     with pytest.raises(TypeError, match="give 'max_generations' only"):
         f(maxiter=5, max_generations=6)
     assert f(max_generations=3) == 3
+
+
+def test_fielddata_moved_to_studies() -> None:
+    import avll.fielddata as old
+    from avll.studies import fielddata as new
+
+    with pytest.warns(DeprecationWarning, match=r"avll\.studies\.fielddata\.carma_study"):
+        assert old.carma_study is new.carma_study

@@ -1,5 +1,5 @@
 """Calibration on the measured field data (issue 5, items 3–4): the studies of
-``avll.fielddata`` and ``avll calibrate --format carma|openacc-astazero``.
+``avll.studies.fielddata`` and ``avll calibrate --format carma|openacc-astazero``.
 
 Every test reads ``../shared/data`` through the ``shared_data`` fixture and skips
 when it is absent. The fast tests use small GA budgets; the full studies are
@@ -17,7 +17,7 @@ import pytest
 
 from avll import cli
 from avll.cli.calibrate import load_runs as _load_for_cli
-from avll.fielddata import (
+from avll.studies.fielddata import (
     ASTAZERO_OBJECTIVES,
     HANDOVER_SPEED,
     astazero_study,

@@ -336,7 +336,7 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
     stages = _Stages(progress, 6 + (1 if settings.diagnosis else 0))
     say = log or stages.write
     if data != "synthetic":
-        from . import fielddata as field_study  # the field-data studies
+        from .studies import fielddata as field_study  # the field-data studies
 
         try:
             return _reproduce_field(field_study, outd, data, data_path, settings, seed,
@@ -539,17 +539,17 @@ def _field_notes(name: str) -> list[str]:
             "CARMA records a **speed** command, not the paper's acceleration command: the "
             "models are identified as speed-command -> speed responses (open loop, started at "
             "the command's steady state), per vehicle, cruise and launch separately "
-            "(`avll.fielddata.carma_study`). Their parameters are not comparable with Table "
-            "II, and Section IV's analysis (Eq. 8: an acceleration-command lower level under "
-            "the upper law Eq. 3) does not apply to them: **the stability maps of the "
+            "(`avll.studies.fielddata.carma_study`). Their parameters are not comparable "
+            "with Table II, and Section IV's analysis (Eq. 8: an acceleration-command lower "
+            "level under the upper law Eq. 3) does not apply to them: **the stability maps of the "
             "calibrated models are skipped**.",
         ]
     return common + [
         "OpenACC AstaZero has **no recorded command**: open-loop calibration (the paper's) "
         "is impossible. Each follower is calibrated in closed loop behind its measured "
         "predecessor with the unknown upper-level gains kg, kv, Tg, Gmin free "
-        "(`avll.fielddata.astazero_study`); the upper gains absorb part of the lower level, "
-        "so the lower-level parameters are weakly identified and **the stability maps of "
+        "(`avll.studies.fielddata.astazero_study`); the upper gains absorb part of the lower "
+        "level, so the lower-level parameters are weakly identified and **the stability maps of "
         "the calibrated models are skipped** (they would describe the fit's trade-off, not "
         "the car).",
     ]

@@ -47,8 +47,8 @@ def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str
     from pathlib import Path
 
     from ..defaults import UPPER_PLACEHOLDER
-    from ..fielddata import read_carma, split_launch_cruise
     from ..io import read_runs
+    from ..studies.fielddata import read_carma, split_launch_cruise
 
     fmt = args.format
     opts = astazero_options(args)
