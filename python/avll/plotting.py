@@ -292,7 +292,7 @@ def measured_vs_simulated(rows: Sequence[Mapping[str, Any]], *, title: str,
 
 def amplification_per_car(cars: Sequence[Mapping[str, Any]], models: Sequence[str]) -> Figure:
     """Measured (with its 95 % interval) against predicted amplification of the
-    predecessor's speed oscillations, per car, from |H(jω)| and by replay (the OpenACC
+    predecessor's speed oscillations, per car, from ``|H(jω)|`` and by replay (the OpenACC
     study's ``cars`` entries); cars under human control are crosses."""
     fig, axes = _new(1, 2, (5.5, 5.0))
     axes = axes[0]
