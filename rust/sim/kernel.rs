@@ -574,11 +574,21 @@ impl<const STOP: bool> Sink for Record<'_, STOP> {
     #[inline(always)]
     fn proceed(&mut self, from: usize, to: usize) -> bool {
         if STOP {
-            for n in from..to {
-                if !(self.a[n].abs() < DIVERGED && self.v[n].is_finite()) {
-                    self.written = n + 1;
-                    return false;
-                }
+            // One branch-free (vectorizable) pass over the chunk; the first bad sample
+            // is looked for only when there is one.
+            let (a, v) = (&self.a[from..to], &self.v[from..to]);
+            let ok = a
+                .iter()
+                .zip(v)
+                .fold(true, |ok, (a, v)| ok & (a.abs() < DIVERGED) & v.is_finite());
+            if !ok {
+                let k = a
+                    .iter()
+                    .zip(v)
+                    .position(|(a, v)| !(a.abs() < DIVERGED && v.is_finite()))
+                    .unwrap_or(to - from - 1);
+                self.written = from + k + 1;
+                return false;
             }
         }
         self.written = to;
