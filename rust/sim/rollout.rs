@@ -430,6 +430,27 @@ pub trait PlatoonOut {
     fn get(&self, j: usize, n: usize) -> (f64, f64);
     /// Fills follower `j`'s outputs from sample `from` on with NaN.
     fn blank(&mut self, j: usize, from: usize);
+    /// Records sample `n` of the first `a.len()` followers (one value per follower in
+    /// each slice).
+    #[inline(always)]
+    fn put_row(&mut self, n: usize, a: &[f64], v: &[f64], x: &[f64], u: &[f64]) {
+        for j in 0..a.len() {
+            self.put(j, n, a[j], v[j], x[j], u[j]);
+        }
+    }
+    /// Whether the first `alive` followers stayed in range over samples `from..to`
+    /// (`|a| < DIVERGED`, finite speed): a branch-free pass; [`platoon_divergence`]
+    /// looks for the first bad sample only when this says there is one.
+    fn chunk_ok(&self, alive: usize, from: usize, to: usize) -> bool {
+        let mut ok = true;
+        for j in 0..alive {
+            for n in from..to {
+                let (a, v) = self.get(j, n);
+                ok &= (a.abs() < DIVERGED) & v.is_finite();
+            }
+        }
+        ok
+    }
 }
 
 impl PlatoonOut for [Out<'_>] {
@@ -501,6 +522,28 @@ impl PlatoonOut for TimeMajor<'_> {
     fn get(&self, j: usize, n: usize) -> (f64, f64) {
         let k = n * self.followers + j;
         (self.a[k], self.v[k])
+    }
+    #[inline(always)]
+    fn put_row(&mut self, n: usize, a: &[f64], v: &[f64], x: &[f64], u: &[f64]) {
+        // Row `n` is contiguous: four copies.
+        let k = n * self.followers;
+        let m = a.len();
+        self.a[k..k + m].copy_from_slice(a);
+        self.v[k..k + m].copy_from_slice(v);
+        self.x[k..k + m].copy_from_slice(x);
+        self.u[k..k + m].copy_from_slice(u);
+    }
+    fn chunk_ok(&self, alive: usize, from: usize, to: usize) -> bool {
+        let f = self.followers;
+        let mut ok = true;
+        for n in from..to {
+            let (a, v) = (&self.a[n * f..n * f + alive], &self.v[n * f..n * f + alive]);
+            ok &= a
+                .iter()
+                .zip(v)
+                .fold(true, |ok, (a, v)| ok & (a.abs() < DIVERGED) & v.is_finite());
+        }
+        ok
     }
     fn blank(&mut self, j: usize, from: usize) {
         let f = self.followers;
@@ -676,9 +719,7 @@ fn platoon_linear<
                 *r = uj + pl.k * yj;
             }
             w0[..a].copy_from_slice(&ring[back..back + a]);
-            for j in 0..a {
-                outs.put(j, n, y[j], st[M][j], st[M + 1][j], u[j]);
-            }
+            outs.put_row(n, &y[..a], &st[M][..a], &st[M + 1][..a], &u[..a]);
             // The exact step (as `advance`).
             step_soa::<M, N, D, F>(pl, &mut st, &w0[..a], &mut wp[..a]);
         }
@@ -752,6 +793,9 @@ fn platoon_divergence<P: PlatoonOut + ?Sized>(
     from: usize,
     to: usize,
 ) -> usize {
+    if outs.chunk_ok(alive, from, to) {
+        return alive;
+    }
     let mut first = None;
     'scan: for j in 0..alive {
         for n in from..to {
