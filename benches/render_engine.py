@@ -40,13 +40,13 @@ def render(d: dict) -> str:
         )
     for s in d.get("scaling", []):
         lines.append("")
+        note = ("" if s["met"] else " With the cores busy with other jobs the wall speed-up "
+                "cannot show; the CPU efficiency bounds it (speed-up <= threads x efficiency).")
         lines.append(
             f"{s['title']}: avll {s['speedup']['avll']:.2f}x (CPU efficiency "
             f"{s['cpu_efficiency']['avll']:.2f}; load average {s['load_average']:.1f} on "
             f"{m['cpus']} CPUs); target >= {s['target']:g}x: "
-            f"{'met' if s['met'] else 'not met'}. With the cores busy with other jobs the "
-            "wall speed-up cannot show; the CPU efficiency bounds it (speed-up <= threads x "
-            "efficiency)."
+            f"{'met' if s['met'] else 'not met'}.{note}"
         )
     return "\n".join(lines) + "\n"
 
