@@ -442,3 +442,17 @@ def test_result_objects_plot(rate_result) -> None:
     figs = dict(rate_result.diagnoses[0].plot())
     assert set(figs) == {"residual_vs_signals", "residual_spectrum"}
     assert all(isinstance(f, Figure) for f in figs.values())
+
+
+def test_at_bound_uses_the_upper_box_the_fit_searched() -> None:
+    # A study that searched Gmin in [0, 4] m must call Gmin = 4 "at bound", which the
+    # default box (wider) would not.
+    from avll.diagnose import UPPER_BOUNDS, at_bound
+    from avll.models import UpperLevel
+
+    m = WithEffects(avll.PAPER_TABLE_II["second"], ())
+    up = UpperLevel(0.2, 0.3, 1.5, 4.0)
+    assert UPPER_BOUNDS["Gmin"][1] > 4.0
+    assert at_bound(m, up) == []
+    hit = at_bound(m, up, upper_bounds={"Gmin": (0.0, 4.0)})
+    assert [(e["param"], e["bound"]) for e in hit] == [("upper.Gmin", "upper")]

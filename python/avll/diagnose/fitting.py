@@ -354,17 +354,20 @@ def at_bound(
     upper: UpperLevel | None = None,
     kind: str = "acceleration",
     tol: float = AT_BOUND_TOL,
+    upper_bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> list[dict[str, Any]]:
     """The parameters of ``model`` (and of a calibrated ``upper`` law) that sit within
     ``tol`` of a bound of the box :func:`fit_full` searched (share of the box, in its
     own linear or logarithmic scale; fixed parameters are left out). Each entry:
     ``{"param", "value", "bound": "lower"|"upper", "lower", "upper"}``. Such a value
-    is the edge of the search, not an estimate: widen the bound or doubt the effect."""
+    is the edge of the search, not an estimate: widen the bound or doubt the effect.
+    ``upper_bounds`` are the upper-law boxes :func:`fit_full` was given (default
+    :data:`UPPER_BOUNDS`)."""
     sp = _space(model.base.name, model.effect_names, kind)
     names, lo, hi, lg = list(sp.names), list(sp.lo), list(sp.hi), list(sp.log)
     values = list(model.to_array())
     if upper is not None:
-        for k, (a, b) in UPPER_BOUNDS.items():
+        for k, (a, b) in (dict(UPPER_BOUNDS) | dict(upper_bounds or {})).items():
             names.append(f"upper.{k}")
             lo.append(a)
             hi.append(b)
