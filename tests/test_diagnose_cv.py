@@ -26,7 +26,7 @@ from avll.diagnose import (
     make_folds,
     write_report,
 )
-from avll.diagnose.signatures import _effect_grid
+from avll.diagnose.signatures import _effect_grid, diagnose
 from avll.effects import EFFECTS, Asymmetric, WithEffects
 from avll.io import write_runs
 from avll.synth_effects import paper_experiment_effects
@@ -456,3 +456,16 @@ def test_at_bound_uses_the_upper_box_the_fit_searched() -> None:
     assert at_bound(m, up) == []
     hit = at_bound(m, up, upper_bounds={"Gmin": (0.0, 4.0)})
     assert [(e["param"], e["bound"]) for e in hit] == [("upper.Gmin", "upper")]
+
+
+def test_diagnose_runs_shorter_than_the_autocorrelation_window() -> None:
+    # Runs of 150 and 180 samples (CARMA's short stretches are ~150): the residual's
+    # autocorrelation is taken up to the shortest run's length (it used to ask one lag
+    # more and fail with a broadcasting error).
+    runs = paper_experiment_effects(FIRST, {}, seed=0, duration=20.0, runs=(1, 3))
+    from avll.diagnose.loop import _block
+
+    short = [_block(r, 0, k) for r, k in zip(runs, (150, 180), strict=True)]
+    d = diagnose(WithEffects(FIRST, ()), short)
+    assert d.autocorr.size == 150 and d.autocorr[0] == pytest.approx(1.0)
+    assert np.all(np.isfinite(d.xcorr))

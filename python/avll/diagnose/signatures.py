@@ -321,7 +321,7 @@ def diagnose(
         freqs.append(fq)
         psds.append(pp)
     freq, psd = freqs[0], np.mean([p for p in psds if p.size == psds[0].size], axis=0)
-    maxlag = int(min(200, nper))
+    maxlag = int(min(200, nper - 1))  # every run has at least nper samples
     ac = np.zeros(maxlag + 1)
     for x in res:
         xc = x - x.mean()
