@@ -466,9 +466,9 @@ def calibrate(
     parameter vectors; ``target`` stops as soon as the cost is at most that value.
     ``starts`` independent GA runs (seeds ``_core.derive_seed(seed, j)``; with one
     start, ``seed`` itself) run in parallel and the best is kept: on the proposed
-    model about one start in ten settles in a local minimum at a bound corner
-    (e.g. ``K0 = 3, K = -1.2``) with several times the cost, so two starts are the
-    default.
+    model a start occasionally settles in a local minimum at a bound corner (``K0``
+    at its upper bound, ``K`` strongly negative) with several times the cost, so two
+    starts are the default.
     ``threads`` (0 = all cores) does not change the result. ``progress`` shows the
     generations on stderr (``True``/``"auto"``: a bar on a terminal, log lines otherwise;
     ``"bar"``, ``"log"``, ``False``/``"none"``: see :mod:`avll.progress`), or is a

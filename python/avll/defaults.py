@@ -48,8 +48,8 @@ DEFAULT_BOUNDS: dict[str, dict[str, Bound]] = {
     },
 }
 
-#: Independent GA starts of a calibration (the best is kept): on the proposed model
-#: about one start in ten settles in a corner local minimum, so two by default.
+#: Independent GA starts of a calibration (the best is kept): on the proposed model a
+#: start occasionally settles in a corner local minimum, so two by default.
 DEFAULT_STARTS: int = 2
 
 #: Default box of the upper-level gains when they are calibrated (``upper_free``).
