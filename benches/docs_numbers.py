@@ -80,15 +80,21 @@ def _f(x: Any, fmt: str = ".4g", none: str = "—") -> str:
 
 
 def bounds() -> str:
-    """The default search boxes of ``avll.calibrate``."""
+    """The default search boxes of ``avll.calibrate`` with the reason for each."""
     from avll.calibrate import DEFAULT_BOUNDS, UPPER_BOUNDS
+    from avll.defaults import BOUND_REASONS
 
-    lines = ["| model | parameter | lower | upper | search scale |", "|---|---|---|---|---|"]
+    def why(model: str, p: str) -> str:
+        return BOUND_REASONS.get(f"{model}.{p}", BOUND_REASONS.get(p, ""))
+
+    lines = ["| model | parameter | lower | upper | search scale | why |",
+             "|---|---|---|---|---|---|"]
     for model, box in DEFAULT_BOUNDS.items():
         for p, (lo, hi, scale) in box.items():
-            lines.append(f"| {model} | `{p}` | {lo:g} | {hi:g} | {scale} |")
+            lines.append(f"| {model} | `{p}` | {lo:g} | {hi:g} | {scale} | {why(model, p)} |")
     for p, (lo, hi, scale) in UPPER_BOUNDS.items():
-        lines.append(f"| upper level (when calibrated) | `{p}` | {lo:g} | {hi:g} | {scale} |")
+        lines.append(f"| upper level (when calibrated) | `{p}` | {lo:g} | {hi:g} | {scale} | "
+                     f"{why('upper', p)} |")
     return _stamp("python benches/docs_numbers.py --only bounds") + "\n" + "\n".join(lines)
 
 

@@ -400,3 +400,18 @@ def test_cli_bad_input_one_line_error(tmp_path: Path) -> None:
     assert res.returncode == 2 and "fourth" in res.stderr and "Traceback" not in res.stderr
     res = _cli("calibrate", "d.csv", "--cal-runs", "1,9", cwd=tmp_path)
     assert res.returncode == 2 and "9" in res.stderr
+
+
+def test_every_default_bound_has_a_physical_reason() -> None:
+    from avll.defaults import BOUND_REASONS, DEFAULT_BOUNDS, UPPER_BOUNDS
+
+    used = set()
+    for model, box in DEFAULT_BOUNDS.items():
+        for p in box:
+            key = f"{model}.{p}" if f"{model}.{p}" in BOUND_REASONS else p
+            assert BOUND_REASONS.get(key), (model, p)
+            used.add(key)
+    for p in UPPER_BOUNDS:
+        assert BOUND_REASONS.get(p), p
+        used.add(p)
+    assert used == set(BOUND_REASONS)  # no reason for a bound that does not exist

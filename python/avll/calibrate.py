@@ -12,26 +12,10 @@ count, and is polished by a bounded Nelder–Mead.
 Bounds
 ------
 The paper bounds most parameters to ``[0, Inf)``; a GA needs a finite box, so each
-model has practical default bounds (:data:`DEFAULT_BOUNDS`), with a logarithmic
-search scale for the positive coefficients that can span decades:
-
-============  ===============  ======  ====================================================
-parameter     bounds           scale   why
-============  ===============  ======  ====================================================
-Td (first)    [0.01, 3] s      linear  the paper's 3 s bound; a time constant must be > 0
-Td            [0, 3] s         linear  the paper's bounds
-K0            [0, 3]           linear  a static gain near 1 (the paper's: 0.35, 0.73)
-m1            [1e-4, 100] s    log     ``m1 <= 1e-4`` puts the zero beyond 1000 rad/s, i.e.
-                                       indistinguishable from the paper's ``m1 = 0`` at 20 Hz
-m2            [1e-3, 100] s²   log     time scales from ~30 ms to 10 s (``sqrt(m2)``)
-m3            [1e-3, 100] s    log     time constants from 1 ms to 100 s, far beyond the
-                                       paper's 0.13–8.8 s
-K             [-3, 3]          linear  the paper's 0.10; ``|K| K0 ~ 1`` is already a
-                                       marginal inner loop
-kg, kv        [0, 3] s⁻², s⁻¹  linear  (free upper-level gains, closed loop)
-Tg            [0, 5] s         linear
-Gmin          [0, 30] m        linear
-============  ===============  ======  ====================================================
+model has physically motivated default bounds (:data:`DEFAULT_BOUNDS`, the reasons in
+:data:`avll.defaults.BOUND_REASONS`; the docs print both side by side), with a
+logarithmic search scale for the positive coefficients that can span decades, and
+:data:`UPPER_BOUNDS` for the upper-level gains calibrated in closed loop.
 
 A fitted parameter within 0.1 % of a bound is reported in
 :attr:`CalibrationResult.at_bound`; widen that bound (``bounds={"m3": (1e-3, 1e3)}``)

@@ -2,7 +2,7 @@
 placeholder of runs without an upper law, and the figure styles (one colour per model
 and per stability class) every command and the report use.
 
-The bounds are explained in :mod:`avll.calibrate`.
+The bounds' reasons are :data:`BOUND_REASONS` (printed beside them in the docs).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ __all__ = [
     "DEFAULT_BOUNDS",
     "DEFAULT_STARTS",
     "UPPER_BOUNDS",
+    "BOUND_REASONS",
     "UPPER_NAMES",
     "GA_OPTIONS",
     "UPPER_PLACEHOLDER",
@@ -59,6 +60,40 @@ UPPER_BOUNDS: dict[str, Bound] = {
     "Tg": (0.0, 5.0, "linear"),
     "Gmin": (0.0, 30.0, "linear"),
 }
+#: Why each default bound is what it is (physical reasons; ``"model.param"`` overrides
+#: ``"param"``). The generated bounds table of the docs prints them beside the values.
+BOUND_REASONS: dict[str, str] = {
+    "first.Td": "the lag's time constant: a powertrain and brake answer an acceleration "
+                "command in a fraction of a second to about a second; the paper bounds it "
+                "by 3 s, and the lower end keeps it positive at less than one sample of "
+                "20 Hz data (indistinguishable from no lag)",
+    "Td": "dead time: sensing, CAN, engine and brake-hydraulics delays of production "
+          "ACCs are tenths of a second to about a second; 3 s is the paper's bound, far "
+          "beyond any car that still follows",
+    "K0": "static gain from command to acceleration: 1 for an ideal actuator, below 1 "
+          "for a sluggish one; a negative gain would reverse the command. Up to 3 leaves "
+          "room for closed-loop fits, where it trades against the upper gains",
+    "m1": "the zero's time constant: at or below the lower end the zero lies beyond "
+          "1000 rad/s, indistinguishable from the paper's m1 = 0 at 20 Hz; 100 s is far "
+          "slower than any actuator",
+    "m2": "sqrt(m2) is the second-order time scale: from below one sample of 20 Hz "
+          "data to 10 s, slower than any vehicle's actuation",
+    "m3": "damping time constant: from a millisecond (no effect at 20 Hz) to 100 s, far "
+          "beyond the paper's fitted values",
+    "K": "inner feedback gain: with |K K0| near 1 the inner loop is already marginal "
+         "(such parameters cost inf), so [-3, 3] holds every stable inner loop with a "
+         "gain K0 above 1/3",
+    "kg": "gap gain of Eq. 3 (1/s²): identified production ACCs have gains of order "
+          "0.01-1; beyond a few 1/s² a lower level with tenths of a second of delay is "
+          "locally unstable",
+    "kv": "speed-difference gain of Eq. 3 (1/s): the same range as kg, for the same "
+          "reason",
+    "Tg": "time gap: production ACC settings are about 1 to 2.5 s; 5 s leaves room for a "
+          "fit that trades the time gap against the standstill distance",
+    "Gmin": "standstill distance: a few metres in practice; 30 m covers spacing "
+            "policies whose offset absorbs part of the time gap at speed",
+}
+
 #: The upper-level gains (Eq. 3) in the order of :class:`avll.UpperLevel`.
 UPPER_NAMES: tuple[str, ...] = ("kg", "kv", "Tg", "Gmin")
 
