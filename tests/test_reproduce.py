@@ -163,3 +163,29 @@ def test_default_reproduce(tmp_path: Path) -> None:
     assert c["proposed"]["val_mse"] < c["second"]["val_mse"] < c["first"]["val_mse"]
     assert c["proposed"]["cal_mse"] < c["second"]["cal_mse"] < c["first"]["cal_mse"]
     assert (tmp_path / "report.html").exists()
+
+
+def test_diagnosis_section_reads_the_loops_json(tmp_path) -> None:
+    # The report's diagnosis table reads the cross-validated loop's JSON keys: a real
+    # loop result (an accepted effect, a candidate not accepted) shows its numbers, no
+    # dash where the loop gave a number.
+    from avll import FirstOrderLag
+    from avll.diagnose import effect_loop
+    from avll.report import Report
+    from avll.reproduce import _diag_section
+    from avll.synth_effects import paper_experiment_effects
+
+    runs = paper_experiment_effects(FirstOrderLag(Td=1.0758), {"rate_limit": {"j": 1.0}},
+                                    seed=0, leader_speedup=3.0, runs=(1, 3, 8, 12, 15))
+    res = effect_loop("first", runs[:3], runs[3:], seed=1, max_generations=25)
+    d = res.to_dict() | {"available": True}
+    assert d["steps"], "the known effect should be accepted here"
+    rep = Report("t")
+    _diag_section(rep, d, synthetic=True)
+    rep.write(tmp_path)
+    text = (tmp_path / "report.md").read_text()
+    step = d["steps"][0]
+    row = next(ln for ln in text.splitlines() if ln.startswith(f"| {step['effect']} |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert "—" not in cells, row
+    assert float(cells[-2]) == pytest.approx(step["fold_selection"], abs=5e-3)

@@ -862,40 +862,58 @@ def _diag_section(rep: Report, diag: dict[str, Any], synthetic: bool, label: str
     rep.para((f"Runs: {label}. " if label else "")
              + f"Base model: {diag.get('base_model')}"
              + (" as calibrated above" if synthetic else " (fitted by the loop)")
-             + ". Effects accepted by the loop (held-out likelihood-ratio test and "
-             f"calibration BIC): **{', '.join(eff) if eff else 'none'}**."
+             + ". Effects accepted by the cross-validated loop (out-of-fold gain in most "
+             "folds, a minimum effect size and a block-bootstrap test; the validation runs "
+             f"decide nothing): **{', '.join(eff) if eff else 'none'}**."
              + (" On the synthetic data the true model is the proposed model without any "
                 "effect, so *none* is the right answer; an accepted effect would be a false "
                 "positive." if synthetic else ""))
     rows = []
     for s in diag.get("steps", []):
-        rows.append([s.get("effect"), _mean(s.get("cal_before")), _mean(s.get("cal_after")),
-                     _mean(s.get("val_before")), _mean(s.get("val_after")),
-                     s.get("p_value", s.get("lr_p_value"))])
-    for r in diag.get("rejected", []):
-        rows.append([f"{r.get('effect')} (rejected)", r.get("cal_mse_before"),
-                     r.get("cal_mse_after"), r.get("val_mse_before"),
-                     r.get("val_mse_after"), r.get("lr_p_value")])
+        rows.append([s.get("effect"), s.get("cal_mse_before"), s.get("cal_mse_after"),
+                     s.get("val_mse_before"), s.get("val_mse_after"),
+                     s.get("fold_selection"), s.get("p_value")])
+    for t in diag.get("trials", []):
+        if not t.get("passed"):
+            rows.append([f"{t.get('effect')} (not accepted)", None, None, None, None,
+                         t.get("fold_selection"), t.get("p_value")])
     if rows:
         rep.table(["effect", "cal MSE before", "cal MSE after", "val MSE before",
-                   "val MSE after", "p (LR)"], rows)
-        rep.columns([("effect", "the effect added to the model at this step"),
+                   "val MSE after", "fold selection", "p"], rows)
+        rep.columns([("effect", "an effect the loop cross-validated: accepted at this step, or "
+                      "not accepted (MSEs only exist for accepted ones)"),
                      ("cal MSE before / after", "mean squared error of the acceleration on "
                       "the calibration runs without / with the effect, (m/s²)²"),
-                     ("val MSE before / after", "the same on the held-out runs, (m/s²)²"),
-                     ("p (LR)", "p-value of the likelihood-ratio test of the effect on the "
-                      "held-out runs (dimensionless; small: the effect is real)")])
+                     ("val MSE before / after", "the same on the validation runs, (m/s²)²; "
+                      "reported only"),
+                     ("fold selection", "share of the cross-validation folds in which the "
+                      "effect met the minimum gain (0-1; more than half is needed)"),
+                     ("p", "block-bootstrap p-value of no out-of-fold gain (dimensionless; "
+                      "below 0.01 is needed)")])
+    flags = diag.get("flags", [])
+    if flags:
+        rep.bullets([f"{f.get('kind')}: {f.get('message')}" for f in flags])
     ds = diag.get("diagnoses", [])
     if ds and ds[0].get("candidates"):
-        rep.table(["candidate (first diagnosis)", "explained", "p", "val explained"],
-                  [[c.get("effect"), c.get("explained"), c.get("p_value"),
-                    c.get("val_explained")] for c in ds[0]["candidates"]])
-        rep.columns([("candidate", "an effect whose signature was tested in the residuals"),
-                     ("explained", "fraction of the calibration residuals' variance its "
-                      "signature explains (0-1)"),
-                     ("p", "p-value of that fit (dimensionless, Bonferroni-corrected when "
-                      "the loop says so)"),
-                     ("val explained", "the same fraction on the held-out runs (0-1)")])
+        cands = ds[0]["candidates"]
+
+        def finite(x: Any) -> bool:
+            return isinstance(x, (int, float)) and math.isfinite(x)
+
+        # the loop diagnoses the calibration runs only: no held-out column then
+        held = any(finite(c.get("val_explained")) for c in cands)
+        head = ["candidate (first diagnosis)", "explained", "p"] + (["val explained"]
+                                                                   if held else [])
+        rep.table(head, [[c.get("effect"), c.get("explained"), c.get("p_value")]
+                         + ([c.get("val_explained")] if held else []) for c in cands])
+        cols = [("candidate", "an effect whose signature was tested in the residuals"),
+                ("explained", "fraction of the calibration residuals' variance its "
+                 "signature explains (0-1)"),
+                ("p", "p-value of that fit (dimensionless, Bonferroni-corrected when the "
+                 "loop says so)")]
+        if held:
+            cols.append(("val explained", "the same fraction on the held-out runs (0-1)"))
+        rep.columns(cols)
 
 
 def _write_field_report(outd: Path, name: str, st: Any, stab: dict[str, Any],
