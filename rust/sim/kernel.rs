@@ -257,8 +257,14 @@ fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
     // needs no bounds check.
     let mask = s.buf.len() - 1;
     s.buf[n & mask] = r;
-    // Branch-free: without whole-sample delay this reads back the value just stored.
-    let w0 = s.buf[n.wrapping_sub(i) & mask];
+    // Without a whole-sample delay the input is the value just computed: kept in a
+    // register (a load of the slot just stored would put a store-to-load forwarding on
+    // the step's dependency chain; the branch is the same for every sample of a run).
+    let w0 = if i == 0 {
+        r
+    } else {
+        s.buf[n.wrapping_sub(i) & mask]
+    };
     // u_ref[n-i-1] is the previous sample's w0: a register, not a second load.
     let w1 = reg.wp;
     reg.wp = w0;
