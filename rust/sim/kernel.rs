@@ -247,7 +247,13 @@ fn step<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
 ) -> f64 {
     let p = s.p;
     let r = if C::NONE {
-        u + p.k * o.y
+        // Without inner feedback (K = 0: the first-order lag, the second-order model)
+        // the response does not feed the reference: kept off the step's chain.
+        if p.k == 0.0 {
+            u
+        } else {
+            u + p.k * o.y
+        }
     } else {
         let uc = s.chain.command(u, o.y);
         s.chain.reference(uc + p.k * o.y)
