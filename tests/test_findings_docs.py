@@ -11,7 +11,6 @@ reproduces fails. The GA studies (minutes) are not rerun here.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import re
@@ -20,6 +19,7 @@ from types import ModuleType
 from typing import Any
 
 import pytest
+from bench_helpers import load_bench
 
 pytestmark = pytest.mark.data
 
@@ -29,12 +29,7 @@ STALE = "stale: rerun python benches/findings_fielddata.py (then commit docs/_ge
 
 
 def _script() -> ModuleType:
-    path = ROOT / "benches" / "findings_fielddata.py"
-    spec = importlib.util.spec_from_file_location("findings_fielddata", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("findings_fielddata")
 
 
 def _close(a: Any, b: Any, where: str = "") -> None:

@@ -6,12 +6,12 @@ grade (the ACC compensates it) and the cross-validated loop does not accept ``gr
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+from bench_helpers import load_bench
 
 pytestmark = pytest.mark.data
 
@@ -20,12 +20,7 @@ STALE = "stale: rerun python benches/grade_freeflow.py (then commit docs/_genera
 
 
 def _script() -> ModuleType:
-    path = ROOT / "benches" / "grade_freeflow.py"
-    spec = importlib.util.spec_from_file_location("grade_freeflow", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("grade_freeflow")
 
 
 def test_free_flow_grade_numbers_reproduce(shared_data: Path) -> None:
