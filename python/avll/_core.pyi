@@ -122,7 +122,7 @@ def calibrate(
     closed_loop: bool = False,
     problems: list[list[int]] | None = None,
     derive_seeds: bool = True,
-    stop_all_at_target: bool = False,
+    in_turn: bool = False,
     options: dict[str, Any] | None = None,
     initial: npt.NDArray[np.float64] | None = None,
     progress: Callable[[dict[str, Any]], Any] | None = None,

@@ -145,7 +145,8 @@ class CalibrationResult:
     bounds: dict[str, Bound]
     upper: dict[str, float] = field(default_factory=dict)
     at_bound: tuple[str, ...] = ()
-    #: Final cost of each independent start (the best is the result).
+    #: Final cost of each independent start that ran (the best is the result; with a
+    #: target, the starts after the first that reached it do not run).
     start_costs: tuple[float, ...] = ()
 
     @property
@@ -378,7 +379,7 @@ def _run(
     derive_seeds: bool,
     initial: Sequence[Any] | None,
     target: float | None,
-    stop_all_at_target: bool = False,
+    in_turn: bool = False,
     threads: int,
     progress: bool | str | Callable[[dict[str, Any]], Any],
     desc: str,
@@ -408,7 +409,7 @@ def _run(
             scale=prob.scale,
             problems=problems,
             derive_seeds=derive_seeds,
-            stop_all_at_target=stop_all_at_target,
+            in_turn=in_turn,
             options=ga,
             initial=_initial(prob, initial),
             progress=bar if (callable(progress) or bar.bar.mode != "none") else None,
@@ -449,10 +450,12 @@ def calibrate(
     (``"rest"`` or ``"steady"``). ``initial`` seeds the population with models or
     parameter vectors; ``target`` stops as soon as the cost is at most that value.
     ``starts`` independent GA runs (seeds ``_core.derive_seed(seed, j)``; with one
-    start, ``seed`` itself) run in parallel and the best is kept: on the proposed
-    model a start occasionally settles in a local minimum at a bound corner (``K0``
-    at its upper bound, ``K`` strongly negative) with several times the cost, so two
-    starts are the default.
+    start, ``seed`` itself) run one after the other, each with all the threads, and
+    the best is kept: on the proposed model a start occasionally settles in a local
+    minimum at a bound corner (``K0`` at its upper bound, ``K`` strongly negative)
+    with several times the cost, so two starts are the default. With a ``target``,
+    the starts after the first that reaches it are skipped (``start_costs`` lists the
+    starts that ran).
     ``threads`` (0 = all cores) does not change the result. ``progress`` shows the
     generations on stderr (``True``/``"auto"``: a bar on a terminal, log lines otherwise;
     ``"bar"``, ``"log"``, ``False``/``"none"``: see :mod:`avll.progress`), or is a
@@ -501,10 +504,12 @@ def _calibrate(
     all_runs = list(range(len(prob.runs)))
     raws = _run(
         prob, None if n == 1 else [all_runs] * n, seed=seed, derive_seeds=n > 1,
-        initial=initial, target=target, stop_all_at_target=n > 1 and target is not None,
+        initial=initial, target=target, in_turn=True,
         threads=threads, progress=progress, desc=f"calibrate {prob.cls.name}", options=ga_options,
     )  # fmt: skip
-    best = min(range(n), key=lambda j: (raws[j]["f"], j))
+    # The starts run in turn: those after the first that reached the target (or after
+    # a Ctrl-C) did not run and are not in ``raws``.
+    best = min(range(len(raws)), key=lambda j: (raws[j]["f"], j))
     _check_finite_fit(prob, raws[best], "")
     raw = dict(raws[best])
     raw["evaluations"] = sum(int(r["evaluations"]) for r in raws)

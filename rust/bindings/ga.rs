@@ -39,14 +39,10 @@ fn result_dict<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let r = c.ga;
     let d = PyDict::new(py);
-    // A callback stop is an interrupt when the user asked for it; otherwise another
-    // start of the same problem reached the target (`stop_all_at_target`).
+    // A callback stop is the user's (Ctrl-C or the progress callback's
+    // KeyboardInterrupt); any other error of the callback is raised instead.
     let interrupted = r.stop == StopReason::Callback && by_user;
-    let stop = if r.stop == StopReason::Callback && !by_user {
-        "target"
-    } else {
-        r.stop.name()
-    };
+    let stop = r.stop.name();
     d.set_item("x", r.x.into_pyarray(py))?;
     d.set_item("f", r.f)?;
     d.set_item("f_ga", r.f_ga)?;
@@ -108,13 +104,15 @@ fn ga_options(options: Option<&Bound<'_, PyDict>>, initial: Vec<Vec<f64>>) -> Py
 /// allowed) solved in parallel. `options` is a dict of GA options (seed, pop_size,
 /// max_generations, ..., see `GaOptions`). Returns one dict per problem (x, f, f_ga,
 /// generations, evaluations, stop, interrupted, history, per_run: the run indices
-/// and Eq. 6 run costs of the best parameters). With `stop_all_at_target`, every
-/// problem stops once any reaches the target (independent starts of one problem).
+/// and Eq. 6 run costs of the best parameters). With `in_turn` the problems are
+/// independent starts of one problem, run one after the other with all the threads
+/// each; the starts after the first that reaches the target (or after a Ctrl-C) are
+/// skipped, and only the starts that ran are returned.
 #[pyfunction]
 #[pyo3(signature = (
     model, runs, lower_bounds, upper_bounds, scale, effects=Vec::new(),
     upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0),
-    init="rest", closed_loop=false, problems=None, derive_seeds=true, stop_all_at_target=false,
+    init="rest", closed_loop=false, problems=None, derive_seeds=true, in_turn=false,
     options=None, initial=None, progress=None, threads=0
 ))]
 #[allow(clippy::too_many_arguments)]
@@ -133,7 +131,7 @@ fn calibrate<'py>(
     closed_loop: bool,
     problems: Option<Vec<Vec<usize>>>,
     derive_seeds: bool,
-    stop_all_at_target: bool,
+    in_turn: bool,
     options: Option<&Bound<'py, PyDict>>,
     initial: Option<PyReadonlyArray2<'py, f64>>,
     progress: Option<Py<PyAny>>,
@@ -187,7 +185,7 @@ fn calibrate<'py>(
                             bounds,
                             opts,
                             derive_seeds,
-                            stop_all_at_target,
+                            in_turn,
                             {
                                 let tx = &tx;
                                 move |k, p| {

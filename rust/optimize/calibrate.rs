@@ -4,16 +4,13 @@
 //! (multi)set, one problem or many solved in parallel. Every result carries the
 //! per-run costs of its best parameters, so nothing is re-simulated to fill a table.
 
-use super::ga::{
-    derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Phase, Progress, StopReason,
-};
+use super::ga::{derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Progress};
 use crate::error::{AvllError, Result};
 use crate::sim::cost::{
     lane_plants, lane_run, lanes_apply, run_groups, run_lanes_group, LanePlants, LANES,
 };
 use crate::sim::{run_cost, CostSpec, RunRef};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Eq. 6 over a (multi)set of runs: the weighted mean of the per-run costs over
 /// `weights` (run index, multiplicity), evaluated in parallel and summed in a fixed
@@ -301,28 +298,18 @@ fn calibrate_one(
     Ok(Calibration { ga, per_run })
 }
 
-/// The best point of a problem after one of its steps (GA generations, then polish
-/// iterations, numbered on from 1).
-struct Snapshot {
-    step: usize,
-    phase: Phase,
-    iteration: usize,
-    evaluations: usize,
-    f: f64,
-    x: Vec<f64>,
-}
-
-/// Solves many independent calibration problems in parallel: problem `k` is Eq. 6
-/// over the runs `problems[k]` (repeats allowed), with the seed
-/// `derive_seed(opts.seed, k)` when `derive` is true (else `opts.seed` for all).
-/// `callback(k, progress)` returns `None`/`Some(true)` to continue and `Some(false)`
-/// to stop every problem (each then returns its best so far).
+/// Solves many independent calibration problems: problem `k` is Eq. 6 over the runs
+/// `problems[k]` (repeats allowed), with the seed `derive_seed(opts.seed, k)` when
+/// `derive` is true (else `opts.seed` for all). `callback(k, progress)` returns
+/// `None`/`Some(true)` to continue and `Some(false)` to stop every problem (each then
+/// returns its best so far).
 ///
-/// With `stop_all_at_target` (independent starts of one problem), every problem
-/// stops once any reaches `opts.target`, deterministically: with `s` the first step
-/// at which some problem reached the target, every problem still running at step
-/// `s` returns its best point of step `s` (stop reason [`StopReason::Target`]),
-/// whatever the threads and however far it got meanwhile.
+/// Without `in_turn` the problems run in parallel. With `in_turn` (independent starts
+/// of one problem) they run one after the other, each with all the threads for its
+/// population and runs, so the first start's answer arrives as early as a single
+/// start's; once a start reaches `opts.target` (or the callback stops it) the later
+/// starts are skipped and only the starts that ran are returned. Either way the
+/// result is the same for any number of threads.
 #[allow(clippy::too_many_arguments)]
 pub fn calibrate_many(
     spec: &CostSpec,
@@ -331,7 +318,7 @@ pub fn calibrate_many(
     bounds: &Bounds,
     opts: &GaOptions,
     derive: bool,
-    stop_all_at_target: bool,
+    in_turn: bool,
     callback: impl Fn(usize, &Progress) -> Option<bool> + Sync,
 ) -> Result<Vec<Calibration>> {
     spec.validate(runs)?;
@@ -339,71 +326,39 @@ pub fn calibrate_many(
     for (k, p) in problems.iter().enumerate() {
         multiplicities(p, runs.len(), k)?;
     }
+    let seeded = |k: usize| {
+        let mut o = opts.clone();
+        if derive {
+            o.seed = derive_seed(opts.seed, k as u64);
+        }
+        o
+    };
+    if in_turn {
+        let mut out = Vec::with_capacity(problems.len());
+        for (k, subset) in problems.iter().enumerate() {
+            let mut stopped = false;
+            let c = calibrate_one(spec, runs, subset, bounds, &seeded(k), k, true, |p| {
+                let go = callback(k, p).unwrap_or(true);
+                stopped |= !go;
+                go
+            })?;
+            let reached = c.ga.f <= opts.target;
+            out.push(c);
+            if reached || stopped {
+                break;
+            }
+        }
+        return Ok(out);
+    }
     // With at least as many problems as threads, the problems keep the threads busy.
     let par = problems.len() < rayon::current_num_threads();
-    // The first step at which a problem reached the target (usize::MAX: none yet).
-    let first_hit = AtomicUsize::new(usize::MAX);
-    let done: Vec<(Calibration, Vec<Snapshot>)> = problems
+    problems
         .par_iter()
         .enumerate()
         .map(|(k, subset)| {
-            let mut o = opts.clone();
-            if derive {
-                o.seed = derive_seed(opts.seed, k as u64);
-            }
-            let mut snaps: Vec<Snapshot> = Vec::new();
-            let c = calibrate_one(spec, runs, subset, bounds, &o, k, par, |p| {
-                let go = callback(k, p).unwrap_or(true);
-                if !stop_all_at_target {
-                    return go;
-                }
-                let step = snaps.len() + 1;
-                snaps.push(Snapshot {
-                    step,
-                    phase: p.phase,
-                    iteration: p.iteration,
-                    evaluations: p.evaluations,
-                    f: p.best_f,
-                    x: p.best_x.to_vec(),
-                });
-                if p.best_f <= opts.target {
-                    first_hit.fetch_min(step, Ordering::Relaxed);
-                }
-                go && first_hit.load(Ordering::Relaxed) > step
-            })?;
-            Ok((c, snaps))
-        })
-        .collect::<Result<_>>()?;
-    let hit = first_hit.load(Ordering::Relaxed);
-    done.into_iter()
-        .zip(problems)
-        .map(|((c, snaps), subset)| {
-            if hit == usize::MAX || snaps.len() < hit {
-                return Ok(c); // ended before the first step that reached the target
-            }
-            let s = &snaps[hit - 1];
-            debug_assert_eq!(s.step, hit);
-            let mut ga = c.ga;
-            let generations = match s.phase {
-                Phase::Ga => s.iteration,
-                Phase::Polish => ga.generations,
-            };
-            if s.phase == Phase::Ga {
-                ga.f_ga = s.f;
-            }
-            ga.history.truncate(generations + 1);
-            ga.generations = generations;
-            ga.evaluations = s.evaluations;
-            ga.f = s.f;
-            ga.x.clone_from(&s.x);
-            ga.stop = StopReason::Target;
-            let w = multiplicities(subset, runs.len(), 0)?;
-            let per_run = w
-                .iter()
-                .map(|p| p.0)
-                .zip(run_costs(spec, &ga.x, runs, &w, true))
-                .collect();
-            Ok(Calibration { ga, per_run })
+            calibrate_one(spec, runs, subset, bounds, &seeded(k), k, par, |p| {
+                callback(k, p).unwrap_or(true)
+            })
         })
         .collect()
 }
@@ -624,28 +579,45 @@ mod tests {
         assert_eq!(r1, r2);
         assert_eq!(r1, r3);
         assert!(r1.iter().all(|c| c.ga.f.is_finite()));
-        // Starts of one problem stopped together at a target: the same for any threads.
+        // Starts of one problem in turn: the same for any threads; without a target
+        // every start runs and each equals the start run alone.
         let all = vec![vec![0, 1, 2]; 3];
-        let f_best = r1[0].ga.f;
-        let o2 = GaOptions {
-            target: f_best * 1.5,
-            ..o.clone()
-        };
-        let run2 = |t: usize| {
+        let run2 = |t: usize, o: &GaOptions| {
             crate::parallel::with_threads(t, || {
-                calibrate_many(&sp, &runs, &all, &b, &o2, true, true, |_, _| None)
+                calibrate_many(&sp, &runs, &all, &b, o, true, true, |_, _| None)
             })
             .unwrap()
             .unwrap()
         };
-        let (t1, t2, t3) = (run2(1), run2(2), run2(3));
+        let full = run2(2, &o);
+        assert_eq!(full, run2(1, &o));
+        assert_eq!(full.len(), 3);
+        let parallel = crate::parallel::with_threads(2, || {
+            calibrate_many(&sp, &runs, &all, &b, &o, true, false, |_, _| None)
+        })
+        .unwrap()
+        .unwrap();
+        assert_eq!(full, parallel);
+        // With a target only the first start has no cost above it: the later ones
+        // are skipped once a start reaches it.
+        let j = (0..3)
+            .min_by(|&a, &c| full[a].ga.f.total_cmp(&full[c].ga.f))
+            .unwrap();
+        let o2 = GaOptions {
+            target: full[j].ga.f * 1.000001,
+            ..o.clone()
+        };
+        let (t1, t2, t3) = (run2(1, &o2), run2(2, &o2), run2(3, &o2));
         assert_eq!(t1, t2);
         assert_eq!(t1, t3);
-        assert!(t1.iter().any(|c| c.ga.f <= o2.target));
-        assert!(t1.iter().all(|c| c.ga.stop == StopReason::Target));
-        // Every start stopped at the same step (the first that reached the target).
-        let steps: Vec<usize> = t1.iter().map(|c| c.ga.generations).collect();
-        assert!(steps.windows(2).all(|w| w[0] == w[1]), "{steps:?}");
+        let last = t1.last().unwrap();
+        assert!(last.ga.f <= o2.target);
+        assert!(
+            t1.len() <= j + 1,
+            "{} starts ran, start {j} reaches it",
+            t1.len()
+        );
+        assert!(t1[..t1.len() - 1].iter().all(|c| c.ga.f > o2.target));
         for c in &t1 {
             let w = multiplicities(&all[0], runs.len(), 0).unwrap();
             assert_eq!(c.ga.f, subset_cost(&sp, &c.ga.x, &runs, &w));
