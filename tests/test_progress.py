@@ -122,3 +122,42 @@ def test_cli_quiet_silences_progress(tmp_path, capsys: pytest.CaptureFixture[str
                  "--starts", "1", "--progress", "log"]) == 0
     err = capsys.readouterr().err
     assert "avll: calibrate" in err and _ESC.search(err) is None
+
+
+@pytest.mark.skipif(not hasattr(__import__("signal"), "SIGINT") or __import__("os").name != "posix",
+                    reason="needs SIGINT delivery")
+def test_a_ctrl_c_lost_in_a_destructor_is_raised_at_the_next_progress_update(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A SIGINT handled while a ``__del__`` runs is printed as "ignored" by Python and
+    the work would go on; under the ``avll`` command's latch the next progress update
+    raises it (the race that once let an interrupted ``avll reproduce`` finish)."""
+    import os
+    import signal
+    import sys
+
+    from avll import _sigint
+
+    ignored: list[type[BaseException] | None] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: ignored.append(u.exc_type))
+
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        pytest.skip("the test runner replaced Python's SIGINT handler")
+
+    class Swallows:
+        def __del__(self) -> None:
+            os.kill(os.getpid(), signal.SIGINT)
+            sum(range(10_000))  # the handler runs here; its exception is ignored
+
+    with _sigint.latched():
+        p = Progress(10, "x", mode="none")
+        Swallows()  # deleted at once
+        assert ignored == [KeyboardInterrupt]  # Python ignored it ...
+        with pytest.raises(KeyboardInterrupt):
+            p.update()  # ... the latch raises it again
+        with pytest.raises(KeyboardInterrupt):
+            Progress(1, "y", mode="none")  # and at every update until delivered
+        _sigint.clear()
+        p.update()
+    # Outside the command: Python's handler is back, nothing latched.
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    _sigint.check()

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
+from . import _core, _sigint
 from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_seed, check_threads
 from .data import Run
@@ -417,6 +417,8 @@ def _run(
             **prob.kw,
         )
         done = not any(bool(r.get("interrupted")) for r in out)
+        if not done:
+            _sigint.clear()  # delivered: the caller gets the best so far
         return out
     finally:
         if isinstance(bar, _Bar):

@@ -28,6 +28,8 @@ import time
 from collections.abc import Callable
 from typing import Any, TextIO
 
+from . import _sigint
+
 __all__ = ["MODES", "LOG_INTERVAL", "Progress", "resolve_mode", "messages"]
 
 #: The display modes (see the module doc).
@@ -85,6 +87,7 @@ class Progress:
     def __init__(self, total: float, desc: str, *, unit: str = "it", mode: Any = "auto",
                  file: TextIO | None = None, interval: float | None = None,
                  unit_scale: bool = False) -> None:
+        _sigint.check()
         self.total = max(float(total), 0.0)
         self.desc = desc
         self.unit = unit
@@ -127,6 +130,7 @@ class Progress:
     def advance_to(self, n: float) -> None:
         """Sets the count to ``n`` (clamped to ``[current, total]``: never backwards,
         never past the total)."""
+        _sigint.check()
         if self.closed:
             return
         n = min(max(float(n), self.n), self.total)
@@ -154,12 +158,14 @@ class Progress:
 
     def set_postfix(self, text: str) -> None:
         """A short status shown beside the count (e.g. the best cost so far)."""
+        _sigint.check()
         self.postfix = text
         if self._bar is not None:
             self._bar.set_postfix_str(text, refresh=False)
 
     def set_description(self, desc: str) -> None:
         """Renames the stage (e.g. the current sub-step of a reproduction)."""
+        _sigint.check()
         self.desc = desc
         if self._bar is not None:
             self._bar.set_description(desc)

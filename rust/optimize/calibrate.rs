@@ -7,7 +7,7 @@
 use super::ga::{derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Progress};
 use crate::error::{AvllError, Result};
 use crate::sim::cost::{
-    lane_plants, lane_run, lanes_apply, run_groups, run_lanes_group, LanePlants, LANES,
+    lane_plants, lane_run, lanes_apply, run_groups, run_lanes, run_lanes_group, LanePlants, LANES,
 };
 use crate::sim::{run_cost, CostSpec, RunRef};
 use rayon::prelude::*;
@@ -21,7 +21,7 @@ pub fn subset_cost(spec: &CostSpec, row: &[f64], runs: &[RunRef], weights: &[(us
 
 /// The run costs of `row` on the runs of `weights` (in that order), exactly
 /// [`run_cost`] each: runs sharing `dt` and length are stepped together through the
-/// lanes ([`run_lanes_group`]), the groups in parallel when `par`.
+/// lanes ([`run_lanes_group`]); when `par`, one share of the runs per thread.
 fn run_costs(
     spec: &CostSpec,
     row: &[f64],
@@ -38,6 +38,22 @@ fn run_costs(
         } else {
             sel.iter().map(one).collect()
         };
+    }
+    let threads = rayon::current_num_threads();
+    if par && threads > 1 {
+        // One contiguous share of the runs per thread, each share through its own lane
+        // groups: e.g. 10 runs on 2 threads go as (4 + 1) and (4 + 1) runs, not as the
+        // lane groups (4), (4), (2), of which one thread would step two. The values do
+        // not depend on the grouping.
+        let n = sel.len();
+        let shares: Vec<std::ops::Range<usize>> = (0..threads.min(n))
+            .map(|i| i * n / threads.min(n)..(i + 1) * n / threads.min(n))
+            .collect();
+        let parts: Vec<Vec<f64>> = shares
+            .par_iter()
+            .map(|r| run_lanes(spec, row, &sel[r.clone()], &vec![f64::INFINITY; r.len()]))
+            .collect();
+        return parts.concat();
     }
     let groups = run_groups(&sel);
     let one = |g: &Vec<usize>| {

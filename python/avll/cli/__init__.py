@@ -102,9 +102,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         check_io(args)  # before any work (and before loading the loaders)
         # imported after parsing: `avll --help` does not load the loaders (pandas)
+        from .._sigint import latched
         from ..io._common import strict_warnings
 
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), latched():
             warnings.simplefilter("always", DataWarning)
             warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
             with strict_warnings(bool(getattr(args, "strict", False))):
