@@ -120,6 +120,23 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
         }
     }
 
+    /// Whether the state, the chain's and the dead-time line are all finite.
+    ///
+    /// A run's non-finite input sample makes its reference non-finite, and IEEE
+    /// arithmetic never turns a non-finite value finite again (`inf 0` and
+    /// `NaN 0` are NaN): after a run, that reference is either still in the
+    /// dead-time line (the last samples) or has entered the state. So a finite
+    /// stepper after a run proves every input sample finite, and a run checks its
+    /// inputs only when this is false (divergence, or a bad input to be named)
+    /// instead of reading them all in a separate pass first.
+    pub fn finite(&self) -> bool {
+        self.x.iter().all(|v| v.is_finite())
+            && self.dv.is_finite()
+            && self.dp.is_finite()
+            && self.wp.is_finite()
+            && self.buf.iter().all(|v| v.is_finite())
+    }
+
     /// The response and the actual speed and position at sample `n`.
     #[inline(always)]
     pub fn observe(&self, n: usize) -> Obs {

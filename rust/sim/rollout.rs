@@ -188,13 +188,21 @@ fn response_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     let mut st =
         stepper::<M, N, D, F, _>(plant, lin, Integrators::None, NoEffects, true, &s, [0.0; 2])?;
     run(&mut st, u.len(), |n, _| u[n], &mut Response(y));
+    // Linear: a finite stepper after the run proves the command finite (see
+    // `Stepper::finite`); the command is read again only otherwise.
+    if !st.finite() {
+        check_series("command", u)?;
+    }
     Ok(())
 }
 
 /// Open-loop response of the linear lower level (acceleration for an acceleration
 /// command, speed for a speed command) into `y`.
+/// A non-finite command sample is an error naming it (`y` is then to be discarded).
 pub fn simulate_into(lin: &Linear, u: &[f64], dt: f64, init: Init, y: &mut [f64]) -> Result<()> {
-    check_series("command", u)?;
+    // The first sample sets a steady initial state: checked before it is used; the
+    // others after the run (see `response_n`).
+    check_series("command", &u[..u.len().min(1)])?;
     check_len("out", y, u.len())?;
     with_plant!(
         lin,
@@ -330,7 +338,15 @@ fn closed_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     if eff.effects.is_empty() {
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, true, &s, [v0, p0])?;
         run(&mut st, lead_x.len(), law, &mut rec);
+        // Linear: a run to the end with a finite stepper proves the leader finite
+        // (see `Stepper::finite`); otherwise (divergence, or a bad sample to name)
+        // the leader is checked now.
+        if rec.written < lead_x.len() || !st.finite() {
+            check_leader(lead_x, lead_v)?;
+        }
     } else {
+        // Effects may map a non-finite value to a finite one (a clamp): checked first.
+        check_leader(lead_x, lead_v)?;
         let ch = eff.chain(lead_x.len())?;
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, ch, true, &s, [v0, p0])?;
         run(&mut st, lead_x.len(), law, &mut rec);
@@ -361,7 +377,8 @@ pub fn closed_loop_into(
     mut out: Out,
 ) -> Result<()> {
     up.validate()?;
-    check_leader(lead_x, lead_v)?;
+    // The leader's samples are checked in `closed_n`.
+    check_len("lead_v", lead_v, lead_x.len())?;
     check_finite("v0", v0)?;
     check_finite("x0", p0)?;
     check_kind(eff.effects, CommandKind::Acceleration)?;

@@ -787,3 +787,79 @@ fn run_lanes_equal_the_kernel_bit_for_bit() {
         }
     }
 }
+
+/// The rollouts check their inputs after the run (a finite stepper proves them
+/// finite): a bad sample anywhere — first, inside the dead time at the end, or with
+/// zero gains in front of it — is still named, for every model, delay and init.
+#[test]
+fn a_bad_input_sample_anywhere_is_named() {
+    let first = Linear {
+        b1: 0.0,
+        b0: 1.0,
+        a2: 0.0,
+        a1: 0.4,
+        td: 0.0,
+        k: 0.0,
+    };
+    let frac = Linear {
+        td: 0.33,
+        ..second()
+    };
+    let n = 300;
+    for lin in [first, second(), frac, proposed()] {
+        for init in [Init::Rest, Init::Steady] {
+            for at in [0, 1, 2, 150, n - 20, n - 2, n - 1] {
+                for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                    let mut u = cmd(n);
+                    u[at] = bad;
+                    let e = simulate(&lin, &u, 0.05, init).unwrap_err().to_string();
+                    assert!(
+                        e.contains("command") && e.contains(&format!("sample {at} ")),
+                        "{e}"
+                    );
+                }
+            }
+        }
+        for at in [0, 1, 150, n - 2, n - 1] {
+            for which in 0..2 {
+                // kg = 0 too: 0 x inf is NaN, the bad sample still reaches the state.
+                for up in [UP, Upper { kg: 0.0, ..UP }] {
+                    let (mut lx, mut lv) = leader(n, 0.05);
+                    if which == 0 {
+                        lx[at] = f64::INFINITY;
+                    } else {
+                        lv[at] = f64::NAN;
+                    }
+                    let e = closed_loop(&lin, &EffectsRef::NONE, &up, &lx, &lv, 0.05, 10.0, 0.0)
+                        .unwrap_err()
+                        .to_string();
+                    let name = ["lead_x", "lead_v"][which];
+                    assert!(
+                        e.contains(name) && e.contains(&format!("sample {at} ")),
+                        "{e}"
+                    );
+                }
+            }
+        }
+    }
+    // A diverging model with finite inputs is no error: NaN after the divergence.
+    let (lx, lv) = leader(n, 0.05);
+    let wild = Upper {
+        kg: 50.0,
+        kv: 0.0,
+        tg: 0.1,
+        gmin: 2.0,
+    };
+    let tr = closed_loop(
+        &proposed(),
+        &EffectsRef::NONE,
+        &wild,
+        &lx,
+        &lv,
+        0.05,
+        10.0,
+        0.0,
+    )
+    .unwrap();
+    assert!(tr.a[n - 1].is_nan());
+}
