@@ -644,8 +644,9 @@ def calibrate_effects(
     (``"linear"``/``"log"``) give the box of the row ``[base | effects | free upper]``;
     ``initial`` rows join the first population. Returns the GA's result dict (``x``,
     ``f``, ``generations``, ``stop``, ``per_run_cost``, ...): with ``starts > 1``
-    independent GA runs (seeds ``derive_seed(seed, j)``, as :func:`avll.calibrate`),
-    the best. Same seed, same result whatever the thread count."""
+    independent GA runs (seeds ``derive_seed(seed, j)``, run in turn with all the
+    threads each, as :func:`avll.calibrate`), the best. Same seed, same result whatever
+    the thread count."""
     seed = check_seed(seed)
     threads = check_threads(threads)
     max_generations = check_int(max_generations, "max_generations", min=0)
@@ -663,6 +664,6 @@ def calibrate_effects(
         upper_bounds=[float(x) for x in upper], scale=[str(x) for x in scale],
         effects=list(names), options=opts, initial=ini, progress=progress,
         problems=None if n == 1 else [list(range(len(runs)))] * n, derive_seeds=n > 1,
-        threads=int(threads), **kw,
+        in_turn=True, threads=int(threads), **kw,
     )  # fmt: skip
     return dict(min(outs, key=lambda r: float(r["f"])))
