@@ -794,7 +794,7 @@ pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &
 
 /// The lanes' weighted SSE loop. With `SAME` every lane reads the same command and
 /// measurement (several rows on one run: `us[0]`, `ms[0]`); otherwise lane `j` reads
-/// its own (one row on several runs of equal length).
+/// its own (one row on several runs of equal length: one plant, so one dead time).
 #[inline(always)]
 fn lane_sse<const F: bool, const SAME: bool>(
     lanes: &[(usize, Lane)],
@@ -822,6 +822,7 @@ fn lane_sse<const F: bool, const SAME: bool>(
     let (p00, p01) = (col(&|l| l.p.phi[0][0]), col(&|l| l.p.phi[0][1]));
     let (p10, p11) = (col(&|l| l.p.phi[1][0]), col(&|l| l.p.phi[1][1]));
     let delay: [usize; L] = std::array::from_fn(|k| pick(k).p.delay);
+    debug_assert!(SAME || delay.iter().all(|&d| d == delay[0]));
     let cap = (delay.iter().max().copied().unwrap_or(0) + 2).next_power_of_two();
     let mask = cap - 1;
     let hist = col(&|l| l.w_hist);
@@ -868,8 +869,13 @@ fn lane_sse<const F: bool, const SAME: bool>(
             for j in 0..L {
                 row[j] = un[j] + k[j] * y[j];
             }
-            for j in 0..L {
-                w0[j] = ring[n.wrapping_sub(delay[j]) & mask][j];
+            if SAME {
+                for j in 0..L {
+                    w0[j] = ring[n.wrapping_sub(delay[j]) & mask][j];
+                }
+            } else {
+                // One plant on every lane: one delay, one row of the line.
+                w0 = ring[n.wrapping_sub(delay[0]) & mask];
             }
             for j in 0..L {
                 let w1 = wp[j];
