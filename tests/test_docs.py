@@ -8,12 +8,11 @@ comment starting with "# not run by the docs tests" is skipped; the comment says
 
 from __future__ import annotations
 
-import importlib.util
 import re
 from pathlib import Path
-from types import ModuleType
 
 import pytest
+from bench_helpers import load_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -28,15 +27,6 @@ PAGES = sorted(
 
 def _blocks(page: Path) -> list[str]:
     return re.findall(r"^```python\n(.*?)^```", page.read_text(encoding="utf-8"), re.S | re.M)
-
-
-def _script(name: str) -> ModuleType:
-    path = ROOT / "benches" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_docs_have_runnable_examples() -> None:
@@ -72,7 +62,7 @@ def test_docs_examples_run(page: Path, tmp_path: Path, monkeypatch: pytest.Monke
 
 @pytest.mark.parametrize("name", ["bounds", "ga-options", "effects"])
 def test_instant_fragments_are_current(name: str) -> None:
-    dn = _script("docs_numbers")
+    dn = load_bench("docs_numbers")
     path = DOCS / "_generated" / f"{name.replace('-', '_')}.md"
 
     def body(text: str) -> str:  # the stamp (version, commit) may differ; the table not
@@ -90,6 +80,6 @@ def test_generated_fragments_are_included() -> None:
     included = set()
     for page in PAGES:
         included |= {Path(m).name for m in re.findall(r"```\{include\} (\S+)", page.read_text())}
-    mine = {f"{n.replace('-', '_')}.md" for n in _script("docs_numbers").FRAGMENTS}
+    mine = {f"{n.replace('-', '_')}.md" for n in load_bench("docs_numbers").FRAGMENTS}
     assert mine <= gen, f"missing fragments: {sorted(mine - gen)}"
     assert mine <= included, f"fragments no page includes: {sorted(mine - included)}"
