@@ -232,3 +232,21 @@ def test_proposed_base_finds_saturation() -> None:
     e = expected_params("saturation")
     res = _loop(avll.PAPER_TABLE_II["proposed"], {"saturation": None}, "proposed")
     _check_step(res, "saturation", {"a_max": (e["a_max"], 0.12), "d_max": (e["d_max"], 0.12)})
+
+
+def test_a_ctrl_c_during_a_fit_stops_the_loop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The GA hands back its best point after a Ctrl-C (``interrupted``, see
+    ``test_ctrl_c_returns_best_so_far``); the loop's fit must not carry on with it as
+    if it were a result."""
+    from avll.diagnose import fitting
+
+    runs = paper_experiment_effects(SECOND, {"saturation": None}, seed=SEED, runs=(1, 3))
+    real = fitting.calibrate_effects
+
+    def interrupted(*a, **k):
+        return {**real(*a, **k), "interrupted": True}
+
+    fitting.fit_full(SECOND, ["saturation"], runs, max_generations=5)  # a result
+    monkeypatch.setattr(fitting, "calibrate_effects", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        fitting.fit_full(SECOND, ["saturation"], runs, max_generations=5)

@@ -294,6 +294,10 @@ def fit_full(
                 max_generations=max_generations, progress=gcb if bar.mode != "none" else None,
                 threads=threads, starts=starts,
             )  # fmt: skip
+            if out.get("interrupted"):
+                # The GA returned its best point after a Ctrl-C: a fit of the loop is
+                # not a result to go on with, the loop stops (nothing is written).
+                raise KeyboardInterrupt
             p = np.asarray(out["x"], dtype=np.float64)
         else:
 
