@@ -45,10 +45,9 @@ fn run_costs(
         // groups: e.g. 10 runs on 2 threads go as (4 + 1) and (4 + 1) runs, not as the
         // lane groups (4), (4), (2), of which one thread would step two. The values do
         // not depend on the grouping.
-        let n = sel.len();
-        let shares: Vec<std::ops::Range<usize>> = (0..threads.min(n))
-            .map(|i| i * n / threads.min(n)..(i + 1) * n / threads.min(n))
-            .collect();
+        let (n, k) = (sel.len(), threads.min(sel.len()));
+        let shares: Vec<std::ops::Range<usize>> =
+            (0..k).map(|i| i * n / k..(i + 1) * n / k).collect();
         let parts: Vec<Vec<f64>> = shares
             .par_iter()
             .map(|r| run_lanes(spec, row, &sel[r.clone()], &vec![f64::INFINITY; r.len()]))

@@ -120,7 +120,8 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
         }
     }
 
-    /// Whether the state, the chain's and the dead-time line are all finite.
+    /// Whether the state (with the effects' speed and position corrections) and the
+    /// dead-time line are all finite.
     ///
     /// A run's non-finite input sample makes its reference non-finite, and IEEE
     /// arithmetic never turns a non-finite value finite again (`inf 0` and
