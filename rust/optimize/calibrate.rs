@@ -4,7 +4,9 @@
 //! (multi)set, one problem or many solved in parallel. Every result carries the
 //! per-run costs of its best parameters, so nothing is re-simulated to fill a table.
 
-use super::ga::{derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Progress};
+use super::ga::{
+    derive_seed, minimize, Bounds, GaOptions, GaResult, Objective, Progress, Survival,
+};
 use crate::error::{AvllError, Result};
 use crate::sim::cost::{
     lane_plants, lane_run, lanes_apply, run_groups, run_lanes, run_lanes_group, LanePlants, LANES,
@@ -138,7 +140,7 @@ impl Objective for Eq6<'_> {
         let groups = rows.len().div_ceil(LANES);
         let one = |g: usize| {
             let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
-            self.lane_group(rs, bound).unwrap_or_else(|| {
+            self.lane_group(rs, || bound).unwrap_or_else(|| {
                 rs.iter()
                     .map(|x| {
                         if bound.is_finite() {
@@ -153,13 +155,42 @@ impl Objective for Eq6<'_> {
         let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
         parts.concat()
     }
+
+    /// [`Eq6::eval_many`] at the shared survival bound, read again before each run
+    /// of a group; each group's values are offered as soon as the group is done.
+    fn eval_offspring(&self, xs: &[Vec<f64>], survival: &Survival) -> Vec<f64> {
+        let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
+        let groups = rows.len().div_ceil(LANES);
+        let one = |g: usize| {
+            let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
+            if let Some(vs) = self.lane_group(rs, || survival.bound()) {
+                vs.iter().for_each(|&v| survival.offer(v));
+                return vs;
+            }
+            rs.iter()
+                .map(|x| {
+                    let bound = survival.bound();
+                    let v = if bound.is_finite() {
+                        self.eval_bounded(x, bound)
+                    } else {
+                        self.eval(x)
+                    };
+                    survival.offer(v);
+                    v
+                })
+                .collect()
+        };
+        let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
+        parts.concat()
+    }
 }
 
 impl Eq6<'_> {
     /// Up to [`LANES`] rows through the lane kernel, run after run with each row's
-    /// own abandoning limit (as [`Eq6::eval_bounded`]); `None` when the lane path
-    /// does not apply. The plants are discretized once per distinct `dt`.
-    fn lane_group(&self, rows: &[&[f64]], bound: f64) -> Option<Vec<f64>> {
+    /// own abandoning limit (as [`Eq6::eval_bounded`]) at the value `bound` gives
+    /// before each run; `None` when the lane path does not apply. The plants are
+    /// discretized once per distinct `dt`.
+    fn lane_group(&self, rows: &[&[f64]], bound: impl Fn() -> f64) -> Option<Vec<f64>> {
         let nr = rows.len();
         let mut plants: Vec<(f64, LanePlants)> = Vec::new();
         let mut done = vec![0.0; nr];
@@ -181,6 +212,7 @@ impl Eq6<'_> {
                 .filter(|p| alive[p.0])
                 .copied()
                 .collect();
+            let bound = bound();
             for k in 0..nr {
                 limits[k] = if bound.is_finite() {
                     (bound * self.total - done[k]) * run.len() as f64 / wj
@@ -550,7 +582,7 @@ mod tests {
             }
         }
         // The lane path was taken (not the point-by-point fallback).
-        assert!(f.lane_group(&[&xs[0], &xs[1]], f64::INFINITY).is_some());
+        assert!(f.lane_group(&[&xs[0], &xs[1]], || f64::INFINITY).is_some());
     }
 
     /// The default search box of the proposed model (log for m1..m3).

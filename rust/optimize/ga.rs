@@ -25,8 +25,9 @@
 //!   population collapsed: every coordinate's spread `< xtol` in unit coordinates);
 //!   an optional `target` value; or the per-generation callback returning `false`;
 //! * early abandoning: with (mu + lambda) survival, offspring are evaluated with
-//!   the current worst value as a bound ([`Objective::eval_bounded`]); the
-//!   calibration objective stops a rollout once its partial Eq. 6 sum reaches it;
+//!   the survival threshold as a bound ([`Objective::eval_bounded`]), shared by the
+//!   threads and falling as the generation's values arrive ([`Survival`]); the
+//!   calibration objective stops a rollout once its partial Eq. 6 sum exceeds it;
 //! * polish (optional): a bounded Nelder–Mead (adaptive coefficients, trial points
 //!   projected onto the box) from the best individual, restarted once.
 //!
@@ -36,7 +37,9 @@
 //! ChaCha8 stream keyed by `(seed, g, k)`; the initial population from the stream
 //! `(seed, 0, ·)`. Fitness values are pure functions of the individual, evaluated in
 //! parallel (rayon) and gathered in order, and ties are broken by index, so the
-//! result is bit-identical for any number of threads.
+//! result is bit-identical for any number of threads. Which offspring are abandoned
+//! depends on the order in which the threads finish, but only offspring that cannot
+//! survive are abandoned, so the result does not.
 
 use crate::error::{AvllError, Result};
 use rand::{RngExt, SeedableRng};
@@ -454,6 +457,140 @@ pub trait Objective: Sync {
             })
             .collect()
     }
+    /// The values of a generation's offspring (distinct points, none equal to a
+    /// parent), each `eval_bounded` at the survival bound current when it starts
+    /// (or read again between parts of its evaluation), every value offered to
+    /// `survival` as soon as it is known. The default evaluates the points in
+    /// parallel one by one. Which points are abandoned depends on timing, but only
+    /// points that cannot survive are (see [`Survival`]), so the GA's result does not.
+    fn eval_offspring(&self, xs: &[Vec<f64>], survival: &Survival) -> Vec<f64> {
+        xs.par_iter()
+            .map(|x| {
+                let bound = survival.bound();
+                let v = if bound.is_finite() {
+                    self.eval_bounded(x, bound)
+                } else {
+                    self.eval(x)
+                };
+                survival.offer(v);
+                v
+            })
+            .collect()
+    }
+}
+
+/// The (mu + lambda) survival threshold of one generation while its offspring are
+/// evaluated, shared by the threads evaluating them: the `n`-th best distinct value
+/// among the parents (clones — equal individuals with equal values — counted once)
+/// and the offspring whose values are known so far; `inf` while there are fewer
+/// than `n`. It only falls as values arrive and it is never below the threshold of
+/// the whole generation, so an offspring whose value exceeds it is not among the
+/// survivors, whenever during the generation the comparison is made: the `n`
+/// individuals at or below the threshold rank before it whatever their index.
+///
+/// [`Survival::bound`] is the threshold raised by a relative `1e-9` (plus the
+/// smallest normal number): a value that reaches it exceeds the threshold
+/// strictly even after the rounding of an objective's partial sums, so an
+/// offspring tied with a later one (which it would outrank by index) is never
+/// abandoned.
+pub struct Survival {
+    n: usize,
+    /// The parents' distinct finite values, sorted.
+    parents: Vec<f64>,
+    /// The offspring's finite values offered so far that are below the threshold
+    /// of the moment, sorted.
+    kids: std::sync::Mutex<Vec<f64>>,
+    /// `bound()`'s bits.
+    bound: std::sync::atomic::AtomicU64,
+}
+
+impl Survival {
+    /// The threshold of selecting `n` from the parents `pop` with values `fit`.
+    pub fn new(pop: &[Vec<f64>], fit: &[f64], n: usize) -> Self {
+        let mut idx: Vec<usize> = (0..pop.len()).filter(|&i| fit[i].is_finite()).collect();
+        idx.sort_by(|&a, &b| fit[a].total_cmp(&fit[b]).then(a.cmp(&b)));
+        let mut parents = Vec::with_capacity(idx.len());
+        for (q, &i) in idx.iter().enumerate() {
+            let clone = idx[..q]
+                .iter()
+                .rev()
+                .take_while(|&&k| fit[k] == fit[i])
+                .any(|&k| pop[k] == pop[i]);
+            if !clone {
+                parents.push(fit[i]);
+            }
+        }
+        let s = Self {
+            n,
+            parents,
+            kids: std::sync::Mutex::new(Vec::new()),
+            bound: std::sync::atomic::AtomicU64::new(0),
+        };
+        s.bound.store(
+            Self::raised(s.threshold_with(&[])).to_bits(),
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        s
+    }
+
+    /// The value at which an offspring's evaluation may stop (see the type).
+    pub fn bound(&self) -> f64 {
+        f64::from_bits(self.bound.load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    /// Records an offspring's value (an abandoned or infinite one changes nothing).
+    pub fn offer(&self, v: f64) {
+        if v.is_nan() || v >= self.bound() {
+            return;
+        }
+        // A poisoned lock only means another evaluating thread panicked; the values
+        // it holds are still valid.
+        let mut kids = self.kids.lock().unwrap_or_else(|e| e.into_inner());
+        let at = kids.partition_point(|&k| k <= v);
+        kids.insert(at, v);
+        let t = self.threshold_with(&kids);
+        if kids.len() > self.n {
+            kids.truncate(self.n);
+        }
+        self.bound.store(
+            Self::raised(t).to_bits(),
+            std::sync::atomic::Ordering::Relaxed,
+        );
+    }
+
+    /// The `n`-th smallest of the parents' distinct values and `kids` (sorted).
+    fn threshold_with(&self, kids: &[f64]) -> f64 {
+        let (mut i, mut j) = (0, 0);
+        for _ in 1..self.n {
+            match (self.parents.get(i), kids.get(j)) {
+                (Some(p), Some(k)) if p <= k => i += 1,
+                (Some(_), None) => i += 1,
+                (_, Some(_)) => j += 1,
+                (None, None) => return f64::INFINITY,
+            }
+        }
+        match (self.parents.get(i), kids.get(j)) {
+            (Some(&p), Some(&k)) => p.min(k),
+            (Some(&p), None) => p,
+            (None, Some(&k)) => k,
+            (None, None) => f64::INFINITY,
+        }
+    }
+
+    fn raised(t: f64) -> f64 {
+        if t.is_finite() {
+            t + t.abs() * 1e-9 + f64::MIN_POSITIVE
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// The threshold itself (without the margin of [`Survival::bound`]).
+    #[cfg(test)]
+    fn threshold(&self) -> f64 {
+        let kids = self.kids.lock().unwrap_or_else(|e| e.into_inner());
+        self.threshold_with(&kids)
+    }
 }
 
 impl<F: Fn(&[f64]) -> f64 + Sync> Objective for F {
@@ -495,6 +632,27 @@ impl<F: Objective + ?Sized> Evaluator<'_, F> {
         known: &[Vec<f64>],
         known_f: &[f64],
     ) -> Vec<f64> {
+        let f = self.f;
+        self.dedup_eval(zs, known, known_f, |todo| f.eval_many(todo, bound))
+    }
+
+    /// A generation's offspring `zs` against the parents `pop` (values `fit`, exact)
+    /// with (mu + lambda) survival of `n`: [`Self::many_known`] with the shared
+    /// survival bound ([`Objective::eval_offspring`]).
+    fn offspring(&mut self, zs: &[Vec<f64>], pop: &[Vec<f64>], fit: &[f64], n: usize) -> Vec<f64> {
+        let survival = Survival::new(pop, fit, n);
+        let f = self.f;
+        self.dedup_eval(zs, pop, fit, |todo| f.eval_offspring(todo, &survival))
+    }
+
+    /// `zs`' values, each distinct point not in `known` evaluated once by `eval`.
+    fn dedup_eval(
+        &mut self,
+        zs: &[Vec<f64>],
+        known: &[Vec<f64>],
+        known_f: &[f64],
+        eval: impl FnOnce(&[Vec<f64>]) -> Vec<f64>,
+    ) -> Vec<f64> {
         let b = self.bounds;
         let user = |z: &Vec<f64>| {
             let mut x = vec![0.0; z.len()];
@@ -525,38 +683,10 @@ impl<F: Objective + ?Sized> Evaluator<'_, F> {
             slot.push(s);
         }
         self.evaluations += todo.len();
-        let fresh = self.f.eval_many(&todo, bound);
+        let fresh = eval(&todo);
         vals.extend(fresh.into_iter().map(clean));
         slot.into_iter().map(|s| vals[s]).collect()
     }
-}
-
-/// Waves in which a generation's offspring are evaluated (see [`minimize`]).
-const WAVES: usize = 3;
-
-/// The value an individual must beat to survive a (mu + lambda) selection of `n`
-/// from `pop`: the `n`-th best finite value counting clones (equal individuals with
-/// equal values, which [`survive_unique`] keeps last) once; `inf` when there are
-/// fewer than `n` distinct finite individuals. An individual added after these with
-/// a value `>=` it is not among the survivors.
-fn survival_bound(pop: &[Vec<f64>], fit: &[f64], n: usize) -> f64 {
-    let mut idx: Vec<usize> = (0..pop.len()).filter(|&i| fit[i].is_finite()).collect();
-    idx.sort_by(|&a, &b| fit[a].total_cmp(&fit[b]).then(a.cmp(&b)));
-    let mut distinct = 0;
-    for (q, &i) in idx.iter().enumerate() {
-        let clone = idx[..q]
-            .iter()
-            .rev()
-            .take_while(|&&k| fit[k] == fit[i])
-            .any(|&k| pop[k] == pop[i]);
-        if !clone {
-            distinct += 1;
-            if distinct == n {
-                return fit[i];
-            }
-        }
-    }
-    f64::INFINITY
 }
 
 /// Sorts a population by value (stable: ties keep their order).
@@ -714,24 +844,12 @@ where
             })
             .collect();
         let mut kids: Vec<Vec<f64>> = children.into_iter().flatten().take(n_off).collect();
-        // (mu + lambda): an offspring whose value reaches the survival bound (the
+        // (mu + lambda): an offspring whose value exceeds the survival threshold (the
         // n-th best distinct value among the parents and the offspring evaluated so
-        // far) cannot survive, so its evaluation may stop early (exact values
-        // otherwise). The offspring go in WAVES fixed waves, each with the bound the
-        // earlier ones leave, so the bound tightens as the generation proceeds.
+        // far, shared by the threads and falling as values arrive) cannot survive,
+        // so its evaluation may stop early (exact values otherwise).
         let kid_fit = if opts.plus {
-            let wave = n_off.div_ceil(WAVES).next_multiple_of(8).max(1);
-            let mut known = pop.clone();
-            let mut known_f = fit.clone();
-            let mut kf = Vec::with_capacity(n_off);
-            for chunk in kids.chunks(wave) {
-                let bound = survival_bound(&known, &known_f, n);
-                let f = ev.many_known(chunk, bound, &known, &known_f);
-                known.extend(chunk.iter().cloned());
-                known_f.extend(f.iter().copied());
-                kf.extend(f);
-            }
-            kf
+            ev.offspring(&kids, &pop, &fit, n)
         } else {
             ev.many_known(&kids, f64::INFINITY, &pop, &fit)
         };
@@ -1146,12 +1264,82 @@ mod tests {
             assert_eq!(exact.evaluations, abandoning.evaluations, "seed {seed}");
         }
         let pop = vec![vec![0.1], vec![0.1], vec![0.2], vec![0.3]];
+        let threshold = |fit: &[f64], n: usize| Survival::new(&pop, fit, n).threshold();
         // The clone of 0.1 counts once: the 3rd best distinct is 0.3's value.
-        assert_eq!(survival_bound(&pop, &[1.0, 1.0, 2.0, 3.0], 3), 3.0);
-        assert_eq!(
-            survival_bound(&pop, &[1.0, 1.0, 2.0, 3.0], 4),
-            f64::INFINITY
-        );
-        assert_eq!(survival_bound(&pop, &[1.0, 5.0, 2.0, 3.0], 2), 2.0);
+        assert_eq!(threshold(&[1.0, 1.0, 2.0, 3.0], 3), 3.0);
+        assert_eq!(threshold(&[1.0, 1.0, 2.0, 3.0], 4), f64::INFINITY);
+        assert_eq!(threshold(&[1.0, 5.0, 2.0, 3.0], 2), 2.0);
+        // Offspring values join: it falls, never rises, and infinite or abandoned
+        // values change nothing.
+        let s = Survival::new(&pop, &[1.0, 1.0, 2.0, 3.0], 4);
+        assert_eq!(s.bound(), f64::INFINITY);
+        s.offer(f64::INFINITY);
+        assert_eq!(s.threshold(), f64::INFINITY);
+        s.offer(2.5);
+        assert_eq!(s.threshold(), 3.0);
+        assert!(s.bound() > 3.0 && s.bound() < 3.0 + 1e-8);
+        s.offer(0.5);
+        assert_eq!(s.threshold(), 2.5);
+        s.offer(7.0);
+        s.offer(s.bound());
+        assert_eq!(s.threshold(), 2.5);
+        // A second offspring valued 1.0 is another individual (offspring are
+        // distinct points): 0.5, 1, 1, 2.
+        s.offer(1.0);
+        assert_eq!(s.threshold(), 2.0);
+        assert!(s.bound() > 2.0);
+    }
+
+    /// Rosenbrock rounded to a coarse grid: distinct individuals often share a value.
+    fn plateaus(x: &[f64]) -> f64 {
+        (rosenbrock(x) * 4.0).floor() / 4.0
+    }
+
+    /// Abandons every value that reaches the bound (the most an objective may do).
+    struct AbandoningPlateaus;
+
+    impl Objective for AbandoningPlateaus {
+        fn eval(&self, x: &[f64]) -> f64 {
+            plateaus(x)
+        }
+        fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
+            let f = plateaus(x);
+            if f >= bound {
+                f64::INFINITY
+            } else {
+                f
+            }
+        }
+    }
+
+    #[test]
+    fn abandoning_at_the_shared_bound_keeps_the_search_with_ties_on_any_thread_count() {
+        // Ties between distinct individuals are frequent here. The search must be the
+        // exact one on any number of threads (a threshold that counted a value twice,
+        // or one below the generation's, changes it). The strict margin that keeps an
+        // offspring tied with a later one from being abandoned is checked directly in
+        // `abandoning_at_the_survival_bound_does_not_change_the_search`: which thread
+        // finishes first is not under a test's control.
+        let b = Bounds::linear(vec![-2.0; 3], vec![2.0; 3]).unwrap();
+        for seed in 0..4 {
+            let o = GaOptions {
+                seed,
+                max_generations: 40,
+                pop_size: 24,
+                polish: false,
+                ..Default::default()
+            };
+            let exact = minimize(&plateaus, &b, &o, |_| true).unwrap();
+            for t in [1, 2, 3] {
+                let got = crate::parallel::with_threads(t, || {
+                    minimize(&AbandoningPlateaus, &b, &o, |_| true)
+                })
+                .unwrap()
+                .unwrap();
+                assert_eq!(exact.x, got.x, "seed {seed}, {t} threads");
+                assert_eq!(exact.history, got.history, "seed {seed}, {t} threads");
+                assert_eq!(exact.evaluations, got.evaluations, "seed {seed}");
+            }
+        }
     }
 }
