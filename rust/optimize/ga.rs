@@ -863,16 +863,23 @@ where
         if opts.plus {
             survive_unique(&mut pop, &mut fit, n);
         }
-        if opts.local_every > 0 && generation % opts.local_every == 0 && fit[0].is_finite() {
+        if opts.local_every > 0
+            && generation % opts.local_every == 0
+            && fit[0].is_finite()
+            && fit[0] > opts.target
+        {
             // Lamarckian local search: a short Nelder–Mead from the best individual,
-            // whose result joins the population (the worst individual leaves).
+            // whose result joins the population (the worst individual leaves). It
+            // stops at the target, like the generations.
             let step = simplex_steps(&pop, n, d);
             let budget = if opts.local_evals == 0 {
                 20 * d
             } else {
                 opts.local_evals
             };
-            let (z, fz) = nelder_mead(&mut ev, &pop[0], fit[0], &step, budget, |_, _, _| true);
+            let (z, fz) = nelder_mead(&mut ev, &pop[0], fit[0], &step, budget, |_, _, fb| {
+                fb > opts.target
+            });
             if fz < fit[0] {
                 pop.insert(0, z);
                 fit.insert(0, fz);
@@ -1218,6 +1225,44 @@ mod tests {
         let r = minimize(&sphere, &b, &o, |_| true).unwrap();
         assert_eq!(r.stop, StopReason::Target);
         assert!(r.f <= 1e-2);
+    }
+
+    #[test]
+    fn local_search_stops_at_the_target() {
+        // The local search (every generation here) stops as soon as its best reaches
+        // the target, and none starts once the best has: the target run evaluates
+        // fewer points than the same generations without a target would.
+        let b = Bounds::linear(vec![-1.0; 4], vec![1.0; 4]).unwrap();
+        let base = GaOptions {
+            seed: 3,
+            local_every: 1,
+            polish: false,
+            ..Default::default()
+        };
+        let target = 1e-3;
+        let t = minimize(
+            &sphere,
+            &b,
+            &GaOptions {
+                target,
+                ..base.clone()
+            },
+            |_| true,
+        )
+        .unwrap();
+        assert_eq!(t.stop, StopReason::Target);
+        assert!(t.f <= target);
+        let free = GaOptions {
+            max_generations: t.generations,
+            ..base
+        };
+        let u = minimize(&sphere, &b, &free, |_| true).unwrap();
+        assert!(
+            t.evaluations < u.evaluations,
+            "{} >= {}",
+            t.evaluations,
+            u.evaluations
+        );
     }
 
     #[test]
