@@ -351,14 +351,25 @@ pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Ve
     let p = rows(np, params)?;
     let r = runs.len();
     let probe: Vec<&[f64]> = params.chunks(np).take(1).collect();
-    if lane_costs(spec, &probe, &runs[0]).is_none() {
+    if lane_plants(spec, &probe, &runs[0]).is_none() {
         return cost_matrix(np, params, runs, |row, run| {
             run_cost(spec, row, run, f64::INFINITY)
         });
     }
     // Groups of LANES rows stepped together, in parallel over (group, run); the
-    // plants are discretized once per group when every run has the same dt.
-    let groups = p.div_ceil(LANES);
+    // plants are discretized once per group when every run has the same dt. The
+    // rows of a last, partial group go the other way round when that takes fewer
+    // passes (e.g. one row on 10 runs: 3 passes of runs stepped together instead of
+    // 10 passes with three idle lanes).
+    let refs: Vec<&RunRef> = runs.iter().collect();
+    let run_sets = run_groups(&refs);
+    let tail = p % LANES;
+    let by_runs = tail > 0 && tail * run_sets.len() < r;
+    let groups = if by_runs {
+        p / LANES
+    } else {
+        p.div_ceil(LANES)
+    };
     let group = |g: usize| -> Vec<&[f64]> {
         params[g * LANES * np..((g + 1) * LANES).min(p) * np]
             .chunks(np)
@@ -395,6 +406,25 @@ pub fn batch_cost(spec: &CostSpec, params: &[f64], runs: &[RunRef]) -> Result<Ve
         let (g, j) = (k / r, k % r);
         for (q, c) in costs.into_iter().enumerate() {
             out[(g * LANES + q) * r + j] = c;
+        }
+    }
+    if by_runs {
+        // In parallel over (tail row, run group).
+        let first = groups * LANES;
+        let ns = run_sets.len();
+        let parts: Vec<Vec<f64>> = (0..tail * ns)
+            .into_par_iter()
+            .map(|k| {
+                let row = &params[(first + k / ns) * np..(first + k / ns + 1) * np];
+                let rs: Vec<&RunRef> = run_sets[k % ns].iter().map(|&j| &runs[j]).collect();
+                run_lanes_group(spec, row, &rs, &vec![f64::INFINITY; rs.len()])
+            })
+            .collect();
+        for (k, costs) in parts.into_iter().enumerate() {
+            let i = first + k / ns;
+            for (&j, c) in run_sets[k % ns].iter().zip(costs) {
+                out[i * r + j] = c;
+            }
         }
     }
     Ok(out)

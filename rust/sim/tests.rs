@@ -671,15 +671,30 @@ fn lanes_equal_the_kernel_bit_for_bit() {
             dt: 0.1,
             ..open_run(&u[1000..], &y[1000..])
         };
+        // Nine runs: a last partial group of rows goes through the runs stepped
+        // together (groups of equal dt and length: four, three, one and one).
+        let mut nine = vec![run.clone(), other.clone()];
+        for k in 0..7 {
+            let from = if k < 4 { 500 } else { 700 };
+            nine.push(open_run(&u[from..], &y[from..]));
+        }
         for runs in [
             vec![run.clone(), open_run(&u[500..], &y[500..])],
             vec![run.clone(), other],
+            nine,
         ] {
-            let got = batch_cost(&sp, &flat, &runs).unwrap();
-            for (i, row) in rows.iter().enumerate() {
-                for (j, r) in runs.iter().enumerate() {
-                    let want = run_cost(&sp, row, r, f64::INFINITY);
-                    assert_eq!(got[i * runs.len() + j].to_bits(), want.to_bits());
+            for n in [1, 2, 3, 5, rows.len()] {
+                let flat: Vec<f64> = rows[..n].concat();
+                let got = batch_cost(&sp, &flat, &runs).unwrap();
+                for (i, row) in rows[..n].iter().enumerate() {
+                    for (j, r) in runs.iter().enumerate() {
+                        let want = run_cost(&sp, row, r, f64::INFINITY);
+                        assert_eq!(
+                            got[i * runs.len() + j].to_bits(),
+                            want.to_bits(),
+                            "{n} rows, row {i}, run {j}"
+                        );
+                    }
                 }
             }
         }
