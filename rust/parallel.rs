@@ -74,6 +74,20 @@ pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Re
     Ok(pool.install(f))
 }
 
+/// [`with_threads`] that also runs `f` itself on a worker of the pool: with
+/// `threads = 0` and a caller outside rayon's global pool, `f` moves onto one of its
+/// workers. For work made of many parallel steps (a calibration: every generation
+/// and every Nelder–Mead point is one): a step forked from a worker hands its other
+/// half to the next worker directly, whereas a caller outside the pool injects every
+/// step into the pool and sleeps until it is done, so each step wakes two threads.
+pub fn on_worker<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Result<T> {
+    if threads == 0 && rayon::current_thread_index().is_none() {
+        check_threads(threads)?;
+        return Ok(rayon::scope(|_| f()));
+    }
+    with_threads(threads, f)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -96,6 +110,24 @@ mod tests {
             "nothing may run"
         );
         assert_eq!(with_threads(1, || 7).unwrap(), 7);
+        assert!(on_worker(max + 1, || ()).is_err());
+    }
+
+    #[test]
+    fn on_worker_runs_the_work_on_a_pool_thread() {
+        // Called from a thread outside any pool (a test thread), the global pool.
+        let outside = std::thread::spawn(|| {
+            let at = on_worker(0, rayon::current_thread_index).unwrap();
+            (rayon::current_thread_index(), at)
+        })
+        .join()
+        .unwrap();
+        assert_eq!(outside.0, None);
+        assert!(outside.1.is_some(), "f ran outside the pool");
+        // A given number of threads: that pool, as with_threads.
+        let n = on_worker(2, rayon::current_num_threads).unwrap();
+        assert_eq!(n, 2);
+        assert!(on_worker(2, rayon::current_thread_index).unwrap().is_some());
     }
 
     #[test]

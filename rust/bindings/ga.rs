@@ -1,7 +1,8 @@
 //! The one calibration binding (`avll.calibrate`, `avll.calibrate_many`,
 //! `avll.bootstrap` and the diagnosis use it), with its progress and Ctrl-C path.
 //!
-//! The GA runs on a scoped worker thread (inside the requested rayon pool) with the
+//! The GA runs on a worker of the requested rayon pool (the global one for
+//! `threads = 0`: `parallel::on_worker`), started from a scoped thread, with the
 //! GIL released; the calling thread waits for per-generation progress messages and,
 //! for each batch of them, re-takes the GIL, calls `py.check_signals()` (Ctrl-C)
 //! and the optional Python progress callable. Ctrl-C sets a stop flag that every
@@ -177,7 +178,7 @@ fn calibrate<'py>(
             let worker = s.spawn(move || {
                 let tx = std::sync::Mutex::new(tx);
                 let res = guard(|| {
-                    crate::parallel::with_threads(threads, || {
+                    crate::parallel::on_worker(threads, || {
                         crate::optimize::calibrate::calibrate_many(
                             spec,
                             runs,
