@@ -167,18 +167,7 @@ impl Objective for Eq6<'_> {
                 vs.iter().for_each(|&v| survival.offer(v));
                 return vs;
             }
-            rs.iter()
-                .map(|x| {
-                    let bound = survival.bound();
-                    let v = if bound.is_finite() {
-                        self.eval_bounded(x, bound)
-                    } else {
-                        self.eval(x)
-                    };
-                    survival.offer(v);
-                    v
-                })
-                .collect()
+            rs.iter().map(|x| survival.evaluate(self, x)).collect()
         };
         let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
         parts.concat()

@@ -464,18 +464,7 @@ pub trait Objective: Sync {
     /// parallel one by one. Which points are abandoned depends on timing, but only
     /// points that cannot survive are (see [`Survival`]), so the GA's result does not.
     fn eval_offspring(&self, xs: &[Vec<f64>], survival: &Survival) -> Vec<f64> {
-        xs.par_iter()
-            .map(|x| {
-                let bound = survival.bound();
-                let v = if bound.is_finite() {
-                    self.eval_bounded(x, bound)
-                } else {
-                    self.eval(x)
-                };
-                survival.offer(v);
-                v
-            })
-            .collect()
+        xs.par_iter().map(|x| survival.evaluate(self, x)).collect()
     }
 }
 
@@ -536,6 +525,19 @@ impl Survival {
     /// The value at which an offspring's evaluation may stop (see the type).
     pub fn bound(&self) -> f64 {
         f64::from_bits(self.bound.load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    /// `f`'s value of one offspring, `eval_bounded` at the current bound (`eval`
+    /// while it is infinite), offered.
+    pub fn evaluate<F: Objective + ?Sized>(&self, f: &F, x: &[f64]) -> f64 {
+        let bound = self.bound();
+        let v = if bound.is_finite() {
+            f.eval_bounded(x, bound)
+        } else {
+            f.eval(x)
+        };
+        self.offer(v);
+        v
     }
 
     /// Records an offspring's value (an abandoned or infinite one changes nothing).
@@ -1273,15 +1275,16 @@ mod tests {
         assert!(r.f.is_finite() && r.x[0] >= 0.0);
     }
 
-    /// Abandons every value that reaches the bound (the most an objective may do).
-    struct Abandoning;
+    /// Abandons every value of its function that reaches the bound (the most an
+    /// objective may do).
+    struct Abandoning(fn(&[f64]) -> f64);
 
     impl Objective for Abandoning {
         fn eval(&self, x: &[f64]) -> f64 {
-            rosenbrock(x)
+            (self.0)(x)
         }
         fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
-            let f = rosenbrock(x);
+            let f = (self.0)(x);
             if f >= bound {
                 f64::INFINITY
             } else {
@@ -1290,11 +1293,12 @@ mod tests {
         }
     }
 
-    #[test]
-    fn abandoning_at_the_survival_bound_does_not_change_the_search() {
+    /// The search of `f` abandoning at the survival bound equals the exact one, for
+    /// each seed and number of threads (0: the calling thread's pool).
+    fn same_search_when_abandoning(f: fn(&[f64]) -> f64, seeds: u64, threads: &[usize]) {
         // Coarse bounds on a small box make clones and ties frequent.
         let b = Bounds::linear(vec![-2.0; 3], vec![2.0; 3]).unwrap();
-        for seed in 0..6 {
+        for seed in 0..seeds {
             let o = GaOptions {
                 seed,
                 max_generations: 40,
@@ -1302,12 +1306,22 @@ mod tests {
                 polish: false,
                 ..Default::default()
             };
-            let exact = minimize(&rosenbrock, &b, &o, |_| true).unwrap();
-            let abandoning = minimize(&Abandoning, &b, &o, |_| true).unwrap();
-            assert_eq!(exact.x, abandoning.x, "seed {seed}");
-            assert_eq!(exact.history, abandoning.history, "seed {seed}");
-            assert_eq!(exact.evaluations, abandoning.evaluations, "seed {seed}");
+            let exact = minimize(&f, &b, &o, |_| true).unwrap();
+            for &t in threads {
+                let got =
+                    crate::parallel::with_threads(t, || minimize(&Abandoning(f), &b, &o, |_| true))
+                        .unwrap()
+                        .unwrap();
+                assert_eq!(exact.x, got.x, "seed {seed}, {t} threads");
+                assert_eq!(exact.history, got.history, "seed {seed}, {t} threads");
+                assert_eq!(exact.evaluations, got.evaluations, "seed {seed}");
+            }
         }
+    }
+
+    #[test]
+    fn abandoning_at_the_survival_bound_does_not_change_the_search() {
+        same_search_when_abandoning(rosenbrock, 6, &[0]);
         let pop = vec![vec![0.1], vec![0.1], vec![0.2], vec![0.3]];
         let threshold = |fit: &[f64], n: usize| Survival::new(&pop, fit, n).threshold();
         // The clone of 0.1 counts once: the 3rd best distinct is 0.3's value.
@@ -1340,23 +1354,6 @@ mod tests {
         (rosenbrock(x) * 4.0).floor() / 4.0
     }
 
-    /// Abandons every value that reaches the bound (the most an objective may do).
-    struct AbandoningPlateaus;
-
-    impl Objective for AbandoningPlateaus {
-        fn eval(&self, x: &[f64]) -> f64 {
-            plateaus(x)
-        }
-        fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
-            let f = plateaus(x);
-            if f >= bound {
-                f64::INFINITY
-            } else {
-                f
-            }
-        }
-    }
-
     #[test]
     fn abandoning_at_the_shared_bound_keeps_the_search_with_ties_on_any_thread_count() {
         // Ties between distinct individuals are frequent here. The search must be the
@@ -1365,26 +1362,6 @@ mod tests {
         // offspring tied with a later one from being abandoned is checked directly in
         // `abandoning_at_the_survival_bound_does_not_change_the_search`: which thread
         // finishes first is not under a test's control.
-        let b = Bounds::linear(vec![-2.0; 3], vec![2.0; 3]).unwrap();
-        for seed in 0..4 {
-            let o = GaOptions {
-                seed,
-                max_generations: 40,
-                pop_size: 24,
-                polish: false,
-                ..Default::default()
-            };
-            let exact = minimize(&plateaus, &b, &o, |_| true).unwrap();
-            for t in [1, 2, 3] {
-                let got = crate::parallel::with_threads(t, || {
-                    minimize(&AbandoningPlateaus, &b, &o, |_| true)
-                })
-                .unwrap()
-                .unwrap();
-                assert_eq!(exact.x, got.x, "seed {seed}, {t} threads");
-                assert_eq!(exact.history, got.history, "seed {seed}, {t} threads");
-                assert_eq!(exact.evaluations, got.evaluations, "seed {seed}");
-            }
-        }
+        same_search_when_abandoning(plateaus, 4, &[1, 2, 3]);
     }
 }
