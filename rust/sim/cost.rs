@@ -717,11 +717,21 @@ pub fn lane_run(
         std::array::from_fn(|j| lanes.get(j).map_or(f64::INFINITY, |l| limits[l.0]));
     let (us, ms) = ([u; LANES], [run.a; LANES]);
     let wa = spec.weights[0];
-    let costs = if super::fma() {
+    // Rows whose dead times round to the same whole number of samples read one row
+    // of the dead-time line (as one plant on several runs) instead of gathering
+    // each lane's own; a converging population mostly has them.
+    let one_delay = lanes.iter().all(|l| l.1.p.delay == lanes[0].1.p.delay);
+    let costs = match (super::fma(), one_delay) {
         // SAFETY: the CPU supports FMA and AVX2 (checked just above).
-        unsafe { super::with_fma(|| lane_sse::<true, true>(&lanes, us, ms, wa, lim)) }
-    } else {
-        lane_sse::<false, true>(&lanes, us, ms, wa, lim)
+        (true, true) => unsafe {
+            super::with_fma(|| lane_sse::<true, true, true>(&lanes, us, ms, wa, lim))
+        },
+        // SAFETY: as above.
+        (true, false) => unsafe {
+            super::with_fma(|| lane_sse::<true, true, false>(&lanes, us, ms, wa, lim))
+        },
+        (false, true) => lane_sse::<false, true, true>(&lanes, us, ms, wa, lim),
+        (false, false) => lane_sse::<false, true, false>(&lanes, us, ms, wa, lim),
     };
     for ((k, _), c) in lanes.iter().zip(costs) {
         out[*k] = c;
@@ -812,9 +822,9 @@ pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &
     let wa = spec.weights[0];
     let costs = if super::fma() {
         // SAFETY: the CPU supports FMA and AVX2 (checked just above).
-        unsafe { super::with_fma(|| lane_sse::<true, false>(&ls, us, ms, wa, lim)) }
+        unsafe { super::with_fma(|| lane_sse::<true, false, true>(&ls, us, ms, wa, lim)) }
     } else {
-        lane_sse::<false, false>(&ls, us, ms, wa, lim)
+        lane_sse::<false, false, true>(&ls, us, ms, wa, lim)
     };
     for ((j, _), c) in ls.iter().zip(costs) {
         out[*j] = c;
@@ -825,8 +835,10 @@ pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &
 /// The lanes' weighted SSE loop. With `SAME` every lane reads the same command and
 /// measurement (several rows on one run: `us[0]`, `ms[0]`); otherwise lane `j` reads
 /// its own (one row on several runs of equal length: one plant, so one dead time).
+/// With `ONE` every lane has the same whole-sample dead time, and the delayed inputs
+/// are one row of the line (otherwise each lane's is gathered from its own row).
 #[inline(always)]
-fn lane_sse<const F: bool, const SAME: bool>(
+fn lane_sse<const F: bool, const SAME: bool, const ONE: bool>(
     lanes: &[(usize, Lane)],
     us: [&[f64]; LANES],
     ms: [&[f64]; LANES],
@@ -852,7 +864,7 @@ fn lane_sse<const F: bool, const SAME: bool>(
     let (p00, p01) = (col(&|l| l.p.phi[0][0]), col(&|l| l.p.phi[0][1]));
     let (p10, p11) = (col(&|l| l.p.phi[1][0]), col(&|l| l.p.phi[1][1]));
     let delay: [usize; L] = std::array::from_fn(|k| pick(k).p.delay);
-    debug_assert!(SAME || delay.iter().all(|&d| d == delay[0]));
+    debug_assert!(!ONE || delay.iter().all(|&d| d == delay[0]));
     let cap = (delay.iter().max().copied().unwrap_or(0) + 2).next_power_of_two();
     let mask = cap - 1;
     let hist = col(&|l| l.w_hist);
@@ -899,12 +911,12 @@ fn lane_sse<const F: bool, const SAME: bool>(
             for j in 0..L {
                 row[j] = un[j] + k[j] * y[j];
             }
-            if SAME {
+            if !ONE {
                 for j in 0..L {
                     w0[j] = ring[n.wrapping_sub(delay[j]) & mask][j];
                 }
             } else {
-                // One plant on every lane: one delay, one row of the line.
+                // One delay on every lane: one row of the line.
                 w0 = ring[n.wrapping_sub(delay[0]) & mask];
             }
             for j in 0..L {

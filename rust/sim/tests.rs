@@ -666,6 +666,24 @@ fn lanes_equal_the_kernel_bit_for_bit() {
             assert_eq!(g.to_bits(), want.to_bits(), "{row:?}: {g} vs {want}");
         }
         assert!(got[0].is_finite() && got[3].is_infinite() && got[4].is_infinite());
+        // A group whose dead times are the same whole number of samples (15 at
+        // dt = 0.05 s) with different fractions: the lanes read one row of the line.
+        let same_delay: Vec<Vec<f64>> = [0.751, 0.7796, 0.7903, 0.7999]
+            .iter()
+            .enumerate()
+            .map(|(i, &td)| {
+                let mut r = ROW.to_vec();
+                r[4] = td;
+                r[1] *= 1.0 + 0.1 * i as f64;
+                r
+            })
+            .collect();
+        let got = batch_cost(&sp, &same_delay.concat(), std::slice::from_ref(&run)).unwrap();
+        for (row, g) in same_delay.iter().zip(&got) {
+            let want = run_cost(&sp, row, &run, f64::INFINITY);
+            assert!(want.is_finite());
+            assert_eq!(g.to_bits(), want.to_bits(), "{row:?}: {g} vs {want}");
+        }
         // Several runs (plants shared across them), and runs of another dt.
         let other = RunRef {
             dt: 0.1,
