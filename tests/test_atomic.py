@@ -224,6 +224,37 @@ def test_interrupted_reproduce_keeps_the_finished_folder(tmp_path: Path) -> None
     assert _leftovers(tmp_path) == []
 
 
+def test_ctrl_c_caught_inside_a_string_exec_still_exits_130_under_python_m(
+        tmp_path: Path) -> None:
+    """CPython marks a KeyboardInterrupt that ends a string ``exec`` as unhandled even
+    when it is caught (a Ctrl-C landing in code that ``dataclasses`` generates did this
+    to ``python -m avll.cli reproduce``: it printed "interrupted" and then died by
+    SIGINT, exit -2, about one run in three at the end of a run). ``main`` forgets the
+    mark, so the exit code stays 130."""
+    (tmp_path / "probe_interrupt.py").write_text(textwrap.dedent("""
+        import sys
+
+        import avll.cli as cli
+
+
+        def interrupted(argv):
+            try:
+                exec("raise KeyboardInterrupt", {})
+            except KeyboardInterrupt:
+                return 130
+            return 0
+
+
+        cli._main = interrupted
+        sys.exit(cli.main([]))
+    """))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    r = subprocess.run([sys.executable, "-m", "probe_interrupt"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 130, r.stderr
+
+
 def test_reproduce_writes_a_manifest_and_replaces_its_own_files(tmp_path: Path) -> None:
     R.reproduce(tmp_path, settings=TINY, seed=0, progress=False)
     doc = _atomic.read_manifest(tmp_path)

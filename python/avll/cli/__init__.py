@@ -90,6 +90,23 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C)."""
+    try:
+        return _main(argv)
+    finally:
+        _forget_unhandled_interrupt()
+
+
+def _forget_unhandled_interrupt() -> None:
+    """Every Ctrl-C has been handled when :func:`main` returns, but CPython may not
+    know it: a ``KeyboardInterrupt`` that ends a string ``exec``/``eval`` (e.g. a
+    Ctrl-C landing in the code ``dataclasses`` or ``namedtuple`` generate) marks the
+    interrupt as unhandled even when a caller catches it, and ``python -m avll``
+    then ends the process by SIGINT instead of with the exit code. Each string
+    evaluation clears that mark when it starts, so an empty one forgets it."""
+    exec("", {})
+
+
+def _main(argv: Sequence[str] | None) -> int:
     command = "?"
     try:
         argv = list(sys.argv[1:] if argv is None else argv)
