@@ -229,7 +229,7 @@ def test_ctrl_c_caught_inside_a_string_exec_still_exits_130_under_python_m(
     """CPython marks a KeyboardInterrupt that ends a string ``exec`` as unhandled even
     when it is caught (a Ctrl-C landing in code that ``dataclasses`` generates did this
     to ``python -m avll.cli reproduce``: it printed "interrupted" and then died by
-    SIGINT, exit -2, about one run in three at the end of a run). ``main`` forgets the
+    SIGINT, exit -2, when interrupted near the end of a run). ``main`` forgets the
     mark, so the exit code stays 130."""
     (tmp_path / "probe_interrupt.py").write_text(textwrap.dedent("""
         import sys
