@@ -136,45 +136,51 @@ impl Objective for Eq6<'_> {
     /// to `eval`/`eval_bounded` of the point alone (same per-run costs, same
     /// abandoning checks, same combination), whatever the grouping or the threads.
     fn eval_many(&self, xs: &[Vec<f64>], bound: f64) -> Vec<f64> {
-        let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
-        let groups = rows.len().div_ceil(LANES);
-        let one = |g: usize| {
-            let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
-            self.lane_group(rs, || bound).unwrap_or_else(|| {
-                rs.iter()
-                    .map(|x| {
-                        if bound.is_finite() {
-                            self.eval_bounded(x, bound)
-                        } else {
-                            self.eval(x)
-                        }
-                    })
-                    .collect()
-            })
-        };
-        let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
-        parts.concat()
+        self.in_groups(xs, &|| bound, &|_| ())
     }
 
     /// [`Eq6::eval_many`] at the shared survival bound, read again before each run
-    /// of a group; each group's values are offered as soon as the group is done.
+    /// of a group; each value is offered as soon as it is known.
     fn eval_offspring(&self, xs: &[Vec<f64>], survival: &Survival) -> Vec<f64> {
-        let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
-        let groups = rows.len().div_ceil(LANES);
-        let one = |g: usize| {
-            let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
-            if let Some(vs) = self.lane_group(rs, || survival.bound()) {
-                vs.iter().for_each(|&v| survival.offer(v));
-                return vs;
-            }
-            rs.iter().map(|x| survival.evaluate(self, x)).collect()
-        };
-        let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
-        parts.concat()
+        self.in_groups(xs, &|| survival.bound(), &|v| survival.offer(v))
     }
 }
 
 impl Eq6<'_> {
+    /// `xs` in groups of [`LANES`] through [`Eq6::lane_group`] (point by point where
+    /// the lanes do not apply), in parallel over groups, each at the value `bound`
+    /// gives when it is read; every value is passed to `offer` once known.
+    fn in_groups(
+        &self,
+        xs: &[Vec<f64>],
+        bound: &(dyn Fn() -> f64 + Sync),
+        offer: &(dyn Fn(f64) + Sync),
+    ) -> Vec<f64> {
+        let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
+        let groups = rows.len().div_ceil(LANES);
+        let one = |g: usize| -> Vec<f64> {
+            let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
+            if let Some(vs) = self.lane_group(rs, bound) {
+                vs.iter().for_each(|&v| offer(v));
+                return vs;
+            }
+            rs.iter()
+                .map(|x| {
+                    let b = bound();
+                    let v = if b.is_finite() {
+                        self.eval_bounded(x, b)
+                    } else {
+                        self.eval(x)
+                    };
+                    offer(v);
+                    v
+                })
+                .collect()
+        };
+        let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
+        parts.concat()
+    }
+
     /// Up to [`LANES`] rows through the lane kernel, run after run with each row's
     /// own abandoning limit (as [`Eq6::eval_bounded`]) at the value `bound` gives
     /// before each run; `None` when the lane path does not apply. The plants are
