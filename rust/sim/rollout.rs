@@ -7,7 +7,7 @@
 
 use super::chain::{check_kind, resolve_exo, Chain, Effects, NoEffects};
 use super::discretize::Integrators;
-use super::kernel::{run, Record, Response, Stepper, DIVERGED};
+use super::kernel::{blocks_apply, response_blocks, run, Record, Response, Stepper, DIVERGED};
 use super::plant::{start, Init, Plant, Start};
 use super::with_plant;
 use crate::effects::AnyEffect;
@@ -187,7 +187,18 @@ fn response_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     let s = start(lin, init, u.first().copied().unwrap_or(0.0))?;
     let mut st =
         stepper::<M, N, D, F, _>(plant, lin, Integrators::None, NoEffects, true, &s, [0.0; 2])?;
-    run(&mut st, u.len(), |n, _| u[n], &mut Response(y));
+    if blocks_apply(&st.plant) {
+        // Four samples at a time (the dead time makes them independent), the last
+        // few one by one.
+        let done = response_blocks(&mut st, u, y);
+        for n in done..u.len() {
+            let o = st.observe(n);
+            y[n] = o.y_lin;
+            st.step(n, &o, u[n]);
+        }
+    } else {
+        run(&mut st, u.len(), |n, _| u[n], &mut Response(y));
+    }
     // Linear: a finite stepper after the run proves the command finite (see
     // `Stepper::finite`); the command is read again only otherwise.
     if !st.finite() {

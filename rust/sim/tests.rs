@@ -896,3 +896,90 @@ fn a_bad_input_sample_anywhere_is_named() {
     .unwrap();
     assert!(tr.a[n - 1].is_nan());
 }
+
+/// The sample-by-sample open-loop response (the step loop the block form replaces).
+fn stepped_n<const M: usize, const N: usize, const D: bool, const F: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    u: &[f64],
+    init: Init,
+    y: &mut [f64],
+) -> crate::error::Result<bool> {
+    let applies = super::kernel::blocks_apply(&plant);
+    let s = super::plant::start(lin, init, u[0])?;
+    let mut st =
+        stepper::<M, N, D, F, _>(plant, lin, Integrators::None, NoEffects, true, &s, [0.0; 2])?;
+    run(
+        &mut st,
+        u.len(),
+        |n, _| u[n],
+        &mut super::kernel::Response(y),
+    );
+    Ok(applies)
+}
+
+#[test]
+fn block_response_equals_the_step_loop() {
+    let underdamped = Linear {
+        b1: 0.4,
+        b0: 1.0,
+        a2: 0.5,
+        a1: 0.3,
+        td: 0.31,
+        k: -0.2,
+    };
+    let first = Linear {
+        b1: 0.0,
+        b0: 1.0,
+        a2: 0.0,
+        a1: 0.45,
+        td: 0.43,
+        k: 0.0,
+    };
+    let (mut blocked, mut stepped) = (0, 0);
+    for lin in [proposed(), second(), underdamped, first] {
+        for (dt, td) in [
+            (0.05, lin.td),
+            (0.01, lin.td),
+            (0.1, 0.4),
+            (0.1, 0.45),
+            (0.05, 0.1),
+        ] {
+            let lin = Linear { td, ..lin };
+            for len in [1usize, 3, 4, 5, 7, 8, 9, 63, 64, 65, 1001, 4099] {
+                let u: Vec<f64> = cmd(len).iter().map(|v| v + 0.3).collect();
+                for init in [Init::Rest, Init::Steady] {
+                    let got = simulate(&lin, &u, dt, init).unwrap();
+                    let mut want = vec![0.0; len];
+                    let applies = if lin.order() == 1 {
+                        let p = Plant::<1, 1>::new(&lin, Integrators::None, dt, true).unwrap();
+                        stepped_n::<1, 1, true, false>(p, &lin, &u, init, &mut want)
+                    } else {
+                        let p = Plant::<2, 2>::new(&lin, Integrators::None, dt, true).unwrap();
+                        if p.diag {
+                            stepped_n::<2, 2, true, false>(p, &lin, &u, init, &mut want)
+                        } else {
+                            stepped_n::<2, 2, false, false>(p, &lin, &u, init, &mut want)
+                        }
+                    }
+                    .unwrap();
+                    if applies {
+                        blocked += 1;
+                    } else {
+                        stepped += 1;
+                    }
+                    let d = max_diff(&got, &want);
+                    assert!(
+                        d < 1e-12,
+                        "{lin:?} dt {dt} len {len} {init:?}: block form differs by {d:e}"
+                    );
+                }
+            }
+        }
+    }
+    // Both paths were exercised (dead times of 2 to 79 samples).
+    assert!(
+        blocked > 100 && stepped > 20,
+        "{blocked} blocked, {stepped} stepped"
+    );
+}
