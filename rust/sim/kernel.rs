@@ -653,7 +653,7 @@ fn blocks<const M: usize, const D: bool, const F: bool, const K: bool>(
         by.copy_from_slice(&yv);
         let mut r = [0.0; BLOCK];
         for j in 0..BLOCK {
-            r[j] = if K { bu[j] + k * yv[j] } else { bu[j] };
+            r[j] = if K { madd::<F>(k, yv[j], bu[j]) } else { bu[j] };
         }
         let w = n0 & mask;
         line[w..w + BLOCK].copy_from_slice(&r);
