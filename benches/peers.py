@@ -83,6 +83,9 @@ __all__ = [
     "check_close",
     "open_plain",
     "open_modal",
+    "Block",
+    "block",
+    "open_block",
     "closed_plain",
     "closed_modal",
     "platoon_plain",
@@ -291,6 +294,122 @@ def _open_modal(lam, g0, g1, c, k, i, u):  # pragma: no cover - compiled
         z1 = l1 * z1 + (a1 * w0 + b1 * w1)
         w1 = w0
     return y
+
+
+@dataclass(frozen=True)
+class Block:
+    """:class:`Modal` with the maps of four samples stepped together (the block form
+    avll's open loop uses when the dead time is at least four samples): ``yx[m, j] =
+    c_m lam_m^j``, ``yg[k + 1, j]`` the response of sample ``j`` of a block to the line
+    output ``g[n0 + k]``, ``s[k + 1, m]`` mode ``m``'s state after the block, ``l4 =
+    lam^4``."""
+
+    md: Modal
+    yx: np.ndarray
+    yg: np.ndarray
+    s: np.ndarray
+    l4: np.ndarray
+
+
+def block(md: Modal) -> Block:
+    """The four-sample block maps of a (two-mode, no integrator) modal step, written
+    from ``x[n+1] = lam x[n] + g0 g[n] + g1 g[n-1]`` and ``y = c x``."""
+    lam, a, b, c = md.lam, md.g0[:2], md.g1[:2], md.c[:2]
+    yx = np.array([[c[m] * lam[m] ** j for j in range(4)] for m in range(2)])
+    yg = np.zeros((4, 4))
+    for j in range(4):
+        for k in range(-1, 3):
+            h = 0.0
+            for m in range(2):
+                if 0 <= k < j:
+                    h += c[m] * a[m] * lam[m] ** (j - 1 - k)
+                if k + 1 < j:
+                    h += c[m] * b[m] * lam[m] ** (j - 2 - k)
+            yg[k + 1, j] = h
+    s = np.zeros((5, 2))
+    for k in range(-1, 4):
+        for m in range(2):
+            v = 0.0
+            if k >= 0:
+                v += a[m] * lam[m] ** (3 - k)
+            if k <= 2:
+                v += b[m] * lam[m] ** (2 - k)
+            s[k + 1, m] = v
+    return Block(md=md, yx=yx, yg=yg, s=s, l4=lam**4)
+
+
+@njit(**FAST)
+def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - compiled
+    # Four samples per iteration when the dead time is at least four samples: the
+    # block reads its five line outputs before writing its four references. The
+    # line is a power-of-two ring with a mirror of its first eight slots, so the five
+    # reads are contiguous; the last samples (and any dead time under four samples)
+    # go one by one as in the modal loop.
+    T = u.size
+    y = np.empty(T)
+    cap = 4
+    while cap < i + 8:
+        cap *= 2
+    mask = cap - 1
+    line = np.zeros(cap + 8)
+    z0 = 0.0
+    z1 = 0.0
+    nb = T // 4 if i >= 4 else 0
+    for blk in range(nb):
+        n0 = 4 * blk
+        base = (n0 - i - 1) & mask
+        q0 = line[base]
+        q1 = line[base + 1]
+        q2 = line[base + 2]
+        q3 = line[base + 3]
+        q4 = line[base + 4]
+        w = n0 & mask
+        # The four samples written out (independent of each other).
+        ta = yg[0, 0] * q0 + yg[1, 0] * q1 + yg[2, 0] * q2 + yg[3, 0] * q3
+        tb = yg[0, 1] * q0 + yg[1, 1] * q1 + yg[2, 1] * q2 + yg[3, 1] * q3
+        tc = yg[0, 2] * q0 + yg[1, 2] * q1 + yg[2, 2] * q2 + yg[3, 2] * q3
+        td = yg[0, 3] * q0 + yg[1, 3] * q1 + yg[2, 3] * q2 + yg[3, 3] * q3
+        ya = ta + yx[1, 0] * z1 + yx[0, 0] * z0
+        yb = tb + yx[1, 1] * z1 + yx[0, 1] * z0
+        yc = tc + yx[1, 2] * z1 + yx[0, 2] * z0
+        yd = td + yx[1, 3] * z1 + yx[0, 3] * z0
+        y[n0] = ya
+        y[n0 + 1] = yb
+        y[n0 + 2] = yc
+        y[n0 + 3] = yd
+        ra = u[n0] + k * ya
+        rb = u[n0 + 1] + k * yb
+        rc = u[n0 + 2] + k * yc
+        rd = u[n0 + 3] + k * yd
+        line[w] = ra
+        line[w + 1] = rb
+        line[w + 2] = rc
+        line[w + 3] = rd
+        if w < 8:
+            line[cap + w] = ra
+            line[cap + w + 1] = rb
+            line[cap + w + 2] = rc
+            line[cap + w + 3] = rd
+        t0 = s[0, 0] * q0 + s[1, 0] * q1 + s[2, 0] * q2 + s[3, 0] * q3 + s[4, 0] * q4
+        t1 = s[0, 1] * q0 + s[1, 1] * q1 + s[2, 1] * q2 + s[3, 1] * q3 + s[4, 1] * q4
+        z0 = l4[0] * z0 + t0
+        z1 = l4[1] * z1 + t1
+    w1 = line[(4 * nb - 1 - i) & mask]
+    for n in range(4 * nb, T):
+        yn = c[0] * z0 + c[1] * z1
+        y[n] = yn
+        line[n & mask] = u[n] + k * yn
+        w0 = line[(n - i) & mask]
+        z0 = lam[0] * z0 + (g0[0] * w0 + g1[0] * w1)
+        z1 = lam[1] * z1 + (g0[1] * w0 + g1[1] * w1)
+        w1 = w0
+    return y
+
+
+def open_block(bl: Block, u: np.ndarray) -> np.ndarray:
+    """Open-loop response at rest: avll's four-sample block form written in numba."""
+    md = bl.md
+    return _open_block(md.lam, md.g0, md.g1, md.c, md.k, md.i, bl.yx, bl.yg, bl.s, bl.l4, u)
 
 
 def open_plain(d: Discrete, u: np.ndarray) -> np.ndarray:
@@ -1027,6 +1146,10 @@ def _modal(model: avll.LowerLevelModel, dt: float) -> Modal:
     return modal(discretize(model, dt))
 
 
+def _block(model: avll.LowerLevelModel, dt: float) -> Block:
+    return block(modal(discretize(model, dt)))
+
+
 def _disc4(model: avll.LowerLevelModel, dt: float) -> Discrete:
     return discretize(model, dt, integrators=True)
 
@@ -1039,6 +1162,7 @@ def _modal4(model: avll.LowerLevelModel, dt: float) -> Modal:
 OPEN_PEERS = (
     Peer("numba plain loop (2x2 step, ring buffer)", "plain", _disc, open_plain),
     Peer("numba modal, ring-buffer delay line", "best", _modal, open_modal),
+    Peer("numba, avll's four-sample block form", "block", _block, open_block),
 )
 #: run(prepared, upper, lead_x, lead_v, v0, x0) -> (a, v, x, command)
 CLOSED_PEERS = (
