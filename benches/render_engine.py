@@ -38,6 +38,21 @@ def render(d: dict) -> str:
             f"| {w['title']} | {w['avll']['rate']:.0f} | {best['rate']:.0f} ({best['name']}) "
             f"| {w['ratio']:.2f}x | {'' if target is None else f'>= {target:g}x'} | {met} |"
         )
+    lines += [
+        "",
+        "Every peer (the best one is in the table above):",
+        "",
+        "| workload | peer | M steps/s | avll / peer | max rel diff to avll |",
+        "|---|---|---|---|---|",
+    ]
+    for w in d["workloads"]:
+        for p in w["peers"]:
+            diff = p.get("max_rel_diff")
+            lines.append(
+                f"| {w['title']} | {p['name']} | {p['rate']:.0f} | "
+                f"{w['avll']['rate'] / p['rate']:.2f}x | "
+                f"{'' if diff is None else f'{diff:.1e}'} |"
+            )
     for s in d.get("scaling", []):
         lines.append("")
         note = ("" if s["met"] else " With the cores busy with other jobs the wall speed-up "
