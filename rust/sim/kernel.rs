@@ -449,7 +449,7 @@ struct BlockMaps<const M: usize> {
 }
 
 impl<const M: usize> BlockMaps<M> {
-    fn new<const N: usize>(p: &Plant<M, N>) -> Self {
+    fn new<const N: usize, const D: bool>(p: &Plant<M, N>) -> Self {
         let mul = |a: &[[f64; M]; M], b: &[[f64; M]; M]| {
             let mut o = [[0.0; M]; M];
             for r in 0..M {
@@ -459,10 +459,13 @@ impl<const M: usize> BlockMaps<M> {
             }
             o
         };
+        // `Phi` as `advance` applies it: only its diagonal in modal coordinates.
         let mut phi = [[0.0; M]; M];
         for r in 0..M {
             for c in 0..M {
-                phi[r][c] = p.phi[r][c];
+                if !(D || M == 1) || r == c {
+                    phi[r][c] = p.phi[r][c];
+                }
             }
         }
         // pw[e] = Phi^e, e = 0..=4.
@@ -547,7 +550,7 @@ pub fn response_blocks<const M: usize, const N: usize, const D: bool, const F: b
     if len == 0 {
         return 0;
     }
-    let bm = BlockMaps::<M>::new(&st.plant);
+    let bm = BlockMaps::<M>::new::<N, D>(&st.plant);
     let (i, k) = (st.plant.delay, st.plant.k);
     // A local copy of the dead-time line, a power of two long plus a mirror of its
     // first slots, so that a block reads its five `g` as one contiguous slice and
