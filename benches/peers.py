@@ -344,7 +344,8 @@ def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - c
     # block reads its five line outputs before writing its four references. The
     # line is a power-of-two ring with a mirror of its first eight slots, so the five
     # reads are contiguous; the last samples (and any dead time under four samples)
-    # go one by one as in the modal loop.
+    # go one by one as in the modal loop. Every coefficient is a local (numba's arrays
+    # may alias the outputs, so LLVM would reload them after each store).
     T = u.size
     y = np.empty(T)
     cap = 4
@@ -352,6 +353,15 @@ def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - c
         cap *= 2
     mask = cap - 1
     line = np.zeros(cap + 8)
+    a00, a01, a02, a03 = yg[0, 0], yg[0, 1], yg[0, 2], yg[0, 3]
+    a10, a11, a12, a13 = yg[1, 0], yg[1, 1], yg[1, 2], yg[1, 3]
+    a20, a21, a22, a23 = yg[2, 0], yg[2, 1], yg[2, 2], yg[2, 3]
+    a30, a31, a32, a33 = yg[3, 0], yg[3, 1], yg[3, 2], yg[3, 3]
+    x00, x01, x02, x03 = yx[0, 0], yx[0, 1], yx[0, 2], yx[0, 3]
+    x10, x11, x12, x13 = yx[1, 0], yx[1, 1], yx[1, 2], yx[1, 3]
+    s00, s10, s20, s30, s40 = s[0, 0], s[1, 0], s[2, 0], s[3, 0], s[4, 0]
+    s01, s11, s21, s31, s41 = s[0, 1], s[1, 1], s[2, 1], s[3, 1], s[4, 1]
+    l40, l41 = l4[0], l4[1]
     z0 = 0.0
     z1 = 0.0
     nb = T // 4 if i >= 4 else 0
@@ -363,16 +373,10 @@ def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - c
         q2 = line[base + 2]
         q3 = line[base + 3]
         q4 = line[base + 4]
-        w = n0 & mask
-        # The four samples written out (independent of each other).
-        ta = yg[0, 0] * q0 + yg[1, 0] * q1 + yg[2, 0] * q2 + yg[3, 0] * q3
-        tb = yg[0, 1] * q0 + yg[1, 1] * q1 + yg[2, 1] * q2 + yg[3, 1] * q3
-        tc = yg[0, 2] * q0 + yg[1, 2] * q1 + yg[2, 2] * q2 + yg[3, 2] * q3
-        td = yg[0, 3] * q0 + yg[1, 3] * q1 + yg[2, 3] * q2 + yg[3, 3] * q3
-        ya = ta + yx[1, 0] * z1 + yx[0, 0] * z0
-        yb = tb + yx[1, 1] * z1 + yx[0, 1] * z0
-        yc = tc + yx[1, 2] * z1 + yx[0, 2] * z0
-        yd = td + yx[1, 3] * z1 + yx[0, 3] * z0
+        ya = a00 * q0 + a10 * q1 + a20 * q2 + a30 * q3 + x10 * z1 + x00 * z0
+        yb = a01 * q0 + a11 * q1 + a21 * q2 + a31 * q3 + x11 * z1 + x01 * z0
+        yc = a02 * q0 + a12 * q1 + a22 * q2 + a32 * q3 + x12 * z1 + x02 * z0
+        yd = a03 * q0 + a13 * q1 + a23 * q2 + a33 * q3 + x13 * z1 + x03 * z0
         y[n0] = ya
         y[n0 + 1] = yb
         y[n0 + 2] = yc
@@ -381,6 +385,7 @@ def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - c
         rb = u[n0 + 1] + k * yb
         rc = u[n0 + 2] + k * yc
         rd = u[n0 + 3] + k * yd
+        w = n0 & mask
         line[w] = ra
         line[w + 1] = rb
         line[w + 2] = rc
@@ -390,10 +395,8 @@ def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - c
             line[cap + w + 1] = rb
             line[cap + w + 2] = rc
             line[cap + w + 3] = rd
-        t0 = s[0, 0] * q0 + s[1, 0] * q1 + s[2, 0] * q2 + s[3, 0] * q3 + s[4, 0] * q4
-        t1 = s[0, 1] * q0 + s[1, 1] * q1 + s[2, 1] * q2 + s[3, 1] * q3 + s[4, 1] * q4
-        z0 = l4[0] * z0 + t0
-        z1 = l4[1] * z1 + t1
+        z0 = l40 * z0 + (s00 * q0 + s10 * q1 + s20 * q2 + s30 * q3 + s40 * q4)
+        z1 = l41 * z1 + (s01 * q0 + s11 * q1 + s21 * q2 + s31 * q3 + s41 * q4)
     w1 = line[(4 * nb - 1 - i) & mask]
     for n in range(4 * nb, T):
         yn = c[0] * z0 + c[1] * z1
