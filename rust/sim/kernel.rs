@@ -568,31 +568,17 @@ pub fn response_blocks<const M: usize, const N: usize, const D: bool, const F: b
     }
     let mut x = [0.0; M];
     x.copy_from_slice(&st.x[..M]);
-    if k == 0.0 {
-        blocks::<M, D, F, false>(
-            &bm,
-            0.0,
-            i,
-            mask,
-            cap,
-            &mut line,
-            &mut x,
-            &u[..len],
-            &mut y[..len],
-        );
-    } else {
-        blocks::<M, D, F, true>(
-            &bm,
-            k,
-            i,
-            mask,
-            cap,
-            &mut line,
-            &mut x,
-            &u[..len],
-            &mut y[..len],
-        );
-    }
+    blocks::<M, D, F>(
+        &bm,
+        k,
+        i,
+        mask,
+        cap,
+        &mut line,
+        &mut x,
+        &u[..len],
+        &mut y[..len],
+    );
     st.x[..M].copy_from_slice(&x);
     // The next sample's `w1` is this block's last `g` (`u_ref[len - 1 - i]`), and the
     // stepper's line holds the last references in its own layout.
@@ -604,11 +590,10 @@ pub fn response_blocks<const M: usize, const N: usize, const D: bool, const F: b
     len
 }
 
-/// The block loop of [`response_blocks`] (`K`: the inner loop feeds the response
-/// back, `k != 0`).
+/// The block loop of [`response_blocks`].
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn blocks<const M: usize, const D: bool, const F: bool, const K: bool>(
+fn blocks<const M: usize, const D: bool, const F: bool>(
     bm: &BlockMaps<M>,
     k: f64,
     i: usize,
@@ -656,7 +641,13 @@ fn blocks<const M: usize, const D: bool, const F: bool, const K: bool>(
         by.copy_from_slice(&yv);
         let mut r = [0.0; BLOCK];
         for j in 0..BLOCK {
-            r[j] = if K { madd::<F>(k, yv[j], bu[j]) } else { bu[j] };
+            // Without inner feedback the reference is the command itself (not
+            // `u + 0 y`, which a diverging response would turn into NaN).
+            r[j] = if k == 0.0 {
+                bu[j]
+            } else {
+                madd::<F>(k, yv[j], bu[j])
+            };
         }
         let w = n0 & mask;
         line[w..w + BLOCK].copy_from_slice(&r);
