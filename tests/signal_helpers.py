@@ -10,7 +10,12 @@ Tests that send SIGINT therefore install the handler themselves: in-process with
 from __future__ import annotations
 
 import signal
+import subprocess
+import time
+from pathlib import Path
 from typing import Any
+
+import pytest
 
 
 def _restore_default_sigint() -> None:  # runs in the child, before exec
@@ -20,3 +25,26 @@ def _restore_default_sigint() -> None:  # runs in the child, before exec
 #: ``subprocess.Popen(..., **SIGINT_DEFAULT)``: the child starts with the default
 #: SIGINT disposition, so Python installs its KeyboardInterrupt handler there.
 SIGINT_DEFAULT: dict[str, Any] = {"preexec_fn": _restore_default_sigint}
+
+
+def interrupt_once_staged(p: subprocess.Popen[str], out: Path, timeout: float = 120.0) -> None:
+    """Sends SIGINT to ``p``, an ``avll reproduce --out out`` child, once the run has
+    written its first figure into its staging folder (the stability maps, the
+    diagnosis and the report are still to come). Not after a fixed delay: that lands
+    after the end of the run on a fast enough machine, when the run is complete and
+    the interpreter only shutting down (the process then ends by SIGINT). Skips the
+    test if the run finishes first; fails it if nothing is staged in ``timeout``."""
+    from avll import _atomic
+
+    deadline = time.monotonic() + timeout
+    while not any(out.glob(f"{_atomic.STAGING_PREFIX}*/fig3_*.png")):
+        if p.poll() is not None or time.monotonic() > deadline:  # pragma: no cover
+            p.kill()
+            _, err = p.communicate()
+            pytest.fail(f"no figure staged before the run ended or in {timeout:g} s: "
+                        f"{err[-500:]}")
+        time.sleep(0.01)
+    if p.poll() is not None:  # pragma: no cover - a very fast machine
+        p.communicate()  # close the pipes (an unclosed pipe warns, i.e. fails, later)
+        pytest.skip("finished before the signal")
+    p.send_signal(signal.SIGINT)

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from loader_helpers import carma_frame, sha
-from signal_helpers import SIGINT_DEFAULT
+from signal_helpers import SIGINT_DEFAULT, interrupt_once_staged
 
 import avll
 from avll import _atomic
@@ -209,21 +209,7 @@ def test_interrupted_reproduce_keeps_the_finished_folder(tmp_path: Path) -> None
     p = subprocess.Popen([sys.executable, "-m", "avll.cli", "reproduce", "--out", str(out),
                           "--seed", "1", "--quick", "-q"], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, **SIGINT_DEFAULT)
-    # The signal goes in once the new run has written its first figure into its staging
-    # folder (the stability maps, the diagnosis and the report are still to come), not
-    # after a fixed delay: a fixed delay lands after the end of the run on a fast enough
-    # machine (the run is then complete and the process is only shutting down).
-    deadline = time.monotonic() + 120.0
-    while not any(out.glob(f"{_atomic.STAGING_PREFIX}*/fig3_*.png")):
-        if p.poll() is not None or time.monotonic() > deadline:  # pragma: no cover
-            p.kill()
-            _, err = p.communicate()
-            pytest.fail(f"no figure staged before the run ended or in 120 s: {err[-500:]}")
-        time.sleep(0.01)
-    if p.poll() is not None:  # pragma: no cover - a very fast machine
-        p.communicate()
-        pytest.skip("finished before the signal")
-    p.send_signal(signal.SIGINT)
+    interrupt_once_staged(p, out)
     _, err = p.communicate(timeout=60)
     assert p.returncode == 130, err
     assert err.strip().splitlines()[-1] == "avll reproduce: interrupted"

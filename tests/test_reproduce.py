@@ -121,31 +121,15 @@ def test_ctrl_c_stops_cleanly(tmp_path: Path) -> None:
     """SIGINT during the default run (once its first figure is staged, with the
     stability maps and the diagnosis still to come): exit 130, one line, no traceback,
     no summary written."""
-    import signal
     import subprocess
     import sys
-    import time
 
-    from signal_helpers import SIGINT_DEFAULT
-
-    from avll import _atomic
+    from signal_helpers import SIGINT_DEFAULT, interrupt_once_staged
 
     p = subprocess.Popen([sys.executable, "-m", "avll.cli", "reproduce", "--out",
                           str(tmp_path), "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True, **SIGINT_DEFAULT)
-    # Not a fixed delay: on a fast enough machine it lands after the run's end, while
-    # the interpreter shuts down (the process then ends by SIGINT with the run done).
-    deadline = time.monotonic() + 120.0
-    while not any(tmp_path.glob(f"{_atomic.STAGING_PREFIX}*/fig3_*.png")):
-        if p.poll() is not None or time.monotonic() > deadline:  # pragma: no cover
-            p.kill()
-            _, err = p.communicate()
-            pytest.fail(f"no figure staged before the run ended or in 120 s: {err[-500:]}")
-        time.sleep(0.01)
-    if p.poll() is not None:  # pragma: no cover - a very fast machine
-        p.communicate()  # close the pipes (an unclosed pipe warns, i.e. fails, later)
-        pytest.skip("finished before the signal")
-    p.send_signal(signal.SIGINT)
+    interrupt_once_staged(p, tmp_path)
     out, err = p.communicate(timeout=60)
     assert p.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
