@@ -568,45 +568,9 @@ pub fn response_blocks<const M: usize, const N: usize, const D: bool, const F: b
     }
     let mut x = [0.0; M];
     x.copy_from_slice(&st.x[..M]);
-    blocks::<M, D, F>(
-        &bm,
-        k,
-        i,
-        mask,
-        cap,
-        &mut line,
-        &mut x,
-        &u[..len],
-        &mut y[..len],
-    );
-    st.x[..M].copy_from_slice(&x);
-    // The next sample's `w1` is this block's last `g` (`u_ref[len - 1 - i]`), and the
-    // stepper's line holds the last references in its own layout.
-    st.wp = line[(len - 1).wrapping_sub(i) & mask];
-    for q in 1..=st.buf.len() {
-        let m = len.wrapping_sub(q);
-        st.buf[m & smask] = line[m & mask];
-    }
-    len
-}
-
-/// The block loop of [`response_blocks`].
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn blocks<const M: usize, const D: bool, const F: bool>(
-    bm: &BlockMaps<M>,
-    k: f64,
-    i: usize,
-    mask: usize,
-    cap: usize,
-    line: &mut [f64],
-    x: &mut [f64; M],
-    u: &[f64],
-    y: &mut [f64],
-) {
-    for (b, (bu, by)) in u
+    for (b, (bu, by)) in u[..len]
         .chunks_exact(BLOCK)
-        .zip(y.chunks_exact_mut(BLOCK))
+        .zip(y[..len].chunks_exact_mut(BLOCK))
         .enumerate()
     {
         let n0 = b * BLOCK;
@@ -654,8 +618,17 @@ fn blocks<const M: usize, const D: bool, const F: bool>(
         if w < 2 * BLOCK {
             line[cap + w..cap + w + BLOCK].copy_from_slice(&r);
         }
-        *x = nx;
+        x = nx;
     }
+    st.x[..M].copy_from_slice(&x);
+    // The next sample's `w1` is this block's last `g` (`u_ref[len - 1 - i]`), and the
+    // stepper's line holds the last references in its own layout.
+    st.wp = line[(len - 1).wrapping_sub(i) & mask];
+    for q in 1..=st.buf.len() {
+        let m = len.wrapping_sub(q);
+        st.buf[m & smask] = line[m & mask];
+    }
+    len
 }
 
 /// Where the samples of a run go.
