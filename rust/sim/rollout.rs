@@ -466,6 +466,13 @@ pub trait PlatoonOut {
             self.put(j, n, a[j], v[j], x[j], u[j]);
         }
     }
+    /// The output rows of sample `n` for the first `a` followers (acceleration, speed,
+    /// position, command), when they are contiguous (time-major outputs): the stepping
+    /// then writes them in place instead of through [`PlatoonOut::put_row`].
+    #[inline(always)]
+    fn rows(&mut self, _n: usize, _a: usize) -> Option<[&mut [f64]; 4]> {
+        None
+    }
     /// Whether the first `alive` followers stayed in range over samples `from..to`
     /// (`|a| < DIVERGED`, finite speed): a branch-free pass; [`platoon_divergence`]
     /// looks for the first bad sample only when this says there is one.
@@ -550,6 +557,16 @@ impl PlatoonOut for TimeMajor<'_> {
     fn get(&self, j: usize, n: usize) -> (f64, f64) {
         let k = n * self.followers + j;
         (self.a[k], self.v[k])
+    }
+    #[inline(always)]
+    fn rows(&mut self, n: usize, a: usize) -> Option<[&mut [f64]; 4]> {
+        let k = n * self.followers;
+        Some([
+            &mut self.a[k..k + a],
+            &mut self.v[k..k + a],
+            &mut self.x[k..k + a],
+            &mut self.u[k..k + a],
+        ])
     }
     #[inline(always)]
     fn put_row(&mut self, n: usize, a: &[f64], v: &[f64], x: &[f64], u: &[f64]) {
@@ -704,52 +721,62 @@ fn platoon_linear<
         }
     }
     let cap = (plant.delay + 2).next_power_of_two();
+    let mask = cap - 1;
     let mut ring = vec![s.w_hist; cap * f];
-    let mut wp = vec![s.w_hist; f];
-    let (mut y, mut u, mut w0) = (vec![0.0; f], vec![0.0; f], vec![0.0; f]);
     let i = plant.delay;
+    // One sample of the first `a` followers, its outputs written to `ya, va, xa, ua`
+    // (the time-major output rows themselves, or local rows put afterwards).
+    let mut sample =
+        |n: usize, a: usize, ya: &mut [f64], va: &mut [f64], xa: &mut [f64], ua: &mut [f64]| {
+            let (ya, va, xa, ua) = (&mut ya[..a], &mut va[..a], &mut xa[..a], &mut ua[..a]);
+            // Responses at n: y = C z (as `observe`).
+            for (yj, z0) in ya.iter_mut().zip(&st[0][..a]) {
+                *yj = z0 * pl.c[0];
+            }
+            if M == 2 {
+                for (yj, z1) in ya.iter_mut().zip(&st[1][..a]) {
+                    *yj = madd::<F>(pl.c[1], *z1, *yj);
+                }
+            }
+            // Commands from the predecessors' positions and speeds at n, recorded with
+            // the followers' own.
+            {
+                let (vs, ps) = (&st[M][..a], &st[M + 1][..a]);
+                ua[0] = up.command(lead_x[n], lead_v[n], ps[0], vs[0]);
+                va[0] = vs[0];
+                xa[0] = ps[0];
+                for j in 1..a {
+                    ua[j] = up.command(ps[j - 1], vs[j - 1], ps[j], vs[j]);
+                    va[j] = vs[j];
+                    xa[j] = ps[j];
+                }
+            }
+            // The dead-time line: this sample's row in; the rows i and i + 1 samples back
+            // are `w0` and `w1` (the ring holds at least i + 2 rows, so neither is the one
+            // just written unless i = 0, where `w0` is that row, as in the kernel).
+            let row = (n & mask) * f;
+            for ((r, uj), yj) in ring[row..row + a].iter_mut().zip(&*ua).zip(&*ya) {
+                *r = uj + pl.k * yj;
+            }
+            let back = (n.wrapping_sub(i) & mask) * f;
+            let back1 = (n.wrapping_sub(i + 1) & mask) * f;
+            // The exact step (as `advance`).
+            step_soa::<M, N, D, F>(pl, &mut st, &ring[back..back + a], &ring[back1..back1 + a]);
+        };
+    let (mut y, mut u) = (vec![0.0; f], vec![0.0; f]);
+    let (mut vb, mut xb) = (vec![0.0; f], vec![0.0; f]);
     let mut alive = f;
     let mut from = 0;
     while from < len && alive > 0 {
         let to = (from + CHUNK).min(len);
         for n in from..to {
             let a = alive;
-            // Responses at n: y = C z (as `observe`).
-            {
-                let z0 = &st[0][..a];
-                y[..a].copy_from_slice(z0);
-                for yj in y[..a].iter_mut() {
-                    *yj *= pl.c[0];
-                }
-                if M == 2 {
-                    for (yj, z1) in y[..a].iter_mut().zip(&st[1][..a]) {
-                        *yj = madd::<F>(pl.c[1], *z1, *yj);
-                    }
-                }
+            if let Some([ya, va, xa, ua]) = outs.rows(n, a) {
+                sample(n, a, ya, va, xa, ua);
+            } else {
+                sample(n, a, &mut y, &mut vb, &mut xb, &mut u);
+                outs.put_row(n, &y[..a], &vb[..a], &xb[..a], &u[..a]);
             }
-            // Commands from the predecessors' positions and speeds at n.
-            {
-                let (vs, ps) = (&st[M][..a], &st[M + 1][..a]);
-                u[0] = up.command(lead_x[n], lead_v[n], ps[0], vs[0]);
-                for (((uj, pp), pv), (p, v)) in u[1..a]
-                    .iter_mut()
-                    .zip(&ps[..a - 1])
-                    .zip(&vs[..a - 1])
-                    .zip(ps[1..].iter().zip(&vs[1..]))
-                {
-                    *uj = up.command(*pp, *pv, *p, *v);
-                }
-            }
-            // The dead-time line: this sample's row in, the row i samples back out.
-            let row = (n & (cap - 1)) * f;
-            let back = (n.wrapping_sub(i) & (cap - 1)) * f;
-            for ((r, uj), yj) in ring[row..row + a].iter_mut().zip(&u[..a]).zip(&y[..a]) {
-                *r = uj + pl.k * yj;
-            }
-            w0[..a].copy_from_slice(&ring[back..back + a]);
-            outs.put_row(n, &y[..a], &st[M][..a], &st[M + 1][..a], &u[..a]);
-            // The exact step (as `advance`).
-            step_soa::<M, N, D, F>(pl, &mut st, &w0[..a], &mut wp[..a]);
         }
         alive = platoon_divergence(outs, alive, from, to);
         from = to;
@@ -757,13 +784,14 @@ fn platoon_linear<
     Ok(())
 }
 
-/// `advance` over all followers at once (struct of arrays), then `w1 <- w0`.
+/// `advance` over all followers at once (struct of arrays): `w0` and `w1` are the
+/// followers' delayed references `u_ref[n - i]` and `u_ref[n - i - 1]`.
 #[inline(always)]
 fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
     pl: &Plant<M, N>,
     st: &mut [Vec<f64>; N],
     w0: &[f64],
-    wp: &mut [f64],
+    wp: &[f64],
 ) {
     use super::kernel::madd;
     let a = w0.len();
@@ -808,7 +836,6 @@ fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
             z1[j] = n1;
         }
     }
-    wp.copy_from_slice(w0);
 }
 
 /// After samples `from..to`: the first follower (among the first `alive`) whose
