@@ -9,7 +9,8 @@ use super::ga::{
 };
 use crate::error::{AvllError, Result};
 use crate::sim::cost::{
-    lane_plants, lane_run, lanes_apply, run_groups, run_lanes, run_lanes_group, LanePlants, LANES,
+    by_delay, lane_plants, lane_run, lanes_apply, run_groups, run_lanes, run_lanes_group,
+    LanePlants, LANES,
 };
 use crate::sim::{run_cost, CostSpec, RunRef};
 use rayon::prelude::*;
@@ -156,7 +157,16 @@ impl Eq6<'_> {
         bound: &(dyn Fn() -> f64 + Sync),
         offer: &(dyn Fn(f64) + Sync),
     ) -> Vec<f64> {
-        let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
+        // Grouped in the order of their dead time where the lanes apply (see
+        // `by_delay`: same values, faster groups), the values returned in `xs`'s order.
+        let order: Vec<usize> = match self.w.first().map(|&(j, _)| &self.runs[j]) {
+            Some(run) if lanes_apply(self.spec, run) => {
+                let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
+                by_delay(self.spec, &rows, run)
+            }
+            _ => (0..xs.len()).collect(),
+        };
+        let rows: Vec<&[f64]> = order.iter().map(|&q| xs[q].as_slice()).collect();
         let groups = rows.len().div_ceil(LANES);
         let one = |g: usize| -> Vec<f64> {
             let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
@@ -178,7 +188,11 @@ impl Eq6<'_> {
                 .collect()
         };
         let parts: Vec<Vec<f64>> = (0..groups).into_par_iter().map(one).collect();
-        parts.concat()
+        let mut out = vec![f64::INFINITY; xs.len()];
+        for (&q, v) in order.iter().zip(parts.concat()) {
+            out[q] = v;
+        }
+        out
     }
 
     /// Up to [`LANES`] rows through the lane kernel, run after run with each row's
