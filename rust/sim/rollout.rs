@@ -568,16 +568,6 @@ impl PlatoonOut for TimeMajor<'_> {
             &mut self.u[k..k + a],
         ])
     }
-    #[inline(always)]
-    fn put_row(&mut self, n: usize, a: &[f64], v: &[f64], x: &[f64], u: &[f64]) {
-        // Row `n` is contiguous: four copies.
-        let k = n * self.followers;
-        let m = a.len();
-        self.a[k..k + m].copy_from_slice(a);
-        self.v[k..k + m].copy_from_slice(v);
-        self.x[k..k + m].copy_from_slice(x);
-        self.u[k..k + m].copy_from_slice(u);
-    }
     fn chunk_ok(&self, alive: usize, from: usize, to: usize) -> bool {
         let f = self.followers;
         let mut ok = true;
@@ -791,7 +781,7 @@ fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
     pl: &Plant<M, N>,
     st: &mut [Vec<f64>; N],
     w0: &[f64],
-    wp: &[f64],
+    w1: &[f64],
 ) {
     use super::kernel::madd;
     let a = w0.len();
@@ -802,7 +792,7 @@ fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
         let (vs, ps) = ints.split_at_mut(1);
         let (vs, ps) = (&mut vs[0][..a], &mut ps[0][..a]);
         for j in 0..a {
-            let (w0j, w1j) = (w0[j], wp[j]);
+            let (w0j, w1j) = (w0[j], w1[j]);
             let mut tv = madd::<F>(g1[M], w1j, g0[M] * w0j);
             for k in 0..M {
                 tv = madd::<F>(phi[M][k], zs[k][j], tv);
@@ -820,7 +810,7 @@ fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
         for r in 0..M {
             let z = &mut st[r][..a];
             for j in 0..a {
-                let t = madd::<F>(g1[r], wp[j], g0[r] * w0[j]);
+                let t = madd::<F>(g1[r], w1[j], g0[r] * w0[j]);
                 z[j] = madd::<F>(phi[r][r], z[j], t);
             }
         }
@@ -828,8 +818,8 @@ fn step_soa<const M: usize, const N: usize, const D: bool, const F: bool>(
         let (z0, z1) = st.split_at_mut(1);
         let (z0, z1) = (&mut z0[0][..a], &mut z1[0][..a]);
         for j in 0..a {
-            let t0 = madd::<F>(g1[0], wp[j], g0[0] * w0[j]);
-            let t1 = madd::<F>(g1[1], wp[j], g0[1] * w0[j]);
+            let t0 = madd::<F>(g1[0], w1[j], g0[0] * w0[j]);
+            let t1 = madd::<F>(g1[1], w1[j], g0[1] * w0[j]);
             let n0 = madd::<F>(phi[0][0], z0[j], madd::<F>(phi[0][1], z1[j], t0));
             let n1 = madd::<F>(phi[1][1], z1[j], madd::<F>(phi[1][0], z0[j], t1));
             z0[j] = n0;
