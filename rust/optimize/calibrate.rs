@@ -159,14 +159,12 @@ impl Eq6<'_> {
     ) -> Vec<f64> {
         // Grouped in the order of their dead time where the lanes apply (see
         // `by_delay`: same values, faster groups), the values returned in `xs`'s order.
+        let given: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
         let order: Vec<usize> = match self.w.first().map(|&(j, _)| &self.runs[j]) {
-            Some(run) if lanes_apply(self.spec, run) => {
-                let rows: Vec<&[f64]> = xs.iter().map(|x| x.as_slice()).collect();
-                by_delay(self.spec, &rows, run)
-            }
+            Some(run) if lanes_apply(self.spec, run) => by_delay(self.spec, &given, run),
             _ => (0..xs.len()).collect(),
         };
-        let rows: Vec<&[f64]> = order.iter().map(|&q| xs[q].as_slice()).collect();
+        let rows: Vec<&[f64]> = order.iter().map(|&q| given[q]).collect();
         let groups = rows.len().div_ceil(LANES);
         let one = |g: usize| -> Vec<f64> {
             let rs = &rows[g * LANES..((g + 1) * LANES).min(rows.len())];
