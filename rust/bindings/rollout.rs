@@ -131,6 +131,38 @@ fn arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> Arrays<'py> {
     std::array::from_fn(|_| unsafe { PyArray2::<f64>::new(py, [rows, t], false) })
 }
 
+/// [`arrays`] starting on a 64-byte boundary (a cache line): views into numpy
+/// arrays 8 elements longer (the 8 spare elements zeroed). The platoon's lane
+/// groups store 4 doubles (32 bytes) at a time into rows of `followers` doubles;
+/// from malloc's 16-byte alignment, every other such store would straddle two
+/// cache lines.
+fn aligned_arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> PyResult<Arrays<'py>> {
+    let n = rows * t;
+    let one = |_| -> PyResult<Bound<'py, PyArray2<f64>>> {
+        // SAFETY: the spare elements are zeroed below, the view is fully written
+        // before Python sees it (as `arrays`).
+        let base = unsafe { PyArray1::<f64>::new(py, n + 8, false) };
+        let k = {
+            let mut w = base.readwrite();
+            let s = w.as_slice_mut()?;
+            let k = s.as_ptr().align_offset(64).min(8);
+            s[..k].fill(0.0);
+            s[k + n..].fill(0.0);
+            k
+        };
+        let view = base.get_item(pyo3::types::PySlice::new(
+            py,
+            k as isize,
+            (k + n) as isize,
+            1,
+        ))?;
+        let view = view.cast_into::<PyArray1<f64>>()?;
+        Ok(view.reshape([rows, t])?)
+    };
+    let [a, v, x, u] = [one(0)?, one(1)?, one(2)?, one(3)?];
+    Ok([a, v, x, u])
+}
+
 fn dict_of<'py>(py: Python<'py>, arrs: Arrays<'py>, flat: bool) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     for (k, a) in ["a", "v", "x", "command"].into_iter().zip(arrs) {
@@ -320,7 +352,7 @@ fn platoon<'py>(
     let up = Upper { kg, kv, tg, gmin };
     let lx = slice1("lead_x", &lead_x)?;
     let lv = slice1("lead_v", &lead_v)?;
-    let arrs = arrays(py, lx.len(), followers);
+    let arrs = aligned_arrays(py, lx.len(), followers)?;
     {
         let mut ws: Vec<_> = arrs.iter().map(|a| a.readwrite()).collect();
         let [wa, wv, wx, wu] = &mut ws[..] else {
