@@ -35,8 +35,10 @@ import os
 os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 
 import argparse  # noqa: E402
+import ctypes  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
+import resource  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
@@ -93,24 +95,70 @@ class Timing:
 
     cpu: float
     wall: float
+    #: Minor page faults per timed call (mean): fresh output pages the kernel maps.
+    faults: float = 0.0
 
 
 def measure(fns: Sequence[Callable[[], object]], repeat: int) -> list[Timing]:
-    """Best CPU and wall times of each call: one warm-up call each, then ``repeat``
-    rounds calling every function once in turn (round-robin, so that load changes
-    and the allocator's state, which decides whether fresh outputs page-fault, hit
-    every implementation alike)."""
+    """Best CPU and wall times of each call, and its mean page faults: one warm-up
+    call each, then ``repeat`` rounds calling every function once in turn
+    (round-robin, so that load changes and the allocator's state hit every
+    implementation alike)."""
     for fn in fns:
         fn()
     cpus: list[list[float]] = [[] for _ in fns]
     walls: list[list[float]] = [[] for _ in fns]
+    faults: list[int] = [0 for _ in fns]
     for _ in range(max(1, repeat)):
         for k, fn in enumerate(fns):
+            f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             w0, c0 = time.perf_counter(), time.process_time()
             fn()
             cpus[k].append(time.process_time() - c0)
             walls[k].append(time.perf_counter() - w0)
-    return [Timing(min(c), min(w)) for c, w in zip(cpus, walls, strict=True)]
+            faults[k] += resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+    n = max(1, repeat)
+    return [Timing(min(c), min(w), f / n) for c, w, f in zip(cpus, walls, faults, strict=True)]
+
+
+#: glibc's mallopt parameters (malloc.h).
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+
+
+def keep_freed_memory() -> str:
+    """Makes glibc keep freed memory for reuse (the mmap threshold at its 32 MiB
+    maximum, no trimming below 1 GiB), so that no implementation's fresh outputs
+    page-fault and the timings measure the stepping. Left to itself, glibc's adaptive
+    thresholds decide, from the run's earlier allocations, whether the outputs of a
+    call page-fault; a fault costs about a microsecond per 4 KiB page on this kind of
+    machine (a 1e5-sample closed loop writes 800 KiB per output array), and numpy,
+    which allocates avll's outputs, asks for transparent huge pages on arrays of
+    4 MiB and more, which a numba loop's ``np.empty`` does not. Returns what was
+    done, for the report."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        ok = libc.mallopt(_M_MMAP_THRESHOLD, 32 << 20) == 1
+        ok &= libc.mallopt(_M_TRIM_THRESHOLD, 1 << 30) == 1
+    except (OSError, AttributeError):
+        ok = False
+    if ok:
+        return "glibc keeps freed memory (mallopt: mmap threshold 32 MiB, trim threshold 1 GiB)"
+    return "allocator left as it is (not glibc)"
+
+
+def row(
+    name: str,
+    variant: str,
+    steps: int,
+    t: Timing,
+    diff: float | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Row:
+    """A result row from a timing (``steps`` per call)."""
+    return Row(
+        name, variant, steps / t.cpu / 1e6, t.cpu, t.wall, diff,
+        {"faults_per_call": t.faults, **(extra or {})},
+    )  # fmt: skip
 
 
 @dataclass
@@ -198,11 +246,12 @@ def print_table(t: Table) -> None:
     print(f"  {t.steps:,} steps per call; {t.basis}")
     w = max(len(r.name) for r in [t.avll, *t.peers]) + 2
     wall = f"{'wall M/s':>10}" if t.wall_column else ""
-    print(f"  {'implementation':<{w}}{'M steps/s':>11}{wall}{'max rel diff':>14}")
+    print(f"  {'implementation':<{w}}{'M steps/s':>11}{wall}{'max rel diff':>14}{'faults':>8}")
     for r in [t.avll, *t.peers]:
         diff = "" if r.max_rel_diff is None else f"{r.max_rel_diff:.1e}"
         wr = f"{r.extra.get('wall_rate', float('nan')):>10.1f}" if t.wall_column else ""
-        print(f"  {r.name:<{w}}{r.rate:>11.1f}{wr}{diff:>14}")
+        flt = f"{r.extra.get('faults_per_call', float('nan')):>8.0f}"
+        print(f"  {r.name:<{w}}{r.rate:>11.1f}{wr}{diff:>14}{flt}")
     best = t.best_peer()
     line = f"  {t.ratio_basis}: {t.ratio():.2f}x (best peer: {best.name}); "
     if t.target is None:
@@ -297,7 +346,7 @@ def bench_open(n: int, repeat: int) -> Table:
         fns.append(lambda p=p, prep=prep: p.run(prep, u))
     t, *tps = measure(fns, repeat)
     rows = [
-        Row(p.name, p.variant, n / tp.cpu / 1e6, tp.cpu, tp.wall, d)
+        row(p.name, p.variant, n, tp, d)
         for p, tp, d in zip(peers.OPEN_PEERS, tps, diffs, strict=True)
     ]
     return Table(
@@ -305,7 +354,7 @@ def bench_open(n: int, repeat: int) -> Table:
         f"(a) open-loop rollout, proposed model, {n:,} samples",
         n,
         f"one thread, best CPU time of {repeat} (round-robin)",
-        Row("avll.simulate", "avll", n / t.cpu / 1e6, t.cpu, t.wall),
+        row("avll.simulate", "avll", n, t),
         rows,
         TARGET_ONE_CORE,
     )
@@ -333,7 +382,7 @@ def bench_closed(n: int, repeat: int) -> Table:
     del got
     t, *tps = measure(fns, repeat)
     rows = [
-        Row(p.name, p.variant, n / tp.cpu / 1e6, tp.cpu, tp.wall, d)
+        row(p.name, p.variant, n, tp, d)
         for p, tp, d in zip(peers.CLOSED_PEERS, tps, diffs, strict=True)
     ]
     return Table(
@@ -343,7 +392,7 @@ def bench_closed(n: int, repeat: int) -> Table:
         n,
         f"one thread, best CPU time of {repeat} (round-robin)"
         + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
-        Row("avll.closed_loop", "avll", n / t.cpu / 1e6, t.cpu, t.wall),
+        row("avll.closed_loop", "avll", n, t),
         rows,
         TARGET_ONE_CORE,
     )
@@ -372,7 +421,7 @@ def bench_platoon(n: int, followers: int, repeat: int) -> Table:
         fns.append(lambda p=p, prep=prep: p.run(prep, up, lx, lv, followers))
     t, *tps = measure(fns, repeat)
     rows = [
-        Row(p.name, p.variant, steps / tp.cpu / 1e6, tp.cpu, tp.wall, d)
+        row(p.name, p.variant, steps, tp, d)
         for p, tp, d in zip(peers.PLATOON_PEERS, tps, diffs, strict=True)
     ]
     return Table(
@@ -381,7 +430,7 @@ def bench_platoon(n: int, followers: int, repeat: int) -> Table:
         steps,
         f"one thread, best CPU time of {repeat} (round-robin); steps = followers x samples"
         + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
-        Row("avll.platoon", "avll", steps / t.cpu / 1e6, t.cpu, t.wall),
+        row("avll.platoon", "avll", steps, t),
         rows,
         TARGET_ONE_CORE,
     )
@@ -431,11 +480,15 @@ def bench_cost(
             walls.setdefault(p.name, {})[th] = tp.wall
             cpus.setdefault(p.name, {})[th] = tp.cpu
             rows.append(
-                Row(
-                    p.name, p.variant, steps / tp.cpu / 1e6, tp.cpu, tp.wall, diffs[p.name],
+                row(
+                    p.name,
+                    p.variant,
+                    steps,
+                    tp,
+                    diffs[p.name],
                     {"wall_rate": steps / tp.wall / 1e6},
                 )
-            )  # fmt: skip
+            )
         tables.append(
             Table(
                 f"cost_{key}_{th}t",
@@ -444,12 +497,11 @@ def bench_cost(
                 steps,
                 f"best CPU time of {repeat} (all threads), i.e. per core; "
                 f"{int(np.isinf(want).any(axis=1).sum())} sets cost inf",
-                Row(
+                row(
                     f"avll.batch_cost(threads={th})",
                     "avll",
-                    steps / t.cpu / 1e6,
-                    t.cpu,
-                    t.wall,
+                    steps,
+                    t,
                     None,
                     {"wall_rate": steps / t.wall / 1e6},
                 ),  # fmt: skip
@@ -529,6 +581,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="small sizes, 2 repeats")
     ap.add_argument("--only", default="open,closed,platoon,cost", help="workloads to run")
     ap.add_argument("--json", type=Path, default=None, help="write the tables here")
+    ap.add_argument(
+        "--allocator", choices=["keep", "default"], default="keep",
+        help="keep: glibc keeps freed memory, so that no implementation's fresh outputs "
+        "page-fault (the default: timings then measure the stepping); default: leave "
+        "glibc's adaptive thresholds, which decide per run whether all of them do",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     if args.quick:
         args.open_samples, args.closed_samples = [20_000], [20_000]
@@ -543,6 +601,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import numba
 
+    alloc = keep_freed_memory() if args.allocator == "keep" else "allocator left as it is"
     load0 = os.getloadavg()
     meta = {
         "avll": avll.__version__,
@@ -557,6 +616,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "dt": DT,
         "model": MODEL.to_dict(),
         "tolerance": TOL,
+        "allocator": alloc,
     }
     print(
         f"avll {avll.__version__}, numba {numba.__version__}, numpy {np.__version__}; "
@@ -566,6 +626,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "Rates are M model-steps/s per core (work / best process CPU time); on a shared "
         "machine they are noisy: compare ratios from one run."
     )
+    print(f"Allocator: {alloc}; 'faults' is minor page faults per timed call.")
     tables: list[Table] = []
     scalings: list[dict[str, Any]] = []
     interrupted = False

@@ -1,8 +1,10 @@
 """Renders ``bench_engine.py --json`` output as the docs' engine table.
 
     python benches/bench_engine.py --json docs/_generated/engine_bench.json
+    python benches/bench_engine.py --allocator default \
+        --json docs/_generated/engine_bench_default.json
     python benches/render_engine.py docs/_generated/engine_bench.json \
-        docs/_generated/engine_bench.md
+        docs/_generated/engine_bench.md --fresh docs/_generated/engine_bench_default.json
 
 Every number in the table comes from the JSON (rates in M steps/s per core, the
 ratio avll / best peer, the issue-10 target and whether it is met); the machine, the
@@ -18,32 +20,30 @@ import tempfile
 from pathlib import Path
 
 
-def render(d: dict) -> str:
+def _faults(r: dict) -> str:
+    f = r.get("faults_per_call")
+    return "" if f is None else f"{f:,.0f}"
+
+
+def render(d: dict, fresh: dict | None = None) -> str:
+    """The engine tables of ``d``; with ``fresh`` (a run with ``--allocator
+    default``), its summary table after them."""
     m = d["meta"]
     load = ", ".join(f"{x:.1f}" for x in m.get("load_average_start", []))
+    alloc = m.get("allocator", "allocator left as it is")
     lines = [
         f"Measured by `benches/bench_engine.py` (avll {m['avll']}, numba {m['numba']}, "
         f"numpy {m['numpy']}; {m['machine']}, {m['cpus']} CPUs; load average at start "
-        f"{load}; best of {m['repeat']} calls, CPU time, so rates are per core). Every peer "
-        f"was checked equal to avll to {m['tolerance']:g} before timing.",
+        f"{load}; best of {m['repeat']} calls, CPU time, so rates are per core; {alloc}). "
+        f"Every peer was checked equal to avll to {m['tolerance']:g} before timing.",
         "",
-        "| workload | avll | best peer | avll / best peer | target | met |",
-        "|---|---|---|---|---|---|",
-    ]
-    for w in d["workloads"]:
-        best = max(w["peers"], key=lambda p: p["rate"])
-        target = w.get("target")
-        met = "" if target is None else ("yes" if w.get("met") else "no")
-        lines.append(
-            f"| {w['title']} | {w['avll']['rate']:.0f} | {best['rate']:.0f} ({best['name']}) "
-            f"| {w['ratio']:.2f}x | {'' if target is None else f'>= {target:g}x'} | {met} |"
-        )
-    lines += [
+        *_summary(d),
         "",
         "Every peer (the best one is in the table above):",
         "",
-        "| workload | peer | M steps/s | avll / peer | max rel diff to avll |",
-        "|---|---|---|---|---|",
+        "| workload | peer | M steps/s | avll / peer | max rel diff to avll "
+        "| page faults per call |",
+        "|---|---|---|---|---|---|",
     ]
     for w in d["workloads"]:
         for p in w["peers"]:
@@ -51,7 +51,7 @@ def render(d: dict) -> str:
             lines.append(
                 f"| {w['title']} | {p['name']} | {p['rate']:.0f} | "
                 f"{w['avll']['rate'] / p['rate']:.2f}x | "
-                f"{'' if diff is None else f'{diff:.1e}'} |"
+                f"{'' if diff is None else f'{diff:.1e}'} | {_faults(p)} |"
             )
     for s in d.get("scaling", []):
         lines.append("")
@@ -63,15 +63,48 @@ def render(d: dict) -> str:
             f"{m['cpus']} CPUs); target >= {s['target']:g}x: "
             f"{'met' if s['met'] else 'not met'}.{note}"
         )
+    if fresh is not None:
+        fm = fresh["meta"]
+        fload = ", ".join(f"{x:.1f}" for x in fm.get("load_average_start", []))
+        lines += [
+            "",
+            f"The same benchmark with the allocator left as glibc sets it (`--allocator "
+            f"default`; load average at start {fload}): whether fresh outputs page-fault "
+            "then depends on glibc's adaptive thresholds, which this run's earlier "
+            "allocations set.",
+            "",
+            *_summary(fresh),
+        ]
     return "\n".join(lines) + "\n"
+
+
+def _summary(d: dict) -> list[str]:
+    lines = [
+        "| workload | avll | best peer | avll / best peer | target | met "
+        "| page faults per call (avll, best peer) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for w in d["workloads"]:
+        best = max(w["peers"], key=lambda p: p["rate"])
+        target = w.get("target")
+        met = "" if target is None else ("yes" if w.get("met") else "no")
+        lines.append(
+            f"| {w['title']} | {w['avll']['rate']:.0f} | {best['rate']:.0f} ({best['name']}) "
+            f"| {w['ratio']:.2f}x | {'' if target is None else f'>= {target:g}x'} | {met} "
+            f"| {_faults(w['avll'])}, {_faults(best)} |"
+        )
+    return lines
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("json", type=Path)
     ap.add_argument("out", type=Path)
+    ap.add_argument("--fresh", type=Path, default=None,
+                    help="a run with --allocator default, summarized after the tables")
     a = ap.parse_args()
-    text = render(json.loads(a.json.read_text()))
+    fresh = None if a.fresh is None else json.loads(a.fresh.read_text())
+    text = render(json.loads(a.json.read_text()), fresh)
     fd, tmp = tempfile.mkstemp(dir=a.out.parent, prefix=a.out.name, suffix=".tmp")
     with os.fdopen(fd, "w") as f:
         f.write(text)

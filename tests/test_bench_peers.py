@@ -198,6 +198,8 @@ def test_bench_engine_runs_and_writes_strict_json(tmp_path: Path) -> None:
     argv = [
         "--only", "open,cost", "--open-samples", "3000", "--cost-params", "60",
         "--cost-runs-params", "12", "--repeat", "1", "--json", str(out),
+        # the allocator left alone: `keep` would raise this test process's thresholds
+        "--allocator", "default",
     ]  # fmt: skip
     assert bench_engine.main(argv) == 0
     doc = json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"non-strict {c}"))
@@ -210,7 +212,9 @@ def test_bench_engine_runs_and_writes_strict_json(tmp_path: Path) -> None:
         assert w["avll"]["rate"] > 0 and len(w["peers"]) == n_peers[w["key"].split("_")[0]]
         assert all(p["max_rel_diff"] <= 1e-9 for p in w["peers"])
         assert w["ratio"] == pytest.approx(w["avll"]["rate"] / max(p["rate"] for p in w["peers"]))
+        assert all(r["faults_per_call"] >= 0 for r in [w["avll"], *w["peers"]])
     assert [s["threads"] for s in doc["scaling"]] == [[1, 2], [1, 2]]
+    assert doc["meta"]["allocator"] == "allocator left as it is"
 
 
 def test_bench_calibrate_unit_box_and_recorder() -> None:

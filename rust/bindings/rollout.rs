@@ -157,7 +157,7 @@ fn aligned_arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> PyResult<Array
             1,
         ))?;
         let view = view.cast_into::<PyArray1<f64>>()?;
-        Ok(view.reshape([rows, t])?)
+        view.reshape([rows, t])
     };
     let [a, v, x, u] = [one(0)?, one(1)?, one(2)?, one(3)?];
     Ok([a, v, x, u])
