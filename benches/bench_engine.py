@@ -130,8 +130,8 @@ def keep_freed_memory() -> str:
     maximum, no trimming below 1 GiB), so that no implementation's fresh outputs
     page-fault and the timings measure the stepping. Left to itself, glibc's adaptive
     thresholds decide, from the run's earlier allocations, whether the outputs of a
-    call page-fault; a fault costs about a microsecond per 4 KiB page on this kind of
-    machine (a 1e5-sample closed loop writes 800 KiB per output array), and numpy,
+    call page-fault (each fresh 4 KiB page once; the faults can cost more than the
+    stepping), and numpy,
     which allocates avll's outputs, asks for transparent huge pages on arrays of
     4 MiB and more, which a numba loop's ``np.empty`` does not. Returns what was
     done, for the report."""

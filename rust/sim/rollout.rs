@@ -995,15 +995,13 @@ where
     let direct = outs.time_major();
     let to_len = lead_x.len();
     debug_assert!(direct.is_none_or(|(f, _)| f >= alive));
+    // The leader's slot (index 0) is not used: the predecessors come in registers.
+    debug_assert!(soa.st.iter().all(|x| x.len() == width + 1));
+    let sp: [*mut f64; N] = std::array::from_fn(|q| soa.st[q].as_mut_ptr());
+    let rp = soa.ring.as_mut_ptr();
     for n in from..to {
         let (row, back, back1) = soa.rows(n);
-        let (st, ring) = (&mut soa.st, &mut soa.ring);
-        st[M][0] = lead_v[n];
-        st[M + 1][0] = lead_x[n];
-        let sp: [*mut f64; N] = std::array::from_fn(|q| st[q].as_mut_ptr());
-        let rp = ring.as_mut_ptr();
-        debug_assert!(st.iter().all(|x| x.len() == width + 1));
-        debug_assert!(row.max(back).max(back1) + width <= ring.len());
+        debug_assert!(row.max(back).max(back1) + width <= soa.ring.len());
         // The predecessor of a group's first lane, in every lane: the leader, then the
         // previous group's last follower before its update. Forward, in registers: a
         // load one index back would straddle two of the last sample's stores, which
