@@ -1,6 +1,6 @@
 """avll's rollout engine against numba peers, side by side in one process (issue 10).
 
-    python benches/bench_engine.py [--quick] [--repeat 5] [--json OUT] [--only open,cost]
+    python benches/bench_engine.py [--quick] [--repeat 10] [--json OUT] [--only open,cost]
 
 Workloads (the paper's Table II proposed model, dt = 0.05 s, at rest):
 
@@ -577,7 +577,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--cost-params", type=int, default=10_000, help="sets x one run")
     ap.add_argument("--cost-runs-params", type=int, default=1_000, help="sets x the 10 runs")
     ap.add_argument("--threads", type=_ints, default=[1, 2], help="for the batched cost")
-    ap.add_argument("--repeat", type=int, default=5, help="timed calls (best kept)")
+    ap.add_argument(
+        "--repeat", type=int, default=10,
+        help="timed calls (best kept; round-robin, so load bursts hit all alike)",
+    )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="small sizes, 2 repeats")
     ap.add_argument("--only", default="open,closed,platoon,cost", help="workloads to run")
     ap.add_argument("--json", type=Path, default=None, help="write the tables here")
