@@ -760,18 +760,7 @@ pub fn lane_run(
     // of the dead-time line (as one plant on several runs) instead of gathering
     // each lane's own; a converging population mostly has them.
     let one_delay = lanes.iter().all(|l| l.1.p.delay == lanes[0].1.p.delay);
-    let costs = match (super::fma(), one_delay) {
-        // SAFETY: the CPU supports FMA and AVX2 (checked just above).
-        (true, true) => unsafe {
-            super::with_fma(|| lane_sse::<true, true, true>(&lanes, us, ms, wa, lim))
-        },
-        // SAFETY: as above.
-        (true, false) => unsafe {
-            super::with_fma(|| lane_sse::<true, true, false>(&lanes, us, ms, wa, lim))
-        },
-        (false, true) => lane_sse::<false, true, true>(&lanes, us, ms, wa, lim),
-        (false, false) => lane_sse::<false, true, false>(&lanes, us, ms, wa, lim),
-    };
+    let costs = lane_sse_for::<true>(&lanes, us, ms, wa, lim, one_delay);
     for ((k, _), c) in lanes.iter().zip(costs) {
         out[*k] = c;
     }
@@ -859,16 +848,45 @@ pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &
     let lim: [f64; LANES] =
         std::array::from_fn(|k| ls.get(k).map_or(f64::INFINITY, |l| limits[l.0]));
     let wa = spec.weights[0];
-    let costs = if super::fma() {
-        // SAFETY: the CPU supports FMA and AVX2 (checked just above).
-        unsafe { super::with_fma(|| lane_sse::<true, false, true>(&ls, us, ms, wa, lim)) }
-    } else {
-        lane_sse::<false, false, true>(&ls, us, ms, wa, lim)
-    };
+    let costs = lane_sse_for::<false>(&ls, us, ms, wa, lim, true);
     for ((j, _), c) in ls.iter().zip(costs) {
         out[*j] = c;
     }
     out
+}
+
+/// [`lane_sse`] with its const parameters from the CPU (FMA), `one` (every lane has
+/// the same whole-sample dead time) and the lanes' plants (all diagonal: modal
+/// coordinates with real poles).
+fn lane_sse_for<const SAME: bool>(
+    lanes: &[(usize, Lane)],
+    us: [&[f64]; LANES],
+    ms: [&[f64]; LANES],
+    wa: f64,
+    lim: [f64; LANES],
+    one: bool,
+) -> Vec<f64> {
+    let diag = lanes
+        .iter()
+        .all(|l| l.1.p.phi[0][1] == 0.0 && l.1.p.phi[1][0] == 0.0);
+    macro_rules! go {
+        ($one:literal, $diag:literal) => {
+            if super::fma() {
+                // SAFETY: the CPU supports FMA and AVX2 (checked just above).
+                unsafe {
+                    super::with_fma(|| lane_sse::<true, SAME, $one, $diag>(lanes, us, ms, wa, lim))
+                }
+            } else {
+                lane_sse::<false, SAME, $one, $diag>(lanes, us, ms, wa, lim)
+            }
+        };
+    }
+    match (one, diag) {
+        (true, true) => go!(true, true),
+        (true, false) => go!(true, false),
+        (false, true) => go!(false, true),
+        (false, false) => go!(false, false),
+    }
 }
 
 /// The lanes' weighted SSE loop. With `SAME` every lane reads the same command and
@@ -876,8 +894,14 @@ pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &
 /// its own (one row on several runs of equal length: one plant, so one dead time).
 /// With `ONE` every lane has the same whole-sample dead time, and the delayed inputs
 /// are one row of the line (otherwise each lane's is gathered from its own row).
+/// With `DIAG` every lane's model block is diagonal (zero off-diagonal terms): the
+/// update skips the two off-diagonal multiply-adds, which leaves each mode's chain
+/// one multiply-add per sample instead of two through the other mode. Those terms
+/// add an exact zero (`fma(0, z, t) = t`, a `-0` turned `+0` at most, which no cost
+/// can tell: the response and its error square it away), so the costs are the same
+/// bits either way, and the same as the kernel's, whose diagonal form skips them too.
 #[inline(always)]
-fn lane_sse<const F: bool, const SAME: bool, const ONE: bool>(
+fn lane_sse<const F: bool, const SAME: bool, const ONE: bool, const DIAG: bool>(
     lanes: &[(usize, Lane)],
     us: [&[f64]; LANES],
     ms: [&[f64]; LANES],
@@ -962,8 +986,14 @@ fn lane_sse<const F: bool, const SAME: bool, const ONE: bool>(
                 let w1 = wp[j];
                 let t0 = madd::<F>(g10[j], w1, g00[j] * w0[j]);
                 let t1 = madd::<F>(g11[j], w1, g01[j] * w0[j]);
-                let n0 = madd::<F>(p00[j], z0[j], madd::<F>(p01[j], z1[j], t0));
-                let n1 = madd::<F>(p11[j], z1[j], madd::<F>(p10[j], z0[j], t1));
+                let (n0, n1) = if DIAG {
+                    (madd::<F>(p00[j], z0[j], t0), madd::<F>(p11[j], z1[j], t1))
+                } else {
+                    (
+                        madd::<F>(p00[j], z0[j], madd::<F>(p01[j], z1[j], t0)),
+                        madd::<F>(p11[j], z1[j], madd::<F>(p10[j], z0[j], t1)),
+                    )
+                };
                 z0[j] = n0;
                 z1[j] = n1;
             }
