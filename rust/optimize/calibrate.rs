@@ -45,7 +45,8 @@ fn run_costs(
     let threads = rayon::current_num_threads();
     if par && threads > 1 {
         // One contiguous share of the runs per thread, each share through its own lane
-        // groups: e.g. 10 runs on 2 threads go as (4 + 1) and (4 + 1) runs, not as the
+        // groups: e.g. 10 runs on 2 threads go as two shares of 5 runs (each one group
+        // of five lanes, see `run_lanes`), not as the
         // lane groups (4), (4), (2), of which one thread would step two. The values do
         // not depend on the grouping.
         let (n, k) = (sel.len(), threads.min(sel.len()));

@@ -760,7 +760,7 @@ pub fn lane_run(
     // of the dead-time line (as one plant on several runs) instead of gathering
     // each lane's own; a converging population mostly has them.
     let one_delay = lanes.iter().all(|l| l.1.p.delay == lanes[0].1.p.delay);
-    let costs = lane_sse_for::<true>(&lanes, us, ms, wa, lim, one_delay);
+    let costs = lane_sse_for::<LANES, true>(&lanes, us, ms, wa, lim, one_delay);
     for ((k, _), c) in lanes.iter().zip(costs) {
         out[*k] = c;
     }
@@ -773,6 +773,15 @@ pub fn lane_run(
 /// length go through the lanes in groups of [`LANES`]; the others, and costs the
 /// lane path does not cover, through [`run_cost`].
 pub fn run_lanes(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &[f64]) -> Vec<f64> {
+    let alike = runs
+        .iter()
+        .all(|r| r.dt == runs[0].dt && r.len() == runs[0].len());
+    if alike && runs.len() == LANES + 1 {
+        // Five runs (a thread's share of ten): one group of five lanes, whose fifth
+        // lane overlaps with the other four, instead of four lanes then a lone run
+        // stepped on its own.
+        return run_lanes_n::<{ LANES + 1 }>(spec, row, runs, limits);
+    }
     let mut out = vec![f64::INFINITY; runs.len()];
     for g in run_groups(runs) {
         let rs: Vec<&RunRef> = g.iter().map(|&j| runs[j]).collect();
@@ -808,11 +817,21 @@ pub fn run_groups(runs: &[&RunRef]) -> Vec<Vec<usize>> {
 /// [`run_lanes`] on one group of [`run_groups`] (up to [`LANES`] runs sharing `dt`
 /// and length; anything else goes through [`run_cost`] run by run).
 pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &[f64]) -> Vec<f64> {
+    run_lanes_n::<LANES>(spec, row, runs, limits)
+}
+
+/// [`run_lanes_group`] for up to `L` runs stepped together.
+fn run_lanes_n<const L: usize>(
+    spec: &CostSpec,
+    row: &[f64],
+    runs: &[&RunRef],
+    limits: &[f64],
+) -> Vec<f64> {
     let mut out = vec![f64::INFINITY; runs.len()];
     let alike = runs
         .iter()
         .all(|r| r.dt == runs[0].dt && r.len() == runs[0].len());
-    let lanes = if alike && runs.len() > 1 && runs.len() <= LANES {
+    let lanes = if alike && runs.len() > 1 && runs.len() <= L {
         lane_plants(spec, &[row], runs[0])
     } else {
         None
@@ -843,12 +862,11 @@ pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &
         return out;
     }
     let pick = |k: usize| ls[k.min(ls.len() - 1)].0;
-    let us: [&[f64]; LANES] = std::array::from_fn(|k| runs[pick(k)].command.unwrap_or(&[]));
-    let ms: [&[f64]; LANES] = std::array::from_fn(|k| runs[pick(k)].a);
-    let lim: [f64; LANES] =
-        std::array::from_fn(|k| ls.get(k).map_or(f64::INFINITY, |l| limits[l.0]));
+    let us: [&[f64]; L] = std::array::from_fn(|k| runs[pick(k)].command.unwrap_or(&[]));
+    let ms: [&[f64]; L] = std::array::from_fn(|k| runs[pick(k)].a);
+    let lim: [f64; L] = std::array::from_fn(|k| ls.get(k).map_or(f64::INFINITY, |l| limits[l.0]));
     let wa = spec.weights[0];
-    let costs = lane_sse_for::<false>(&ls, us, ms, wa, lim, true);
+    let costs = lane_sse_for::<L, false>(&ls, us, ms, wa, lim, true);
     for ((j, _), c) in ls.iter().zip(costs) {
         out[*j] = c;
     }
@@ -858,12 +876,12 @@ pub fn run_lanes_group(spec: &CostSpec, row: &[f64], runs: &[&RunRef], limits: &
 /// [`lane_sse`] with its const parameters from the CPU (FMA), `one` (every lane has
 /// the same whole-sample dead time) and the lanes' plants (all diagonal: modal
 /// coordinates with real poles).
-fn lane_sse_for<const SAME: bool>(
+fn lane_sse_for<const L: usize, const SAME: bool>(
     lanes: &[(usize, Lane)],
-    us: [&[f64]; LANES],
-    ms: [&[f64]; LANES],
+    us: [&[f64]; L],
+    ms: [&[f64]; L],
     wa: f64,
-    lim: [f64; LANES],
+    lim: [f64; L],
     one: bool,
 ) -> Vec<f64> {
     let diag = lanes
@@ -874,10 +892,12 @@ fn lane_sse_for<const SAME: bool>(
             if super::fma() {
                 // SAFETY: the CPU supports FMA and AVX2 (checked just above).
                 unsafe {
-                    super::with_fma(|| lane_sse::<true, SAME, $one, $diag>(lanes, us, ms, wa, lim))
+                    super::with_fma(|| {
+                        lane_sse::<L, true, SAME, $one, $diag>(lanes, us, ms, wa, lim)
+                    })
                 }
             } else {
-                lane_sse::<false, SAME, $one, $diag>(lanes, us, ms, wa, lim)
+                lane_sse::<L, false, SAME, $one, $diag>(lanes, us, ms, wa, lim)
             }
         };
     }
@@ -901,15 +921,14 @@ fn lane_sse_for<const SAME: bool>(
 /// can tell: the response and its error square it away), so the costs are the same
 /// bits either way, and the same as the kernel's, whose diagonal form skips them too.
 #[inline(always)]
-fn lane_sse<const F: bool, const SAME: bool, const ONE: bool, const DIAG: bool>(
+fn lane_sse<const L: usize, const F: bool, const SAME: bool, const ONE: bool, const DIAG: bool>(
     lanes: &[(usize, Lane)],
-    us: [&[f64]; LANES],
-    ms: [&[f64]; LANES],
+    us: [&[f64]; L],
+    ms: [&[f64]; L],
     wa: f64,
-    lim: [f64; LANES],
+    lim: [f64; L],
 ) -> Vec<f64> {
     use super::kernel::{madd, CHUNK, DIVERGED};
-    const L: usize = LANES;
     let len = (0..L)
         .map(|j| us[j].len().min(ms[j].len()))
         .min()

@@ -834,6 +834,12 @@ fn run_lanes_equal_the_kernel_bit_for_bit() {
                     let want = run_cost(&sp, &row, r, limits[q]);
                     assert_eq!(got[q].to_bits(), want.to_bits(), "{row:?} run {q}");
                 }
+                // The five alike runs alone: one group of five lanes.
+                let got = run_lanes(&sp, &row, &refs[..5], &limits[..5]);
+                for (q, r) in refs[..5].iter().enumerate() {
+                    let want = run_cost(&sp, &row, r, limits[q]);
+                    assert_eq!(got[q].to_bits(), want.to_bits(), "{row:?} of five, run {q}");
+                }
             }
         }
     }
