@@ -763,8 +763,9 @@ fn platoon_linear<
     lead_v: &[f64],
     outs: &mut P,
 ) -> Result<()> {
-    // F: the CPU has FMA and AVX2 (`call_fma!`).
-    platoon_lanes::<M, N, D, F, P>(plant, lin, up, lead_x, lead_v, outs, F)
+    // F on x86_64: the CPU has FMA and AVX2 (`call_fma!`); elsewhere, lane by lane.
+    let avx2 = F && cfg!(target_arch = "x86_64");
+    platoon_lanes::<M, N, D, F, P>(plant, lin, up, lead_x, lead_v, outs, avx2)
 }
 
 /// [`platoon_linear`], in AVX2 intrinsics when `avx2`.
