@@ -632,7 +632,9 @@ fn platoon_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     outs: &mut (impl PlatoonOut + ?Sized),
 ) -> Result<()> {
     if eff.effects.is_empty() {
-        platoon_linear::<M, N, D, F, _>(plant, lin, up, lead_x, lead_v, outs)
+        // F on x86_64: the CPU has FMA and AVX2 (`call_fma!`); elsewhere, lane by lane.
+        let avx2 = F && cfg!(target_arch = "x86_64");
+        platoon_linear::<M, N, D, F, _>(plant, lin, up, lead_x, lead_v, outs, avx2)
     } else {
         let ch = eff.chain(lead_x.len())?;
         platoon_chain::<M, N, D, F, _, _>(plant, lin, ch, up, lead_x, lead_v, outs)
@@ -749,30 +751,11 @@ impl<const N: usize> Soa<N> {
 /// ([`crate::sim::kernel`]'s `observe` and `advance`), operation for operation: the
 /// result is bit-identical to followers stepped one by one (tested, and the two
 /// chunk forms against each other).
-fn platoon_linear<
-    const M: usize,
-    const N: usize,
-    const D: bool,
-    const F: bool,
-    P: PlatoonOut + ?Sized,
->(
-    plant: Plant<M, N>,
-    lin: &Linear,
-    up: &Upper,
-    lead_x: &[f64],
-    lead_v: &[f64],
-    outs: &mut P,
-) -> Result<()> {
-    // F on x86_64: the CPU has FMA and AVX2 (`call_fma!`); elsewhere, lane by lane.
-    let avx2 = F && cfg!(target_arch = "x86_64");
-    platoon_lanes::<M, N, D, F, P>(plant, lin, up, lead_x, lead_v, outs, avx2)
-}
-
-/// [`platoon_linear`], in AVX2 intrinsics when `avx2`.
 ///
-/// `avx2` must be true only when the CPU has FMA and AVX2 (and `F` is then true).
+/// `avx2` (the AVX2 form) must be true only when the CPU has FMA and AVX2 (and `F`
+/// is then true).
 #[allow(clippy::too_many_arguments)]
-fn platoon_lanes<
+fn platoon_linear<
     const M: usize,
     const N: usize,
     const D: bool,
@@ -1267,17 +1250,17 @@ mod lane_tests {
                         if lin.order() == 2 {
                             let pl = Plant::<2, 4>::new(lin, ints, 0.05, true).unwrap();
                             if pl.diag {
-                                platoon_lanes::<2, 4, true, true, _>(
+                                platoon_linear::<2, 4, true, true, _>(
                                     pl, lin, up, &lx, &lv, &mut tm, avx2,
                                 )
                             } else {
-                                platoon_lanes::<2, 4, false, true, _>(
+                                platoon_linear::<2, 4, false, true, _>(
                                     pl, lin, up, &lx, &lv, &mut tm, avx2,
                                 )
                             }
                         } else {
                             let pl = Plant::<1, 3>::new(lin, ints, 0.05, false).unwrap();
-                            platoon_lanes::<1, 3, true, true, _>(
+                            platoon_linear::<1, 3, true, true, _>(
                                 pl, lin, up, &lx, &lv, &mut tm, avx2,
                             )
                         }
