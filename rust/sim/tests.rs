@@ -666,30 +666,21 @@ fn lanes_equal_the_kernel_bit_for_bit() {
             assert_eq!(g.to_bits(), want.to_bits(), "{row:?}: {g} vs {want}");
         }
         assert!(got[0].is_finite() && got[3].is_infinite() && got[4].is_infinite());
+        // Four variants of ROW: dead times `tds`, parameter `k` scaled by 1 + step i.
+        let vary = |tds: [f64; 4], k: usize, step: f64| -> Vec<Vec<f64>> {
+            let mut rows = vec![ROW.to_vec(); 4];
+            for (i, r) in rows.iter_mut().enumerate() {
+                r[4] = tds[i];
+                r[k] *= 1.0 + step * i as f64;
+            }
+            rows
+        };
         // A group whose dead times are the same whole number of samples (15 at
         // dt = 0.05 s) with different fractions: the lanes read one row of the line.
-        let same_delay: Vec<Vec<f64>> = [0.751, 0.7796, 0.7903, 0.7999]
-            .iter()
-            .enumerate()
-            .map(|(i, &td)| {
-                let mut r = ROW.to_vec();
-                r[4] = td;
-                r[1] *= 1.0 + 0.1 * i as f64;
-                r
-            })
-            .collect();
+        let same_delay = vary([0.751, 0.7796, 0.7903, 0.7999], 1, 0.1);
         // Four modal (real-pole) rows with different whole-sample dead times: the
         // diagonal lanes, each gathering its own delayed input.
-        let modal: Vec<Vec<f64>> = [0.2, 0.45, 0.7903, 1.3]
-            .iter()
-            .enumerate()
-            .map(|(i, &td)| {
-                let mut r = ROW.to_vec();
-                r[4] = td;
-                r[2] *= 1.0 + 0.2 * i as f64;
-                r
-            })
-            .collect();
+        let modal = vary([0.2, 0.45, 0.7903, 1.3], 2, 0.2);
         for group in [&same_delay, &modal] {
             let got = batch_cost(&sp, &group.concat(), std::slice::from_ref(&run)).unwrap();
             for (row, g) in group.iter().zip(&got) {
