@@ -738,6 +738,15 @@ impl<const N: usize> Soa<N> {
     }
 }
 
+/// What the linear platoon's chunks step by: the plant, the upper law, the leader.
+#[derive(Clone, Copy)]
+struct Drive<'a, const M: usize, const N: usize> {
+    pl: &'a Plant<M, N>,
+    up: &'a Upper,
+    lead_x: &'a [f64],
+    lead_v: &'a [f64],
+}
+
 /// The linear platoon in lane groups: the followers are taken four at a time, and
 /// per sample each group does its whole step (responses, commands, outputs, its
 /// part of the dead-time line, state update) on four lanes at once. A lane's
@@ -795,6 +804,12 @@ fn platoon_linear<
         mask: cap - 1,
         delay: plant.delay,
     };
+    let drive = Drive {
+        pl: &plant,
+        up,
+        lead_x,
+        lead_v,
+    };
     let mut alive = f;
     let mut from = 0;
     while from < len && alive > 0 {
@@ -803,16 +818,12 @@ fn platoon_linear<
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `avx2` only when the CPU has FMA and AVX2 (documented above).
             unsafe {
-                platoon_chunk_avx2::<M, N, D, P>(
-                    &plant, up, &mut soa, from, to, alive, lead_x, lead_v, outs,
-                )
+                platoon_chunk_avx2::<M, N, D, P>(drive, &mut soa, outs, from, to, alive)
             }
             #[cfg(not(target_arch = "x86_64"))]
             unreachable!("AVX2 on x86_64 only")
         } else {
-            platoon_chunk::<M, N, D, F, P>(
-                &plant, up, &mut soa, from, to, alive, lead_x, lead_v, outs,
-            )
+            platoon_chunk::<M, N, D, F, P>(drive, &mut soa, outs, from, to, alive)
         };
         if !ok {
             alive = first_divergence(outs, alive, from, to);
@@ -826,23 +837,25 @@ fn platoon_linear<
 /// (see [`platoon_linear`]); false when one of them diverged. The groups go from the
 /// last to the first, so a group's predecessors, the lanes one index back in
 /// [`Soa`], still hold their values at the sample.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn platoon_chunk<const M: usize, const N: usize, const D: bool, const F: bool, P>(
-    pl: &Plant<M, N>,
-    up: &Upper,
+    drive: Drive<'_, M, N>,
     soa: &mut Soa<N>,
+    outs: &mut P,
     from: usize,
     to: usize,
     alive: usize,
-    lead_x: &[f64],
-    lead_v: &[f64],
-    outs: &mut P,
 ) -> bool
 where
     P: PlatoonOut + ?Sized,
 {
     use super::kernel::madd;
+    let Drive {
+        pl,
+        up,
+        lead_x,
+        lead_v,
+    } = drive;
     let (g0, g1, phi) = (&pl.g0, &pl.g1, &pl.phi);
     let lanes = |xs: &[f64], at: usize| -> Group {
         let mut g = [0.0; GROUP];
@@ -936,23 +949,25 @@ where
 /// # Safety
 /// The CPU must support FMA and AVX2.
 #[cfg(target_arch = "x86_64")]
-#[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn platoon_chunk_avx2<const M: usize, const N: usize, const D: bool, P>(
-    pl: &Plant<M, N>,
-    up: &Upper,
+    drive: Drive<'_, M, N>,
     soa: &mut Soa<N>,
+    outs: &mut P,
     from: usize,
     to: usize,
     alive: usize,
-    lead_x: &[f64],
-    lead_v: &[f64],
-    outs: &mut P,
 ) -> bool
 where
     P: PlatoonOut + ?Sized,
 {
     use std::arch::x86_64::*;
+    let Drive {
+        pl,
+        up,
+        lead_x,
+        lead_v,
+    } = drive;
     let c = _mm256_set1_pd;
     let (g0, g1, phi) = (&pl.g0, &pl.g1, &pl.phi);
     let (c0, c1, k) = (c(pl.c[0]), c(pl.c[1 % N]), c(pl.k));
