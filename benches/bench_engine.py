@@ -131,10 +131,9 @@ def keep_freed_memory() -> str:
     page-fault and the timings measure the stepping. Left to itself, glibc's adaptive
     thresholds decide, from the run's earlier allocations, whether the outputs of a
     call page-fault (each fresh 4 KiB page once; the faults can cost more than the
-    stepping), and numpy,
-    which allocates avll's outputs, asks for transparent huge pages on arrays of
-    4 MiB and more, which a numba loop's ``np.empty`` does not. Returns what was
-    done, for the report."""
+    stepping), and numpy, which allocates avll's outputs, asks for transparent huge
+    pages on arrays of 4 MiB and more, which a numba loop's ``np.empty`` does not.
+    Returns what was done, for the report."""
     try:
         libc = ctypes.CDLL("libc.so.6")
         ok = libc.mallopt(_M_MMAP_THRESHOLD, 32 << 20) == 1

@@ -138,7 +138,7 @@ fn arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> Arrays<'py> {
 /// cache lines.
 fn aligned_arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> PyResult<Arrays<'py>> {
     let n = rows * t;
-    let one = |_| -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let one = || -> PyResult<Bound<'py, PyArray2<f64>>> {
         // SAFETY: the spare elements are zeroed below, the view is fully written
         // before Python sees it (as `arrays`).
         let base = unsafe { PyArray1::<f64>::new(py, n + 8, false) };
@@ -159,8 +159,7 @@ fn aligned_arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> PyResult<Array
         let view = view.cast_into::<PyArray1<f64>>()?;
         view.reshape([rows, t])
     };
-    let [a, v, x, u] = [one(0)?, one(1)?, one(2)?, one(3)?];
-    Ok([a, v, x, u])
+    Ok([one()?, one()?, one()?, one()?])
 }
 
 fn dict_of<'py>(py: Python<'py>, arrs: Arrays<'py>, flat: bool) -> PyResult<Bound<'py, PyDict>> {
