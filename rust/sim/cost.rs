@@ -619,15 +619,12 @@ fn record<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain
     closed: bool,
 ) {
     if closed {
-        let mut rec = Record::<true>::new(a, v, x, None);
+        let mut rec = Record::<true, false>::new(a, v, x);
         if !kernel::run(st, len, f, &mut rec) {
-            let w = rec.written;
-            rec.a[w..].fill(f64::NAN);
-            rec.v[w..].fill(f64::NAN);
-            rec.x[w..].fill(f64::NAN);
+            rec.blank_rest();
         }
     } else {
-        kernel::run(st, len, f, &mut Record::<false>::new(a, v, x, None));
+        kernel::run(st, len, f, &mut Record::<false, false>::new(a, v, x));
     }
 }
 

@@ -666,11 +666,24 @@ pub fn run<const M: usize, const N: usize, const D: bool, const F: bool, C: Chai
     let mut done = true;
     while from < len {
         let to = (from + CHUNK).min(len);
-        for n in from..to {
-            let o = observe::<M, N, F, C>(&st.plant, &st.chain, &reg.x, reg.dv, reg.dp, n);
-            let u = drive(n, &o);
-            let a = step::<M, N, D, F, C>(st.parts(), &mut reg, n, &o, u);
-            sink.put(n, a, o.v, o.p, u, o.y_lin);
+        // The same loop twice: for a linear stepper without inner feedback (`k == 0`)
+        // and for the others, so that each copy knows which way `step`'s `k == 0`
+        // choice goes and the choice leaves the per-sample work.
+        macro_rules! samples {
+            () => {
+                for n in from..to {
+                    let o = observe::<M, N, F, C>(&st.plant, &st.chain, &reg.x, reg.dv, reg.dp, n);
+                    let u = drive(n, &o);
+                    let a = step::<M, N, D, F, C>(st.parts(), &mut reg, n, &o, u);
+                    sink.put(n, a, o.v, o.p, u, o.y_lin);
+                }
+            };
+        }
+        #[allow(clippy::if_same_then_else)] // on purpose, see above
+        if C::NONE && st.plant.k == 0.0 {
+            samples!();
+        } else {
+            samples!();
         }
         if !sink.proceed(from, to) {
             done = false;
@@ -773,24 +786,39 @@ fn bigger(m: f64, x: f64) -> f64 {
     }
 }
 
-/// Writes the trajectory into caller-provided slices; with `STOP`, stops at the
-/// first sample whose acceleration leaves `|a| < DIVERGED` or whose speed is not
-/// finite (that sample is
-/// written; `written` says how many were).
-pub struct Record<'a, const STOP: bool> {
+/// Writes the trajectory into caller-provided slices, and the command too when `U`;
+/// with `STOP`, stops at the first sample whose acceleration leaves `|a| < DIVERGED`
+/// or whose speed is not finite (that sample is written; `written` says how many
+/// were). Whether the command is recorded is part of the type, not a per-sample test.
+pub struct Record<'a, const STOP: bool, const U: bool> {
     pub a: &'a mut [f64],
     pub v: &'a mut [f64],
     pub x: &'a mut [f64],
-    pub u: Option<&'a mut [f64]>,
+    /// The command (empty without `U`).
+    pub u: &'a mut [f64],
     pub written: usize,
 }
 
-impl<'a, const STOP: bool> Record<'a, STOP> {
-    pub fn new(
+impl<'a, const STOP: bool> Record<'a, STOP, false> {
+    /// Acceleration, speed and position.
+    pub fn new(a: &'a mut [f64], v: &'a mut [f64], x: &'a mut [f64]) -> Self {
+        Self {
+            a,
+            v,
+            x,
+            u: &mut [],
+            written: 0,
+        }
+    }
+}
+
+impl<'a, const STOP: bool> Record<'a, STOP, true> {
+    /// Acceleration, speed, position and the command.
+    pub fn with_command(
         a: &'a mut [f64],
         v: &'a mut [f64],
         x: &'a mut [f64],
-        u: Option<&'a mut [f64]>,
+        u: &'a mut [f64],
     ) -> Self {
         Self {
             a,
@@ -802,14 +830,27 @@ impl<'a, const STOP: bool> Record<'a, STOP> {
     }
 }
 
-impl<const STOP: bool> Sink for Record<'_, STOP> {
+impl<const STOP: bool, const U: bool> Record<'_, STOP, U> {
+    /// Fills the outputs from sample `written` on with NaN (after a stopped run).
+    pub fn blank_rest(&mut self) {
+        let w = self.written;
+        self.a[w..].fill(f64::NAN);
+        self.v[w..].fill(f64::NAN);
+        self.x[w..].fill(f64::NAN);
+        if U {
+            self.u[w..].fill(f64::NAN);
+        }
+    }
+}
+
+impl<const STOP: bool, const U: bool> Sink for Record<'_, STOP, U> {
     #[inline(always)]
     fn put(&mut self, n: usize, a: f64, v: f64, p: f64, u: f64, _y_lin: f64) {
         self.a[n] = a;
         self.v[n] = v;
         self.x[n] = p;
-        if let Some(c) = self.u.as_deref_mut() {
-            c[n] = u;
+        if U {
+            self.u[n] = u;
         }
     }
 
@@ -840,9 +881,10 @@ impl<const STOP: bool> Sink for Record<'_, STOP> {
     #[inline(always)]
     fn capacity(&self) -> usize {
         let n = self.a.len().min(self.v.len()).min(self.x.len());
-        match &self.u {
-            Some(u) => n.min(u.len()),
-            None => n,
+        if U {
+            n.min(self.u.len())
+        } else {
+            n
         }
     }
 }

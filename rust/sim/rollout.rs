@@ -266,7 +266,7 @@ fn full_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     let accel = kind == CommandKind::Acceleration;
     let s = start(lin, init, u.first().copied().unwrap_or(0.0))?;
     let int0 = if accel { [v0, p0] } else { [p0, 0.0] };
-    let mut rec = Record::<false>::new(out.a, out.v, out.x, out.u);
+    let mut rec = Record::<false, false>::new(out.a, out.v, out.x);
     if eff.effects.is_empty() {
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, accel, &s, int0)?;
         run(&mut st, u.len(), |n, _| u[n], &mut rec);
@@ -274,6 +274,11 @@ fn full_n<const M: usize, const N: usize, const D: bool, const F: bool>(
         let ch = eff.chain(u.len())?;
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, ch, accel, &s, int0)?;
         run(&mut st, u.len(), |n, _| u[n], &mut rec);
+    }
+    // The command recorded is the one given.
+    if let Some(c) = out.u {
+        check_len("out", c, u.len())?;
+        c.copy_from_slice(u);
     }
     Ok(())
 }
@@ -342,12 +347,51 @@ fn closed_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     p0: f64,
     out: Out,
 ) -> Result<usize> {
+    // Whether the command is recorded is decided once, not at every sample.
+    let leader = (lead_x, lead_v);
+    match out.u {
+        Some(u) => closed_rec::<M, N, D, F, true>(
+            plant,
+            lin,
+            eff,
+            up,
+            leader,
+            [v0, p0],
+            Record::with_command(out.a, out.v, out.x, u),
+        ),
+        None => closed_rec::<M, N, D, F, false>(
+            plant,
+            lin,
+            eff,
+            up,
+            leader,
+            [v0, p0],
+            Record::new(out.a, out.v, out.x),
+        ),
+    }
+}
+
+fn closed_rec<const M: usize, const N: usize, const D: bool, const F: bool, const U: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    eff: &EffectsRef,
+    up: &Upper,
+    (lead_x, lead_v): (&[f64], &[f64]),
+    int0: [f64; 2],
+    mut rec: Record<'_, true, U>,
+) -> Result<usize> {
     let s = start(lin, Init::Rest, 0.0)?;
     let ints = Integrators::SpeedPosition;
-    let mut rec = Record::<true>::new(out.a, out.v, out.x, out.u);
-    let law = |n: usize, o: &super::kernel::Obs| up.command(lead_x[n], lead_v[n], o.p, o.v);
+    // Both leader series as long as the run: with `run` bounding `n` by that length,
+    // the per-sample reads need no bounds check.
+    check_len("lead_v", lead_v, lead_x.len())?;
+    let lead_v = &lead_v[..lead_x.len()];
+    let law = |n: usize, o: &super::kernel::Obs| {
+        let (lx, lv) = (lead_x[n], lead_v[n]);
+        up.command(lx, lv, o.p, o.v)
+    };
     if eff.effects.is_empty() {
-        let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, true, &s, [v0, p0])?;
+        let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, true, &s, int0)?;
         run(&mut st, lead_x.len(), law, &mut rec);
         // Linear: a run to the end with a finite stepper proves the leader finite
         // (see `Stepper::finite`); otherwise (divergence, or a bad sample to name)
@@ -359,7 +403,7 @@ fn closed_n<const M: usize, const N: usize, const D: bool, const F: bool>(
         // Effects may map a non-finite value to a finite one (a clamp): checked first.
         check_leader(lead_x, lead_v)?;
         let ch = eff.chain(lead_x.len())?;
-        let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, ch, true, &s, [v0, p0])?;
+        let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, ch, true, &s, int0)?;
         run(&mut st, lead_x.len(), law, &mut rec);
     }
     Ok(rec.written)

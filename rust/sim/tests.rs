@@ -9,7 +9,8 @@ use super::discretize::Integrators;
 use super::kernel::{run, Record};
 use super::plant::{Init, Plant};
 use super::rollout::{
-    closed_loop, platoon, simulate, simulate_full, stepper, EffectsRef, Trajectory, Upper,
+    closed_loop, closed_loop_into, platoon, simulate, simulate_full, stepper, EffectsRef, Out,
+    Trajectory, Upper,
 };
 use crate::effects::{EffectKind, EffectList, Operating};
 use crate::model::{CommandKind, Linear, ModelKind};
@@ -130,7 +131,7 @@ fn canonical_response(lin: &Linear, u: &[f64], init: Init) -> Vec<f64> {
     )
     .unwrap();
     let mut tr = Trajectory::filled(u.len(), 0.0);
-    let mut rec = Record::<false>::new(&mut tr.a, &mut tr.v, &mut tr.x, None);
+    let mut rec = Record::<false, false>::new(&mut tr.a, &mut tr.v, &mut tr.x);
     run(&mut st, u.len(), |n, _| u[n], &mut rec);
     tr.a
 }
@@ -479,6 +480,46 @@ fn time_major_platoon_equals_followers_one_by_one() {
             }
             px = one.x;
             pv = one.v;
+        }
+    }
+}
+
+#[test]
+fn closed_loop_without_a_command_output_records_the_same() {
+    // Recording the command or not is a choice made once per run (two loops): both
+    // write the same acceleration, speed and position, bit for bit, for models with
+    // and without inner feedback, and when the follower diverges (NaN from there on).
+    let (lx, lv) = leader(3000, 0.05);
+    let wild = Upper {
+        kg: 40.0,
+        kv: 0.0,
+        tg: 0.1,
+        gmin: 2.0,
+    };
+    for lin in [proposed(), second()] {
+        for up in [UP, wild] {
+            let p0 = lx[0] - (up.gmin + up.tg * lv[0]);
+            let with =
+                closed_loop(&lin, &EffectsRef::NONE, &up, &lx, &lv, 0.05, lv[0], p0).unwrap();
+            let mut tr = Trajectory::filled(lx.len(), 0.0);
+            let out = Out {
+                a: &mut tr.a,
+                v: &mut tr.v,
+                x: &mut tr.x,
+                u: None,
+            };
+            closed_loop_into(&lin, &EffectsRef::NONE, &up, &lx, &lv, 0.05, lv[0], p0, out).unwrap();
+            for (a, b) in [(&tr.a, &with.a), (&tr.v, &with.v), (&tr.x, &with.x)] {
+                let bits = |s: &[f64]| s.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(a), bits(b), "k = {}, kg = {}", lin.k, up.kg);
+            }
+            assert_eq!(tr.command, vec![0.0; lx.len()], "not written");
+            let diverged = with.a.iter().any(|a| a.is_nan());
+            assert_eq!(
+                diverged,
+                up.kg == wild.kg,
+                "the wild law diverges, the other not"
+            );
         }
     }
 }
