@@ -1,6 +1,7 @@
 """avll's rollout engine against numba peers, side by side in one process (issue 10).
 
-    python benches/bench_engine.py [--quick] [--repeat 10] [--json OUT] [--only open,cost]
+    python benches/bench_engine.py [--quick] [--repeat 10] [--seconds 1] [--json OUT]
+        [--only open,cost]
 
 Workloads (the paper's Table II proposed model, dt = 0.05 s, at rest):
 
@@ -14,7 +15,10 @@ d. the batched Eq. 6 cost (``avll.batch_cost``): 10,000 parameter sets x one run
 Every peer (``benches/peers.py``: a plain numba loop and the best variant we could
 write) is first checked equal to avll to 1e-9 of the signal scale on the very inputs
 that are timed; a peer that fails stops the benchmark (exit 1). Then each call is
-warmed up and timed ``--repeat`` times: the rate is work over the best process CPU
+warmed up and timed in round-robin rounds, at least ``--repeat`` of them and until
+each implementation has run for ``--seconds`` (a short call is timed hundreds of
+times, so that one quiet moment is found for every implementation, not only a long
+call's): the rate is work over the best process CPU
 time (all threads included, so it is per core even on a shared machine); thread
 scaling uses the best wall time. Each table gives avll's rate, every peer's, the
 ratio avll / best peer, the issue's target (>= 1.5x the best peer on one core; the
@@ -91,25 +95,32 @@ class PeerMismatch(Exception):
 
 @dataclass
 class Timing:
-    """Best process CPU time and best wall time (s) of ``repeat`` calls."""
+    """Best process CPU time and best wall time (s) of ``calls`` calls."""
 
     cpu: float
     wall: float
     #: Minor page faults per timed call (mean): fresh output pages the kernel maps.
     faults: float = 0.0
+    #: Timed calls.
+    calls: int = 0
 
 
-def measure(fns: Sequence[Callable[[], object]], repeat: int) -> list[Timing]:
+def measure(
+    fns: Sequence[Callable[[], object]], repeat: int, seconds: float = 0.0
+) -> list[Timing]:
     """Best CPU and wall times of each call, and its mean page faults: one warm-up
-    call each, then ``repeat`` rounds calling every function once in turn
-    (round-robin, so that load changes and the allocator's state hit every
-    implementation alike)."""
+    call each, then rounds calling every function once in turn (round-robin, so that
+    load changes and the allocator's state hit every implementation alike), at
+    least ``repeat`` rounds and until the rounds took ``seconds`` per function."""
     for fn in fns:
         fn()
     cpus: list[list[float]] = [[] for _ in fns]
     walls: list[list[float]] = [[] for _ in fns]
     faults: list[int] = [0 for _ in fns]
-    for _ in range(max(1, repeat)):
+    start = time.perf_counter()
+    rounds = 0
+    while rounds < max(1, repeat) or time.perf_counter() - start < seconds * len(fns):
+        rounds += 1
         for k, fn in enumerate(fns):
             f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             w0, c0 = time.perf_counter(), time.process_time()
@@ -117,8 +128,10 @@ def measure(fns: Sequence[Callable[[], object]], repeat: int) -> list[Timing]:
             cpus[k].append(time.process_time() - c0)
             walls[k].append(time.perf_counter() - w0)
             faults[k] += resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
-    n = max(1, repeat)
-    return [Timing(min(c), min(w), f / n) for c, w, f in zip(cpus, walls, faults, strict=True)]
+    return [
+        Timing(min(c), min(w), f / rounds, rounds)
+        for c, w, f in zip(cpus, walls, faults, strict=True)
+    ]
 
 
 #: glibc's mallopt parameters (malloc.h).
@@ -333,7 +346,7 @@ def _checked(
         raise PeerMismatch(str(e)) from None
 
 
-def bench_open(n: int, repeat: int) -> Table:
+def bench_open(n: int, repeat: int, seconds: float = 0.0) -> Table:
     """(a) open-loop rollout."""
     u = command(n)
     want = avll.simulate(MODEL, u, DT)
@@ -343,7 +356,7 @@ def bench_open(n: int, repeat: int) -> Table:
         prep = p.prepare(MODEL, DT)
         diffs.append(_checked(f"open loop, {p.name}", [p.run(prep, u)], [want]))
         fns.append(lambda p=p, prep=prep: p.run(prep, u))
-    t, *tps = measure(fns, repeat)
+    t, *tps = measure(fns, repeat, seconds)
     rows = [
         row(p.name, p.variant, n, tp, d)
         for p, tp, d in zip(peers.OPEN_PEERS, tps, diffs, strict=True)
@@ -352,14 +365,14 @@ def bench_open(n: int, repeat: int) -> Table:
         f"open_{n}",
         f"(a) open-loop rollout, proposed model, {n:,} samples",
         n,
-        f"one thread, best CPU time of {repeat} (round-robin)",
+        f"one thread, best CPU time of {t.calls} calls each (round-robin)",
         row("avll.simulate", "avll", n, t),
         rows,
         TARGET_ONE_CORE,
     )
 
 
-def bench_closed(n: int, repeat: int) -> Table:
+def bench_closed(n: int, repeat: int, seconds: float = 0.0) -> Table:
     """(b) closed loop behind a recorded leader."""
     lx, lv = leader(n)
     v0, x0 = float(lv[0]), float(lx[0]) - (UPPER_CLOSED.Gmin + UPPER_CLOSED.Tg * lv[0])
@@ -379,7 +392,7 @@ def bench_closed(n: int, repeat: int) -> Table:
         diffs.append(_checked(f"closed loop, {p.name}", got, want, CHECK_SAMPLES))
         fns.append(lambda p=p, prep=prep: p.run(prep, UPPER_CLOSED, lx, lv, v0, x0))
     del got
-    t, *tps = measure(fns, repeat)
+    t, *tps = measure(fns, repeat, seconds)
     rows = [
         row(p.name, p.variant, n, tp, d)
         for p, tp, d in zip(peers.CLOSED_PEERS, tps, diffs, strict=True)
@@ -389,7 +402,7 @@ def bench_closed(n: int, repeat: int) -> Table:
         f"(b) closed loop behind a recorded leader (Eq. 3, kg {UPPER_CLOSED.kg}, "
         f"Tg {UPPER_CLOSED.Tg} s), {n:,} samples",
         n,
-        f"one thread, best CPU time of {repeat} (round-robin)"
+        f"one thread, best CPU time of {t.calls} calls each (round-robin)"
         + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
         row("avll.closed_loop", "avll", n, t),
         rows,
@@ -397,7 +410,7 @@ def bench_closed(n: int, repeat: int) -> Table:
     )
 
 
-def bench_platoon(n: int, followers: int, repeat: int) -> Table:
+def bench_platoon(n: int, followers: int, repeat: int, seconds: float = 0.0) -> Table:
     """(c) platoon behind a recorded leader."""
     lx, lv = leader(n, seed=3)
     up = UPPER_PLATOON
@@ -418,7 +431,7 @@ def bench_platoon(n: int, followers: int, repeat: int) -> Table:
             _checked(f"platoon, {p.name}", p.run(prep, up, lx, lv, followers), want, CHECK_SAMPLES)
         )
         fns.append(lambda p=p, prep=prep: p.run(prep, up, lx, lv, followers))
-    t, *tps = measure(fns, repeat)
+    t, *tps = measure(fns, repeat, seconds)
     rows = [
         row(p.name, p.variant, steps, tp, d)
         for p, tp, d in zip(peers.PLATOON_PEERS, tps, diffs, strict=True)
@@ -427,7 +440,8 @@ def bench_platoon(n: int, followers: int, repeat: int) -> Table:
         f"platoon_{followers}x{n}",
         f"(c) {followers}-car platoon (Eq. 3, kg {up.kg}, kv {up.kv}, Tg {up.Tg} s), {n:,} samples",
         steps,
-        f"one thread, best CPU time of {repeat} (round-robin); steps = followers x samples"
+        f"one thread, best CPU time of {t.calls} calls each (round-robin); "
+        "steps = followers x samples"
         + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
         row("avll.platoon", "avll", steps, t),
         rows,
@@ -442,6 +456,7 @@ def bench_cost(
     label: str,
     repeat: int,
     threads: Sequence[int],
+    seconds: float = 0.0,
 ) -> tuple[list[Table], dict[str, Any]]:
     """(d) batched Eq. 6 cost: one table per thread count (rates per core, CPU time)
     and the wall-clock scaling from the first to the last thread count."""
@@ -471,7 +486,7 @@ def bench_cost(
             lambda th=th: avll.batch_cost("proposed", params, runs, threads=th)
         ]
         fns += [lambda p=p: peer_call(p) for p in peers.COST_PEERS]
-        t, *tps = measure(fns, repeat)
+        t, *tps = measure(fns, repeat, seconds)
         walls["avll"][th] = t.wall
         cpus["avll"][th] = t.cpu
         rows = []
@@ -494,7 +509,7 @@ def bench_cost(
                 f"(d) batched Eq. 6 cost, {n_params:,} parameter sets x {label}, {th} thread"
                 + ("s" if th > 1 else ""),
                 steps,
-                f"best CPU time of {repeat} (all threads), i.e. per core; "
+                f"best CPU time of {t.calls} calls each (all threads), i.e. per core; "
                 f"{int(np.isinf(want).any(axis=1).sum())} sets cost inf",
                 row(
                     f"avll.batch_cost(threads={th})",
@@ -580,6 +595,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--repeat", type=int, default=10,
         help="timed calls (best kept; round-robin, so load bursts hit all alike)",
     )  # fmt: skip
+    ap.add_argument(
+        "--seconds", type=float, default=1.0,
+        help="and keep calling until each implementation ran this long (best kept)",
+    )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="small sizes, 2 repeats")
     ap.add_argument("--only", default="open,closed,platoon,cost", help="workloads to run")
     ap.add_argument("--json", type=Path, default=None, help="write the tables here")
@@ -593,7 +612,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.quick:
         args.open_samples, args.closed_samples = [20_000], [20_000]
         args.platoon_samples, args.cost_params, args.cost_runs_params = [2_000], 500, 50
-        args.repeat = 2
+        args.repeat, args.seconds = 2, 0.0
     if args.followers < 1:
         ap.error("--followers must be >= 1")
     only = {w.strip() for w in args.only.split(",") if w.strip()}
@@ -615,6 +634,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "numba_threading_layer_config": numba.config.THREADING_LAYER,
         "load_average_start": list(load0),
         "repeat": args.repeat,
+        "seconds": args.seconds,
         "dt": DT,
         "model": MODEL.to_dict(),
         "tolerance": TOL,
@@ -635,15 +655,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if "open" in only:
             for n in args.open_samples:
-                tables.append(bench_open(n, args.repeat))
+                tables.append(bench_open(n, args.repeat, args.seconds))
                 print_table(tables[-1])
         if "closed" in only:
             for n in args.closed_samples:
-                tables.append(bench_closed(n, args.repeat))
+                tables.append(bench_closed(n, args.repeat, args.seconds))
                 print_table(tables[-1])
         if "platoon" in only:
             for n in args.platoon_samples:
-                tables.append(bench_platoon(n, args.followers, args.repeat))
+                tables.append(bench_platoon(n, args.followers, args.repeat, args.seconds))
                 print_table(tables[-1])
         if "cost" in only:
             runs = paper_experiment(seed=0, runs=PAPER_CAL_RUNS, duration=300.0)
@@ -657,7 +677,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 ),
             ):
                 threads = sorted(set(args.threads))
-                ts, sc = bench_cost(n_params, rs, key, label, args.repeat, threads)
+                ts, sc = bench_cost(n_params, rs, key, label, args.repeat, threads, args.seconds)
                 for t in ts:
                     tables.append(t)
                     print_table(t)

@@ -18,7 +18,17 @@ import json
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
+
+def _calls(m: dict[str, Any]) -> str:
+    """How many calls each rate is the best of (runs before ``--seconds`` existed
+    made exactly ``repeat`` calls)."""
+    sec = m.get("seconds", 0.0)
+    if not sec:
+        return f"best of {m['repeat']} calls"
+    return (f"best of at least {m['repeat']} calls and {sec:g} s of calls per "
+            "implementation, round-robin")
 
 def _faults(r: dict) -> str:
     f = r.get("faults_per_call")
@@ -34,7 +44,7 @@ def render(d: dict, fresh: dict | None = None) -> str:
     lines = [
         f"Measured by `benches/bench_engine.py` (avll {m['avll']}, numba {m['numba']}, "
         f"numpy {m['numpy']}; {m['machine']}, {m['cpus']} CPUs; load average at start "
-        f"{load}; best of {m['repeat']} calls, CPU time, so rates are per core; {alloc}). "
+        f"{load}; {_calls(m)}, CPU time, so rates are per core; {alloc}). "
         f"Every peer was checked equal to avll to {m['tolerance']:g} before timing.",
         "",
         *_summary(d),
