@@ -266,6 +266,9 @@ fn full_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     let accel = kind == CommandKind::Acceleration;
     let s = start(lin, init, u.first().copied().unwrap_or(0.0))?;
     let int0 = if accel { [v0, p0] } else { [p0, 0.0] };
+    if let Some(c) = &out.u {
+        check_len("out", c, u.len())?;
+    }
     let mut rec = Record::<false, false>::new(out.a, out.v, out.x);
     if eff.effects.is_empty() {
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, accel, &s, int0)?;
@@ -277,7 +280,6 @@ fn full_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     }
     // The command recorded is the one given.
     if let Some(c) = out.u {
-        check_len("out", c, u.len())?;
         c.copy_from_slice(u);
     }
     Ok(())
