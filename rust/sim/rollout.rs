@@ -348,7 +348,7 @@ fn closed_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     v0: f64,
     p0: f64,
     out: Out,
-) -> Result<usize> {
+) -> Result<()> {
     // Whether the command is recorded is decided once, not at every sample.
     let leader = (lead_x, lead_v);
     match out.u {
@@ -381,12 +381,11 @@ fn closed_rec<const M: usize, const N: usize, const D: bool, const F: bool, cons
     (lead_x, lead_v): (&[f64], &[f64]),
     int0: [f64; 2],
     mut rec: Record<'_, true, U>,
-) -> Result<usize> {
+) -> Result<()> {
     let s = start(lin, Init::Rest, 0.0)?;
     let ints = Integrators::SpeedPosition;
-    // Both leader series as long as the run: with `run` bounding `n` by that length,
-    // the per-sample reads need no bounds check.
-    check_len("lead_v", lead_v, lead_x.len())?;
+    // Both leader series as long as the run (checked by `closed_loop_into`): with
+    // `run` bounding `n` by that length, the per-sample reads need no bounds check.
     let lead_v = &lead_v[..lead_x.len()];
     let law = |n: usize, o: &super::kernel::Obs| {
         let (lx, lv) = (lead_x[n], lead_v[n]);
@@ -408,7 +407,9 @@ fn closed_rec<const M: usize, const N: usize, const D: bool, const F: bool, cons
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, ch, true, &s, int0)?;
         run(&mut st, lead_x.len(), law, &mut rec);
     }
-    Ok(rec.written)
+    // NaN from the divergence on (nothing when the run completed).
+    rec.blank_rest();
+    Ok(())
 }
 
 fn check_leader(lead_x: &[f64], lead_v: &[f64]) -> Result<()> {
@@ -443,7 +444,7 @@ pub fn closed_loop_into(
     for s in [&out.a, &out.v, &out.x] {
         check_len("out", s, n)?;
     }
-    let written = with_plant!(
+    with_plant!(
         lin,
         Integrators::SpeedPosition,
         dt,
@@ -463,14 +464,7 @@ pub fn closed_loop_into(
                 u: out.u.as_deref_mut(),
             }
         )
-    )?;
-    out.a[written..].fill(f64::NAN);
-    out.v[written..].fill(f64::NAN);
-    out.x[written..].fill(f64::NAN);
-    if let Some(u) = out.u {
-        u[written..].fill(f64::NAN);
-    }
-    Ok(())
+    )
 }
 
 /// Closed-loop car following as a new [`Trajectory`] (see [`closed_loop_into`]).
