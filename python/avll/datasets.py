@@ -64,6 +64,7 @@ __all__ = [
     "FetchResult",
     "cache_dir",
     "fetch",
+    "fetch_report",
     "info",
     "markdown_table",
     "names",
@@ -172,6 +173,7 @@ class FetchResult:
     status: dict[str, str]
 
     def count(self, what: str) -> int:
+        """How many files have status ``what``."""
         return sum(1 for s in self.status.values() if s == what)
 
 
@@ -209,9 +211,9 @@ def _registry() -> dict[str, Dataset]:
             citation_url=OPENACC_DOI, licence_short="CC BY 4.0", cite_as="Makridis et al. 2021",
             note="The file list of this campaign is not registered: avll knows no names, "
             "sizes or SHA-256 of the JRC's AstaZero folder, so it cannot fetch and verify "
-            "it. Download the campaign folder from the JRC server yourself (its url), or use "
-            "'astazero-c2art' (the AstaZero platoon and free-flow files the project reads, from a pinned "
-            "redistribution, checked by hash).",
+            "it. Download the campaign folder from the JRC server yourself (its url), or "
+            "use 'astazero-c2art' (the AstaZero platoon and free-flow files the project "
+            "reads, from a pinned redistribution, checked by hash).",
             references=(("JRC data catalogue: OpenACC", JRC_CATALOGUE),),
         ),
         _jrc("openacc-zalazone", "ZalaZone",
