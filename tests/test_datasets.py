@@ -453,7 +453,7 @@ def test_docs_page_names_every_dataset() -> None:
     for name in CONTRACT:
         assert f"`{name}`" in page, name
     assert "avll data fetch" in page and "https://doi.org/10.1016/j.trc.2021.103047" in page
-    assert "data" in (ROOT / "docs" / "index.md").read_text(encoding="utf-8")
+    assert "\ndata\n" in (ROOT / "docs" / "index.md").read_text(encoding="utf-8")  # toctree
 
 
 def test_docs_field_data_examples_do_not_need_the_projects_folder() -> None:

@@ -328,6 +328,9 @@ def fetch(name: str, *, dest: str | os.PathLike[str] | None = None,
     """Dataset ``name`` in a local folder, laid out as listed by :func:`info` (the JRC
     campaigns one flat folder as published); returns the folder.
 
+    Parameters
+    ----------
+    name: the dataset, one of :func:`names`.
     dest: the folder (created if needed); default ``<cache_dir()>/<name>``.
     base_url: download every file from ``base_url + "/" + <file name>`` (a flat mirror
         folder) instead of the dataset's own URLs.
