@@ -351,6 +351,21 @@ def test_a_failed_file_is_a_clear_error_and_leaves_nothing(
     _no_partial(dest, {"a.csv"})
 
 
+def test_no_server_is_a_clear_error(server: Server, monkeypatch: pytest.MonkeyPatch,
+                                    tmp_path: Path) -> None:
+    import socket
+
+    _dataset(monkeypatch, server)
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    base = f"http://127.0.0.1:{port}/m"
+    with pytest.raises(ds.DownloadError, match=rf"dataset 'test-set': file 'a.csv' from "
+                       rf"{re.escape(base)}/a.csv: the transfer failed"):
+        ds.fetch("test-set", dest=tmp_path / "d", base_url=base, progress=False)
+    _no_partial(tmp_path / "d", set())
+
+
 def test_ctrl_c_leaves_no_partial_file(server: Server, monkeypatch: pytest.MonkeyPatch,
                                        tmp_path: Path, sigint_handler: None) -> None:
     _dataset(monkeypatch, server)
@@ -372,13 +387,17 @@ def test_ctrl_c_leaves_no_partial_file(server: Server, monkeypatch: pytest.Monke
     assert dest.is_dir() and _listing(dest) == []
 
 
-def test_progress_log_lines(server: Server, monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
-                           capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("mode", ["log", "bar"])
+def test_progress(mode: str, server: Server, monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                  capsys: pytest.CaptureFixture[str]) -> None:
     _dataset(monkeypatch, server)
-    ds.fetch("test-set", dest=tmp_path / "d", progress="log")
+    ds.fetch("test-set", dest=tmp_path / "d", progress=mode)
     err = capsys.readouterr().err
     assert "3 of 3 files to download" in err and "[1/3] a.csv" in err
     assert "3 files in" in err and "3 downloaded" in err
+    assert ("100%" in err) == (mode == "bar")  # the bar (tqdm) only in bar mode
+    ds.fetch("test-set", dest=tmp_path / "d", progress=False)
+    assert capsys.readouterr().err == ""
 
 
 # ---------------------------------------------------------------------------
