@@ -1,5 +1,6 @@
 """Shared fixtures. ``shared_data`` is ``../shared/data`` beside the repository;
-tests that need it skip with a clear reason when it is absent (a user's machine)."""
+tests that need it skip when it is absent, with the one reason
+(``loader_helpers.NO_DATA``) that says how to get it (``avll data fetch``)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from loader_helpers import NO_DATA
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -15,7 +17,7 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
-        pytest.skip(f"field data folder {SHARED_DATA} is absent (only on the project's machines)")
+        pytest.skip(NO_DATA)
     return SHARED_DATA
 
 

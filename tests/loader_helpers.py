@@ -12,7 +12,11 @@ import pandas as pd
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CARMA = DATA / "carma"
 ASTA = DATA / "openacc-astazero"
-NO_DATA = f"measured data not found at {DATA} (../shared/data beside the repository)"
+#: The one skip reason of the tests that need the field data: where it is looked for and
+#: how to get it (the folders the tests read: docs/data.md, "Running the tests").
+NO_DATA = (f"field data not found at {DATA}; get it with `avll data fetch NAME --dest "
+           f"{DATA}/FOLDER` (carma -> carma, astazero-c2art -> openacc-astazero, "
+           "openacc-casale -> 'openacc-jrc/Casale', ...: see docs/data.md)")
 
 CARMA_SUFFIXES = ("CARMA_mode", "Speed_command", "CARMA_ovr", "avg_speed_driven_wheels",
                   "ACC_speed", "ACC_status", "GPS_CARMA_speed", "GPS_speed", "acceleration",

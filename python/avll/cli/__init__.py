@@ -37,6 +37,7 @@ _COMMANDS = [
     "avll.cli.stability_map:register",
     "avll.cli.reproduce:register",
     "avll.cli.study:register",
+    "avll.cli.data:register",
 ]
 
 
