@@ -1093,7 +1093,6 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
             if pe:
                 pools[src] = (np.concatenate(pe), np.concatenate(pn), np.concatenate(pa))
     runs: list[Run] = []
-    first = min(nf.vehicles)
     for i in sorted(nf.vehicles):
         if i == 1:
             continue
@@ -1102,11 +1101,11 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         ftime = float(np.isfinite(sig[i]["speed"]).sum() * dt)
         if lead not in nf.vehicles:
             why = f"predecessor vehicle {lead} ({nf.name(lead)}) has no columns"
-            if i != first or lead >= 1:
-                skipped.append(_Skip(str(path), i, car, why))
-                time_acc["no_predecessor"] = time_acc.get("no_predecessor", 0.0) + ftime
-                stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
-                                  "reason": why, "duration_s": ftime, "run_id": None})
+            skipped.append(_Skip(str(path), i, car, why))
+            time_acc["no_predecessor"] = time_acc.get("no_predecessor", 0.0) + ftime
+            stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
+                              "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
+                              "reason": why, "duration_s": ftime, "run_id": None})
             if not require_predecessor:
                 runs += _solo_run(nf, rid_stem, i, sig, dt, min_duration, cutoff, grade,
                                   grade_window)
@@ -1124,6 +1123,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
             skipped.append(_Skip(str(path), i, car, why))
             time_acc["no_spacing"] = time_acc.get("no_spacing", 0.0) + ftime
             stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
+                              "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
                               "reason": why, "duration_s": ftime, "run_id": None})
             continue
         ivs_l = ivs_raw[lead]
