@@ -1,7 +1,9 @@
-"""Loader of the JRC OpenACC database in its native layout (``format="openacc"``).
+"""Loader of the JRC OpenACC database in its native layout (``format="openacc"``),
+every campaign as the JRC distributes it (ZalaZone, Casale, JRC low speed, Vicolungo,
+Cherasco): a data file, or a campaign folder as distributed.
 
-The layout (the same at every test site of the database; the ZalaZone files were
-checked):
+The layout, from the campaigns' notes (``Zala_notes.txt``, ``Casale_notes.txt``,
+``JRC_tests_notes.txt``, ...), which are the specification here:
 
 .. code-block:: text
 
@@ -10,93 +12,138 @@ checked):
     Number_of_vehicles,7
     ACC,1
     Distance_setting,L
-    Time,Speed1,E1,N1,Lon1,Lat1,Alt1,...,SpeedN,EN,NN,LonN,LatN,AltN,IVS1,...,IVS(N-1)
+    Time,Speed1,E1,N1,Lon1,Lat1,Alt1,...,SpeedN,...,IVS1,...,IVS(N-1)[,Driver2,...]
     480.0,11.10,80.28,-117.10,...
 
-Vehicle 1 (the ``*_TARGET``) leads; ``Speed`` is in m/s, ``E``/``N`` in m (local east
-and north), ``Alt`` in m and ``IVSi`` the spacing (m) between vehicles ``i`` and
-``i+1``. The vehicle numbers are positions in ``Vehicle_order``: a file can lack the
-columns of some vehicles (in the ZalaZone handling-course files the target's
-columns are absent, so the data start at ``Speed2``), and then the ``IVS`` columns
-next to the missing vehicle are absent too.
+Vocabulary
+----------
+* ``ACC``: ``0`` manual driving throughout, ``1`` ACC throughout, ``2`` mixed (the
+  follower's per-sample ``Driver<i>`` column decides), blank: unknown (the JRC
+  low-speed notes: no Driver information for any follower). Per sample of follower
+  ``i``: ``Driver<i>`` = ``ACC`` -> ACC, ``Human`` -> human; an empty Driver cell, or
+  a follower without the column, takes the header: 1 -> ACC, 0 -> human, 2 or blank
+  -> unknown. Runs never mix states: ``meta["acc"]`` is ``True`` (every sample ACC),
+  ``False`` (human: a control case) or ``None`` (unknown); ``meta["acc_source"]``
+  says where it came from.
+* ``Distance_setting``: ``L``, ``M``, ``S`` (ZalaZone), ``SL`` (ZalaZone: mixed, short
+  for most cars, long for those of the campaign's list ``Long setting vehs in mixed
+  timegap experiment handling.csv``), ``min`` (Casale), ``shortest``, ``second
+  shortest`` (JRC low speed), blank. ``meta["setting"]`` is the raw value as written
+  (``None`` when blank); ``meta["setting_rank"]`` its order within the campaign,
+  larger = longer time gap (:data:`SETTING_RANK`: S/min/shortest 0, M/second shortest
+  1, L 2; these ranks compare settings of one campaign only); for ``SL``
+  ``meta["setting_resolved"]`` is ``"L"`` or ``"S"`` for the car, from the list found
+  beside the file (the file's folder or a parent, up to the folder given); without
+  the list or the file in it, the rank is ``None`` and a cleaning note says why.
+* Columns: ``Time``; per vehicle ``i`` ``Speed`` (m/s), ``E``, ``N`` (m, local ENU),
+  ``U`` (m, ENU up), ``Lon``, ``Lat``, ``Alt`` (m), ``VE``, ``VN``, ``VU`` (velocity
+  components, read and kept in :class:`NativeFile`), ``Driver``; per pair ``i``
+  (between vehicles ``i`` and ``i + 1``) ``IVS`` (the spacing, m), ``Eff_distance``,
+  ``Rel_Speed`` (read, kept in :attr:`NativeFile.pairs`). Only ``Speed`` is required
+  per vehicle (``E``/``N`` together or not at all: without them the path length is
+  the integral of the speed). ``Alt`` is optional per vehicle (Casale's leader,
+  some JRC low-speed cars): the grade then comes from ``U`` if present, else it is
+  unavailable for that car (no ``exo["grade"]``, ``meta["grade_available"] =
+  False``, a cleaning note). Vehicle numbers are positions in ``Vehicle_order``: a
+  vehicle not recorded has no columns and the others keep their numbers (its
+  follower has no run: its predecessor was not measured).
+* ``Time`` is kept as the file has it (``run.t``): seconds of day, relative seconds
+  or GPS time of week alike; it must increase.
+* A campaign folder as distributed: ``*_notes.txt``, ``copyright.txt``, the
+  specification sheet (``Veh_specifications.csv``, ``*_veh_specifications.csv``),
+  the long-setting list and any other file that is not ``*.csv`` are recognised and
+  skipped (listed in the report's ``non_data``); the folder is walked without
+  following symbolic links. The specification sheet's row of each car is attached
+  as ``meta["vehicle_spec"]`` (and ``lead_vehicle_spec``; the sheet's own columns,
+  e.g. power, drive, propulsion, model year) by the name rule of
+  :func:`match_vehicle_spec`.
 
-One closed-loop :class:`avll.Run` per follower whose predecessor was recorded, id
-``"<file stem>/v<i-1>-v<i>"`` (the parent folder's name is prefixed when two files of
-a folder share a stem). Like the AstaZero pairs, it carries the follower's ``x, v,
-a`` and the predecessor's ``lead_x, lead_v, lead_a``, ``command=None`` with
-``command_kind="acceleration"`` (no command was recorded: the upper level must be
-calibrated with the lower one) and ``upper=None``.
+One closed-loop :class:`avll.Run` per usable stretch of each follower whose
+predecessor was recorded, id ``"<file stem>/v<i-1>-v<i>"``, with ``"/s<k>"`` (k = 1, 2,
+... in time order) when the follower has several stretches (the parent folder's name
+is prefixed when two files of a folder share a stem). It carries the follower's
+``x, v, a`` and the predecessor's ``lead_x, lead_v, lead_a``, ``command=None`` with
+``command_kind="acceleration"`` and ``upper=None``.
+
+Stretches (each rule's time is counted in the report, see
+:func:`openacc_native_report`)
+--------------------------------------------------------------------------------------
+A sample of a follower is usable when its speed, its position, its predecessor's
+speed and the spacing are present (after the bridging below), the spacing is
+consistent with the speeds, the pair is following and the ACC state is the
+stretch's. Every maximal run of usable samples of one ACC state lasting at least
+``min_duration`` (20 s) is a run; the others are dropped with the reason:
+
+* missing data: holes longer than the bridges;
+* not following: a spacing above :data:`FAR_GAP` (100 m) while the time headway
+  (spacing / follower speed) is above :data:`FAR_HEADWAY` (3 s; the longest
+  commercial ACC time-gap settings are about 2-2.5 s) marks a cut-in or a lost target
+  (invisible otherwise in a GNSS spacing); the whole excursion above 3 s around it
+  is split out (e.g. Casale part7: 138 m at 34 m/s, JRC low speed part12: 127 m);
+  a spacing below :data:`MIN_GAP` (-5 m) is not a following distance either;
+* inconsistent spacing: over every window of :data:`CONSISTENCY_WINDOW` (1 s) the
+  change of the spacing must equal the integral of the relative speed (predecessor
+  minus follower speed) within :data:`CONSISTENCY_TOL` (1 m, a mean rate error of
+  1 m/s); the samples of a violating window are left out, reported as a repair
+  that would invent motion when the window holds a repaired sample (below), as a
+  jump of the data otherwise. No run therefore has a window beyond the tolerance.
+  On the shared campaigns the median of this residual is 0.01-0.2 m.
 
 Signals
 -------
-* ``x``: the follower's position along its path, the cumulative length of its
-  east/north track (a step whose two ends are both at standstill, speed below
-  :data:`STANDSTILL`, adds nothing: that is GNSS jitter, 0.3–1.7 m over a minute of
-  standing in the handling-course files).
-* ``lead_x = x + gap``, the predecessor's rear bumper in the follower's path
-  coordinate, so ``lead_x - x`` is the measured spacing ``IVS(i-1)``. In the ZalaZone
-  files ``IVS`` is exactly the straight-line east/north distance of the two vehicles
-  minus a constant per pair (the spread of the difference is below 1 cm), so a cell
-  of ``IVS`` that is empty while both vehicles' positions are present is
-  reconstructed from the positions with that constant (recorded); on the tracks'
-  radii (>= 40 m) the chord and the arc between two cars differ by centimetres.
-* ``a`` and ``lead_a``: the time derivative (central differences) of the speed after
-  a zero-phase low-pass, a 2nd-order Butterworth filter run forwards and backwards
-  (``scipy.signal.sosfiltfilt``), cutoff ``accel_cutoff`` = 1.5 Hz by default. Why:
-  in these files the power spectrum of the raw speed derivative falls by more than
-  two decades between the 0.5–1 Hz band (vehicle motion: the paper's lower-level
-  time constants of 0.5–1 s put its corners at 0.15–0.3 Hz) and 1–1.5 Hz, so the
-  speed was already smoothed by the database's processing and what remains above
-  1.5 Hz is quantisation noise amplified by the derivative; the zero-phase filter
-  does not delay the acceleration relative to the speed. The gain at 1 Hz is 0.84
-  (each pass), at 0.5 Hz 0.99.
-* ``exo["grade"]``: the road grade (rise over run, uphill positive in the driving
-  direction) along the follower's path: the altitude is put on a 1 m grid of the
-  path position (mean of the samples per metre, linear interpolation between),
-  smoothed and differentiated by a Savitzky–Golay filter of order 2 over
-  ``grade_window`` = 30 m. Why: the GNSS altitude is noisy at the centimetre level,
-  a 2 cm error over a 30 m window is a grade error below 0.1 %, and the tracks'
-  grades change over tens of metres (the dynamic platform: about ±1 % around a
-  300 m circle). Over less than one window of path the grade is the slope of a
-  straight-line fit.
+* ``x``: the follower's path length, the cumulative length of its east/north track
+  (a step whose two ends are both at standstill, speed below :data:`STANDSTILL`,
+  adds nothing: GNSS jitter).
+* ``lead_x = x + gap``, so ``lead_x - x`` is the measured spacing ``IVS(i-1)``. In
+  the ZalaZone files ``IVS`` is the straight-line east/north distance minus a
+  constant per pair (spread below 1 cm); where the present cells show that (spread
+  of distance - IVS within 5 cm), an empty ``IVS`` cell with both positions present
+  is reconstructed from the positions.
+* ``a`` and ``lead_a``: central differences of the speed after a zero-phase
+  2nd-order Butterworth low-pass. The cut-off is chosen per file from the spectrum
+  of the speed derivative (:func:`choose_accel_cutoff`; ``accel_cutoff="auto"``, the
+  default) and written to ``meta["accel_cutoff_hz"]`` and ``meta["accel_cutoff"]``
+  (how): the ZalaZone speed is smoothed by the database's B-splines (its derivative's
+  power falls by decades up to the Nyquist frequency: 1.5 Hz), the Casale and JRC
+  low-speed speed is raw u-blox 9 Doppler, not filtered (the power has a minimum
+  near 0.5 Hz and rises above: noise; cut-off 0.5-0.8 Hz). A number given as
+  ``accel_cutoff`` is used as is.
+* ``exo["grade"]``: the road grade along the follower's path from its altitude
+  (``Alt``, else ``U``): altitude on a 1 m grid of the path (pooled with the other
+  vehicles' altitudes of the same kind within 2 m), Savitzky-Golay filter of order 2
+  over ``grade_window`` = 30 m.
 
-Known defects handled (each recorded in ``run.meta["cleaning"]``)
------------------------------------------------------------------------
-* ``Vehicle_order`` listing more names than ``Number_of_vehicles``: the first N
-  names are taken (the vehicle numbers of the columns index ``Vehicle_order``);
-  fewer names than N, or a column of a vehicle number above N, is an error.
-* Empty cells: runs of at most ``bridge`` seconds are linearly interpolated, only
-  the empty cells (present values are never changed). Runs of empty positions or
-  spacings of at most ``bridge_kinematic`` seconds (3 s) while both speeds are
-  present are bridged with the speeds: the follower's path length grows by the
-  integral of its speed (trapezoid), the spacing by the integral of the speed
-  difference from its last known value, the drift to its next known value removed
-  linearly. Longer gaps split the record, and the longest stretch where the
-  follower, its predecessor and the spacing are all known is the run (the other
-  stretches are recorded as dropped). A stretch shorter than ``min_duration``
-  seconds gives no run (recorded in the loader's report, see
-  :func:`openacc_native_report`).
+Repairs (each recorded in ``run.meta["cleaning"]``; none may invent motion: the
+consistency rule above checks every repaired sample)
+-----------------------------------------------------------------------------------
+* Empty cells: runs of at most ``bridge`` seconds (1 s) are linearly interpolated
+  (only the empty cells). Receiver dropouts (a vehicle's speed and position both
+  missing, up to ``bridge_kinematic`` = 3 s, e.g. the 1.5-3.7 s holes every ~10 s of
+  JRC low speed) are bridged only when the linear speed bridge's integral matches the
+  straight distance between the positions at the hole's ends within
+  :data:`CONSISTENCY_TOL`. Empty spacings up to ``bridge_kinematic`` with both speeds
+  present are filled by the integral of the speed difference, the drift to the next
+  known spacing removed linearly.
 * GNSS position glitches: an E/N sample whose steps in and out both imply a speed
-  more than :data:`GLITCH_TOL` (3 m/s) away from the measured speed is dropped,
-  with the spacings computed from it, and bridged as an empty cell (e.g. the
-  zig-zag of ``E6``/``N6`` in the last 6 s of ``dynamic_part16``).
-* Files of one test day start at different ``Time`` offsets: ``t`` keeps the file's
-  own time; ``meta["t_file_start"]`` is the file's first time stamp.
-* Vehicles whose columns start late or end early (ZalaZone handling course): their
-  runs cover only the samples where they and their predecessor are present.
-* The follower's speed disagreeing with its own track length (e.g. ``Speed10`` of
-  ``handling_part1`` is about 2.5 % below the speed implied by ``E10``/``N10``,
-  whereas the track agrees with the spacing to the predecessor): recorded as
-  ``meta["speed_position_ratio"]`` and a cleaning note when off by more than 1 %.
+  more than :data:`GLITCH_TOL` (3 m/s) away from the measured speed is dropped, with
+  the spacings computed from it, and bridged as an empty cell.
+* ``Vehicle_order`` listing more names than ``Number_of_vehicles``: the first N.
+* Speed in km/h or mph (below the 70 m/s limit) is an error naming the column, found
+  from its ratio to the speed of the vehicle's own track; spacings beyond 1e8 m are
+  an error, outside -5..1000 m a :class:`avll.PlausibilityWarning`.
+* The follower's speed disagreeing with its own track length by more than 1 %:
+  ``meta["speed_position_ratio"]`` and a cleaning note.
 
-Metadata per run: ``file``, ``folder`` (the parent folder's name), ``date``
-(ISO), ``car`` (the follower's model name from ``Vehicle_order``), ``lead_car``,
-``setting`` (``"L"``, ``"M"``, ``"S"``; ``None`` without ACC), ``acc`` (bool),
-``position`` (1 = the first follower, i.e. vehicle 2), ``vehicle_index``,
-``lead_index``, ``track`` (the file name before ``_part``: ``"dynamic"``,
-``"handling"``), ``n_vehicles``, ``vehicle_order``, ``gap_column``,
-``ivs_offset`` (m, the constant distance − IVS), ``gap_reconstructed`` (samples),
-``speed_position_ratio``, ``accel_filter``, ``grade_method``, ``t_file_start``,
+Metadata per run: ``file``, ``folder``, ``date`` (ISO), ``car``, ``lead_car``,
+``setting`` (raw), ``setting_rank``, ``setting_resolved``, ``acc``, ``acc_source``,
+``acc_header``, ``position`` (1 = the first follower), ``vehicle_index``,
+``lead_index``, ``track`` (file name before ``_part``), ``n_vehicles``,
+``vehicle_order``, ``gap_column``, ``ivs_offset``, ``gap_reconstructed``,
+``repaired_samples``, ``speed_position_ratio``, ``accel_cutoff_hz``,
+``accel_cutoff``, ``accel_filter``, ``grade_method``, ``grade_available``,
+``spacing_consistency_tol_m``, ``spacing_consistency_window_s``, ``stretch``,
+``n_stretches``, ``vehicle_spec``, ``lead_vehicle_spec``, ``vehicle_spec_file``,
+``t_file_start``, ``t_start``, ``t_end``, ``rows`` (first and last data row),
 ``cleaning``.
 """
 
@@ -119,6 +166,16 @@ from ._common import check_speed_units, check_time, contiguous, plausibility_war
 
 __all__ = [
     "NativeFile",
+    "choose_accel_cutoff",
+    "match_vehicle_spec",
+    "read_vehicle_specs",
+    "read_long_setting_list",
+    "spacing_consistency",
+    "SETTING_RANK",
+    "CONSISTENCY_TOL",
+    "CONSISTENCY_WINDOW",
+    "FAR_GAP",
+    "FAR_HEADWAY",
     "read_openacc_native",
     "load_openacc_native",
     "openacc_native_report",
@@ -1174,7 +1231,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         w = max(1, int(round(CONSISTENCY_WINDOW / dt)))
         with np.errstate(invalid="ignore"):
             viol = np.flatnonzero(np.abs(res) > CONSISTENCY_TOL)
-        for j in viol:
+        for j in viol.tolist():
             win = slice(j, j + w + 1)
             code = 5 if repaired[win].any() else 4
             cw = cat[win]
