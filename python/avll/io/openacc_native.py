@@ -76,10 +76,10 @@ stretch's. Every maximal run of usable samples of one ACC state lasting at least
 
 * missing data: holes longer than the bridges;
 * not following: a spacing above :data:`FAR_GAP` (100 m) while the time headway
-  (spacing / follower speed) is above :data:`FAR_HEADWAY` (3 s; the longest
-  commercial ACC time-gap settings are about 2-2.5 s) marks a cut-in or a lost target
+  (spacing / follower speed) is above :data:`FAR_HEADWAY` (3 s, longer than the
+  longest time-gap settings of commercial ACC) marks a cut-in or a lost target
   (invisible otherwise in a GNSS spacing); the whole excursion above 3 s around it
-  is split out (e.g. Casale part7: 138 m at 34 m/s, JRC low speed part12: 127 m);
+  is split out (e.g. in Casale part7 and JRC low speed part12);
   a spacing below :data:`MIN_GAP` (-5 m) is not a following distance either;
 * inconsistent spacing: over every window of :data:`CONSISTENCY_WINDOW` (1 s) the
   change of the spacing must equal the integral of the relative speed (predecessor
@@ -87,7 +87,6 @@ stretch's. Every maximal run of usable samples of one ACC state lasting at least
   1 m/s); the samples of a violating window are left out, reported as a repair
   that would invent motion when the window holds a repaired sample (below), as a
   jump of the data otherwise. No run therefore has a window beyond the tolerance.
-  On the shared campaigns the median of this residual is 0.01-0.2 m.
 
 Signals
 -------
@@ -106,7 +105,7 @@ Signals
   (how): the ZalaZone speed is smoothed by the database's B-splines (its derivative's
   power falls by decades up to the Nyquist frequency: 1.5 Hz), the Casale and JRC
   low-speed speed is raw u-blox 9 Doppler, not filtered (the power has a minimum
-  near 0.5 Hz and rises above: noise; cut-off 0.5-0.8 Hz). A number given as
+  near 0.5 Hz and rises above: noise; cut-off below 1 Hz). A number given as
   ``accel_cutoff`` is used as is.
 * ``exo["grade"]``: the road grade along the follower's path from its altitude
   (``Alt``, else ``U``): altitude on a 1 m grid of the path (pooled with the other
@@ -118,8 +117,8 @@ consistency rule above checks every repaired sample)
 -----------------------------------------------------------------------------------
 * Empty cells: runs of at most ``bridge`` seconds (1 s) are linearly interpolated
   (only the empty cells). Receiver dropouts (a vehicle's speed and position both
-  missing, up to ``bridge_kinematic`` = 3 s, e.g. the 1.5-3.7 s holes every ~10 s of
-  JRC low speed) are bridged only when the linear speed bridge's integral matches the
+  missing, up to ``bridge_kinematic`` = 3 s, e.g. the short holes of JRC low speed)
+  are bridged only when the linear speed bridge's integral matches the
   straight distance between the positions at the hole's ends within
   :data:`CONSISTENCY_TOL`. Empty spacings up to ``bridge_kinematic`` with both speeds
   present are filled by the integral of the speed difference, the drift to the next
