@@ -65,9 +65,9 @@ is prefixed when two files of a folder share a stem). It carries the follower's
 ``x, v, a`` and the predecessor's ``lead_x, lead_v, lead_a``, ``command=None`` with
 ``command_kind="acceleration"`` and ``upper=None``.
 
-Stretches (each rule's time is counted in the report, see
-:func:`openacc_native_report`)
---------------------------------------------------------------------------------------
+Stretches
+---------
+Each rule's time is counted in the report (see :func:`openacc_native_report`).
 A sample of a follower is usable when its speed, its position, its predecessor's
 speed and the spacing are present (after the bridging below), the spacing is
 consistent with the speeds, the pair is following and the ACC state is the
@@ -112,9 +112,11 @@ Signals
   vehicles' altitudes of the same kind within 2 m), Savitzky-Golay filter of order 2
   over ``grade_window`` = 30 m.
 
-Repairs (each recorded in ``run.meta["cleaning"]``; none may invent motion: the
-consistency rule above checks every repaired sample)
------------------------------------------------------------------------------------
+Repairs
+-------
+Each is recorded in ``run.meta["cleaning"]``; none may invent motion: the consistency
+rule above checks every repaired sample.
+
 * Empty cells: runs of at most ``bridge`` seconds (1 s) are linearly interpolated
   (only the empty cells). Receiver dropouts (a vehicle's speed and position both
   missing, up to ``bridge_kinematic`` = 3 s, e.g. the short holes of JRC low speed)
