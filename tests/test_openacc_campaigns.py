@@ -332,8 +332,7 @@ def test_every_campaign_folder_and_file_loads(loaded):
         for f in files:  # file by file too
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                _, rf = openacc_native_report(f, require_predecessor=False) \
-                    if f.parent.name == "no_ACC" else openacc_native_report(f)
+                _, rf = openacc_native_report(f)
             assert rf["files"] == [str(f)]
 
 

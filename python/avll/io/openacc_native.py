@@ -1281,10 +1281,15 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                                  f"{min_duration:g} s: " + "; ".join(reasons)))
             continue
         for k, who in ((i, "follower"), (lead, "predecessor")):
-            fk = {q: c for q, c in filled[k].items() if c}
+            fk = {q: c for q, c in filled[k].items() if c and q != "dropout"}
             if fk:
                 notes.append(f"{who} (vehicle {k}): interpolated empty cells (gaps <= "
                              f"{bridge:g} s): " + ", ".join(f"{q} {c}" for q, c in fk.items()))
+            if filled[k].get("dropout"):
+                notes.append(f"{who} (vehicle {k}): {filled[k]['dropout']} samples of receiver "
+                             f"dropouts (speed and position missing, <= {bridge_kinematic:g} s) "
+                             "bridged: linear speed whose integral matches the distance between "
+                             f"the positions at the ends within {CONSISTENCY_TOL:g} m")
         if set_note:
             notes.append(set_note)
         alt_src = str(f["alt_src"])
