@@ -1374,7 +1374,9 @@ def _solo_run(nf: NativeFile, rid_stem: str, i: int, sig: dict[int, dict[str, np
     """A follower without a recorded predecessor (``require_predecessor=False``):
     its own trajectory only, the longest stretch with speed and position."""
     f = sig[i]
-    ok = np.isfinite(f["speed"]) & np.isfinite(f["E"]) & np.isfinite(f["N"])
+    ok = np.isfinite(f["speed"])
+    if bool(f["has_pos"]):
+        ok &= np.isfinite(f["E"]) & np.isfinite(f["N"])
     st = [(a, b) for a, b in contiguous(ok) if b - a >= 2]
     if not st:
         return []
@@ -1383,7 +1385,7 @@ def _solo_run(nf: NativeFile, rid_stem: str, i: int, sig: dict[int, dict[str, np
         return []
     sl = slice(a0, b0)
     v = f["speed"][sl]
-    x = arc_length(f["E"][sl], f["N"][sl], v)
+    x = arc_length(f["E"][sl], f["N"][sl], v, dt=dt)
     exo = ({"grade": grade_from_altitude(x, f["alt"][sl], grade_window)}
            if grade and str(f["alt_src"]) else {})
     state, _ = _acc_state(nf, i)
