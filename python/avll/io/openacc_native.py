@@ -1126,8 +1126,8 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         if has_pos:
             filled[k]["dropout"] = _bridge_vehicle(sig[k]["speed"], sig[k]["E"], sig[k]["N"],
                                                    sig[k]["alt"], dt, nk)
-        for q in ("speed", "E", "N"):
-            r |= np.isfinite(sig[k][q]) & ~np.isfinite(cols[q] if q in cols else nanv)
+        for q, before in (("speed", cols["speed"]), ("E", e), ("N", nn)):
+            r |= np.isfinite(sig[k][q]) & ~np.isfinite(before)  # bridged or glitch-refilled
         rep[k] = r
     if isinstance(accel_cutoff, str):
         cutoff, cut_how = choose_accel_cutoff([sig[k]["speed"] for k in sig], dt)
@@ -1213,7 +1213,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
             notes.append(f"{gcol}: {gkin} empty cells (gaps <= {bridge_kinematic:g} s) "
                          "filled by the integral of the speed difference, drift to the "
                          "next spacing removed linearly")
-        repaired = (np.isfinite(gap) & ~np.isfinite(nf.ivs[lead])) | rep[i] | rep[lead]
+        repaired = (np.isfinite(gap) & ~np.isfinite(ivs_l)) | rep[i] | rep[lead]
         has_pos = bool(f["has_pos"])
         pos_ok = np.isfinite(f["E"]) & np.isfinite(f["N"]) if has_pos else \
             np.isfinite(f["speed"])
