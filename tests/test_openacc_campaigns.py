@@ -409,3 +409,40 @@ def test_casale_motorway_excursion_and_cutoffs(loaded):
     assert CONSISTENCY_WINDOW == 1.0  # the tolerance the docs state
     assert read_vehicle_specs(JRC / "Casale" / "Veh_specifications.csv")[1]["Vehicles"] \
         == "SsangYong REXTON"
+
+
+def _append_columns(path: Path, cols: dict[str, np.ndarray]) -> None:
+    lines = path.read_text().splitlines()
+    lines[5] += "," + ",".join(cols)
+    for r in range(6, len(lines)):
+        lines[r] += "," + ",".join(repr(float(c[r - 6])) for c in cols.values())
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_every_documented_column_and_a_glitch(tmp_path, platoon):
+    """Vicolungo/Cherasco-style columns (VE, VN, VU, Eff_distance, Rel_Speed) load; a
+    one-sample position glitch of the leader (and the spacing computed from it) is
+    dropped, refilled from the positions and counted as repaired, and the run stays
+    consistent with the relative speed."""
+    e1 = platoon["E1"].copy()
+    g = platoon["IVS1"].copy()
+    e1[300] += 8.0
+    g[300] = np.hypot(e1[300] - platoon["E2"][300], platoon["N1"][300] - platoon["N2"][300]) - 4
+    f = write_jrc(tmp_path / "JRC-VC_260219_part3.csv", platoon, acc="1",
+                  override={"E1": e1, "IVS1": g})
+    n = platoon["t"].size
+    _append_columns(f, {"VE1": np.zeros(n), "VN1": platoon["Speed1"], "VU1": np.zeros(n),
+                        "Eff_distance1": platoon["IVS1"] + 0.5,
+                        "Rel_Speed1": platoon["Speed1"] - platoon["Speed2"]})
+    runs, rep = openacc_native_report(f)
+    from avll.io import read_openacc_native
+
+    nf = read_openacc_native(f)
+    assert set(nf.pairs) == {"eff_distance", "rel_speed"} and "VE" in nf.vehicles[1]
+    r = next(r for r in runs if r.meta["vehicle_index"] == 2)
+    assert r.meta["rows"] == [0, n - 1]
+    assert r.meta["repaired_samples"] >= 1
+    assert any("glitches" in c for c in r.meta["cleaning"])
+    # rebuilt from the bridged positions (a chord on the 150 m circle: within 1 cm)
+    np.testing.assert_allclose((r.lead_x - r.x)[300], platoon["IVS1"][300], atol=0.01)
+    check_consistent(r)
