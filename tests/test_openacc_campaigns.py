@@ -16,7 +16,7 @@ import pytest
 from loader_helpers import DATA, NO_DATA, ZALA, native_platoon
 
 from avll import DataError, PlausibilityWarning
-from avll.io import openacc_native_report, read_runs
+from avll.io import openacc_native_report, read_openacc_native, read_runs
 from avll.io.openacc_native import (
     CONSISTENCY_TOL,
     CONSISTENCY_WINDOW,
@@ -435,8 +435,6 @@ def test_every_documented_column_and_a_glitch(tmp_path, platoon):
                         "Eff_distance1": platoon["IVS1"] + 0.5,
                         "Rel_Speed1": platoon["Speed1"] - platoon["Speed2"]})
     runs, rep = openacc_native_report(f)
-    from avll.io import read_openacc_native
-
     nf = read_openacc_native(f)
     assert set(nf.pairs) == {"eff_distance", "rel_speed"} and "VE" in nf.vehicles[1]
     r = next(r for r in runs if r.meta["vehicle_index"] == 2)
