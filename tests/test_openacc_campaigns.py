@@ -125,6 +125,11 @@ def test_driver_column_splits_acc_and_human(tmp_path, platoon):
     # the 0.5 s of unknown state is counted, not hidden
     assert rep["time_s"]["short_unknown"] == pytest.approx(0.5)
     assert rep["time_s"]["human"] == pytest.approx(30.0)
+    fol = next(x for x in rep["followers"] if x["follower"] == 2)
+    assert fol["runs"] == [r.run_id for r in v2] and fol["time_s"]["human"] == pytest.approx(30)
+    assert fol["setting"] == "min" and fol["setting_rank"] == 0
+    # every sample of follower time is accounted for once
+    assert sum(fol["time_s"].values()) == pytest.approx(n * 0.1, abs=1e-6)
     # the leader has no Alt/U (Casale protocol): follower 2 still has its grade
     assert "grade" in v2[0].exo and v2[0].meta["grade_available"]
     assert read_runs(f, format="openacc", acc=False)[0].meta["rows"] == [400, 699]
@@ -325,6 +330,13 @@ def test_every_campaign_folder_and_file_loads(loaded):
     for camp in CAMPAIGNS:
         runs, rep = loaded[camp.name]
         files = _data_files(camp)
+        tot = {}
+        for fol in rep["followers"]:
+            for k, v in fol["time_s"].items():
+                tot[k] = tot.get(k, 0.0) + v
+        assert tot == pytest.approx(rep["time_s"], abs=1e-6)
+        kept = sum(rep["time_s"].get(k, 0.0) for k in ("acc", "human", "unknown"))
+        assert kept == pytest.approx(sum((len(r) * r.dt) for r in runs), rel=1e-9)
         assert sorted(rep["files"]) == sorted(str(f) for f in files)
         assert {Path(d["file"]).name for d in rep["non_data"]} >= {"copyright.txt"}
         assert runs and all(isinstance(r.meta["setting_rank"], int) or r.meta["setting"] is None

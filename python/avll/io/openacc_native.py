@@ -1091,7 +1091,8 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                    min_duration: float, accel_cutoff: float | str, grade: bool,
                    grade_window: float, require_predecessor: bool, skipped: list[_Skip],
                    camp: _Campaign, stretches: list[dict[str, Any]],
-                   time_acc: dict[str, float], file_info: dict[str, Any]) -> list[Run]:
+                   time_acc: dict[str, float], file_info: dict[str, Any],
+                   followers: list[dict[str, Any]]) -> list[Run]:
     path = nf.path
     t = nf.t
     dt = float(np.median(np.diff(t)))
@@ -1157,10 +1158,15 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         car = nf.name(i)
         lead = i - 1
         ftime = float(np.isfinite(sig[i]["speed"]).sum() * dt)
+        ft: dict[str, float] = {}
+        fol: dict[str, Any] = {"file": str(path), "follower": i, "car": car,
+                               "lead_car": nf.name(lead), "setting": nf.setting,
+                               "acc_header": nf.acc, "time_s": ft, "runs": []}
+        followers.append(fol)
         if lead not in nf.vehicles:
             why = f"predecessor vehicle {lead} ({nf.name(lead)}) has no columns"
             skipped.append(_Skip(str(path), i, car, why))
-            time_acc["no_predecessor"] = time_acc.get("no_predecessor", 0.0) + ftime
+            ft["no_predecessor"] = ft.get("no_predecessor", 0.0) + ftime
             stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
                               "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
                               "reason": why, "duration_s": ftime, "run_id": None})
@@ -1179,7 +1185,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         if lead not in ivs_raw:
             why = f"no spacing column {gcol}"
             skipped.append(_Skip(str(path), i, car, why))
-            time_acc["no_spacing"] = time_acc.get("no_spacing", 0.0) + ftime
+            ft["no_spacing"] = ft.get("no_spacing", 0.0) + ftime
             stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
                               "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
                               "reason": why, "duration_s": ftime, "run_id": None})
@@ -1255,6 +1261,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         keep_segs = [(a, b, v) for a, b, v in segs
                      if v < 10 and (b - a - 1) * dt >= min_duration]
         res_setting, rank, set_note = _setting_for(nf, car, camp)
+        fol.update(setting_rank=rank, setting_resolved=res_setting, acc_source=acc_src)
         spec = match_vehicle_spec(car, camp.specs) if camp.specs else None
         lspec = match_vehicle_spec(nf.name(lead), camp.specs) if camp.specs else None
         for a, b, v in segs:
@@ -1264,14 +1271,14 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                    "duration_s": round((b - a - 1) * dt, 3)}
             if v >= 10:
                 code = v - 10
-                time_acc[_DROP_KEY[code]] = time_acc.get(_DROP_KEY[code], 0.0) + secs
+                ft[_DROP_KEY[code]] = ft.get(_DROP_KEY[code], 0.0) + secs
                 if code == 1 and not fpresent[a:b].any():
                     continue  # the follower itself not recorded: not follower time
                 stretches.append({**rec, "kept": False, "acc": None, "run_id": None,
                                   "reason": _DROP[code]})
             elif (a, b, v) not in keep_segs:
                 sk = f"short_{_KEEP_KEY[v]}"
-                time_acc[sk] = time_acc.get(sk, 0.0) + secs
+                ft[sk] = ft.get(sk, 0.0) + secs
                 stretches.append({**rec, "kept": False, "acc": _ACC_META[v], "run_id": None,
                                   "reason": f"shorter than min_duration {min_duration:g} s"})
         if not keep_segs:
@@ -1300,7 +1307,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         for si, (a0, b0, v_state) in enumerate(keep_segs, start=1):
             rid = f"{rid_stem}/v{lead}-v{i}" + (f"/s{si}" if len(keep_segs) > 1 else "")
             dur = (b0 - a0 - 1) * dt
-            time_acc[_KEEP_KEY[v_state]] = (time_acc.get(_KEEP_KEY[v_state], 0.0)
+            ft[_KEEP_KEY[v_state]] = (ft.get(_KEEP_KEY[v_state], 0.0)
                                             + float(fpresent[a0:b0].sum() * dt))
             stretches.append({"file": str(path), "follower": i, "car": car,
                               "t_start": float(t[a0]), "t_end": float(t[b0 - 1]),
@@ -1359,9 +1366,16 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                 "t_file_start": float(t[0]), "t_start": float(t[a0]), "t_end": float(t[b0 - 1]),
                 "rows": [a0, b0 - 1], "cleaning": rnotes,
             }
+            fol["runs"].append(rid)
             runs.append(Run(run_id=rid, t=t[sl], a=acc_a, command_kind="acceleration",
                             command=None, v=vv, x=x, lead_x=lead_x, lead_v=lv, lead_a=la,
                             exo=exo, meta=meta))
+    for fol in followers:
+        if fol["file"] != str(path):
+            continue
+        for k, v in fol["time_s"].items():
+            time_acc[k] = time_acc.get(k, 0.0) + v
+        fol["time_s"] = {k: round(v, 3) for k, v in fol["time_s"].items()}
     return runs
 
 
@@ -1462,8 +1476,10 @@ def openacc_native_report(
     ``short_acc``, ``short_human``, ``short_unknown`` (stretches shorter than
     ``min_duration``, by ACC state), ``not_following``, ``inconsistent``, ``repair_inconsistent``,
     ``spacing_below_min``, ``no_predecessor``, ``no_spacing`` dropped; per file in
-    ``time_s_by_file``) and ``accel_cutoff`` (per file: the cut-off and how it was
-    chosen).
+    ``time_s_by_file``), ``followers`` (per file and follower: ``car``,
+    ``lead_car``, ``setting``, ``setting_rank``, ``setting_resolved``, ``acc_header``,
+    ``acc_source``, ``time_s`` by outcome as above, ``runs``: the run ids) and
+    ``accel_cutoff`` (per file: the cut-off and how it was chosen).
 
     Filters (each a value or a list; a run is kept when it matches every filter
     given): ``setting`` (any documented spelling, matched against the raw setting
@@ -1534,6 +1550,7 @@ def openacc_native_report(
     skipped: list[_Skip] = []
     foreign: list[str] = []
     stretches: list[dict[str, Any]] = []
+    followers: list[dict[str, Any]] = []
     time_all: dict[str, float] = {}
     by_file: dict[str, dict[str, float]] = {}
     cutoffs: dict[str, Any] = {}
@@ -1552,7 +1569,8 @@ def openacc_native_report(
                                min_duration=min_duration, accel_cutoff=accel_cutoff,
                                grade=grade, grade_window=grade_window,
                                require_predecessor=require_predecessor, skipped=skipped,
-                               camp=camp, stretches=stretches, time_acc=tf, file_info=info)
+                               camp=camp, stretches=stretches, time_acc=tf, file_info=info,
+                               followers=followers)
         by_file[str(f)] = {k: round(v, 3) for k, v in tf.items()}
         cutoffs[str(f)] = info
         for k, v in tf.items():
@@ -1560,7 +1578,7 @@ def openacc_native_report(
     report: dict[str, Any] = {"files": [str(f) for f in files if str(f) not in foreign],
                               "not_native": foreign, "non_data": non_data,
                               "skipped": [vars(s) for s in skipped],
-                              "stretches": stretches,
+                              "stretches": stretches, "followers": followers,
                               "time_s": {k: round(v, 3) for k, v in time_all.items()},
                               "time_s_by_file": by_file, "accel_cutoff": cutoffs}
     total = len(runs)
