@@ -456,3 +456,19 @@ def test_every_documented_column_and_a_glitch(tmp_path, platoon):
     # rebuilt from the bridged positions (a chord on the 150 m circle: within 1 cm)
     np.testing.assert_allclose((r.lead_x - r.x)[300], platoon["IVS1"][300], atol=0.01)
     check_consistent(r)
+
+
+def test_time_jump_ends_stretches(tmp_path, platoon):
+    """A part of the series removed (Casale notes: tolls, tunnels): the time jumps by
+    60 s at row 600; no run spans the jump, no bridge crosses it."""
+    f = write_jrc(tmp_path / "part13.csv", platoon, acc="1", vehicles=(1, 2), alt=(2,))
+    lines = f.read_text().splitlines()
+    for r in range(6 + 600, len(lines)):
+        cells = lines[r].split(",")
+        cells[0] = repr(float(cells[0]) + 60.0)
+        lines[r] = ",".join(cells)
+    f.write_text("\n".join(lines) + "\n")
+    runs = read_runs(f, format="openacc")
+    assert [r.meta["rows"] for r in runs] == [[0, 599], [600, 1199]]
+    assert all(np.allclose(np.diff(r.t), 0.1) for r in runs)
+    assert any("the time jumps at 1 row(s)" in c for c in runs[0].meta["cleaning"])

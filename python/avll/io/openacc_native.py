@@ -48,7 +48,9 @@ Vocabulary
   vehicle not recorded has no columns and the others keep their numbers (its
   follower has no run: its predecessor was not measured).
 * ``Time`` is kept as the file has it (``run.t``): seconds of day, relative seconds
-  or GPS time of week alike; it must increase.
+  or GPS time of week alike; it must increase. Where a step differs from the file's
+  median step by more than 0.1 % (a part of the series removed, e.g. tolls or
+  tunnels in Casale) every stretch ends, and no bridge crosses it.
 * A campaign folder as distributed: ``*_notes.txt``, ``copyright.txt``, the
   specification sheet (``Veh_specifications.csv``, ``*_veh_specifications.csv``),
   the long-setting list and any other file that is not ``*.csv`` are recognised and
@@ -472,7 +474,9 @@ def read_openacc_native(path: str | Path) -> NativeFile:
         what = "is empty" if not raw else f"is {raw[:20]!r}, not a time"
         raise DataError(f"{_loc(path, 'Time', int(bad[0]))}: the time {what} (every row "
                         "needs its time stamp)")
-    check_time(t, path, "Time")
+    # strictly increasing; a step off the median (a removed part of the series) does
+    # not stop the file: stretches end there (see _follower_runs)
+    check_time(t, path, "Time", uniform=False)
     vehicles: dict[int, dict[str, np.ndarray]] = {}
     drivers: dict[int, np.ndarray] = {}
     for k, cols in sorted(veh_cols.items()):
@@ -568,14 +572,21 @@ def _check_spacing(path: Path, column: str, g: np.ndarray) -> None:
 # ---------------------------------------------------------------------------
 
 
-def _bridge(x: np.ndarray, max_samples: int) -> tuple[np.ndarray, int]:
+def _across(breaks: np.ndarray | None, a: int, b: int) -> bool:
+    """Whether a hole ``a:b`` (with its two neighbours) spans a time break."""
+    return breaks is not None and bool(breaks[a:b + 1].any())
+
+
+def _bridge(x: np.ndarray, max_samples: int,
+            breaks: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Linear interpolation of interior runs of at most ``max_samples`` NaN cells
-    (only those cells); returns the array and the number of cells filled."""
+    (only those cells, never across a time break); returns the array and the number
+    of cells filled."""
     out = x.copy()
     filled = 0
     fin = np.isfinite(out)
     for a, b in contiguous(~fin):
-        if a == 0 or b == out.shape[0] or b - a > max_samples:
+        if a == 0 or b == out.shape[0] or b - a > max_samples or _across(breaks, a, b):
             continue
         out[a:b] = np.interp(np.arange(a, b), [a - 1, b], [out[a - 1], out[b]])
         filled += b - a
@@ -596,7 +607,7 @@ def _position_glitches(e: np.ndarray, n: np.ndarray, v: np.ndarray, dt: float,
 
 
 def _bridge_vehicle(v: np.ndarray, e: np.ndarray, n: np.ndarray, alt: np.ndarray,
-                    dt: float, max_samples: int) -> int:
+                    dt: float, max_samples: int, breaks: np.ndarray | None = None) -> int:
     """Bridges, in place, interior holes of at most ``max_samples`` samples where a
     vehicle's speed and position are both missing (a receiver dropout), only where
     the data allow: the speed is interpolated linearly across the hole, and the
@@ -607,7 +618,7 @@ def _bridge_vehicle(v: np.ndarray, e: np.ndarray, n: np.ndarray, alt: np.ndarray
     filled = 0
     hole = ~np.isfinite(v)
     for a, b in contiguous(hole):
-        if a == 0 or b == v.shape[0] or b - a > max_samples:
+        if a == 0 or b == v.shape[0] or b - a > max_samples or _across(breaks, a, b):
             continue
         ends = (a - 1, b)
         if not all(np.isfinite(q[j]) for q in (v, e, n) for j in ends):
@@ -629,12 +640,14 @@ def _bridge_vehicle(v: np.ndarray, e: np.ndarray, n: np.ndarray, alt: np.ndarray
     return filled
 
 
-def _short_runs(bad: np.ndarray, ok_sides: np.ndarray, max_samples: int) -> np.ndarray:
+def _short_runs(bad: np.ndarray, ok_sides: np.ndarray, max_samples: int,
+                breaks: np.ndarray | None = None) -> np.ndarray:
     """Mask of the interior runs of ``bad`` of at most ``max_samples`` samples whose
-    ``ok_sides`` mask holds over the run and its two neighbours."""
+    ``ok_sides`` mask holds over the run and its two neighbours (not across a time
+    break)."""
     out = np.zeros(bad.shape[0], dtype=bool)
     for a, b in contiguous(bad):
-        if a == 0 or b == bad.shape[0] or b - a > max_samples:
+        if a == 0 or b == bad.shape[0] or b - a > max_samples or _across(breaks, a, b):
             continue
         if ok_sides[a - 1:b + 1].all():
             out[a:b] = True
@@ -642,14 +655,15 @@ def _short_runs(bad: np.ndarray, ok_sides: np.ndarray, max_samples: int) -> np.n
 
 
 def _fill_gap_kinematic(gap: np.ndarray, vf: np.ndarray, vp: np.ndarray, dt: float,
-                        max_samples: int) -> tuple[np.ndarray, int]:
+                        max_samples: int,
+                        breaks: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Fill interior runs of at most ``max_samples`` empty spacing cells by the
     integral of the speed difference (trapezoid) from the last known spacing, with
     the drift to the next known spacing removed linearly; only where both speeds
     are present. Returns the spacing and the number of cells filled."""
     out = gap.copy()
     sides = np.isfinite(vf) & np.isfinite(vp)
-    mask = _short_runs(~np.isfinite(out), sides, max_samples)
+    mask = _short_runs(~np.isfinite(out), sides, max_samples, breaks)
     n = 0
     for a, b in contiguous(mask):
         d = vp[a - 1:b + 1] - vf[a - 1:b + 1]
@@ -1077,11 +1091,15 @@ def spacing_consistency(gap: np.ndarray, v: np.ndarray, lead_v: np.ndarray,
     return res
 
 
-def _segments(lab: np.ndarray) -> list[tuple[int, int, int]]:
-    """Runs ``(a, b, value)`` of equal values of an integer array."""
+def _segments(lab: np.ndarray, breaks: np.ndarray | None = None) -> list[tuple[int, int, int]]:
+    """Runs ``(a, b, value)`` of equal values of an integer array, also cut before
+    every sample ``k`` where ``breaks[k]``."""
     if lab.shape[0] == 0:
         return []
-    cut = np.flatnonzero(np.diff(lab)) + 1
+    change = np.diff(lab) != 0
+    if breaks is not None:
+        change |= breaks[1:]
+    cut = np.flatnonzero(change) + 1
     starts = np.concatenate([[0], cut])
     ends = np.concatenate([cut, [lab.shape[0]]])
     return [(int(a), int(b), int(lab[a])) for a, b in zip(starts, ends, strict=True)]
@@ -1096,6 +1114,9 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
     path = nf.path
     t = nf.t
     dt = float(np.median(np.diff(t)))
+    # a time step off the file's median step (by more than 0.1 %, e.g. a toll or a
+    # tunnel removed from the series) breaks every stretch there
+    tbreak = np.concatenate([[False], np.abs(np.diff(t) - dt) > 1e-3 * dt])
     nb = int(math.floor(bridge / dt + 1e-9))
     nk = int(math.floor(bridge_kinematic / dt + 1e-9))
     filled: dict[int, dict[str, int]] = {}
@@ -1123,10 +1144,10 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         filled[k] = {}
         r = np.zeros(t.shape[0], dtype=bool)
         for q, arr in (("speed", cols["speed"]), ("E", e), ("N", nn), ("alt", alt)):
-            sig[k][q], filled[k][q] = _bridge(arr, nb)
+            sig[k][q], filled[k][q] = _bridge(arr, nb, tbreak)
         if has_pos:
             filled[k]["dropout"] = _bridge_vehicle(sig[k]["speed"], sig[k]["E"], sig[k]["N"],
-                                                   sig[k]["alt"], dt, nk)
+                                                   sig[k]["alt"], dt, nk, tbreak)
         for q, before in (("speed", cols["speed"]), ("E", e), ("N", nn)):
             r |= np.isfinite(sig[k][q]) & ~np.isfinite(before)  # bridged or glitch-refilled
         rep[k] = r
@@ -1211,10 +1232,10 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         elif both.sum() >= 10:
             notes.append(f"{gcol}: distance - IVS is not constant (spread "
                          f"{spread:.3g} m): empty cells not reconstructed")
-        gap, gfill = _bridge(gap, nb)
+        gap, gfill = _bridge(gap, nb, tbreak)
         if gfill:
             notes.append(f"{gcol}: {gfill} empty cells interpolated (gaps <= {bridge:g} s)")
-        gap, gkin = _fill_gap_kinematic(gap, f["speed"], p["speed"], dt, nk)
+        gap, gkin = _fill_gap_kinematic(gap, f["speed"], p["speed"], dt, nk, tbreak)
         if gkin:
             notes.append(f"{gcol}: {gkin} empty cells (gaps <= {bridge_kinematic:g} s) "
                          "filled by the integral of the speed difference, drift to the "
@@ -1223,7 +1244,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         has_pos = bool(f["has_pos"])
         pos_ok = np.isfinite(f["E"]) & np.isfinite(f["N"]) if has_pos else \
             np.isfinite(f["speed"])
-        pos_kin = _short_runs(~pos_ok, np.isfinite(f["speed"]), nk)
+        pos_kin = _short_runs(~pos_ok, np.isfinite(f["speed"]), nk, tbreak)
         if pos_kin.any():
             notes.append(f"follower (vehicle {i}): {int(pos_kin.sum())} samples without E/N "
                          f"(gaps <= {bridge_kinematic:g} s): path length from the speed")
@@ -1236,6 +1257,9 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         # spacing consistent with the relative speed (repairs first)
         res = spacing_consistency(np.where(present, gap, np.nan), f["speed"], p["speed"], dt)
         w = max(1, int(round(CONSISTENCY_WINDOW / dt)))
+        if tbreak.any() and res.size:
+            cb = np.cumsum(tbreak)
+            res[(cb[w:] - cb[:-w]) > 0] = np.nan  # windows across a time break
         with np.errstate(invalid="ignore"):
             viol = np.flatnonzero(np.abs(res) > CONSISTENCY_TOL)
         for j in viol.tolist():
@@ -1256,7 +1280,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         cat = np.where((cat == 0) & low, 3, cat).astype(np.int8)
         state, acc_src = _acc_state(nf, i)
         lab = np.where(cat == 0, state.astype(np.int16), 10 + cat.astype(np.int16))
-        segs = _segments(lab)
+        segs = _segments(lab, tbreak)
         fpresent = np.isfinite(f["speed"])
         keep_segs = [(a, b, v) for a, b, v in segs
                      if v < 10 and (b - a - 1) * dt >= min_duration]
@@ -1299,6 +1323,9 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                              f"the positions at the ends within {CONSISTENCY_TOL:g} m")
         if set_note:
             notes.append(set_note)
+        if tbreak.any():
+            notes.append(f"the time jumps at {int(tbreak.sum())} row(s) (step off the "
+                         f"median {dt:g} s): stretches end there")
         alt_src = str(f["alt_src"])
         if not alt_src:
             notes.append(f"no Alt{i} or U{i} column: road grade unavailable for {car}")
