@@ -444,7 +444,7 @@ def run_meta(run: Run, root: str | Path | None = None) -> dict[str, Any]:
             camp = cr.name
         elif root is not None:
             rp = Path(root)
-            camp = rp.name if rp.is_dir() else rp.parent.name
+            camp = rp.parent.name if rp.is_file() else rp.name
         else:
             camp = ""
     vi = m.get("vehicle_index")
@@ -757,7 +757,7 @@ def _short_record(n: int, dt: float, band: Sequence[float]) -> str | None:
     need = max(int(math.ceil(1.0 / (float(band[0]) * dt))), 21)
     if m >= need:
         return None
-    return (f"the run is too short: {n * dt:.1f} s, {max(m, 0) * dt:.1f} s after cutting "
+    return (f"the run is too short: {(n - 1) * dt:.1f} s, {max(m - 1, 0) * dt:.1f} s after cutting "
             f"{TRIM:g} s at each end (filter edges), less than one period of the band's low "
             f"edge ({1.0 / float(band[0]):g} s)")
 
