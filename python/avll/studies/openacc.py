@@ -480,7 +480,10 @@ def _loader_dropped(report: Mapping[str, Any]) -> list[dict[str, Any]]:
     report's ``stretches`` not marked kept, and of ``dropped`` / ``skipped``, each
     as ``{"file", "car", "reason", "seconds"}`` (``seconds`` None when not said)."""
     out = []
-    for key in ("stretches", "dropped", "skipped"):
+    # the report's stretches, when it has them, hold every dropped stretch (its
+    # "skipped" repeats them per follower); else its "dropped" / "skipped" entries
+    keys = ("stretches",) if report.get("stretches") is not None else ("dropped", "skipped")
+    for key in keys:
         for e in report.get(key) or []:
             if not isinstance(e, Mapping):
                 continue
@@ -649,6 +652,9 @@ def openacc_study(
         "left_out": left_out,
         "dropped_by_loader": dropped,
         "skipped": load_report.get("skipped", []),
+        "non_data_files": [str(e.get("file", e)) if isinstance(e, Mapping) else str(e)
+                           for e in load_report.get("non_data") or []],
+        "loader_time_s": load_report.get("time_s"),
         "files": _files_summary(runs, cars),
         "name_check": _name_check(runs),
         "poor_fits": _poor_fits(runs, cars),
