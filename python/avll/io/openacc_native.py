@@ -105,6 +105,7 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 import math
+import os
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -114,7 +115,7 @@ from typing import Any
 import numpy as np
 
 from ..data import DataError, Run
-from ._common import check_speed_units, check_time, contiguous, where
+from ._common import check_speed_units, check_time, contiguous, plausibility_warning, where
 
 __all__ = [
     "NativeFile",
@@ -140,13 +141,47 @@ POOL_MIN_SPEED = 1.0
 #: An E/N sample whose steps in and out both imply a speed this far (m/s) from the
 #: measured speed is a position glitch and is dropped (then bridged).
 GLITCH_TOL = 3.0
-#: Gap settings of the ACC, longest first.
+#: Consistency of the spacing with the speeds: over every window of
+#: :data:`CONSISTENCY_WINDOW` seconds the change of the spacing may differ from the
+#: integral of the relative speed (predecessor minus follower) by at most
+#: :data:`CONSISTENCY_TOL` metres (a mean rate error of 1 m/s over 1 s).
+CONSISTENCY_WINDOW = 1.0
+CONSISTENCY_TOL = 1.0
+#: Not following: a spacing above :data:`FAR_GAP` metres while the time headway
+#: (spacing / follower speed) is above :data:`FAR_HEADWAY` seconds; the whole excursion
+#: above :data:`FAR_HEADWAY` around it is split out.
+FAR_GAP = 100.0
+FAR_HEADWAY = 3.0
+#: A spacing below this (m) is not a measurable following distance (bumpers overlap
+#: by more than the GNSS error): split out.
+MIN_GAP = -5.0
+#: Spacings outside this range (m) give a :class:`avll.PlausibilityWarning`; a
+#: magnitude above ``SPACING_HARD`` is an error.
+SPACING_RANGE = (-5.0, 1000.0)
+SPACING_HARD = 1e8
+#: Bounds (Hz) of the acceleration cut-off chosen from the spectrum.
+CUTOFF_RANGE = (0.5, 1.5)
+#: Gap settings of the ACC by rank within a campaign (larger = longer time gap), in
+#: every spelling the campaigns' notes document (lower case, blanks collapsed).
+SETTING_RANK = {"s": 0, "min": 0, "shortest": 0, "second shortest": 1, "m": 1, "l": 2}
+#: The ZalaZone spelling of a mixed file: short for most cars, long for the cars of
+#: the campaign's long-setting list.
+MIXED_SETTING = "sl"
+#: Gap settings of the ZalaZone campaign, longest first.
 SETTINGS = ("L", "M", "S")
 #: Lines before the data rows: five metadata lines and the column header.
 HEADER_LINES = 6
 _META_KEYS = ("Date", "Vehicle_order", "Number_of_vehicles", "ACC", "Distance_setting")
-_VEH_COL = re.compile(r"^(Speed|E|N|Lon|Lat|Alt)(\d+)$")
-_IVS_COL = re.compile(r"^IVS(\d+)$")
+_VEH_COL = re.compile(r"^(Speed|E|N|U|Lon|Lat|Alt|VE|VN|VU|Driver)(\d+)$", re.IGNORECASE)
+_PAIR_COL = re.compile(r"^(IVS|Eff_distance|Rel_Speed)(\d+)$", re.IGNORECASE)
+_VEH_KEYS = {"speed": "speed", "e": "E", "n": "N", "u": "U", "lon": "lon", "lat": "lat",
+             "alt": "alt", "ve": "VE", "vn": "VN", "vu": "VU", "driver": "driver"}
+_PAIR_KEYS = {"ivs": "ivs", "eff_distance": "eff_distance", "rel_speed": "rel_speed"}
+_DRIVER = {"acc": 1, "human": 0}
+
+
+def _setting_key(raw: str | None) -> str:
+    return " ".join(str(raw or "").replace("_", " ").split()).lower()
 
 
 def _loc(path: Path, column: str | None = None, row: int | None = None,
@@ -169,9 +204,13 @@ class NativeFile:
     arrays (NaN for empty cells), before any cleaning.
 
     ``names`` are the first ``n_vehicles`` names of ``Vehicle_order`` (all listed
-    names in ``listed``); ``vehicles`` maps a vehicle number to its columns
-    (``speed``, ``E``, ``N``, ``alt`` and, when present, ``lon``, ``lat``); ``ivs``
-    maps ``i`` to the spacing between vehicles ``i`` and ``i + 1``.
+    names in ``listed``); ``acc`` the header's ``ACC`` (0, 1, 2 or ``None`` when
+    blank); ``setting`` the header's ``Distance_setting`` as written (``None`` when
+    blank); ``vehicles`` maps a vehicle number to its numeric columns (``speed``,
+    ``E``, ``N`` and, when present, ``alt``, ``U``, ``lon``, ``lat``, ``VE``, ``VN``,
+    ``VU``); ``drivers`` a vehicle number to its per-sample ``Driver`` column (1 ACC,
+    0 human, -1 empty); ``ivs`` maps ``i`` to the spacing between vehicles ``i`` and
+    ``i + 1``, ``pairs`` the other pair columns (``eff_distance``, ``rel_speed``).
     """
 
     path: Path
@@ -179,12 +218,14 @@ class NativeFile:
     listed: tuple[str, ...]
     names: tuple[str, ...]
     n_vehicles: int
-    acc: bool
+    acc: int | None
     setting: str | None
     t: np.ndarray
     vehicles: dict[int, dict[str, np.ndarray]]
     ivs: dict[int, np.ndarray]
     notes: list[str] = field(default_factory=list)
+    drivers: dict[int, np.ndarray] = field(default_factory=dict)
+    pairs: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)
 
     @property
     def track(self) -> str:
@@ -247,14 +288,16 @@ def _parse_header(path: Path, rows: list[list[str]]) -> dict[str, Any]:
         raise DataError(f"{_loc(path, line=2)}: Vehicle_order lists {len(listed)} names but "
                         f"Number_of_vehicles (line 3) is {n}")
     acc_v = [v for v in _meta_line(path, rows, 3) if v]
-    if acc_v not in (["0"], ["1"]):
-        raise DataError(f"{_loc(path, line=4)}: ACC must be 0 or 1, got {','.join(acc_v)!r}")
-    acc = acc_v == ["1"]
+    if acc_v not in ([], ["0"], ["1"], ["2"]):
+        raise DataError(f"{_loc(path, line=4)}: ACC must be 0, 1, 2 or empty (0 manual, 1 "
+                        f"ACC, 2 mixed: see the Driver<i> columns), got {','.join(acc_v)[:40]!r}")
+    acc = int(acc_v[0]) if acc_v else None
     st = [v for v in _meta_line(path, rows, 4) if v]
-    if len(st) > 1 or (st and st[0].upper() not in SETTINGS):
-        raise DataError(f"{_loc(path, line=5)}: Distance_setting must be L, M, S or empty, "
-                        f"got {','.join(st)[:40]!r}")
-    setting = st[0].upper() if st else None
+    key = _setting_key(st[0]) if len(st) == 1 else "?"
+    if len(st) > 1 or (st and key not in SETTING_RANK and key != MIXED_SETTING):
+        raise DataError(f"{_loc(path, line=5)}: Distance_setting must be one of L, M, S, SL, "
+                        f"min, shortest, second shortest or empty, got {','.join(st)[:40]!r}")
+    setting = st[0] if st else None
     return {"date": date, "listed": listed, "n": n, "acc": acc, "setting": setting}
 
 
@@ -292,6 +335,8 @@ def read_openacc_native(path: str | Path) -> NativeFile:
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
         raise DataError(f"{path}: is a directory, expected a native OpenACC CSV file")
+    if not path.is_file():
+        raise DataError(f"{path}: not a regular file (a FIFO or a device is not read)")
     try:
         with open(path, encoding="utf-8-sig", newline="") as f:
             rows = list(csv.reader(f))
@@ -313,7 +358,7 @@ def read_openacc_native(path: str | Path) -> NativeFile:
                         "column header must start with 'Time'")
     seen: set[str] = set()
     veh_cols: dict[int, dict[str, int]] = {}
-    ivs_cols: dict[int, int] = {}
+    pair_cols: dict[str, dict[int, int]] = {}
     n = h["n"]
     for j, c in enumerate(header):
         if c in seen:
@@ -321,32 +366,36 @@ def read_openacc_native(path: str | Path) -> NativeFile:
         seen.add(c)
         if j == 0:
             continue
-        mv, mi = _VEH_COL.match(c), _IVS_COL.match(c)
+        mv, mi = _VEH_COL.match(c), _PAIR_COL.match(c)
         if mv:
             k = int(mv[2])
             if not 1 <= k <= n:
                 raise DataError(
                     f"{_loc(path, c, line=HEADER_LINES)}: vehicle {k} but "
                     f"Number_of_vehicles (line 3) is {n}: wrong vehicle count")
-            veh_cols.setdefault(k, {})[mv[1]] = j
+            veh_cols.setdefault(k, {})[_VEH_KEYS[mv[1].lower()]] = j
         elif mi:
-            k = int(mi[1])
+            k = int(mi[2])
             if not 1 <= k < n:
                 raise DataError(
                     f"{_loc(path, c, line=HEADER_LINES)}: spacing between vehicles {k} and "
                     f"{k + 1} but Number_of_vehicles (line 3) is {n}: wrong vehicle count")
-            ivs_cols[k] = j
+            pair_cols.setdefault(_PAIR_KEYS[mi[1].lower()], {})[k] = j
         else:
             raise DataError(f"{_loc(path, c, line=HEADER_LINES)}: unknown column (expected "
-                            "Time, Speed<i>, E<i>, N<i>, Lon<i>, Lat<i>, Alt<i>, IVS<i>)")
-    if not veh_cols:
+                            "Time and, per vehicle <i>, Speed, E, N, U, Lon, Lat, Alt, VE, VN, "
+                            "VU, Driver, per pair IVS, Eff_distance, Rel_Speed)")
+    if not any("speed" in cols for cols in veh_cols.values()):
         raise DataError(f"{_loc(path, 'Speed1', line=HEADER_LINES)}: missing column: no "
-                        "vehicle columns (Speed<i>, E<i>, N<i>, Alt<i>)")
+                        "vehicle columns (Speed<i>, E<i>, N<i>, ...)")
     for k, cols in sorted(veh_cols.items()):
-        for need in ("Speed", "E", "N", "Alt"):
-            if need not in cols:
-                raise DataError(f"{_loc(path, f'{need}{k}', line=HEADER_LINES)}: missing "
-                                f"column (vehicle {k} has {', '.join(cols)})")
+        need = ("speed",) if not ({"E", "N"} & set(cols)) else ("speed", "E", "N")
+        for q in need:
+            if q not in cols:
+                name = {"speed": "Speed"}.get(q, q)
+                raise DataError(f"{_loc(path, f'{name}{k}', line=HEADER_LINES)}: missing "
+                                f"column (vehicle {k} has "
+                                f"{', '.join(header[j] for j in cols.values())})")
     data = rows[HEADER_LINES:]
     while data and not any(c.strip() for c in data[-1]):
         data.pop()
@@ -361,12 +410,23 @@ def read_openacc_native(path: str | Path) -> NativeFile:
     t = _to_float(path, "Time", cols_t[0])
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise DataError(f"{_loc(path, 'Time', int(bad[0]))}: empty (missing) time")
+        raw = cols_t[0][int(bad[0])].strip()
+        what = "is empty" if not raw else f"is {raw[:20]!r}, not a time"
+        raise DataError(f"{_loc(path, 'Time', int(bad[0]))}: the time {what} (every row "
+                        "needs its time stamp)")
     check_time(t, path, "Time")
-    keymap = {"Speed": "speed", "E": "E", "N": "N", "Alt": "alt", "Lon": "lon", "Lat": "lat"}
-    vehicles = {k: {keymap[q]: _to_float(path, f"{q}{k}", cols_t[j]) for q, j in cols.items()}
-                for k, cols in sorted(veh_cols.items())}
-    ivs = {k: _to_float(path, f"IVS{k}", cols_t[j]) for k, j in sorted(ivs_cols.items())}
+    vehicles: dict[int, dict[str, np.ndarray]] = {}
+    drivers: dict[int, np.ndarray] = {}
+    for k, cols in sorted(veh_cols.items()):
+        vehicles[k] = {}
+        for q, j in cols.items():
+            if q == "driver":
+                drivers[k] = _driver(path, header[j], cols_t[j])
+            else:
+                vehicles[k][q] = _to_float(path, header[j], cols_t[j])
+    pairs = {q: {k: _to_float(path, header[j], cols_t[j]) for k, j in sorted(m.items())}
+             for q, m in pair_cols.items()}
+    ivs = pairs.pop("ivs", {})
     notes = []
     if len(h["listed"]) > n:
         notes.append(f"Vehicle_order lists {len(h['listed'])} names for {n} vehicles: the "
@@ -375,6 +435,7 @@ def read_openacc_native(path: str | Path) -> NativeFile:
     if absent:
         notes.append("no columns for vehicle(s) " + ", ".join(
             f"{k} ({h['listed'][k - 1]})" for k in absent))
+    dt = float(np.median(np.diff(t))) if t.shape[0] > 1 else 0.1
     for k, v in vehicles.items():
         sp = v["speed"]
         check_speed_units(sp, path, f"Speed{k}")
@@ -382,9 +443,66 @@ def read_openacc_native(path: str | Path) -> NativeFile:
         if neg.size:
             raise DataError(f"{_loc(path, f'Speed{k}', int(neg[0]))}: negative speed "
                             f"{sp[neg[0]]:g} m/s")
+        if "E" in v:
+            _speed_vs_track(path, k, sp, v["E"], v["N"], dt)
+    for k, g in ivs.items():
+        _check_spacing(path, f"IVS{k}", g)
     return NativeFile(path=path, date=h["date"], listed=h["listed"],
                       names=h["listed"][:n], n_vehicles=n, acc=h["acc"], setting=h["setting"],
-                      t=t, vehicles=vehicles, ivs=ivs, notes=notes)
+                      t=t, vehicles=vehicles, ivs=ivs, notes=notes, drivers=drivers,
+                      pairs=pairs)
+
+
+def _driver(path: Path, column: str, cells: Sequence[str]) -> np.ndarray:
+    """A ``Driver<i>`` column: 1 for ``ACC``, 0 for ``Human`` (any case), -1 for an
+    empty cell; anything else is an error naming the row."""
+    out = np.full(len(cells), -1, dtype=np.int8)
+    for r, c in enumerate(cells):
+        c = c.strip()
+        if not c:
+            continue
+        v = _DRIVER.get(c.lower())
+        if v is None:
+            raise DataError(f"{_loc(path, column, r)}: Driver must be 'ACC', 'Human' or empty, "
+                            f"got {c[:40]!r}")
+        out[r] = v
+    return out
+
+
+def _speed_vs_track(path: Path, k: int, v: np.ndarray, e: np.ndarray, n: np.ndarray,
+                    dt: float) -> None:
+    """A speed column in km/h or mph (below the 70 m/s limit, e.g. 30 km/h) is found
+    by its ratio to the speed of the vehicle's own E/N track (median over the steps
+    moving faster than 2 m/s by the track, at least 50): an error naming the unit."""
+    step = np.hypot(np.diff(e), np.diff(n)) / dt
+    vm = 0.5 * (v[:-1] + v[1:])
+    ok = np.isfinite(step) & np.isfinite(vm) & (step > 2.0)
+    if ok.sum() < 50:
+        return
+    k_ratio = float(np.median(vm[ok] / step[ok]))
+    for unit, f in (("km/h", 3.6), ("mph", 2.2369)):
+        if abs(k_ratio / f - 1.0) < 0.15:
+            raise DataError(f"{_loc(path, f'Speed{k}')}: speed looks like {unit}, not m/s: it is "
+                            f"{k_ratio:.3g} x the speed of the vehicle's own E{k}/N{k} track "
+                            f"(median over {int(ok.sum())} moving steps); convert to m/s")
+
+
+def _check_spacing(path: Path, column: str, g: np.ndarray) -> None:
+    """Spacings beyond ``SPACING_HARD`` are an error, outside ``SPACING_RANGE`` a
+    :class:`avll.PlausibilityWarning` naming the first row (as the canonical loader
+    does for positions)."""
+    fin = np.where(np.isfinite(g), g, 0.0)
+    big = np.flatnonzero(np.abs(fin) > SPACING_HARD)
+    if big.size:
+        raise DataError(f"{_loc(path, column, int(big[0]))}: spacing {g[big[0]]:.4g} m is "
+                        f"implausible (|spacing| > {SPACING_HARD:g} m); wrong unit or column?")
+    lo, hi = SPACING_RANGE
+    out = np.flatnonzero((fin < lo) | (fin > hi))
+    if out.size:
+        plausibility_warning(
+            f"{_loc(path, column, int(out[0]))}: spacing {g[out[0]]:.4g} m is outside the "
+            f"plausible range {lo:g}..{hi:g} m" + (f" ({out.size} such rows)"
+                                                   if out.size > 1 else ""))
 
 
 # ---------------------------------------------------------------------------
@@ -417,6 +535,40 @@ def _position_glitches(e: np.ndarray, n: np.ndarray, v: np.ndarray, dt: float,
     bad = np.zeros(e.shape[0], dtype=bool)
     bad[1:-1] = badstep[:-1] & badstep[1:]
     return bad
+
+
+def _bridge_vehicle(v: np.ndarray, e: np.ndarray, n: np.ndarray, alt: np.ndarray,
+                    dt: float, max_samples: int) -> int:
+    """Bridges, in place, interior holes of at most ``max_samples`` samples where a
+    vehicle's speed and position are both missing (a receiver dropout), only where
+    the data allow: the speed is interpolated linearly across the hole, and the
+    bridge is accepted only when its integral matches the straight distance between
+    the positions at the two ends within :data:`CONSISTENCY_TOL` metres; the
+    positions are then put on that chord in proportion to the integrated speed.
+    Returns the number of samples filled."""
+    filled = 0
+    hole = ~np.isfinite(v)
+    for a, b in contiguous(hole):
+        if a == 0 or b == v.shape[0] or b - a > max_samples:
+            continue
+        ends = (a - 1, b)
+        if not all(np.isfinite(q[j]) for q in (v, e, n) for j in ends):
+            continue
+        if np.isfinite(e[a:b]).any() or np.isfinite(n[a:b]).any():
+            continue
+        vi = np.interp(np.arange(a - 1, b + 1), ends, v[list(ends)])
+        cum = np.concatenate([[0.0], np.cumsum(0.5 * (vi[1:] + vi[:-1]) * dt)])
+        chord = math.hypot(e[b] - e[a - 1], n[b] - n[a - 1])
+        if abs(chord - cum[-1]) > CONSISTENCY_TOL:
+            continue
+        frac = cum / cum[-1] if cum[-1] > 1e-9 else np.linspace(0.0, 1.0, cum.shape[0])
+        v[a:b] = vi[1:-1]
+        e[a:b] = (e[a - 1] + frac * (e[b] - e[a - 1]))[1:-1]
+        n[a:b] = (n[a - 1] + frac * (n[b] - n[a - 1]))[1:-1]
+        if np.isfinite(alt[a - 1]) and np.isfinite(alt[b]):
+            alt[a:b] = np.interp(np.arange(a, b), ends, alt[list(ends)])
+        filled += b - a
+    return filled
 
 
 def _short_runs(bad: np.ndarray, ok_sides: np.ndarray, max_samples: int) -> np.ndarray:
@@ -590,13 +742,16 @@ def _as_set(name: str, value: Any, norm: Any) -> set[Any] | None:
 
 
 def _norm_setting(v: Any) -> str | None:
+    """A setting filter value: any documented spelling (case and blanks ignored), or
+    ``None``/``"none"`` for the files without a setting."""
     if v is None:
         return None
-    s = str(v).strip().upper()
-    if s in ("NONE", "", "0", "NO_ACC", "OFF"):
+    s = _setting_key(v)
+    if s in ("none", "", "0", "no acc", "off"):
         return None
-    if s not in SETTINGS:
-        raise ValueError(f"setting: expected L, M, S or none, got {v!r}")
+    if s not in SETTING_RANK and s != MIXED_SETTING:
+        raise ValueError(f"setting: expected one of L, M, S, SL, min, shortest, second "
+                         f"shortest or none, got {v!r}")
     return s
 
 
@@ -612,10 +767,273 @@ class _Skip:
     reason: str
 
 
+# ---------------------------------------------------------------------------
+# Campaign side files: specification sheets, long-setting lists
+# ---------------------------------------------------------------------------
+
+
+def _side_kind(f: Path) -> str | None:
+    """The kind of a campaign file that is not data (``None`` for a ``*.csv`` that may
+    be data): notes, vehicle specifications, copyright, long-setting list, other."""
+    name = f.name.lower()
+    if f.suffix.lower() != ".csv":
+        if name.endswith("notes.txt"):
+            return "notes"
+        if name.startswith("copyright"):
+            return "copyright"
+        return "other (not *.csv)"
+    if "veh_specification" in name or "vehicle_specification" in name:
+        return "vehicle specifications"
+    if name.startswith("long setting") or name.startswith("long_setting"):
+        return "long-setting list"
+    return None
+
+
+def _read_small_csv(path: Path) -> list[list[str]]:
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as fh:
+            return [[c.strip() for c in r] for r in csv.reader(fh)]
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise DataError(f"{path}: not a readable CSV file ({e})") from e
+
+
+def _cell(v: str) -> Any:
+    v = v.strip()
+    if v in ("", "-"):
+        return None
+    try:
+        return float(v)
+    except ValueError:
+        return v
+
+
+def read_vehicle_specs(path: str | Path) -> list[dict[str, Any]]:
+    """The rows of a campaign's vehicle specification sheet (``Veh_specifications.csv``,
+    ``*_veh_specifications.csv``): one dict per vehicle, keyed by the sheet's own
+    column names (``-`` and empty cells are ``None``, numbers are floats)."""
+    path = Path(path)
+    rows = [r for r in _read_small_csv(path) if any(r)]
+    if not rows:
+        return []
+    head = rows[0]
+    return [{h: _cell(c) for h, c in zip(head, r, strict=False) if h} for r in rows[1:]]
+
+
+def _tokens(name: str) -> list[str]:
+    return [t for t in re.split(r"[^0-9a-z]+", name.lower()) if t]
+
+
+def match_vehicle_spec(name: str, specs: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
+    """The row of a specification sheet for a car named as in ``Vehicle_order``.
+
+    Rule: the name is split at every character that is not a letter or a digit
+    (``MERCEDES_GLE450`` -> ``mercedes``, ``gle450``) and a row matches when each of
+    these tokens occurs in the row's first cell lower-cased with everything but
+    letters and digits removed (``Mercedes-Benz (GLE 450 4Matic)`` ->
+    ``mercedesbenzgle4504matic``). Exactly one matching row is the car's; none or
+    several: ``None`` (e.g. ``TESLA_MODELS`` matches only ``Tesla (model S)``,
+    ``Hyundai`` matches ``Hyundai Nexo``, ``BMW`` of JRC low speed matches no row of
+    that campaign's sheet)."""
+    toks = _tokens(name)
+    if not toks:
+        return None
+    hits = []
+    for row in specs:
+        first = next(iter(row.values()), None)
+        key = re.sub(r"[^0-9a-z]+", "", str(first or "").lower())
+        if key and all(t in key for t in toks):
+            hits.append(row)
+    return hits[0] if len(hits) == 1 else None
+
+
+def read_long_setting_list(path: str | Path) -> dict[str, set[str]]:
+    """A ZalaZone long-setting list (``filename,Long timegap setting`` then rows like
+    ``handling_part12,BMW_I3/MERCEDES_GLE450``): file stem -> the cars (upper case)
+    that drove the long setting in that ``SL`` file."""
+    path = Path(path)
+    out: dict[str, set[str]] = {}
+    for k, r in enumerate(_read_small_csv(path)):
+        if k == 0 or not r or not r[0]:
+            continue
+        cars = r[1] if len(r) > 1 else ""
+        out[Path(r[0]).stem.lower()] = {_norm_name(c) for c in cars.split("/") if c.strip()}
+    return out
+
+
+@dataclass
+class _Campaign:
+    """The side files that apply to a data file (nearest folder upwards)."""
+
+    specs: list[dict[str, Any]] | None = None
+    specs_file: str | None = None
+    long_list: dict[str, set[str]] | None = None
+    long_file: str | None = None
+
+
+def _campaign_for(f: Path, root: Path, side: dict[Path, list[tuple[Path, str]]],
+                  cache: dict[Path, _Campaign]) -> _Campaign:
+    """The specification sheet and long-setting list nearest to ``f``: its folder,
+    then each parent up to ``root`` (the folder given; for a single file, its
+    folder and the one above, where a redistribution's grouping puts them)."""
+    folder = f.parent
+    if folder in cache:
+        return cache[folder]
+    c = _Campaign()
+    d = folder
+    stop = root if root.is_dir() else folder.parent
+    while True:
+        entries = side.get(d)
+        if entries is None:
+            try:
+                entries = [(p, k) for p in d.iterdir() if p.is_file()
+                           and (k := _side_kind(p)) is not None]
+            except OSError:
+                entries = []
+            side[d] = entries
+        for p, kind in entries:
+            if kind == "vehicle specifications" and c.specs is None:
+                c.specs, c.specs_file = read_vehicle_specs(p), str(p)
+            elif kind == "long-setting list" and c.long_list is None:
+                c.long_list, c.long_file = read_long_setting_list(p), str(p)
+        if d == stop or d.parent == d or stop not in d.parents:
+            break
+        d = d.parent
+    cache[folder] = c
+    return c
+
+
+# ---------------------------------------------------------------------------
+# Runs
+# ---------------------------------------------------------------------------
+
+
+def choose_accel_cutoff(speeds: Sequence[np.ndarray], dt: float) -> tuple[float, str]:
+    """The low-pass cut-off (Hz) of the acceleration for one file, from the spectrum.
+
+    The Welch power spectrum (segments of 25.6 s) of the speed's difference quotient
+    ``diff(v)/dt`` is averaged over every stretch of at least one segment of every
+    vehicle, its logarithm smoothed over 5 bins; the cut-off is the frequency of its
+    minimum above 0.3 Hz: below it the vehicles' motion dominates (power falling with
+    frequency), above it the measurement noise, which the derivative amplifies
+    (power rising). It is clamped to :data:`CUTOFF_RANGE`: smoothed speed (ZalaZone:
+    the power keeps falling to the Nyquist frequency) gets 1.5 Hz, unfiltered
+    u-blox 9 speed (Casale, JRC low speed: minimum near 0.5 Hz) about 0.5 Hz.
+    Without any stretch long enough, 1.5 Hz. Returns the cut-off and how it was
+    chosen."""
+    from scipy import signal
+
+    nper = max(16, int(round(25.6 / dt)))
+    acc_p = None
+    wsum = 0
+    freqs = None
+    for v in speeds:
+        for a, b in contiguous(np.isfinite(v)):
+            if b - a < nper + 1:
+                continue
+            freqs, p = signal.welch(np.diff(v[a:b]) / dt, fs=1.0 / dt, nperseg=nper)
+            acc_p = p * (b - a) if acc_p is None else acc_p + p * (b - a)
+            wsum += b - a
+    lo, hi = CUTOFF_RANGE
+    hi = min(hi, 0.4 / dt)
+    if acc_p is None or freqs is None:
+        return hi, (f"{hi:g} Hz (default: no stretch of {nper * dt:.1f} s for the spectrum)")
+    logp = np.log(np.maximum(acc_p / wsum, 1e-300))
+    sm = np.convolve(logp, np.ones(5) / 5, mode="same")
+    band = (freqs >= 0.3) & (freqs <= freqs[-3])
+    if not band.any():
+        return hi, f"{hi:g} Hz (default: spectrum too short)"
+    fmin = float(freqs[band][int(np.argmin(sm[band]))])
+    fc = float(min(max(fmin, lo), hi))
+    return fc, (f"{fc:.3g} Hz from the spectrum of the speed derivative (minimum of the "
+                f"smoothed power at {fmin:.3g} Hz, clamped to {lo:g}..{hi:g} Hz; "
+                f"{wsum * dt:.0f} s of speed)")
+
+
+def _acc_state(nf: NativeFile, i: int) -> tuple[np.ndarray, str]:
+    """Per sample of follower ``i``: 1 under ACC, 0 human, -1 unknown; and where it
+    comes from. The ``Driver<i>`` column decides where it has a value; its empty
+    cells, and a follower without the column, take the header's ``ACC``: 1 -> ACC,
+    0 -> human, 2 (mixed) or blank -> unknown."""
+    n = nf.t.shape[0]
+    default = {1: 1, 0: 0}.get(nf.acc if nf.acc is not None else -1, -1)
+    st = np.full(n, default, dtype=np.int8)
+    hdr = "blank" if nf.acc is None else str(nf.acc)
+    if i in nf.drivers:
+        d = nf.drivers[i]
+        st = np.where(d >= 0, d, st).astype(np.int8)
+        return st, f"Driver{i} column (empty cells: header ACC {hdr})"
+    return st, f"header ACC {hdr}"
+
+
+def _setting_for(nf: NativeFile, car: str,
+                 camp: _Campaign) -> tuple[str | None, int | None, str | None]:
+    """(resolved setting, rank, note) of ``car`` in ``nf``."""
+    key = _setting_key(nf.setting)
+    if not key:
+        return None, None, None
+    if key != MIXED_SETTING:
+        return nf.setting, SETTING_RANK[key], None
+    stem = nf.path.stem.lower()
+    if camp.long_list is None or stem not in camp.long_list:
+        why = ("no long-setting list beside the file" if camp.long_list is None
+               else f"{nf.path.stem} is not in {camp.long_file}")
+        return None, None, f"Distance_setting SL (mixed) not resolved for {car}: {why}"
+    long = _norm_name(car) in camp.long_list[stem]
+    res = "L" if long else "S"
+    return res, SETTING_RANK[res.lower()], (
+        f"Distance_setting SL (mixed): {car} drove the {'long' if long else 'short'} "
+        f"setting (per {Path(camp.long_file or '').name})")
+
+
+_DROP = {1: "missing data (follower, predecessor or spacing absent after bridging)",
+         2: (f"not following: spacing above {FAR_GAP:g} m at a time headway above "
+             f"{FAR_HEADWAY:g} s (cut-in or lost target), the whole excursion above "
+             f"{FAR_HEADWAY:g} s"),
+         3: f"spacing below {MIN_GAP:g} m (not a measurable following distance)",
+         4: (f"spacing rate inconsistent with the relative speed (change of the spacing "
+             f"over {CONSISTENCY_WINDOW:g} s differs from the integral of the speed "
+             f"difference by more than {CONSISTENCY_TOL:g} m)"),
+         5: (f"repaired spacing or position inconsistent with the relative speed (more "
+             f"than {CONSISTENCY_TOL:g} m over {CONSISTENCY_WINDOW:g} s): repair left out")}
+_DROP_KEY = {1: "missing", 2: "not_following", 3: "spacing_below_min",
+             4: "inconsistent", 5: "repair_inconsistent", 6: "short"}
+_KEEP_KEY = {1: "acc", 0: "human", -1: "unknown"}
+
+
+def spacing_consistency(gap: np.ndarray, v: np.ndarray, lead_v: np.ndarray,
+                        dt: float) -> np.ndarray:
+    """Residual (m) of each window of :data:`CONSISTENCY_WINDOW` seconds starting at
+    sample ``j``: the change of the spacing minus the integral (trapezoid) of the
+    relative speed ``lead_v - v`` over the window; NaN where a value is missing."""
+    w = max(1, int(round(CONSISTENCY_WINDOW / dt)))
+    n = gap.shape[0]
+    if n <= w:
+        return np.full(0, np.nan)
+    dv = lead_v - v
+    inc = 0.5 * (dv[1:] + dv[:-1]) * dt
+    bad = ~np.isfinite(inc)
+    c = np.concatenate([[0.0], np.cumsum(np.where(bad, 0.0, inc))])
+    cb = np.concatenate([[0], np.cumsum(bad)])
+    res = (gap[w:] - gap[:-w]) - (c[w:] - c[:-w])
+    res[(cb[w:] - cb[:-w]) > 0] = np.nan
+    return res
+
+
+def _segments(lab: np.ndarray) -> list[tuple[int, int, int]]:
+    """Runs ``(a, b, value)`` of equal values of an integer array."""
+    if lab.shape[0] == 0:
+        return []
+    cut = np.flatnonzero(np.diff(lab)) + 1
+    starts = np.concatenate([[0], cut])
+    ends = np.concatenate([cut, [lab.shape[0]]])
+    return [(int(a), int(b), int(lab[a])) for a, b in zip(starts, ends, strict=True)]
+
+
 def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinematic: float,
-                   min_duration: float,
-                   accel_cutoff: float, grade: bool, grade_window: float,
-                   require_predecessor: bool, skipped: list[_Skip]) -> list[Run]:
+                   min_duration: float, accel_cutoff: float | str, grade: bool,
+                   grade_window: float, require_predecessor: bool, skipped: list[_Skip],
+                   camp: _Campaign, stretches: list[dict[str, Any]],
+                   time_acc: dict[str, float], file_info: dict[str, Any]) -> list[Run]:
     path = nf.path
     t = nf.t
     dt = float(np.median(np.diff(t)))
@@ -623,46 +1041,75 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
     nk = int(math.floor(bridge_kinematic / dt + 1e-9))
     filled: dict[int, dict[str, int]] = {}
     sig: dict[int, dict[str, np.ndarray]] = {}
+    rep: dict[int, np.ndarray] = {}
     ivs_raw = {k: c.copy() for k, c in nf.ivs.items()}
     glitches: dict[int, int] = {}
+    nanv = np.full(t.shape[0], np.nan)
     for k, cols in nf.vehicles.items():
-        e, nn = cols["E"].copy(), cols["N"].copy()
-        bad = _position_glitches(e, nn, cols["speed"], dt, GLITCH_TOL)
-        if bad.any():
-            glitches[k] = int(bad.sum())
-            e[bad] = np.nan
-            nn[bad] = np.nan
-            for j in (k - 1, k):  # IVS is computed from the positions
-                if j in ivs_raw:
-                    ivs_raw[j][bad] = np.nan
-        sig[k] = {}
+        has_pos = "E" in cols
+        e = cols["E"].copy() if has_pos else nanv.copy()
+        nn = cols["N"].copy() if has_pos else nanv.copy()
+        if has_pos:
+            bad = _position_glitches(e, nn, cols["speed"], dt, GLITCH_TOL)
+            if bad.any():
+                glitches[k] = int(bad.sum())
+                e[bad] = np.nan
+                nn[bad] = np.nan
+                for j in (k - 1, k):  # IVS is computed from the positions
+                    if j in ivs_raw:
+                        ivs_raw[j][bad] = np.nan
+        alt_src = "alt" if "alt" in cols else "U" if "U" in cols else None
+        alt = cols[alt_src] if alt_src else nanv
+        sig[k] = {"has_pos": np.array(has_pos), "alt_src": np.array(alt_src or "")}
         filled[k] = {}
-        for q, arr in (("speed", cols["speed"]), ("E", e), ("N", nn), ("alt", cols["alt"])):
+        r = np.zeros(t.shape[0], dtype=bool)
+        for q, arr in (("speed", cols["speed"]), ("E", e), ("N", nn), ("alt", alt)):
             sig[k][q], filled[k][q] = _bridge(arr, nb)
-    pool = None
+        if has_pos:
+            filled[k]["dropout"] = _bridge_vehicle(sig[k]["speed"], sig[k]["E"], sig[k]["N"],
+                                                   sig[k]["alt"], dt, nk)
+        for q in ("speed", "E", "N"):
+            r |= np.isfinite(sig[k][q]) & ~np.isfinite(cols[q] if q in cols else nanv)
+        rep[k] = r
+    if isinstance(accel_cutoff, str):
+        cutoff, cut_how = choose_accel_cutoff([sig[k]["speed"] for k in sig], dt)
+    else:
+        cutoff, cut_how = float(accel_cutoff), f"{float(accel_cutoff):g} Hz (given)"
+    file_info["accel_cutoff_hz"] = cutoff
+    file_info["accel_cutoff"] = cut_how
+    pools: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     if grade:
-        pe, pn, pa = [], [], []
-        for k in sig:
-            m = (np.isfinite(sig[k]["E"]) & np.isfinite(sig[k]["N"]) & np.isfinite(sig[k]["alt"])
-                 & (sig[k]["speed"] > POOL_MIN_SPEED))
-            if m.sum() > 21:
-                pe.append(sig[k]["E"][m])
-                pn.append(sig[k]["N"][m])
-                pa.append(_despike(sig[k]["alt"][m]))
-        if pe:
-            pool = (np.concatenate(pe), np.concatenate(pn), np.concatenate(pa))
+        for src in ("alt", "U"):
+            pe, pn, pa = [], [], []
+            for k in sig:
+                if str(sig[k]["alt_src"]) != src:
+                    continue
+                m = (np.isfinite(sig[k]["E"]) & np.isfinite(sig[k]["N"])
+                     & np.isfinite(sig[k]["alt"]) & (sig[k]["speed"] > POOL_MIN_SPEED))
+                if m.sum() > 21:
+                    pe.append(sig[k]["E"][m])
+                    pn.append(sig[k]["N"][m])
+                    pa.append(_despike(sig[k]["alt"][m]))
+            if pe:
+                pools[src] = (np.concatenate(pe), np.concatenate(pn), np.concatenate(pa))
     runs: list[Run] = []
+    first = min(nf.vehicles)
     for i in sorted(nf.vehicles):
         if i == 1:
             continue
         car = nf.name(i)
         lead = i - 1
+        ftime = float(np.isfinite(sig[i]["speed"]).sum() * dt)
         if lead not in nf.vehicles:
-            skipped.append(_Skip(str(path), i, car, f"predecessor vehicle {lead} "
-                                 f"({nf.name(lead)}) has no columns"))
+            why = f"predecessor vehicle {lead} ({nf.name(lead)}) has no columns"
+            if i != first or lead >= 1:
+                skipped.append(_Skip(str(path), i, car, why))
+                time_acc["no_predecessor"] = time_acc.get("no_predecessor", 0.0) + ftime
+                stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
+                                  "reason": why, "duration_s": ftime, "run_id": None})
             if not require_predecessor:
-                runs += _solo_run(nf, rid_stem, i, sig, filled, dt, min_duration, accel_cutoff,
-                                  grade, grade_window, skipped)
+                runs += _solo_run(nf, rid_stem, i, sig, dt, min_duration, cutoff, grade,
+                                  grade_window)
             continue
         f, p = sig[i], sig[lead]
         notes = list(nf.notes)
@@ -672,121 +1119,197 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
             if k in glitches:
                 notes.append(f"{who} (vehicle {k}): {glitches[k]} E/N samples dropped as "
                              f"glitches (both steps off the speed by > {GLITCH_TOL:g} m/s)")
-        if lead in ivs_raw:
-            ivs_l = ivs_raw[lead]
-            both = np.isfinite(ivs_l) & np.isfinite(dist)
-            if both.sum() >= 10:
-                off_all = dist[both] - ivs_l[both]
-                offset = float(np.median(off_all))
-                spread = float(np.percentile(off_all, 95) - np.percentile(off_all, 5))
-            else:
-                offset, spread = math.nan, math.inf
-            gap = ivs_l.copy()
-            recon = 0
-            if spread <= 0.05:
-                fill = ~np.isfinite(gap) & np.isfinite(dist)
-                gap[fill] = dist[fill] - offset
-                recon = int(fill.sum())
-                if recon:
-                    notes.append(f"{gcol}: {recon} empty cells reconstructed from the E/N "
-                                 f"distance minus {offset:.3f} m (the constant of the present "
-                                 f"cells, spread {spread * 100:.2g} cm)")
-            else:
-                notes.append(f"{gcol}: distance - IVS is not constant (spread "
-                             f"{spread:.3g} m): empty cells not reconstructed")
-            gap, gfill = _bridge(gap, nb)
-            if gfill:
-                notes.append(f"{gcol}: {gfill} empty cells interpolated (gaps <= {bridge:g} s)")
-            gap, gkin = _fill_gap_kinematic(gap, f["speed"], p["speed"], dt, nk)
-            if gkin:
-                notes.append(f"{gcol}: {gkin} empty cells (gaps <= {bridge_kinematic:g} s) "
-                             "filled by the integral of the speed difference, drift to the "
-                             "next spacing removed linearly")
-        else:
-            skipped.append(_Skip(str(path), i, car, f"no spacing column {gcol}"))
+        if lead not in ivs_raw:
+            why = f"no spacing column {gcol}"
+            skipped.append(_Skip(str(path), i, car, why))
+            time_acc["no_spacing"] = time_acc.get("no_spacing", 0.0) + ftime
+            stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
+                              "reason": why, "duration_s": ftime, "run_id": None})
             continue
-        pos_ok = np.isfinite(f["E"]) & np.isfinite(f["N"])
+        ivs_l = ivs_raw[lead]
+        both = np.isfinite(ivs_l) & np.isfinite(dist)
+        if both.sum() >= 10:
+            off_all = dist[both] - ivs_l[both]
+            offset = float(np.median(off_all))
+            spread = float(np.percentile(off_all, 95) - np.percentile(off_all, 5))
+        else:
+            offset, spread = math.nan, math.inf
+        gap = ivs_l.copy()
+        recon = 0
+        if spread <= 0.05:
+            fill = ~np.isfinite(gap) & np.isfinite(dist)
+            gap[fill] = dist[fill] - offset
+            recon = int(fill.sum())
+            if recon:
+                notes.append(f"{gcol}: {recon} empty cells reconstructed from the E/N "
+                             f"distance minus {offset:.3f} m (the constant of the present "
+                             f"cells, spread {spread * 100:.2g} cm)")
+        elif both.sum() >= 10:
+            notes.append(f"{gcol}: distance - IVS is not constant (spread "
+                         f"{spread:.3g} m): empty cells not reconstructed")
+        gap, gfill = _bridge(gap, nb)
+        if gfill:
+            notes.append(f"{gcol}: {gfill} empty cells interpolated (gaps <= {bridge:g} s)")
+        gap, gkin = _fill_gap_kinematic(gap, f["speed"], p["speed"], dt, nk)
+        if gkin:
+            notes.append(f"{gcol}: {gkin} empty cells (gaps <= {bridge_kinematic:g} s) "
+                         "filled by the integral of the speed difference, drift to the "
+                         "next spacing removed linearly")
+        repaired = (np.isfinite(gap) & ~np.isfinite(nf.ivs[lead])) | rep[i] | rep[lead]
+        has_pos = bool(f["has_pos"])
+        pos_ok = np.isfinite(f["E"]) & np.isfinite(f["N"]) if has_pos else \
+            np.isfinite(f["speed"])
         pos_kin = _short_runs(~pos_ok, np.isfinite(f["speed"]), nk)
         if pos_kin.any():
             notes.append(f"follower (vehicle {i}): {int(pos_kin.sum())} samples without E/N "
                          f"(gaps <= {bridge_kinematic:g} s): path length from the speed")
-        ok = (np.isfinite(f["speed"]) & (pos_ok | pos_kin)
-              & np.isfinite(p["speed"]) & np.isfinite(gap))
-        stretches = [(a, b) for a, b in contiguous(ok) if b - a >= 2]
-        if not stretches:
-            skipped.append(_Skip(str(path), i, car, "no sample with the follower, its "
-                                 "predecessor and the spacing all present"))
+        if not has_pos:
+            notes.append(f"follower (vehicle {i}) has no E/N columns: path length from the "
+                         "integral of the speed")
+        present = (np.isfinite(f["speed"]) & (pos_ok | pos_kin)
+                   & np.isfinite(p["speed"]) & np.isfinite(gap))
+        cat = np.where(present, 0, 1).astype(np.int8)
+        # spacing consistent with the relative speed (repairs first)
+        res = spacing_consistency(np.where(present, gap, np.nan), f["speed"], p["speed"], dt)
+        w = max(1, int(round(CONSISTENCY_WINDOW / dt)))
+        with np.errstate(invalid="ignore"):
+            viol = np.flatnonzero(np.abs(res) > CONSISTENCY_TOL)
+        for j in viol:
+            win = slice(j, j + w + 1)
+            code = 5 if repaired[win].any() else 4
+            cw = cat[win]
+            cat[win] = np.where(cw == 0, code, np.where((cw == 4) & (code == 5), 5, cw))
+        # plausible following range
+        with np.errstate(invalid="ignore", divide="ignore"):
+            hw = gap / np.maximum(f["speed"], 0.1)
+            core = present & (gap > FAR_GAP) & (hw > FAR_HEADWAY)
+            exc = present & (hw > FAR_HEADWAY)
+            low = present & (gap < MIN_GAP)
+        for a, b in contiguous(exc):
+            if core[a:b].any():
+                seg = cat[a:b]
+                cat[a:b] = np.where(seg == 0, 2, seg)
+        cat = np.where((cat == 0) & low, 3, cat).astype(np.int8)
+        state, acc_src = _acc_state(nf, i)
+        lab = np.where(cat == 0, state.astype(np.int16), 10 + cat.astype(np.int16))
+        segs = _segments(lab)
+        fpresent = np.isfinite(f["speed"])
+        keep_segs = [(a, b, v) for a, b, v in segs
+                     if v < 10 and (b - a - 1) * dt >= min_duration]
+        res_setting, rank, set_note = _setting_for(nf, car, camp)
+        spec = match_vehicle_spec(car, camp.specs) if camp.specs else None
+        lspec = match_vehicle_spec(nf.name(lead), camp.specs) if camp.specs else None
+        for a, b, v in segs:
+            secs = float(fpresent[a:b].sum() * dt)
+            rec = {"file": str(path), "follower": i, "car": car,
+                   "t_start": float(t[a]), "t_end": float(t[b - 1]),
+                   "duration_s": round((b - a - 1) * dt, 3)}
+            if v >= 10:
+                code = v - 10
+                time_acc[_DROP_KEY[code]] = time_acc.get(_DROP_KEY[code], 0.0) + secs
+                if code == 1 and not fpresent[a:b].any():
+                    continue  # the follower itself not recorded: not follower time
+                stretches.append({**rec, "kept": False, "acc": None, "run_id": None,
+                                  "reason": _DROP[code]})
+            elif (a, b, v) not in keep_segs:
+                sk = f"short_{_KEEP_KEY[v]}"
+                time_acc[sk] = time_acc.get(sk, 0.0) + secs
+                stretches.append({**rec, "kept": False, "acc": _ACC_META[v], "run_id": None,
+                                  "reason": f"shorter than min_duration {min_duration:g} s"})
+        if not keep_segs:
+            reasons = sorted({s["reason"] for s in stretches
+                              if s["file"] == str(path) and s["follower"] == i})
+            skipped.append(_Skip(str(path), i, car, "no stretch of at least "
+                                 f"{min_duration:g} s: " + "; ".join(reasons)))
             continue
-        a0, b0 = max(stretches, key=lambda ab: ab[1] - ab[0])
-        dur = (b0 - a0 - 1) * dt
-        if dur < min_duration:
-            skipped.append(_Skip(str(path), i, car, f"longest stretch with the follower, its "
-                                 f"predecessor and the spacing present is {dur:.1f} s "
-                                 f"(< min_duration {min_duration:g} s)"))
-            continue
-        others = [(a, b) for a, b in stretches if (a, b) != (a0, b0)]
-        if a0 > 0 or b0 < t.shape[0]:
-            notes.append(f"kept t = {t[a0]:.1f}..{t[b0 - 1]:.1f} s ({dur:.1f} s) of "
-                         f"{t[0]:.1f}..{t[-1]:.1f} s, where the follower, its predecessor "
-                         "and the spacing are present"
-                         + (f"; dropped {len(others)} other stretch(es) of "
-                            f"{sum(b - a for a, b in others) * dt:.1f} s" if others else ""))
         for k, who in ((i, "follower"), (lead, "predecessor")):
             fk = {q: c for q, c in filled[k].items() if c}
             if fk:
                 notes.append(f"{who} (vehicle {k}): interpolated empty cells (gaps <= "
                              f"{bridge:g} s): " + ", ".join(f"{q} {c}" for q, c in fk.items()))
-        sl = slice(a0, b0)
-        v = f["speed"][sl]
-        lv = p["speed"][sl]
-        x = arc_length(f["E"][sl], f["N"][sl], v, dt=dt)
-        g = gap[sl]
-        lead_x = x + g
-        moving = np.sum(0.5 * (v[1:] + v[:-1]) * dt)
-        ratio = float(x[-1] / moving) if moving > 1.0 else math.nan
-        if math.isfinite(ratio) and abs(ratio - 1.0) > 0.01:
-            notes.append(f"Speed{i} disagrees with the track E{i}/N{i}: path length / "
-                         f"integral of speed = {ratio:.4f}")
-        check_speed_units(v, path, f"Speed{i}", dt=dt, x=x)
-        a = derive_acceleration(v, dt, accel_cutoff)
-        la = derive_acceleration(lv, dt, accel_cutoff)
-        exo = {}
-        if grade:
-            exo["grade"] = grade_from_altitude(x, f["alt"][sl], grade_window, e=f["E"][sl],
-                                               n=f["N"][sl], pool=pool)
-        neg = np.flatnonzero(g < 0)
-        if neg.size:
-            notes.append(f"{gcol}: {neg.size} negative spacings (min {g.min():.2f} m; the "
-                         "constant offset of IVS is not the exact bumper distance)")
-        meta = {
-            "format": "openacc", "file": str(path), "folder": path.parent.name,
-            "date": nf.date.isoformat(), "car": car, "lead_car": nf.name(lead),
-            "setting": nf.setting if nf.acc else None, "acc": nf.acc,
-            "setting_in_file": nf.setting, "position": i - 1, "vehicle_index": i,
-            "lead_index": lead, "track": nf.track, "n_vehicles": nf.n_vehicles,
-            "vehicle_order": list(nf.names), "gap_column": gcol,
-            "ivs_offset": offset if math.isfinite(offset) else None,
-            "gap_reconstructed": recon, "speed_position_ratio":
-                ratio if math.isfinite(ratio) else None,
-            "accel_filter": f"zero-phase Butterworth order 2, cutoff {accel_cutoff:g} Hz, "
-                            "central differences",
-            "grade_method": (f"altitude vs path position, Savitzky-Golay order 2 over "
-                             f"{grade_window:g} m") if grade else None,
-            "t_file_start": float(t[0]), "t_start": float(t[a0]), "t_end": float(t[b0 - 1]),
-            "rows": [a0, b0 - 1], "cleaning": notes,
-        }
-        runs.append(Run(run_id=f"{rid_stem}/v{lead}-v{i}", t=t[sl], a=a,
-                        command_kind="acceleration", command=None, v=v, x=x, lead_x=lead_x,
-                        lead_v=lv, lead_a=la, exo=exo, meta=meta))
+        if set_note:
+            notes.append(set_note)
+        alt_src = str(f["alt_src"])
+        if not alt_src:
+            notes.append(f"no Alt{i} or U{i} column: road grade unavailable for {car}")
+        elif alt_src == "U":
+            notes.append(f"no Alt{i} column: road grade from U{i} (ENU up)")
+        for si, (a0, b0, v_state) in enumerate(keep_segs, start=1):
+            rid = f"{rid_stem}/v{lead}-v{i}" + (f"/s{si}" if len(keep_segs) > 1 else "")
+            dur = (b0 - a0 - 1) * dt
+            time_acc[_KEEP_KEY[v_state]] = (time_acc.get(_KEEP_KEY[v_state], 0.0)
+                                            + float(fpresent[a0:b0].sum() * dt))
+            stretches.append({"file": str(path), "follower": i, "car": car,
+                              "t_start": float(t[a0]), "t_end": float(t[b0 - 1]),
+                              "duration_s": round(dur, 3), "kept": True,
+                              "acc": _ACC_META[v_state], "run_id": rid, "reason": None})
+            rnotes = list(notes)
+            if a0 > 0 or b0 < t.shape[0]:
+                rnotes.append(f"stretch {si} of {len(keep_segs)}: t = {t[a0]:.1f}..{t[b0 - 1]:.1f}"
+                              f" s ({dur:.1f} s) of {t[0]:.1f}..{t[-1]:.1f} s")
+            sl = slice(a0, b0)
+            vv = f["speed"][sl]
+            lv = p["speed"][sl]
+            x = arc_length(f["E"][sl], f["N"][sl], vv, dt=dt)
+            g = gap[sl]
+            lead_x = x + g
+            moving = np.sum(0.5 * (vv[1:] + vv[:-1]) * dt)
+            ratio = float(x[-1] / moving) if moving > 1.0 and has_pos else math.nan
+            if math.isfinite(ratio) and abs(ratio - 1.0) > 0.01:
+                rnotes.append(f"Speed{i} disagrees with the track E{i}/N{i}: path length / "
+                              f"integral of speed = {ratio:.4f}")
+            check_speed_units(vv, path, f"Speed{i}", dt=dt, x=x if has_pos else None)
+            acc_a = derive_acceleration(vv, dt, cutoff)
+            la = derive_acceleration(lv, dt, cutoff)
+            exo = {}
+            if grade and alt_src:
+                exo["grade"] = grade_from_altitude(x, f["alt"][sl], grade_window, e=f["E"][sl],
+                                                   n=f["N"][sl], pool=pools.get(alt_src))
+            neg = np.flatnonzero(g < 0)
+            if neg.size:
+                rnotes.append(f"{gcol}: {neg.size} negative spacings (min {g.min():.2f} m; the "
+                              "constant offset of IVS is not the exact bumper distance)")
+            nrep = int(repaired[sl].sum())
+            meta = {
+                "format": "openacc", "file": str(path), "folder": path.parent.name,
+                "date": nf.date.isoformat(), "car": car, "lead_car": nf.name(lead),
+                "setting": nf.setting, "setting_rank": rank, "setting_resolved": res_setting,
+                "acc": _ACC_META[v_state], "acc_source": acc_src, "acc_header": nf.acc,
+                "setting_in_file": nf.setting, "position": i - 1, "vehicle_index": i,
+                "lead_index": lead, "track": nf.track, "n_vehicles": nf.n_vehicles,
+                "vehicle_order": list(nf.names), "gap_column": gcol,
+                "ivs_offset": offset if math.isfinite(offset) else None,
+                "gap_reconstructed": recon, "repaired_samples": nrep,
+                "speed_position_ratio": ratio if math.isfinite(ratio) else None,
+                "accel_cutoff_hz": cutoff, "accel_cutoff": cut_how,
+                "accel_filter": f"zero-phase Butterworth order 2, cutoff {cutoff:.3g} Hz, "
+                                "central differences",
+                "grade_method": (f"altitude ({'Alt' if alt_src == 'alt' else 'U'}{i}) vs path "
+                                 f"position, Savitzky-Golay order 2 over {grade_window:g} m")
+                if grade and alt_src else None,
+                "grade_available": bool(alt_src),
+                "spacing_consistency_tol_m": CONSISTENCY_TOL,
+                "spacing_consistency_window_s": CONSISTENCY_WINDOW,
+                "stretch": si, "n_stretches": len(keep_segs),
+                "vehicle_spec": spec, "lead_vehicle_spec": lspec,
+                "vehicle_spec_file": camp.specs_file,
+                "t_file_start": float(t[0]), "t_start": float(t[a0]), "t_end": float(t[b0 - 1]),
+                "rows": [a0, b0 - 1], "cleaning": rnotes,
+            }
+            runs.append(Run(run_id=rid, t=t[sl], a=acc_a, command_kind="acceleration",
+                            command=None, v=vv, x=x, lead_x=lead_x, lead_v=lv, lead_a=la,
+                            exo=exo, meta=meta))
     return runs
 
 
+_ACC_META: dict[int, bool | None] = {1: True, 0: False, -1: None}
+
+
 def _solo_run(nf: NativeFile, rid_stem: str, i: int, sig: dict[int, dict[str, np.ndarray]],
-              filled: dict[int, dict[str, int]], dt: float, min_duration: float,
-              accel_cutoff: float, grade: bool, grade_window: float,
-              skipped: list[_Skip]) -> list[Run]:
+              dt: float, min_duration: float, accel_cutoff: float, grade: bool,
+              grade_window: float) -> list[Run]:
     """A follower without a recorded predecessor (``require_predecessor=False``):
-    its own trajectory only."""
+    its own trajectory only, the longest stretch with speed and position."""
     f = sig[i]
     ok = np.isfinite(f["speed"]) & np.isfinite(f["E"]) & np.isfinite(f["N"])
     st = [(a, b) for a, b in contiguous(ok) if b - a >= 2]
@@ -798,13 +1321,17 @@ def _solo_run(nf: NativeFile, rid_stem: str, i: int, sig: dict[int, dict[str, np
     sl = slice(a0, b0)
     v = f["speed"][sl]
     x = arc_length(f["E"][sl], f["N"][sl], v)
-    exo = {"grade": grade_from_altitude(x, f["alt"][sl], grade_window)} if grade else {}  # own
+    exo = ({"grade": grade_from_altitude(x, f["alt"][sl], grade_window)}
+           if grade and str(f["alt_src"]) else {})
+    state, _ = _acc_state(nf, i)
+    sv = set(np.unique(state[sl]).tolist())
     meta = {"format": "openacc", "file": str(nf.path), "folder": nf.path.parent.name,
             "date": nf.date.isoformat(), "car": nf.name(i), "lead_car": nf.name(i - 1),
-            "setting": nf.setting if nf.acc else None, "acc": nf.acc,
+            "setting": nf.setting, "acc": _ACC_META[sv.pop()] if len(sv) == 1 else None,
             "setting_in_file": nf.setting, "position": i - 1, "vehicle_index": i,
             "lead_index": i - 1, "track": nf.track, "n_vehicles": nf.n_vehicles,
             "vehicle_order": list(nf.names), "t_file_start": float(nf.t[0]),
+            "accel_cutoff_hz": accel_cutoff,
             "t_start": float(nf.t[a0]), "t_end": float(nf.t[b0 - 1]),
             "cleaning": [*nf.notes, "predecessor not recorded: no lead_* signals"]}
     return [Run(run_id=f"{rid_stem}/v{i - 1}-v{i}", t=nf.t[sl],
@@ -815,22 +1342,26 @@ def _natural(p: Path) -> tuple[Any, ...]:
     return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p)))
 
 
-def _files(path: Path) -> list[Path]:
-    if path.is_dir():
-        files = sorted((f for f in path.rglob("*") if f.is_file()
-                        and f.suffix.lower() == ".csv"), key=_natural)
-        if not files:
-            raise DataError(f"{path}: no *.csv files in this folder or below")
-        return files
-    return [path]
+def _walk(path: Path) -> list[Path]:
+    """Every regular file below ``path`` (symbolic links to folders are not followed,
+    so a link loop cannot hang the walk; FIFOs and devices are not regular files)."""
+    out = []
+    for d, dirs, names in os.walk(path, followlinks=False):
+        dirs.sort()
+        for nm in names:
+            p = Path(d) / nm
+            if p.is_file():
+                out.append(p)
+    return sorted(out, key=_natural)
 
 
 def load_openacc_native(path: str | Path, command_kind: str | None = None,
                         **options: Any) -> list[Run]:
-    """Runs of native OpenACC files: one closed-loop run per follower (see the
-    module doc), from a file or a folder (every ``*.csv`` below it, recursively).
-    The options are those of :func:`openacc_native_report`, which also says what
-    was skipped and why."""
+    """Runs of native OpenACC files: one closed-loop run per usable stretch of each
+    follower (see the module doc), from a file or a campaign folder as distributed
+    (every ``*.csv`` below it, recursively; notes, specification sheets, copyright
+    and long-setting lists are recognised and skipped). The options are those of
+    :func:`openacc_native_report`, which also says what was kept and dropped and why."""
     return openacc_native_report(path, command_kind, **options)[0]
 
 
@@ -841,39 +1372,52 @@ def openacc_native_report(
     setting: str | Iterable[str | None] | None = None,
     car: str | Iterable[str] | None = None,
     track: str | Iterable[str] | None = None,
-    acc: bool | None = None,
+    acc: bool | str | None = None,
     bridge: float = 1.0,
     bridge_kinematic: float = 3.0,
     min_duration: float = 20.0,
-    accel_cutoff: float = 1.5,
+    accel_cutoff: float | str = "auto",
     grade: bool = True,
     grade_window: float = 30.0,
     require_predecessor: bool = True,
     skip_foreign: bool = False,
 ) -> tuple[list[Run], dict[str, Any]]:
     """Runs of native OpenACC files and the loader's report: one closed-loop run per
-    follower (see the module doc), from a file or a folder (every ``*.csv`` below
-    it, recursively, in natural order of the paths). The report is ``{"files":
-    [...], "not_native": [...], "skipped": [{"file", "follower", "car", "reason"}]}``
-    (followers without a run and why).
+    usable stretch of each follower (see the module doc), from a file or a folder
+    (every ``*.csv`` below it, recursively, in natural order of the paths).
+
+    The report: ``files`` (the data files read), ``non_data`` (``{"file", "kind"}``:
+    notes, vehicle specifications, copyright, long-setting list, other files not
+    ``*.csv``, recognised and skipped), ``not_native`` (other ``*.csv`` skipped under
+    ``skip_foreign``), ``skipped`` (``{"file", "follower", "car", "reason"}``:
+    followers without any run), ``stretches`` (every stretch of every follower, kept
+    or dropped: ``file``, ``follower``, ``car``, ``t_start``, ``t_end``,
+    ``duration_s``, ``kept``, ``acc``, ``run_id``, ``reason``), ``time_s`` (follower
+    time in seconds by outcome: ``acc``, ``human``, ``unknown`` kept; ``missing``,
+    ``short_acc``, ``short_human``, ``short_unknown`` (stretches shorter than
+    ``min_duration``, by ACC state), ``not_following``, ``inconsistent``, ``repair_inconsistent``,
+    ``spacing_below_min``, ``no_predecessor``, ``no_spacing`` dropped; per file in
+    ``time_s_by_file``) and ``accel_cutoff`` (per file: the cut-off and how it was
+    chosen).
 
     Filters (each a value or a list; a run is kept when it matches every filter
-    given): ``setting`` (``"L"``, ``"M"``, ``"S"``, or ``None``/``"none"`` for the
-    files without ACC), ``car`` (model names as in ``Vehicle_order``, any case),
-    ``track`` (``"dynamic"``, ``"handling"``), ``acc`` (True/False). It is an error
-    when no run is left.
+    given): ``setting`` (any documented spelling, matched against the raw setting
+    and the per-car resolution of ``SL``; ``None``/``"none"`` for files without a
+    setting), ``car`` (model names as in ``Vehicle_order``, any case), ``track``
+    (``"dynamic"``, ``"handling"``), ``acc`` (True, False, or ``"unknown"``). It is
+    an error when no run is left.
 
     ``bridge`` (s): longest run of empty cells interpolated; ``bridge_kinematic``
     (s): longest run of empty positions or spacings bridged with the speeds (see
-    the module doc); ``min_duration`` (s):
-    shortest run kept; ``accel_cutoff`` (Hz): low-pass before differentiating the
-    speed; ``grade=False`` skips ``exo["grade"]``; ``grade_window`` (m): the
-    Savitzky–Golay window of the grade; ``require_predecessor=False`` also returns
-    followers whose predecessor was not recorded (without ``lead_*`` signals);
-    ``skip_foreign=True`` skips (and reports) ``*.csv`` files in a folder that are
-    not native OpenACC files instead of failing. ``command_kind`` must be ``None``
-    or ``"acceleration"`` (the runs have no command and are calibrated in closed
-    loop).
+    the module doc); ``min_duration`` (s): shortest stretch kept; ``accel_cutoff``
+    (Hz, or ``"auto"``: chosen per file from the spectrum, see
+    :func:`choose_accel_cutoff`): low-pass before differentiating the speed;
+    ``grade=False`` skips ``exo["grade"]``; ``grade_window`` (m): the Savitzky–Golay
+    window of the grade; ``require_predecessor=False`` also returns followers whose
+    predecessor was not recorded (without ``lead_*`` signals); ``skip_foreign=True``
+    skips (and reports) ``*.csv`` files in a folder that are not native OpenACC files
+    instead of failing. ``command_kind`` must be ``None`` or ``"acceleration"`` (the
+    runs have no command and are calibrated in closed loop).
     """
     path = Path(path)
     if not path.exists():
@@ -886,40 +1430,87 @@ def openacc_native_report(
                     ("grade_window", grade_window)):
         if not (isinstance(val, (int, float)) and math.isfinite(val) and val >= 0):
             raise ValueError(f"{nm}: must be a finite number >= 0, got {val!r}")
-    if not (isinstance(accel_cutoff, (int, float)) and accel_cutoff > 0):
-        raise ValueError(f"accel_cutoff: must be > 0 Hz, got {accel_cutoff!r}")
+    if isinstance(accel_cutoff, str):
+        if accel_cutoff != "auto":
+            raise ValueError(f"accel_cutoff: must be a number of Hz or 'auto', got "
+                             f"{accel_cutoff!r}")
+    elif not (isinstance(accel_cutoff, (int, float)) and math.isfinite(accel_cutoff)
+              and accel_cutoff > 0):
+        raise ValueError(f"accel_cutoff: must be > 0 Hz or 'auto', got {accel_cutoff!r}")
+    if acc is not None and acc not in (True, False, "unknown"):
+        raise ValueError(f"acc: must be True, False or 'unknown', got {acc!r}")
     want_setting = _as_set("setting", setting, _norm_setting)
     want_car = _as_set("car", car, _norm_name)
     want_track = _as_set("track", track, lambda v: str(v).strip().lower())
-    files = _files(path)
+    root = path
+    non_data: list[dict[str, str]] = []
+    if path.is_dir():
+        files = []
+        for f in _walk(path):
+            kind = _side_kind(f)
+            if kind is None:
+                files.append(f)
+            else:
+                non_data.append({"file": str(f), "kind": kind})
+        if not files:
+            raise DataError(f"{path}: no *.csv data files in this folder or below"
+                            + (f" (only {', '.join(Path(d['file']).name for d in non_data)})"
+                               if non_data else ""))
+    else:
+        kind = _side_kind(path)
+        if kind is not None and path.suffix.lower() == ".csv":
+            raise DataError(f"{path}: is the campaign's {kind}, not a data file (give a data "
+                            "file or the campaign folder)")
+        files = [path]
     stems: dict[str, int] = {}
     for f in files:
         stems[f.stem] = stems.get(f.stem, 0) + 1
     runs: list[Run] = []
     skipped: list[_Skip] = []
     foreign: list[str] = []
+    stretches: list[dict[str, Any]] = []
+    time_all: dict[str, float] = {}
+    by_file: dict[str, dict[str, float]] = {}
+    cutoffs: dict[str, Any] = {}
+    side: dict[Path, list[tuple[Path, str]]] = {}
+    cache: dict[Path, _Campaign] = {}
     for f in files:
         if path.is_dir() and skip_foreign and not is_openacc_native(f):
             foreign.append(str(f))
             continue
         nf = read_openacc_native(f)
+        camp = _campaign_for(f, root, side, cache)
         rid_stem = f.stem if stems[f.stem] == 1 else f"{f.parent.name}/{f.stem}"
+        tf: dict[str, float] = {}
+        info: dict[str, Any] = {}
         runs += _follower_runs(nf, rid_stem, bridge=bridge, bridge_kinematic=bridge_kinematic,
-                               min_duration=min_duration,
-                               accel_cutoff=accel_cutoff, grade=grade, grade_window=grade_window,
-                               require_predecessor=require_predecessor, skipped=skipped)
+                               min_duration=min_duration, accel_cutoff=accel_cutoff,
+                               grade=grade, grade_window=grade_window,
+                               require_predecessor=require_predecessor, skipped=skipped,
+                               camp=camp, stretches=stretches, time_acc=tf, file_info=info)
+        by_file[str(f)] = {k: round(v, 3) for k, v in tf.items()}
+        cutoffs[str(f)] = info
+        for k, v in tf.items():
+            time_all[k] = time_all.get(k, 0.0) + v
     report: dict[str, Any] = {"files": [str(f) for f in files if str(f) not in foreign],
-                              "not_native": foreign,
-                              "skipped": [vars(s) for s in skipped]}
+                              "not_native": foreign, "non_data": non_data,
+                              "skipped": [vars(s) for s in skipped],
+                              "stretches": stretches,
+                              "time_s": {k: round(v, 3) for k, v in time_all.items()},
+                              "time_s_by_file": by_file, "accel_cutoff": cutoffs}
     total = len(runs)
     if want_setting is not None:
-        runs = [r for r in runs if r.meta["setting"] in want_setting]
+        runs = [r for r in runs
+                if _norm_setting(r.meta["setting"]) in want_setting
+                or (r.meta.get("setting_resolved") is not None
+                    and _norm_setting(r.meta["setting_resolved"]) in want_setting)]
     if want_car is not None:
         runs = [r for r in runs if _norm_name(r.meta["car"]) in want_car]
     if want_track is not None:
         runs = [r for r in runs if r.meta["track"] in want_track]
     if acc is not None:
-        runs = [r for r in runs if r.meta["acc"] == bool(acc)]
+        want = None if acc == "unknown" else bool(acc)
+        runs = [r for r in runs if r.meta["acc"] is want]
     if not runs:
         what = ", ".join(f"{k}={v!r}" for k, v in (("setting", setting), ("car", car),
                                                    ("track", track), ("acc", acc))
