@@ -17,12 +17,16 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    ``[0, 30]`` m lets the search trade the time gap for standstill distances no
    commercial ACC uses (2–5 m bumper to bumper); the sensitivity to this choice is
    reported by running the study with ``gmin_max=30``.
-2. **Setting order.** The calibrated ``Tg`` per car model and ACC setting
-   (median over files); for every car model seen under two settings, each pair of
-   settings is one check, held when the longer setting has the larger ``Tg``
-   (:func:`setting_order`). Files in a folder named ``mixed`` are left out of the
-   check (their header says one setting, their folder says the cars' settings
-   were mixed); files without ACC are the human control. The same check is made
+2. **Setting order.** The calibrated ``Tg`` per campaign, car model and ACC
+   setting (median over runs); for every car model seen under two settings of the
+   same campaign, each pair of settings is one check, held when the longer setting
+   has the larger ``Tg`` (:func:`setting_order`). "Longer" is the campaign's own
+   order of its settings (the run meta's ``setting_rank``: ``L``/``M``/``S``,
+   ``min``/``shortest``/``second shortest``, ``SL`` resolved per car, as the
+   loader reads the campaign's notes); settings of different campaigns are never
+   compared; the result is reported per car model and per campaign. Runs in a
+   folder named ``mixed`` are left out of the check (their header says one
+   setting, their folder says the cars' settings were mixed). The same check is made
    on two identifiable quantities: the effective time gap of the calibrated law at
    the run's mean speed, ``Tg + Gmin / v̄``, and the measured time headway (median
    of gap / speed while faster than 3 m/s), which needs no model.
@@ -47,6 +51,21 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    behind the measured predecessor (:func:`avll.closed_loop`), its speed through
    the same band-pass and ratio. The error of a prediction is
    ``predicted / measured - 1``; the goal is within 10 %.
+   Runs of any length: a run whose record, after the trim, is shorter than one
+   period of the band's low edge (50 s) gets no measured or predicted
+   amplification; one shorter than :data:`MIN_BLOCKS` bootstrap blocks gets no
+   interval (each ``null`` with a ``_reason``: a block bootstrap over one or two
+   blocks only rotates the record and its interval collapses).
+
+**ACC state** (the run meta's ``acc``): runs under ACC are the study's cars;
+human-driven runs (``acc`` False) are calibrated with the same closed-loop
+structure and reported as a **control**, never counted as ACC (not in the ACC
+comparisons nor in the setting-order check); runs of unknown state (``acc`` None)
+are left out and counted (``acc_unknown="exclude"``, the default) or studied as
+ACC (``"include"``). The summary's ``car_overview`` gives, per campaign and car
+model, the raw settings and their order, the ACC state of the runs studied, and
+the stretches studied and left out with the reasons (the loader's report's
+dropped stretches and the study's own exclusions).
 """
 
 from __future__ import annotations
