@@ -221,3 +221,68 @@ def test_figure_with_an_interval_that_excludes_the_estimate():
              "models": {"first": {"amplification_H": None, "amplification_replay": 0.8}}}]
     fig = amplification_per_car(cars, ["first"])
     assert math.isfinite(fig.axes[0].get_xlim()[0])
+
+
+
+def _campaign(name):
+    from loader_helpers import DATA, NO_DATA
+
+    d = DATA / name
+    if not d.is_dir():
+        pytest.skip(NO_DATA)
+    return d
+
+
+@pytest.mark.data
+@pytest.mark.slow
+def test_real_campaign_jrc_low_speed(tmp_path):
+    """The whole study (tiny GA) on the JRC low-speed campaign folder as distributed:
+    short stretches, two settings named in words, runs of unknown ACC state."""
+    from avll.cli import main
+
+    d = _campaign("openacc-jrc/JRC low speed")
+    out, js = tmp_path / "o", tmp_path / "s.json"
+    assert main(["study", "openacc", str(d), "--out", str(out), "--json", str(js),
+                 "--max-generations", "3", "--pop-size", "8", "--starts", "1",
+                 "--bootstrap", "100", "--model", "first", "--models", "first", "-q"]) == 0
+    s = json.loads(js.read_text())
+    _atomic.read_manifest(out)
+    assert s["campaigns"] == ["JRC low speed"] and s["cars"]
+    for c in s["cars"]:
+        assert c["setting"] in ("shortest", "second shortest") and c["acc"] is True
+        assert c["setting_rank"] == (0 if c["setting"] == "shortest" else 1)
+        for k in ("amplification_measured", "amplification_measured_ci"):
+            v = c[k][0] if k.endswith("_ci") else c[k]
+            assert v is not None or c[f"{k}_reason"]
+    # the loader's runs of unknown ACC state are left out and counted
+    assert all("unknown" in e["reason"] for e in s["left_out"])
+    assert sum(o["runs_left_out"] for o in s["car_overview"]) == (
+        len(s["left_out"]) + len(s["dropped_by_loader"]))
+    so = s["setting_order"]
+    assert so["checked"] > 0 and all(c["longer"] == "second shortest" for c in so["checks"])
+    assert "## Cars" in (out / "report.md").read_text()
+
+
+@pytest.mark.data
+@pytest.mark.slow
+def test_real_mixed_folder(tmp_path):
+    """Two campaigns in one folder (links to the files as distributed): each keeps its
+    own settings; none is compared across campaigns."""
+    mixed = tmp_path / "mixed"
+    for name in ("openacc-jrc/Casale", "openacc-jrc/JRC low speed"):
+        src = _campaign(name)
+        dst = mixed / src.name
+        dst.mkdir(parents=True)
+        for f in src.iterdir():
+            if f.is_file():
+                (dst / f.name).symlink_to(f)
+    res = st.openacc_study(mixed, figures=True, **FAST)
+    s = res.summary
+    assert s["campaigns"] == ["Casale", "JRC low speed"]
+    by = {}
+    for c in s["cars"]:
+        by.setdefault(c["campaign"], set()).add(c["setting"])
+    assert by["Casale"] == {"min"} and by["JRC low speed"] == {"shortest", "second shortest"}
+    assert set(s["setting_order"]["campaigns"]) <= {"JRC low speed"}
+    res.save(tmp_path / "o")
+    _atomic.read_manifest(tmp_path / "o")

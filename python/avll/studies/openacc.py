@@ -926,9 +926,9 @@ def _why_not(chk: Mapping[str, Any], cars: Sequence[Mapping[str, Any]]) -> str:
     for st in (chk["longer"], chk["shorter"]):
         cs = [c for c in mine if c["setting_rank"] == ranks[st]]
         desc = ", ".join(
-            f"{Path(c['file']).stem} Tg {c['Tg']:.2f} s, Gmin {c['params']['Gmin']:.1f} m, "
-            f"Tg+Gmin/v {c['time_gap_effective']:.2f} s, measured headway "
-            f"{c['headway_measured']:.2f} s, speed {c['speed_mean']:.1f}±{c['speed_std']:.1f} "
+            f"{c['run_id']} Tg {_f(c['Tg'])} s, Gmin {_f(c['params']['Gmin'], 1)} m, "
+            f"Tg+Gmin/v {_f(c['time_gap_effective'])} s, measured headway "
+            f"{_f(c['headway_measured'])} s, speed {c['speed_mean']:.1f}±{c['speed_std']:.1f} "
             f"m/s" + (f", at bound: {'/'.join(c['at_bound'])}" if c["at_bound"] else "")
             for c in cs)
         parts.append(f"{st}: {desc}")
@@ -1340,8 +1340,10 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
                   f"{weak} have a predecessor band RMS below 0.1 m/s):", ""]
         lines += [f"- {c['run_id']} ({c['car']}, {c['setting']}): measured "
                   f"{c['amplification_measured']:.2f} "
-                  f"[{c['amplification_measured_ci'][0]:.2f}, "
-                  f"{c['amplification_measured_ci'][1]:.2f}], replay "
+                  + (f"[{c['amplification_measured_ci'][0]:.2f}, "
+                     f"{c['amplification_measured_ci'][1]:.2f}]"
+                     if c["amplification_measured_ci"][0] is not None else "(no interval)")
+                  + ", replay "
                   f"{_f(c['amplification_replay'])} "
                   f"({c['models'][main]['amplification_replay_error']:+.0%}); predecessor band "
                   f"RMS {c['rms_predecessor']:.2f} m/s; calibration cost {_f(c['cal_mse'], 3)}"
