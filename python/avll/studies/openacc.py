@@ -300,7 +300,7 @@ def setting_order(rows: Iterable[Mapping[str, Any]], key: str = "Tg") -> dict[st
         camp, car = k
         ranks = sorted(by[k], reverse=True)
         lab = {rk: "/".join(sorted(names[k][rk])) for rk in ranks}
-        mine = []
+        mine: list[dict[str, Any]] = []
         for i, a in enumerate(ranks):
             for b in ranks[i + 1:]:
                 va, vb = float(np.median(by[k][a])), float(np.median(by[k][b]))
@@ -411,9 +411,9 @@ def _campaign_root(file: Path) -> Path | None:
     for _ in range(5):
         if d not in _NOTES_CACHE:
             try:
-                _NOTES_CACHE[d] = d if any(
-                    f.is_file() and "notes" in f.name.lower() and f.suffix.lower() == ".txt"
-                    for f in d.iterdir()) else None
+                has = any(bool(f.is_file() and "notes" in f.name.lower()
+                               and f.suffix.lower() == ".txt") for f in d.iterdir())
+                _NOTES_CACHE[d] = d if has else None
             except OSError:
                 _NOTES_CACHE[d] = None
         if _NOTES_CACHE[d] is not None:
@@ -584,20 +584,20 @@ def openacc_study(
     metas: list[dict[str, Any]] = []
     left_out: list[dict[str, Any]] = []
     for r in loaded:
-        m = run_meta(r, root)
+        rm = run_meta(r, root)
         why = None
         if r.lead_x is None or r.lead_v is None or r.v is None or r.x is None:
             why = "no recorded predecessor (lead_x, lead_v) or no own speed and position"
-        elif m["acc"] is None and acc_unknown == "exclude":
+        elif rm["acc"] is None and acc_unknown == "exclude":
             why = "ACC state unknown (left out: --acc-unknown exclude)"
         if why is not None:
-            left_out.append({"file": m["file"], "car": m["car"], "run_id": r.run_id,
-                             "campaign": m["campaign"], "setting": m["setting"],
+            left_out.append({"file": rm["file"], "car": rm["car"], "run_id": r.run_id,
+                             "campaign": rm["campaign"], "setting": rm["setting"],
                              "seconds": round((len(r) - 1) * r.dt, 1), "reason": why,
                              "by": "study"})
             continue
         runs.append(r)
-        metas.append(m)
+        metas.append(rm)
     if not runs:
         n_unk = sum("unknown" in e["reason"] for e in left_out)
         raise ValueError(f"{data}: no run left to study: {len(loaded)} runs loaded, "
