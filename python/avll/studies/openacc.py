@@ -1236,7 +1236,11 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
         f"ACC, {sum(c['acc'] is None for c in acc)} of them of unknown ACC state; "
         f"{len(hum)} human-driven, the control); {len(s['left_out'])} runs left out by "
         f"the study and {len(s['dropped_by_loader'])} stretches dropped by the loader (see "
-        f"'Cars'). Main model: **{main}**; "
+        f"'Cars'). "
+        + (f"Files recognised as not data and skipped: "
+           f"{', '.join(Path(f).name for f in s['non_data_files'])}. "
+           if s["non_data_files"] else "")
+        + f"Main model: **{main}**; "
         f"compared: {', '.join(s['models'])}. GA: {s['ga']['max_generations']} generations, "
         f"population {s['ga']['pop_size'] or 'automatic'}, {s['ga']['starts']} start(s) per "
         f"car; seed {s['seed']}; objective weights (a, v, x) = "
