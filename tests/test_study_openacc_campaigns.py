@@ -286,3 +286,56 @@ def test_real_mixed_folder(tmp_path):
     assert set(s["setting_order"]["campaigns"]) <= {"JRC low speed"}
     res.save(tmp_path / "o")
     _atomic.read_manifest(tmp_path / "o")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("when", ["early", "staged"])
+def test_ctrl_c_leaves_the_old_folder_or_the_new_one(when, tmp_path):
+    """SIGINT to ``avll study openacc --out DIR --json J`` over an earlier result: early
+    (loading or calibrating) or once the new outputs are being staged. Either way the
+    folder verifies against its manifest and the JSON copy is the folder's summary."""
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from loader_helpers import write_native
+    from signal_helpers import SIGINT_DEFAULT
+
+    from avll.cli import main
+
+    data = tmp_path / "camp"
+    write_native(data / "a.csv", native_platoon(n=900), setting="L")
+    write_native(data / "b.csv", native_platoon(n=900, tg=0.8, seed=1), setting="S")
+    out, js = tmp_path / "out", tmp_path / "s.json"
+    cli = ["study", "openacc", str(data), "--out", str(out), "--json", str(js),
+           "--max-generations", "3", "--pop-size", "8", "--starts", "1", "--bootstrap", "100",
+           "--model", "first", "--models", "first", "-q"]
+    assert main([*cli, "--seed", "1"]) == 0
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(root / "python"), os.environ.get("PYTHONPATH", "")]), "MPLBACKEND": "Agg"}
+    p = subprocess.Popen([sys.executable, "-m", "avll", *cli, "--seed", "2"], env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         **SIGINT_DEFAULT)
+    if when == "early":
+        time.sleep(1.0)
+    else:
+        deadline = time.monotonic() + 120
+        while not any(q.name.startswith(_atomic.STAGING_PREFIX) for q in out.iterdir()):
+            if p.poll() is not None or time.monotonic() > deadline:
+                break
+            time.sleep(0.002)
+    if p.poll() is None:
+        p.send_signal(2)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode in (0, 130), err[-500:]
+    if p.returncode == 130:
+        assert "Traceback" not in err
+    man = _atomic.read_manifest(out)  # every listed file present and unchanged
+    assert set(man["files"]) == {q.name for q in out.iterdir()} - {_atomic.MANIFEST}
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["seed"] in (1, 2) and json.loads(js.read_text()) == doc
+    if p.returncode == 0:
+        assert doc["seed"] == 2
