@@ -351,22 +351,39 @@ _SETTINGS = {"L": ("tab:red", "o", -0.2, "long"), "M": ("tab:green", "s", 0.0, "
 
 def time_gap_per_car(cars: Sequence[Mapping[str, Any]], model: str) -> Figure:
     """The calibrated time gap ``Tg`` of ``model`` per car and ACC setting (the
-    OpenACC study's ``cars`` entries); cars without a finite ``Tg`` are left out."""
+    OpenACC study's ``cars`` entries); cars without a finite ``Tg`` are left out. With
+    several campaigns a car model has one column per campaign; settings other than
+    L/M/S (e.g. ``min``, ``shortest``) get a colour each, placed by their order
+    (``setting_rank``) within the column."""
     fig, axes = _new(1, 1, (11.0, 4.5))
     ax = axes[0][0]
-    names = sorted({c["car"] for c in cars})
+    multi = len({c.get("campaign", "") for c in cars}) > 1
+
+    def col_name(c: Mapping[str, Any]) -> str:
+        return f"{c['car']} ({c.get('campaign', '')})" if multi else str(c["car"])
+
+    names = sorted({col_name(c) for c in cars})
     pos = {n: i for i, n in enumerate(names)}
+    others = sorted({str(c["setting"]) for c in cars if c["setting"] not in _SETTINGS})
+    palette = ("tab:purple", "tab:orange", "tab:brown", "tab:pink", "tab:olive", "tab:cyan")
     seen = set()
     for c in cars:
         acc = c.get("group", "acc" if c["acc"] else "human") == "acc"
         st = c["setting"] if acc else None
-        col, mk, off, lab = (("0.4", "+", 0.0, "ACC, setting not given") if acc and st is None
-                             else _SETTINGS.get(st, ("tab:purple", "v", 0.1, f"setting {st}")))
+        if acc and st is None:
+            col, mk, off, lab = "0.4", "+", 0.0, "ACC, setting not given"
+        elif st in _SETTINGS:
+            col, mk, off, lab = _SETTINGS[st]
+        else:
+            rank = c.get("setting_rank")
+            col = palette[others.index(str(st)) % len(palette)]
+            off = 0.2 - 0.15 * rank if isinstance(rank, int) else 0.0
+            mk, lab = "v", f"{st}" + (f" (order {rank})" if isinstance(rank, int) else "")
         if str(c.get("folder", "")).lower() == "mixed" and acc:
             mk, lab = "D", f"{lab} (folder 'mixed')"
         if c["Tg"] is None:
             continue
-        ax.plot(pos[c["car"]] + off, c["Tg"], mk, color=col, ms=6, mfc="none",
+        ax.plot(pos[col_name(c)] + off, c["Tg"], mk, color=col, ms=6, mfc="none",
                 label=None if lab in seen else lab)
         seen.add(lab)
     ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize="small")
