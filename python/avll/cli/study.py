@@ -83,7 +83,8 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
         "tables (CSV), figures (PNG), report.md and summary.json into --out, as a whole "
         "with a manifest (an interrupted run leaves the old folder).")
     p.add_argument("path", metavar="PATH",
-                   help="a native OpenACC file or a folder of them (required)")
+                   help="a native OpenACC data file, a campaign folder as distributed, or "
+                   "a folder of several campaigns (required)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder (required; no default)")
     add_json(p, "the summary (also written to DIR/summary.json)")
@@ -106,7 +107,8 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
                    "(exclude, the default) or studied as ACC (include); human-driven runs "
                    "are always a separate control")
     p.add_argument("--setting", default=None,
-                   help="keep these ACC settings, e.g. L,S or none (default: all)")
+                   help="keep these ACC settings, in the spellings of the campaigns' "
+                   "notes, e.g. L,S or min (none: runs without a setting; default: all)")
     p.add_argument("--car", default=None,
                    help="keep these car models, comma-separated (default: all)")
     p.add_argument("--track", default=None,
