@@ -83,9 +83,13 @@ def test_gaps_only_empty_cells_change(tmp_path, platoon):
                      empty={"Speed3": short + long, "IVS2": list(range(100, 140)),
                             "E3": [200], "N3": [200], "IVS1": [500, 501]})
     runs = {r.run_id: r for r in load_openacc_native(f)}
-    r = runs["dynamic_part2/v2-v3"]
-    # the longest stretch with Speed3 is rows 0..599
+    # issue 27: every stretch of at least min_duration is a run (was: the longest only):
+    # rows 0..599 and 650..899 (25 s), split by the 5 s hole in Speed3
+    r = runs["dynamic_part2/v2-v3/s1"]
     assert len(r) == 600 and r.t[0] == platoon["t"][0]
+    r2 = runs["dynamic_part2/v2-v3/s2"]
+    assert r2.meta["rows"] == [650, 899] and r2.meta["stretch"] == 2
+    np.testing.assert_array_equal(r2.v, platoon["Speed3"][650:900])
     present = [k for k in range(600) if k not in short]
     np.testing.assert_array_equal(r.v[present], platoon["Speed3"][present])
     ends = platoon["Speed3"][[299, 303]]
@@ -93,9 +97,10 @@ def test_gaps_only_empty_cells_change(tmp_path, platoon):
     # 4 s of empty IVS2 while both positions are known: reconstructed exactly
     np.testing.assert_allclose((r.lead_x - r.x)[100:140], platoon["IVS2"][100:140], atol=1e-9)
     assert any("IVS2: 40 empty cells reconstructed" in c for c in r.meta["cleaning"])
-    assert any("dropped 1 other stretch" in c for c in r.meta["cleaning"])
+    assert any("stretch 1 of 2" in c for c in r.meta["cleaning"])
     # the follower of vehicle 3 sees the same split through its predecessor
-    assert len(runs["dynamic_part2/v3-v4"]) == 600
+    assert len(runs["dynamic_part2/v3-v4/s1"]) == 600
+    assert len(runs["dynamic_part2/v3-v4/s2"]) == 250
 
 
 def test_folder_recursive_and_filters(tmp_path, platoon):
@@ -141,8 +146,8 @@ def _lines(tmp_path, platoon, name="dynamic_part9.csv"):
     (0, "Date,32,10,2019", r"line 1: Date must be"),
     (1, "Vehicle_order,A,B", r"line 2: Vehicle_order lists 2 names but Number_of_vehicles"),
     (2, "Number_of_vehicles,x", r"line 3: Number_of_vehicles must be an integer"),
-    (3, "ACC,2", r"line 4: ACC must be 0 or 1"),
-    (4, "Distance_setting,XL", r"line 5: Distance_setting must be L, M, S or empty"),
+    (3, "ACC,3", r"line 4: ACC must be 0, 1, 2 or empty"),
+    (4, "Distance_setting,XL", r"line 5: Distance_setting must be one of L, M, S, SL, min"),
 ])
 def test_bad_header(tmp_path, platoon, line, text, match):
     f, lines = _lines(tmp_path, platoon)
@@ -247,7 +252,13 @@ def zala():
 def test_zalazone_all_files(zala):
     runs, rep = zala
     assert len(rep["files"]) == 7
-    assert len(runs) == 58
+    # issue 27: every stretch of at least 20 s is a run (was: the longest per follower,
+    # 58 runs); the same 58 followers have runs, some split where the spacing jumps
+    assert len({(r.meta["file"], r.meta["vehicle_index"]) for r in runs}) == 58
+    assert len(runs) == sum(1 for s in rep["stretches"] if s["kept"]) >= 58
+    assert {d["kind"] for d in rep["non_data"]} == {"notes", "copyright",
+                                                    "vehicle specifications",
+                                                    "long-setting list"}
     assert {(s["file"].split("/")[-1], s["follower"]) for s in rep["skipped"]} == {
         ("handling_part22.csv", 2), ("handling_part22.csv", 10), ("handling_part1.csv", 2)}
     for r in runs:

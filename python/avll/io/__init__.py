@@ -9,8 +9,9 @@ Formats: ``canonical`` (the library's own long CSV/Parquet), ``generic`` (any
 CSV/Parquet with a column mapping), ``carma`` (FHWA CARMA platoon CSVs: engaged
 stretches, speed command), ``openacc-astazero`` (JRC OpenACC AstaZero: platoon pairs
 and free-flow segments, road grade), ``openacc`` (the OpenACC database's native
-layout, e.g. ZalaZone: one closed-loop run per follower with car model, ACC gap
-setting and track in ``meta``). The measured-data loaders accept ``dt=`` (and
+layout, any campaign file or folder as distributed: one closed-loop run per usable
+stretch of each follower, with car model, ACC state, gap setting and its rank in
+``meta``). The measured-data loaders accept ``dt=`` (and
 ``max_gap=``) to resample.
 """
 

@@ -1,7 +1,9 @@
-"""Loader of the JRC OpenACC database in its native layout (``format="openacc"``).
+"""Loader of the JRC OpenACC database in its native layout (``format="openacc"``),
+every campaign as the JRC distributes it (ZalaZone, Casale, JRC low speed, Vicolungo,
+Cherasco): a data file, or a campaign folder as distributed.
 
-The layout (the same at every test site of the database; the ZalaZone files were
-checked):
+The layout, from the campaigns' notes (``Zala_notes.txt``, ``Casale_notes.txt``,
+``JRC_tests_notes.txt``, ...), which are the specification here:
 
 .. code-block:: text
 
@@ -10,93 +12,141 @@ checked):
     Number_of_vehicles,7
     ACC,1
     Distance_setting,L
-    Time,Speed1,E1,N1,Lon1,Lat1,Alt1,...,SpeedN,EN,NN,LonN,LatN,AltN,IVS1,...,IVS(N-1)
+    Time,Speed1,E1,N1,Lon1,Lat1,Alt1,...,SpeedN,...,IVS1,...,IVS(N-1)[,Driver2,...]
     480.0,11.10,80.28,-117.10,...
 
-Vehicle 1 (the ``*_TARGET``) leads; ``Speed`` is in m/s, ``E``/``N`` in m (local east
-and north), ``Alt`` in m and ``IVSi`` the spacing (m) between vehicles ``i`` and
-``i+1``. The vehicle numbers are positions in ``Vehicle_order``: a file can lack the
-columns of some vehicles (in the ZalaZone handling-course files the target's
-columns are absent, so the data start at ``Speed2``), and then the ``IVS`` columns
-next to the missing vehicle are absent too.
+Vocabulary
+----------
+* ``ACC``: ``0`` manual driving throughout, ``1`` ACC throughout, ``2`` mixed (the
+  follower's per-sample ``Driver<i>`` column decides), blank: unknown (the JRC
+  low-speed notes: no Driver information for any follower). Per sample of follower
+  ``i``: ``Driver<i>`` = ``ACC`` -> ACC, ``Human`` -> human; an empty Driver cell, or
+  a follower without the column, takes the header: 1 -> ACC, 0 -> human, 2 or blank
+  -> unknown. Runs never mix states: ``meta["acc"]`` is ``True`` (every sample ACC),
+  ``False`` (human: a control case) or ``None`` (unknown); ``meta["acc_source"]``
+  says where it came from.
+* ``Distance_setting``: ``L``, ``M``, ``S`` (ZalaZone), ``SL`` (ZalaZone: mixed, short
+  for most cars, long for those of the campaign's list ``Long setting vehs in mixed
+  timegap experiment handling.csv``), ``min`` (Casale), ``shortest``, ``second
+  shortest`` (JRC low speed), blank. ``meta["setting"]`` is the raw value as written
+  (``None`` when blank); ``meta["setting_rank"]`` its order within the campaign,
+  larger = longer time gap (:data:`SETTING_RANK`: S/min/shortest 0, M/second shortest
+  1, L 2; these ranks compare settings of one campaign only); for ``SL``
+  ``meta["setting_resolved"]`` is ``"L"`` or ``"S"`` for the car, from the list found
+  beside the file (the file's folder or a parent, up to the folder given); without
+  the list or the file in it, the rank is ``None`` and a cleaning note says why.
+* Columns: ``Time``; per vehicle ``i`` ``Speed`` (m/s), ``E``, ``N`` (m, local ENU),
+  ``U`` (m, ENU up), ``Lon``, ``Lat``, ``Alt`` (m), ``VE``, ``VN``, ``VU`` (velocity
+  components, read and kept in :class:`NativeFile`), ``Driver``; per pair ``i``
+  (between vehicles ``i`` and ``i + 1``) ``IVS`` (the spacing, m), ``Eff_distance``,
+  ``Rel_Speed`` (read, kept in :attr:`NativeFile.pairs`). Only ``Speed`` is required
+  per vehicle (``E``/``N`` together or not at all: without them the path length is
+  the integral of the speed). ``Alt`` is optional per vehicle (Casale's leader,
+  some JRC low-speed cars): the grade then comes from ``U`` if present, else it is
+  unavailable for that car (no ``exo["grade"]``, ``meta["grade_available"] =
+  False``, a cleaning note). Vehicle numbers are positions in ``Vehicle_order``: a
+  vehicle not recorded has no columns and the others keep their numbers (its
+  follower has no run: its predecessor was not measured).
+* ``Time`` is kept as the file has it (``run.t``): seconds of day, relative seconds
+  or GPS time of week alike; it must increase. Where a step differs from the file's
+  median step by more than 0.1 % (a part of the series removed, e.g. tolls or
+  tunnels in Casale) every stretch ends, and no bridge crosses it.
+* A campaign folder as distributed: ``*_notes.txt``, ``copyright.txt``, the
+  specification sheet (``Veh_specifications.csv``, ``*_veh_specifications.csv``),
+  the long-setting list and any other file that is not ``*.csv`` are recognised and
+  skipped (listed in the report's ``non_data``); the folder is walked without
+  following symbolic links. The specification sheet's row of each car is attached
+  as ``meta["vehicle_spec"]`` (and ``lead_vehicle_spec``; the sheet's own columns,
+  e.g. power, drive, propulsion, model year) by the name rule of
+  :func:`match_vehicle_spec`.
 
-One closed-loop :class:`avll.Run` per follower whose predecessor was recorded, id
-``"<file stem>/v<i-1>-v<i>"`` (the parent folder's name is prefixed when two files of
-a folder share a stem). Like the AstaZero pairs, it carries the follower's ``x, v,
-a`` and the predecessor's ``lead_x, lead_v, lead_a``, ``command=None`` with
-``command_kind="acceleration"`` (no command was recorded: the upper level must be
-calibrated with the lower one) and ``upper=None``.
+One closed-loop :class:`avll.Run` per usable stretch of each follower whose
+predecessor was recorded, id ``"<file stem>/v<i-1>-v<i>"``, with ``"/s<k>"`` (k = 1, 2,
+... in time order) when the follower has several stretches (the parent folder's name
+is prefixed when two files of a folder share a stem). It carries the follower's
+``x, v, a`` and the predecessor's ``lead_x, lead_v, lead_a``, ``command=None`` with
+``command_kind="acceleration"`` and ``upper=None``.
+
+Stretches
+---------
+Each rule's time is counted in the report (see :func:`openacc_native_report`).
+A sample of a follower is usable when its speed, its position, its predecessor's
+speed and the spacing are present (after the bridging below), the spacing is
+consistent with the speeds, the pair is following and the ACC state is the
+stretch's. Every maximal run of usable samples of one ACC state lasting at least
+``min_duration`` (20 s) is a run; the others are dropped with the reason:
+
+* missing data: holes longer than the bridges;
+* not following: a spacing above :data:`FAR_GAP` (100 m) while the time headway
+  (spacing / follower speed) is above :data:`FAR_HEADWAY` (3 s, longer than the
+  longest time-gap settings of commercial ACC) marks a cut-in or a lost target
+  (invisible otherwise in a GNSS spacing); the whole excursion above 3 s around it
+  is split out (e.g. in Casale part7 and JRC low speed part12);
+  a spacing below :data:`MIN_GAP` (-5 m) is not a following distance either;
+* inconsistent spacing: over every window of :data:`CONSISTENCY_WINDOW` (1 s) the
+  change of the spacing must equal the integral of the relative speed (predecessor
+  minus follower speed) within :data:`CONSISTENCY_TOL` (1 m, a mean rate error of
+  1 m/s); the samples of a violating window are left out, reported as a repair
+  that would invent motion when the window holds a repaired sample (below), as a
+  jump of the data otherwise. No run therefore has a window beyond the tolerance.
 
 Signals
 -------
-* ``x``: the follower's position along its path, the cumulative length of its
-  east/north track (a step whose two ends are both at standstill, speed below
-  :data:`STANDSTILL`, adds nothing: that is GNSS jitter, 0.3–1.7 m over a minute of
-  standing in the handling-course files).
-* ``lead_x = x + gap``, the predecessor's rear bumper in the follower's path
-  coordinate, so ``lead_x - x`` is the measured spacing ``IVS(i-1)``. In the ZalaZone
-  files ``IVS`` is exactly the straight-line east/north distance of the two vehicles
-  minus a constant per pair (the spread of the difference is below 1 cm), so a cell
-  of ``IVS`` that is empty while both vehicles' positions are present is
-  reconstructed from the positions with that constant (recorded); on the tracks'
-  radii (>= 40 m) the chord and the arc between two cars differ by centimetres.
-* ``a`` and ``lead_a``: the time derivative (central differences) of the speed after
-  a zero-phase low-pass, a 2nd-order Butterworth filter run forwards and backwards
-  (``scipy.signal.sosfiltfilt``), cutoff ``accel_cutoff`` = 1.5 Hz by default. Why:
-  in these files the power spectrum of the raw speed derivative falls by more than
-  two decades between the 0.5–1 Hz band (vehicle motion: the paper's lower-level
-  time constants of 0.5–1 s put its corners at 0.15–0.3 Hz) and 1–1.5 Hz, so the
-  speed was already smoothed by the database's processing and what remains above
-  1.5 Hz is quantisation noise amplified by the derivative; the zero-phase filter
-  does not delay the acceleration relative to the speed. The gain at 1 Hz is 0.84
-  (each pass), at 0.5 Hz 0.99.
-* ``exo["grade"]``: the road grade (rise over run, uphill positive in the driving
-  direction) along the follower's path: the altitude is put on a 1 m grid of the
-  path position (mean of the samples per metre, linear interpolation between),
-  smoothed and differentiated by a Savitzky–Golay filter of order 2 over
-  ``grade_window`` = 30 m. Why: the GNSS altitude is noisy at the centimetre level,
-  a 2 cm error over a 30 m window is a grade error below 0.1 %, and the tracks'
-  grades change over tens of metres (the dynamic platform: about ±1 % around a
-  300 m circle). Over less than one window of path the grade is the slope of a
-  straight-line fit.
+* ``x``: the follower's path length, the cumulative length of its east/north track
+  (a step whose two ends are both at standstill, speed below :data:`STANDSTILL`,
+  adds nothing: GNSS jitter).
+* ``lead_x = x + gap``, so ``lead_x - x`` is the measured spacing ``IVS(i-1)``. In
+  the ZalaZone files ``IVS`` is the straight-line east/north distance minus a
+  constant per pair (spread below 1 cm); where the present cells show that (spread
+  of distance - IVS within 5 cm), an empty ``IVS`` cell with both positions present
+  is reconstructed from the positions.
+* ``a`` and ``lead_a``: central differences of the speed after a zero-phase
+  2nd-order Butterworth low-pass. The cut-off is chosen per file from the spectrum
+  of the speed derivative (:func:`choose_accel_cutoff`; ``accel_cutoff="auto"``, the
+  default) and written to ``meta["accel_cutoff_hz"]`` and ``meta["accel_cutoff"]``
+  (how): the ZalaZone speed is smoothed by the database's B-splines (its derivative's
+  power falls by decades up to the Nyquist frequency: 1.5 Hz), the Casale and JRC
+  low-speed speed is raw u-blox 9 Doppler, not filtered (the power has a minimum
+  near 0.5 Hz and rises above: noise; cut-off below 1 Hz). A number given as
+  ``accel_cutoff`` is used as is.
+* ``exo["grade"]``: the road grade along the follower's path from its altitude
+  (``Alt``, else ``U``): altitude on a 1 m grid of the path (pooled with the other
+  vehicles' altitudes of the same kind within 2 m), Savitzky-Golay filter of order 2
+  over ``grade_window`` = 30 m.
 
-Known defects handled (each recorded in ``run.meta["cleaning"]``)
------------------------------------------------------------------------
-* ``Vehicle_order`` listing more names than ``Number_of_vehicles``: the first N
-  names are taken (the vehicle numbers of the columns index ``Vehicle_order``);
-  fewer names than N, or a column of a vehicle number above N, is an error.
-* Empty cells: runs of at most ``bridge`` seconds are linearly interpolated, only
-  the empty cells (present values are never changed). Runs of empty positions or
-  spacings of at most ``bridge_kinematic`` seconds (3 s) while both speeds are
-  present are bridged with the speeds: the follower's path length grows by the
-  integral of its speed (trapezoid), the spacing by the integral of the speed
-  difference from its last known value, the drift to its next known value removed
-  linearly. Longer gaps split the record, and the longest stretch where the
-  follower, its predecessor and the spacing are all known is the run (the other
-  stretches are recorded as dropped). A stretch shorter than ``min_duration``
-  seconds gives no run (recorded in the loader's report, see
-  :func:`openacc_native_report`).
+Repairs
+-------
+Each is recorded in ``run.meta["cleaning"]``; none may invent motion: the consistency
+rule above checks every repaired sample.
+
+* Empty cells: runs of at most ``bridge`` seconds (1 s) are linearly interpolated
+  (only the empty cells). Receiver dropouts (a vehicle's speed and position both
+  missing, up to ``bridge_kinematic`` = 3 s, e.g. the short holes of JRC low speed)
+  are bridged only when the linear speed bridge's integral matches the
+  straight distance between the positions at the hole's ends within
+  :data:`CONSISTENCY_TOL`. Empty spacings up to ``bridge_kinematic`` with both speeds
+  present are filled by the integral of the speed difference, the drift to the next
+  known spacing removed linearly.
 * GNSS position glitches: an E/N sample whose steps in and out both imply a speed
-  more than :data:`GLITCH_TOL` (3 m/s) away from the measured speed is dropped,
-  with the spacings computed from it, and bridged as an empty cell (e.g. the
-  zig-zag of ``E6``/``N6`` in the last 6 s of ``dynamic_part16``).
-* Files of one test day start at different ``Time`` offsets: ``t`` keeps the file's
-  own time; ``meta["t_file_start"]`` is the file's first time stamp.
-* Vehicles whose columns start late or end early (ZalaZone handling course): their
-  runs cover only the samples where they and their predecessor are present.
-* The follower's speed disagreeing with its own track length (e.g. ``Speed10`` of
-  ``handling_part1`` is about 2.5 % below the speed implied by ``E10``/``N10``,
-  whereas the track agrees with the spacing to the predecessor): recorded as
-  ``meta["speed_position_ratio"]`` and a cleaning note when off by more than 1 %.
+  more than :data:`GLITCH_TOL` (3 m/s) away from the measured speed is dropped, with
+  the spacings computed from it, and bridged as an empty cell.
+* ``Vehicle_order`` listing more names than ``Number_of_vehicles``: the first N.
+* Speed in km/h or mph (below the 70 m/s limit) is an error naming the column, found
+  from its ratio to the speed of the vehicle's own track; spacings beyond 1e8 m are
+  an error, outside -5..1000 m a :class:`avll.PlausibilityWarning`.
+* The follower's speed disagreeing with its own track length by more than 1 %:
+  ``meta["speed_position_ratio"]`` and a cleaning note.
 
-Metadata per run: ``file``, ``folder`` (the parent folder's name), ``date``
-(ISO), ``car`` (the follower's model name from ``Vehicle_order``), ``lead_car``,
-``setting`` (``"L"``, ``"M"``, ``"S"``; ``None`` without ACC), ``acc`` (bool),
-``position`` (1 = the first follower, i.e. vehicle 2), ``vehicle_index``,
-``lead_index``, ``track`` (the file name before ``_part``: ``"dynamic"``,
-``"handling"``), ``n_vehicles``, ``vehicle_order``, ``gap_column``,
-``ivs_offset`` (m, the constant distance − IVS), ``gap_reconstructed`` (samples),
-``speed_position_ratio``, ``accel_filter``, ``grade_method``, ``t_file_start``,
+Metadata per run: ``file``, ``folder``, ``date`` (ISO), ``car``, ``lead_car``,
+``setting`` (raw), ``setting_rank``, ``setting_resolved``, ``acc``, ``acc_source``,
+``acc_header``, ``position`` (1 = the first follower), ``vehicle_index``,
+``lead_index``, ``track`` (file name before ``_part``), ``n_vehicles``,
+``vehicle_order``, ``gap_column``, ``ivs_offset``, ``gap_reconstructed``,
+``repaired_samples``, ``speed_position_ratio``, ``accel_cutoff_hz``,
+``accel_cutoff``, ``accel_filter``, ``grade_method``, ``grade_available``,
+``spacing_consistency_tol_m``, ``spacing_consistency_window_s``, ``stretch``,
+``n_stretches``, ``vehicle_spec``, ``lead_vehicle_spec``, ``vehicle_spec_file``,
+``t_file_start``, ``t_start``, ``t_end``, ``rows`` (first and last data row),
 ``cleaning``.
 """
 
@@ -119,6 +169,16 @@ from ._common import check_speed_units, check_time, contiguous, plausibility_war
 
 __all__ = [
     "NativeFile",
+    "choose_accel_cutoff",
+    "match_vehicle_spec",
+    "read_vehicle_specs",
+    "read_long_setting_list",
+    "spacing_consistency",
+    "SETTING_RANK",
+    "CONSISTENCY_TOL",
+    "CONSISTENCY_WINDOW",
+    "FAR_GAP",
+    "FAR_HEADWAY",
     "read_openacc_native",
     "load_openacc_native",
     "openacc_native_report",
@@ -414,7 +474,9 @@ def read_openacc_native(path: str | Path) -> NativeFile:
         what = "is empty" if not raw else f"is {raw[:20]!r}, not a time"
         raise DataError(f"{_loc(path, 'Time', int(bad[0]))}: the time {what} (every row "
                         "needs its time stamp)")
-    check_time(t, path, "Time")
+    # strictly increasing; a step off the median (a removed part of the series) does
+    # not stop the file: stretches end there (see _follower_runs)
+    check_time(t, path, "Time", uniform=False)
     vehicles: dict[int, dict[str, np.ndarray]] = {}
     drivers: dict[int, np.ndarray] = {}
     for k, cols in sorted(veh_cols.items()):
@@ -510,14 +572,21 @@ def _check_spacing(path: Path, column: str, g: np.ndarray) -> None:
 # ---------------------------------------------------------------------------
 
 
-def _bridge(x: np.ndarray, max_samples: int) -> tuple[np.ndarray, int]:
+def _across(breaks: np.ndarray | None, a: int, b: int) -> bool:
+    """Whether a hole ``a:b`` (with its two neighbours) spans a time break."""
+    return breaks is not None and bool(breaks[a:b + 1].any())
+
+
+def _bridge(x: np.ndarray, max_samples: int,
+            breaks: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Linear interpolation of interior runs of at most ``max_samples`` NaN cells
-    (only those cells); returns the array and the number of cells filled."""
+    (only those cells, never across a time break); returns the array and the number
+    of cells filled."""
     out = x.copy()
     filled = 0
     fin = np.isfinite(out)
     for a, b in contiguous(~fin):
-        if a == 0 or b == out.shape[0] or b - a > max_samples:
+        if a == 0 or b == out.shape[0] or b - a > max_samples or _across(breaks, a, b):
             continue
         out[a:b] = np.interp(np.arange(a, b), [a - 1, b], [out[a - 1], out[b]])
         filled += b - a
@@ -538,7 +607,7 @@ def _position_glitches(e: np.ndarray, n: np.ndarray, v: np.ndarray, dt: float,
 
 
 def _bridge_vehicle(v: np.ndarray, e: np.ndarray, n: np.ndarray, alt: np.ndarray,
-                    dt: float, max_samples: int) -> int:
+                    dt: float, max_samples: int, breaks: np.ndarray | None = None) -> int:
     """Bridges, in place, interior holes of at most ``max_samples`` samples where a
     vehicle's speed and position are both missing (a receiver dropout), only where
     the data allow: the speed is interpolated linearly across the hole, and the
@@ -549,7 +618,7 @@ def _bridge_vehicle(v: np.ndarray, e: np.ndarray, n: np.ndarray, alt: np.ndarray
     filled = 0
     hole = ~np.isfinite(v)
     for a, b in contiguous(hole):
-        if a == 0 or b == v.shape[0] or b - a > max_samples:
+        if a == 0 or b == v.shape[0] or b - a > max_samples or _across(breaks, a, b):
             continue
         ends = (a - 1, b)
         if not all(np.isfinite(q[j]) for q in (v, e, n) for j in ends):
@@ -571,12 +640,14 @@ def _bridge_vehicle(v: np.ndarray, e: np.ndarray, n: np.ndarray, alt: np.ndarray
     return filled
 
 
-def _short_runs(bad: np.ndarray, ok_sides: np.ndarray, max_samples: int) -> np.ndarray:
+def _short_runs(bad: np.ndarray, ok_sides: np.ndarray, max_samples: int,
+                breaks: np.ndarray | None = None) -> np.ndarray:
     """Mask of the interior runs of ``bad`` of at most ``max_samples`` samples whose
-    ``ok_sides`` mask holds over the run and its two neighbours."""
+    ``ok_sides`` mask holds over the run and its two neighbours (not across a time
+    break)."""
     out = np.zeros(bad.shape[0], dtype=bool)
     for a, b in contiguous(bad):
-        if a == 0 or b == bad.shape[0] or b - a > max_samples:
+        if a == 0 or b == bad.shape[0] or b - a > max_samples or _across(breaks, a, b):
             continue
         if ok_sides[a - 1:b + 1].all():
             out[a:b] = True
@@ -584,14 +655,15 @@ def _short_runs(bad: np.ndarray, ok_sides: np.ndarray, max_samples: int) -> np.n
 
 
 def _fill_gap_kinematic(gap: np.ndarray, vf: np.ndarray, vp: np.ndarray, dt: float,
-                        max_samples: int) -> tuple[np.ndarray, int]:
+                        max_samples: int,
+                        breaks: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Fill interior runs of at most ``max_samples`` empty spacing cells by the
     integral of the speed difference (trapezoid) from the last known spacing, with
     the drift to the next known spacing removed linearly; only where both speeds
     are present. Returns the spacing and the number of cells filled."""
     out = gap.copy()
     sides = np.isfinite(vf) & np.isfinite(vp)
-    mask = _short_runs(~np.isfinite(out), sides, max_samples)
+    mask = _short_runs(~np.isfinite(out), sides, max_samples, breaks)
     n = 0
     for a, b in contiguous(mask):
         d = vp[a - 1:b + 1] - vf[a - 1:b + 1]
@@ -1019,11 +1091,15 @@ def spacing_consistency(gap: np.ndarray, v: np.ndarray, lead_v: np.ndarray,
     return res
 
 
-def _segments(lab: np.ndarray) -> list[tuple[int, int, int]]:
-    """Runs ``(a, b, value)`` of equal values of an integer array."""
+def _segments(lab: np.ndarray, breaks: np.ndarray | None = None) -> list[tuple[int, int, int]]:
+    """Runs ``(a, b, value)`` of equal values of an integer array, also cut before
+    every sample ``k`` where ``breaks[k]``."""
     if lab.shape[0] == 0:
         return []
-    cut = np.flatnonzero(np.diff(lab)) + 1
+    change = np.diff(lab) != 0
+    if breaks is not None:
+        change |= breaks[1:]
+    cut = np.flatnonzero(change) + 1
     starts = np.concatenate([[0], cut])
     ends = np.concatenate([cut, [lab.shape[0]]])
     return [(int(a), int(b), int(lab[a])) for a, b in zip(starts, ends, strict=True)]
@@ -1033,10 +1109,14 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                    min_duration: float, accel_cutoff: float | str, grade: bool,
                    grade_window: float, require_predecessor: bool, skipped: list[_Skip],
                    camp: _Campaign, stretches: list[dict[str, Any]],
-                   time_acc: dict[str, float], file_info: dict[str, Any]) -> list[Run]:
+                   time_acc: dict[str, float], file_info: dict[str, Any],
+                   followers: list[dict[str, Any]]) -> list[Run]:
     path = nf.path
     t = nf.t
     dt = float(np.median(np.diff(t)))
+    # a time step off the file's median step (by more than 0.1 %, e.g. a toll or a
+    # tunnel removed from the series) breaks every stretch there
+    tbreak = np.concatenate([[False], np.abs(np.diff(t) - dt) > 1e-3 * dt])
     nb = int(math.floor(bridge / dt + 1e-9))
     nk = int(math.floor(bridge_kinematic / dt + 1e-9))
     filled: dict[int, dict[str, int]] = {}
@@ -1064,12 +1144,12 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         filled[k] = {}
         r = np.zeros(t.shape[0], dtype=bool)
         for q, arr in (("speed", cols["speed"]), ("E", e), ("N", nn), ("alt", alt)):
-            sig[k][q], filled[k][q] = _bridge(arr, nb)
+            sig[k][q], filled[k][q] = _bridge(arr, nb, tbreak)
         if has_pos:
             filled[k]["dropout"] = _bridge_vehicle(sig[k]["speed"], sig[k]["E"], sig[k]["N"],
-                                                   sig[k]["alt"], dt, nk)
-        for q in ("speed", "E", "N"):
-            r |= np.isfinite(sig[k][q]) & ~np.isfinite(cols[q] if q in cols else nanv)
+                                                   sig[k]["alt"], dt, nk, tbreak)
+        for q, before in (("speed", cols["speed"]), ("E", e), ("N", nn)):
+            r |= np.isfinite(sig[k][q]) & ~np.isfinite(before)  # bridged or glitch-refilled
         rep[k] = r
     if isinstance(accel_cutoff, str):
         cutoff, cut_how = choose_accel_cutoff([sig[k]["speed"] for k in sig], dt)
@@ -1093,20 +1173,24 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
             if pe:
                 pools[src] = (np.concatenate(pe), np.concatenate(pn), np.concatenate(pa))
     runs: list[Run] = []
-    first = min(nf.vehicles)
     for i in sorted(nf.vehicles):
         if i == 1:
             continue
         car = nf.name(i)
         lead = i - 1
         ftime = float(np.isfinite(sig[i]["speed"]).sum() * dt)
+        ft: dict[str, float] = {}
+        fol: dict[str, Any] = {"file": str(path), "follower": i, "car": car,
+                               "lead_car": nf.name(lead), "setting": nf.setting,
+                               "acc_header": nf.acc, "time_s": ft, "runs": []}
+        followers.append(fol)
         if lead not in nf.vehicles:
             why = f"predecessor vehicle {lead} ({nf.name(lead)}) has no columns"
-            if i != first or lead >= 1:
-                skipped.append(_Skip(str(path), i, car, why))
-                time_acc["no_predecessor"] = time_acc.get("no_predecessor", 0.0) + ftime
-                stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
-                                  "reason": why, "duration_s": ftime, "run_id": None})
+            skipped.append(_Skip(str(path), i, car, why))
+            ft["no_predecessor"] = ft.get("no_predecessor", 0.0) + ftime
+            stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
+                              "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
+                              "reason": why, "duration_s": ftime, "run_id": None})
             if not require_predecessor:
                 runs += _solo_run(nf, rid_stem, i, sig, dt, min_duration, cutoff, grade,
                                   grade_window)
@@ -1122,8 +1206,9 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         if lead not in ivs_raw:
             why = f"no spacing column {gcol}"
             skipped.append(_Skip(str(path), i, car, why))
-            time_acc["no_spacing"] = time_acc.get("no_spacing", 0.0) + ftime
+            ft["no_spacing"] = ft.get("no_spacing", 0.0) + ftime
             stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
+                              "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
                               "reason": why, "duration_s": ftime, "run_id": None})
             continue
         ivs_l = ivs_raw[lead]
@@ -1147,19 +1232,19 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         elif both.sum() >= 10:
             notes.append(f"{gcol}: distance - IVS is not constant (spread "
                          f"{spread:.3g} m): empty cells not reconstructed")
-        gap, gfill = _bridge(gap, nb)
+        gap, gfill = _bridge(gap, nb, tbreak)
         if gfill:
             notes.append(f"{gcol}: {gfill} empty cells interpolated (gaps <= {bridge:g} s)")
-        gap, gkin = _fill_gap_kinematic(gap, f["speed"], p["speed"], dt, nk)
+        gap, gkin = _fill_gap_kinematic(gap, f["speed"], p["speed"], dt, nk, tbreak)
         if gkin:
             notes.append(f"{gcol}: {gkin} empty cells (gaps <= {bridge_kinematic:g} s) "
                          "filled by the integral of the speed difference, drift to the "
                          "next spacing removed linearly")
-        repaired = (np.isfinite(gap) & ~np.isfinite(nf.ivs[lead])) | rep[i] | rep[lead]
+        repaired = (np.isfinite(gap) & ~np.isfinite(ivs_l)) | rep[i] | rep[lead]
         has_pos = bool(f["has_pos"])
         pos_ok = np.isfinite(f["E"]) & np.isfinite(f["N"]) if has_pos else \
             np.isfinite(f["speed"])
-        pos_kin = _short_runs(~pos_ok, np.isfinite(f["speed"]), nk)
+        pos_kin = _short_runs(~pos_ok, np.isfinite(f["speed"]), nk, tbreak)
         if pos_kin.any():
             notes.append(f"follower (vehicle {i}): {int(pos_kin.sum())} samples without E/N "
                          f"(gaps <= {bridge_kinematic:g} s): path length from the speed")
@@ -1172,9 +1257,12 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         # spacing consistent with the relative speed (repairs first)
         res = spacing_consistency(np.where(present, gap, np.nan), f["speed"], p["speed"], dt)
         w = max(1, int(round(CONSISTENCY_WINDOW / dt)))
+        if tbreak.any() and res.size:
+            cb = np.cumsum(tbreak)
+            res[(cb[w:] - cb[:-w]) > 0] = np.nan  # windows across a time break
         with np.errstate(invalid="ignore"):
             viol = np.flatnonzero(np.abs(res) > CONSISTENCY_TOL)
-        for j in viol:
+        for j in viol.tolist():
             win = slice(j, j + w + 1)
             code = 5 if repaired[win].any() else 4
             cw = cat[win]
@@ -1192,11 +1280,12 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         cat = np.where((cat == 0) & low, 3, cat).astype(np.int8)
         state, acc_src = _acc_state(nf, i)
         lab = np.where(cat == 0, state.astype(np.int16), 10 + cat.astype(np.int16))
-        segs = _segments(lab)
+        segs = _segments(lab, tbreak)
         fpresent = np.isfinite(f["speed"])
         keep_segs = [(a, b, v) for a, b, v in segs
                      if v < 10 and (b - a - 1) * dt >= min_duration]
         res_setting, rank, set_note = _setting_for(nf, car, camp)
+        fol.update(setting_rank=rank, setting_resolved=res_setting, acc_source=acc_src)
         spec = match_vehicle_spec(car, camp.specs) if camp.specs else None
         lspec = match_vehicle_spec(nf.name(lead), camp.specs) if camp.specs else None
         for a, b, v in segs:
@@ -1206,14 +1295,14 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                    "duration_s": round((b - a - 1) * dt, 3)}
             if v >= 10:
                 code = v - 10
-                time_acc[_DROP_KEY[code]] = time_acc.get(_DROP_KEY[code], 0.0) + secs
+                ft[_DROP_KEY[code]] = ft.get(_DROP_KEY[code], 0.0) + secs
                 if code == 1 and not fpresent[a:b].any():
                     continue  # the follower itself not recorded: not follower time
                 stretches.append({**rec, "kept": False, "acc": None, "run_id": None,
                                   "reason": _DROP[code]})
             elif (a, b, v) not in keep_segs:
                 sk = f"short_{_KEEP_KEY[v]}"
-                time_acc[sk] = time_acc.get(sk, 0.0) + secs
+                ft[sk] = ft.get(sk, 0.0) + secs
                 stretches.append({**rec, "kept": False, "acc": _ACC_META[v], "run_id": None,
                                   "reason": f"shorter than min_duration {min_duration:g} s"})
         if not keep_segs:
@@ -1223,12 +1312,20 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                                  f"{min_duration:g} s: " + "; ".join(reasons)))
             continue
         for k, who in ((i, "follower"), (lead, "predecessor")):
-            fk = {q: c for q, c in filled[k].items() if c}
+            fk = {q: c for q, c in filled[k].items() if c and q != "dropout"}
             if fk:
                 notes.append(f"{who} (vehicle {k}): interpolated empty cells (gaps <= "
                              f"{bridge:g} s): " + ", ".join(f"{q} {c}" for q, c in fk.items()))
+            if filled[k].get("dropout"):
+                notes.append(f"{who} (vehicle {k}): {filled[k]['dropout']} samples of receiver "
+                             f"dropouts (speed and position missing, <= {bridge_kinematic:g} s) "
+                             "bridged: linear speed whose integral matches the distance between "
+                             f"the positions at the ends within {CONSISTENCY_TOL:g} m")
         if set_note:
             notes.append(set_note)
+        if tbreak.any():
+            notes.append(f"the time jumps at {int(tbreak.sum())} row(s) (step off the "
+                         f"median {dt:g} s): stretches end there")
         alt_src = str(f["alt_src"])
         if not alt_src:
             notes.append(f"no Alt{i} or U{i} column: road grade unavailable for {car}")
@@ -1237,7 +1334,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         for si, (a0, b0, v_state) in enumerate(keep_segs, start=1):
             rid = f"{rid_stem}/v{lead}-v{i}" + (f"/s{si}" if len(keep_segs) > 1 else "")
             dur = (b0 - a0 - 1) * dt
-            time_acc[_KEEP_KEY[v_state]] = (time_acc.get(_KEEP_KEY[v_state], 0.0)
+            ft[_KEEP_KEY[v_state]] = (ft.get(_KEEP_KEY[v_state], 0.0)
                                             + float(fpresent[a0:b0].sum() * dt))
             stretches.append({"file": str(path), "follower": i, "car": car,
                               "t_start": float(t[a0]), "t_end": float(t[b0 - 1]),
@@ -1296,9 +1393,16 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                 "t_file_start": float(t[0]), "t_start": float(t[a0]), "t_end": float(t[b0 - 1]),
                 "rows": [a0, b0 - 1], "cleaning": rnotes,
             }
+            fol["runs"].append(rid)
             runs.append(Run(run_id=rid, t=t[sl], a=acc_a, command_kind="acceleration",
                             command=None, v=vv, x=x, lead_x=lead_x, lead_v=lv, lead_a=la,
                             exo=exo, meta=meta))
+    for fol in followers:
+        if fol["file"] != str(path):
+            continue
+        for k, v in fol["time_s"].items():
+            time_acc[k] = time_acc.get(k, 0.0) + v
+        fol["time_s"] = {k: round(v, 3) for k, v in fol["time_s"].items()}
     return runs
 
 
@@ -1311,7 +1415,9 @@ def _solo_run(nf: NativeFile, rid_stem: str, i: int, sig: dict[int, dict[str, np
     """A follower without a recorded predecessor (``require_predecessor=False``):
     its own trajectory only, the longest stretch with speed and position."""
     f = sig[i]
-    ok = np.isfinite(f["speed"]) & np.isfinite(f["E"]) & np.isfinite(f["N"])
+    ok = np.isfinite(f["speed"])
+    if bool(f["has_pos"]):
+        ok &= np.isfinite(f["E"]) & np.isfinite(f["N"])
     st = [(a, b) for a, b in contiguous(ok) if b - a >= 2]
     if not st:
         return []
@@ -1320,7 +1426,7 @@ def _solo_run(nf: NativeFile, rid_stem: str, i: int, sig: dict[int, dict[str, np
         return []
     sl = slice(a0, b0)
     v = f["speed"][sl]
-    x = arc_length(f["E"][sl], f["N"][sl], v)
+    x = arc_length(f["E"][sl], f["N"][sl], v, dt=dt)
     exo = ({"grade": grade_from_altitude(x, f["alt"][sl], grade_window)}
            if grade and str(f["alt_src"]) else {})
     state, _ = _acc_state(nf, i)
@@ -1397,8 +1503,10 @@ def openacc_native_report(
     ``short_acc``, ``short_human``, ``short_unknown`` (stretches shorter than
     ``min_duration``, by ACC state), ``not_following``, ``inconsistent``, ``repair_inconsistent``,
     ``spacing_below_min``, ``no_predecessor``, ``no_spacing`` dropped; per file in
-    ``time_s_by_file``) and ``accel_cutoff`` (per file: the cut-off and how it was
-    chosen).
+    ``time_s_by_file``), ``followers`` (per file and follower: ``car``,
+    ``lead_car``, ``setting``, ``setting_rank``, ``setting_resolved``, ``acc_header``,
+    ``acc_source``, ``time_s`` by outcome as above, ``runs``: the run ids) and
+    ``accel_cutoff`` (per file: the cut-off and how it was chosen).
 
     Filters (each a value or a list; a run is kept when it matches every filter
     given): ``setting`` (any documented spelling, matched against the raw setting
@@ -1469,6 +1577,7 @@ def openacc_native_report(
     skipped: list[_Skip] = []
     foreign: list[str] = []
     stretches: list[dict[str, Any]] = []
+    followers: list[dict[str, Any]] = []
     time_all: dict[str, float] = {}
     by_file: dict[str, dict[str, float]] = {}
     cutoffs: dict[str, Any] = {}
@@ -1487,7 +1596,8 @@ def openacc_native_report(
                                min_duration=min_duration, accel_cutoff=accel_cutoff,
                                grade=grade, grade_window=grade_window,
                                require_predecessor=require_predecessor, skipped=skipped,
-                               camp=camp, stretches=stretches, time_acc=tf, file_info=info)
+                               camp=camp, stretches=stretches, time_acc=tf, file_info=info,
+                               followers=followers)
         by_file[str(f)] = {k: round(v, 3) for k, v in tf.items()}
         cutoffs[str(f)] = info
         for k, v in tf.items():
@@ -1495,7 +1605,7 @@ def openacc_native_report(
     report: dict[str, Any] = {"files": [str(f) for f in files if str(f) not in foreign],
                               "not_native": foreign, "non_data": non_data,
                               "skipped": [vars(s) for s in skipped],
-                              "stretches": stretches,
+                              "stretches": stretches, "followers": followers,
                               "time_s": {k: round(v, 3) for k, v in time_all.items()},
                               "time_s_by_file": by_file, "accel_cutoff": cutoffs}
     total = len(runs)
