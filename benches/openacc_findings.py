@@ -83,6 +83,18 @@ def main() -> None:
         "folder. Method: see {mod}`avll.studies.openacc` and the loader "
         "{mod}`avll.io.openacc_native`.",
         "",
+        'The study runs on any OpenACC campaign as the JRC distributes it (`avll study '
+        'openacc PATH` on a data file, a campaign folder, or a folder of several campaigns). '
+        "The setting order is checked within each campaign, in the campaign's own order of "
+        "its settings (the loader's `setting_rank`), and reported per car model and campaign;"
+        ' human-driven runs are calibrated as a control and never counted as ACC; runs of '
+        'unknown ACC state are left out and counted unless `--acc-unknown include`; a run too'
+        ' short for the band or for the block bootstrap gets no value or no interval (`null` '
+        "with a `_reason`). The report's *Cars* section lists per campaign and car model the "
+        'raw settings and their order, the ACC state of the runs studied, and the stretches '
+        'studied and left out with the reasons. The output folder is written as a whole with '
+        'its manifest.',
+        "",
         "## Sensitivity of the setting order to the box of Gmin",
         "",
         f"With Gmin in [0, {GMIN_MAX:g}] m (the study's default) the calibrated Tg follows "

@@ -304,15 +304,21 @@ def amplification_per_car(cars: Sequence[Mapping[str, Any]], models: Sequence[st
     axes[1].sharey(axes[0])
     meas = [c for c in cars if c["amplification_measured"] is not None]
     if meas:
-        xs = np.array([c["amplification_measured"] for c in meas])
-        lo = np.array([c["amplification_measured_ci"][0] for c in meas])
-        hi = np.array([c["amplification_measured_ci"][1] for c in meas])
+        xs = np.array([c["amplification_measured"] for c in meas], dtype=float)
+        ci = [c.get("amplification_measured_ci") or [None, None] for c in meas]
+        lo = np.array([np.nan if a is None else a for a, _ in ci], dtype=float)
+        hi = np.array([np.nan if b is None else b for _, b in ci], dtype=float)
+        # a percentile interval need not contain the estimate: bars never negative
+        xerr = np.array([np.clip(xs - lo, 0.0, None), np.clip(hi - xs, 0.0, None)])
+        xerr[:, ~(np.isfinite(lo) & np.isfinite(hi))] = 0.0
         ys_all = [c["models"][m][k] for c in meas for m in models
                   for k in ("amplification_H", "amplification_replay")
                   if c["models"][m][k] is not None]
         top = max(2.5, 1.15 * max([float(np.max(xs)), *ys_all]))
-        bottom = 0.8 * min([0.5, float(np.min(lo)), *[y for y in ys_all if y > 0]])
-        hum = np.array([not c["acc"] for c in meas])
+        low = [float(v) for v in (*lo, *xs) if np.isfinite(v) and v > 0]
+        bottom = 0.8 * min([0.5, *low, *[y for y in ys_all if y > 0]])
+        hum = np.array([c.get("group", "acc" if c["acc"] else "human") == "human"
+                        for c in meas], dtype=bool)
         for ax, key, title in ((axes[0], "amplification_H", "predicted from |H(jω)|"),
                                (axes[1], "amplification_replay", "predicted by replay")):
             grid = np.array([bottom, top])
@@ -323,7 +329,7 @@ def amplification_per_car(cars: Sequence[Mapping[str, Any]], models: Sequence[st
             for k, m in enumerate(models):
                 ys = np.array([c["models"][m][key] if c["models"][m][key] is not None
                                else np.nan for c in meas])
-                ax.errorbar(xs[~hum], ys[~hum], xerr=[xs[~hum] - lo[~hum], hi[~hum] - xs[~hum]],
+                ax.errorbar(xs[~hum], ys[~hum], xerr=xerr[:, ~hum],
                             fmt="o", ms=4, lw=0.6, color=model_color(m, k),
                             label=model_label(m), alpha=0.8)
                 if hum.any():
@@ -345,19 +351,39 @@ _SETTINGS = {"L": ("tab:red", "o", -0.2, "long"), "M": ("tab:green", "s", 0.0, "
 
 def time_gap_per_car(cars: Sequence[Mapping[str, Any]], model: str) -> Figure:
     """The calibrated time gap ``Tg`` of ``model`` per car and ACC setting (the
-    OpenACC study's ``cars`` entries); cars without a finite ``Tg`` are left out."""
+    OpenACC study's ``cars`` entries); cars without a finite ``Tg`` are left out. With
+    several campaigns a car model has one column per campaign; settings other than
+    L/M/S (e.g. ``min``, ``shortest``) get a colour each, placed by their order
+    (``setting_rank``) within the column."""
     fig, axes = _new(1, 1, (11.0, 4.5))
     ax = axes[0][0]
-    names = sorted({c["car"] for c in cars})
+    multi = len({c.get("campaign", "") for c in cars}) > 1
+
+    def col_name(c: Mapping[str, Any]) -> str:
+        return f"{c['car']} ({c.get('campaign', '')})" if multi else str(c["car"])
+
+    names = sorted({col_name(c) for c in cars})
     pos = {n: i for i, n in enumerate(names)}
+    others = sorted({str(c["setting"]) for c in cars if c["setting"] not in _SETTINGS})
+    palette = ("tab:purple", "tab:orange", "tab:brown", "tab:pink", "tab:olive", "tab:cyan")
     seen = set()
     for c in cars:
-        col, mk, off, lab = _SETTINGS.get(c["setting"] if c["acc"] else None, _SETTINGS[None])
-        if c["folder"].lower() == "mixed" and c["acc"]:
+        acc = c.get("group", "acc" if c["acc"] else "human") == "acc"
+        st = c["setting"] if acc else None
+        if acc and st is None:
+            col, mk, off, lab = "0.4", "+", 0.0, "ACC, setting not given"
+        elif st in _SETTINGS:
+            col, mk, off, lab = _SETTINGS[st]
+        else:
+            rank = c.get("setting_rank")
+            col = palette[others.index(str(st)) % len(palette)]
+            off = 0.2 - 0.15 * rank if isinstance(rank, int) else 0.0
+            mk, lab = "v", f"{st}" + (f" (order {rank})" if isinstance(rank, int) else "")
+        if str(c.get("folder", "")).lower() == "mixed" and acc:
             mk, lab = "D", f"{lab} (folder 'mixed')"
         if c["Tg"] is None:
             continue
-        ax.plot(pos[c["car"]] + off, c["Tg"], mk, color=col, ms=6, mfc="none",
+        ax.plot(pos[col_name(c)] + off, c["Tg"], mk, color=col, ms=6, mfc="none",
                 label=None if lab in seen else lab)
         seen.add(lab)
     ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize="small")

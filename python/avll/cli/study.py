@@ -51,31 +51,40 @@ def _openacc(args: argparse.Namespace) -> int:
                        threads=args.threads, progress=args.progress, log=log,
                        max_generations=args.max_generations, pop_size=args.pop_size,
                        starts=args.starts, band=band, n_boot=args.bootstrap,
-                       gmin_max=args.gmin_max, **load)  # fmt: skip
+                       gmin_max=args.gmin_max, acc_unknown=args.acc_unknown,
+                       **load)  # fmt: skip
     log(f"writing {args.out}" + (f" and {args.json}" if args.json else ""))
     st.save(args.out, args.json)
-    so = st.summary["setting_order"]
-    best = st.summary["model_comparison"]["best"]
-    print(f"{len(st.summary['cars'])} cars; setting order held {so['held']} of "
-          f"{so['checked']}; best amplification predictor: |H| {best['amplification_H']}, "
-          f"replay {best['amplification_replay']}; wrote {args.out}")
+    s = st.summary
+    so = s["setting_order"]
+    best = s["model_comparison"]["best"]
+    camps = "; ".join(f"{k} {v['held']} of {v['checked']}" for k, v in so["campaigns"].items())
+    print(f"{len(s['cars'])} runs of {len({(c['campaign'], c['car']) for c in s['cars']})} "
+          f"cars in {len(s['campaigns'])} campaign(s) ({len(s['left_out'])} left out); "
+          f"setting order held {so['held']} of {so['checked']}"
+          + (f" ({camps})" if len(so["campaigns"]) > 1 else "")
+          + f"; best amplification predictor: |H| {best['amplification_H'] or 'none'}, "
+          f"replay {best['amplification_replay'] or 'none'}; wrote {args.out}")
     return 0
 
 
 def register_openacc(sub: argparse._SubParsersAction) -> None:
     """Registers ``avll study openacc``."""
-    from ..studies.openacc import DEFAULT_BAND, GMIN_MAX, N_BOOT
+    from ..studies.openacc import ACC_UNKNOWN, DEFAULT_BAND, GMIN_MAX, N_BOOT
 
     p = sub.add_parser(
         "openacc", help="native OpenACC files: closed-loop calibration per car, Tg vs the "
         "ACC setting, measured vs predicted string stability",
-        description="Calibrate every follower of native OpenACC files (e.g. ZalaZone) in "
+        description="Calibrate every follower of native OpenACC files (a file, a campaign "
+        "folder as the JRC distributes it, or a folder of several campaigns) in "
         "closed loop behind its measured predecessor, check the calibrated time gap "
         "against the known ACC setting, and compare the measured amplification of the "
         "predecessor's speed oscillations with what the calibrated models predict. Writes "
-        "tables (CSV), figures (PNG), report.md and summary.json into --out.")
+        "tables (CSV), figures (PNG), report.md and summary.json into --out, as a whole "
+        "with a manifest (an interrupted run leaves the old folder).")
     p.add_argument("path", metavar="PATH",
-                   help="a native OpenACC file or a folder of them (required)")
+                   help="a native OpenACC data file, a campaign folder as distributed, or "
+                   "a folder of several campaigns (required)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder (required; no default)")
     add_json(p, "the summary (also written to DIR/summary.json)")
@@ -93,8 +102,13 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
                    help=f"bootstrap resamples (default: {N_BOOT})")
     p.add_argument("--gmin-max", type=float, default=GMIN_MAX,
                    help=f"upper bound of Gmin in m (default: {GMIN_MAX:g})")
+    p.add_argument("--acc-unknown", choices=ACC_UNKNOWN, default="exclude",
+                   help="runs whose ACC state the file does not give: left out and counted "
+                   "(exclude, the default) or studied as ACC (include); human-driven runs "
+                   "are always a separate control")
     p.add_argument("--setting", default=None,
-                   help="keep these ACC settings, e.g. L,S or none (default: all)")
+                   help="keep these ACC settings, in the spellings of the campaigns' "
+                   "notes, e.g. L,S or min (none: runs without a setting; default: all)")
     p.add_argument("--car", default=None,
                    help="keep these car models, comma-separated (default: all)")
     p.add_argument("--track", default=None,

@@ -17,12 +17,16 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    ``[0, 30]`` m lets the search trade the time gap for standstill distances no
    commercial ACC uses (2–5 m bumper to bumper); the sensitivity to this choice is
    reported by running the study with ``gmin_max=30``.
-2. **Setting order.** The calibrated ``Tg`` per car model and ACC setting
-   (median over files); for every car model seen under two settings, each pair of
-   settings is one check, held when the longer setting has the larger ``Tg``
-   (:func:`setting_order`). Files in a folder named ``mixed`` are left out of the
-   check (their header says one setting, their folder says the cars' settings
-   were mixed); files without ACC are the human control. The same check is made
+2. **Setting order.** The calibrated ``Tg`` per campaign, car model and ACC
+   setting (median over runs); for every car model seen under two settings of the
+   same campaign, each pair of settings is one check, held when the longer setting
+   has the larger ``Tg`` (:func:`setting_order`). "Longer" is the campaign's own
+   order of its settings (the run meta's ``setting_rank``: ``L``/``M``/``S``,
+   ``min``/``shortest``/``second shortest``, ``SL`` resolved per car, as the
+   loader reads the campaign's notes); settings of different campaigns are never
+   compared; the result is reported per car model and per campaign. Runs in a
+   folder named ``mixed`` are left out of the check (their header says one
+   setting, their folder says the cars' settings were mixed). The same check is made
    on two identifiable quantities: the effective time gap of the calibrated law at
    the run's mean speed, ``Tg + Gmin / v̄``, and the measured time headway (median
    of gap / speed while faster than 3 m/s), which needs no model.
@@ -47,11 +51,27 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    behind the measured predecessor (:func:`avll.closed_loop`), its speed through
    the same band-pass and ratio. The error of a prediction is
    ``predicted / measured - 1``; the goal is within 10 %.
+   Runs of any length: a run whose record, after the trim, is shorter than one
+   period of the band's low edge (50 s) gets no measured or predicted
+   amplification; one shorter than :data:`MIN_BLOCKS` bootstrap blocks gets no
+   interval (each ``null`` with a ``_reason``: a block bootstrap over one or two
+   blocks only rotates the record and its interval collapses).
+
+**ACC state** (the run meta's ``acc``): runs under ACC are the study's cars;
+human-driven runs (``acc`` False) are calibrated with the same closed-loop
+structure and reported as a **control**, never counted as ACC (not in the ACC
+comparisons nor in the setting-order check); runs of unknown state (``acc`` None)
+are left out and counted (``acc_unknown="exclude"``, the default) or studied as
+ACC (``"include"``). The summary's ``car_overview`` gives, per campaign and car
+model, the raw settings and their order, the ACC state of the runs studied, and
+the stretches studied and left out with the reasons (the loader's report's
+dropped stretches and the study's own exclusions).
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -88,7 +108,11 @@ __all__ = [
     "transfer_gain",
     "predicted_amplification",
     "replay_amplification",
+    "measured_amplification",
+    "run_meta",
     "setting_order",
+    "MIN_BLOCKS",
+    "ACC_UNKNOWN",
 ]
 
 #: Objective weights (wa, wv, wx) of the closed-loop calibration.
@@ -107,8 +131,13 @@ MIN_EXCITATION = 0.05
 GMIN_MAX = 10.0
 #: The measured time headway uses the samples faster than this (m/s).
 HEADWAY_MIN_SPEED = 3.0
-#: Placeholder upper law of the runs (every gain is calibrated).
-_RANK = {"L": 0, "M": 1, "S": 2}
+#: The block bootstrap needs at least this many blocks in the trimmed record.
+MIN_BLOCKS = 3
+#: ``--acc-unknown`` choices: stretches of unknown ACC state left out or taken as ACC.
+ACC_UNKNOWN = ("exclude", "include")
+#: Fallback order of the settings (larger = longer time gap) for runs whose meta has
+#: no ``setting_rank`` (runs of a loader that does not rank the campaign's settings).
+_RANK = {"S": 0, "M": 1, "L": 2}
 
 
 # ---------------------------------------------------------------------------
@@ -222,40 +251,74 @@ def replay_amplification(model: LowerLevelModel, upper: UpperLevel, run: Run,
 # ---------------------------------------------------------------------------
 
 
-def setting_order(rows: Iterable[Mapping[str, Any]], key: str = "Tg") -> dict[str, Any]:
-    """Checks that ``key`` follows the ACC setting (long > medium > short) per car.
+def _rank_of(r: Mapping[str, Any]) -> int | None:
+    """The order of a row's setting: its ``setting_rank`` when given, else the
+    fallback L > M > S; None when neither applies."""
+    if "setting_rank" in r:
+        rank = r["setting_rank"]
+        ok = isinstance(rank, (int, np.integer)) and not isinstance(rank, bool)
+        return int(rank) if ok else None
+    st = r.get("setting")
+    return _RANK.get(st) if isinstance(st, str) else None
 
-    ``rows``: dicts with ``car``, ``setting`` (``"L"``, ``"M"``, ``"S"``; others are
-    ignored) and ``key`` (non-finite values are ignored). Per car model the median
-    of ``key`` per setting; every pair of settings seen for the car is one check,
-    held when the longer setting's median is larger. Returns ``{"checked",
-    "held", "checks": [{"car", "longer", "shorter", "value_longer",
-    "value_shorter", "n_longer", "n_shorter", "held"}], "file_pairs_checked",
-    "file_pairs_held"}`` (the last two compare every file of the longer setting with
-    every file of the shorter one, per car).
+
+def setting_order(rows: Iterable[Mapping[str, Any]], key: str = "Tg") -> dict[str, Any]:
+    """Checks that ``key`` follows the ACC setting (the longer setting, the larger
+    ``key``) per campaign and car model.
+
+    ``rows``: dicts with ``car``, ``setting`` (raw, as in the file), ``key``
+    (non-finite values are ignored) and optionally ``setting_rank`` (the setting's
+    order within its campaign, larger = longer time gap; without it ``L`` > ``M`` >
+    ``S`` and other settings are ignored) and ``campaign`` (settings of different
+    campaigns are never compared; default one campaign). Rows whose setting is
+    ``None`` or has no order are ignored. Per campaign and car model the median of
+    ``key`` per setting rank (raw settings of the same rank are pooled, e.g. a
+    campaign's ``SL`` resolved to its long setting); every pair of ranks seen for
+    the car is one check, held when the longer setting's median is larger.
+
+    Returns ``{"checked", "held", "checks": [{"campaign", "car", "longer",
+    "shorter", "rank_longer", "rank_shorter", "value_longer", "value_shorter",
+    "n_longer", "n_shorter", "held"}], "per_car": [{"campaign", "car", "settings",
+    "checked", "held"}], "file_pairs_checked", "file_pairs_held"}`` (the last two
+    compare every run of the longer setting with every run of the shorter one, per
+    campaign and car).
     """
-    by: dict[str, dict[str, list[float]]] = {}
+    by: dict[tuple[str, str], dict[int, list[float]]] = {}
+    names: dict[tuple[str, str], dict[int, set[str]]] = {}
     for r in rows:
         st, val = r.get("setting"), r.get(key)
-        if st not in _RANK or val is None or not math.isfinite(float(val)):
+        rank = _rank_of(r)
+        if st is None or rank is None or val is None or not math.isfinite(float(val)):
             continue
-        by.setdefault(str(r["car"]), {}).setdefault(st, []).append(float(val))
+        k = (str(r.get("campaign") or ""), str(r["car"]))
+        by.setdefault(k, {}).setdefault(rank, []).append(float(val))
+        names.setdefault(k, {}).setdefault(rank, set()).add(str(st))
     checks = []
+    per_car = []
     pairs = held_pairs = 0
-    for car in sorted(by):
-        sets = sorted(by[car], key=lambda s: _RANK[s])
-        for i, a in enumerate(sets):
-            for b in sets[i + 1:]:
-                va, vb = float(np.median(by[car][a])), float(np.median(by[car][b]))
-                checks.append({"car": car, "longer": a, "shorter": b, "value_longer": va,
-                               "value_shorter": vb, "n_longer": len(by[car][a]),
-                               "n_shorter": len(by[car][b]), "held": bool(va > vb)})
-                for x in by[car][a]:
-                    for y in by[car][b]:
+    for k in sorted(by):
+        camp, car = k
+        ranks = sorted(by[k], reverse=True)
+        lab = {rk: "/".join(sorted(names[k][rk])) for rk in ranks}
+        mine: list[dict[str, Any]] = []
+        for i, a in enumerate(ranks):
+            for b in ranks[i + 1:]:
+                va, vb = float(np.median(by[k][a])), float(np.median(by[k][b]))
+                mine.append({"campaign": camp, "car": car, "longer": lab[a], "shorter": lab[b],
+                             "rank_longer": a, "rank_shorter": b, "value_longer": va,
+                             "value_shorter": vb, "n_longer": len(by[k][a]),
+                             "n_shorter": len(by[k][b]), "held": bool(va > vb)})
+                for x in by[k][a]:
+                    for y in by[k][b]:
                         pairs += 1
                         held_pairs += int(x > y)
+        checks += mine
+        per_car.append({"campaign": camp, "car": car,
+                        "settings": [{"setting": lab[rk], "rank": rk, "n": len(by[k][rk]),
+                                      "median": float(np.median(by[k][rk]))} for rk in ranks],
+                        "checked": len(mine), "held": sum(c["held"] for c in mine)})
     return {"checked": len(checks), "held": sum(c["held"] for c in checks), "checks": checks,
-            "file_pairs_checked": pairs, "file_pairs_held": held_pairs}
+            "per_car": per_car, "file_pairs_checked": pairs, "file_pairs_held": held_pairs}
 
 
 # ---------------------------------------------------------------------------
@@ -286,20 +349,39 @@ class OpenACCStudy:
 
     def save(self, out: str | Path, json_path: str | Path | None = None) -> list[Path]:
         """Writes the tables (CSV), figures (PNG), ``report.md`` and ``summary.json``
-        (strict JSON: a non-finite number is ``null`` with a note) into ``out`` (and
-        the JSON to ``json_path`` when given), each atomically (:mod:`avll._atomic`).
-        Returns the paths written."""
+        (strict JSON: a non-finite number is ``null`` with a note) into ``out`` as a
+        whole: everything is written into a hidden staging folder and committed with
+        its manifest written last (:func:`avll._atomic.output_dir`); the JSON copy at
+        ``json_path`` (when given) is committed in the same step. Ctrl-C at any
+        instant leaves the old folder (and JSON) or the complete new ones. Returns
+        the paths written."""
+        import contextlib
+
         d = Path(out)
-        d.mkdir(parents=True, exist_ok=True)
-        paths = [_atomic.to_csv(t, d / f"{k}.csv", float_format="%.6g")
-                 for k, t in self.tables.items()]
-        paths += [_atomic.savefig(fig, d / f"{k}.png", dpi=90) for k, fig in self.figures.items()]
         text = _atomic.dumps(self.summary, indent=1) + "\n"
-        paths.append(_atomic.write_text(d / "report.md", self.report))
-        paths.append(_atomic.write_text(d / "summary.json", text))
-        if json_path is not None:
-            paths.append(_atomic.write_text(Path(json_path), text))
-        return paths
+        names = [*(f"{k}.csv" for k in self.tables), *(f"{k}.png" for k in self.figures),
+                 "report.md", "summary.json"]
+        stack = contextlib.ExitStack()
+        try:
+            jtmp = stack.enter_context(_atomic.atomic_path(json_path)) if json_path else None
+            stage = stack.enter_context(_atomic.output_dir(
+                d, meta={"command": "avll study openacc", "data": self.summary.get("data")}))
+            for k, t in self.tables.items():
+                t.to_csv(stage / f"{k}.csv", float_format="%.6g")
+            for k, fig in self.figures.items():
+                fig.savefig(stage / f"{k}.png", dpi=90)
+            (stage / "report.md").write_text(self.report, encoding="utf-8")
+            (stage / "summary.json").write_text(text, encoding="utf-8")
+            if jtmp is not None:
+                jtmp.write_text(text, encoding="utf-8")
+        except BaseException:
+            stack.__exit__(*sys.exc_info())
+            raise
+        # the folder's commit (manifest last), then the JSON's rename, with Ctrl-C
+        # held back until both are done
+        with _atomic.deferred_sigint():
+            stack.close()
+        return [d / n for n in names] + ([Path(json_path)] if json_path else [])
 
 
 def _upper_of(params: Mapping[str, float]) -> UpperLevel:
@@ -319,17 +401,122 @@ def _headway(run: Run) -> float:
     return float(np.median((run.lead_x - run.x)[m] / run.v[m]))
 
 
-def _setting_group(run: Run) -> str | None:
-    """The setting used by the setting-order check (None: excluded)."""
-    if not run.meta.get("acc"):
-        return None
-    if str(run.meta.get("folder", "")).lower() == "mixed":
-        return None
-    return run.meta.get("setting")
+_NOTES_CACHE: dict[Path, Path | None] = {}
+
+
+def _campaign_root(file: Path) -> Path | None:
+    """The nearest folder above ``file`` (up to four levels) holding a campaign's
+    notes (``*notes*.txt``), as the JRC distributes every campaign; None if none."""
+    d = file.parent
+    for _ in range(5):
+        if d not in _NOTES_CACHE:
+            try:
+                has = any(bool(f.is_file() and "notes" in f.name.lower()
+                               and f.suffix.lower() == ".txt") for f in d.iterdir())
+                _NOTES_CACHE[d] = d if has else None
+            except OSError:
+                _NOTES_CACHE[d] = None
+        if _NOTES_CACHE[d] is not None:
+            return d
+        if d.parent == d:
+            break
+        d = d.parent
+    return None
+
+
+def _acc_of(v: Any) -> bool | None:
+    if v is None or isinstance(v, bool):
+        return v
+    if isinstance(v, (int, np.integer)) and int(v) in (0, 1):
+        return bool(v)
+    return None
+
+
+def run_meta(run: Run, root: str | Path | None = None) -> dict[str, Any]:
+    """The study's view of a run's ``meta``: ``file``, ``car``, ``setting`` (raw),
+    ``setting_rank``, ``acc`` (True / False / None), ``campaign``, ``position``,
+    ``track``, ``folder``, ``lead_car``, ``vehicle_index``, ``lead_index``.
+
+    The keys of the native OpenACC loader's contract are used as given. Fallbacks
+    for runs that lack them (e.g. canonical runs, or an older loader): ``file`` the
+    run id; ``car`` the run id; ``setting`` the raw ``setting_in_file`` when there
+    is one; ``setting_rank`` L > M > S (2, 1, 0), None for other settings;
+    ``acc`` None (unknown) when the meta does not say; ``campaign`` the meta's
+    ``campaign``, else the nearest folder above the file holding the campaign's
+    notes (``*notes*.txt``), else ``root``'s name."""
+    m = run.meta or {}
+    file = str(m.get("file") or run.run_id)
+    setting = m["setting_in_file"] if "setting_in_file" in m else m.get("setting")
+    if "setting_rank" in m:
+        setting = m.get("setting")
+    setting = None if setting is None or str(setting).strip() == "" else str(setting)
+    if "setting_rank" in m:
+        rank = m["setting_rank"]
+        rank = int(rank) if isinstance(rank, (int, np.integer)) and not isinstance(
+            rank, bool) else None
+    else:
+        rank = _RANK.get(setting) if setting is not None else None
+    camp = m.get("campaign")
+    if not camp:
+        cr = _campaign_root(Path(file)) if "file" in m else None
+        if cr is not None:
+            camp = cr.name
+        elif root is not None:
+            rp = Path(root)
+            camp = rp.parent.name if rp.is_file() else rp.name
+        else:
+            camp = ""
+    vi = m.get("vehicle_index")
+    pos = m.get("position", vi - 1 if isinstance(vi, int) else None)
+    return {"file": file, "car": str(m.get("car") or run.run_id), "setting": setting,
+            "setting_rank": rank, "acc": _acc_of(m.get("acc")), "campaign": str(camp),
+            "position": int(pos) if isinstance(pos, (int, np.integer)) else None,
+            "track": m.get("track"), "folder": str(m.get("folder") or Path(file).parent.name),
+            "lead_car": m.get("lead_car"), "vehicle_index": vi,
+            "lead_index": m.get("lead_index")}
+
+
+def _acc_label(acc: bool | None) -> str:
+    return {True: "ACC", False: "human", None: "unknown"}[acc]
+
+
+def _load(path: str | Path, load_options: Mapping[str, Any]
+          ) -> tuple[list[Run], dict[str, Any]]:
+    """The runs and the loader's report (:func:`~avll.io.openacc_native.openacc_native_report`)."""
+    from ..io import openacc_native
+
+    rep = getattr(openacc_native, "openacc_native_report", None)
+    if rep is not None:
+        runs, report = rep(path, **load_options)
+        return list(runs), dict(report or {})
+    from ..io import read_runs  # pragma: no cover - a loader without its report
+
+    return read_runs(path, format="openacc", **load_options), {}  # pragma: no cover
+
+
+def _loader_dropped(report: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The stretches the loader dropped, with its reasons: the entries of the
+    report's ``stretches`` not marked kept, and of ``dropped`` / ``skipped``, each
+    as ``{"file", "car", "reason", "seconds"}`` (``seconds`` None when not said)."""
+    out = []
+    # the report's stretches, when it has them, hold every dropped stretch (its
+    # "skipped" repeats them per follower); else its "dropped" / "skipped" entries
+    keys = ("stretches",) if report.get("stretches") is not None else ("dropped", "skipped")
+    for key in keys:
+        for e in report.get(key) or []:
+            if not isinstance(e, Mapping):
+                continue
+            if key == "stretches" and (e.get("kept") is True or e.get("status") == "kept"):
+                continue
+            sec = e.get("seconds", e.get("duration_s", e.get("duration")))
+            out.append({"file": str(e.get("file", "")), "car": str(e.get("car", "")),
+                        "reason": str(e.get("reason", "dropped by the loader")),
+                        "seconds": _fin(sec), "by": "loader"})
+    return out
 
 
 def openacc_study(
-    path: str | Path,
+    path: str | Path | Sequence[Run],
     *,
     model: str = "proposed",
     models: Sequence[str] = _MODELS,
@@ -344,41 +531,85 @@ def openacc_study(
     n_boot: int = N_BOOT,
     block: float = BLOCK,
     gmin_max: float = GMIN_MAX,
+    acc_unknown: str = "exclude",
     figures: bool = True,
     **load_options: Any,
 ) -> OpenACCStudy:
     """Runs the study (see the module doc) on native OpenACC data at ``path`` (a
-    file or a folder); ``model`` is the lower-level model of the contract's
+    file, a campaign folder as distributed, or a folder of several campaigns), or
+    on runs already loaded (a sequence of :class:`~avll.data.Run`; their ``meta``
+    read by :func:`run_meta`). ``model`` is the lower-level model of the contract's
     ``params``, ``Tg`` and ``amplification_predicted``; ``models`` are compared
     (``model`` is added if missing). ``max_generations``, ``pop_size`` and
     ``starts`` set the GA budget (the defaults are the GA's full budget with two
     independent starts per car); ``load_options`` go to the loader (``setting``,
-    ``car``, ``track``, ...). Ctrl-C raises ``KeyboardInterrupt`` (no partial
-    result). ``log`` receives progress lines."""
-    from ..io.openacc_native import openacc_native_report
+    ``car``, ``track``, ...).
 
+    ACC state (``meta["acc"]``): runs under ACC (True) are the study's cars; human
+    runs (False) are calibrated with the same closed-loop structure and reported
+    as a **control** (never counted as ACC: not in the ACC comparisons nor in the
+    setting-order check); runs of unknown state (None) are left out and counted
+    with ``acc_unknown="exclude"`` (default) or treated as ACC with
+    ``"include"``. Ctrl-C raises ``KeyboardInterrupt`` (no partial result).
+    ``log`` receives progress lines."""
     say = log or (lambda s: None)
     t0 = time.perf_counter()
     model_class(model)
     models = list(dict.fromkeys([model, *models]))
     for m in models:
         model_class(m)
+    if acc_unknown not in ACC_UNKNOWN:
+        raise ValueError(f"acc_unknown: must be one of {', '.join(ACC_UNKNOWN)}, got "
+                         f"{acc_unknown!r}")
     if not (isinstance(gmin_max, (int, float)) and gmin_max > 0 and math.isfinite(gmin_max)):
         raise ValueError(f"gmin_max: must be a finite number > 0, got {gmin_max!r}")
     if int(n_boot) < 100:
         raise ValueError(f"n_boot: must be >= 100, got {n_boot!r}")
     if not (block > 0):
         raise ValueError(f"block: must be > 0 s, got {block!r}")
-    say(f"loading {path}")
-    runs, load_report = openacc_native_report(path, **load_options)
-    runs = [r for r in runs if r.lead_x is not None]
+    root: str | Path | None
+    if isinstance(path, (str, Path)):
+        say(f"loading {path}")
+        loaded, load_report = _load(path, load_options)
+        root, data = path, str(path)
+    else:
+        if load_options:
+            raise ValueError(f"{', '.join(load_options)}: loader options need a path, not "
+                             "runs")
+        loaded, load_report, root = list(path), {}, None
+        data = f"{len(loaded)} runs given"
+        if not all(isinstance(r, Run) for r in loaded):
+            raise TypeError("path: expected a file, a folder or a sequence of avll.Run")
+    runs: list[Run] = []
+    metas: list[dict[str, Any]] = []
+    left_out: list[dict[str, Any]] = []
+    for r in loaded:
+        rm = run_meta(r, root)
+        why = None
+        if r.lead_x is None or r.lead_v is None or r.v is None or r.x is None:
+            why = "no recorded predecessor (lead_x, lead_v) or no own speed and position"
+        elif rm["acc"] is None and acc_unknown == "exclude":
+            why = "ACC state unknown (left out: --acc-unknown exclude)"
+        if why is not None:
+            left_out.append({"file": rm["file"], "car": rm["car"], "run_id": r.run_id,
+                             "campaign": rm["campaign"], "setting": rm["setting"],
+                             "seconds": round((len(r) - 1) * r.dt, 1), "reason": why,
+                             "by": "study"})
+            continue
+        runs.append(r)
+        metas.append(rm)
     if not runs:
-        raise ValueError(f"{path}: no follower with a recorded predecessor")
+        n_unk = sum("unknown" in e["reason"] for e in left_out)
+        raise ValueError(f"{data}: no run left to study: {len(loaded)} runs loaded, "
+                         f"{len(left_out)} left out ({n_unk} of unknown ACC state"
+                         + ("; --acc-unknown include would study them" if n_unk else "")
+                         + ")")
     for r in runs:
         _check_band(band, r.dt)
     runs = [replace(r, upper=UPPER_PLACEHOLDER) for r in runs]
-    say(f"{len(runs)} followers in {len({r.meta['file'] for r in runs})} files; "
-        f"{len(load_report['skipped'])} followers skipped")
+    dropped = _loader_dropped(load_report)
+    say(f"{len(runs)} runs in {len({m['file'] for m in metas})} files; {len(left_out)} runs "
+        f"left out by the study, {len(dropped)} stretches dropped by the loader")
     results: dict[str, list[Any]] = {}
     for k, m in enumerate(models):
         say(f"calibrating {m}: {len(runs)} cars in one parallel call "
@@ -393,16 +624,19 @@ def openacc_study(
         results[m] = res
     say("measuring and predicting the amplification")
     cars = []
-    for i, r in enumerate(runs):
-        cars.append(_car_entry(i, r, models, model, results, band, n_boot, block, seed))
-    acc_rows = [{"car": c["car"], "setting": c["_group"], "Tg": c["Tg"],
+    for i, (r, meta) in enumerate(zip(runs, metas, strict=True)):
+        cars.append(_car_entry(i, r, meta, models, model, results, band, n_boot, block, seed))
+    acc_rows = [{"campaign": c["campaign"], "car": c["car"],
+                 "setting": c["setting"] if c["_in_order"] else None,
+                 "setting_rank": c["setting_rank"], "Tg": c["Tg"],
                  "time_gap_effective": c["time_gap_effective"],
                  "headway_measured": c["headway_measured"]} for c in cars]
     order = setting_order(acc_rows, "Tg")
     order_eff = setting_order(acc_rows, "time_gap_effective")
     order_meas = setting_order(acc_rows, "headway_measured")
-    mixed_rows = [{"car": c["car"], "setting": c["setting"] if c["acc"] else None,
-                   "Tg": c["Tg"]} for c in cars]
+    mixed_rows = [{"campaign": c["campaign"], "car": c["car"],
+                   "setting": c["setting"] if c["_acc"] else None,
+                   "setting_rank": c["setting_rank"], "Tg": c["Tg"]} for c in cars]
     order_all = setting_order(mixed_rows, "Tg")
     for chk in order["checks"]:
         if not chk["held"]:
@@ -410,7 +644,7 @@ def openacc_study(
     comparison = _comparison(cars, models)
     summary: dict[str, Any] = {
         "study": "openacc",
-        "data": str(path),
+        "data": data,
         "model": model,
         "models": models,
         "seed": int(seed),
@@ -420,19 +654,26 @@ def openacc_study(
         "bounds": {"Gmin": [0.0, float(gmin_max)]},
         "band_hz": [float(band[0]), float(band[1])],
         "trim_s": TRIM, "bootstrap": {"n": int(n_boot), "block_s": float(block),
-                                      "level": 0.95},
+                                      "level": 0.95, "min_blocks": MIN_BLOCKS},
         "min_excitation_m_s": MIN_EXCITATION,
+        "acc_unknown": acc_unknown,
+        "campaigns": sorted({c["campaign"] for c in cars}),
         "cars": [_public(c) for c in cars],
-        "setting_order": {"checked": order["checked"], "held": order["held"],
-                          "checks": order["checks"],
-                          "file_pairs_checked": order["file_pairs_checked"],
-                          "file_pairs_held": order["file_pairs_held"],
-                          "excluded": "files in a folder named 'mixed' and files without ACC"},
+        "setting_order": {**order,
+                          "campaigns": _per_campaign(order),
+                          "excluded": "human runs (the control), runs in a folder named "
+                                      "'mixed', runs whose setting has no order"},
         "setting_order_effective_time_gap": _short(order_eff),
         "setting_order_measured_headway": _short(order_meas),
         "setting_order_with_mixed": _short(order_all),
         "model_comparison": comparison,
-        "skipped": load_report["skipped"],
+        "car_overview": _car_overview(cars, left_out, dropped),
+        "left_out": left_out,
+        "dropped_by_loader": dropped,
+        "skipped": load_report.get("skipped", []),
+        "non_data_files": [str(e.get("file", e)) if isinstance(e, Mapping) else str(e)
+                           for e in load_report.get("non_data") or []],
+        "loader_time_s": load_report.get("time_s"),
         "files": _files_summary(runs, cars),
         "name_check": _name_check(runs),
         "poor_fits": _poor_fits(runs, cars),
@@ -444,6 +685,49 @@ def openacc_study(
     return OpenACCStudy(summary, tables, figs, report, runs, results)
 
 
+def _per_campaign(order: Mapping[str, Any]) -> dict[str, dict[str, int]]:
+    out: dict[str, dict[str, int]] = {}
+    for c in order["checks"]:
+        d = out.setdefault(c["campaign"], {"checked": 0, "held": 0})
+        d["checked"] += 1
+        d["held"] += int(c["held"])
+    return out
+
+
+def _car_overview(cars: Sequence[Mapping[str, Any]], left_out: Sequence[Mapping[str, Any]],
+                  dropped: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Per campaign and car model: the raw settings and their order, the ACC state
+    of the runs studied, the runs (stretches) studied and those left out or dropped,
+    with the reasons."""
+    camp_of_file = {c["file"]: c["campaign"] for c in cars}
+    camp_of_file.update({e["file"]: e["campaign"] for e in left_out})
+    keys = ({(c["campaign"], c["car"]) for c in cars}
+            | {(e["campaign"], e["car"]) for e in left_out}
+            | {(camp_of_file.get(e["file"], ""), e["car"]) for e in dropped})
+    out = []
+    for camp, car in sorted(keys):
+        mine = [c for c in cars if (c["campaign"], c["car"]) == (camp, car)]
+        gone = [e for e in left_out if (e["campaign"], e["car"]) == (camp, car)]
+        gone += [e for e in dropped
+                 if (camp_of_file.get(e["file"], ""), e["car"]) == (camp, car)]
+        reasons: dict[str, int] = {}
+        for e in gone:
+            reasons[e["reason"]] = reasons.get(e["reason"], 0) + 1
+        settings = sorted({(c["setting"], c["setting_rank"]) for c in mine},
+                          key=lambda sr: (-1 if sr[1] is None else sr[1], str(sr[0])))
+        acc: dict[str, int] = {}
+        for c in mine:
+            acc[_acc_label(c["acc"])] = acc.get(_acc_label(c["acc"]), 0) + 1
+        out.append({"campaign": camp, "car": car,
+                    "settings": [{"setting": st, "setting_rank": rk} for st, rk in settings],
+                    "acc": acc, "runs_studied": len(mine),
+                    "seconds_studied": round(sum(c["duration_s"] for c in mine), 1),
+                    "runs_left_out": len(gone),
+                    "seconds_left_out": round(sum(e["seconds"] or 0.0 for e in gone), 1),
+                    "reasons_left_out": reasons})
+    return out
+
+
 def _name_check(runs: Sequence[Run]) -> dict[str, Any]:
     """Evidence that the vehicle numbers index ``Vehicle_order``: the constant
     ``distance − IVS`` of a pair of named cars, compared across the files where the
@@ -453,7 +737,7 @@ def _name_check(runs: Sequence[Run]) -> dict[str, Any]:
         off = r.meta.get("ivs_offset")
         if off is None:
             continue
-        key = f"{r.meta['lead_car']} -> {r.meta['car']}"
+        key = f"{r.meta.get('lead_car')} -> {r.meta.get('car')}"
         by.setdefault(key, []).append((Path(r.meta["file"]).stem, float(off)))
     pairs = {k: v for k, v in by.items() if len(v) > 1}
     consistent = [k for k, v in pairs.items() if np.ptp([o for _, o in v]) <= 0.05]
@@ -468,7 +752,7 @@ def _poor_fits(runs: Sequence[Run], cars: Sequence[Mapping[str, Any]]) -> list[d
     out = []
     for acc in (True, False):
         grp = [(r, c) for r, c in zip(runs, cars, strict=True)
-               if c["acc"] == acc and c["cal_mse"] is not None]
+               if c["_acc"] == acc and c["cal_mse"] is not None]
         if not grp:
             continue
         med = float(np.median([c["cal_mse"] for _, c in grp]))
@@ -489,37 +773,86 @@ def _short(o: Mapping[str, Any]) -> dict[str, Any]:
                               "file_pairs_held")}
 
 
-def _car_entry(i: int, r: Run, models: Sequence[str], main: str,
+def _short_record(n: int, dt: float, band: Sequence[float]) -> str | None:
+    """Why a record of ``n`` samples is too short for the band's measures (None if
+    it is not): after :data:`TRIM` seconds cut at each end it must hold one period
+    of the band's low edge."""
+    k = int(round(TRIM / dt))
+    m = n - 2 * k
+    need = max(int(math.ceil(1.0 / (float(band[0]) * dt))), 21)
+    if m >= need:
+        return None
+    return (f"the run is too short: {(n - 1) * dt:.1f} s, {max(m - 1, 0) * dt:.1f} s after cutting "
+            f"{TRIM:g} s at each end (filter edges), less than one period of the band's low "
+            f"edge ({1.0 / float(band[0]):g} s)")
+
+
+def measured_amplification(v: np.ndarray, lead_v: np.ndarray, dt: float, *,
+                           band: Sequence[float] = DEFAULT_BAND, block: float = BLOCK,
+                           n_boot: int = N_BOOT, seed: Any = 0) -> dict[str, Any]:
+    """The measured amplification with its bootstrap interval, for a record of any
+    length: ``{"amplification", "ci", "rms_follower", "rms_predecessor"}`` plus
+    ``amplification_reason`` / ``ci_reason`` where a value is None. No amplification
+    when the record is too short (:func:`_short_record`) or the predecessor does not
+    excite (:data:`MIN_EXCITATION`); no interval when the trimmed record holds fewer
+    than :data:`MIN_BLOCKS` blocks of ``block`` seconds (every resample would be
+    nearly the record itself) or the resamples' interval collapses."""
+    out: dict[str, Any] = {"amplification": None, "ci": [None, None],
+                           "rms_follower": None, "rms_predecessor": None}
+    short = _short_record(len(v), dt, band)
+    if short is not None:
+        out["amplification_reason"] = out["ci_reason"] = short
+        return out
+    bf, bp = bandpass(v, dt, band), bandpass(lead_v, dt, band)
+    rf, rp = _rms(bf), _rms(bp)
+    out["rms_follower"], out["rms_predecessor"] = _fin(rf), _fin(rp)
+    if not (rp >= MIN_EXCITATION):
+        out["amplification_reason"] = out["ci_reason"] = (
+            f"the predecessor does not excite: its band RMS speed is {rp:.3f} m/s < "
+            f"{MIN_EXCITATION:g} m/s (GNSS speed noise level)")
+        return out
+    out["amplification"] = _fin(rf / rp)
+    lb = max(1, int(round(block / dt)))
+    if bf.shape[0] < MIN_BLOCKS * lb:
+        out["ci_reason"] = (f"too short for the block bootstrap: {bf.shape[0] * dt:.1f} s "
+                            f"after the trim, fewer than {MIN_BLOCKS} blocks of {block:g} s")
+        return out
+    lo, hi = bootstrap_ci(bf, bp, dt, block=block, n=n_boot, seed=seed)
+    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+        out["ci_reason"] = f"the bootstrap interval collapsed ({lo:.6g}, {hi:.6g})"
+        return out
+    out["ci"] = [lo, hi]
+    return out
+
+
+def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], main: str,
                results: Mapping[str, list[Any]], band: Sequence[float], n_boot: int,
                block: float, seed: int) -> dict[str, Any]:
     assert r.v is not None and r.lead_v is not None
-    meta = r.meta
+    is_acc = meta["acc"] is not False
     e: dict[str, Any] = {
-        "file": meta["file"], "run_id": r.run_id, "car": meta["car"],
-        "setting": meta["setting"], "position": int(meta["position"]),
-        "acc": bool(meta["acc"]), "track": meta["track"], "folder": meta["folder"],
-        "lead_car": meta["lead_car"], "duration_s": round((len(r) - 1) * r.dt, 1),
+        "file": meta["file"], "run_id": r.run_id, "campaign": meta["campaign"],
+        "car": meta["car"], "setting": meta["setting"], "setting_rank": meta["setting_rank"],
+        "acc": meta["acc"], "group": "acc" if is_acc else "human",
+        "position": meta["position"], "track": meta["track"], "folder": meta["folder"],
+        "lead_car": meta["lead_car"], "vehicle_index": meta["vehicle_index"],
+        "lead_index": meta["lead_index"], "duration_s": round((len(r) - 1) * r.dt, 1),
         "speed_mean": float(np.mean(r.v)), "speed_std": float(np.std(r.v)),
-        "_group": _setting_group(r),
+        "_acc": is_acc,
+        "_in_order": bool(is_acc and meta["setting_rank"] is not None
+                          and str(meta["folder"]).lower() != "mixed"),
     }
     reasons: dict[str, str] = {}
-    amp, rf, rp = amplification(r.v, r.lead_v, r.dt, band)
-    e["rms_follower"], e["rms_predecessor"] = rf, rp
-    ci: list[float | None] = [None, None]
-    if rp < MIN_EXCITATION:
-        reasons["amplification_measured"] = (
-            f"the predecessor does not excite: its band RMS speed is {rp:.3f} m/s < "
-            f"{MIN_EXCITATION:g} m/s (GNSS speed noise level)")
-        amp = math.nan
-    else:
-        bf, bp = bandpass(r.v, r.dt, band), bandpass(r.lead_v, r.dt, band)
-        lo, hi = bootstrap_ci(bf, bp, r.dt, block=block, n=n_boot, seed=[int(seed), i])
-        ci = [lo, hi]
-    e["amplification_measured"] = _fin(amp)
-    e["amplification_measured_ci"] = ci
-    if ci[0] is None:
-        reasons["amplification_measured_ci"] = reasons.get(
-            "amplification_measured", "no measured amplification")
+    ma = measured_amplification(r.v, r.lead_v, r.dt, band=band, block=block, n_boot=n_boot,
+                                seed=[int(seed), i])
+    e["rms_follower"], e["rms_predecessor"] = ma["rms_follower"], ma["rms_predecessor"]
+    if "amplification_reason" in ma:
+        reasons["amplification_measured"] = ma["amplification_reason"]
+    e["amplification_measured"] = ma["amplification"]
+    e["amplification_measured_ci"] = ma["ci"]
+    if "ci_reason" in ma:
+        reasons["amplification_measured_ci"] = ma["ci_reason"]
+    short = _short_record(len(r), r.dt, band)
     e["headway_measured"] = _headway(r)
     per: dict[str, Any] = {}
     for m in models:
@@ -529,8 +862,9 @@ def _car_entry(i: int, r: Run, models: Sequence[str], main: str,
         up = _upper_of(params)
         codes, _settled = exact_delay_codes(mod, up.kg, up.Tg, up.kv)
         code = int(codes[0])
-        a_h = predicted_amplification(mod, up, r.lead_v, r.dt, band) if code else math.nan
-        a_r, _ = replay_amplification(mod, up, r, band)
+        a_h = (predicted_amplification(mod, up, r.lead_v, r.dt, band)
+               if code and short is None else math.nan)
+        a_r = replay_amplification(mod, up, r, band)[0] if short is None else math.nan
         cost = float(res.cost)
         d: dict[str, Any] = {
             "params": params, "cal_mse": _fin(cost), "at_bound": list(res.at_bound),
@@ -543,9 +877,13 @@ def _car_entry(i: int, r: Run, models: Sequence[str], main: str,
             d["string_stable_reason"] = "the calibrated closed loop is locally unstable"
         if not math.isfinite(cost):
             d["cal_mse_reason"] = "every parameter set of the search was unstable"
-        if not math.isfinite(a_r):
+        if short is not None:
+            d["amplification_replay_reason"] = short
+        elif not math.isfinite(a_r):
             d["amplification_replay_reason"] = "the calibrated closed loop diverges in replay"
-        if not code:
+        if short is not None:
+            d["amplification_H_reason"] = short
+        elif not code:
             d["amplification_H_reason"] = ("the calibrated closed loop is locally unstable "
                                            "(true delay): |H(jω)| is not its gain")
         elif not math.isfinite(a_h):
@@ -580,22 +918,26 @@ def _public(c: Mapping[str, Any]) -> dict[str, Any]:
 
 def _why_not(chk: Mapping[str, Any], cars: Sequence[Mapping[str, Any]]) -> str:
     """A reason, from the numbers, why a setting check failed."""
-    car = chk["car"]
-    mine = [c for c in cars if c["car"] == car and c["_group"] in (chk["longer"], chk["shorter"])]
+    car, camp = chk["car"], chk["campaign"]
+    ranks = {chk["longer"]: chk["rank_longer"], chk["shorter"]: chk["rank_shorter"]}
+    mine = [c for c in cars if c["car"] == car and c["campaign"] == camp and c["_in_order"]
+            and c["setting_rank"] in ranks.values()]
     parts = []
     for st in (chk["longer"], chk["shorter"]):
-        cs = [c for c in mine if c["_group"] == st]
+        cs = [c for c in mine if c["setting_rank"] == ranks[st]]
         desc = ", ".join(
-            f"{Path(c['file']).stem} Tg {c['Tg']:.2f} s, Gmin {c['params']['Gmin']:.1f} m, "
-            f"Tg+Gmin/v {c['time_gap_effective']:.2f} s, measured headway "
-            f"{c['headway_measured']:.2f} s, speed {c['speed_mean']:.1f}±{c['speed_std']:.1f} "
+            f"{c['run_id']} Tg {_f(c['Tg'])} s, Gmin {_f(c['params']['Gmin'], 1)} m, "
+            f"Tg+Gmin/v {_f(c['time_gap_effective'])} s, measured headway "
+            f"{_f(c['headway_measured'])} s, speed {c['speed_mean']:.1f}±{c['speed_std']:.1f} "
             f"m/s" + (f", at bound: {'/'.join(c['at_bound'])}" if c["at_bound"] else "")
             for c in cs)
         parts.append(f"{st}: {desc}")
-    eff = {st: np.median([c["time_gap_effective"] for c in mine if c["_group"] == st
+    eff = {st: np.median([c["time_gap_effective"] for c in mine
+                          if c["setting_rank"] == ranks[st]
                           and c["time_gap_effective"] is not None] or [np.nan])
            for st in (chk["longer"], chk["shorter"])}
-    hw = {st: np.median([c["headway_measured"] for c in mine if c["_group"] == st
+    hw = {st: np.median([c["headway_measured"] for c in mine
+                         if c["setting_rank"] == ranks[st]
                          and c["headway_measured"] is not None
                          and math.isfinite(c["headway_measured"])] or [np.nan])
           for st in (chk["longer"], chk["shorter"])}
@@ -622,8 +964,8 @@ def _why_not(chk: Mapping[str, Any], cars: Sequence[Mapping[str, Any]]) -> str:
 
 def _comparison(cars: Sequence[Mapping[str, Any]], models: Sequence[str]) -> dict[str, Any]:
     out: dict[str, Any] = {}
-    acc = [c for c in cars if c["acc"] and c["amplification_measured"] is not None]
-    human = [c for c in cars if not c["acc"] and c["amplification_measured"] is not None]
+    acc = [c for c in cars if c["_acc"] and c["amplification_measured"] is not None]
+    human = [c for c in cars if not c["_acc"] and c["amplification_measured"] is not None]
     for m in models:
         d: dict[str, Any] = {}
         for key in ("amplification_H", "amplification_replay"):
@@ -657,11 +999,11 @@ def _comparison(cars: Sequence[Mapping[str, Any]], models: Sequence[str]) -> dic
                 1 for c in meas_unst if c["models"][m]["string_stable"] is False),
             "model_stable_where_measured_stable": sum(
                 1 for c in meas_st if c["models"][m]["string_stable"] is True),
-            "model_string_unstable_all": sum(1 for c in cars if c["acc"]
+            "model_string_unstable_all": sum(1 for c in cars if c["_acc"]
                                              and c["models"][m]["string_stable"] is False),
-            "model_locally_unstable_all": sum(1 for c in cars if c["acc"]
+            "model_locally_unstable_all": sum(1 for c in cars if c["_acc"]
                                               and not c["models"][m]["local_stable"]),
-            "cars_acc": sum(1 for c in cars if c["acc"]),
+            "cars_acc": sum(1 for c in cars if c["_acc"]),
         }
         out[m] = d
     best = {}
@@ -677,8 +1019,9 @@ def _files_summary(runs: Sequence[Run], cars: Sequence[Mapping[str, Any]]) -> li
     from scipy import signal
 
     out = []
-    for f in dict.fromkeys(r.meta["file"] for r in runs):
-        rs = [r for r in runs if r.meta["file"] == f]
+    files = [c["file"] for c in cars]
+    for f in dict.fromkeys(files):
+        rs = [r for r, fc in zip(runs, files, strict=True) if fc == f]
         m0 = rs[0].meta
         # where the platoon oscillates: mean periodogram of the predecessors' speeds
         spec = []
@@ -688,9 +1031,12 @@ def _files_summary(runs: Sequence[Run], cars: Sequence[Mapping[str, Any]]) -> li
             spec.append(np.interp(np.linspace(0.005, 0.5, 400), fr, p))
         fg = np.linspace(0.005, 0.5, 400)
         mean = np.mean(spec, axis=0)
-        out.append({"file": f, "folder": m0["folder"], "track": m0["track"],
-                    "setting": m0["setting"], "acc": m0["acc"], "date": m0["date"],
-                    "followers": len(rs), "n_vehicles": m0["n_vehicles"],
+        c0 = next(c for c in cars if c["file"] == f)
+        out.append({"file": f, "campaign": c0["campaign"], "folder": c0["folder"],
+                    "track": m0.get("track"), "setting": c0["setting"],
+                    "setting_rank": c0["setting_rank"], "acc": c0["acc"],
+                    "date": m0.get("date"), "followers": len(rs),
+                    "n_vehicles": m0.get("n_vehicles"),
                     "peak_hz": float(fg[int(np.argmax(mean))]),
                     "band_power_share": float(mean[(fg >= DEFAULT_BAND[0])
                                                    & (fg <= DEFAULT_BAND[1])].sum() / mean.sum()),
@@ -707,8 +1053,11 @@ def _tables(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str,
     rows = []
     for c in cars:
         ci = c["amplification_measured_ci"]
-        rows.append({"file": Path(c["file"]).stem, "car": c["car"],
-                     "setting": c["setting"] or "none", "position": c["position"],
+        rows.append({"campaign": c["campaign"], "file": Path(c["file"]).stem,
+                     "run_id": c["run_id"], "car": c["car"],
+                     "setting": c["setting"] or "none", "setting_rank": c["setting_rank"],
+                     "acc": _acc_label(c["acc"]), "group": c["group"],
+                     "duration_s": c["duration_s"], "position": c["position"],
                      "track": c["track"], "Tg": c["Tg"], "Gmin": c["params"]["Gmin"],
                      "kg": c["params"]["kg"], "kv": c["params"]["kv"],
                      "time_gap_effective": c["time_gap_effective"],
@@ -721,7 +1070,8 @@ def _tables(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str,
     for c in cars:
         for m in models:
             d = c["models"][m]
-            per_model.append({"file": Path(c["file"]).stem, "car": c["car"],
+            per_model.append({"campaign": c["campaign"], "file": Path(c["file"]).stem,
+                              "run_id": c["run_id"], "car": c["car"],
                               "setting": c["setting"] or "none", "position": c["position"],
                               "model": m, "cal_mse": d["cal_mse"], "Tg": d["params"]["Tg"],
                               "A_measured": c["amplification_measured"],
@@ -730,13 +1080,17 @@ def _tables(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str,
                               "error_replay": d["amplification_replay_error"],
                               **{f"p_{k}": v for k, v in d["params"].items()}})
     cars_df = pd.DataFrame(rows)
-    label = [("none" if c["setting"] is None else
-              f"{c['setting']} (folder mixed)" if c["_group"] is None else c["setting"])
+    label = [("human" if not c["_acc"] else "none" if c["setting"] is None else
+              f"{c['setting']} (folder mixed)" if str(c["folder"]).lower() == "mixed"
+              else f"{c['setting']} (order {c['setting_rank']})"
+              if c["setting_rank"] is not None else f"{c['setting']} (no order)")
              for c in cars]
     tg = (cars_df.assign(setting=label)
-          .pivot_table(index="car", columns="setting", values="Tg", aggfunc="median"))
+          .pivot_table(index=["campaign", "car"], columns="setting", values="Tg",
+                       aggfunc="median"))
     order_df = pd.DataFrame(order["checks"]) if order["checks"] else pd.DataFrame(
-        columns=["car", "longer", "shorter", "value_longer", "value_shorter", "held"])
+        columns=["campaign", "car", "longer", "shorter", "rank_longer", "rank_shorter",
+                 "value_longer", "value_shorter", "held"])
     comp = []
     for m in models:
         for key, lab in (("amplification_H", "|H(jw)|"), ("amplification_replay", "replay")):
@@ -784,10 +1138,16 @@ def _findings(s: Mapping[str, Any]) -> list[str]:
     so = s["setting_order"]
     eff = s["setting_order_effective_time_gap"]
     hw = s["setting_order_measured_headway"]
-    fails = [c["car"] for c in so["checks"] if not c["held"]]
+    multi = len(s["campaigns"]) > 1
+    fails = [(f"{c['car']} ({c['campaign']})" if multi else c["car"])
+             for c in so["checks"] if not c["held"]]
+    camps = "; ".join(f"{k}: {v['held']} of {v['checked']}"
+                      for k, v in so["campaigns"].items())
     out = [f"- **Setting order**: the calibrated Tg ({main} model) is longer for the longer "
            f"ACC setting in {so['held']} of {so['checked']} checks (car model × pair of "
-           "settings)" + (f"; not for {', '.join(fails)}" if fails else "") + "; file by "
+           "settings, each campaign's own order of its settings"
+           + (f"; per campaign: {camps}" if multi and camps else "") + ")"
+           + (f"; not for {', '.join(fails)}" if fails else "") + "; file by "
            f"file, in {so['file_pairs_held']} of {so['file_pairs_checked']} pairs of files. "
            "The "
            f"effective time gap Tg + Gmin/v̄ follows the setting in {eff['held']} of "
@@ -820,21 +1180,45 @@ def _findings(s: Mapping[str, Any]) -> list[str]:
                f"{main} closed loops are string-unstable (max abs H > 1, true delay) for "
                f"{q['model_string_unstable_all']} of {q['cars_acc']} ACC cars, locally "
                f"unstable for {q['model_locally_unstable_all']}.")
-    hum = [c for c in s["cars"] if not c["acc"]]
+    hum = [c for c in s["cars"] if c["group"] == "human"]
     if hum:
         dh = comp[main]["amplification_replay_human"]
         tgs = [c["Tg"] for c in hum if c["Tg"] is not None]
-        out.append(f"- **Human control** ({len(hum)} drivers): calibrated Tg "
-                   f"{min(tgs):.2f}–{max(tgs):.2f} s; replay within 10 % for "
-                   f"{dh['within_10pct']} of {dh['n']}.")
+        rng = f"{min(tgs):.2f}–{max(tgs):.2f} s" if tgs else "none finite"
+        out.append(f"- **Human control** ({len(hum)} human-driven runs, calibrated with the "
+                   f"same closed-loop structure, never counted as ACC): calibrated Tg "
+                   f"{rng}; replay within 10 % for {dh['within_10pct']} of {dh['n']}.")
+    unk = [e for e in s["left_out"] if "unknown" in e["reason"]]
+    inc = [c for c in s["cars"] if c["acc"] is None]
+    if unk or inc:
+        out.append(f"- **Unknown ACC state**: {len(unk)} runs left out "
+                   f"({sum(e['seconds'] for e in unk):.0f} s); {len(inc)} studied as ACC "
+                   f"(--acc-unknown {s['acc_unknown']}).")
     return out
+
+
+def _overview_lines(ov: Sequence[Mapping[str, Any]]) -> list[str]:
+    if not ov:
+        return ["No car."]
+    lines = ["| campaign | car | settings (order) | ACC state of the runs studied | runs "
+             "studied (s) | left out / dropped (s) | reasons |", "|---|---|---|---|---|---|---|"]
+    for o in ov:
+        sets = ", ".join(f"{d['setting'] if d['setting'] is not None else 'none'} "
+                         f"({d['setting_rank'] if d['setting_rank'] is not None else '–'})"
+                         for d in o["settings"]) or "–"
+        acc = ", ".join(f"{k} {v}" for k, v in o["acc"].items()) or "–"
+        why = "; ".join(f"{r} ({n})" for r, n in o["reasons_left_out"].items()) or "–"
+        lines.append(f"| {o['campaign'] or '–'} | {o['car']} | {sets} | {acc} | "
+                     f"{o['runs_studied']} ({o['seconds_studied']:.0f}) | "
+                     f"{o['runs_left_out']} ({o['seconds_left_out']:.0f}) | {why} |")
+    return lines
 
 
 def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
     main = s["model"]
     cars = s["cars"]
-    acc = [c for c in cars if c["acc"]]
-    hum = [c for c in cars if not c["acc"]]
+    acc = [c for c in cars if c["group"] == "acc"]
+    hum = [c for c in cars if c["group"] == "human"]
     so = s["setting_order"]
     comp = s["model_comparison"]
     lines = [
@@ -846,29 +1230,53 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
         "",
         "## Data and method",
         "",
-        f"Data: `{s['data']}`; {len(cars)} followers with a recorded predecessor in "
-        f"{len(s['files'])} files ({len(acc)} under ACC, {len(hum)} human-driven); "
-        f"{len(s['skipped'])} followers skipped (see below). Main model: **{main}**; "
+        f"Data: `{s['data']}` ({len(s['campaigns'])} campaign(s): "
+        f"{', '.join(s['campaigns']) or '–'}); {len(cars)} runs (stretches of a follower "
+        f"with a recorded predecessor) in {len(s['files'])} files ({len(acc)} studied as "
+        f"ACC, {sum(c['acc'] is None for c in acc)} of them of unknown ACC state; "
+        f"{len(hum)} human-driven, the control); {len(s['left_out'])} runs left out by "
+        f"the study and {len(s['dropped_by_loader'])} stretches dropped by the loader (see "
+        f"'Cars'). "
+        + (f"Files recognised as not data and skipped: "
+           f"{', '.join(Path(f).name for f in s['non_data_files'])}. "
+           if s["non_data_files"] else "")
+        + f"Main model: **{main}**; "
         f"compared: {', '.join(s['models'])}. GA: {s['ga']['max_generations']} generations, "
         f"population {s['ga']['pop_size'] or 'automatic'}, {s['ga']['starts']} start(s) per "
         f"car; seed {s['seed']}; objective weights (a, v, x) = "
         f"{tuple(s['objective_weights'])}; Gmin in [0, {s['bounds']['Gmin'][1]:g}] m. "
         f"Amplification band {s['band_hz'][0]:g}–{s['band_hz'][1]:g} Hz, block bootstrap "
-        f"{s['bootstrap']['n']} × {s['bootstrap']['block_s']:g} s blocks. Wall time "
+        f"{s['bootstrap']['n']} × {s['bootstrap']['block_s']:g} s blocks (no interval "
+        f"for a run shorter than {s['bootstrap']['min_blocks']} blocks after the trim). "
+        f"Wall time "
         f"{s.get('seconds', 0):.0f} s.",
         "",
         "## Files",
         "",
-        _md_table(tables["files"][["file", "folder", "track", "setting", "acc", "followers",
-                                   "excited_followers", "peak_hz", "band_power_share"]]),
+        _md_table(tables["files"][["campaign", "file", "folder", "track", "setting",
+                                   "setting_rank", "acc", "followers", "excited_followers",
+                                   "peak_hz", "band_power_share"]]),
         "",
         "`peak_hz`: peak of the mean periodogram of the predecessors' speeds; "
-        "`band_power_share`: its share in the amplification band.",
+        "`band_power_share`: its share in the amplification band; `followers`: runs "
+        "studied.",
+        "",
+        "## Cars",
+        "",
+        "Per campaign and car model: the raw settings as in the files with their order "
+        "within the campaign (larger = longer time gap), the ACC state of the runs "
+        "studied, and the runs (stretches) studied and left out, with the reasons (the "
+        "loader's and the study's).",
+        "",
+        *_overview_lines(s["car_overview"]),
         "",
         "## Setting order (calibrated Tg)",
         "",
-        f"Checks held: **{so['held']} of {so['checked']}** (per car model and pair of "
-        f"settings, medians over files; {so['excluded']} excluded); file by file: "
+        f"Checks held: **{so['held']} of {so['checked']}** (per campaign, car model and "
+        f"pair of settings in the campaign's own order, medians over runs; "
+        f"{so['excluded']} excluded); per campaign: "
+        + ("; ".join(f"{k} {v['held']} of {v['checked']}"
+                     for k, v in so["campaigns"].items()) or "no check") + "; run by run: "
         f"{so['file_pairs_held']} of {so['file_pairs_checked']}. With the folder "
         f"'mixed' included: {s['setting_order_with_mixed']['held']} of "
         f"{s['setting_order_with_mixed']['checked']}. The same check on the effective "
@@ -885,7 +1293,7 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
     fails = [c for c in so["checks"] if not c["held"]]
     if fails:
         lines += ["Where the order does not hold:", ""]
-        lines += [f"- **{c['car']}** ({c['longer']} {c['value_longer']:.2f} s vs "
+        lines += [f"- **{c['car']}**, {c['campaign']} ({c['longer']} {c['value_longer']:.2f} s vs "
                   f"{c['shorter']} {c['value_shorter']:.2f} s): {c['why']}" for c in fails]
         lines.append("")
     if hum:
@@ -936,8 +1344,10 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
                   f"{weak} have a predecessor band RMS below 0.1 m/s):", ""]
         lines += [f"- {c['run_id']} ({c['car']}, {c['setting']}): measured "
                   f"{c['amplification_measured']:.2f} "
-                  f"[{c['amplification_measured_ci'][0]:.2f}, "
-                  f"{c['amplification_measured_ci'][1]:.2f}], replay "
+                  + (f"[{c['amplification_measured_ci'][0]:.2f}, "
+                     f"{c['amplification_measured_ci'][1]:.2f}]"
+                     if c["amplification_measured_ci"][0] is not None else "(no interval)")
+                  + ", replay "
                   f"{_f(c['amplification_replay'])} "
                   f"({c['models'][main]['amplification_replay_error']:+.0%}); predecessor band "
                   f"RMS {c['rms_predecessor']:.2f} m/s; calibration cost {_f(c['cal_mse'], 3)}"
@@ -973,10 +1383,12 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
         lines += ["No measured amplification: " + "; ".join(
             f"{c['run_id']} ({c.get('amplification_measured_reason', '')})"
             for c in no_meas) + ".", ""]
-    if s["skipped"]:
-        lines += ["## Skipped followers", ""]
-        lines += [f"- {Path(k['file']).stem} vehicle {k['follower']} ({k['car']}): "
-                  f"{k['reason']}" for k in s["skipped"]]
+    gone = [*s["left_out"], *s["dropped_by_loader"]]
+    if gone:
+        lines += ["## Runs left out and stretches dropped", ""]
+        lines += [f"- {Path(k['file']).stem} {k['car']} ({k['by']}"
+                  + (f", {k['seconds']:.1f} s" if k.get("seconds") is not None else "")
+                  + f"): {k['reason']}" for k in gone]
         lines.append("")
     return "\n".join(lines) + "\n"
 

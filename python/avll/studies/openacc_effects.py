@@ -142,6 +142,8 @@ def effect_gaps(
         md = c["models"][best]
         entry: dict[str, Any] = {
             "run_id": c["run_id"], "car": c["car"], "setting": c["setting"],
+            "campaign": c.get("campaign"), "setting_rank": c.get("setting_rank"),
+            "acc": c.get("acc"), "group": c.get("group"),
             "amplification_measured": meas, "base_model": best,
             "base_amplification_replay": md["amplification_replay"],
             "base_amplification_replay_error": md["amplification_replay_error"],
