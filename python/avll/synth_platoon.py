@@ -97,6 +97,7 @@ __all__ = [
     "leader_speed",
     "random_car",
     "synth_platoon",
+    "validate_amplification",
 ]
 
 DEFAULT_BAND: tuple[float, float] = (0.02, 0.2)
@@ -444,3 +445,70 @@ def synth_platoon(
                 "fine_dt": fine_dt, "warmup": warmup, "v_mean": v_mean,
                 "band_rms": band_rms, "drift_rms": drift_rms, "band": [lo, hi]}
     return SynthPlatoon(runs, truth, t, v_true, x_true, settings)
+
+
+def _summary(err: list[float], inside: list[bool], missing: int) -> dict[str, Any]:
+    e = np.asarray(err, dtype=float)
+    if not e.size:
+        return {"n": 0, "missing": missing, "median_error": None, "mean_error": None,
+                "median_abs_error": None, "within_10pct": None, "coverage": None}
+    return {"n": int(e.size), "missing": int(missing),
+            "median_error": float(np.median(e)), "mean_error": float(np.mean(e)),
+            "median_abs_error": float(np.median(np.abs(e))),
+            "within_10pct": float(np.mean(np.abs(e) <= 0.10)),
+            "coverage": float(np.mean(inside)) if inside else None}
+
+
+def validate_amplification(
+    seeds: Sequence[int],
+    *,
+    cars: int = 5,
+    band: Sequence[float] = DEFAULT_BAND,
+    n_boot: int = 1000,
+    **platoon: Any,
+) -> dict[str, Any]:
+    """Both measured-amplification estimators against the truth on the platoons of
+    ``seeds`` (``cars`` random followers each, ``platoon`` options to
+    :func:`synth_platoon`): the band RMS ratio
+    (:func:`avll.studies.openacc.amplification` with the study's circular block
+    bootstrap interval, ``n_boot`` resamples) and the H1 band gain
+    (:func:`avll.spectral.h1_band_gain`), each against the true band gain. Returns
+    ``{"rows": [...], "rms_ratio": summary, "h1": summary}``; a summary has ``n``,
+    ``missing`` (no estimate), ``median_error``, ``mean_error``,
+    ``median_abs_error`` (errors ``estimate / truth - 1``), ``within_10pct`` and
+    ``coverage`` (share of 95 % intervals that contain the truth)."""
+    from .spectral import h1_band_gain
+    from .studies.openacc import amplification, bandpass, bootstrap_ci
+
+    rows: list[dict[str, Any]] = []
+    acc: dict[str, tuple[list[float], list[bool], list[int]]] = {
+        "rms_ratio": ([], [], [0]), "h1": ([], [], [0])}
+    for s in seeds:
+        pl = synth_platoon(cars, seed=int(s), band=band, **platoon)
+        for j, (r, tr) in enumerate(zip(pl.runs, pl.truth, strict=True)):
+            assert r.v is not None and r.lead_v is not None
+            truth = tr["band_gain"]
+            ratio = amplification(r.v, r.lead_v, r.dt, band)[0]
+            lo, hi = bootstrap_ci(bandpass(r.v, r.dt, band), bandpass(r.lead_v, r.dt, band),
+                                  r.dt, n=n_boot, seed=[int(s), j])
+            g = h1_band_gain(r.lead_v, r.v, r.dt, band)
+            row = {"seed": int(s), "car": r.meta["car"], "model": tr["model"],
+                   "truth": truth, "rms_ratio": ratio, "rms_ratio_ci": [lo, hi],
+                   "h1": g.gain, "h1_ci": None if g.ci is None else list(g.ci),
+                   "coherence": g.coherence, "h1_reason": g.reason,
+                   "rms_ratio_true": tr["rms_ratio_true"]}
+            rows.append(row)
+            for key, est, ci in (("rms_ratio", ratio, (lo, hi)), ("h1", g.gain, g.ci)):
+                err, inside, missing = acc[key]
+                if est is None or not math.isfinite(est):
+                    missing[0] += 1
+                    continue
+                err.append(est / truth - 1.0)
+                if ci is not None:
+                    inside.append(bool(ci[0] <= truth <= ci[1]))
+    out: dict[str, Any] = {"rows": rows}
+    for key, (err, inside, missing) in acc.items():
+        out[key] = _summary(err, inside, missing[0])
+    coh = [r["coherence"] for r in rows if r["coherence"] is not None]
+    out["h1"]["median_coherence"] = float(np.median(coh)) if coh else None
+    return out
