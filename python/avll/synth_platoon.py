@@ -35,8 +35,8 @@ are simulated but not recorded. Position is the exact integral of the speed.
 
 Equipment (:data:`EQUIPMENT`)
 -----------------------------
-Measurement noise per campaign's equipment, each a white part plus a coloured
-(AR(1), correlation time ``*_tau``) part, on speed (m/s), position (arc length, m) and
+Measurement noise per campaign's equipment, each a white part plus a smooth coloured
+part (white noise through two first-order lags of time constant ``*_tau``), on speed (m/s), position (arc length, m) and
 spacing (m). A car's speed noise is the same realisation in its own run (``v``) and in
 its follower's (``lead_v``), as in a file. The presets:
 
@@ -193,9 +193,26 @@ def _ar1(rng: np.random.Generator, n: int, dt: float, std: float, tau: float) ->
     return np.asarray(signal.lfilter([1.0], [1.0, -phi], w))
 
 
+def _smooth(rng: np.random.Generator, n: int, dt: float, std: float, tau: float) -> np.ndarray:
+    """A stationary, smooth (differentiable) coloured noise of standard deviation
+    ``std``: white noise through two first-order lags of time constant ``tau``
+    (a critically damped second-order process, as a fused and spline-smoothed
+    GNSS/inertial estimate errs), started after ``10 tau`` of burn-in."""
+    if std <= 0 or n == 0:
+        return np.zeros(n)
+    from scipy import signal
+
+    phi = math.exp(-dt / tau)
+    burn = int(math.ceil(10 * tau / dt))
+    w = rng.normal(0.0, 1.0, n + burn)
+    y = signal.lfilter([1.0], [1.0, -phi], signal.lfilter([1.0], [1.0, -phi], w))[burn:]
+    var = (1 + phi * phi) / (1 - phi * phi) ** 3  # variance of the cascade, unit input
+    return np.asarray(y) * (std / math.sqrt(var))
+
+
 def _noise(rng: np.random.Generator, n: int, dt: float, white: float, coloured: float,
            tau: float) -> np.ndarray:
-    e = _ar1(rng, n, dt, coloured, tau)
+    e = _smooth(rng, n, dt, coloured, tau)
     return e + rng.normal(0.0, white, n) if white > 0 else e
 
 
@@ -227,7 +244,10 @@ def leader_speed(
     si = (np.cos(ph)[None, :] - np.cos(np.outer(t, w) + ph)) @ (amps / w)
     # fade in: e(t) = (1 - cos(pi t / ramp)) / 2 until ramp; the position integrates
     # e s numerically (trapezoid on the fine grid) where e < 1, exactly afterwards.
-    e = np.where(t < ramp, 0.5 * (1.0 - np.cos(np.pi * np.minimum(t, ramp) / ramp)), 1.0)
+    if ramp > 0:
+        e = np.where(t < ramp, 0.5 * (1.0 - np.cos(np.pi * np.minimum(t, ramp) / ramp)), 1.0)
+    else:
+        e = np.ones_like(t)
     v = v_mean + e * s
     osc = e * s
     xo = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(t) * (osc[1:] + osc[:-1]))])
