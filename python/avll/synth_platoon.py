@@ -36,9 +36,9 @@ are simulated but not recorded. Position is the exact integral of the speed.
 Equipment (:data:`EQUIPMENT`)
 -----------------------------
 Measurement noise per campaign's equipment, each a white part plus a smooth coloured
-part (white noise through two first-order lags of time constant ``*_tau``), on speed (m/s), position (arc length, m) and
-spacing (m). A car's speed noise is the same realisation in its own run (``v``) and in
-its follower's (``lead_v``), as in a file. The presets:
+part (white noise through two first-order lags of time constant ``*_tau``), on speed
+(m/s), position (arc length, m) and spacing (m). A car's speed noise is the same
+realisation in its own run (``v``) and in its follower's (``lead_v``), as in a file. The presets:
 
 * ``"zalazone"``: VBOX-like, fused and smoothed (ZalaZone's notes: VBOX, u-blox 9 and
   a tracker app "fused and interpolated to 10 Hz using 2nd degree B-splines"). The
