@@ -9,41 +9,50 @@ speed. This module estimates that gain directly:
 
 * **H1.** ``H1(f) = S_xy(f) / S_xx(f)`` with ``x`` the predecessor's measured speed and
   ``y`` the follower's, Welch averages (Hann window, 50 % overlap, each segment detrended
-  by a straight line) over segments of ``1 / low`` seconds by default (the shortest
-  segment with a frequency bin at the band's low edge; records of OpenACC files are often
-  only 100-300 s, so longer segments would leave one or two averages). Output-side
-  disturbances and noise that are uncorrelated with ``x`` average out of ``S_xy``: H1 is
-  consistent for them (they only widen its interval and lower the coherence).
-* **Band gain.** ``G = sqrt(sum_k |H1(f_k)|^2 S_xx(f_k) / sum_k S_xx(f_k))`` over the bins
-  ``f_k`` in the band: the RMS gain of the estimated transfer on the predecessor's own
-  spectrum, the same weighting as :func:`avll.studies.openacc.predicted_amplification`
-  applies to a model's ``|H|``, so the two are comparable like with like.
-* **Coherence.** ``gamma^2(f) = |S_xy|^2 / (S_xx S_yy)``; the reported ``coherence`` is its
-  ``S_xx``-weighted mean over the band (1: the follower's band speed is all explained
-  linearly by the predecessor's).
+  by a straight line) over segments of ``2 / low`` seconds (100 s for the default band)
+  when the record holds at least :data:`MIN_SEGMENTS` of them, else ``1 / low`` (the
+  shortest segment with a bin at the band's low edge: OpenACC records are often only
+  100-300 s). Before averaging, the follower's speed is shifted back by its delay
+  behind the predecessor (the phase slope of a first H1 over the band): a delay
+  ``tau`` lowers ``|H1|`` by about ``tau / T_segment`` and a pure delay has gain 1.
+  Output-side disturbances and noise that are uncorrelated with ``x`` average out of
+  ``S_xy``: H1 is consistent for them (they only widen its interval and lower the
+  coherence).
+* **Band gain.** ``G = sqrt(sum_j |H1(f_j)|^2 P(f_j) / sum_j P(f_j))`` over the bins
+  ``f_j`` in the band of ``P``, the periodogram of the whole record of the
+  predecessor's speed band-passed as the study does, ``|H1|^2`` interpolated linearly
+  between the Welch bins: exactly the weighting
+  :func:`avll.studies.openacc.predicted_amplification` gives a model's ``|H|``, so the
+  two compare like with like. (Weighting by the coarse Welch ``S_xx`` instead ignores
+  the band-pass's roll-off at the band edges and the record's fine spectral lines:
+  on the validation platoons that alone cost 3-7 % on cars behind a leader with a
+  steep ``|H|``.)
+* **Coherence.** ``gamma^2(f) = |S_xy|^2 / (S_xx S_yy)``; the reported ``coherence`` is
+  its mean over the band with the band gain's weights (1: the follower's band speed is
+  all explained linearly by the predecessor's).
 * **Interval (95 %).** Analytic, from the coherence (Bendat & Piersol, *Random Data*,
   Sec. 9.2): ``var|H1(f)| / |H1(f)|^2 = (1 - gamma^2) / (2 n_d gamma^2)`` per bin, with
   ``n_d`` the *effective* number of averages of overlapped Hann segments (Welch 1967:
-  ``K / (1 + 2 sum_j (1 - j/K) rho(j)^2)``, ``rho(1) = 0.167`` at 50 % overlap), propagated
-  to ``G^2`` with the correlation between neighbouring bins that the Hann window
-  introduces (``4/9`` for adjacent bins, ``1/36`` two bins apart), and made a log-normal
-  interval ``G exp(+-1.96 sd(log G))``. Why this and not a block bootstrap: both respect
-  the serial correlation (here through the overlap and the window), but a bootstrap
-  over Welch segments degenerates with the 3-8 segments a 100-300 s record gives, and a
-  bootstrap over blocks of the raw series splices the input without splicing the
-  response to it, which biases the transfer estimate at every join. The analytic
-  interval is a large-sample approximation: with few averages the measured coherence
-  is biased upwards (so the interval is too narrow), which the validation
-  (``tests/test_spectral.py``) measures.
+  ``K / (1 + 2 sum_j (1 - j/K) rho(j)^2)``, ``rho(1) = 0.167`` at 50 % overlap),
+  propagated to ``G^2`` with the correlation between neighbouring bins that the Hann
+  window introduces (``4/9`` for adjacent bins, ``1/36`` two bins apart), and made a
+  log-normal interval ``G exp(+-1.96 sd(log G))`` (the weights are taken as fixed). Why
+  this and not a block bootstrap: both respect the serial correlation (here through the
+  overlap and the window), but a bootstrap over Welch segments degenerates with the 3-8
+  segments a 100-300 s record gives, and a bootstrap over blocks of the raw series
+  splices the input without splicing the response to it, which biases the transfer
+  estimate at every join. The analytic interval is a large-sample approximation: with
+  few averages the measured coherence is biased upwards (so the interval is too narrow),
+  which the validation (``tests/test_spectral.py``, ``tests/test_synth_platoon.py``)
+  measures.
 
 Known biases (measured on synthetic platoons with a known truth, see the docs page
 *Measured amplification*): H1 is biased **low** by noise on its input (the
 predecessor's measured speed): ``E H1 = H S_uu / (S_uu + S_nn)``; in the 0.02-0.2 Hz
 band GNSS speed noise is small against the oscillations of a platoon, but a predecessor
 that barely moves makes this bias large (the estimate then returns ``None`` with a reason
-below :data:`MIN_EXCITATION`). With segments of ``1/low`` seconds the Hann window's
-leakage mixes the lowest bin with the drift below the band, and a delay ``tau`` between
-input and output lowers ``|H1|`` by about ``tau / T_segment``.
+below :data:`MIN_EXCITATION`). Without the delay alignment (``align=False``) H1 is
+biased low by about ``tau / T_segment``.
 """
 
 from __future__ import annotations
@@ -91,7 +100,7 @@ class BandGain:
 
     ``gain`` the band gain of H1 (``None`` with ``reason`` when the record cannot give
     one); ``ci`` its 95 % interval (``None`` with ``ci_reason``); ``coherence`` the
-    ``S_xx``-weighted mean magnitude-squared coherence over the band; ``n_segments``
+    band-weighted mean magnitude-squared coherence; ``n_segments``
     the Welch segments of ``segment_s`` seconds and ``n_effective`` their effective
     number of averages; ``excitation`` the predecessor's band RMS speed (m/s);
     ``freqs``, ``h`` (complex H1), ``coh`` and ``sxx`` per bin in the band."""
@@ -187,7 +196,8 @@ def h1_band_gain(
     """The H1 transfer-gain estimate of predecessor speed ``lead_v`` -> follower speed
     ``v`` (m/s, sampled every ``dt`` s) over ``band`` (Hz), with its coherence and
     interval (see the module doc). ``segment`` is the Welch segment length in seconds
-    (default ``1 / band[0]``). With ``align`` (the default) the follower's speed is
+    (default ``2 / band[0]`` when the record holds :data:`MIN_SEGMENTS` of them, else
+    ``1 / band[0]``). With ``align`` (the default) the follower's speed is
     first shifted back by its delay behind the predecessor (the phase slope of a
     first H1 over the band, at most ``max_lag`` s), which removes most of the delay
     bias of a short segment and leaves ``|H|`` unchanged (a pure delay has gain 1);
@@ -213,7 +223,11 @@ def h1_band_gain(
     if not (0.5 < lvl < 1):
         raise ValueError(f"level: must be in (0.5, 1), got {level!r}")
     max_lag = check_number(max_lag, "max_lag", nonneg=True)
-    seg_s = 1.0 / lo if segment is None else check_number(segment, "segment", positive=True)
+    if segment is None:  # 2/low when the record holds MIN_SEGMENTS of them, else 1/low
+        long_n = int(round(2.0 / lo / dt))
+        seg_s = 2.0 / lo if x.shape[0] >= (MIN_SEGMENTS + 1) * (long_n // 2) else 1.0 / lo
+    else:
+        seg_s = check_number(segment, "segment", positive=True)
     n = int(round(seg_s / dt))
     if n * dt * lo < 1.0 - 1e-6:
         raise ValueError(f"segment: {seg_s:g} s has no bin at the band's low edge "
@@ -228,8 +242,33 @@ def h1_band_gain(
     return res
 
 
+def _fine_weights(x: np.ndarray, dt: float, f: np.ndarray, lo: float, hi: float
+                  ) -> np.ndarray:
+    """Weights of the Welch bins ``f`` such that ``sum_k W_k |H1(f_k)|^2`` is
+    ``sum_j |H1(f_j)|^2 P(f_j) / sum_j P(f_j)`` over the band's bins ``f_j`` of ``P``, the
+    periodogram (Hann) of the whole record of the predecessor's speed band-passed as
+    the study does (:func:`avll.studies.openacc.bandpass`), ``|H1|^2`` interpolated
+    linearly between the Welch bins: exactly the weighting
+    :func:`avll.studies.openacc.predicted_amplification` gives a model's ``|H|``."""
+    from scipy import signal
+
+    from .studies.openacc import bandpass
+
+    try:
+        xb = bandpass(x, dt, (lo, hi))
+    except ValueError:  # too short for the study's trim: the band-pass without it
+        xb = bandpass(x, dt, (lo, hi), trim=0.0)
+    fj, pj = signal.periodogram(xb, fs=1.0 / dt, window="hann", detrend=False)
+    m = (fj >= lo) & (fj <= hi)
+    fj, pj = fj[m], pj[m]
+    if not fj.size or pj.sum() <= 0 or f.size < 2:
+        return np.full(f.size, 1.0 / max(f.size, 1))
+    w = np.array([np.sum(pj * np.interp(fj, f, np.eye(f.size)[k])) for k in range(f.size)])
+    return w / np.sum(w)
+
+
 def _h1(x: np.ndarray, y: np.ndarray, dt: float, n: int, lo: float, hi: float,
-        level: float, min_excitation: float) -> BandGain:
+        level: float, min_excitation: float, fine: bool = True) -> BandGain:
     step = n // 2
     m = x.shape[0]
     k = 1 + (m - n) // step if m >= n else 0
@@ -262,7 +301,7 @@ def _h1(x: np.ndarray, y: np.ndarray, dt: float, n: int, lo: float, hi: float,
     h = np.where(ok, sxy / np.where(ok, sxx, 1.0), 0.0)
     coh = np.where(ok & (syy > 0), np.abs(sxy) ** 2 / np.where(ok & (syy > 0), sxx * syy, 1.0),
                    0.0)
-    wts = sxx / np.sum(sxx)
+    wts = _fine_weights(x, dt, f, lo, hi) if fine else sxx / np.sum(sxx)
     h2 = np.abs(h) ** 2
     g2 = float(np.sum(wts * h2))
     gain = math.sqrt(g2)
