@@ -152,18 +152,14 @@ def test_bad_truth_is_a_clear_error() -> None:
 
 def test_both_estimators_recover_the_band_gain() -> None:
     """JRC-like noise, a mild follower disturbance (0.05 m/s², 3 s): both estimators
-    within 10 % for at least 90 % of cars, median error within 2 %; the RMS ratio's
-    bootstrap interval covers the truth for at least 85 % of cars. The H1 interval is
-    too narrow (measured coverage 0.77 on seeds 200-205): its analytic variance
-    counts the random error of a high-coherence estimate, not the leakage of a
-    50 s Hann segment; this test holds it to >= 0.6 and says so."""
+    within 10 % for at least 90 % of cars, median error within 2 %, and their 95 %
+    intervals cover the truth for at least 85 % of cars (the issue's target)."""
     v = validate_amplification(range(7200, 7205), equipment="jrc")
     r, h = v["rms_ratio"], v["h1"]
     assert r["n"] == h["n"] == 25 and r["missing"] == h["missing"] == 0
     assert r["within_10pct"] >= 0.9 and h["within_10pct"] >= 0.9
     assert abs(r["median_error"]) < 0.02 and abs(h["median_error"]) < 0.02
-    assert r["coverage"] >= 0.85
-    assert h["coverage"] >= 0.6
+    assert r["coverage"] >= 0.85 and h["coverage"] >= 0.85
     assert h["median_coherence"] > 0.9
 
 
@@ -175,7 +171,7 @@ def test_follower_disturbance_inflates_the_rms_ratio_not_h1() -> None:
     r, h = v["rms_ratio"], v["h1"]
     assert r["median_error"] > 0.05
     assert abs(h["median_error"]) < 0.03
-    assert h["within_10pct"] >= 0.8
+    assert h["within_10pct"] >= 0.8 and h["coverage"] >= 0.8
     assert h["median_coherence"] < 0.9
 
 
