@@ -24,9 +24,9 @@ speed. This module estimates that gain directly:
   between the Welch bins: exactly the weighting
   :func:`avll.studies.openacc.predicted_amplification` gives a model's ``|H|``, so the
   two compare like with like. (Weighting by the coarse Welch ``S_xx`` instead ignores
-  the band-pass's roll-off at the band edges and the record's fine spectral lines:
-  on the validation platoons that alone cost 3-7 % on cars behind a leader with a
-  steep ``|H|``.)
+  the band-pass's roll-off at the band edges and the record's fine spectral lines,
+  which costs several per cent on a car with a steep ``|H|`` behind a leader with
+  sharp spectral lines.)
 * **Coherence.** ``gamma^2(f) = |S_xy|^2 / (S_xx S_yy)``; the reported ``coherence`` is
   its mean over the band with the band gain's weights (1: the follower's band speed is
   all explained linearly by the predecessor's).

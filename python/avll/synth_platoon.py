@@ -10,8 +10,7 @@ the loader does, ``meta`` with ``file``, ``car``, ``setting``, ``position``, ...
 OpenACC study and the estimators consume them unchanged; ``meta["truth"]`` and
 :attr:`SynthPlatoon.truth` hold what the estimators should find.
 
-The plant (near-continuous)
----------------------------
+**The plant (near-continuous).**
 Every car is simulated by the library's closed loop (:func:`avll.closed_loop_effects`)
 at ``fine_dt`` (0.01 s by default: the upper law evaluated and the lower level stepped
 at 100 Hz), behind the previous car's *true* position and speed (the radar sees the
@@ -22,8 +21,7 @@ an acceleration ``d(t)`` added to the car's acceleration, through the library's
 ``d`` is an AR(1) (Ornstein-Uhlenbeck) process of standard deviation
 ``disturbance_std`` (m/s²) and correlation time ``disturbance_tau`` (s), per car.
 
-The leader
-----------
+**The leader.**
 Cruise at ``v_mean`` plus a sum of ``n_tones`` sinusoids of random frequencies
 (log-uniform over ``band``, 0.02-0.2 Hz by default: periods of 5-50 s) and phases,
 scaled to the band RMS ``band_rms``, plus three slow tones (0.003-0.015 Hz) of RMS
@@ -33,8 +31,7 @@ so every follower starts at equilibrium (speed ``v_mean``, gap ``Gmin + Tg v_mea
 lower level at rest) and no start transient enters the record; the first ``warmup`` s
 are simulated but not recorded. Position is the exact integral of the speed.
 
-Equipment (:data:`EQUIPMENT`)
------------------------------
+**Equipment** (:data:`EQUIPMENT`).
 Measurement noise per campaign's equipment, each a white part plus a smooth coloured
 part (white noise through two first-order lags of time constant ``*_tau``), on speed
 (m/s), position (arc length, m) and spacing (m). A car's speed noise is the same
@@ -58,8 +55,7 @@ realisation in its own run (``v``) and in its follower's (``lead_v``), as in a f
   splines is 0.006-0.008 m).
 * ``"none"``: no noise (the true states).
 
-The truth
----------
+**The truth.**
 Per follower (:class:`CarTruth`): the model and its parameters, the upper law, the
 effects, the disturbance, the closed loop's ``|H(j 2 pi f)|`` (paper Eq. 8 with the true
 delay, :func:`avll.studies.openacc.transfer_gain`; with effects, on their small-signal
