@@ -4,7 +4,9 @@ own seeds, none of them the seeds the estimators were developed on."""
 
 from __future__ import annotations
 
+import io
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,3 +185,37 @@ def test_input_noise_biases_h1_low() -> None:
     v = validate_amplification(range(7400, 7404), equipment=noisy, band_rms=0.3)
     assert v["h1"]["median_error"] < -0.03
     assert v["rms_ratio"]["median_error"] > 0.0
+
+
+def _white_level(x: np.ndarray) -> float:
+    """Robust white-noise level of a series from its second differences."""
+    x = x[np.isfinite(x)]
+    d = np.diff(x, 2)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(6))
+
+
+def _columns(path: Path, prefix: str) -> dict[str, np.ndarray]:
+    import pandas as pd
+
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("Time"))
+    d = pd.read_csv(io.StringIO("\n".join(lines[k:])))
+    return {c: d[c].to_numpy(dtype=float) for c in d.columns if c.startswith(prefix)}
+
+
+def test_presets_against_the_shared_files(shared_data: Path) -> None:
+    """The measured noise levels the module doc quotes to justify the presets, and
+    each preset's white speed noise inside the measured range."""
+    zala = shared_data / "openacc-zalazone" / "short_setting" / "dynamic_part12.csv"
+    jrc = [shared_data / "openacc-jrc" / "JRC low speed" / f"part{i}.csv" for i in (1, 11)]
+    for p in (zala, *jrc):
+        if not p.is_file():
+            pytest.skip(f"{p} is absent (a different version of the shared data?)")
+    zs = [_white_level(v) for c, v in _columns(zala, "Speed").items() if c != "Speed1"]
+    assert 0.0005 <= round(min(zs), 4) and round(max(zs), 4) <= 0.0013, zs
+    assert min(zs) <= EQUIPMENT["zalazone"].speed_white <= max(zs)
+    js = [_white_level(v) for p in jrc for v in _columns(p, "Speed").values()]
+    assert 0.012 <= round(min(js), 3) and round(max(js), 3) <= 0.064, js
+    assert min(js) <= EQUIPMENT["jrc"].speed_white <= max(js)
+    ivs = [_white_level(v) for p in jrc for v in _columns(p, "IVS").values()]
+    assert 0.005 <= round(min(ivs), 3) and round(max(ivs), 3) <= 0.008, ivs

@@ -39,20 +39,20 @@ realisation in its own run (``v``) and in its follower's (``lead_v``), as in a f
 
 * ``"zalazone"``: VBOX-like, fused and smoothed (ZalaZone's notes: VBOX, u-blox 9 and
   a tracker app "fused and interpolated to 10 Hz using 2nd degree B-splines"). The
-  white speed noise left in the files is tiny (second differences of ``Speed`` in a
-  ZalaZone ``short_setting/dynamic_part12.csv`` give 0.0006-0.0008 m/s, the >1 Hz RMS
-  0.001-0.003 m/s), so the noise must be slow: 0.02 m/s coloured with 1 s
-  correlation (the VBOX's quoted speed accuracy is 0.1 km/h = 0.028 m/s) plus 0.001
-  m/s white; position 0.05 m coloured (5 s) plus 0.01 m white; spacing 0.1 m
-  coloured (5 s) plus 0.002 m white.
+  white speed noise left in the files is tiny (the robust second-difference level of
+  the followers' ``Speed2..11`` in ``short_setting/dynamic_part12.csv`` is
+  0.0005-0.0013 m/s, their >1 Hz RMS 0.0008-0.003 m/s), so the noise must be slow:
+  0.02 m/s smooth coloured noise with 1 s time constants (the VBOX's quoted speed
+  accuracy is 0.1 km/h = 0.028 m/s) plus 0.001 m/s white; position 0.05 m coloured
+  (5 s) plus 0.01 m white; spacing 0.1 m coloured (5 s) plus 0.002 m white.
 * ``"jrc"``: an unfiltered u-blox-9-like receiver (JRC's notes: "Ublox 9 and OBD
-  ... Data are not filtered", raw Doppler speed, cubic splines to 10 Hz). Second
-  differences of ``Speed1..3`` in JRC low-speed ``part1.csv`` and ``part11.csv``
-  give a white level of 0.013-0.063 m/s (>1 Hz RMS 0.054-0.073 m/s): 0.05 m/s white
-  plus 0.02 m/s coloured (2 s); position 0.3 m white plus 0.5 m coloured (10 s:
-  the slow wander of a standalone receiver); spacing from two such receivers, 0.5
-  m coloured (10 s) plus 0.02 m white (the files' ``IVS`` white level after the
-  splines is 0.006-0.008 m).
+  ... Data are not filtered", raw Doppler speed, cubic splines to 10 Hz). The
+  second-difference level of ``Speed1..3`` in JRC low-speed ``part1.csv`` and
+  ``part11.csv`` is 0.012-0.064 m/s (>1 Hz RMS 0.054-0.074 m/s): 0.05 m/s white plus
+  0.02 m/s coloured (2 s); position 0.3 m white plus 0.5 m coloured (10 s: the slow
+  wander of a standalone receiver); spacing from two such receivers, 0.5 m coloured
+  (10 s) plus 0.02 m white (the files' ``IVS`` second-difference level after the
+  splines is 0.005-0.008 m).
 * ``"none"``: no noise (the true states).
 
 **The truth.**
