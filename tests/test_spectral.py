@@ -120,7 +120,7 @@ def test_welch_spectra_match_scipy() -> None:
     assert res.excitation == pytest.approx(math.sqrt(np.sum(pxx[m]) * df), rel=1e-9)
 
 
-@pytest.mark.parametrize("seconds", [2.0, 40.0, 70.0])
+@pytest.mark.parametrize("seconds", [2.0, 40.0, 70.0, 89.0])
 def test_short_record_gives_none_with_a_reason(seconds: float) -> None:
     rng = np.random.default_rng(5105)
     x = _input(rng, int(seconds / DT))
@@ -151,6 +151,20 @@ def test_effective_averages() -> None:
     assert welch_effective_averages(0) == 0.0
     assert welch_effective_averages(1) == 1.0
     assert 0.9 * 20 < welch_effective_averages(20) < 20
+    # the numerical window correlation at half overlap is Welch's 0.167
+    assert welch_effective_averages(20, 500, 250) == pytest.approx(
+        welch_effective_averages(20), rel=1e-3)
+    # more overlap, fewer independent averages per segment
+    assert welch_effective_averages(3, 500, 200) < welch_effective_averages(3, 500, 250)
+
+
+def test_record_just_short_of_three_segments_is_estimated() -> None:
+    """A 99.9 s record (many ZalaZone files) still gives three 50 s segments."""
+    rng = np.random.default_rng(5108)
+    x = _input(rng, 999)
+    res = h1_band_gain(x, _system(x, 1.0, 1.0, 5), DT, BAND)
+    assert res.gain is not None and res.n_segments == MIN_SEGMENTS
+    assert res.segment_s == pytest.approx(50.0)
 
 
 @pytest.mark.parametrize(

@@ -33,7 +33,8 @@ speed. This module estimates that gain directly:
 * **Interval (95 %).** Analytic, from the coherence (Bendat & Piersol, *Random Data*,
   Sec. 9.2): ``var|H1(f)| / |H1(f)|^2 = (1 - gamma^2) / (2 n_d gamma^2)`` per bin, with
   ``n_d`` the *effective* number of averages of overlapped Hann segments (Welch 1967:
-  ``K / (1 + 2 sum_j (1 - j/K) rho(j)^2)``, ``rho(1) = 0.167`` at 50 % overlap),
+  ``K / (1 + 2 sum_j (1 - j/K) rho(j)^2)``, ``rho(1) = 0.167`` at 50 % overlap; a
+  record just short of three half-overlapping segments gets up to 60 % overlap),
   propagated to ``G^2`` with the correlation between neighbouring bins that the Hann
   window introduces (``4/9`` for adjacent bins, ``1/36`` two bins apart), and made a
   log-normal interval ``G exp(+-1.96 sd(log G))`` (the weights are taken as fixed). Why
@@ -130,12 +131,25 @@ class BandGain:
                 "ci_reason": self.ci_reason, "lag_s": self.lag_s, "method": self.method}
 
 
-def welch_effective_averages(k: int, rho: float = _HANN_RHO_HALF) -> float:
-    """Welch's (1967) equivalent number of independent averages of ``k`` segments
-    overlapping by half (``rho`` the correlation of adjacent Hann windows)."""
+def welch_effective_averages(k: int, n: int = 0, step: int = 0) -> float:
+    """Welch's (1967) equivalent number of independent averages of ``k`` Hann segments of
+    ``n`` samples started every ``step`` samples:
+    ``k / (1 + 2 sum_j (1 - j/k) rho(j)^2)``, ``rho(j)`` the correlation of two Hann
+    windows ``j step`` apart (``n = 0``: half overlap, ``rho(1) = 0.167``)."""
     if k <= 0:
         return 0.0
-    return k / (1.0 + 2.0 * (1.0 - 1.0 / k) * rho * rho) if k > 1 else 1.0
+    if k == 1:
+        return 1.0
+    if n <= 0 or step <= 0:
+        rho = [_HANN_RHO_HALF]
+    else:
+        from scipy import signal
+
+        w = signal.get_window("hann", n)
+        e = float(np.sum(w * w))
+        rho = [float(np.sum(w[j * step:] * w[:n - j * step])) / e
+               for j in range(1, k) if j * step < n]
+    return k / (1.0 + 2.0 * sum((1.0 - j / k) * r * r for j, r in enumerate(rho, start=1)))
 
 
 def _series(name: str, x: Any) -> np.ndarray:
@@ -272,10 +286,15 @@ def _h1(x: np.ndarray, y: np.ndarray, dt: float, n: int, lo: float, hi: float,
     step = n // 2
     m = x.shape[0]
     k = 1 + (m - n) // step if m >= n else 0
-    empty: dict[str, Any] = dict(n_segments=k, n_effective=welch_effective_averages(k),
+    if k < MIN_SEGMENTS and m >= n + (MIN_SEGMENTS - 1) * int(math.ceil(0.4 * n)):
+        # a record just short of MIN_SEGMENTS half-overlapping segments (e.g. 99.9 s for
+        # 50 s segments): overlap them a little more (at most 60 %)
+        step = (m - n) // (MIN_SEGMENTS - 1)
+        k = 1 + (m - n) // step
+    empty: dict[str, Any] = dict(n_segments=k, n_effective=welch_effective_averages(k, n, step),
                                  segment_s=n * dt)
     if k < MIN_SEGMENTS:
-        need = (MIN_SEGMENTS + 1) * step * dt
+        need = (n + (MIN_SEGMENTS - 1) * int(math.ceil(0.4 * n))) * dt
         return BandGain(None, None, None, excitation=None, reason=(
             f"record of {m * dt:g} s gives {k} Welch segment(s) of {n * dt:g} s "
             f"(needs >= {MIN_SEGMENTS}, i.e. >= {need:g} s, to resolve the band's low edge "
@@ -306,7 +325,7 @@ def _h1(x: np.ndarray, y: np.ndarray, dt: float, n: int, lo: float, hi: float,
     g2 = float(np.sum(wts * h2))
     gain = math.sqrt(g2)
     coherence = float(np.sum(wts * coh))
-    nd = welch_effective_averages(k)
+    nd = welch_effective_averages(k, n, step)
     ci: tuple[float, float] | None = None
     ci_reason = None
     if g2 <= 0:
