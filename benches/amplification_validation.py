@@ -4,7 +4,8 @@ platoons with a known truth (issue 28, item 2).
 For every scenario, :func:`avll.synth_platoon.validate_amplification` simulates
 :data:`N_PLATOONS` platoons of :data:`CARS` random followers (first-order,
 second-order and proposed lower levels in turn, constant-time-gap upper levels drawn
-at random; seeds :data:`SEEDS`, none of them used while developing the estimators)
+at random; seeds :data:`SEEDS`; the estimators' problems were diagnosed on other
+seeds, 200-205, though a first version of this table was seen on these)
 and scores the band RMS ratio (:func:`avll.studies.openacc.amplification`, with the
 study's circular block bootstrap interval) and the H1 band gain
 (:func:`avll.spectral.h1_band_gain`) against each car's true band gain.
