@@ -1,0 +1,530 @@
+"""Synthetic platoons with a known truth, in the OpenACC loader's form (issue 28, item 2).
+
+A leader and ``n`` followers, each follower with its own known lower level (any of the
+three models, optionally with effects) and constant-time-gap upper level (paper Eq. 3:
+``kg, kv, Tg, Gmin``), recorded as a GNSS-equipped campaign would record them. The
+runs have the form :func:`avll.io.openacc_native.load_openacc_native` returns (one
+:class:`avll.Run` per follower: ``v``, ``x`` from 0, ``lead_x = x + spacing``,
+``lead_v`` the predecessor's *measured* speed, ``a`` derived from the measured speed as
+the loader does, ``meta`` with ``file``, ``car``, ``setting``, ``position``, ...), so the
+OpenACC study and the estimators consume them unchanged; ``meta["truth"]`` and
+:attr:`SynthPlatoon.truth` hold what the estimators should find.
+
+**The plant (near-continuous).**
+Every car is simulated by the library's closed loop (:func:`avll.closed_loop_effects`)
+at ``fine_dt`` (0.01 s by default: the upper law evaluated and the lower level stepped
+at 100 Hz), behind the previous car's *true* position and speed (the radar sees the
+true spacing), then sampled every ``dt`` (0.1 s). A follower-side disturbance -- the
+road, the wind, the ACC's own hunting, uncorrelated with the predecessor -- enters as
+an acceleration ``d(t)`` added to the car's acceleration, through the library's
+``grade`` effect (``a += -g_eff exo_grade`` with ``g_eff = 1``, ``exo_grade = -d``):
+``d`` is an AR(1) (Ornstein-Uhlenbeck) process of standard deviation
+``disturbance_std`` (m/s²) and correlation time ``disturbance_tau`` (s), per car.
+
+**The leader.**
+Cruise at ``v_mean`` plus a sum of ``n_tones`` sinusoids of random frequencies
+(log-uniform over ``band``, 0.02-0.2 Hz by default: periods of 5-50 s) and phases,
+scaled to the band RMS ``band_rms``, plus three slow tones (0.003-0.015 Hz) of RMS
+``drift_rms`` below the band (real leaders drift too, and the estimators must not
+mistake it for the band). The oscillation fades in over ``ramp`` s from a steady state,
+so every follower starts at equilibrium (speed ``v_mean``, gap ``Gmin + Tg v_mean``,
+lower level at rest) and no start transient enters the record; the first ``warmup`` s
+are simulated but not recorded. Position is the exact integral of the speed.
+
+**Equipment** (:data:`EQUIPMENT`).
+Measurement noise per campaign's equipment, each a white part plus a smooth coloured
+part (white noise through two first-order lags of time constant ``*_tau``), on speed
+(m/s), position (arc length, m) and spacing (m). A car's speed noise is the same
+realisation in its own run (``v``) and in its follower's (``lead_v``), as in a file. The presets:
+
+* ``"zalazone"``: VBOX-like, fused and smoothed (ZalaZone's notes: VBOX, u-blox 9 and
+  a tracker app "fused and interpolated to 10 Hz using 2nd degree B-splines"). The
+  white speed noise left in the files is tiny (the robust second-difference level of
+  the followers' ``Speed2..11`` in ``short_setting/dynamic_part12.csv`` is
+  0.0005-0.0013 m/s, their >1 Hz RMS 0.0008-0.003 m/s), so the noise must be slow:
+  0.02 m/s smooth coloured noise with 1 s time constants (the VBOX's quoted speed
+  accuracy is 0.1 km/h = 0.028 m/s) plus 0.001 m/s white; position 0.05 m coloured
+  (5 s) plus 0.01 m white; spacing 0.1 m coloured (5 s) plus 0.002 m white.
+* ``"jrc"``: an unfiltered u-blox-9-like receiver (JRC's notes: "Ublox 9 and OBD
+  ... Data are not filtered", raw Doppler speed, cubic splines to 10 Hz). The
+  second-difference level of ``Speed1..3`` in JRC low-speed ``part1.csv`` and
+  ``part11.csv`` is 0.012-0.064 m/s (>1 Hz RMS 0.054-0.074 m/s): 0.05 m/s white plus
+  0.02 m/s coloured (2 s); position 0.3 m white plus 0.5 m coloured (10 s: the slow
+  wander of a standalone receiver); spacing from two such receivers, 0.5 m coloured
+  (10 s) plus 0.02 m white (the files' ``IVS`` second-difference level after the
+  splines is 0.005-0.008 m).
+* ``"none"``: no noise (the true states).
+
+**The truth.**
+Per follower (:class:`CarTruth`): the model and its parameters, the upper law, the
+effects, the disturbance, the closed loop's ``|H(j 2 pi f)|`` (paper Eq. 8 with the true
+delay, :func:`avll.studies.openacc.transfer_gain`; with effects, on their small-signal
+equivalent at the mean speed) on the band's bins, the **band gain** -- ``|H|`` as an RMS
+gain on the true predecessor's band-passed speed spectrum
+(:func:`avll.studies.openacc.predicted_amplification` with the true car), the quantity
+both measured estimators aim at -- and ``Tg + Gmin / v_mean`` (the identified
+combination, ``v_mean`` the car's true mean speed over the record). The band RMS
+ratio of the *true* speeds (``rms_ratio_true``) is kept as well: it differs from the
+band gain by the follower's disturbance alone.
+
+Seeded: one random stream per ``(seed, purpose, car)``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ._limits import check_int, check_number, check_seed
+from .data import Run
+from .effects import Effect, Grade, WithEffects, closed_loop_effects
+from .models import LowerLevelModel, UpperLevel, model_class
+from .paper import TABLE_II_PARAMS
+
+__all__ = [
+    "Equipment",
+    "EQUIPMENT",
+    "CarTruth",
+    "SynthPlatoon",
+    "leader_speed",
+    "random_car",
+    "synth_platoon",
+    "validate_amplification",
+]
+
+DEFAULT_BAND: tuple[float, float] = (0.02, 0.2)
+
+
+@dataclass(frozen=True)
+class Equipment:
+    """Measurement noise (standard deviations; ``*_tau`` correlation times in s of the
+    coloured parts): speed (m/s), position (m), spacing (m)."""
+
+    name: str
+    speed_white: float = 0.0
+    speed_coloured: float = 0.0
+    speed_tau: float = 1.0
+    position_white: float = 0.0
+    position_coloured: float = 0.0
+    position_tau: float = 5.0
+    spacing_white: float = 0.0
+    spacing_coloured: float = 0.0
+    spacing_tau: float = 5.0
+
+    def __post_init__(self) -> None:
+        for k in ("speed_white", "speed_coloured", "position_white", "position_coloured",
+                  "spacing_white", "spacing_coloured"):
+            check_number(getattr(self, k), k, nonneg=True)
+        for k in ("speed_tau", "position_tau", "spacing_tau"):
+            check_number(getattr(self, k), k, positive=True)
+
+
+#: Equipment presets (see the module doc for the justification of each number).
+EQUIPMENT: dict[str, Equipment] = {
+    "zalazone": Equipment("zalazone", speed_white=0.001, speed_coloured=0.02, speed_tau=1.0,
+                          position_white=0.01, position_coloured=0.05, position_tau=5.0,
+                          spacing_white=0.002, spacing_coloured=0.1, spacing_tau=5.0),
+    "jrc": Equipment("jrc", speed_white=0.05, speed_coloured=0.02, speed_tau=2.0,
+                     position_white=0.3, position_coloured=0.5, position_tau=10.0,
+                     spacing_white=0.02, spacing_coloured=0.5, spacing_tau=10.0),
+    "none": Equipment("none"),
+}
+
+
+@dataclass(frozen=True)
+class CarTruth:
+    """One follower: lower level ``model``, upper level ``upper``, optional ``effects``
+    (not ``grade``: the disturbance uses it) and its own acceleration disturbance
+    (``disturbance_std`` m/s², ``disturbance_tau`` s)."""
+
+    model: LowerLevelModel
+    upper: UpperLevel
+    effects: tuple[Effect, ...] = ()
+    disturbance_std: float = 0.05
+    disturbance_tau: float = 3.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, LowerLevelModel):
+            raise ValueError(f"model: expected an avll model, got {type(self.model).__name__}")
+        if not isinstance(self.upper, UpperLevel):
+            raise ValueError(f"upper: expected an avll.UpperLevel, got {self.upper!r:.60}")
+        for e in self.effects:
+            if not isinstance(e, Effect):
+                raise ValueError(f"effects: expected Effect objects, got {type(e).__name__}")
+            if e.name == "grade":
+                raise ValueError("effects: 'grade' carries the follower's disturbance here; "
+                                 "give the disturbance by disturbance_std/disturbance_tau")
+        check_number(self.disturbance_std, "disturbance_std", nonneg=True)
+        check_number(self.disturbance_tau, "disturbance_tau", positive=True)
+
+
+@dataclass
+class SynthPlatoon:
+    """Result of :func:`synth_platoon`: ``runs`` (one per follower, loader form),
+    ``truth`` (one dict per follower, also in each run's ``meta["truth"]``), the true
+    trajectories at the recorded rate (``t``, ``v``, ``x``: (cars + 1, samples), row 0
+    the leader) and the settings."""
+
+    runs: list[Run]
+    truth: list[dict[str, Any]]
+    t: np.ndarray
+    v: np.ndarray
+    x: np.ndarray
+    settings: dict[str, Any] = field(default_factory=dict)
+
+
+def _ar1(rng: np.random.Generator, n: int, dt: float, std: float, tau: float) -> np.ndarray:
+    """A stationary AR(1) of standard deviation ``std`` and correlation time ``tau``."""
+    if std <= 0 or n == 0:
+        return np.zeros(n)
+    from scipy import signal
+
+    phi = math.exp(-dt / tau)
+    w = rng.normal(0.0, std * math.sqrt(1.0 - phi * phi), n)
+    w[0] = rng.normal(0.0, std)
+    return np.asarray(signal.lfilter([1.0], [1.0, -phi], w))
+
+
+def _smooth(rng: np.random.Generator, n: int, dt: float, std: float, tau: float) -> np.ndarray:
+    """A stationary, smooth (differentiable) coloured noise of standard deviation
+    ``std``: white noise through two first-order lags of time constant ``tau``
+    (a critically damped second-order process, as a fused and spline-smoothed
+    GNSS/inertial estimate errs), started after ``10 tau`` of burn-in."""
+    if std <= 0 or n == 0:
+        return np.zeros(n)
+    from scipy import signal
+
+    phi = math.exp(-dt / tau)
+    burn = int(math.ceil(10 * tau / dt))
+    w = rng.normal(0.0, 1.0, n + burn)
+    y = signal.lfilter([1.0], [1.0, -phi], signal.lfilter([1.0], [1.0, -phi], w))[burn:]
+    var = (1 + phi * phi) / (1 - phi * phi) ** 3  # variance of the cascade, unit input
+    return np.asarray(y) * (std / math.sqrt(var))
+
+
+def _noise(rng: np.random.Generator, n: int, dt: float, white: float, coloured: float,
+           tau: float) -> np.ndarray:
+    e = _smooth(rng, n, dt, coloured, tau)
+    return e + rng.normal(0.0, white, n) if white > 0 else e
+
+
+def leader_speed(
+    t: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    v_mean: float,
+    band_rms: float,
+    drift_rms: float,
+    band: Sequence[float] = DEFAULT_BAND,
+    n_tones: int = 24,
+    ramp: float = 30.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The leader's speed and position at times ``t`` (see the module doc): cruise at
+    ``v_mean``, ``n_tones`` tones log-uniform in ``band`` of RMS ``band_rms``, three
+    slow tones of RMS ``drift_rms``, all faded in by a raised cosine over ``ramp`` s."""
+    lo, hi = (float(b) for b in band)
+    f = np.exp(rng.uniform(math.log(lo), math.log(hi), n_tones))
+    fd = rng.uniform(0.003, 0.015, 3)
+    amp_b = np.full(n_tones, band_rms * math.sqrt(2.0 / n_tones))
+    amp_d = np.full(3, drift_rms * math.sqrt(2.0 / 3.0))
+    freqs = np.concatenate([f, fd])
+    amps = np.concatenate([amp_b, amp_d])
+    ph = rng.uniform(0.0, 2 * math.pi, freqs.size)
+    w = 2 * math.pi * freqs
+    # s(t) = sum A sin(w t + p); its integral from 0 is sum A (cos p - cos(w t + p)) / w.
+    s = np.sin(np.outer(t, w) + ph) @ amps
+    si = (np.cos(ph)[None, :] - np.cos(np.outer(t, w) + ph)) @ (amps / w)
+    # fade in: e(t) = (1 - cos(pi t / ramp)) / 2 until ramp; the position integrates
+    # e s numerically (trapezoid on the fine grid) where e < 1, exactly afterwards.
+    if ramp > 0:
+        e = np.where(t < ramp, 0.5 * (1.0 - np.cos(np.pi * np.minimum(t, ramp) / ramp)), 1.0)
+    else:
+        e = np.ones_like(t)
+    v = v_mean + e * s
+    osc = e * s
+    xo = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(t) * (osc[1:] + osc[:-1]))])
+    k = int(np.searchsorted(t, ramp))
+    if k < t.size:
+        xo[k:] = xo[k] + (si[k:] - si[k])
+    x = v_mean * (t - t[0]) + xo
+    return v, x
+
+
+_UPPER_RANGE = {"kg": (0.08, 0.25), "kv": (0.2, 0.6), "Tg": (1.0, 2.0), "Gmin": (2.0, 5.0)}
+
+
+def random_car(rng: np.random.Generator, model: str = "proposed", *,
+               disturbance_std: float = 0.05, disturbance_tau: float = 3.0,
+               effects: Sequence[Effect] = ()) -> CarTruth:
+    """A locally stable car drawn at random: the model's Table II parameters each
+    scaled by a factor in [0.7, 1.3] (``Td`` drawn in [0.2, 0.9] s), the upper law
+    uniformly in kg [0.08, 0.25] 1/s², kv [0.2, 0.6] 1/s, Tg [1, 2] s, Gmin [2, 5] m;
+    redrawn until the closed loop with the true delay is locally stable."""
+    from .stability import exact_delay_codes
+
+    cls = model_class(model)
+    base = TABLE_II_PARAMS[cls.name]
+    for _ in range(100):
+        p = {k: v * rng.uniform(0.7, 1.3) for k, v in base.items()}
+        p["Td"] = rng.uniform(0.2, 0.9)
+        m = cls(**p)
+        u = UpperLevel(**{k: float(rng.uniform(*r)) for k, r in _UPPER_RANGE.items()})
+        try:
+            lin = WithEffects(m, tuple(effects)).linear() if effects else m.linear()
+            if lin["K"] * lin["b0"] >= 1:
+                continue
+            codes, _ = exact_delay_codes(m, u.kg, u.Tg, u.kv)
+        except ValueError:
+            continue
+        if int(codes[0]) > 0:
+            return CarTruth(m, u, tuple(effects), disturbance_std, disturbance_tau)
+    raise ValueError(f"model: no locally stable {cls.name} car found in 100 draws")
+
+
+def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt: float,
+                 band: Sequence[float]) -> dict[str, Any]:
+    from .studies.openacc import amplification, predicted_amplification, transfer_gain
+
+    v_mean = float(np.mean(v_true))
+    lin_model: Any = car.model
+    if car.effects:
+        lin = WithEffects(car.model, car.effects).linear(v=v_mean)
+
+        class _Lin:  # the small-signal equivalent, in the form transfer_gain reads
+            @staticmethod
+            def linear() -> dict[str, float]:
+                return lin
+
+        lin_model = _Lin()
+    n = lead_v_true.size
+    f = np.fft.rfftfreq(n, dt)
+    lo, hi = (float(b) for b in band)
+    fb = f[(f >= lo) & (f <= hi)]
+    h = transfer_gain(lin_model, car.upper, fb)
+    gain = predicted_amplification(lin_model, car.upper, lead_v_true, dt, band)
+    ratio = amplification(v_true, lead_v_true, dt, band)[0]
+    return {
+        "model": car.model.name,
+        "params": {k: float(v) for k, v in car.model.to_dict().items()},
+        "upper": {"kg": car.upper.kg, "kv": car.upper.kv, "Tg": car.upper.Tg,
+                  "Gmin": car.upper.Gmin},
+        "effects": [{"name": e.name, **{k: float(v) for k, v in
+                                        zip(e.param_names(), e.to_array(), strict=True)}}
+                    for e in car.effects],
+        "disturbance_std": car.disturbance_std,
+        "disturbance_tau": car.disturbance_tau,
+        "band": [lo, hi],
+        "band_gain": float(gain),
+        "freqs": fb.tolist(),
+        "H_abs": np.asarray(h, dtype=float).tolist(),
+        "v_mean": v_mean,
+        "time_gap_effective": car.upper.Tg + car.upper.Gmin / v_mean,
+        "rms_ratio_true": float(ratio),
+    }
+
+
+def synth_platoon(
+    cars: Sequence[CarTruth] | int = 5,
+    *,
+    seed: int = 0,
+    equipment: str | Equipment = "zalazone",
+    duration: float = 600.0,
+    dt: float = 0.1,
+    fine_dt: float = 0.01,
+    warmup: float = 60.0,
+    v_mean: float = 20.0,
+    band_rms: float = 0.8,
+    drift_rms: float = 0.5,
+    band: Sequence[float] = DEFAULT_BAND,
+    models: Sequence[str] = ("first", "second", "proposed"),
+    disturbance_std: float = 0.05,
+    disturbance_tau: float = 3.0,
+    setting: str = "M",
+    file_name: str | None = None,
+) -> SynthPlatoon:
+    """A platoon of the module doc: ``cars`` followers (given as :class:`CarTruth`, or
+    a number of random ones from :func:`random_car`, cycling through ``models``, with
+    ``disturbance_std``/``_tau``), recorded for ``duration`` s at ``dt`` after
+    ``warmup`` s, with ``equipment`` noise (a name of :data:`EQUIPMENT` or an
+    :class:`Equipment`). Deterministic in ``seed``. A follower that diverges is a
+    ``ValueError`` naming it."""
+    seed = check_seed(seed)
+    dt = check_number(dt, "dt", positive=True)
+    fine_dt = check_number(fine_dt, "fine_dt", positive=True)
+    duration = check_number(duration, "duration", positive=True)
+    warmup = check_number(warmup, "warmup", nonneg=True)
+    v_mean = check_number(v_mean, "v_mean", positive=True)
+    band_rms = check_number(band_rms, "band_rms", nonneg=True)
+    drift_rms = check_number(drift_rms, "drift_rms", nonneg=True)
+    sub = dt / fine_dt
+    if abs(sub - round(sub)) > 1e-9 or round(sub) < 1:
+        raise ValueError(f"fine_dt: must divide dt ({dt:g} s) a whole number of times, "
+                         f"got {fine_dt:g} s")
+    sub = int(round(sub))
+    if duration < 20 * dt:
+        raise ValueError(f"duration: must be >= 20 dt, got {duration:g} s")
+    try:
+        lo, hi = (float(b) for b in band)
+    except (TypeError, ValueError):
+        raise ValueError(f"band: expected (low, high) in Hz, got {band!r}") from None
+    if not (0 < lo < hi < 0.5 / dt):
+        raise ValueError(f"band: need 0 < low < high < {0.5 / dt:g} Hz, got ({lo:g}, {hi:g})")
+    if isinstance(equipment, str):
+        if equipment not in EQUIPMENT:
+            raise ValueError(f"equipment: unknown {equipment!r}; known: {', '.join(EQUIPMENT)}")
+        eq = EQUIPMENT[equipment]
+    elif isinstance(equipment, Equipment):
+        eq = equipment
+    else:
+        raise ValueError(f"equipment: expected a name or an Equipment, got {equipment!r:.60}")
+    if isinstance(cars, (int, np.integer)) and not isinstance(cars, bool):
+        nc = check_int(int(cars), "cars", min=1, max=50)
+        if not models:
+            raise ValueError("models: no model given")
+        rng_c = np.random.default_rng([seed, 11])
+        truths = [random_car(rng_c, models[i % len(models)], disturbance_std=disturbance_std,
+                             disturbance_tau=disturbance_tau) for i in range(nc)]
+    else:
+        if isinstance(cars, (bool, str, bytes)) or not hasattr(cars, "__iter__"):
+            raise ValueError(f"cars: expected CarTruth objects or a number, got {cars!r:.60}")
+        truths = list(cars)
+        if not truths:
+            raise ValueError("cars: no car given")
+        for c in truths:
+            if not isinstance(c, CarTruth):
+                raise ValueError(f"cars: expected CarTruth objects or a number, got "
+                                 f"{type(c).__name__}")
+    n_rec = int(round(duration / dt))
+    n_warm = int(round(warmup / dt))
+    n_fine = (n_rec + n_warm) * sub
+    tf = np.arange(n_fine) * fine_dt
+    lv, lx = leader_speed(tf, np.random.default_rng([seed, 1]), v_mean=v_mean,
+                          band_rms=band_rms, drift_rms=drift_rms, band=(lo, hi),
+                          ramp=min(30.0, 0.5 * warmup) if warmup > 0 else 0.0)
+    if lv.min() <= 0.5:
+        raise ValueError(f"band_rms, drift_rms: the leader's speed drops to {lv.min():.2f} m/s "
+                         f"around v_mean={v_mean:g} m/s; use a larger v_mean")
+    vs, xs = [lv], [lx]
+    for i, car in enumerate(truths, start=1):
+        d = _ar1(np.random.default_rng([seed, 2, i]), n_fine, fine_dt, car.disturbance_std,
+                 car.disturbance_tau)
+        mod = WithEffects(car.model, (*car.effects, Grade(g_eff=1.0)))
+        gap0 = car.upper.Gmin + car.upper.Tg * float(vs[-1][0])
+        tr = closed_loop_effects(mod, xs[-1], vs[-1], fine_dt, car.upper, v0=float(vs[-1][0]),
+                                 x0=float(xs[-1][0] - gap0), exo={"grade": -d})
+        if not (np.all(np.isfinite(tr.v)) and np.all(np.isfinite(tr.x))):
+            raise ValueError(f"cars: follower {i} ({car.model!r}, {car.upper!r}) diverges")
+        vs.append(np.asarray(tr.v))
+        xs.append(np.asarray(tr.x))
+    keep = slice(n_warm * sub, None, sub)
+    v_true = np.array([v[keep] for v in vs])
+    x_true = np.array([x[keep] for x in xs])
+    t = np.arange(n_rec) * dt
+    v_meas = np.empty_like(v_true)
+    x_meas = np.empty_like(x_true)
+    for i in range(v_true.shape[0]):
+        rng = np.random.default_rng([seed, 3, i])
+        v_meas[i] = v_true[i] + _noise(rng, n_rec, dt, eq.speed_white, eq.speed_coloured,
+                                       eq.speed_tau)
+        x_meas[i] = (x_true[i] - x_true[i, 0]) + _noise(
+            rng, n_rec, dt, eq.position_white, eq.position_coloured, eq.position_tau)
+    from .io.openacc_native import derive_acceleration
+
+    stem = file_name or f"synthetic_{eq.name}_seed{seed}.csv"
+    names = ["leader"] + [f"car{i}" for i in range(1, len(truths) + 1)]
+    runs, truth = [], []
+    for i in range(1, v_true.shape[0]):
+        rng = np.random.default_rng([seed, 4, i])
+        gap = (x_true[i - 1] - x_true[i]) + _noise(rng, n_rec, dt, eq.spacing_white,
+                                                   eq.spacing_coloured, eq.spacing_tau)
+        te = _truth_entry(truths[i - 1], v_true[i - 1], v_true[i], dt, (lo, hi))
+        truth.append(te)
+        meta = {
+            "format": "openacc", "synthetic": True, "generator": "avll.synth_platoon",
+            "seed": int(seed), "equipment": eq.name, "file": stem, "folder": "synthetic",
+            "date": "2026-01-01", "car": names[i], "lead_car": names[i - 1],
+            "setting": setting, "acc": True, "setting_in_file": setting, "position": i - 1,
+            "vehicle_index": i, "lead_index": i - 1, "track": "synthetic",
+            "n_vehicles": len(names), "vehicle_order": names, "t_start": 0.0,
+            "t_end": float(t[-1]), "cleaning": [], "truth": te,
+        }
+        runs.append(Run(
+            run_id=f"{stem.rsplit('.', 1)[0]}/v{i - 1}-v{i}", t=t,
+            a=derive_acceleration(v_meas[i], dt), command_kind="acceleration", command=None,
+            v=v_meas[i], x=x_meas[i], lead_x=x_meas[i] + gap, lead_v=v_meas[i - 1],
+            lead_a=derive_acceleration(v_meas[i - 1], dt), meta=meta))
+    settings = {"seed": int(seed), "equipment": eq.name, "duration": duration, "dt": dt,
+                "fine_dt": fine_dt, "warmup": warmup, "v_mean": v_mean,
+                "band_rms": band_rms, "drift_rms": drift_rms, "band": [lo, hi]}
+    return SynthPlatoon(runs, truth, t, v_true, x_true, settings)
+
+
+def _summary(err: list[float], inside: list[bool], missing: int) -> dict[str, Any]:
+    e = np.asarray(err, dtype=float)
+    if not e.size:
+        return {"n": 0, "missing": missing, "median_error": None, "mean_error": None,
+                "median_abs_error": None, "within_10pct": None, "coverage": None}
+    return {"n": int(e.size), "missing": int(missing),
+            "median_error": float(np.median(e)), "mean_error": float(np.mean(e)),
+            "median_abs_error": float(np.median(np.abs(e))),
+            "within_10pct": float(np.mean(np.abs(e) <= 0.10)),
+            "coverage": float(np.mean(inside)) if inside else None}
+
+
+def validate_amplification(
+    seeds: Sequence[int],
+    *,
+    cars: int = 5,
+    band: Sequence[float] = DEFAULT_BAND,
+    n_boot: int = 1000,
+    **platoon: Any,
+) -> dict[str, Any]:
+    """Both measured-amplification estimators against the truth on the platoons of
+    ``seeds`` (``cars`` random followers each, ``platoon`` options to
+    :func:`synth_platoon`): the band RMS ratio
+    (:func:`avll.studies.openacc.amplification` with the study's circular block
+    bootstrap interval, ``n_boot`` resamples) and the H1 band gain
+    (:func:`avll.spectral.h1_band_gain`), each against the true band gain. Returns
+    ``{"rows": [...], "rms_ratio": summary, "h1": summary}``; a summary has ``n``,
+    ``missing`` (no estimate), ``median_error``, ``mean_error``,
+    ``median_abs_error`` (errors ``estimate / truth - 1``), ``within_10pct`` and
+    ``coverage`` (share of 95 % intervals that contain the truth)."""
+    from .spectral import h1_band_gain
+    from .studies.openacc import amplification, bandpass, bootstrap_ci
+
+    rows: list[dict[str, Any]] = []
+    acc: dict[str, tuple[list[float], list[bool], list[int]]] = {
+        "rms_ratio": ([], [], [0]), "h1": ([], [], [0])}
+    for s in seeds:
+        pl = synth_platoon(cars, seed=int(s), band=band, **platoon)
+        for j, (r, tr) in enumerate(zip(pl.runs, pl.truth, strict=True)):
+            assert r.v is not None and r.lead_v is not None
+            truth = tr["band_gain"]
+            ratio = amplification(r.v, r.lead_v, r.dt, band)[0]
+            lo, hi = bootstrap_ci(bandpass(r.v, r.dt, band), bandpass(r.lead_v, r.dt, band),
+                                  r.dt, n=n_boot, seed=[int(s), j])
+            g = h1_band_gain(r.lead_v, r.v, r.dt, band)
+            row = {"seed": int(s), "car": r.meta["car"], "model": tr["model"],
+                   "truth": truth, "rms_ratio": ratio, "rms_ratio_ci": [lo, hi],
+                   "h1": g.gain, "h1_ci": None if g.ci is None else list(g.ci),
+                   "coherence": g.coherence, "h1_reason": g.reason,
+                   "rms_ratio_true": tr["rms_ratio_true"]}
+            rows.append(row)
+            for key, est, ci in (("rms_ratio", ratio, (lo, hi)), ("h1", g.gain, g.ci)):
+                err, inside, missing = acc[key]
+                if est is None or not math.isfinite(est):
+                    missing[0] += 1
+                    continue
+                err.append(est / truth - 1.0)
+                if ci is not None:
+                    inside.append(bool(ci[0] <= truth <= ci[1]))
+    out: dict[str, Any] = {"rows": rows}
+    for key, (err, inside, missing) in acc.items():
+        out[key] = _summary(err, inside, missing[0])
+    coh = [r["coherence"] for r in rows if r["coherence"] is not None]
+    out["h1"]["median_coherence"] = float(np.median(coh)) if coh else None
+    return out
