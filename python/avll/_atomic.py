@@ -27,6 +27,7 @@ Folders
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import hashlib
 import json
 import os
@@ -48,6 +49,7 @@ __all__ = [
     "json_safe",
     "dumps",
     "savefig",
+    "figure_dpi",
     "to_csv",
     "to_parquet",
     "output_dir",
@@ -237,12 +239,29 @@ def write_json(path: str | os.PathLike[str], obj: Any, *, indent: int | None = 2
     return write_text(path, dumps(obj, indent=indent, default=default) + "\n")
 
 
+_DPI: contextvars.ContextVar[int | None] = contextvars.ContextVar("avll_dpi", default=None)
+
+
+@contextlib.contextmanager
+def figure_dpi(dpi: int | None) -> Iterator[None]:
+    """Within the block, every :func:`savefig` writes raster figures at ``dpi`` dots per
+    inch, whatever its caller asked for (the ``--dpi`` of the ``avll`` command); None
+    changes nothing."""
+    token = _DPI.set(dpi)
+    try:
+        yield
+    finally:
+        _DPI.reset(token)
+
+
 def savefig(fig: Any, path: str | os.PathLike[str], **kw: Any) -> Path:
     """``fig.savefig`` to ``path`` atomically (the format from the suffix unless
-    ``format=`` is given)."""
+    ``format=`` is given; the resolution from :func:`figure_dpi` when one is set)."""
     p = Path(path)
     if "format" not in kw and p.suffix:
         kw["format"] = p.suffix[1:].lower()
+    if _DPI.get() is not None:
+        kw["dpi"] = _DPI.get()
     with atomic_path(p) as tmp:
         fig.savefig(tmp, **kw)
     return p

@@ -49,6 +49,10 @@ __all__ = [
     "boundaries",
 ]
 
+#: Resolution in dots per inch of the PNG figures the ``avll`` commands write (their
+#: ``--dpi``); SVG and PDF figures, chosen by the output's suffix, are vector graphics.
+DEFAULT_DPI = 150
+
 _EXTRA = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:red")
 
 

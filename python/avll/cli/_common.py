@@ -44,6 +44,10 @@ __all__ = [
     "astazero_options",
     "declare_io",
     "check_io",
+    "add_dpi",
+    "check_figure_path",
+    "fmt_value",
+    "FIGURE_FORMATS",
     "parse_list",
 ]
 
@@ -277,11 +281,95 @@ def astazero_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def declare_io(p: argparse.ArgumentParser, inputs: Sequence[str] = (),
-               files: Sequence[str] = (), folders: Sequence[str] = ()) -> None:
+               files: Sequence[str] = (), folders: Sequence[str] = (),
+               figures: Sequence[str] = ()) -> None:
     """Declares a command's input paths and its output files and folders (argparse
-    ``dest`` names) for :func:`check_io`."""
+    ``dest`` names) for :func:`check_io`; ``figures`` are the output files among
+    ``files`` that are figures (their suffix picks the format: ``FIGURE_FORMATS``)."""
     p.set_defaults(io_inputs=tuple(inputs), io_outputs=tuple(files) + tuple(folders),
-                   io_folders=tuple(folders))
+                   io_folders=tuple(folders), io_figures=tuple(figures))
+
+
+#: Figure formats the commands write, chosen by the output's suffix.
+FIGURE_FORMATS: tuple[str, ...] = ("png", "svg", "pdf")
+
+
+def add_dpi(p: argparse.ArgumentParser) -> None:
+    """``--dpi N``: resolution of the raster (PNG) figures a command writes."""
+    from ..plotting import DEFAULT_DPI
+
+    p.add_argument("--dpi", action=_Count, minimum=10, default=DEFAULT_DPI, metavar="N",
+                   help="resolution of PNG figures in dots per inch; SVG and PDF figures "
+                   f"are vector graphics, chosen by the file's suffix (default: {DEFAULT_DPI})")
+
+
+def check_figure_path(label: str, path: str | os.PathLike[str]) -> None:
+    """A ``ValueError`` naming ``label`` when ``path``'s suffix is not a figure format
+    the commands write (``.png``, ``.svg``, ``.pdf``)."""
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in FIGURE_FORMATS:
+        raise ValueError(f"{label}: {path}: the suffix picks the figure format; use "
+                         f"{', '.join('.' + f for f in FIGURE_FORMATS)}")
+
+
+def fmt_value(x: Any, spec: str = ".4g", none: str = "none") -> str:
+    """``x`` formatted with ``spec``; ``none`` (the word) for None or NaN, so that a
+    missing value never prints as ``nan``."""
+    if x is None:
+        return none
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    if v != v:
+        return none
+    return format(v, spec)
+
+
+def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
+    """Every file an input names: the path itself, its canonical sidecar
+    (``X.meta.json``) and, for a folder, every file below it (the loaders read them)."""
+    out: list[tuple[str, Any]] = [(label, path)]
+    if path is None:
+        return out
+    p = Path(path)
+    out.append((f"{label} (its sidecar)", p.with_name(p.name + ".meta.json")))
+    if p.is_dir():
+        try:
+            below = [f for f in p.rglob("*") if f.is_file()]
+        except OSError:  # an unreadable subfolder: the loader reports it
+            below = []
+        out += [(f"{label} (a file it holds)", f) for f in below[:100_000]]
+    return out
+
+
+def _manifest_command(folder: Path) -> str | None:
+    """The ``command`` recorded in ``folder``'s MANIFEST.json (None: no manifest)."""
+    import json
+
+    from .._atomic import MANIFEST
+
+    mp = folder / MANIFEST
+    if not mp.is_file():
+        return None
+    try:
+        doc = json.loads(mp.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return "an unreadable manifest"
+    cmd = doc.get("command") if isinstance(doc, dict) else None
+    return str(cmd) if cmd else "an unknown command"
+
+
+def check_not_foreign(label: str, folder: Path, command: str, overwrite: bool) -> None:
+    """A ``ValueError`` naming ``label`` when ``folder`` holds the manifest of another
+    command than ``command`` (``avll X`` writes only over its own folders) and
+    ``overwrite`` is not set."""
+    other = _manifest_command(folder)
+    if other is None or overwrite or command in other.split():
+        return
+    raise ValueError(f"{label}: {folder} holds the output of {other!r} (its MANIFEST.json); "
+                     "writing there would replace it: choose another folder, or pass "
+                     "--overwrite")
 
 
 def _label(dest: str, positional: Sequence[str]) -> str:
@@ -322,8 +410,11 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
         v = getattr(args, d, None)
         return None if v == "" else v  # an empty path means "not written" (--out "")
 
-    inputs = [(_label(d, positional), given(d)) for d in ins]
+    inputs = [f for d in ins for f in _input_files(_label(d, positional), given(d))]
     outputs = [(_label(d, positional), given(d), d in folders) for d in outs]
+    for d in getattr(args, "io_figures", ()):
+        if given(d) is not None:
+            check_figure_path(_label(d, positional), given(d))
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
     named = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
     for i, (la, pa) in enumerate(named):
@@ -333,3 +424,6 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
     for lab, pth, folder in outputs:
         if pth is not None:
             _writable_target(lab, Path(pth), folder)
+            if folder and Path(pth).is_dir():
+                check_not_foreign(lab, Path(pth), str(getattr(args, "command", "")),
+                                  bool(getattr(args, "overwrite", False)))

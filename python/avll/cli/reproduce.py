@@ -8,6 +8,9 @@ from pathlib import Path
 
 from ._common import add_json, add_progress, add_seed, add_threads, declare_io
 
+#: The default output folder (each command has its own).
+DEFAULT_OUT = "avll-out/reproduce"
+
 
 def _cmd(args: argparse.Namespace) -> int:
     from ..report import fmt
@@ -41,8 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "loop, and write report.md/report.html/summary.json with the paper's numbers "
         "side by side.",
     )
-    p.add_argument("--out", default="avll-out", metavar="DIR",
-                   help="output folder (default: avll-out)")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                   help=f"output folder (default: {DEFAULT_OUT})")
     add_json(p, "the summary", default="OUT/summary.json")
     p.add_argument("--data", default="synthetic",
                    choices=("synthetic", "carma", "openacc-astazero"),
