@@ -47,6 +47,7 @@ __all__ = [
     "add_dpi",
     "check_figure_path",
     "fmt_value",
+    "check_informative",
     "FIGURE_FORMATS",
     "parse_list",
 ]
@@ -427,3 +428,49 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
             if folder and Path(pth).is_dir():
                 check_not_foreign(lab, Path(pth), str(getattr(args, "command", "")),
                                   bool(getattr(args, "overwrite", False)))
+
+
+# ---------------------------------------------------------------------------
+# Data that cannot identify a model
+# ---------------------------------------------------------------------------
+
+#: Fewer samples than this in a run cannot calibrate a model (the proposed one has six
+#: parameters and a dead time spanning several samples).
+MIN_SAMPLES = 20
+
+
+def _degenerate(r: Any) -> str | None:
+    """What makes run ``r`` useless for a fit (None: nothing)."""
+    import numpy as np
+
+    n = len(r)
+    if n < MIN_SAMPLES:
+        return f"too short: {n} samples (at least {MIN_SAMPLES} needed)"
+    drive = r.command if r.command is not None else r.lead_v
+    name = "command" if r.command is not None else "lead_v"
+    a = np.asarray(r.a, dtype=float)
+    if drive is None:
+        return None
+    d = np.asarray(drive, dtype=float)
+    if not (np.any(a) or np.any(d)):
+        return f"{name} and a are all zero: nothing to fit"
+    if np.ptp(d) == 0:
+        return f"{name} is constant ({d[0]:g}): it does not excite the model"
+    return None
+
+
+def check_informative(runs: Sequence[Any], source: Any, what: str = "calibrate") -> None:
+    """A warning (:class:`avll.DataWarning`, naming the file and the run) for each run
+    that is too short, constant or all zero; a :class:`avll.DataError` when every run is
+    so (nothing to ``what`` on)."""
+    import warnings
+
+    from ..data import DataError, DataWarning
+
+    bad = [(r.run_id, why) for r in runs if (why := _degenerate(r)) is not None]
+    if bad and len(bad) == len(runs):
+        rid, why = bad[0]
+        more = f" (and {len(bad) - 1} more run(s) alike)" if len(bad) > 1 else ""
+        raise DataError(f"{source}: run {rid!r}: {why}{more}; nothing to {what} on")
+    for rid, why in bad:
+        warnings.warn(f"{source}: run {rid!r}: {why}", DataWarning, stacklevel=2)

@@ -32,6 +32,7 @@ from ._common import (
     add_seed,
     add_threads,
     astazero_options,
+    check_informative,
     declare_io,
     select_runs,
 )
@@ -99,6 +100,7 @@ def _cmd(args: argparse.Namespace) -> int:
     runs = read_runs(args.data, command_kind=args.command_kind, format=args.format,
                      **astazero_options(args))  # fmt: skip
     cal = _pick("--cal-runs", args.cal_runs, runs)
+    check_informative(cal, args.data, "diagnose")
     test = _pick("--test-runs", args.test_runs, runs)
     splits = {"--cal-runs": cal, "--test-runs": test}
     if args.val_runs is not None:
