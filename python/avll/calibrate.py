@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 from . import _core, _sigint
-from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_seed, check_threads
 from .data import Run
 
@@ -920,6 +919,3 @@ def paper_workflow(
             break
     return Workflow(results, cal, val, val_mse, bool(opts.get("closed_loop", False)),
                     str(opts.get("init", "rest")))  # fmt: skip
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.calibrate:register"})

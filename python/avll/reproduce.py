@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from . import _atomic
-from ._compat import moved as _moved
 from ._limits import check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel
@@ -1008,6 +1007,3 @@ def _mean(x: Any) -> Any:
     if isinstance(x, dict) and x:
         return float(np.mean(list(x.values())))
     return x
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.reproduce:register"})

@@ -62,6 +62,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     from ._common import add_dpi
 
     for p in _all_parsers(parser):
+        # no abbreviations: `--model` must not silently mean `--models`
+        p.allow_abbrev = False
         if p is parser or any(isinstance(a, argparse._SubParsersAction) for a in p._actions):
             continue
         have = {o for a in p._actions for o in a.option_strings}

@@ -1,9 +1,8 @@
 """Options shared by the ``avll`` sub-commands, defined once.
 
 * model selection: ``--models M[,M...]`` (comma-separated and/or repeated) on the
-  commands that take several models; ``--model`` is the same option under its old
-  spelling (accepted, with a deprecation note on stderr). Commands about one model
-  take ``--model M``.
+  commands that take several models; commands about one model take ``--model M``
+  (one meaning everywhere: a single model).
 * run selection: ``--cal-runs`` -- run ids or glob patterns (``data5/*``), comma
   separated (:func:`select_runs`);
 * ``--seed``, ``--threads``, ``--json PATH``;
@@ -71,13 +70,10 @@ def parse_list(opt: str, text: str) -> list[str]:
 
 class _Models(argparse.Action):
     """``--models a,b --models c``: names accumulated, checked against the known
-    models; the ``--model`` spelling prints a deprecation note."""
+    models."""
 
     def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace,
                  values: Any, option_string: str | None = None) -> None:
-        if option_string == "--model":
-            print(f"{parser.prog}: note: --model is deprecated here; use --models "
-                  "(comma-separated or repeated)", file=sys.stderr)
         got = list(getattr(ns, self.dest) or [])
         for name in parse_list(option_string or "--models", str(values)):
             if name not in MODEL_NAMES:
@@ -88,16 +84,15 @@ class _Models(argparse.Action):
         setattr(ns, self.dest, got)
 
 
-def add_models(p: argparse.ArgumentParser, default: Sequence[str], *, alias: bool = True,
+def add_models(p: argparse.ArgumentParser, default: Sequence[str], *, alias: bool = False,
                what: str = "models") -> None:
-    """``--models`` (with ``alias``, also under its deprecated spelling ``--model``):
-    several models; ``models_of`` gives the selection or ``default``."""
-    names = ("--models", "--model") if alias else ("--models",)
-    note = "; --model is the deprecated spelling" if alias else ""
-    p.add_argument(*names, dest="models", action=_Models, default=None,
+    """``--models``: several models; ``models_of`` gives the selection or ``default``.
+    (``--model`` is always one model, see :func:`add_model`; ``alias`` is ignored: the
+    old ``--model`` spelling of ``--models`` is gone.)"""
+    p.add_argument("--models", dest="models", action=_Models, default=None,
                    metavar="M[,M...]",
                    help=f"{what}, comma-separated or repeated, from {', '.join(MODEL_NAMES)} "
-                   f"(default: {','.join(default)}){note}")
+                   f"(default: {','.join(default)})")
     p.set_defaults(models_default=tuple(default))
 
 
@@ -413,15 +408,15 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
 
     inputs = [f for d in ins for f in _input_files(_label(d, positional), given(d))]
     outputs = [(_label(d, positional), given(d), d in folders) for d in outs]
-    for d in getattr(args, "io_figures", ()):
-        if given(d) is not None:
-            check_figure_path(_label(d, positional), given(d))
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
     named = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
     for i, (la, pa) in enumerate(named):
         for lb, pb in named[i + 1:]:
             if same_file(pa, pb):
                 raise ValueError(f"{lb}: {pb} is also the output of {la}; choose distinct names")
+    for d in getattr(args, "io_figures", ()):
+        if given(d) is not None:
+            check_figure_path(_label(d, positional), given(d))
     for lab, pth, folder in outputs:
         if pth is not None:
             _writable_target(lab, Path(pth), folder)

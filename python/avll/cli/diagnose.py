@@ -152,8 +152,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"effect (default: {MIN_GAIN})")
     p.add_argument("--max-effects", type=int, default=3,
                    help="at most this many effects (default: 3)")
-    add_ga_budget(p, generations=300, starts=DEFAULT_STARTS, what="every fit",
-                  old_generations=("--maxiter",))
+    add_ga_budget(p, generations=300, starts=DEFAULT_STARTS, what="every fit")
     p.add_argument("--candidates", default=None, metavar="E[,E...]",
                    help="effects offered, comma-separated (default: every registered "
                    "effect that applies to the data)")
