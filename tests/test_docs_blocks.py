@@ -149,12 +149,15 @@ def test_every_section_reference_names_a_section_that_exists() -> None:
         heads = [" ".join(re.sub(r"[`*]", "", h).split()).lower() for h in _headings(target)]
         heads += [re.split(r"[:(]", h)[0].strip() for h in heads]
 
-        def names(h: str) -> bool:
-            return bool(h) and (h.startswith(norm) or norm == h or norm.startswith(h + " "))
-
-        if not any(names(h) for h in heads):
+        if not any(_names(h, norm) for h in heads):
             bad.append(f"{f.relative_to(ROOT)}: {page} § {words.strip()}: no such section")
     assert not bad, "\n".join(bad)
+
+
+def _names(heading: str, ref: str) -> bool:
+    """Whether the reference text ``ref`` names ``heading`` (both lowercased)."""
+    return bool(heading) and (heading.startswith(ref) or ref.startswith(heading + " ")
+                              or ref == heading)
 
 
 # -- avll commands in shell blocks ------------------------------------------------------

@@ -196,7 +196,7 @@ def _main(argv: Sequence[str] | None) -> int:
             with strict_warnings(bool(getattr(args, "strict", False))):
                 return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"avll {command}: interrupted", file=sys.stderr)
+        print(f"{_who(command)}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0  # the reader went away (e.g. `| head`): not an error
@@ -204,7 +204,12 @@ def _main(argv: Sequence[str] | None) -> int:
         msg = " ".join(str(e).split())
         if isinstance(e, MemoryError):
             msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
-        print(f"avll {command}: error: {msg}", file=sys.stderr)
+        print(f"{_who(command)}: error: {msg}", file=sys.stderr)
         return 2
+
+
+def _who(command: str) -> str:
+    """``avll COMMAND`` for messages (``avll`` before the command is known)."""
+    return "avll" if command == "?" else f"avll {command}"
 
 
