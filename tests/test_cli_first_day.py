@@ -372,7 +372,7 @@ def test_degenerate_input_is_an_error_naming_the_file(tmp_path: Path,
     c = _table(tmp_path / "const.csv", {"r": (np.full(400, 0.5), np.full(400, 0.5))})
     o = _table(tmp_path / "allzero.csv", {"r": (np.zeros(400), np.zeros(400))})
     capsys.readouterr()
-    for path, words in ((z, "too short: 2 samples"), (c, "command is constant"),
+    for path, words in ((z, "too short: 2 samples"), (c, "command and a are constant"),
                         (o, "all zero")):
         assert main(["calibrate", str(path), "--command-kind", "acceleration",
                      "--max-generations", "2", "--starts", "1", "-q"]) == 2

@@ -449,8 +449,11 @@ def _degenerate(r: Any) -> str | None:
     d = np.asarray(drive, dtype=float)
     if not (np.any(a) or np.any(d)):
         return f"{name} and a are all zero: nothing to fit"
-    if np.ptp(d) == 0:
-        return f"{name} is constant ({d[0]:g}): it does not excite the model"
+    if np.ptp(d) == 0 and np.ptp(a) == 0:
+        # (a constant set speed alone is fine when the response moves: the free-flow
+        # runs of a speed loop)
+        return (f"{name} and a are constant ({d[0]:g} and {a[0]:g}): nothing excites "
+                "the model")
     return None
 
 
