@@ -121,22 +121,22 @@ def test_stability_map_outputs_are_committed_together(
         p.write_text("old")
     from avll import _atomic
 
-    real = _atomic.savefig
+    real = _atomic.figure_bytes
     calls = []
 
-    def flaky(fig, path, **kw):  # type: ignore[no-untyped-def]
-        calls.append(path)
+    def flaky(fig, fmt, **kw):  # type: ignore[no-untyped-def]
+        calls.append(fmt)  # the second figure, after the first one was written
         if len(calls) == 2:
             raise KeyboardInterrupt
-        return real(fig, path, **kw)
+        return real(fig, fmt, **kw)
 
-    monkeypatch.setattr(_atomic, "savefig", flaky)
+    monkeypatch.setattr(_atomic, "figure_bytes", flaky)
     argv = ["stability-map", "--models", "first", *SMALL_MAP, "--out", str(paths[0]),
             "--thresholds-out", str(paths[1]), "--json", str(paths[2]), "-q"]
     assert main(argv) == 130
     assert [p.read_text() for p in paths] == ["old"] * 3
     assert sorted(f.name for f in tmp_path.iterdir()) == ["map.png", "th.json", "th.png"]
-    monkeypatch.setattr(_atomic, "savefig", real)
+    monkeypatch.setattr(_atomic, "figure_bytes", real)
     assert main(argv) == 0
     doc = json.loads(paths[2].read_text())
     # the JSON, renamed last, lists the figures it was written with
@@ -396,3 +396,29 @@ def test_one_degenerate_run_among_good_ones_is_a_warning(tmp_path: Path,
                "--cal-runs", "good,flat", "--max-generations", "2", "--starts", "1", "-q",
                "--strict"])
     assert rc == 2
+
+
+def test_output_group_commits_files_and_folders_as_one_unit(tmp_path: Path) -> None:
+    from avll import _atomic
+
+    a, b, d = tmp_path / "a.json", tmp_path / "b.txt", tmp_path / "rep"
+    with _atomic.output_group():
+        _atomic.write_json(a, {"v": 1})
+        with _atomic.output_dir(d, meta={"command": "avll diagnose"}) as st:
+            _atomic.write_text(st / "report.md", "one")
+        _atomic.write_text(b, "one")
+        # nothing visible yet (the folder holds only its hidden staging folder)
+        assert not a.exists() and not b.exists()
+        assert [p.name.startswith(".avll-tmp-") for p in d.iterdir()] == [True]
+    assert json.loads(a.read_text()) == {"v": 1} and b.read_text() == "one"
+    assert _atomic.read_manifest(d)["files"].keys() == {"report.md"}
+    # Ctrl-C after some outputs were written: every destination as it was, no debris
+    with pytest.raises(KeyboardInterrupt), _atomic.output_group():
+        _atomic.write_json(a, {"v": 2})
+        with _atomic.output_dir(d, meta={"command": "avll diagnose"}) as st:
+            _atomic.write_text(st / "report.md", "two")
+        raise KeyboardInterrupt
+    assert json.loads(a.read_text()) == {"v": 1}
+    assert (d / "report.md").read_text() == "one" and _atomic.read_manifest(d)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.txt", "rep"]
+    assert sorted(p.name for p in d.iterdir()) == ["MANIFEST.json", "report.md"]

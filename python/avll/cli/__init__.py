@@ -186,14 +186,15 @@ def _main(argv: Sequence[str] | None) -> int:
 
         check_io(args)  # before any work (and before loading the loaders)
         # imported after parsing: `avll --help` does not load the loaders (pandas)
-        from .._atomic import figure_dpi
+        from .._atomic import figure_dpi, output_group
         from .._sigint import latched
         from ..io._common import strict_warnings
 
         with warnings.catch_warnings(), latched(), figure_dpi(getattr(args, "dpi", None)):
             warnings.simplefilter("always", DataWarning)
             warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
-            with strict_warnings(bool(getattr(args, "strict", False))):
+            # every output of the command is committed as one unit at its end
+            with strict_warnings(bool(getattr(args, "strict", False))), output_group():
                 return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print(f"{_who(command)}: interrupted", file=sys.stderr)

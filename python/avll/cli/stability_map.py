@@ -250,24 +250,23 @@ def _panel_indices(maps: Sequence[np.ndarray], n_kv: int, panels: int) -> np.nda
 
 def _commit_outputs(figs: Sequence[tuple[str, Any]], json_path: str | None,
                     doc: dict[str, Any] | None) -> None:
-    """Writes the figures and the JSON as one unit: all to temporary names first, then
-    renamed together with Ctrl-C deferred (the JSON last, with the figures' sizes and
-    SHA-256 as its manifest), so that an interrupted run leaves the old files, never a
-    new figure beside an old JSON."""
+    """Writes the figures, then the JSON with the figures' sizes and SHA-256 (its
+    manifest of the run's outputs). The ``avll`` command commits them as one unit
+    (:func:`avll._atomic.output_group`): an interrupted run leaves the old files, never
+    a new figure beside an old JSON."""
+    import hashlib
+
     from .. import _atomic
 
-    paths = [p for p, _ in figs] + ([json_path] if json_path and doc is not None else [])
-    if not paths:
-        return
-    with _atomic.atomic_paths(*paths) as tmps:
-        made: dict[str, Any] = {}
-        for (path, fig), tmp in zip(figs, tmps, strict=False):
-            fmt = Path(path).suffix.lstrip(".").lower() or "png"
-            _atomic.savefig(fig, tmp, format=fmt, dpi=120)
-            made[str(path)] = {"bytes": tmp.stat().st_size, "sha256": _atomic.sha256(tmp)}
-        if json_path and doc is not None:
-            doc["outputs"] = made
-            tmps[-1].write_text(_atomic.dumps(doc) + "\n", encoding="utf-8")
+    made: dict[str, Any] = {}
+    for path, fig in figs:
+        data = _atomic.figure_bytes(fig, Path(path).suffix.lstrip(".").lower() or "png",
+                                    dpi=120)
+        _atomic.write_bytes(path, data)
+        made[str(path)] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    if json_path and doc is not None:
+        doc["outputs"] = made
+        _atomic.write_json(json_path, doc)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
