@@ -422,3 +422,12 @@ def test_output_group_commits_files_and_folders_as_one_unit(tmp_path: Path) -> N
     assert (d / "report.md").read_text() == "one" and _atomic.read_manifest(d)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.txt", "rep"]
     assert sorted(p.name for p in d.iterdir()) == ["MANIFEST.json", "report.md"]
+
+
+def test_calibrate_tables_say_none_not_nan(runs_csv: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["calibrate", str(runs_csv), "--max-generations", "2", "--starts", "1",
+                 "-q"]) == 0
+    out = capsys.readouterr().out
+    assert not re.search(r"\bnan\b", out, re.I), out
+    assert "-: not a parameter of that model" in out

@@ -787,8 +787,8 @@ class Workflow:
 
         with pd.option_context("display.width", 200, "display.max_columns", 50):
             parts = [
-                "Calibrated parameters (cf. Table II)",
-                self.params_table().to_string(float_format=lambda v: f"{v:.4f}"),
+                "Calibrated parameters (cf. Table II; -: not a parameter of that model)",
+                self.params_table().to_string(float_format=lambda v: f"{v:.4f}", na_rep="-"),
                 "",
                 "Calibration MSE (m/s^2)^2 (cf. Table III)",
                 self.mse_table("cal").to_string(float_format=lambda v: f"{v:.4f}"),
