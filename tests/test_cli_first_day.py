@@ -431,3 +431,16 @@ def test_calibrate_tables_say_none_not_nan(runs_csv: Path,
     out = capsys.readouterr().out
     assert not re.search(r"\bnan\b", out, re.I), out
     assert "-: not a parameter of that model" in out
+
+
+def test_the_sidecar_of_a_runs_output_is_an_output_too(runs_csv: Path, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]
+                                                       ) -> None:
+    out = tmp_path / "canon.csv"
+    capsys.readouterr()
+    assert main(["load", str(runs_csv), "--out", str(out), "--report",
+                 str(tmp_path / "canon.csv.meta.json")]) == 2
+    _err_line(capsys, "--out (its sidecar)", "choose distinct names")
+    # an input's sidecar as the sidecar of the output: the output is the input itself
+    assert main(["synth", "--out", str(tmp_path / "s.csv")]) == 0
+    assert main(["load", str(tmp_path / "s.csv"), "--out", str(tmp_path / "s.csv")]) == 2

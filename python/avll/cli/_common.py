@@ -278,12 +278,15 @@ def astazero_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def declare_io(p: argparse.ArgumentParser, inputs: Sequence[str] = (),
                files: Sequence[str] = (), folders: Sequence[str] = (),
-               figures: Sequence[str] = ()) -> None:
+               figures: Sequence[str] = (), runs: Sequence[str] = ()) -> None:
     """Declares a command's input paths and its output files and folders (argparse
     ``dest`` names) for :func:`check_io`; ``figures`` are the output files among
-    ``files`` that are figures (their suffix picks the format: ``FIGURE_FORMATS``)."""
+    ``files`` that are figures (their suffix picks the format: ``FIGURE_FORMATS``),
+    ``runs`` those written in the canonical format (with a ``.meta.json`` sidecar,
+    itself an output)."""
     p.set_defaults(io_inputs=tuple(inputs), io_outputs=tuple(files) + tuple(folders),
-                   io_folders=tuple(folders), io_figures=tuple(figures))
+                   io_folders=tuple(folders), io_figures=tuple(figures),
+                   io_runs=tuple(runs))
 
 
 #: Figure formats the commands write, chosen by the output's suffix.
@@ -408,6 +411,11 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
 
     inputs = [f for d in ins for f in _input_files(_label(d, positional), given(d))]
     outputs = [(_label(d, positional), given(d), d in folders) for d in outs]
+    for d in getattr(args, "io_runs", ()):
+        if given(d) is not None:  # the canonical writer's sidecar is an output too
+            path = Path(given(d))
+            outputs.append((f"{_label(d, positional)} (its sidecar)",
+                            path.with_name(path.name + ".meta.json"), False))
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
     named = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
     for i, (la, pa) in enumerate(named):

@@ -81,5 +81,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "not written)")
     p.add_argument("--report", default=None, metavar="PATH",
                    help="write the per-run cleaning as strict JSON (default: not written)")
-    declare_io(p, inputs=("path",), files=("out", "report"))
+    declare_io(p, inputs=("path",), files=("out", "report"), runs=("out",))
     p.set_defaults(func=_cmd)
