@@ -140,9 +140,11 @@ def _cmd(args: argparse.Namespace) -> int:
     if args.exact:
         kg_r, tg_r, kv_r = (float(kg.min()), float(kg.max())), (float(tg.min()), float(
             tg.max())), (float(kv.min()), float(kv.max()))
-        print("\nexact (not grid-bound) over the same ranges (kg, Tg and kv of the grid):")
+        lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
+        print("\nexact (not grid-bound) over the same ranges (kg, Tg and kv of the grid"
+              + ("; kg from 1e-06, as kg = 0 has no gap control" if kg_r[0] <= 0 else "")
+              + "):")
         for m in models:
-            lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
             e1 = min_stable_tg(m, lo, kv_r, args.pade_order, tg_range=tg_r)
             e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=kv_r)
             exact[m.name] = {"min_stable_tg": e1.to_dict(), "kv_supremum": e2.to_dict()}
