@@ -54,7 +54,7 @@ def test_no_output_is_an_inputs_sidecar(runs_csv: Path, capsys: pytest.CaptureFi
     before = side.read_bytes()
     capsys.readouterr()
     for argv in (["load", str(runs_csv), "--out", str(side)],
-                 ["load", str(runs_csv), "--report", str(side)],
+                 ["load", str(runs_csv), "--json", str(side)],
                  ["calibrate", str(runs_csv), "--json", str(side)],
                  ["diagnose", str(runs_csv), "--cal-runs", "1", "--json", str(side)]):
         assert main(argv) == 2, argv
@@ -69,7 +69,7 @@ def test_no_output_is_a_file_of_an_input_folder(runs_csv: Path, tmp_path: Path,
     for f in runs_csv.parent.glob("runs.csv*"):
         (folder / f.name).write_bytes(f.read_bytes())
     capsys.readouterr()
-    assert main(["load", str(folder), "--report", str(folder / "runs.csv")]) == 2
+    assert main(["load", str(folder), "--json", str(folder / "runs.csv")]) == 2
     _err_line(capsys, "a file it holds", "would replace the input")
 
 
@@ -335,6 +335,17 @@ def test_model_means_one_model_everywhere_and_no_abbreviations() -> None:
         build_parser().parse_args(["calibrate", "x.csv", "--model", "first"])
 
 
+def test_json_and_report_mean_one_thing_each() -> None:
+    # --json: a strict JSON file; --report: a folder with a Markdown/HTML report (load's
+    # cleaning JSON was once --report)
+    for name, p in _leaf_parsers().items():
+        for a in p._actions:  # type: ignore[attr-defined]
+            if "--json" in a.option_strings:
+                assert a.metavar == "PATH" and "strict JSON" in a.help, name
+            if "--report" in a.option_strings:
+                assert a.metavar == "DIR" and "report" in a.help, name
+
+
 def test_figures_take_dpi_and_vector_formats(runs_csv: Path, tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
     base = ["stability-map", "--models", "first", *SMALL_MAP, "-q"]
@@ -438,7 +449,7 @@ def test_the_sidecar_of_a_runs_output_is_an_output_too(runs_csv: Path, tmp_path:
                                                        ) -> None:
     out = tmp_path / "canon.csv"
     capsys.readouterr()
-    assert main(["load", str(runs_csv), "--out", str(out), "--report",
+    assert main(["load", str(runs_csv), "--out", str(out), "--json",
                  str(tmp_path / "canon.csv.meta.json")]) == 2
     _err_line(capsys, "--out (its sidecar)", "choose distinct names")
     # an input's sidecar as the sidecar of the output: the output is the input itself

@@ -48,7 +48,7 @@ def test_cli_json_outputs_are_strict(tmp_path: Path) -> None:
     data = tmp_path / "runs.csv"
     assert main(["synth", "--out", str(data), "--duration", "20", "--model", "second"]) == 0
     _strict(tmp_path / "runs.csv.meta.json")
-    assert main(["load", str(data), "--report", str(tmp_path / "load.json")]) == 0
+    assert main(["load", str(data), "--json", str(tmp_path / "load.json")]) == 0
     _strict(tmp_path / "load.json")
     cal = tmp_path / "cal.json"
     assert main(["calibrate", str(data), "--models", "first,second", "--max-generations",
