@@ -455,3 +455,17 @@ def test_the_sidecar_of_a_runs_output_is_an_output_too(runs_csv: Path, tmp_path:
     # an input's sidecar as the sidecar of the output: the output is the input itself
     assert main(["synth", "--out", str(tmp_path / "s.csv")]) == 0
     assert main(["load", str(tmp_path / "s.csv"), "--out", str(tmp_path / "s.csv")]) == 2
+
+
+@pytest.mark.slow
+def test_real_reproduce_then_simulate_with_defaults(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    from avll import _atomic
+    from avll.cli.reproduce import DEFAULT_OUT
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["reproduce", "--quick", "--no-diagnosis", "-q"]) == 0
+    before = _atomic.read_manifest(DEFAULT_OUT)
+    assert "report.md" in before["files"] and "summary.json" in before["files"]
+    assert main(["simulate"]) == 0
+    assert _atomic.read_manifest(DEFAULT_OUT) == before  # verified file by file
