@@ -199,8 +199,6 @@ def _main(argv: Sequence[str] | None) -> int:
     except KeyboardInterrupt:
         print(f"{_who(command)}: interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        return 0  # the reader went away (e.g. `| head`): not an error
     except (ValueError, TypeError, OSError, MemoryError) as e:
         msg = " ".join(str(e).split())
         if isinstance(e, MemoryError):
