@@ -43,7 +43,7 @@ def test_write_json_is_strict(tmp_path: Path) -> None:
 
 
 def test_cli_json_outputs_are_strict(tmp_path: Path) -> None:
-    """synth's sidecar, load --report, calibrate --json, stability-map --json (the
+    """synth's sidecar, load --json, calibrate --json, stability-map --json (the
     first-order lag has NaN thresholds: null with a note) all parse strictly."""
     data = tmp_path / "runs.csv"
     assert main(["synth", "--out", str(data), "--duration", "20", "--model", "second"]) == 0
