@@ -195,6 +195,27 @@ def test_a_closed_pipe_ends_quietly_with_exit_0(runs_csv: Path, tmp_path: Path) 
     assert (tmp_path / "m.png").is_file()  # the output is still written
 
 
+def test_a_pipe_closed_before_the_first_line_ends_quietly(runs_csv: Path, tmp_path: Path
+                                                          ) -> None:
+    # the reader is gone before the command prints anything (`| head -0`, or a small
+    # output that a `head` would otherwise read whole): every write meets EPIPE
+    import os
+
+    for argv in (["load", str(runs_csv), "--json", str(tmp_path / "clean.json")],
+                 ["stability-map", "--models", "first", *SMALL_MAP, "--out",
+                  str(tmp_path / "m2.png"), "-q"]):
+        r, w = os.pipe()
+        with subprocess.Popen([sys.executable, "-m", "avll", *argv], cwd=tmp_path,
+                              stdout=w, stderr=subprocess.PIPE, text=True) as p:
+            os.close(w)
+            os.close(r)
+            _, err = p.communicate(timeout=120)
+        assert p.returncode == 0, (argv, p.returncode, err)
+        assert "Broken pipe" not in err and "Traceback" not in err and "error" not in err, err
+    # and the files were written all the same
+    assert (tmp_path / "clean.json").is_file() and (tmp_path / "m2.png").is_file()
+
+
 # -- search ranges, none, precision, counts ----------------------------------------------
 
 
