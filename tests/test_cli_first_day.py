@@ -490,3 +490,11 @@ def test_real_reproduce_then_simulate_with_defaults(tmp_path: Path,
     assert "report.md" in before["files"] and "summary.json" in before["files"]
     assert main(["simulate"]) == 0
     assert _atomic.read_manifest(DEFAULT_OUT) == before  # verified file by file
+
+
+def test_load_json_carries_the_precision_of_the_data(runs_csv: Path, tmp_path: Path) -> None:
+    out = tmp_path / "clean.json"
+    assert main(["load", str(runs_csv), "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["1"]["dt"] == 0.05 and doc["1"]["duration_s"] == 19.95
+    assert not re.search(r"\d\.\d{13,}", out.read_text())

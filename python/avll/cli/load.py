@@ -44,7 +44,10 @@ def _cmd(args: argparse.Namespace) -> int:
     print(f"{len(runs)} runs, {total:.1f} s in total")
     if args.json:
         _atomic.write_json(args.json, _atomic.json_safe({
-            r.run_id: {"samples": len(r), "dt": r.dt, "duration_s": (len(r) - 1) * r.dt,
+            # 12 significant digits: a step read off time stamps carries no more
+            # (0.049999999999999996 is 0.05)
+            r.run_id: {"samples": len(r), "dt": float(f"{r.dt:.12g}"),
+                       "duration_s": float(f"{(len(r) - 1) * r.dt:.12g}"),
                        "command_kind": r.command_kind,
                        "cleaning": list(r.meta.get("cleaning", []))}
             for r in runs}), indent=1)
