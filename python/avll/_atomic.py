@@ -301,8 +301,7 @@ def to_parquet(df: Any, path: str | os.PathLike[str], **kw: Any) -> Path:
     return Path(path)
 
 
-def sha256(path: str | os.PathLike[str]) -> str:
-    """The SHA-256 of a file's bytes (hex)."""
+def _sha256(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -436,7 +435,7 @@ def _abort_group(pending: list[tuple[str, Any]]) -> None:
 def _commit(stage: Path, dest: Path, meta: dict[str, Any]) -> None:
     new = _files(stage)
     doc = {"complete": True, **meta,
-           "files": {f: {"bytes": (stage / f).stat().st_size, "sha256": sha256(stage / f)}
+           "files": {f: {"bytes": (stage / f).stat().st_size, "sha256": _sha256(stage / f)}
                      for f in new}}
     for f in new:
         _fsync_file(stage / f)
@@ -478,7 +477,7 @@ def read_manifest(path: str | os.PathLike[str], *, verify: bool = True) -> dict[
             p = d / f
             if not p.is_file():
                 raise ValueError(f"{d}: {f} is listed in {MANIFEST} but missing")
-            if p.stat().st_size != info.get("bytes") or sha256(p) != info.get("sha256"):
+            if p.stat().st_size != info.get("bytes") or _sha256(p) != info.get("sha256"):
                 raise ValueError(f"{d}: {f} differs from {MANIFEST} (changed after the run)")
     return doc
 
