@@ -89,7 +89,7 @@ def test_cli_options(c2art, tmp_path, capsys):
     f = str(c2art / "Exp" / "PyData" / P7)
     rep = tmp_path / "r.json"
     assert main(["load", f, "--format", "openacc-astazero", "--no-grade",
-                 "--report", str(rep)]) == 0
+                 "--json", str(rep)]) == 0
     assert main(["load", f, "--format", "openacc-astazero", "--lap-length", "5000",
                  "--slope", str(c2art / "Exp" / "Slope.csv")]) == 0
     capsys.readouterr()

@@ -346,7 +346,7 @@ def test_cli_load_converts_to_canonical(tmp_path, capsys):
     out = tmp_path / "canon.csv"
     rep = tmp_path / "rep" / "r.json"
     assert main(["load", str(p), "--format", "carma", "--min-duration", "1",
-                 "--out", str(out), "--report", str(rep)]) == 0
+                 "--out", str(out), "--json", str(rep)]) == 0
     assert "2 runs" in capsys.readouterr().out
     back = read_runs(out)
     orig = load_carma(p, min_duration=1.0)

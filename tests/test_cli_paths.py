@@ -76,7 +76,7 @@ def test_no_command_writes_over_its_input(tmp_path: Path,
     capsys.readouterr()
     for argv in (["calibrate", str(data), "--json", str(data)],
                  ["calibrate", str(data), "--figure", str(data)],
-                 ["load", str(data), "--report", str(data)]):
+                 ["load", str(data), "--json", str(data)]):
         assert main(argv) == 2
         _one_line_error(capsys, "would replace the input")
     assert data.read_bytes() == before

@@ -59,15 +59,15 @@ def test_shared_options_are_the_same_everywhere() -> None:
     assert len(seen["--threads"]) == 1
 
 
-def test_models_accepts_both_spellings_comma_and_repeat(capsys: pytest.CaptureFixture[str]
+def test_models_comma_and_repeat_and_model_means_one(capsys: pytest.CaptureFixture[str]
                                                         ) -> None:
     p = build_parser()
     a = p.parse_args(["stability-map", "--models", "first,second", "--models", "proposed"])
     assert a.models == ["first", "second", "proposed"]
     assert capsys.readouterr().err == ""
-    b = p.parse_args(["stability-map", "--model", "first", "--model", "second"])
-    assert b.models == ["first", "second"]
-    assert "--model is deprecated" in capsys.readouterr().err
+    # --model is one model everywhere: the old --model spelling of --models is gone
+    with pytest.raises(SystemExit):
+        p.parse_args(["stability-map", "--model", "first"])
     c = p.parse_args(["calibrate", "x.csv"])
     assert c.models is None and list(c.models_default) == list(MODEL_NAMES)
     with pytest.raises(SystemExit) as e:
@@ -98,24 +98,14 @@ def test_format_names_match_the_loaders() -> None:
     assert sorted(FORMAT_NAMES) == sorted(FORMATS)
 
 
-@pytest.mark.parametrize("module,new", [
-    ("avll.calibrate", "avll.cli.calibrate"),
-    ("avll.stability", "avll.cli.stability_map"),
-    ("avll.demo", "avll.cli.simulate"),
-    ("avll.synth", "avll.cli.synth"),
-    ("avll.reproduce", "avll.cli.reproduce"),
-    ("avll.studies", "avll.cli.study"),
-    ("avll.studies.openacc", "avll.cli.study"),
-    ("avll.diagnose", "avll.cli.diagnose"),
-])
-def test_old_register_cli_warns_and_works(module: str, new: str) -> None:
+@pytest.mark.parametrize("module", ["avll.calibrate", "avll.stability", "avll.demo",
+                                    "avll.synth", "avll.reproduce", "avll.studies",
+                                    "avll.studies.openacc", "avll.diagnose"])
+def test_no_register_cli_shims(module: str) -> None:
+    # the package was never released: the commands live in avll.cli only
     mod = importlib.import_module(module)
-    with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
-        fn = mod.register_cli
-    parser = argparse.ArgumentParser()
-    fn(parser.add_subparsers())  # registers without error
     with pytest.raises(AttributeError):
-        _ = mod.no_such_name
+        _ = mod.register_cli
 
 
 def test_python_dash_m_avll_runs() -> None:
@@ -167,12 +157,14 @@ def test_ga_budget_named_alike_old_spellings_work(capsys: pytest.CaptureFixture[
     parser = build_parser()
     for argv, gen in ((["calibrate", "d.csv", "--max-generations", "7"], 7),
                       (["diagnose", "d.csv", "--cal-runs", "1", "--json", "o.json",
-                        "--maxiter", "9", "--starts", "3"], 9),
+                        "--max-generations", "9", "--starts", "3"], 9),
                       (["study", "openacc", "d", "--out", "o", "--generations", "4"], 4)):
         ns = parser.parse_args(argv)
         assert ns.max_generations == gen
     err = capsys.readouterr().err
-    assert "--maxiter is deprecated; use --max-generations" in err
+    with pytest.raises(SystemExit):  # the old diagnose spelling is gone
+        parser.parse_args(["diagnose", "d.csv", "--cal-runs", "1", "--json", "o",
+                           "--maxiter", "9"])
     assert "--generations is deprecated; use --max-generations" in err
     with pytest.raises(ValueError, match="--starts: must be >= 1, got 0"):
         parser.parse_args(["diagnose", "d.csv", "--cal-runs", "1", "--json", "o", "--starts",

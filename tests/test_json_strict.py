@@ -43,12 +43,12 @@ def test_write_json_is_strict(tmp_path: Path) -> None:
 
 
 def test_cli_json_outputs_are_strict(tmp_path: Path) -> None:
-    """synth's sidecar, load --report, calibrate --json, stability-map --json (the
+    """synth's sidecar, load --json, calibrate --json, stability-map --json (the
     first-order lag has NaN thresholds: null with a note) all parse strictly."""
     data = tmp_path / "runs.csv"
     assert main(["synth", "--out", str(data), "--duration", "20", "--model", "second"]) == 0
     _strict(tmp_path / "runs.csv.meta.json")
-    assert main(["load", str(data), "--report", str(tmp_path / "load.json")]) == 0
+    assert main(["load", str(data), "--json", str(tmp_path / "load.json")]) == 0
     _strict(tmp_path / "load.json")
     cal = tmp_path / "cal.json"
     assert main(["calibrate", str(data), "--models", "first,second", "--max-generations",

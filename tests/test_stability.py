@@ -404,7 +404,7 @@ def test_cli_stability_map(tmp_path, capsys) -> None:  # type: ignore[no-untyped
 
     out = tmp_path / "map.png"
     js = tmp_path / "th.json"
-    rc = main(["stability-map", "--model", "second", "--model", "proposed",
+    rc = main(["stability-map", "--models", "second", "--models", "proposed",
                "--kg", "0.001", "2", "60", "--tg", "0", "15", "76", "--kv", "0", "1", "11",
                "--out", str(out), "--json", str(js), "--quiet"])
     assert rc == 0 and out.stat().st_size > 1000

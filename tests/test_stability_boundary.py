@@ -273,7 +273,7 @@ def test_cli_exact_thresholds(tmp_path, capsys) -> None:  # type: ignore[no-unty
     from avll.cli import main
 
     js = tmp_path / "th.json"
-    rc = main(["stability-map", "--model", "proposed", "--kg", "0.001", "2", "20",
+    rc = main(["stability-map", "--models", "proposed", "--kg", "0.001", "2", "20",
                "--tg", "0", "15", "31", "--kv", "0", "1", "6", "--out", "",
                "--json", str(js), "--quiet", "--exact"])
     assert rc == 0

@@ -173,7 +173,7 @@ def test_cli_scheduler_address(client, tmp_path) -> None:  # type: ignore[no-unt
     from avll.cli import main
 
     js = tmp_path / "th.json"
-    args = ["stability-map", "--model", "second", "--kg", "0.001", "2", "30", "--tg", "0", "15",
+    args = ["stability-map", "--models", "second", "--kg", "0.001", "2", "30", "--tg", "0", "15",
             "31", "--kv", "0", "1", "6", "--out", "", "--json", str(js), "--quiet"]
     assert main(args) == 0
     local = json.loads(js.read_text())

@@ -7,6 +7,8 @@ automated vehicle".
 
 from typing import TYPE_CHECKING, Any
 
+# first: in the `avll` command, a Ctrl-C while the package imports is one line, exit 130
+from . import _startup  # noqa: F401
 from ._core import __version__
 
 # eager: ``avll.calibrate`` must stay the function, which the submodule of the same

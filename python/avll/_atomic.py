@@ -27,6 +27,7 @@ Folders
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import hashlib
 import json
 import os
@@ -48,9 +49,12 @@ __all__ = [
     "json_safe",
     "dumps",
     "savefig",
+    "figure_dpi",
+    "figure_bytes",
     "to_csv",
     "to_parquet",
     "output_dir",
+    "output_group",
     "read_manifest",
     "same_file",
     "check_not_inputs",
@@ -139,6 +143,12 @@ def atomic_paths(*paths: str | os.PathLike[str]) -> Iterator[list[Path]]:
         yield [Path(t) for t in tmps]
         for t in tmps:
             _fsync_file(t)
+        group = _GROUP.get()
+        if group is not None and not any(
+                part.startswith(STAGING_PREFIX) for d in dests for part in d.parts):
+            # renamed with the group's other outputs when it ends (see output_group)
+            group.append(("files", list(zip(tmps, dests, strict=True))))
+            return
         with deferred_sigint():
             for t, dest in zip(tmps, dests, strict=True):
                 os.replace(t, dest)
@@ -237,15 +247,44 @@ def write_json(path: str | os.PathLike[str], obj: Any, *, indent: int | None = 2
     return write_text(path, dumps(obj, indent=indent, default=default) + "\n")
 
 
+_DPI: contextvars.ContextVar[int | None] = contextvars.ContextVar("avll_dpi", default=None)
+
+
+@contextlib.contextmanager
+def figure_dpi(dpi: int | None) -> Iterator[None]:
+    """Within the block, every :func:`savefig` writes raster figures at ``dpi`` dots per
+    inch, whatever its caller asked for (the ``--dpi`` of the ``avll`` command); None
+    changes nothing."""
+    token = _DPI.set(dpi)
+    try:
+        yield
+    finally:
+        _DPI.reset(token)
+
+
 def savefig(fig: Any, path: str | os.PathLike[str], **kw: Any) -> Path:
     """``fig.savefig`` to ``path`` atomically (the format from the suffix unless
-    ``format=`` is given)."""
+    ``format=`` is given; the resolution from :func:`figure_dpi` when one is set)."""
     p = Path(path)
     if "format" not in kw and p.suffix:
         kw["format"] = p.suffix[1:].lower()
+    if _DPI.get() is not None:
+        kw["dpi"] = _DPI.get()
     with atomic_path(p) as tmp:
         fig.savefig(tmp, **kw)
     return p
+
+
+def figure_bytes(fig: Any, fmt: str, **kw: Any) -> bytes:
+    """The bytes of ``fig`` in format ``fmt`` (``png``, ``svg``, ``pdf``), at the
+    resolution of :func:`figure_dpi` when one is set."""
+    import io
+
+    if _DPI.get() is not None:
+        kw["dpi"] = _DPI.get()
+    buf = io.BytesIO()
+    fig.savefig(buf, format=fmt, **kw)
+    return buf.getvalue()
 
 
 def to_csv(df: Any, path: str | os.PathLike[str], **kw: Any) -> Path:
@@ -304,16 +343,93 @@ def output_dir(path: str | os.PathLike[str], *, meta: dict[str, Any] | None = No
         stage = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=dest))
     except OSError as e:
         raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
-    ok = False
+    ok = deferred = False
     try:
         yield stage
-        _commit(stage, dest, meta or {})
+        group = _GROUP.get()
+        if group is not None:
+            # committed with the group's other outputs when it ends (see output_group)
+            group.append(("folder", (stage, dest, dict(meta or {}), created)))
+            deferred = True
+        else:
+            _commit(stage, dest, meta or {})
         ok = True
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
-        if created and not ok:
-            with contextlib.suppress(OSError):
-                dest.rmdir()  # only if still empty: a folder this run created
+        if not deferred:
+            _drop_stage(stage, dest, created and not ok)
+
+
+def _drop_stage(stage: Path, dest: Path, remove_dest: bool) -> None:
+    shutil.rmtree(stage, ignore_errors=True)
+    if remove_dest:
+        with contextlib.suppress(OSError):
+            dest.rmdir()  # only if still empty: a folder this run created
+
+
+#: The outputs of the open :func:`output_group`: ("files", [(tmp, dest), ...]) and
+#: ("folder", (stage, dest, meta, created)) entries, in the order they were written.
+_GROUP: contextvars.ContextVar[list[tuple[str, Any]] | None] = contextvars.ContextVar(
+    "avll_output_group", default=None)
+
+
+@contextlib.contextmanager
+def output_group() -> Iterator[None]:
+    """Every output written in the block (files through :func:`atomic_paths` and its
+    writers, folders through :func:`output_dir`) is committed as one unit when the
+    block ends normally: all renames and folder commits run then, in the order the
+    outputs were written, with Ctrl-C deferred; an error or a Ctrl-C inside the block
+    removes every temporary file and staging folder, so the destinations stay as they
+    were (never a new figure beside an old JSON). The ``avll`` command runs each
+    sub-command in one group. Writes inside a staging folder are not deferred (the
+    folder's own commit covers them)."""
+    if _GROUP.get() is not None:  # nested: the outer group commits
+        yield
+        return
+    pending: list[tuple[str, Any]] = []
+    token = _GROUP.set(pending)
+    ok = False
+    try:
+        yield
+        ok = True
+    finally:
+        _GROUP.reset(token)
+        if ok:
+            _commit_group(pending)
+        else:
+            _abort_group(pending)
+
+
+def _commit_group(pending: list[tuple[str, Any]]) -> None:
+    done = 0
+    with deferred_sigint():
+        try:
+            for kind, item in pending:
+                done += 1
+                if kind == "files":
+                    for tmp, dest in item:
+                        os.replace(tmp, dest)
+                    for d in {dest.parent for _, dest in item}:
+                        _fsync_dir(d)
+                else:
+                    stage, dest, meta, created = item
+                    try:
+                        _commit(stage, dest, meta)
+                    finally:
+                        _drop_stage(stage, dest, False)
+        except BaseException:
+            _abort_group(pending[done:])
+            raise
+
+
+def _abort_group(pending: list[tuple[str, Any]]) -> None:
+    for kind, item in pending:
+        if kind == "files":
+            for tmp, _ in item:
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+        else:
+            stage, dest, _, created = item
+            _drop_stage(stage, dest, created)
 
 
 def _commit(stage: Path, dest: Path, meta: dict[str, Any]) -> None:

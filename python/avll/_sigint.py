@@ -16,7 +16,9 @@ The library installs nothing by itself: in a notebook or a script Python's own h
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -64,3 +66,64 @@ def latched() -> Iterator[None]:
         if installed:
             signal.signal(signal.SIGINT, old)  # type: ignore[arg-type]
         clear()
+
+
+# -- the ``avll`` command's start and end --------------------------------------------
+
+#: Set when the ``avll`` command's process installed :func:`quiet_exit` at start-up.
+console = False
+
+
+def quiet_exit(signum: int, frame: FrameType | None) -> None:
+    """SIGINT handler of the ``avll`` command's first and last moments (importing the
+    package; after the command's outputs are committed): nothing is half written then,
+    so it flushes stdout, prints one line and exits with 130 at once, without a
+    traceback and without ending the process by the signal."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 - a closed pipe: nothing left to say there
+            pass
+    try:
+        os.write(2, b"avll: interrupted\n")
+    except OSError:
+        pass
+    os._exit(130)
+
+
+def _is_console(argv: list[str], orig: list[str]) -> bool:
+    """Whether this process is the ``avll`` command (the console script, or
+    ``python -m avll`` / ``python -m avll.cli``)."""
+    if argv and os.path.basename(argv[0]).removesuffix(".exe") == "avll":
+        return True
+    pairs = zip(orig[:-1], orig[1:], strict=True)
+    return any(a == "-m" and b in ("avll", "avll.cli") for a, b in pairs)
+
+
+def at_startup() -> None:
+    """Called first by ``import avll``: in the ``avll`` command's process (and only
+    there) a Ctrl-C while the package imports ends the command with one line and exit
+    code 130 (:func:`quiet_exit`) instead of a traceback; :func:`avll.cli.main` puts
+    Python's handler back as soon as it runs."""
+    global console
+    if console or threading.current_thread() is not threading.main_thread():
+        return
+    if not _is_console(list(sys.argv), list(getattr(sys, "orig_argv", []))):
+        return
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, quiet_exit)
+        console = True
+
+
+def command_starts() -> None:
+    """The command runs: Python's own SIGINT handler again (the command handles
+    ``KeyboardInterrupt`` itself and commits or removes its outputs)."""
+    if console and signal.getsignal(signal.SIGINT) is quiet_exit:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def command_ends() -> None:
+    """The command is done (outputs committed or removed): a Ctrl-C from now until the
+    process exits is :func:`quiet_exit` (one line, exit 130), not a signal exit."""
+    if console and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, quiet_exit)

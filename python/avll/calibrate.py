@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 from . import _core, _sigint
-from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_seed, check_threads
 from .data import Run
 
@@ -788,8 +787,8 @@ class Workflow:
 
         with pd.option_context("display.width", 200, "display.max_columns", 50):
             parts = [
-                "Calibrated parameters (cf. Table II)",
-                self.params_table().to_string(float_format=lambda v: f"{v:.4f}"),
+                "Calibrated parameters (cf. Table II; -: not a parameter of that model)",
+                self.params_table().to_string(float_format=lambda v: f"{v:.4f}", na_rep="-"),
                 "",
                 "Calibration MSE (m/s^2)^2 (cf. Table III)",
                 self.mse_table("cal").to_string(float_format=lambda v: f"{v:.4f}"),
@@ -920,6 +919,3 @@ def paper_workflow(
             break
     return Workflow(results, cal, val, val_mse, bool(opts.get("closed_loop", False)),
                     str(opts.get("init", "rest")))  # fmt: skip
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.calibrate:register"})

@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 
 from . import PAPER_TABLE_II
-from ._compat import moved as _moved
 from .rollout import simulate
 
 
 def demo_command(dt: float = 0.05, duration: float = 60.0) -> np.ndarray:
-    """A built-in command acceleration: a step, a ramp back and a 0.1 Hz oscillation."""
+    """A built-in command acceleration (m/s²): 1 for the first 10 s, -0.5 for the next
+    10 s (two steps), then a 0.1 Hz sine of amplitude 0.8 to the end."""
     t = np.arange(0.0, duration, dt)
     u = np.where(t < 10, 1.0, 0.0) + np.where((t >= 10) & (t < 20), -0.5, 0.0)
     u = u + np.where(t >= 20, 0.8 * np.sin(2 * np.pi * 0.1 * (t - 20)), 0.0)
@@ -43,8 +43,11 @@ def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
     cols = np.column_stack([t, u, *res.values()])
     with _atomic.output_dir(Path(out), meta={"command": "avll simulate"}) as stage:
         with _atomic.atomic_path(stage / "simulate.csv") as tmp:
+            # t to the step's precision, accelerations to 1e-6 m/s² (the rollout's
+            # accuracy is far finer; more digits would only print float noise)
+            fmt = ["%.10g", "%.6g"] + ["%.6g"] * len(res)
             np.savetxt(tmp, cols, delimiter=",", header="t,command," + ",".join(res),
-                       comments="")
+                       comments="", fmt=fmt)
         _plot(t, u, res, stage / "simulate.png")
     return res
 
@@ -55,6 +58,3 @@ def _plot(t: np.ndarray, u: np.ndarray, res: dict[str, np.ndarray], path: Path) 
     fig = plotting.traces(t, None, res, command=u,
                           title="Table II models on the built-in command (simulated)")
     _atomic.savefig(fig, path, dpi=120)
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.simulate:register"})

@@ -44,10 +44,15 @@ __all__ = [
     "amplification_per_car",
     "time_gap_per_car",
     "residual_diagnosis",
+    "signal_axis_label",
     "residual_unexplained",
     "amplitude_amplification",
     "boundaries",
 ]
+
+#: Resolution in dots per inch of the PNG figures the ``avll`` commands write (their
+#: ``--dpi``); SVG and PDF figures, chosen by the output's suffix, are vector graphics.
+DEFAULT_DPI = 150
 
 _EXTRA = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:red")
 
@@ -409,6 +414,7 @@ def residual_diagnosis(d: Any) -> list[tuple[str, Figure]]:
         ax.axhline(0, color="0.5", lw=0.6)
         ax.set_title(f"{s.signal}\nexpl. {100 * s.explained:.1f} %, p={s.p_value:.2g}",
                      fontsize=9)  # fmt: skip
+        ax.set_xlabel(signal_axis_label(s.signal), fontsize=8)
         ax.set_ylabel("residual (m/s²)", fontsize=8)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
@@ -418,15 +424,30 @@ def residual_diagnosis(d: Any) -> list[tuple[str, Figure]]:
     ax0.set(xlabel="frequency (Hz)", ylabel="(m/s²)²/Hz", title="residual PSD")
     dt = d.xcorr_lags[1] - d.xcorr_lags[0] if d.xcorr_lags.size > 1 else 1.0
     ax1.plot(np.arange(d.autocorr.size) * dt, d.autocorr, color=MEASURED_COLOR)
-    ax1.set(xlabel="lag (s)", title=f"autocorrelation (lag-1 {d.lag1:.2f})")
+    ax1.set(xlabel="lag (s)", ylabel="autocorrelation (1)",
+            title=f"autocorrelation (lag-1 {d.lag1:.2f})")
     ax2.plot(d.xcorr_lags, d.xcorr, color=MEASURED_COLOR)
-    ax2.set(xlabel="lag (s)", title=f"xcorr with command rate (peak {d.best_lag:+.2f} s)")
+    ax2.set(xlabel="lag (s)", ylabel="correlation (1)",
+            title=f"xcorr with command rate (peak {d.best_lag:+.2f} s)")
     return [("residual_vs_signals", fig), ("residual_spectrum", fig2)]
 
 
-#: Units of the signals the final residual is binned against.
-_SIGNAL_UNITS = {"speed": "m/s", "time in run": "s", "command": "",
-                 "simulated acceleration": "m/s²"}
+#: Units of the signals a residual is binned against ("cmd": the command's own unit,
+#: m/s² for an acceleration command and m/s for a speed command).
+_SIGNAL_UNITS = {"speed": "m/s", "time in run": "s", "command": "cmd", "|command|": "cmd",
+                 "command rate": "cmd/s", "command jerk": "cmd/s²",
+                 "simulated acceleration": "m/s²", "speed error": "m/s",
+                 "sign of speed error": "±1", "sign of command": "±1",
+                 "sign of acceleration": "±1"}
+
+
+def signal_axis_label(signal: str) -> str:
+    """An axis label for a diagnosis signal with its unit (``cmd``: the unit of the
+    command, m/s² or m/s); exogenous signals (``exo_*``) keep their name."""
+    unit = _SIGNAL_UNITS.get(signal, "")
+    if unit.startswith("cmd"):
+        unit = "command unit" + unit[3:]
+    return signal + (f" ({unit})" if unit else "")
 
 
 def residual_unexplained(unexplained: Mapping[str, Any]) -> Figure:
@@ -442,8 +463,7 @@ def residual_unexplained(unexplained: Mapping[str, Any]) -> Figure:
         ax.errorbar(c[ok], m[ok], yerr=h[ok], fmt="o-", capsize=3,
                     color="tab:red" if s["keeps_structure"] else MEASURED_COLOR)
         ax.axhline(0, color="0.5", lw=0.6)
-        unit = _SIGNAL_UNITS.get(s["signal"], "")
-        ax.set_xlabel(s["signal"] + (f" ({unit})" if unit else ""))
+        ax.set_xlabel(signal_axis_label(s["signal"]))
         ax.set_ylabel("residual (m/s²)")
         mark = " — keeps structure" if s["keeps_structure"] else ""
         ax.set_title(f"{100 * s['explained']:.1f} % of variance, p={s['p_value']:.2g}{mark}",

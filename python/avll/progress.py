@@ -120,7 +120,8 @@ class Progress:
         pct = f"{100.0 * n / tot:.0f}%" if tot > 0 else "-"
         el = time.perf_counter() - self._t0
         extra = f", {self.postfix}" if self.postfix else ""
-        print(f"avll: {self.desc}: {state} {pct} ({n:g}/{tot:g} {self.unit}), {el:.1f} s"
+        print(f"avll: {self.desc}: {state} {pct} ({_count(n)}/{_count(tot)} {self.unit}), "
+              f"{el:.1f} s"
               f"{extra}", file=self._out(), flush=True)
         self.lines += 1
         self._last = time.perf_counter()
@@ -198,3 +199,12 @@ class Progress:
 
     def __exit__(self, exc_type: Any, *exc: Any) -> None:
         self.close(complete=exc_type is None)
+
+
+def _count(x: float) -> str:
+    """A count as an integer (``7308400``, never
+    ``7.3084e+06``); a fractional amount with 4 significant digits."""
+    v = float(x)
+    if v.is_integer():
+        return str(int(v))
+    return f"{v:.4g}"

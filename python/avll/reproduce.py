@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from . import _atomic
-from ._compat import moved as _moved
 from ._limits import check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel
@@ -94,7 +93,8 @@ class Settings:
         return kg, tg, kv
 
 
-#: ``default``: the paper's grids (the ones of README § Stability maps) and the full GA;
+#: ``default``: the paper's grids (the ones of docs/guide/stability.md § Reproduction of
+#: Section IV) and the full GA;
 #: ``quick``: coarse grids and a small GA, for smoke tests (numbers not meaningful).
 SETTINGS: dict[str, Settings] = {
     "default": Settings(),
@@ -644,7 +644,8 @@ _WHY = (
     "leader's speed profiles are our own, so the excitation differs; (iv) the proposed "
     "model's six parameters are not all identifiable from such data (only combinations: "
     "DC gain, low-frequency delay, the frequency response in the excited band — see "
-    "README § Calibration), so fitted values can differ from Table II although the fit is "
+    "docs/guide/calibrate.md § Recovery and identifiability), so fitted values can "
+    "differ from Table II although the fit is "
     "perfect. **What is comparable:** the ranking proposed < second-order < first-order "
     "(calibration and validation), the ratios of the MSEs between models (how much worse "
     "the simpler models are), and — because they use the paper's own Table II "
@@ -802,7 +803,7 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
     rep.bullets([
         f"GA: paper's Eq. 6 (acceleration MSE), max {settings.max_generations} generations, "
         f"{settings.starts} independent start(s) per model, default population and bounds "
-        "(README § Calibration).",
+        "(docs/guide/calibrate.md § The algorithm).",
         "Stability grid: " + grid + ".",
         f"Figures 5 and 7 show kv = {', '.join(f'{v:g}' for v in settings.panels)} 1/s.",
         f"Diagnosis: {'on' if settings.diagnosis else 'off'}, at most "
@@ -1008,6 +1009,3 @@ def _mean(x: Any) -> Any:
     if isinstance(x, dict) and x:
         return float(np.mean(list(x.values())))
     return x
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.reproduce:register"})

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import io
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -58,13 +60,28 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     for spec in _COMMANDS:
         mod, fn = spec.split(":")
         getattr(importlib.import_module(mod), fn)(sub)
+    from ._common import add_dpi
+
     for p in _all_parsers(parser):
+        # no abbreviations: `--model` must not silently mean `--models`
+        p.allow_abbrev = False
         if p is parser or any(isinstance(a, argparse._SubParsersAction) for a in p._actions):
             continue
-        if not any("--strict" in a.option_strings for a in p._actions):
+        have = {o for a in p._actions for o in a.option_strings}
+        inputs = [d for d in p.get_default("io_inputs") or () if d != "source"]
+        folders = p.get_default("io_folders") or ()
+        figures = p.get_default("io_figures") or ()
+        # --strict only where data are read (a calibration JSON is not data)
+        if inputs and "--strict" not in have:
             p.add_argument("--strict", action="store_true",
                            help="treat warnings about the data (implausible values, sidecar "
                            "entries for missing runs) as errors (default: off)")
+        if folders and "--overwrite" not in have:
+            p.add_argument("--overwrite", action="store_true",
+                           help="write into an output folder even when it holds another "
+                           "command's output (its MANIFEST.json) (default: off, refused)")
+        if (folders or figures) and "--dpi" not in have:
+            add_dpi(p)
     return parser
 
 
@@ -89,12 +106,62 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
     print(f"avll {command}: warning: {text}", file=sys.stderr)
 
 
+class _QuietPipe:
+    """``sys.stdout`` while a command runs: when the reader of a pipe goes away
+    (``avll ... | head``), the rest of the output is dropped quietly and the command
+    goes on (its files are still written) and ends with its own exit code."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream = stream
+        self.gone = False
+
+    def write(self, s: str) -> int:
+        if not self.gone:
+            try:
+                return int(self._stream.write(s))
+            except BrokenPipeError:
+                self._drop()
+        return len(s)
+
+    def flush(self) -> None:
+        if not self.gone:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._drop()
+
+    def _drop(self) -> None:
+        self.gone = True
+        # what is still buffered goes nowhere at exit instead of raising again
+        try:
+            fd = self._stream.fileno()
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, fd)
+            os.close(null)
+        except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+            pass
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C)."""
+    """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C).
+    A closed pipe on stdout is not an error (the rest of the output is dropped)."""
+    from .. import _sigint
+
+    _sigint.command_starts()
+    real = sys.stdout
+    guard = _QuietPipe(real)
+    sys.stdout = guard
     try:
-        return _main(argv)
+        code = _main(argv)
+        guard.flush()
+        return code
     finally:
+        sys.stdout = real
         _forget_unhandled_interrupt()
+        _sigint.command_ends()
 
 
 def _forget_unhandled_interrupt() -> None:
@@ -120,22 +187,29 @@ def _main(argv: Sequence[str] | None) -> int:
 
         check_io(args)  # before any work (and before loading the loaders)
         # imported after parsing: `avll --help` does not load the loaders (pandas)
+        from .._atomic import figure_dpi, output_group
         from .._sigint import latched
         from ..io._common import strict_warnings
 
-        with warnings.catch_warnings(), latched():
+        with warnings.catch_warnings(), latched(), figure_dpi(getattr(args, "dpi", None)):
             warnings.simplefilter("always", DataWarning)
             warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
-            with strict_warnings(bool(getattr(args, "strict", False))):
+            # every output of the command is committed as one unit at its end
+            with strict_warnings(bool(getattr(args, "strict", False))), output_group():
                 return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"avll {command}: interrupted", file=sys.stderr)
+        print(f"{_who(command)}: interrupted", file=sys.stderr)
         return 130
     except (ValueError, TypeError, OSError, MemoryError) as e:
         msg = " ".join(str(e).split())
         if isinstance(e, MemoryError):
             msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
-        print(f"avll {command}: error: {msg}", file=sys.stderr)
+        print(f"{_who(command)}: error: {msg}", file=sys.stderr)
         return 2
+
+
+def _who(command: str) -> str:
+    """``avll COMMAND`` for messages (``avll`` before the command is known)."""
+    return "avll" if command == "?" else f"avll {command}"
 
 

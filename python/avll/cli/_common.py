@@ -1,9 +1,8 @@
 """Options shared by the ``avll`` sub-commands, defined once.
 
 * model selection: ``--models M[,M...]`` (comma-separated and/or repeated) on the
-  commands that take several models; ``--model`` is the same option under its old
-  spelling (accepted, with a deprecation note on stderr). Commands about one model
-  take ``--model M``.
+  commands that take several models; commands about one model take ``--model M``
+  (one meaning everywhere: a single model).
 * run selection: ``--cal-runs`` -- run ids or glob patterns (``data5/*``), comma
   separated (:func:`select_runs`);
 * ``--seed``, ``--threads``, ``--json PATH``;
@@ -44,6 +43,11 @@ __all__ = [
     "astazero_options",
     "declare_io",
     "check_io",
+    "add_dpi",
+    "check_figure_path",
+    "fmt_value",
+    "check_informative",
+    "FIGURE_FORMATS",
     "parse_list",
 ]
 
@@ -66,13 +70,10 @@ def parse_list(opt: str, text: str) -> list[str]:
 
 class _Models(argparse.Action):
     """``--models a,b --models c``: names accumulated, checked against the known
-    models; the ``--model`` spelling prints a deprecation note."""
+    models."""
 
     def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace,
                  values: Any, option_string: str | None = None) -> None:
-        if option_string == "--model":
-            print(f"{parser.prog}: note: --model is deprecated here; use --models "
-                  "(comma-separated or repeated)", file=sys.stderr)
         got = list(getattr(ns, self.dest) or [])
         for name in parse_list(option_string or "--models", str(values)):
             if name not in MODEL_NAMES:
@@ -83,16 +84,15 @@ class _Models(argparse.Action):
         setattr(ns, self.dest, got)
 
 
-def add_models(p: argparse.ArgumentParser, default: Sequence[str], *, alias: bool = True,
+def add_models(p: argparse.ArgumentParser, default: Sequence[str], *, alias: bool = False,
                what: str = "models") -> None:
-    """``--models`` (with ``alias``, also under its deprecated spelling ``--model``):
-    several models; ``models_of`` gives the selection or ``default``."""
-    names = ("--models", "--model") if alias else ("--models",)
-    note = "; --model is the deprecated spelling" if alias else ""
-    p.add_argument(*names, dest="models", action=_Models, default=None,
+    """``--models``: several models; ``models_of`` gives the selection or ``default``.
+    (``--model`` is always one model, see :func:`add_model`; ``alias`` is ignored: the
+    old ``--model`` spelling of ``--models`` is gone.)"""
+    p.add_argument("--models", dest="models", action=_Models, default=None,
                    metavar="M[,M...]",
                    help=f"{what}, comma-separated or repeated, from {', '.join(MODEL_NAMES)} "
-                   f"(default: {','.join(default)}){note}")
+                   f"(default: {','.join(default)})")
     p.set_defaults(models_default=tuple(default))
 
 
@@ -277,11 +277,98 @@ def astazero_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def declare_io(p: argparse.ArgumentParser, inputs: Sequence[str] = (),
-               files: Sequence[str] = (), folders: Sequence[str] = ()) -> None:
+               files: Sequence[str] = (), folders: Sequence[str] = (),
+               figures: Sequence[str] = (), runs: Sequence[str] = ()) -> None:
     """Declares a command's input paths and its output files and folders (argparse
-    ``dest`` names) for :func:`check_io`."""
+    ``dest`` names) for :func:`check_io`; ``figures`` are the output files among
+    ``files`` that are figures (their suffix picks the format: ``FIGURE_FORMATS``),
+    ``runs`` those written in the canonical format (with a ``.meta.json`` sidecar,
+    itself an output)."""
     p.set_defaults(io_inputs=tuple(inputs), io_outputs=tuple(files) + tuple(folders),
-                   io_folders=tuple(folders))
+                   io_folders=tuple(folders), io_figures=tuple(figures),
+                   io_runs=tuple(runs))
+
+
+#: Figure formats the commands write, chosen by the output's suffix.
+FIGURE_FORMATS: tuple[str, ...] = ("png", "svg", "pdf")
+
+
+def add_dpi(p: argparse.ArgumentParser) -> None:
+    """``--dpi N``: resolution of the raster (PNG) figures a command writes."""
+    from ..plotting import DEFAULT_DPI
+
+    p.add_argument("--dpi", action=_Count, minimum=10, default=DEFAULT_DPI, metavar="N",
+                   help="resolution of PNG figures in dots per inch; SVG and PDF figures "
+                   f"are vector graphics, chosen by the file's suffix (default: {DEFAULT_DPI})")
+
+
+def check_figure_path(label: str, path: str | os.PathLike[str]) -> None:
+    """A ``ValueError`` naming ``label`` when ``path``'s suffix is not a figure format
+    the commands write (``.png``, ``.svg``, ``.pdf``)."""
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in FIGURE_FORMATS:
+        raise ValueError(f"{label}: {path}: the suffix picks the figure format; use "
+                         f"{', '.join('.' + f for f in FIGURE_FORMATS)}")
+
+
+def fmt_value(x: Any, spec: str = ".4g", none: str = "none") -> str:
+    """``x`` formatted with ``spec``; ``none`` (the word) for None or NaN, so that a
+    missing value never prints as ``nan``."""
+    if x is None:
+        return none
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    if v != v:
+        return none
+    return format(v, spec)
+
+
+def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
+    """Every file an input names: the path itself, its canonical sidecar
+    (``X.meta.json``) and, for a folder, every file below it (the loaders read them)."""
+    out: list[tuple[str, Any]] = [(label, path)]
+    if path is None:
+        return out
+    p = Path(path)
+    out.append((f"{label} (its sidecar)", p.with_name(p.name + ".meta.json")))
+    if p.is_dir():
+        try:
+            below = [f for f in p.rglob("*") if f.is_file()]
+        except OSError:  # an unreadable subfolder: the loader reports it
+            below = []
+        out += [(f"{label} (a file it holds)", f) for f in below[:100_000]]
+    return out
+
+
+def _manifest_command(folder: Path) -> str | None:
+    """The ``command`` recorded in ``folder``'s MANIFEST.json (None: no manifest)."""
+    import json
+
+    from .._atomic import MANIFEST
+
+    mp = folder / MANIFEST
+    if not mp.is_file():
+        return None
+    try:
+        doc = json.loads(mp.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return "an unreadable manifest"
+    cmd = doc.get("command") if isinstance(doc, dict) else None
+    return str(cmd) if cmd else "an unknown command"
+
+
+def check_not_foreign(label: str, folder: Path, command: str, overwrite: bool) -> None:
+    """A ``ValueError`` naming ``label`` when ``folder`` holds the manifest of another
+    command than ``command`` (``avll X`` writes only over its own folders) and
+    ``overwrite`` is not set."""
+    other = _manifest_command(folder)
+    if other is None or overwrite or command in other.split():
+        return
+    raise ValueError(f"{label}: {folder} holds the output of {other!r} (its MANIFEST.json); "
+                     "writing there would replace it: choose another folder, or pass "
+                     "--overwrite")
 
 
 def _label(dest: str, positional: Sequence[str]) -> str:
@@ -322,14 +409,74 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
         v = getattr(args, d, None)
         return None if v == "" else v  # an empty path means "not written" (--out "")
 
-    inputs = [(_label(d, positional), given(d)) for d in ins]
+    inputs = [f for d in ins for f in _input_files(_label(d, positional), given(d))]
     outputs = [(_label(d, positional), given(d), d in folders) for d in outs]
+    for d in getattr(args, "io_runs", ()):
+        if given(d) is not None:  # the canonical writer's sidecar is an output too
+            path = Path(given(d))
+            outputs.append((f"{_label(d, positional)} (its sidecar)",
+                            path.with_name(path.name + ".meta.json"), False))
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
     named = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
     for i, (la, pa) in enumerate(named):
         for lb, pb in named[i + 1:]:
             if same_file(pa, pb):
                 raise ValueError(f"{lb}: {pb} is also the output of {la}; choose distinct names")
+    for d in getattr(args, "io_figures", ()):
+        if given(d) is not None:
+            check_figure_path(_label(d, positional), given(d))
     for lab, pth, folder in outputs:
         if pth is not None:
             _writable_target(lab, Path(pth), folder)
+            if folder and Path(pth).is_dir():
+                check_not_foreign(lab, Path(pth), str(getattr(args, "command", "")),
+                                  bool(getattr(args, "overwrite", False)))
+
+
+# ---------------------------------------------------------------------------
+# Data that cannot identify a model
+# ---------------------------------------------------------------------------
+
+#: Fewer samples than this in a run cannot calibrate a model (the proposed one has six
+#: parameters and a dead time spanning several samples).
+MIN_SAMPLES = 20
+
+
+def _degenerate(r: Any) -> str | None:
+    """What makes run ``r`` useless for a fit (None: nothing)."""
+    import numpy as np
+
+    n = len(r)
+    if n < MIN_SAMPLES:
+        return f"too short: {n} samples (at least {MIN_SAMPLES} needed)"
+    drive = r.command if r.command is not None else r.lead_v
+    name = "command" if r.command is not None else "lead_v"
+    a = np.asarray(r.a, dtype=float)
+    if drive is None:
+        return None
+    d = np.asarray(drive, dtype=float)
+    if not (np.any(a) or np.any(d)):
+        return f"{name} and a are all zero: nothing to fit"
+    if np.ptp(d) == 0 and np.ptp(a) == 0:
+        # (a constant set speed alone is fine when the response moves: the free-flow
+        # runs of a speed loop)
+        return (f"{name} and a are constant ({d[0]:g} and {a[0]:g}): nothing excites "
+                "the model")
+    return None
+
+
+def check_informative(runs: Sequence[Any], source: Any, what: str = "calibrate") -> None:
+    """A warning (:class:`avll.DataWarning`, naming the file and the run) for each run
+    that is too short, constant or all zero; a :class:`avll.DataError` when every run is
+    so (nothing to ``what`` on)."""
+    import warnings
+
+    from ..data import DataError, DataWarning
+
+    bad = [(r.run_id, why) for r in runs if (why := _degenerate(r)) is not None]
+    if bad and len(bad) == len(runs):
+        rid, why = bad[0]
+        more = f" (and {len(bad) - 1} more run(s) alike)" if len(bad) > 1 else ""
+        raise DataError(f"{source}: run {rid!r}: {why}{more}; nothing to {what} on")
+    for rid, why in bad:
+        warnings.warn(f"{source}: run {rid!r}: {why}", DataWarning, stacklevel=2)

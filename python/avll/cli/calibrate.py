@@ -21,6 +21,7 @@ from ._common import (
     add_seed,
     add_threads,
     astazero_options,
+    check_informative,
     declare_io,
     models_of,
     parse_list,
@@ -105,6 +106,7 @@ def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str
         runs = [r if r.upper is not None else replace(r, upper=UPPER_PLACEHOLDER)
                 for r in runs]
     init = args.init or ("steady" if fmt in ("carma", "openacc-astazero", "openacc") else "rest")
+    check_informative(runs, args.data)
     return runs, closed, free, init
 
 
@@ -150,7 +152,7 @@ def _cmd(args: argparse.Namespace) -> int:
     if args.figure:
         rid = args.figure_run or wf.cal[0].run_id
         fig = wf.plot(rid)
-        _atomic.savefig(fig, args.figure, dpi=120)
+        _atomic.savefig(fig, args.figure)
         print(f"wrote {args.figure}", file=sys.stderr)
     if wf.interrupted:
         print("avll calibrate: interrupted; results are the best so far", file=sys.stderr)
@@ -201,10 +203,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_ga_budget(p, generations=GA_OPTIONS["max_generations"], starts=DEFAULT_STARTS,
                   pop_size=GA_OPTIONS["pop_size"])
     p.add_argument("--figure", default=None, metavar="PATH",
-                   help="save measured vs simulated acceleration of one run, PNG/SVG "
+                   help="save measured vs simulated acceleration of one run; .png, .svg or .pdf "
                    "(default: not drawn)")
     p.add_argument("--figure-run", default=None, metavar="RUN",
                    help="run of --figure (default: the first calibration run)")
     add_progress(p)
-    declare_io(p, inputs=("data",), files=("json", "figure"))
+    declare_io(p, inputs=("data",), files=("json", "figure"), figures=("figure",))
     p.set_defaults(func=_cmd)

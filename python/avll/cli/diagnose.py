@@ -32,6 +32,7 @@ from ._common import (
     add_seed,
     add_threads,
     astazero_options,
+    check_informative,
     declare_io,
     select_runs,
 )
@@ -99,6 +100,7 @@ def _cmd(args: argparse.Namespace) -> int:
     runs = read_runs(args.data, command_kind=args.command_kind, format=args.format,
                      **astazero_options(args))  # fmt: skip
     cal = _pick("--cal-runs", args.cal_runs, runs)
+    check_informative(cal, args.data, "diagnose")
     test = _pick("--test-runs", args.test_runs, runs)
     splits = {"--cal-runs": cal, "--test-runs": test}
     if args.val_runs is not None:
@@ -150,8 +152,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"effect (default: {MIN_GAIN})")
     p.add_argument("--max-effects", type=int, default=3,
                    help="at most this many effects (default: 3)")
-    add_ga_budget(p, generations=300, starts=DEFAULT_STARTS, what="every fit",
-                  old_generations=("--maxiter",))
+    add_ga_budget(p, generations=300, starts=DEFAULT_STARTS, what="every fit")
     p.add_argument("--candidates", default=None, metavar="E[,E...]",
                    help="effects offered, comma-separated (default: every registered "
                    "effect that applies to the data)")

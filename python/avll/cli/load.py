@@ -10,6 +10,7 @@ from ._common import (
     add_astazero_options,
     add_command_kind,
     add_format,
+    add_json,
     astazero_options,
     declare_io,
 )
@@ -41,9 +42,12 @@ def _cmd(args: argparse.Namespace) -> int:
     print(summarize(runs))
     total = sum((len(r) - 1) * r.dt for r in runs)
     print(f"{len(runs)} runs, {total:.1f} s in total")
-    if args.report:
-        _atomic.write_json(args.report, _atomic.json_safe({
-            r.run_id: {"samples": len(r), "dt": r.dt, "duration_s": (len(r) - 1) * r.dt,
+    if args.json:
+        _atomic.write_json(args.json, _atomic.json_safe({
+            # 12 significant digits: a step read off time stamps carries no more
+            # (0.049999999999999996 is 0.05)
+            r.run_id: {"samples": len(r), "dt": float(f"{r.dt:.12g}"),
+                       "duration_s": float(f"{(len(r) - 1) * r.dt:.12g}"),
                        "command_kind": r.command_kind,
                        "cleaning": list(r.meta.get("cleaning", []))}
             for r in runs}), indent=1)
@@ -61,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Read measured data with one of the loaders, print a per-run summary "
         "and what the cleaning did (gaps, resampling, implausible values), and optionally "
         "write the runs in the canonical format (--out) and the cleaning as JSON "
-        "(--report).")
+        "(--json).")
     p.add_argument("path", metavar="PATH", help="data file or folder (required)")
     add_format(p)
     add_command_kind(p)
@@ -79,7 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, metavar="FILE",
                    help="write the runs in the canonical format, CSV or Parquet (default: "
                    "not written)")
-    p.add_argument("--report", default=None, metavar="PATH",
-                   help="write the per-run cleaning as strict JSON (default: not written)")
-    declare_io(p, inputs=("path",), files=("out", "report"))
+    add_json(p, "the per-run cleaning (samples, dt, duration, command kind, every "
+             "cleaning step)")
+    declare_io(p, inputs=("path",), files=("out", "json"), runs=("out",))
     p.set_defaults(func=_cmd)

@@ -6,11 +6,13 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from ._common import add_json, add_progress, add_seed, add_threads, declare_io
+from ._common import add_json, add_progress, add_seed, add_threads, declare_io, fmt_value
+
+#: The default output folder (each command has its own).
+DEFAULT_OUT = "avll-out/reproduce"
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from ..report import fmt
     from ..reproduce import SETTINGS, reproduce
 
     settings = SETTINGS["quick" if args.quick else "default"]
@@ -24,9 +26,11 @@ def _cmd(args: argparse.Namespace) -> int:
           f"{s['files']['summary_json']} ({s['timing_s']['total']:.0f} s)")
     for m in ("proposed", "second", "first"):
         c, st = s["calibration"][m], s["stability"][m]
-        print(f"  {m:9s} cal {c['cal_mse']:.4g} val {c['val_mse']:.4g} | Table II: kv* "
-              f"{fmt(st['kv_threshold'])} min Tg {fmt(st['min_tg'])} capacity "
-              f"{fmt(st['capacity'])}")
+        print(f"  {m:9s} cal {fmt_value(c['cal_mse'])} val {fmt_value(c['val_mse'])} | "
+              f"Table II: kv* {fmt_value(st['kv_threshold'])} 1/s, min Tg "
+              f"{fmt_value(st['min_tg'], '.1f')} s, capacity "
+              f"{fmt_value(st['capacity'], '.1f')} veh/h")
+    print("  (kv* none: no kv threshold within the grid)")
     return 0
 
 
@@ -41,8 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "loop, and write report.md/report.html/summary.json with the paper's numbers "
         "side by side.",
     )
-    p.add_argument("--out", default="avll-out", metavar="DIR",
-                   help="output folder (default: avll-out)")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                   help=f"output folder (default: {DEFAULT_OUT})")
     add_json(p, "the summary", default="OUT/summary.json")
     p.add_argument("--data", default="synthetic",
                    choices=("synthetic", "carma", "openacc-astazero"),

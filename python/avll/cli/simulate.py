@@ -7,6 +7,9 @@ from pathlib import Path
 
 from ._common import declare_io
 
+#: The default output folder (each command has its own).
+DEFAULT_OUT = "avll-out/simulate"
+
 
 def _cmd(args: argparse.Namespace) -> int:
     from ..demo import run
@@ -23,11 +26,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate", help="simulate the paper's three models on a built-in command",
         description="Simulate the first-order, second-order and proposed models with the "
-        "paper's Table II parameters on a built-in 60 s command acceleration (a step, a "
-        "ramp back and a 0.1 Hz oscillation); writes simulate.csv and simulate.png into "
-        "--out.")
-    p.add_argument("--out", default="avll-out", metavar="DIR",
-                   help="output folder (default: avll-out)")
+        "paper's Table II parameters on a built-in 60 s command acceleration (1 m/s² for "
+        "10 s, -0.5 m/s² for 10 s, then a 0.1 Hz sine of amplitude 0.8 m/s²); writes "
+        "simulate.csv and simulate.png into --out.")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                   help=f"output folder (default: {DEFAULT_OUT})")
     p.add_argument("--dt", type=float, default=0.05,
                    help="sample time in s (default: 0.05)")
     declare_io(p, folders=("out",))

@@ -12,7 +12,15 @@ from typing import Any
 
 import numpy as np
 
-from ._common import add_json, add_models, add_progress, add_threads, declare_io, models_of
+from ._common import (
+    add_json,
+    add_models,
+    add_progress,
+    add_threads,
+    declare_io,
+    fmt_value,
+    models_of,
+)
 
 _DEFAULT_MODELS = ("second", "proposed")
 
@@ -72,7 +80,7 @@ def models_from_json(path: str | Path, names: Sequence[str] | None = None) -> di
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from .. import PAPER_TABLE_II, _atomic
+    from .. import PAPER_TABLE_II
     from ..stability import (
         capacity,
         kv_supremum,
@@ -118,43 +126,60 @@ def _cmd(args: argparse.Namespace) -> int:
         f"Tg {tg[0]:g}..{tg[-1]:g} ({tg.size}), kv {kv[0]:g}..{kv[-1]:g} ({kv.size}), "
         f"Padé order {args.pade_order}"
     )
-    print(f"{'model':<10} {'kv last stable':>15} {'kv first empty':>15} {'min Tg':>8} "
-          f"{'capacity':>10}")
+    print(f"{'model':<10} {'kv last stable':>15} {'kv first empty':>15} {'min Tg (s)':>10} "
+          f"{'capacity (veh/h)':>17}")
     for m, th in zip(models, ths, strict=True):
         cap = capacity(th.tg_min_overall, args.length, args.speed)
-        print(f"{m.name:<10} {th.kv_last_stable:>15.6g} {th.kv_first_empty:>15.6g} "
-              f"{th.tg_min_overall:>8.4g} {cap:>10.1f}")
+        print(f"{m.name:<10} {fmt_value(th.kv_last_stable, '.6g'):>15} "
+              f"{fmt_value(th.kv_first_empty, '.6g'):>15} "
+              f"{fmt_value(th.tg_min_overall, '.4g'):>10} {fmt_value(cap, '.1f'):>17}")
+    if any(math.isnan(th.kv_first_empty) for th in ths):
+        print(f"(kv first empty: none means stable points remain up to the grid's last kv, "
+              f"{kv[-1]:g}: no kv threshold in the given range)")
     exact: dict[str, dict[str, Any]] = {}
     if args.exact:
         kg_r, tg_r, kv_r = (float(kg.min()), float(kg.max())), (float(tg.min()), float(
             tg.max())), (float(kv.min()), float(kv.max()))
-        print("\nexact (not grid-bound) over the same ranges:")
+        lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
+        print("\nexact (not grid-bound) over the same ranges (kg, Tg and kv of the grid"
+              + ("; kg from 1e-06, as kg = 0 has no gap control" if kg_r[0] <= 0 else "")
+              + "):")
         for m in models:
-            lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
             e1 = min_stable_tg(m, lo, kv_r, args.pade_order, tg_range=tg_r)
-            e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=(kv_r[0], 2.0))
+            e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=kv_r)
             exact[m.name] = {"min_stable_tg": e1.to_dict(), "kv_supremum": e2.to_dict()}
-            print(f"{m.name:<10} inf Tg {e1.value:.6f} s at kg {e1.kg:.4g}, kv {e1.kv:.4g}"
-                  f"{' (box edge: ' + ', '.join(e1.on_edge) + ')' if e1.on_edge else ''}; "
-                  f"sup kv {e2.value:.6f} at kg {e2.kg:.4g}, Tg {e2.tg:.4g}")
+            print(f"{m.name:<10} {_exact_tg_text(e1, tg_r)}; {_exact_kv_text(e2, kv_r)}")
     print()
-    head = "kv".rjust(10) + "".join(
+    rows = _table_rows(kv.size)
+    head = "kv (1/s)".rjust(10) + "".join(
         f"{m.name + ' kg_max':>18}{m.name + ' Tg_min':>18}" for m in models
     )
     print(head)
-    for j in range(kv.size):
-        print(f"{kv[j]:>10.4g}" + "".join(
-            f"{th.kg_max[j]:>18.6g}{th.tg_min[j]:>18.6g}" for th in ths
-        ))
+    edges = False
+    for j in rows:
+        cells = []
+        for th in ths:
+            kgc, tgc = fmt_value(th.kg_max[j], ".6g"), fmt_value(th.tg_min[j], ".6g")
+            if th.kg_max[j] == th.kg_edge:
+                kgc, edges = f">= {kgc}", True
+            if th.tg_min[j] == th.tg_edge:
+                tgc, edges = f"<= {tgc}", True
+            cells.append(f"{kgc:>18}{tgc:>18}")
+        print(f"{kv[j]:>10.4g}" + "".join(cells))
+    if edges:
+        print("(>= / <=: the value is the grid's edge; the threshold lies at or beyond it)")
+    if len(rows) < kv.size:
+        where = f"in {args.json}" if args.json else "with --json PATH"
+        print(f"({len(rows)} of {kv.size} kv values shown; every value {where})")
+    figs: list[tuple[str, Any]] = []
     if args.out:
-        idx = np.unique(np.linspace(0, kv.size - 1, min(args.panels, kv.size)).round().astype(int))
+        idx = _panel_indices(maps, kv.size, args.panels)
         fig = plot_regions(models, kg, tg, kv[idx], args.pade_order,
                            maps=[mp[:, :, idx] for mp in maps], labels=labels)
-        _atomic.savefig(fig, args.out, dpi=120)
-        print(f"\nfigure written to {args.out}")
+        figs.append((args.out, fig))
     if args.thresholds_out:
-        _atomic.savefig(plot_thresholds(models, ths, labels=labels), args.thresholds_out,
-                        dpi=120)
+        figs.append((args.thresholds_out, plot_thresholds(models, ths, labels=labels)))
+    doc: dict[str, Any] | None = None
     if args.json:
         doc = {
             "source": {"kind": "calibration" if args.source else "paper_table_ii",
@@ -172,8 +197,78 @@ def _cmd(args: argparse.Namespace) -> int:
         }
         if exact:
             doc["exact"] = exact
-        _atomic.write_json(args.json, doc)
+    _commit_outputs(figs, args.json, doc)
+    for path, _ in figs:
+        print(f"figure written to {path}")
     return 0
+
+
+def _exact_tg_text(e: Any, tg_r: tuple[float, float]) -> str:
+    """The exact infimum of Tg in words: 'none' when nothing is stable in the box."""
+    if not math.isfinite(e.value):
+        return f"inf Tg: none (nothing stable for Tg in {tg_r[0]:g}..{tg_r[1]:g} s)"
+    edge = f" (box edge: {', '.join(e.on_edge)})" if e.on_edge else ""
+    return f"inf Tg {e.value:.4f} s at kg {e.kg:.4g}, kv {e.kv:.4g}{edge}"
+
+
+def _exact_kv_text(e: Any, kv_r: tuple[float, float]) -> str:
+    """The exact supremum of kv in words: a value at the end of the searched kv range
+    is no threshold (stable up to the range's edge), and is said so."""
+    if not math.isfinite(e.value):
+        return f"sup kv: none (nothing stable for kv in {kv_r[0]:g}..{kv_r[1]:g} 1/s)"
+    if "kv" in e.on_edge or e.attained or e.value >= kv_r[1]:
+        return (f"sup kv: no threshold in the given range (stable up to kv = {kv_r[1]:g} "
+                "1/s, the range's edge; widen --kv to look further)")
+    edge = [c for c in e.on_edge if c != "kv"]
+    at_edge = f" (box edge: {', '.join(edge)})" if edge else ""
+    return f"sup kv {e.value:.4f} 1/s at kg {e.kg:.4g}, Tg {e.tg:.4g}{at_edge}"
+
+
+#: At most this many kv rows of the thresholds table on stdout (the JSON has them all).
+MAX_ROWS = 11
+
+
+def _table_rows(n: int) -> list[int]:
+    """Indices of the kv rows printed: all of them up to :data:`MAX_ROWS`, otherwise
+    evenly spaced ones including the first and the last."""
+    if n <= MAX_ROWS:
+        return list(range(n))
+    return sorted({int(round(i * (n - 1) / (MAX_ROWS - 1))) for i in range(MAX_ROWS)})
+
+
+def _panel_indices(maps: Sequence[np.ndarray], n_kv: int, panels: int) -> np.ndarray:
+    """kv indices of the region figure's panels: evenly spread over the kv values where
+    some model still has a stable point (a panel where nothing is stable shows
+    nothing), or over the whole axis when no kv has one."""
+    from ..stability import STABLE
+
+    has = np.zeros(n_kv, dtype=bool)
+    for mp in maps:
+        has |= (np.asarray(mp) == STABLE).any(axis=(0, 1))
+    last = int(np.flatnonzero(has)[-1]) if has.any() else n_kv - 1
+    k = min(panels, last + 1)
+    return np.unique(np.linspace(0, last, k).round().astype(int))
+
+
+def _commit_outputs(figs: Sequence[tuple[str, Any]], json_path: str | None,
+                    doc: dict[str, Any] | None) -> None:
+    """Writes the figures, then the JSON with the figures' sizes and SHA-256 (its
+    manifest of the run's outputs). The ``avll`` command commits them as one unit
+    (:func:`avll._atomic.output_group`): an interrupted run leaves the old files, never
+    a new figure beside an old JSON."""
+    import hashlib
+
+    from .. import _atomic
+
+    made: dict[str, Any] = {}
+    for path, fig in figs:
+        data = _atomic.figure_bytes(fig, Path(path).suffix.lstrip(".").lower() or "png",
+                                    dpi=120)
+        _atomic.write_bytes(path, data)
+        made[str(path)] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    if json_path and doc is not None:
+        doc["outputs"] = made
+        _atomic.write_json(json_path, doc)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -206,11 +301,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="Padé order of the dead time, 1..10 (default: 2, the paper's)")
     add_threads(p)
     p.add_argument("--out", default="stability-map.png", metavar="PATH",
-                   help="region figure, PNG/SVG (default: stability-map.png)")
+                   help="region figure; .png, .svg or .pdf (default: stability-map.png)")
     p.add_argument("--thresholds-out", default=None, metavar="PATH",
-                   help="thresholds-vs-kv figure, PNG/SVG (default: not drawn)")
+                   help="thresholds-vs-kv figure; .png, .svg or .pdf (default: not drawn)")
     p.add_argument("--panels", type=int, default=3,
-                   help="kv panels in the region figure (default: 3)")
+                   help="kv panels in the region figure, spread over the kv values where "
+                   "a model is still stable (default: 3)")
     add_json(p, "the thresholds")
     p.add_argument("--length", type=float, default=CAPACITY_LENGTH,
                    help=f"effective vehicle length in m of the capacity formula "
@@ -224,5 +320,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="compute the maps on this dask.distributed scheduler, needs "
                    "avll[dask] (default: in this process)")
-    declare_io(p, inputs=("source",), files=("out", "thresholds_out", "json"))
+    declare_io(p, inputs=("source",), files=("out", "thresholds_out", "json"),
+               figures=("out", "thresholds_out"))
     p.set_defaults(func=_cmd)

@@ -43,5 +43,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="acceleration noise standard deviation in m/s² (default: 0.05)")
     p.add_argument("--quantization", type=float, default=0.01,
                    help="acceleration quantization step in m/s² (default: 0.01)")
-    declare_io(p, files=("out",))
+    declare_io(p, files=("out",), runs=("out",))
     p.set_defaults(func=_cmd)

@@ -42,6 +42,17 @@ def mse_table(rows: dict[str, dict[str, float]], title: str, per_line: int = 6) 
     return "\n".join(out)
 
 
+#: Captions of the diagnosis figures, by the names :func:`plot_diagnosis` gives them.
+CAPTIONS = {
+    "residual_vs_signals": "the residual (m/s²) binned against each candidate signal, "
+                           "with 95 % bands (effective sample sizes); the share of its "
+                           "variance each signal explains and the p-value above each panel",
+    "residual_spectrum": "the residual's power spectral density ((m/s²)²/Hz against Hz), "
+                         "its autocorrelation and its cross-correlation with the command "
+                         "rate (against the lag in s)",
+}
+
+
 def plot_diagnosis(d: Diagnosis) -> list[tuple[str, Any]]:
     """Figures of a diagnosis (:func:`avll.plotting.residual_diagnosis`): the
     residual against each candidate signal, and its spectrum and correlations."""
@@ -56,6 +67,20 @@ def plot_unexplained(unexplained: dict[str, Any]) -> Any:
     from ..plotting import residual_unexplained
 
     return residual_unexplained(unexplained)
+
+
+def model_text(model: Any, digits: int = 4) -> str:
+    """``Name(p=value, ...)`` with ``digits`` significant digits (a fitted parameter
+    does not carry 16; the JSON keeps the full values)."""
+    import dataclasses
+
+    if not dataclasses.is_dataclass(model):
+        return str(model)
+    vals = ", ".join(f"{f.name}={getattr(model, f.name):.{digits}g}"
+                     if isinstance(getattr(model, f.name), float)
+                     else f"{f.name}={getattr(model, f.name)}"
+                     for f in dataclasses.fields(model))
+    return f"{type(model).__name__}({vals})"
 
 
 def _pct(x: Any) -> str:
@@ -129,8 +154,8 @@ def _stability_report(rep: Any, sec: dict[str, Any], stage: Path) -> None:
         rep.bullets(notes)
     fig = final.plot()
     _atomic.savefig(fig, stage / "stability.png", dpi=90)
-    rep.figure("stability.png", "final model: amplification per car against the leader's "
-               "amplitude")
+    rep.figure("stability.png", "Final model: amplification per car (1) against the "
+               "leader's amplitude (m/s)")
 
 
 def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll diagnosis",
@@ -166,7 +191,7 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
                  "all calibration runs lowers their error. Validation and test runs decide "
                  "nothing.")
     rep.heading("Baseline")
-    rep.para(f"Baseline: `{result.baseline.base}`"
+    rep.para(f"Baseline: `{model_text(result.baseline.base)}`"
              + (f", upper law {result.baseline_upper}" if result.baseline_upper else ""))
     bm = result.baseline_mse
     rep.table(["set", "MSE (m/s²)²"], [[k, _num(_mean(v)) if v else "—"]
@@ -256,7 +281,8 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
                      f"{un['n']} samples (descriptive).")
             fig = plot_unexplained(un)
             _atomic.savefig(fig, stage / "unexplained.png", dpi=90)
-            rep.figure("unexplained.png", "final residual against speed, time and command")
+            rep.figure("unexplained.png", "Final residual (m/s²) binned against speed (m/s), "
+                       "time in run (s) and command, with 95 % bands")
         else:
             rep.para(un.get("reason", "not computed"))
         for k, d in enumerate(result.diagnoses):
@@ -272,6 +298,6 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
             for name, fig in plot_diagnosis(d):
                 fn = f"diag{k + 1}_{name}.png"
                 _atomic.savefig(fig, stage / fn, dpi=90)
-                rep.figure(fn, name)
+                rep.figure(fn, f"Diagnosis {k + 1}: {CAPTIONS.get(name, name)}")
         rep.write(stage)
     return out / "report.md"

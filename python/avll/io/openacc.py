@@ -18,7 +18,7 @@
   ``(x + grade_offset) mod lap_length`` with ``lap_length`` = the last ``X`` of
   ``Slope.csv`` (5757.904 m) by default. The free-flow files' ``X1`` equals the platoon
   files' ``X1 mod 5757.904`` to 1e-9 m, so the published positions use this very lap;
-  see README § Field data for the evidence on the offset.
+  see docs/guide/field-data.md § Road grade for the evidence on the offset.
 """
 
 from __future__ import annotations

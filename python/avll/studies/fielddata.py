@@ -11,7 +11,8 @@ JSON-able summary and a plain-text report):
   logic (the first command >= :data:`HANDOVER_SPEED`; the cruise logic's first
   command is 20.11 m/s = 45 mph in every cruise stretch of the four files); the
   rest is *cruise*. In launch the logged command is the current measured speed
-  (README § Field data), so a launch fit identifies the logging, not a controller;
+  (docs/guide/field-data.md § CARMA), so a launch fit identifies the logging, not a
+  controller;
   cruise is the controller's regime and gets the main tables. Split: calibration on
   ``data5`` + ``data9``, validation on ``data6`` + ``data10`` (the two short and
   the two long drives each contribute one calibration and one validation file).

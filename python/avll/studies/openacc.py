@@ -81,7 +81,6 @@ from typing import Any
 import numpy as np
 
 from .. import _atomic
-from .._compat import moved as _moved
 from ..calibrate import calibrate_many
 from ..data import Run
 from ..defaults import UPPER_NAMES as _UPPER
@@ -1391,6 +1390,3 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
                   + f"): {k['reason']}" for k in gone]
         lines.append("")
     return "\n".join(lines) + "\n"
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.study:register_openacc"})
