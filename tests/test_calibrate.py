@@ -109,8 +109,6 @@ def test_models_rank_as_in_the_paper(proposed_data: list[avll.Run]) -> None:
     assert len(fig.axes[0].lines) == 4
     # the synthetic recording is labelled so, not "measured"
     assert fig.axes[0].lines[0].get_label() == "synthetic"
-    with pytest.warns(DeprecationWarning, match="Workflow.plot"):
-        assert len(wf.figure(17).axes[0].lines) == 4
     js = wf.to_json()["models"]["second"]
     assert set(js["per_run_mse"]) == {str(i) for i in range(1, 22)}
 

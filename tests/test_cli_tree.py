@@ -99,14 +99,7 @@ def test_format_names_match_the_loaders() -> None:
 
 
 @pytest.mark.parametrize("module,new", [
-    ("avll.calibrate", "avll.cli.calibrate"),
-    ("avll.stability", "avll.cli.stability_map"),
-    ("avll.demo", "avll.cli.simulate"),
-    ("avll.synth", "avll.cli.synth"),
-    ("avll.reproduce", "avll.cli.reproduce"),
-    ("avll.studies", "avll.cli.study"),
     ("avll.studies.openacc", "avll.cli.study"),
-    ("avll.diagnose", "avll.cli.diagnose"),
 ])
 def test_old_register_cli_warns_and_works(module: str, new: str) -> None:
     mod = importlib.import_module(module)
@@ -177,25 +170,3 @@ def test_ga_budget_named_alike_old_spellings_work(capsys: pytest.CaptureFixture[
     with pytest.raises(ValueError, match="--starts: must be >= 1, got 0"):
         parser.parse_args(["diagnose", "d.csv", "--cal-runs", "1", "--json", "o", "--starts",
                            "0"])
-
-
-def test_renamed_keywords_warn_and_work() -> None:
-    from avll._compat import renamed_kwargs
-
-    @renamed_kwargs(maxiter="max_generations")
-    def f(*, max_generations: int = 1) -> int:
-        return max_generations
-
-    with pytest.warns(DeprecationWarning, match="'maxiter' is deprecated; use 'max_generations'"):
-        assert f(maxiter=5) == 5
-    with pytest.raises(TypeError, match="give 'max_generations' only"):
-        f(maxiter=5, max_generations=6)
-    assert f(max_generations=3) == 3
-
-
-def test_fielddata_moved_to_studies() -> None:
-    import avll.fielddata as old
-    from avll.studies import fielddata as new
-
-    with pytest.warns(DeprecationWarning, match=r"avll\.studies\.fielddata\.carma_study"):
-        assert old.carma_study is new.carma_study

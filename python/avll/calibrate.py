@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 from . import _core, _sigint
-from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_seed, check_threads
 from .data import Run
 
@@ -858,14 +857,6 @@ class Workflow:
         return plotting.traces(run.t, run.a, sims, data=plotting.data_label(run),
                                title=f"Run {rid} ({role})")
 
-    def figure(self, run_id: Any, models: Sequence[str] | None = None) -> Any:
-        """Deprecated name of :meth:`plot`."""
-        import warnings
-
-        warnings.warn("Workflow.figure is deprecated; use Workflow.plot", DeprecationWarning,
-                      stacklevel=2)
-        return self.plot(run_id, models)
-
 
 def paper_workflow(
     runs: Sequence[Run],
@@ -920,6 +911,3 @@ def paper_workflow(
             break
     return Workflow(results, cal, val, val_mse, bool(opts.get("closed_loop", False)),
                     str(opts.get("init", "rest")))  # fmt: skip
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.calibrate:register"})

@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 
 from . import PAPER_TABLE_II
-from ._compat import moved as _moved
 from .rollout import simulate
 
 
@@ -55,6 +54,3 @@ def _plot(t: np.ndarray, u: np.ndarray, res: dict[str, np.ndarray], path: Path) 
     fig = plotting.traces(t, None, res, command=u,
                           title="Table II models on the built-in command (simulated)")
     _atomic.savefig(fig, path, dpi=120)
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.simulate:register"})

@@ -1,4 +1,4 @@
-"""Effects: self-contained extensions of any base model (issue 6).
+"""Effects: self-contained extensions of any base model.
 
 Each effect is a small frozen dataclass with its own bounded parameters, and the
 registry name that scripts depend on: ``asymmetric``, ``saturation``, ``rate_limit``,
@@ -335,13 +335,6 @@ def _registry() -> dict[str, type[Effect]]:
 #: registry's).
 EFFECTS: dict[str, type[Effect]] = _registry()
 CANONICAL_ORDER: tuple[str, ...] = tuple(EFFECTS)
-#: The seven effects of issue 6, in canonical order: the candidates of the current
-#: diagnosis loop, which has trial settings and signatures for these only (the
-#: effects of issue 13 -- road_load, power_limit, sensor -- join it with the loop's
-#: rewrite).
-ISSUE6_ORDER: tuple[str, ...] = (
-    "delay", "rate_limit", "deadband", "asymmetric", "saturation", "speed_drag", "grade",
-)
 
 
 def effect_class(name: str | type[Effect] | Effect) -> type[Effect]:

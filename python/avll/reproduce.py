@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from . import _atomic
-from ._compat import moved as _moved
 from ._limits import check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel
@@ -196,7 +195,7 @@ def _capacity_ratios(st: dict[str, dict[str, Any]]) -> dict[str, float | None]:
 
 
 # ---------------------------------------------------------------------------
-# Diagnosis (issue 6): one function, so that the loop plugs in here only
+# Diagnosis: one function, so that the loop plugs in here only
 # ---------------------------------------------------------------------------
 
 
@@ -212,13 +211,9 @@ def run_diagnosis(
 ) -> dict[str, Any]:
     """The residual diagnosis / add-effect loop of :mod:`avll.diagnose` on ``model``
     (starting from the calibrated ``baseline`` when given), as the JSON of
-    ``avll diagnose`` (``{"base_model", "steps", "effects", ...}``). When the loop is
-    not available in this build, ``{"available": False, "reason": ...}``."""
-    try:
-        from .diagnose import effect_loop
-    except ImportError as e:  # pragma: no cover - depends on the build
-        return {"available": False, "reason": f"avll.diagnose not available ({e})",
-                "base_model": model, "steps": [], "effects": []}
+    ``avll diagnose`` (``{"base_model", "steps", "effects", ...}``) with
+    ``"available": True``."""
+    from .diagnose import effect_loop
     from .progress import resolve_mode
 
     res = effect_loop(model, list(cal), list(val), seed=seed, baseline=baseline,
@@ -1008,6 +1003,3 @@ def _mean(x: Any) -> Any:
     if isinstance(x, dict) and x:
         return float(np.mean(list(x.values())))
     return x
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.reproduce:register"})

@@ -30,7 +30,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import _atomic, _core
-from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_number, check_threads
 from .models import LowerLevelModel
 
@@ -890,6 +889,3 @@ def plot_boundaries(boundaries: Sequence[Any], labels: Sequence[str] | None = No
     from .plotting import boundaries as draw
 
     return draw(boundaries, labels)
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.stability_map:register"})

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._compat import moved as _moved
 from ._limits import check_int, check_memory, check_number, check_seed
 from .data import Run
 from .models import LowerLevelModel, UpperLevel
@@ -135,6 +134,3 @@ def paper_experiment(
             )
         )
     return out
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.synth:register"})

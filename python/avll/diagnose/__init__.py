@@ -110,10 +110,6 @@ __all__ = [
 
 def __getattr__(name: str) -> Any:
     """The public names of the submodules, imported on first access."""
-    if name == "register_cli":
-        from .._compat import moved
-
-        return moved(__name__, {"register_cli": "avll.cli.diagnose:register"})(name)
     if name in _WHERE:
         import importlib
 

@@ -12,7 +12,6 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
-from .._compat import renamed_kwargs
 from .._limits import check_seed, check_threads
 from ..calibrate import DEFAULT_BOUNDS, DEFAULT_STARTS
 from ..calibrate import UPPER_BOUNDS as _UB
@@ -184,7 +183,6 @@ CLOSED_LOOP_WEIGHTS: tuple[float, float, float] = (1.0, 0.1, 0.01)
 SPEED_COMMAND_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.0)
 
 
-@renamed_kwargs(free_upper="upper_free", popsize="pop_size", maxiter="max_generations")
 def fit_full(
     base: str | type[LowerLevelModel] | LowerLevelModel,
     effects: Sequence[str],
@@ -321,7 +319,6 @@ def fit_full(
     return model, up
 
 
-@renamed_kwargs(popsize="pop_size", maxiter="max_generations")
 def fit(
     base: str | type[LowerLevelModel] | LowerLevelModel,
     effects: Sequence[str],

@@ -1,4 +1,4 @@
-"""The add-effect loop with cross-validated selection (issue 13).
+"""The add-effect loop with cross-validated selection.
 
 Three disjoint sets of runs:
 
@@ -51,7 +51,6 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from .._compat import renamed_kwargs
 from .._limits import check_int, check_number, check_seed, check_threads
 from ..calibrate import DEFAULT_STARTS
 from ..data import Run
@@ -257,7 +256,6 @@ def _sub(seed: int, *ks: int) -> int:
 # ---------------------------------------------------------------------------
 
 
-@renamed_kwargs(maxiter="max_generations")
 def effect_loop(
     base: str | type[LowerLevelModel],
     cal_runs: Sequence[Run],

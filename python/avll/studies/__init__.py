@@ -11,8 +11,5 @@
 
 from __future__ import annotations
 
-from .._compat import moved as _moved
 
 __all__: list[str] = []
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.study:register"})

@@ -1,4 +1,4 @@
-"""Calibration studies on the measured field data (issue 5, items 3–4).
+"""Calibration studies on the measured field data.
 
 Two studies, each returning a :class:`Study` (pandas tables, matplotlib figures, a
 JSON-able summary and a plain-text report):
