@@ -15,7 +15,7 @@ import pytest
 
 import avll
 from avll import _core
-from avll.calibrate import (
+from avll.calibration import (
     DEFAULT_BOUNDS,
     bootstrap,
     calibrate,
@@ -172,7 +172,7 @@ def test_workflow_packs_the_runs_once(
 ) -> None:
     """paper_workflow packs the calibration runs and the validation runs once each for
     all models (issue 10, item 4), with the same results as packing per call."""
-    cm = sys.modules["avll.calibrate"]  # the module (avll.calibrate is the function)
+    cm = sys.modules["avll.calibration"]
     calls: list[int] = []
     real = cm.pack_runs
 

@@ -4,7 +4,6 @@ states its default; the shared options behave the same everywhere; old names war
 from __future__ import annotations
 
 import argparse
-import importlib
 import subprocess
 import sys
 
@@ -96,19 +95,6 @@ def test_format_names_match_the_loaders() -> None:
     from avll.io import FORMATS
 
     assert sorted(FORMAT_NAMES) == sorted(FORMATS)
-
-
-@pytest.mark.parametrize("module,new", [
-    ("avll.studies.openacc", "avll.cli.study"),
-])
-def test_old_register_cli_warns_and_works(module: str, new: str) -> None:
-    mod = importlib.import_module(module)
-    with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
-        fn = mod.register_cli
-    parser = argparse.ArgumentParser()
-    fn(parser.add_subparsers())  # registers without error
-    with pytest.raises(AttributeError):
-        _ = mod.no_such_name
 
 
 def test_python_dash_m_avll_runs() -> None:

@@ -11,5 +11,4 @@
 
 from __future__ import annotations
 
-
 __all__: list[str] = []

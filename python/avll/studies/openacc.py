@@ -61,8 +61,7 @@ from typing import Any
 import numpy as np
 
 from .. import _atomic
-from .._compat import moved as _moved
-from ..calibrate import calibrate_many
+from ..calibration import calibrate_many
 from ..data import Run
 from ..defaults import UPPER_NAMES as _UPPER
 from ..defaults import UPPER_PLACEHOLDER
@@ -979,6 +978,3 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
                   f"{k['reason']}" for k in s["skipped"]]
         lines.append("")
     return "\n".join(lines) + "\n"
-
-
-__getattr__ = _moved(__name__, {"register_cli": "avll.cli.study:register_openacc"})
