@@ -14,7 +14,7 @@ equal to ``avll.batch_cost`` to 1e-9 before anything is timed):
 
 All three minimise the same objective (Eq. 6: mean over the runs of the
 acceleration MSE, open loop, from rest) over the same box in the same unit
-coordinates (log scale for m1, m2, m3, as :data:`avll.calibrate.DEFAULT_BOUNDS`),
+coordinates (log scale for m1, m2, m3, as :data:`avll.calibration.DEFAULT_BOUNDS`),
 with the same number of threads (``--threads``; numba via ``numba.set_num_threads``).
 Optionally (``--lfilter``) also DE driving ``scipy.signal.lfilter`` rollouts
 (:mod:`avll.reference.lfilter`), the route of the first version of this benchmark.
@@ -70,7 +70,7 @@ from scipy.optimize import differential_evolution, minimize  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import avll  # noqa: E402
-from avll.calibrate import DEFAULT_BOUNDS, calibrate  # noqa: E402
+from avll.calibration import DEFAULT_BOUNDS, calibrate  # noqa: E402
 from avll.reference.lfilter import cost_lfilter  # noqa: E402
 from avll.synth import PAPER_CAL_RUNS, paper_experiment  # noqa: E402
 

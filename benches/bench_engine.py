@@ -62,7 +62,7 @@ except ImportError as e:  # numba missing: one line, not a traceback
     sys.exit(f"bench_engine: {e}")
 
 import avll  # noqa: E402
-from avll.calibrate import DEFAULT_BOUNDS  # noqa: E402
+from avll.calibration import DEFAULT_BOUNDS  # noqa: E402
 from avll.synth import PAPER_CAL_RUNS, paper_experiment  # noqa: E402
 
 DT = 0.05

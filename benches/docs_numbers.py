@@ -6,7 +6,7 @@
 
 Fragments (pulled into the pages with MyST's ``{include}``):
 
-* ``bounds``: the default calibration boxes (``avll.calibrate.DEFAULT_BOUNDS``,
+* ``bounds``: the default calibration boxes (``avll.calibration.DEFAULT_BOUNDS``,
   ``UPPER_BOUNDS``) — instant;
 * ``ga-options``: the GA options of ``avll.calibrate`` and their defaults — instant;
 * ``effects``: the effects registry with each parameter's calibration bounds — instant;
@@ -81,7 +81,7 @@ def _f(x: Any, fmt: str = ".4g", none: str = "—") -> str:
 
 def bounds() -> str:
     """The default search boxes of ``avll.calibrate`` with the reason for each."""
-    from avll.calibrate import DEFAULT_BOUNDS, UPPER_BOUNDS
+    from avll.calibration import DEFAULT_BOUNDS, UPPER_BOUNDS
     from avll.defaults import BOUND_REASONS
 
     def why(model: str, p: str) -> str:
@@ -101,7 +101,7 @@ def bounds() -> str:
 def ga_options() -> str:
     """The GA options of ``avll.calibrate`` and their defaults (0: chosen from the size
     of the problem, see the calibration guide)."""
-    from avll.calibrate import DEFAULT_STARTS, GA_OPTIONS
+    from avll.calibration import DEFAULT_STARTS, GA_OPTIONS
 
     lines = ["| option | default |", "|---|---|", f"| `starts` | {DEFAULT_STARTS} |"]
     lines += [f"| `{k}` | {v!r} |" for k, v in GA_OPTIONS.items()]
@@ -132,20 +132,27 @@ def section_iv() -> str:
 
     out = [_stamp("python benches/docs_numbers.py --only section-iv"), ""]
     out.append(readme_numbers.render_section_iv(readme_numbers.section_iv()))
+    from avll.paper import SECTION_IV_GRID as G
+    from avll.paper import section_iv_axis
+
     P = avll.PAPER_TABLE_II
-    tg = np.round(np.arange(0.0, 15.0 + 1e-9, 0.05), 10)
-    out += ["", "kv threshold (1/s) against the smallest kg of the grid (kg log-spaced up to 5, "
-            "400 points; Tg 0..15 s step 0.05; Padé 2; bisection to 1e-5):", "",
+    (kg_lo, kg_hi, kg_n), (tg_lo, tg_hi, _) = G["kg"], G["Tg"]
+    step, tol = G["kv_tg_step"], G["kv_tol"]
+    tg = section_iv_axis(tg_lo, tg_hi, round((tg_hi - tg_lo) / step) + 1)
+    out += ["", f"kv threshold (1/s) against the smallest kg of the grid (kg log-spaced up to "
+            f"{kg_hi:g}, {kg_n} points; Tg {tg_lo:g}..{tg_hi:g} s step {step:g}; Padé "
+            f"{G['pade_order']}; bisection to {tol:g}):", "",
             "| smallest kg | second-order | proposed |", "|---|---|---|"]
     for kg_min in (1e-2, 1e-3, 1e-4):
-        kg = np.geomspace(kg_min, 5.0, 400)
-        row = [S.kv_threshold(P[n], kg, tg, 0.5, 1.0, tol=1e-5) for n in ("second", "proposed")]
+        kg = section_iv_axis(kg_min, kg_hi, kg_n, log=True)
+        row = [S.kv_threshold(P[n], kg, tg, 0.5, 1.0, G["pade_order"], tol=tol)
+               for n in ("second", "proposed")]
         out.append(f"| {kg_min:g} | {row[0]:.4f} | {row[1]:.4f} |")
-    kg = np.geomspace(1e-3, 5.0, 400)
-    out += ["", "kv threshold (1/s) against the Padé order of the delay (kg 1e-3..5, same Tg "
-            "grid):", "", "| Padé order | second-order | proposed |", "|---|---|---|"]
+    kg = section_iv_axis(*G["kg"], log=True)
+    out += ["", f"kv threshold (1/s) against the Padé order of the delay (kg {kg_lo:g}..{kg_hi:g}, "
+            "same Tg grid):", "", "| Padé order | second-order | proposed |", "|---|---|---|"]
     for order in (1, 2, 3, 4, 5, 8):
-        row = [S.kv_threshold(P[n], kg, tg, 0.3, 1.2, order, tol=1e-5)
+        row = [S.kv_threshold(P[n], kg, tg, 0.3, 1.2, order, tol=tol)
                for n in ("second", "proposed")]
         out.append(f"| {order} | {row[0]:.4f} | {row[1]:.4f} |")
     return "\n".join(out)

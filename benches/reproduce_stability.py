@@ -11,6 +11,7 @@ import numpy as np
 
 import avll
 from avll import stability as S
+from avll.paper import SECTION_IV_GRID, section_iv_axis
 
 P = avll.PAPER_TABLE_II
 t0 = time.perf_counter()
@@ -31,9 +32,9 @@ for order in (1, 2, 3, 4, 5, 8):
     print(f"Padé order {order}: second {row[0]:.4f}, proposed {row[1]:.4f}")
 
 print("\n== minimum stable Tg (0.1 s grid) and capacity ==")
-kg = np.geomspace(1e-3, 5.0, 400)
-tg = np.round(np.arange(0.0, 15.0001, 0.1), 10)
-kv = np.round(np.arange(0.0, 1.2001, 0.01), 10)
+kg = section_iv_axis(*SECTION_IV_GRID["kg"], log=True)
+tg = section_iv_axis(*SECTION_IV_GRID["Tg"])
+kv = section_iv_axis(*SECTION_IV_GRID["kv"])
 tmin = {}
 for name in ("second", "proposed", "first"):
     th = S.thresholds(S.stability_map(P[name], kg, tg, kv), kg, tg, kv)

@@ -12,8 +12,6 @@ read from the installed ``avll`` argument parser), so install the package first:
 
 from __future__ import annotations
 
-import re
-from pathlib import Path
 from typing import Any
 
 from docutils import nodes
@@ -32,6 +30,7 @@ extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
     "sphinx.ext.mathjax",
+    "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
 ]
 
@@ -45,19 +44,11 @@ myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 
 nitpicky = False
+# NumPy-style "Parameters" sections (napoleon); the Google style is off so that prose
+# such as "Returns one run per stretch" stays prose.
+napoleon_google_docstring = False
+napoleon_numpy_docstring = True
 
-# Three pages come from parallel branches (guarantees, stability, findings-openacc).
-# Until they are merged they are one-line placeholders without a title, which Sphinx
-# reports as "toctree contains reference to document ... that doesn't have a title".
-# Only while such a placeholder is present is that one warning suppressed; the real
-# pages have titles, and then nothing is suppressed.
-_PLACEHOLDER = "(page arriving from a parallel branch)"
-_HERE = Path(__file__).resolve().parent
-suppress_warnings: list[str] = []
-if any((_HERE / f"{p}.md").is_file()
-       and (_HERE / f"{p}.md").read_text(encoding="utf-8").strip() == _PLACEHOLDER
-       for p in ("guarantees", "stability", "findings-openacc")):
-    suppress_warnings.append("toc.no_title")
 autodoc_member_order = "bysource"
 autodoc_default_options = {"members": True}
 autodoc_typehints = "description"
@@ -65,45 +56,6 @@ autodoc_typehints = "description"
 html_theme = "alabaster"
 html_title = f"avll {release}"
 html_theme_options = {"description": "the lower-level controller of automated vehicles"}
-
-
-# ---------------------------------------------------------------------------
-# Docstrings: a "Parameters" section written as "name: text" items
-# ---------------------------------------------------------------------------
-
-_ITEM = re.compile(r"^(\s*)([A-Za-z_][A-Za-z0-9_]*): (.*)$")
-
-
-def _colon_parameters(app: Sphinx, what: str, name: str, obj: Any, options: Any,
-                      lines: list[str]) -> None:
-    """Some docstrings list their arguments under a NumPy-style ``Parameters`` /
-    ``----------`` header as ``name: text`` lines (continuations indented). Docutils
-    would read that header as a section title inside a docstring and the items as a
-    block quote (errors), so turn such a section into a field list
-    (``:param name: text``), which renders as the parameter table."""
-    i = 0
-    while i + 1 < len(lines):
-        if lines[i].strip() == "Parameters" and set(lines[i + 1].strip()) == {"-"}:
-            out: list[str] = []
-            j = i + 2
-            while j < len(lines):
-                line = lines[j]
-                m = _ITEM.match(line)
-                if m and len(m.group(1)) == len(lines[i]) - len(lines[i].lstrip()):
-                    out.append(f"{m.group(1)}:param {m.group(2)}: {m.group(3)}")
-                elif line.strip() and line[:1].isspace() and out:
-                    out.append(line)
-                elif not line.strip():
-                    nxt = next((x for x in lines[j + 1:] if x.strip()), "")
-                    if not _ITEM.match(nxt):
-                        break
-                else:
-                    break
-                j += 1
-            lines[i:j] = [*out, ""]
-            i += len(out) + 1
-        else:
-            i += 1
 
 
 # ---------------------------------------------------------------------------
@@ -155,7 +107,6 @@ class AvllHelp(SphinxDirective):
 
 
 def setup(app: Sphinx) -> dict[str, Any]:
-    """Registers the docstring adapter and the ``avll-help`` directive."""
-    app.connect("autodoc-process-docstring", _colon_parameters)
+    """Registers the ``avll-help`` directive."""
     app.add_directive("avll-help", AvllHelp)
     return {"parallel_read_safe": True}

@@ -15,7 +15,7 @@ import pytest
 
 import avll
 from avll import _core
-from avll.calibrate import (
+from avll.calibration import (
     DEFAULT_BOUNDS,
     bootstrap,
     calibrate,
@@ -109,8 +109,6 @@ def test_models_rank_as_in_the_paper(proposed_data: list[avll.Run]) -> None:
     assert len(fig.axes[0].lines) == 4
     # the synthetic recording is labelled so, not "measured"
     assert fig.axes[0].lines[0].get_label() == "synthetic"
-    with pytest.warns(DeprecationWarning, match="Workflow.plot"):
-        assert len(wf.figure(17).axes[0].lines) == 4
     js = wf.to_json()["models"]["second"]
     assert set(js["per_run_mse"]) == {str(i) for i in range(1, 22)}
 
@@ -174,7 +172,7 @@ def test_workflow_packs_the_runs_once(
 ) -> None:
     """paper_workflow packs the calibration runs and the validation runs once each for
     all models (issue 10, item 4), with the same results as packing per call."""
-    cm = sys.modules["avll.calibrate"]  # the module (avll.calibrate is the function)
+    cm = sys.modules["avll.calibration"]
     calls: list[int] = []
     real = cm.pack_runs
 

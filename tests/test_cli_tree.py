@@ -4,7 +4,6 @@ states its default; the shared options behave the same everywhere; old names war
 from __future__ import annotations
 
 import argparse
-import importlib
 import subprocess
 import sys
 
@@ -98,7 +97,7 @@ def test_format_names_match_the_loaders() -> None:
     assert sorted(FORMAT_NAMES) == sorted(FORMATS)
 
 
-@pytest.mark.parametrize("module", ["avll.calibrate", "avll.stability", "avll.demo",
+@pytest.mark.parametrize("module", ["avll.calibration", "avll.stability", "avll.demo",
                                     "avll.synth", "avll.reproduce", "avll.studies",
                                     "avll.studies.openacc", "avll.diagnose"])
 def test_no_register_cli_shims(module: str) -> None:
@@ -169,25 +168,3 @@ def test_ga_budget_named_alike_old_spellings_work(capsys: pytest.CaptureFixture[
     with pytest.raises(ValueError, match="--starts: must be >= 1, got 0"):
         parser.parse_args(["diagnose", "d.csv", "--cal-runs", "1", "--json", "o", "--starts",
                            "0"])
-
-
-def test_renamed_keywords_warn_and_work() -> None:
-    from avll._compat import renamed_kwargs
-
-    @renamed_kwargs(maxiter="max_generations")
-    def f(*, max_generations: int = 1) -> int:
-        return max_generations
-
-    with pytest.warns(DeprecationWarning, match="'maxiter' is deprecated; use 'max_generations'"):
-        assert f(maxiter=5) == 5
-    with pytest.raises(TypeError, match="give 'max_generations' only"):
-        f(maxiter=5, max_generations=6)
-    assert f(max_generations=3) == 3
-
-
-def test_fielddata_moved_to_studies() -> None:
-    import avll.fielddata as old
-    from avll.studies import fielddata as new
-
-    with pytest.warns(DeprecationWarning, match=r"avll\.studies\.fielddata\.carma_study"):
-        assert old.carma_study is new.carma_study

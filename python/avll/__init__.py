@@ -10,18 +10,6 @@ from typing import TYPE_CHECKING, Any
 # first: in the `avll` command, a Ctrl-C while the package imports is one line, exit 130
 from . import _startup  # noqa: F401
 from ._core import __version__
-
-# eager: ``avll.calibrate`` must stay the function, which the submodule of the same
-# name would replace if it were first imported from elsewhere
-from .calibrate import (
-    Bootstrap,
-    CalibrationResult,
-    Workflow,
-    bootstrap,
-    calibrate,
-    calibrate_many,
-    paper_workflow,
-)
 from .data import DataError, DataWarning, PlausibilityWarning, Run
 from .models import (
     MODELS,
@@ -37,6 +25,8 @@ from .models import (
 #: the Rust core, the models and the data class; see ``benches/bench_import.py``).
 _LAZY_NAMES: dict[str, str] = {
     "read_manifest": "_atomic",
+    **dict.fromkeys(("Bootstrap", "CalibrationResult", "Workflow", "bootstrap", "calibrate",
+                     "calibrate_many", "paper_workflow"), "calibration"),
     **dict.fromkeys(("EFFECTS", "Asymmetric", "Deadband", "Delay", "Grade", "PowerLimit",
                      "RateLimit", "RoadLoad", "Saturation", "Sensor", "SpeedDrag",
                      "WithEffects", "batch_cost_effects", "closed_loop_effects",
@@ -132,6 +122,15 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
     from . import plotting as plotting
     from . import progress as progress
     from ._atomic import read_manifest
+    from .calibration import (
+        Bootstrap,
+        CalibrationResult,
+        Workflow,
+        bootstrap,
+        calibrate,
+        calibrate_many,
+        paper_workflow,
+    )
     from .diagnose.contract import model_from_dict, simulate_run
     from .effects import (
         EFFECTS,

@@ -1,6 +1,7 @@
-"""Defaults, defined once: the GA's search boxes and options, the upper-level
-placeholder of runs without an upper law, and the figure styles (one colour per model
-and per stability class) every command and the report use.
+"""Defaults, defined once: the GA's search boxes and options (the options read from
+the Rust core, which also validates them), the objective weighting of closed-loop
+calibrations, the upper-level placeholder of runs without an upper law, and the figure
+styles (one colour per model and per stability class) every command and the report use.
 
 The bounds' reasons are :data:`BOUND_REASONS` (printed beside them in the docs).
 """
@@ -9,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from . import _core
 from .models import UpperLevel
 
 __all__ = [
@@ -19,6 +21,7 @@ __all__ = [
     "BOUND_REASONS",
     "UPPER_NAMES",
     "GA_OPTIONS",
+    "CLOSED_LOOP_WEIGHTS",
     "UPPER_PLACEHOLDER",
     "MODEL_COLORS",
     "MODEL_LINESTYLES",
@@ -97,25 +100,24 @@ BOUND_REASONS: dict[str, str] = {
 #: The upper-level gains (Eq. 3) in the order of :class:`avll.UpperLevel`.
 UPPER_NAMES: tuple[str, ...] = ("kg", "kv", "Tg", "Gmin")
 
-#: GA options passed through to the Rust core, with their defaults.
-GA_OPTIONS: dict[str, Any] = {
-    "pop_size": 0,
-    "max_generations": 300,
-    "stall_generations": 20,
-    "ftol": 1e-4,
-    "xtol": 1e-8,
-    "tournament": 2,
-    "crossover_prob": 0.9,
-    "eta_c": 10.0,
-    "mutation_prob": 0.0,
-    "eta_m": 20.0,
-    "plus": True,
-    "elite": 0,
-    "polish": True,
-    "polish_max_evals": 0,
-    "local_every": 3,
-    "local_evals": 0,
-}
+#: The GA's tunable options with their defaults, as the Rust core defines them
+#: (``GaOptions::default()``, exported by ``avll._core.ga_defaults``; the core also
+#: checks given values: ``avll._core.ga_check``). ``seed`` and ``target`` are arguments
+#: of :func:`avll.calibrate` of their own. A ``None`` budget in a signature
+#: (``max_generations=None``, ``pop_size=None``) means the value here.
+GA_OPTIONS: dict[str, Any] = dict(_core.ga_defaults())
+
+#: Objective weights ``(wa, wv, wx)`` of every closed-loop calibration (the diagnosis
+#: loop's, the AstaZero ``"mixed"`` objective, the OpenACC study): the mean squared
+#: errors of acceleration (m/s²)², speed (m/s)² and position (m²). In closed loop the
+#: upper law's spacing (``Tg``, ``Gmin``) acts on the gap, which the acceleration alone
+#: barely sees, and a measured acceleration is often a differentiated speed (noise
+#: times 1/dt), so speed and position carry weight too. The weights make errors of
+#: 0.1 m/s², 0.1 m/s and 1 m cost the same (1 x 0.1² = 1 x 0.1² = 0.01 x 1²): errors of
+#: the order of the sensors' and of practical relevance to a following car. (The
+#: diagnosis loop once used (1, 0.1, 0.01), a speed weighted 10x less for no stated
+#: reason.)
+CLOSED_LOOP_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.01)
 
 #: Upper-level law given to runs that have none (OpenACC pairs) before all four gains
 #: are calibrated: only a starting point, never a result.

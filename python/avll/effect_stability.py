@@ -1,4 +1,4 @@
-"""What the effects do to the stability conclusions (issue 13, item 6).
+"""What the effects do to the stability conclusions.
 
 :func:`effect_stability` answers, for a lower-level model with effects
 (:class:`avll.WithEffects`) under a constant-time-gap upper level (paper Eq. 3):

@@ -1,4 +1,4 @@
-"""Effects: self-contained extensions of any base model (issue 6).
+"""Effects: self-contained extensions of any base model.
 
 Each effect is a small frozen dataclass with its own bounded parameters, and the
 registry name that scripts depend on: ``asymmetric``, ``saturation``, ``rate_limit``,
@@ -51,7 +51,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import _core
-from ._limits import check_int, check_memory, check_number, check_seed, check_threads
+from ._limits import check_memory, check_number, check_seed, check_threads
 from .data import Run
 from .models import LowerLevelModel, UpperLevel, model_class
 from .rollout import Trajectory, _f64, _upper, check_lower_level, pack_runs
@@ -97,7 +97,19 @@ class Effect:
     """Base class of the effects. ``bounds`` are the calibration search bounds;
     ``neutral`` the parameters at which the effect is (or tends to) the identity;
     ``exo`` the exogenous signal it reads; ``needs_speed`` whether it reads the actual
-    speed. All are taken from the Rust registry when a subclass names itself."""
+    speed. All are taken from the Rust registry when a subclass names itself.
+
+    How a calibration and the diagnosis (:mod:`avll.diagnose`) treat the effect is
+    declared here too, so that a new effect is one class: ``fixed`` (command kind ->
+    parameter -> value) pins parameters a command kind cannot identify (a speed
+    command has no braking gain); ``excludes`` names an effect the library refuses
+    together with this one (not identifiable together); ``signature`` is how the
+    diagnosis probes it: ``"linear"`` (one signature column per free parameter, the
+    rule for any effect that declares nothing), ``"setting"`` (one column per trial
+    setting, profiled: threshold effects), ``"each"`` (one column per parameter of a
+    trial setting) or ``"scaled"`` (one column, the hint scales the setting);
+    ``trials`` are the fixed trial settings (empty: from the data, or the generic
+    steps of :mod:`avll.diagnose.signatures`)."""
 
     name: ClassVar[str] = ""
     bounds: ClassVar[tuple[tuple[float, float], ...]] = ()
@@ -105,6 +117,10 @@ class Effect:
     exo: ClassVar[str | None] = None
     accel_only: ClassVar[bool] = False
     needs_speed: ClassVar[bool] = False
+    fixed: ClassVar[dict[str, dict[str, float]]] = {}
+    excludes: ClassVar[str | None] = None
+    signature: ClassVar[str] = "linear"
+    trials: ClassVar[tuple[dict[str, float], ...]] = ()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -164,6 +180,9 @@ class Delay(Effect):
 
     tau: float = 0.0
     name: ClassVar[str] = "delay"
+    signature: ClassVar[str] = "setting"
+    trials: ClassVar[tuple[dict[str, float], ...]] = tuple(
+        {"tau": t} for t in (0.05, 0.1, 0.2, 0.35, 0.5, 0.8))
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -176,6 +195,7 @@ class RateLimit(Effect):
 
     j_max: float = 30.0
     name: ClassVar[str] = "rate_limit"
+    signature: ClassVar[str] = "setting"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -188,6 +208,7 @@ class Deadband(Effect):
 
     delta: float = 0.0
     name: ClassVar[str] = "deadband"
+    signature: ClassVar[str] = "setting"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -201,6 +222,8 @@ class Asymmetric(Effect):
     kb: float = 1.0
     rb: float = 1.0
     name: ClassVar[str] = "asymmetric"
+    fixed: ClassVar[dict[str, dict[str, float]]] = {"speed": {"kb": 1.0}}
+    trials: ClassVar[tuple[dict[str, float], ...]] = ({"kb": 0.8, "rb": 1.25},)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -215,6 +238,7 @@ class Saturation(Effect):
     a_max: float = 6.0
     d_max: float = 10.0
     name: ClassVar[str] = "saturation"
+    signature: ClassVar[str] = "each"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -229,6 +253,8 @@ class SpeedDrag(Effect):
     c0: float = 0.0
     c2: float = 0.0
     name: ClassVar[str] = "speed_drag"
+    excludes: ClassVar[str | None] = "road_load"
+    trials: ClassVar[tuple[dict[str, float], ...]] = ({"c0": 0.05, "c2": 0.001},)
 
 
 @dataclass(frozen=True)
@@ -237,6 +263,8 @@ class Grade(Effect):
 
     g_eff: float = 0.0
     name: ClassVar[str] = "grade"
+    signature: ClassVar[str] = "scaled"
+    trials: ClassVar[tuple[dict[str, float], ...]] = ({"g_eff": 5.0},)
 
 
 @dataclass(frozen=True)
@@ -260,6 +288,7 @@ class RoadLoad(Effect):
     c1: float = 0.0
     c2: float = 0.0
     name: ClassVar[str] = "road_load"
+    excludes: ClassVar[str | None] = "speed_drag"  # road_load with c1 = 0 is speed_drag
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -335,13 +364,6 @@ def _registry() -> dict[str, type[Effect]]:
 #: registry's).
 EFFECTS: dict[str, type[Effect]] = _registry()
 CANONICAL_ORDER: tuple[str, ...] = tuple(EFFECTS)
-#: The seven effects of issue 6, in canonical order: the candidates of the current
-#: diagnosis loop, which has trial settings and signatures for these only (the
-#: effects of issue 13 -- road_load, power_limit, sensor -- join it with the loop's
-#: rewrite).
-ISSUE6_ORDER: tuple[str, ...] = (
-    "delay", "rate_limit", "deadband", "asymmetric", "saturation", "speed_drag", "grade",
-)
 
 
 def effect_class(name: str | type[Effect] | Effect) -> type[Effect]:
@@ -633,8 +655,8 @@ def calibrate_effects(
     upper_free: Sequence[int] = (),
     initial: Any = None,
     seed: int = 0,
-    max_generations: int = 300,
-    pop_size: int = 0,
+    max_generations: int | None = None,
+    pop_size: int | None = None,
     progress: Any = None,
     threads: int = 0,
     starts: int = 1,
@@ -646,11 +668,10 @@ def calibrate_effects(
     ``f``, ``generations``, ``stop``, ``per_run_cost``, ...): with ``starts > 1``
     independent GA runs (seeds ``derive_seed(seed, j)``, run in turn with all the
     threads each, as :func:`avll.calibrate`), the best. Same seed, same result whatever
-    the thread count."""
+    the thread count. ``max_generations`` and ``pop_size`` (``None``: the defaults of
+    :data:`avll.defaults.GA_OPTIONS`) are checked by the Rust core."""
     seed = check_seed(seed)
     threads = check_threads(threads)
-    max_generations = check_int(max_generations, "max_generations", min=0)
-    pop_size = check_int(pop_size, "pop_size", min=0)
     cls, names, _, kw = _batch_args(base, effects, np.zeros((1, 1)), runs, weights=weights,
                                     init=init, closed_loop=closed_loop,
                                     upper_free=upper_free)  # fmt: skip
@@ -658,7 +679,8 @@ def calibrate_effects(
     if isinstance(starts, bool) or int(starts) < 1:
         raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
     n = int(starts)
-    opts = {"seed": int(seed), "max_generations": int(max_generations), "pop_size": int(pop_size)}
+    opts = {"seed": int(seed)} | {k: v for k, v in (("max_generations", max_generations),
+                                                   ("pop_size", pop_size)) if v is not None}
     outs = _core.calibrate(
         cls.name, lower_bounds=[float(x) for x in lower],
         upper_bounds=[float(x) for x in upper], scale=[str(x) for x in scale],

@@ -185,36 +185,7 @@ def map_thresholds(codes: Any) -> S.Thresholds:
 
     if not isinstance(codes, xr.DataArray) or tuple(codes.dims) != DIMS:
         raise ValueError(f"codes: expected a DataArray with dims {DIMS} (from map_dataset)")
-    stable = codes == S.STABLE
-    any_kg, any_tg = stable.any("Tg"), stable.any("kg")
-    if hasattr(any_kg.data, "dask"):
-        import dask
-
-        any_kg, any_tg = dask.compute(any_kg, any_tg)
-    kg = codes["kg"].values
-    tg = codes["Tg"].values
-    kv = codes["kv"].values
-    a_kg: np.ndarray = np.asarray(any_kg.values, dtype=bool)  # (kg, kv)
-    a_tg: np.ndarray = np.asarray(any_tg.values, dtype=bool)  # (Tg, kv)
-    kg_max = np.array([kg[a_kg[:, j]].max() if a_kg[:, j].any() else np.nan
-                       for j in range(kv.size)])
-    tg_min = np.array([tg[a_tg[:, j]].min() if a_tg[:, j].any() else np.nan
-                       for j in range(kv.size)])
-    has: np.ndarray = np.asarray(a_kg.any(axis=0))
-    order = np.argsort(kv)
-    last = first_empty = np.nan
-    for pos, j in enumerate(order):
-        if has[j]:
-            last = float(kv[j])
-            first_empty = float(kv[order[pos + 1]]) if pos + 1 < len(order) else np.nan
-    tg_all = tg[a_tg.any(axis=1)]
-    return S.Thresholds(
-        kv=kv.copy(), kg_max=kg_max, tg_min=tg_min, kv_last_stable=last,
-        kv_first_empty=first_empty,
-        tg_min_overall=float(tg_all.min()) if tg_all.size else np.nan,
-        kg_edge=float(np.max(kg)) if kg.size else np.nan,
-        tg_edge=float(np.min(tg)) if tg.size else np.nan,
-    )
+    return S.thresholds(codes)
 
 
 def _format(path: str, fmt: str | None) -> str:
@@ -530,7 +501,7 @@ def _calibrate_block(
     seed and seed derivation off is the same GA run."""
     from dataclasses import replace
 
-    from .calibrate import _per_run, _problem, _result, _run, _subset_indices
+    from .calibration import _per_run, _problem, _result, _run, _subset_indices
 
     pk: dict[str, Any] = {"bounds": None, "closed_loop": False, "upper_free": (),
                           "weights": (1.0, 0.0, 0.0), "init": "rest"}
@@ -618,7 +589,7 @@ def bootstrap_distributed(
     """:func:`avll.bootstrap` with the resamples calibrated on a ``dask.distributed``
     client (:func:`calibrate_many_distributed`): the same resamples (drawn from
     ``seed``) and the same seeds, so the same :class:`avll.Bootstrap`."""
-    from .calibrate import Bootstrap
+    from .calibration import Bootstrap
 
     if int(n) < 2:
         raise ValueError(f"n: must be >= 2, got {n}")

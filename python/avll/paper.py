@@ -1,7 +1,7 @@
 """The paper's constants, defined once: its models' order and names, Table I (the
-experiment), Table II (the calibrated parameters), the calibration runs and the
-published numbers of Tables III-IV and Section IV (the reference ``avll reproduce``
-compares with).
+experiment), Table II (the calibrated parameters), the calibration runs, the grid on
+which Section IV is reproduced and the published numbers of Tables III-IV and
+Section IV (the reference ``avll reproduce`` compares with).
 
 Liu et al., "Experimental study and modeling of the lower-level controller of
 automated vehicle" (/work/shared/paper).
@@ -10,6 +10,8 @@ automated vehicle" (/work/shared/paper).
 from __future__ import annotations
 
 from typing import Any
+
+import numpy as np
 
 from .models import FirstOrderLag, LowerLevelModel, Proposed, SecondOrder
 
@@ -23,6 +25,8 @@ __all__ = [
     "PAPER_CAL_RUNS",
     "PAPER_VAL_RUNS",
     "GMIN",
+    "SECTION_IV_GRID",
+    "section_iv_axis",
     "PAPER",
 ]
 
@@ -74,6 +78,31 @@ TABLE_II: dict[str, LowerLevelModel] = {
     "second": SecondOrder(**TABLE_II_PARAMS["second"]),
     "proposed": Proposed(**TABLE_II_PARAMS["proposed"]),
 }
+
+#: The grid on which Section IV is reproduced (``avll reproduce``, the README, the
+#: docs, ``avll stability-map``): each axis ``(first, last, points)``, kg log-spaced,
+#: Tg and kv evenly; the Padé order of the delay; the kv threshold bisected to
+#: ``kv_tol`` on a Tg grid of step ``kv_tg_step``. The paper gives its thresholds for
+#: Tg in [0, 15] s at 0.1 s resolution; they depend on how close to 0 the kg grid
+#: goes, hence the stated ``kg`` axis.
+SECTION_IV_GRID: dict[str, Any] = {
+    "kg": (1e-3, 5.0, 400),
+    "Tg": (0.0, 15.0, 151),
+    "kv": (0.0, 1.2, 121),
+    "pade_order": 2,
+    "kv_tg_step": 0.05,
+    "kv_tol": 1e-5,
+}
+
+
+def section_iv_axis(first: float, last: float, points: int, log: bool = False) -> np.ndarray:
+    """An axis ``(first, last, points)`` as :data:`SECTION_IV_GRID` gives it: log-spaced
+    with ``log``, else evenly spaced and rounded to 10 decimals (so that 0.1-steps are
+    the decimal values)."""
+    if log:
+        return np.geomspace(first, last, int(points))
+    return np.round(np.linspace(first, last, int(points)), 10)
+
 
 #: The paper's published numbers (Tables II–IV, Section IV).
 PAPER: dict[str, Any] = {

@@ -49,8 +49,15 @@ __all__ = [
     "run_diagnosis",
 ]
 
+from .defaults import DEFAULT_STARTS, GA_OPTIONS
 from .paper import MODEL_LABELS as _NAMES
 from .paper import MODELS, PAPER
+from .paper import SECTION_IV_GRID as _GRID
+
+
+def _step(axis: tuple[float, float, int]) -> float:
+    """The step of an evenly spaced ``(first, last, points)`` axis."""
+    return round((axis[1] - axis[0]) / (axis[2] - 1), 12)
 
 
 @dataclass(frozen=True)
@@ -68,18 +75,18 @@ class Settings:
     """
 
     duration: float = 180.0
-    max_generations: int = 300
-    starts: int = 2
-    kg_min: float = 1e-3
-    kg_max: float = 5.0
-    kg_n: int = 400
-    tg_max: float = 15.0
-    tg_step: float = 0.1
-    kv_max: float = 1.2
-    kv_step: float = 0.01
-    kv_tg_step: float = 0.05
-    kv_tol: float = 1e-5
-    pade_order: int = 2
+    max_generations: int = GA_OPTIONS["max_generations"]
+    starts: int = DEFAULT_STARTS
+    kg_min: float = _GRID["kg"][0]
+    kg_max: float = _GRID["kg"][1]
+    kg_n: int = _GRID["kg"][2]
+    tg_max: float = _GRID["Tg"][1]
+    tg_step: float = _step(_GRID["Tg"])
+    kv_max: float = _GRID["kv"][1]
+    kv_step: float = _step(_GRID["kv"])
+    kv_tg_step: float = _GRID["kv_tg_step"]
+    kv_tol: float = _GRID["kv_tol"]
+    pade_order: int = _GRID["pade_order"]
     panels: tuple[float, ...] = (0.0, 0.3, 0.6)
     diagnosis: bool = True
     max_effects: int = 2
@@ -93,8 +100,9 @@ class Settings:
         return kg, tg, kv
 
 
-#: ``default``: the paper's grids (the ones of docs/guide/stability.md § Reproduction of
-#: Section IV) and the full GA;
+#: ``default``: the paper's grid (:data:`avll.paper.SECTION_IV_GRID`, the one of
+#: docs/guide/stability.md § Reproduction of Section IV) and the full GA
+#: (:data:`avll.defaults.GA_OPTIONS`);
 #: ``quick``: coarse grids and a small GA, for smoke tests (numbers not meaningful).
 SETTINGS: dict[str, Settings] = {
     "default": Settings(),
@@ -196,7 +204,7 @@ def _capacity_ratios(st: dict[str, dict[str, Any]]) -> dict[str, float | None]:
 
 
 # ---------------------------------------------------------------------------
-# Diagnosis (issue 6): one function, so that the loop plugs in here only
+# Diagnosis: one function, so that the loop plugs in here only
 # ---------------------------------------------------------------------------
 
 
@@ -212,13 +220,9 @@ def run_diagnosis(
 ) -> dict[str, Any]:
     """The residual diagnosis / add-effect loop of :mod:`avll.diagnose` on ``model``
     (starting from the calibrated ``baseline`` when given), as the JSON of
-    ``avll diagnose`` (``{"base_model", "steps", "effects", ...}``). When the loop is
-    not available in this build, ``{"available": False, "reason": ...}``."""
-    try:
-        from .diagnose import effect_loop
-    except ImportError as e:  # pragma: no cover - depends on the build
-        return {"available": False, "reason": f"avll.diagnose not available ({e})",
-                "base_model": model, "steps": [], "effects": []}
+    ``avll diagnose`` (``{"base_model", "steps", "effects", ...}``) with
+    ``"available": True``."""
+    from .diagnose import effect_loop
     from .progress import resolve_mode
 
     res = effect_loop(model, list(cal), list(val), seed=seed, baseline=baseline,
@@ -246,7 +250,7 @@ class _Data:
 
 
 def _synthetic(seed: int, settings: Settings) -> _Data:
-    from .calibrate import split_runs
+    from .calibration import split_runs
     from .synth import paper_experiment
 
     runs = paper_experiment(seed=seed, duration=settings.duration)
@@ -329,7 +333,7 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
                   json_path: str | Path | None, log: Callable[[str], None] | None
                   ) -> dict[str, Any]:
     from . import PAPER_TABLE_II
-    from .calibrate import paper_workflow
+    from .calibration import paper_workflow
 
     shown_json = str(json_path) if json_path is not None else str(final / "summary.json")
     t_start = time.perf_counter()

@@ -229,9 +229,19 @@ def thresholds(codes: Any, kg: Any = None, tg: Any = None, kv: Any = None) -> Th
     labelled map from :func:`avll.map_dataset` (axes from its coordinates; a
     Dask-backed map is reduced chunk by chunk, see :func:`avll.maps.map_thresholds`)."""
     if kg is None and tg is None and kv is None and hasattr(codes, "dims"):
-        from .maps import map_thresholds
+        # labelled: only the two reductions are computed (chunk by chunk with Dask)
+        if tuple(codes.dims) != ("kg", "Tg", "kv"):
+            raise ValueError("codes: expected a DataArray with dims ('kg', 'Tg', 'kv') "
+                             "(from map_dataset)")
+        stable = codes == STABLE
+        any_kg, any_tg = stable.any("Tg"), stable.any("kg")
+        if hasattr(any_kg.data, "dask"):
+            import dask
 
-        return map_thresholds(codes)
+            any_kg, any_tg = dask.compute(any_kg, any_tg)
+        return _reduce(codes["kg"].values, codes["Tg"].values, codes["kv"].values,
+                       np.asarray(any_kg.values, dtype=bool),
+                       np.asarray(any_tg.values, dtype=bool))
     if kg is None or tg is None or kv is None:
         raise ValueError("kg, tg, kv: the axes are needed with a plain array of codes")
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
@@ -242,15 +252,20 @@ def thresholds(codes: Any, kg: Any = None, tg: Any = None, kv: Any = None) -> Th
             f"({kg.size}, {tg.size}, {kv.size})"
         )
     stable = codes == STABLE
-    any_kg = stable.any(axis=1)  # (kg, kv)
-    any_tg = stable.any(axis=0)  # (tg, kv)
+    return _reduce(kg, tg, kv, stable.any(axis=1), stable.any(axis=0))
+
+
+def _reduce(kg: np.ndarray, tg: np.ndarray, kv: np.ndarray, any_kg: np.ndarray,
+            any_tg: np.ndarray) -> Thresholds:
+    """The thresholds from a map's two reductions: ``any_kg`` (kg, kv), some Tg
+    stable; ``any_tg`` (tg, kv), some kg stable."""
     kg_max = np.array(
         [kg[any_kg[:, j]].max() if any_kg[:, j].any() else np.nan for j in range(kv.size)]
     )
     tg_min = np.array(
         [tg[any_tg[:, j]].min() if any_tg[:, j].any() else np.nan for j in range(kv.size)]
     )
-    has = stable.any(axis=(0, 1))
+    has: np.ndarray = np.asarray(any_kg.any(axis=0))
     order = np.argsort(kv)
     last = np.nan
     first_empty = np.nan
@@ -258,7 +273,7 @@ def thresholds(codes: Any, kg: Any = None, tg: Any = None, kv: Any = None) -> Th
         if has[j]:
             last = float(kv[j])
             first_empty = float(kv[order[pos + 1]]) if pos + 1 < len(order) else np.nan
-    tg_all = tg[stable.any(axis=(0, 2))]
+    tg_all = tg[any_tg.any(axis=1)]
     return Thresholds(
         kv=kv.copy(),
         kg_max=kg_max,
@@ -266,8 +281,8 @@ def thresholds(codes: Any, kg: Any = None, tg: Any = None, kv: Any = None) -> Th
         kv_last_stable=last,
         kv_first_empty=first_empty,
         tg_min_overall=float(tg_all.min()) if tg_all.size else np.nan,
-        kg_edge=float(kg.max()),
-        tg_edge=float(tg.min()),
+        kg_edge=float(np.max(kg)) if kg.size else np.nan,
+        tg_edge=float(np.min(tg)) if tg.size else np.nan,
     )
 
 

@@ -1,5 +1,5 @@
 """A blind test generator: a vehicle whose effects are realised in forms the
-library does **not** use (issue 13, item 7).
+library does **not** use.
 
 :mod:`avll.synth_effects` realises each effect almost as the library models it, so
 recovering it is expected rather than evidence. This module simulates a

@@ -15,9 +15,9 @@ use super::{guard, slice2};
 use crate::ga::{self, Bounds, GaOptions, Phase, Scale, StopReason};
 use crate::optimize::calibrate::Calibration;
 use numpy::{IntoPyArray, PyReadonlyArray2};
-use pyo3::exceptions::{PyKeyboardInterrupt, PyValueError};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyBool, PyDict};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
@@ -58,45 +58,137 @@ fn result_dict<'py>(
     Ok(d)
 }
 
-/// GA options from a dict (`None`: the defaults); unknown keys are refused.
+/// The tunable GA options (every field of `GaOptions` except `seed`, `target` and
+/// `initial`, which `calibrate` takes as arguments of their own) with their values:
+/// the one list Python's `avll.defaults.GA_OPTIONS` is read from.
+fn tunable<'py>(py: Python<'py>, o: &GaOptions) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("pop_size", o.pop_size)?;
+    d.set_item("max_generations", o.max_generations)?;
+    d.set_item("stall_generations", o.stall_generations)?;
+    d.set_item("ftol", o.ftol)?;
+    d.set_item("xtol", o.xtol)?;
+    d.set_item("tournament", o.tournament)?;
+    d.set_item("crossover_prob", o.crossover_prob)?;
+    d.set_item("eta_c", o.eta_c)?;
+    d.set_item("mutation_prob", o.mutation_prob)?;
+    d.set_item("eta_m", o.eta_m)?;
+    d.set_item("plus", o.plus)?;
+    d.set_item("elite", o.elite)?;
+    d.set_item("polish", o.polish)?;
+    d.set_item("polish_max_evals", o.polish_max_evals)?;
+    d.set_item("local_every", o.local_every)?;
+    d.set_item("local_evals", o.local_evals)?;
+    Ok(d)
+}
+
+/// A count option: a Python or numpy integer >= 0 (`bool` and `1.5` are refused).
+fn count(key: &str, v: &Bound<'_, PyAny>) -> PyResult<usize> {
+    if v.is_instance_of::<PyBool>() || !v.hasattr("__index__")? {
+        return Err(PyTypeError::new_err(format!(
+            "{key}: must be an integer, got {}",
+            v.repr()?
+        )));
+    }
+    v.extract().map_err(|_| {
+        PyValueError::new_err(format!(
+            "{key}: must be an integer in 0..={}, got {}",
+            usize::MAX,
+            v.repr().map(|r| r.to_string()).unwrap_or_default()
+        ))
+    })
+}
+
+/// A real option (`bool`, `None` and strings are refused; the ranges are checked by
+/// `GaOptions::validate`).
+fn real(key: &str, v: &Bound<'_, PyAny>) -> PyResult<f64> {
+    if v.is_instance_of::<PyBool>() {
+        return Err(PyTypeError::new_err(format!(
+            "{key}: must be a number, got {}",
+            v.repr()?
+        )));
+    }
+    v.extract().map_err(|_| {
+        PyTypeError::new_err(format!(
+            "{key}: must be a number, got {}",
+            v.repr().map(|r| r.to_string()).unwrap_or_default()
+        ))
+    })
+}
+
+/// A switch option: `True` or `False` (Python or numpy), not an integer.
+fn switch(key: &str, v: &Bound<'_, PyAny>) -> PyResult<bool> {
+    v.extract().map_err(|_| {
+        PyTypeError::new_err(format!(
+            "{key}: must be True or False, got {}",
+            v.repr().map(|r| r.to_string()).unwrap_or_default()
+        ))
+    })
+}
+
+/// GA options from a dict (`None`: the defaults), typed strictly; unknown keys are
+/// refused with the list of the known ones. The values' ranges are checked by
+/// `GaOptions::validate` (here for the options alone: `initial` is checked against
+/// the problem's dimension by the GA).
 fn ga_options(options: Option<&Bound<'_, PyDict>>, initial: Vec<Vec<f64>>) -> PyResult<GaOptions> {
-    let mut o = GaOptions {
-        initial,
-        ..GaOptions::default()
-    };
-    let Some(d) = options else {
-        return Ok(o);
-    };
-    for (k, v) in d.iter() {
-        let key: String = k.extract()?;
-        let bad = |e: PyErr| PyValueError::new_err(format!("{key}: {e}"));
-        match key.as_str() {
-            "seed" => o.seed = v.extract().map_err(bad)?,
-            "pop_size" => o.pop_size = v.extract().map_err(bad)?,
-            "max_generations" => o.max_generations = v.extract().map_err(bad)?,
-            "stall_generations" => o.stall_generations = v.extract().map_err(bad)?,
-            "ftol" => o.ftol = v.extract().map_err(bad)?,
-            "xtol" => o.xtol = v.extract().map_err(bad)?,
-            "target" => o.target = v.extract().map_err(bad)?,
-            "tournament" => o.tournament = v.extract().map_err(bad)?,
-            "crossover_prob" => o.crossover_prob = v.extract().map_err(bad)?,
-            "eta_c" => o.eta_c = v.extract().map_err(bad)?,
-            "mutation_prob" => o.mutation_prob = v.extract().map_err(bad)?,
-            "eta_m" => o.eta_m = v.extract().map_err(bad)?,
-            "plus" => o.plus = v.extract().map_err(bad)?,
-            "elite" => o.elite = v.extract().map_err(bad)?,
-            "polish" => o.polish = v.extract().map_err(bad)?,
-            "polish_max_evals" => o.polish_max_evals = v.extract().map_err(bad)?,
-            "local_every" => o.local_every = v.extract().map_err(bad)?,
-            "local_evals" => o.local_evals = v.extract().map_err(bad)?,
-            _ => {
-                return Err(PyValueError::new_err(format!(
-                    "options: unknown GA option {key:?}"
-                )))
+    let mut o = GaOptions::default();
+    if let Some(d) = options {
+        for (k, v) in d.iter() {
+            let key: String = k.extract()?;
+            let v = &v;
+            match key.as_str() {
+                "seed" => o.seed = count("seed", v)? as u64,
+                "pop_size" => o.pop_size = count(&key, v)?,
+                "max_generations" => o.max_generations = count(&key, v)?,
+                "stall_generations" => o.stall_generations = count(&key, v)?,
+                "ftol" => o.ftol = real(&key, v)?,
+                "xtol" => o.xtol = real(&key, v)?,
+                "target" => o.target = real(&key, v)?,
+                "tournament" => o.tournament = count(&key, v)?,
+                "crossover_prob" => o.crossover_prob = real(&key, v)?,
+                "eta_c" => o.eta_c = real(&key, v)?,
+                "mutation_prob" => o.mutation_prob = real(&key, v)?,
+                "eta_m" => o.eta_m = real(&key, v)?,
+                "plus" => o.plus = switch(&key, v)?,
+                "elite" => o.elite = count(&key, v)?,
+                "polish" => o.polish = switch(&key, v)?,
+                "polish_max_evals" => o.polish_max_evals = count(&key, v)?,
+                "local_every" => o.local_every = count(&key, v)?,
+                "local_evals" => o.local_evals = count(&key, v)?,
+                _ => {
+                    let known: Vec<String> = tunable(d.py(), &GaOptions::default())?
+                        .keys()
+                        .iter()
+                        .map(|k| k.to_string())
+                        .collect();
+                    return Err(PyValueError::new_err(format!(
+                        "{key}: unknown GA option; known: {}, seed, target",
+                        known.join(", ")
+                    )));
+                }
             }
         }
     }
+    guard(|| o.validate(0))?;
+    o.initial = initial;
     Ok(o)
+}
+
+/// The defaults of the tunable GA options (`GaOptions::default()`).
+#[pyfunction]
+fn ga_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    tunable(py, &GaOptions::default())
+}
+
+/// GA options checked as `calibrate` checks them (types, ranges, unknown names):
+/// the tunable options with the given values and the defaults for the others.
+#[pyfunction]
+#[pyo3(signature = (options=None))]
+fn ga_check<'py>(
+    py: Python<'py>,
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    tunable(py, &ga_options(options, Vec::new())?)
 }
 
 /// The one calibration binding: the GA on Eq. 6 for any cost (model with effects,
@@ -302,5 +394,7 @@ fn derive_seed(seed: u64, k: u64) -> u64 {
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(derive_seed, m)?)?;
+    m.add_function(wrap_pyfunction!(ga_defaults, m)?)?;
+    m.add_function(wrap_pyfunction!(ga_check, m)?)?;
     Ok(())
 }

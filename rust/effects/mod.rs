@@ -1,4 +1,4 @@
-//! Effects: self-contained extensions of any base model (issue 6).
+//! Effects: self-contained extensions of any base model.
 //!
 //! An effect adds one physical phenomenon that the linear lower-level models lack.
 //! Each lives in its own file, implements [`Effect`] (only the hooks it needs; the

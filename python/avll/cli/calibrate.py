@@ -124,7 +124,7 @@ def _weights(text: str) -> tuple[float, float, float]:
 
 def _cmd(args: argparse.Namespace) -> int:
     from .. import _atomic
-    from ..calibrate import paper_workflow
+    from ..calibration import paper_workflow
 
     models = models_of(args)
     weights = _weights(args.weights)

@@ -1,5 +1,5 @@
 """The calibrated model as a JSON dict and back, and the one simulation the loop's
-reported errors come from (the ``avll diagnose`` contract of issue 13).
+reported errors come from (the contract of ``avll diagnose``: scripts depend on it).
 
 ``final_model`` in the JSON of :func:`avll.diagnose.effect_loop` /
 ``avll diagnose`` is :func:`model_to_dict` of the final model::

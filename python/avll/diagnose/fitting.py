@@ -1,7 +1,7 @@
 """Simulation and calibration for the residual loop: the runs' simulated
 acceleration, per-run errors, and the one fitting driver (:func:`fit_full`: the
 project's Rust GA through :func:`avll.effects.calibrate_effects` in the box of
-:data:`avll.calibrate.DEFAULT_BOUNDS` and the effects' own bounds)."""
+:data:`avll.calibration.DEFAULT_BOUNDS` and the effects' own bounds)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,12 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
-from .._compat import renamed_kwargs
 from .._limits import check_seed, check_threads
-from ..calibrate import DEFAULT_BOUNDS, DEFAULT_STARTS
-from ..calibrate import UPPER_BOUNDS as _UB
+from ..calibration import default_bounds
 from ..data import Run
+from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS
+from ..defaults import UPPER_BOUNDS as _UB
+from ..defaults import UPPER_NAMES as _UPPER_NAMES
 from ..effects import EFFECTS, WithEffects, batch_cost_effects, calibrate_effects, canonical
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..rollout import simulate_batch
@@ -25,6 +26,7 @@ __all__ = [
     "BASE_BOUNDS",
     "UPPER_BOUNDS",
     "CLOSED_LOOP_WEIGHTS",
+    "DE_POP_SIZE",
     "SPEED_COMMAND_WEIGHTS",
     "simulate_runs",
     "run_mse",
@@ -34,13 +36,13 @@ __all__ = [
 ]
 
 #: Search box of the base models: ``name -> (lower, upper, scale)`` — the same box
-#: as :func:`avll.calibrate` (:data:`avll.calibrate.DEFAULT_BOUNDS`), so that a
+#: as :func:`avll.calibrate` (:data:`avll.calibration.DEFAULT_BOUNDS`), so that a
 #: diagnosis and a calibration of the same data answer the same question.
 BASE_BOUNDS: dict[str, dict[str, tuple[float, float, str]]] = DEFAULT_BOUNDS
 
 #: A fitted parameter within this share of its search box (in the box's own scale,
 #: logarithmic for log-scaled parameters) of a bound is reported "at bound": the
-#: rule of :attr:`avll.calibrate.CalibrationResult.at_bound`.
+#: rule of :attr:`avll.calibration.CalibrationResult.at_bound`.
 AT_BOUND_TOL: float = 1e-3
 
 def _init(runs: Sequence[Run], init: str) -> str:
@@ -122,31 +124,24 @@ class _Space:
 
 
 def _fixed(effect: str, param: str, kind: str) -> float | None:
-    """Parameters that a command kind fixes (a speed command has no braking gain)."""
-    if kind == "speed" and effect == "asymmetric" and param == "kb":
-        return 1.0
-    return None
+    """Parameters that a command kind fixes (:attr:`avll.effects.Effect.fixed`: a speed
+    command has no braking gain)."""
+    return EFFECTS[effect].fixed.get(kind, {}).get(param)
 
 
-def _space(base: str, effects: Sequence[str], kind: str = "acceleration") -> _Space:
-    bb = BASE_BOUNDS[model_class(base).name]
-    names, lo, hi, lg = [], [], [], []
-    for n, (a, b, s) in bb.items():
-        names.append(n)
-        lo.append(a)
-        hi.append(b)
-        lg.append(s == "log")
-    for e in canonical(list(effects)):
-        cls = EFFECTS[e]
-        for n, (a, b) in zip(cls.param_names(), cls.bounds, strict=True):
-            fx = _fixed(e, n, kind)
-            if fx is not None:
-                a = b = fx
-            names.append(f"{e}.{n}")
-            lo.append(a)
-            hi.append(b)
-            lg.append(False)
-    return _Space(tuple(names), np.array(lo), np.array(hi), np.array(lg))
+def _space(base: str, effects: Sequence[str], kind: str = "acceleration",
+           upper_free: bool = False,
+           upper_bounds: Mapping[str, tuple[float, float]] | None = None) -> _Space:
+    """The search box of :func:`avll.calibration.default_bounds` (the free upper gains'
+    entries replaced by ``upper_bounds``)."""
+    box = default_bounds(base, _UPPER_NAMES if upper_free else (), effects, kind)
+    for k, b in (upper_bounds or {}).items():
+        if k not in _UB:
+            raise ValueError(f"upper_bounds: unknown gain {k!r}; known: {', '.join(_UB)}")
+        box[k] = (float(b[0]), float(b[1]), "linear")
+    lo, hi, sc = zip(*box.values(), strict=True)
+    return _Space(tuple(box), np.array(lo, dtype=float), np.array(hi, dtype=float),
+                  np.array([s == "log" for s in sc]))
 
 
 def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, max_iter: int) -> np.ndarray:
@@ -177,14 +172,13 @@ def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, max_iter: int
 UPPER_BOUNDS: dict[str, tuple[float, float]] = {k: (lo, hi) for k, (lo, hi, _) in _UB.items()}
 
 
-#: Cost weights (acceleration, speed, position) of a closed-loop calibration.
-CLOSED_LOOP_WEIGHTS: tuple[float, float, float] = (1.0, 0.1, 0.01)
+#: Population size multiplier of the ``"de"`` optimizer (scipy's ``popsize``).
+DE_POP_SIZE: int = 12
 #: ... and of a speed command, whose response is the speed (the acceleration alone
 #: leaves the static gain free).
 SPEED_COMMAND_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.0)
 
 
-@renamed_kwargs(free_upper="upper_free", popsize="pop_size", maxiter="max_generations")
 def fit_full(
     base: str | type[LowerLevelModel] | LowerLevelModel,
     effects: Sequence[str],
@@ -196,8 +190,8 @@ def fit_full(
     closed_loop: bool | None = None,
     upper_free: bool | None = None,
     weights: tuple[float, float, float] | None = None,
-    pop_size: int = 12,
-    max_generations: int = 300,
+    pop_size: int | None = None,
+    max_generations: int | None = None,
     init: str = "auto",
     threads: int = 0,
     progress: Any = False,
@@ -210,13 +204,16 @@ def fit_full(
     Gmin`` (returned; ``None`` otherwise). ``weights`` of the acceleration, speed and
     position MSE default to ``(1, 0, 0)`` in open loop (paper Eq. 6), to
     :data:`SPEED_COMMAND_WEIGHTS` for a speed command and to
-    :data:`CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration alone leaves
-    the upper law's spacing unidentified. The loop reports acceleration MSEs.
-    ``optimizer``: ``"ga"`` (the project's Rust GA, :func:`avll.effects.calibrate_effects`,
-    with ``starts`` independent starts as :func:`avll.calibrate`) or ``"de"``
-    (``scipy.optimize.differential_evolution`` on the batched cost).
+    :data:`avll.defaults.CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration
+    alone leaves the upper law's spacing unidentified. The loop reports acceleration
+    MSEs. ``optimizer``: ``"ga"`` (the project's Rust GA,
+    :func:`avll.effects.calibrate_effects`, with ``starts`` independent starts as
+    :func:`avll.calibrate`) or ``"de"`` (``scipy.optimize.differential_evolution`` on
+    the batched cost). ``pop_size`` and ``max_generations`` are the GA's (``None``:
+    :data:`avll.defaults.GA_OPTIONS`); with ``"de"``, scipy's ``popsize`` (``None``:
+    :data:`DE_POP_SIZE`) and its iterations.
     ``upper_bounds`` (name -> ``(lo, hi)``) replaces entries of
-    :data:`avll.calibrate.UPPER_BOUNDS` for the free upper-level gains."""
+    :data:`avll.calibration.UPPER_BOUNDS` for the free upper-level gains."""
     if optimizer not in ("ga", "de"):
         raise ValueError(f"optimizer: must be 'ga' or 'de', got {optimizer!r}")
     seed = check_seed(seed)
@@ -228,17 +225,9 @@ def fit_full(
     closed = _closed(runs, closed_loop)
     if upper_free is None:
         upper_free = closed and any(r.upper is None for r in runs)
-    sp = _space(bname, names, runs[0].command_kind)
+    sp = _space(bname, names, runs[0].command_kind, bool(upper_free),
+                upper_bounds if upper_free else None)
     if upper_free:
-        ub = {k: (b[0], b[1]) for k, b in UPPER_BOUNDS.items()}
-        for k, b in (upper_bounds or {}).items():
-            if k not in ub:
-                raise ValueError(f"upper_bounds: unknown gain {k!r}; known: {', '.join(ub)}")
-            ub[k] = (float(b[0]), float(b[1]))
-        lo = [b[0] for b in ub.values()]
-        hi = [b[1] for b in ub.values()]
-        sp = _Space(sp.names + tuple(UPPER_BOUNDS), np.concatenate([sp.lo, lo]),
-                    np.concatenate([sp.hi, hi]), np.concatenate([sp.log, [False] * 4]))  # fmt: skip
         placeholder = UpperLevel(kg=0.0, kv=0.0, Tg=0.0, Gmin=0.0)
         runs = [replace(r, upper=placeholder) for r in runs]
     ini = _init(runs, init)
@@ -277,7 +266,8 @@ def fit_full(
 
     # One stage per fit, over GA generations (DE: iterations); it ends at 100 % when
     # the search converges before its budget and stops where it was when interrupted.
-    bar = Progress(max_generations, "fit " + "+".join([bname, *names]), unit="gen",
+    gens = GA_OPTIONS["max_generations"] if max_generations is None else max_generations
+    bar = Progress(gens, "fit " + "+".join([bname, *names]), unit="gen",
                    mode=progress)
     done = False
     try:
@@ -291,8 +281,8 @@ def fit_full(
                 bname, names, runs, list(sp.lo), list(sp.hi),
                 ["log" if lg else "linear" for lg in sp.log], weights=weights, init=ini,
                 closed_loop=closed, upper_free=free_idx, initial=x0p, seed=seed,
-                max_generations=max_generations, progress=gcb if bar.mode != "none" else None,
-                threads=threads, starts=starts,
+                max_generations=max_generations, pop_size=pop_size,
+                progress=gcb if bar.mode != "none" else None, threads=threads, starts=starts,
             )  # fmt: skip
             if out.get("interrupted"):
                 # The GA returned its best point after a Ctrl-C: a fit of the loop is
@@ -306,7 +296,8 @@ def fit_full(
 
             res = optimize.differential_evolution(
                 lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
-                popsize=pop_size, maxiter=max_generations, tol=1e-7, polish=False,
+                popsize=DE_POP_SIZE if pop_size is None else pop_size, maxiter=gens, tol=1e-7,
+                polish=False,
                 updating="deferred",
                 x0=x0, init="sobol", callback=cb,
             )  # fmt: skip
@@ -321,7 +312,6 @@ def fit_full(
     return model, up
 
 
-@renamed_kwargs(popsize="pop_size", maxiter="max_generations")
 def fit(
     base: str | type[LowerLevelModel] | LowerLevelModel,
     effects: Sequence[str],
@@ -330,8 +320,8 @@ def fit(
     start: WithEffects | None = None,
     seed: int = 0,
     closed_loop: bool | None = None,
-    pop_size: int = 12,
-    max_generations: int = 300,
+    pop_size: int | None = None,
+    max_generations: int | None = None,
     init: str = "auto",
     threads: int = 0,
     optimizer: str = "ga",
@@ -367,15 +357,11 @@ def at_bound(
     is the edge of the search, not an estimate: widen the bound or doubt the effect.
     ``upper_bounds`` are the upper-law boxes :func:`fit_full` was given (default
     :data:`UPPER_BOUNDS`)."""
-    sp = _space(model.base.name, model.effect_names, kind)
-    names, lo, hi, lg = list(sp.names), list(sp.lo), list(sp.hi), list(sp.log)
+    sp = _space(model.base.name, model.effect_names, kind, upper is not None, upper_bounds)
+    names = [f"upper.{n}" if n in _UB else n for n in sp.names]
+    lo, hi, lg = list(sp.lo), list(sp.hi), list(sp.log)
     values = list(model.to_array())
     if upper is not None:
-        for k, (a, b) in (dict(UPPER_BOUNDS) | dict(upper_bounds or {})).items():
-            names.append(f"upper.{k}")
-            lo.append(a)
-            hi.append(b)
-            lg.append(False)
         values.extend(float(x) for x in upper.to_array())
     out = []
     for n, v, a, b, is_log in zip(names, values, lo, hi, lg, strict=True):

@@ -1,4 +1,4 @@
-"""The add-effect loop with cross-validated selection (issue 13).
+"""The add-effect loop with cross-validated selection.
 
 Three disjoint sets of runs:
 
@@ -51,10 +51,9 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from .._compat import renamed_kwargs
 from .._limits import check_int, check_number, check_seed, check_threads
-from ..calibrate import DEFAULT_STARTS
 from ..data import Run
+from ..defaults import DEFAULT_STARTS, GA_OPTIONS
 from ..effects import EFFECTS, WithEffects
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..progress import messages
@@ -257,7 +256,6 @@ def _sub(seed: int, *ks: int) -> int:
 # ---------------------------------------------------------------------------
 
 
-@renamed_kwargs(maxiter="max_generations")
 def effect_loop(
     base: str | type[LowerLevelModel],
     cal_runs: Sequence[Run],
@@ -276,7 +274,7 @@ def effect_loop(
     candidates: Sequence[str] | None = None,
     init: str = "auto",
     optimizer: str = "ga",
-    max_generations: int = 300,
+    max_generations: int | None = None,
     starts: int = DEFAULT_STARTS,
     structure_alpha: float = 1e-3,
     min_structure: float = 0.02,
@@ -303,7 +301,8 @@ def effect_loop(
     tries = check_int(tries, "tries", min=1)
     seed = check_seed(seed)
     threads = check_threads(threads)
-    max_generations = check_int(max_generations, "max_generations", min=1)
+    max_generations = check_int(GA_OPTIONS["max_generations"] if max_generations is None
+                                else max_generations, "max_generations", min=1)
     n_boot = check_int(n_boot, "n_boot", min=10)
     min_gain = check_number(min_gain, "min_gain")
     if not 0 <= min_gain < 1:

@@ -94,7 +94,7 @@ def _num(x: Any) -> str:
 
 
 def stability_section(result: LoopResult, v0: float = 15.0) -> dict[str, Any] | None:
-    """What the accepted effects do to the stability conclusions (issue 13, item 6):
+    """What the accepted effects do to the stability conclusions:
     :func:`avll.effect_stability.effect_stability` of the baseline fit and of the
     final model (with its effects), each under its calibrated upper-level law (or
     :data:`REFERENCE_UPPER` when there is none), at ``v0``. ``None`` when no effect

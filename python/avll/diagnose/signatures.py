@@ -134,48 +134,55 @@ def _signals(run: Run, sim: np.ndarray) -> dict[str, np.ndarray]:
 
 
 
-def _effect_grid(name: str, runs: Sequence[Run], sims: list[np.ndarray]) -> list[dict[str, float]]:
-    """Parameter settings whose signatures are tried for an effect not in the model."""
+def _commands(runs: Sequence[Run], sims: list[np.ndarray]) -> list[np.ndarray]:
+    return [r.command if r.command is not None else s for r, s in zip(runs, sims, strict=True)]
+
+
+def _rate_limit_trials(runs: Sequence[Run], sims: list[np.ndarray]) -> list[dict[str, float]]:
+    du = np.concatenate([np.abs(np.diff(u)) / r.dt
+                         for r, u in zip(runs, _commands(runs, sims), strict=True)])
+    qs = np.quantile(du, [0.7, 0.85, 0.93, 0.97, 0.99])
+    return [{"j_max": float(max(q, 0.1))} for q in qs]
+
+
+def _deadband_trials(runs: Sequence[Run], sims: list[np.ndarray]) -> list[dict[str, float]]:
+    u = np.abs(np.concatenate(_commands(runs, sims)))
+    qs = np.quantile(u, [0.05, 0.1, 0.2, 0.3, 0.45])
+    return [{"delta": float(min(max(q, 0.005), 1.0))} for q in qs]
+
+
+def _saturation_trials(runs: Sequence[Run], sims: list[np.ndarray]) -> list[dict[str, float]]:
     a = np.concatenate(sims)
-    if name == "delay":
-        return [{"tau": t} for t in (0.05, 0.1, 0.2, 0.35, 0.5, 0.8)]
-    if name == "rate_limit":
-        du = np.concatenate([np.abs(np.diff(r.command if r.command is not None else s)) / r.dt
-                             for r, s in zip(runs, sims, strict=True)])  # fmt: skip
-        qs = np.quantile(du, [0.7, 0.85, 0.93, 0.97, 0.99])
-        return [{"j_max": float(max(q, 0.1))} for q in qs]
-    if name == "deadband":
-        u = np.concatenate([np.abs(r.command if r.command is not None else s)
-                            for r, s in zip(runs, sims, strict=True)])  # fmt: skip
-        qs = np.quantile(u, [0.05, 0.1, 0.2, 0.3, 0.45])
-        return [{"delta": float(min(max(q, 0.005), 1.0))} for q in qs]
-    if name == "saturation":
-        pos, neg = a[a > 0], -a[a < 0]
-        qa = np.quantile(pos, [0.6, 0.8, 0.9, 0.97]) if pos.size > 20 else np.array([6.0])
-        qd = np.quantile(neg, [0.6, 0.8, 0.9, 0.97]) if neg.size > 20 else np.array([10.0])
-        return [{"a_max": float(max(x, 0.2)), "d_max": float(max(y, 0.2))}
-                for x in qa for y in qd]  # fmt: skip
-    if name == "asymmetric":
-        return [{"kb": 0.8, "rb": 1.25}]
-    if name == "speed_drag":
-        return [{"c0": 0.05, "c2": 0.001}]
-    if name == "grade":
-        return [{"g_eff": 5.0}]
+    pos, neg = a[a > 0], -a[a < 0]
+    qa = np.quantile(pos, [0.6, 0.8, 0.9, 0.97]) if pos.size > 20 else np.array([6.0])
+    qd = np.quantile(neg, [0.6, 0.8, 0.9, 0.97]) if neg.size > 20 else np.array([10.0])
+    return [{"a_max": float(max(x, 0.2)), "d_max": float(max(y, 0.2))}
+            for x in qa for y in qd]  # fmt: skip
+
+
+#: Trial settings taken from the data (thresholds at quantiles of the command, its
+#: rate or the acceleration), for the threshold effects.
+_TRIALS_FROM_DATA = {"rate_limit": _rate_limit_trials, "deadband": _deadband_trials,
+                     "saturation": _saturation_trials}
+
+
+def _effect_grid(name: str, runs: Sequence[Run], sims: list[np.ndarray]) -> list[dict[str, float]]:
+    """Parameter settings whose signatures are tried for an effect not in the model:
+    the effect's own ``trials`` (:class:`avll.effects.Effect`), else thresholds from the
+    data, else every free parameter moved from its neutral value towards its farther
+    bound, by two step sizes (see the module doc)."""
     if name not in EFFECTS:
         raise ValueError(f"effect: unknown {name!r}")
-    # Any other registry entry: every free parameter moved from its neutral value
-    # towards its farther bound, by two step sizes (see the module doc).
+    if EFFECTS[name].trials:
+        return [dict(t) for t in EFFECTS[name].trials]
+    if name in _TRIALS_FROM_DATA:
+        return _TRIALS_FROM_DATA[name](runs, sims)
     return [_generic_setting(name, f, runs[0].command_kind) for f in _GENERIC_STEPS]
 
 
 #: The shares of the way from the neutral value to the farther bound at which the
-#: signature of an effect without a special rule is taken.
+#: signature of an effect without trial settings is taken.
 _GENERIC_STEPS: tuple[float, ...] = (1.0 / 6.0, 1.0 / 3.0)
-
-#: Effects with a special rule in :func:`_effect_grid` / :func:`_columns` /
-#: :func:`_hint`; every other registry entry gets the generic one.
-_SPECIAL = ("delay", "rate_limit", "deadband", "saturation", "asymmetric", "speed_drag",
-            "grade")  # fmt: skip
 
 
 def _generic_setting(name: str, step: float, kind: str) -> dict[str, float]:
@@ -200,7 +207,7 @@ def _columns(
     cls = EFFECTS[name]
     neutral = dict(zip(cls.param_names(), cls.neutral, strict=True))
     cols = []
-    if name in ("asymmetric", "speed_drag") or name not in _SPECIAL:
+    if cls.signature == "linear":
         # One column per parameter: perturb one at a time.
         for p in cls.param_names():
             if _fixed(name, p, runs[0].command_kind) is not None:
@@ -209,8 +216,8 @@ def _columns(
             sims = simulate_runs(WithEffects(model.base, (*model.effects, eff)), runs,
                                  closed_loop=closed, init=init)  # fmt: skip
             cols.append(np.concatenate([s - b for s, b in zip(sims, base_sims, strict=True)]))
-    elif name == "saturation":
-        for p in ("a_max", "d_max"):
+    elif cls.signature == "each":
+        for p in cls.param_names():
             eff = cls(**{**neutral, p: setting[p]})
             sims = simulate_runs(WithEffects(model.base, (*model.effects, eff)), runs,
                                  closed_loop=closed, init=init)  # fmt: skip
@@ -248,10 +255,6 @@ def _sensitivities(
 
 
 
-#: Effects the library refuses together (road_load with c1 = 0 is speed_drag).
-_EXCLUSIVE = {"road_load": "speed_drag", "speed_drag": "road_load"}
-
-
 def offered(
     model: WithEffects, runs: Sequence[Run], candidates: Sequence[str] | None = None
 ) -> list[str]:
@@ -270,7 +273,7 @@ def offered(
         cls = EFFECTS[n]
         if n in model.effect_names or (getattr(cls, "accel_only", False) and kind == "speed"):
             continue
-        if _EXCLUSIVE.get(n) in model.effect_names:  # not identifiable together
+        if cls.excludes in model.effect_names:  # not identifiable together
             continue
         if cls.exo is not None and not all(cls.exo in r.exo for r in runs):
             continue
@@ -427,7 +430,7 @@ def _hint(
     cls = EFFECTS[name]
     neutral = dict(zip(cls.param_names(), cls.neutral, strict=True))
     out = dict(setting)
-    if name in ("asymmetric", "speed_drag") or name not in _SPECIAL:
+    if cls.signature == "linear":
         free = [p for p in cls.param_names() if _fixed(name, p, kind) is None]
         for g, p in zip(gamma, free, strict=True):
             out[p] = float(neutral[p] + g * (setting[p] - neutral[p]))
@@ -435,8 +438,9 @@ def _hint(
             fx = _fixed(name, p, kind)
             if fx is not None:
                 out[p] = fx
-    elif name == "grade":
-        out["g_eff"] = float(gamma[0] * setting["g_eff"])
+    elif cls.signature == "scaled":
+        for p in cls.param_names():
+            out[p] = float(gamma[0] * setting[p])
     for (lo, hi), p in zip(cls.bounds, cls.param_names(), strict=True):
         out[p] = float(np.clip(out[p], lo, hi))
     return out

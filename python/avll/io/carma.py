@@ -141,19 +141,28 @@ def load_carma(
 
     Parameters
     ----------
-    path: the CSV file.
-    vehicles: vehicle prefixes to load (default: all in the file). A requested
-        vehicle without any engaged stretch is an error.
-    min_duration: shortest stretch kept (s).
-    max_hole: longest run of empty cells / missing rows bridged by linear
-        interpolation inside an engaged stretch (s); longer holes split the stretch.
-    dt: the nominal sample time (s); ``time_tol`` the tolerance on the time grid
-        (fraction of ``dt``).
-    speed_column: the measured-speed column suffix (``avg_speed_driven_wheels`` or
-        e.g. ``GPS_speed``).
-    override_column: suffix of the driver-override flag (samples where it is 1 are
-        excluded; empty cells mean "no information").
-    command_kind: must be ``None`` or ``"speed"`` (the CARMA command is a speed).
+    path
+        The CSV file.
+    vehicles
+        Vehicle prefixes to load (default: all in the file). A requested vehicle
+        without any engaged stretch is an error.
+    min_duration
+        Shortest stretch kept (s).
+    max_hole
+        Longest run of empty cells / missing rows bridged by linear interpolation
+        inside an engaged stretch (s); longer holes split the stretch.
+    dt
+        The nominal sample time (s).
+    time_tol
+        The tolerance on the time grid (fraction of ``dt``).
+    speed_column
+        The measured-speed column suffix (``avg_speed_driven_wheels`` or e.g.
+        ``GPS_speed``).
+    override_column
+        Suffix of the driver-override flag (samples where it is 1 are excluded;
+        empty cells mean "no information").
+    command_kind
+        Must be ``None`` or ``"speed"`` (the CARMA command is a speed).
 
     Returns one :class:`avll.Run` per stretch (``command_kind="speed"``, ``command``
     the speed command, ``v`` the measured speed, ``a`` the CAN acceleration, ``t``

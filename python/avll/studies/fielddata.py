@@ -1,4 +1,4 @@
-"""Calibration studies on the measured field data (issue 5, items 3–4).
+"""Calibration studies on the measured field data.
 
 Two studies, each returning a :class:`Study` (pandas tables, matplotlib figures, a
 JSON-able summary and a plain-text report):
@@ -26,10 +26,10 @@ JSON-able summary and a plain-text report):
 Two objectives in each study, both with :func:`avll.calibrate`'s weights
 ``(wa, wv, wx)`` on the mean squared acceleration, speed and position errors:
 ``"acceleration"`` = (1, 0, 0), the paper's Eq. 6, and a second one (CARMA:
-``"speed"`` = (0, 1, 0); AstaZero: ``"mixed"`` = (1, 1, 0.01), see
-:data:`ASTAZERO_OBJECTIVES`). The paper's Table II models serve as the baseline
-(CARMA: as they are; AstaZero: with the upper-level gains refitted, since the
-paper gives none for these cars).
+``"speed"`` = (0, 1, 0); AstaZero: ``"mixed"``, the closed-loop weighting
+:data:`avll.defaults.CLOSED_LOOP_WEIGHTS`, see :data:`ASTAZERO_OBJECTIVES`). The
+paper's Table II models serve as the baseline (CARMA: as they are; AstaZero: with
+the upper-level gains refitted, since the paper gives none for these cars).
 """
 
 from __future__ import annotations
@@ -44,10 +44,10 @@ from typing import Any
 
 import numpy as np
 
-from ..calibrate import CalibrationResult, calibrate_many
+from ..calibration import CalibrationResult, calibrate_many
 from ..data import Run
+from ..defaults import CLOSED_LOOP_WEIGHTS, UPPER_PLACEHOLDER
 from ..defaults import UPPER_NAMES as _UPPER
-from ..defaults import UPPER_PLACEHOLDER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODEL_LABELS
 from ..paper import MODELS as _MODELS
@@ -79,15 +79,14 @@ CARMA_OBJECTIVES: dict[str, tuple[float, float, float]] = {
 
 #: Objectives of the AstaZero study: name -> (wa, wv, wx). ``Accel`` in these files
 #: is the forward difference of the Doppler speed (noise x 1/dt, half a sample
-#: ahead), so the measured quantities, speed and position (i.e. the gap, the
-#: leader being measured), get weights too: 0.1 m/s², 0.1 m/s and 1 m errors count
-#: the same, tolerances of the order of the sensors' and of practical relevance.
+#: ahead), so ``"mixed"`` weighs the measured speed and position (i.e. the gap, the
+#: leader being measured) too: :data:`avll.defaults.CLOSED_LOOP_WEIGHTS`.
 ASTAZERO_OBJECTIVES: dict[str, tuple[float, float, float]] = {
     "acceleration": (1.0, 0.0, 0.0),
-    "mixed": (1.0, 1.0, 0.01),
+    "mixed": CLOSED_LOOP_WEIGHTS,
 }
 
-#: Search boxes that differ from :data:`avll.calibrate.DEFAULT_BOUNDS` in the CARMA
+#: Search boxes that differ from :data:`avll.calibration.DEFAULT_BOUNDS` in the CARMA
 #: study: the first-order lag's time constant reaches the default 3 s bound in cruise
 #: (the speed loop is slow: T = 3.5–4.5 s), so its box is widened to 10 s.
 CARMA_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {"first": {"Td": (0.01, 10.0)}}

@@ -11,7 +11,7 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    on the mean squared acceleration, speed and position errors (the AstaZero
    study's "mixed" objective: the acceleration is derived from the speed, so the
    measured speed and position, i.e. the gap, count too; 0.1 m/s², 0.1 m/s and 1 m
-   weigh the same). Box: :data:`avll.calibrate.DEFAULT_BOUNDS` except ``Gmin``
+   weigh the same). Box: :data:`avll.calibration.DEFAULT_BOUNDS` except ``Gmin``
    in ``[0, gmin_max]`` (10 m by default). Why: at the near-constant speed of the
    dynamic-platform files only ``Gmin + Tg v`` is identified, and the default
    ``[0, 30]`` m lets the search trade the time gap for standstill distances no
@@ -81,7 +81,7 @@ from typing import Any
 import numpy as np
 
 from .. import _atomic
-from ..calibrate import calibrate_many
+from ..calibration import calibrate_many
 from ..data import Run
 from ..defaults import UPPER_NAMES as _UPPER
 from ..defaults import UPPER_PLACEHOLDER

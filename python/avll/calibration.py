@@ -72,11 +72,27 @@ def _upper_index(u: int | str) -> int:
 
 
 def default_bounds(
-    model: str | type[LowerLevelModel], upper_free: Sequence[int | str] = ()
+    model: str | type[LowerLevelModel],
+    upper_free: Sequence[int | str] = (),
+    effects: Sequence[str] = (),
+    kind: str = "acceleration",
 ) -> dict[str, Bound]:
-    """The default search box of ``model`` (plus the free upper-level gains)."""
+    """The default search box of the parameter row ``[model | effects | free upper
+    gains]``, the one place a box is derived (:func:`calibrate`, the diagnosis's fits
+    and its ``at_bound``): :data:`DEFAULT_BOUNDS` for the model, each effect's own
+    bounds (linear, named ``"effect.param"``, in canonical order; a parameter the
+    command ``kind`` fixes, :attr:`avll.effects.Effect.fixed`, has equal bounds) and
+    :data:`UPPER_BOUNDS` for the free gains."""
     cls = model_class(model)
     out = dict(DEFAULT_BOUNDS[cls.name])
+    if effects:
+        from .effects import EFFECTS, canonical
+
+        for e in canonical(list(effects)):
+            ecls = EFFECTS[e]
+            for p, (lo, hi) in zip(ecls.param_names(), ecls.bounds, strict=True):
+                fx = ecls.fixed.get(kind, {}).get(p)
+                out[f"{e}.{p}"] = (lo, hi, "linear") if fx is None else (fx, fx, "linear")
     for u in upper_free:
         name = _UPPER_NAMES[_upper_index(u)]
         out[name] = UPPER_BOUNDS[name]
@@ -89,7 +105,7 @@ def _resolve_bounds(
     bounds: Mapping[str, Sequence[Any]] | None,
 ) -> tuple[list[str], list[float], list[float], list[str]]:
     box = default_bounds(cls, free)
-    names = list(cls.param_names()) + [_UPPER_NAMES[i] for i in free]
+    names = list(box)
     for k, b in (bounds or {}).items():
         if k not in box:
             raise ValueError(
@@ -246,30 +262,12 @@ def _problem(
 
 
 def _ga_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
-    out = dict(GA_OPTIONS)
-    for k, v in options.items():
-        if k not in GA_OPTIONS:
+    """Every tunable GA option, the given ones checked by the Rust core (types, ranges)
+    and the defaults of :data:`GA_OPTIONS` for the others."""
+    for k in options:
+        if k not in GA_OPTIONS:  # seed and target are arguments of their own
             raise ValueError(f"{k}: unknown GA option; known: {', '.join(GA_OPTIONS)}")
-        out[k] = v
-    for k in ("pop_size", "max_generations", "stall_generations", "tournament", "elite",
-              "polish_max_evals", "local_every", "local_evals"):  # fmt: skip
-        out[k] = check_int(out[k], k, min=0, max=2**63 - 1)
-    if out["pop_size"] == 1 or out["pop_size"] > 1_000_000:
-        raise ValueError(f"pop_size: must be 0 (automatic) or in 2..1000000, got "
-                         f"{out['pop_size']}")
-    for k in ("tournament",):
-        if out[k] < 1:
-            raise ValueError(f"{k}: must be >= 1, got {out[k]}")
-    for k in ("ftol", "xtol", "crossover_prob", "eta_c", "mutation_prob", "eta_m"):
-        v = out[k]
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-            raise TypeError(f"{k}: must be a number, got {v!r}")
-        if not math.isfinite(float(v)):
-            raise ValueError(f"{k}: must be finite, got {v!r}")
-    for k in ("plus", "polish"):
-        if not isinstance(out[k], (bool, np.bool_)):
-            raise TypeError(f"{k}: must be True or False, got {out[k]!r}")
-    return out
+    return dict(_core.ga_check(dict(options)))
 
 
 def _ga_memory(prob: _Problem, n_problems: int, ga: dict[str, Any]) -> None:
@@ -856,14 +854,6 @@ class Workflow:
         role = "calibration" if any(r.run_id == rid for r in self.cal) else "validation"
         return plotting.traces(run.t, run.a, sims, data=plotting.data_label(run),
                                title=f"Run {rid} ({role})")
-
-    def figure(self, run_id: Any, models: Sequence[str] | None = None) -> Any:
-        """Deprecated name of :meth:`plot`."""
-        import warnings
-
-        warnings.warn("Workflow.figure is deprecated; use Workflow.plot", DeprecationWarning,
-                      stacklevel=2)
-        return self.plot(run_id, models)
 
 
 def paper_workflow(
