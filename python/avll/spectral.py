@@ -1,4 +1,4 @@
-"""A cross-spectral transfer-gain estimate of a follower's amplification (issue 28, item 2).
+"""A cross-spectral transfer-gain estimate of a follower's amplification.
 
 The band RMS ratio (:func:`avll.studies.openacc.amplification`) divides the band power
 of the follower's speed by that of its predecessor. Everything in the follower's speed

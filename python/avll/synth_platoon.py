@@ -1,4 +1,4 @@
-"""Synthetic platoons with a known truth, in the OpenACC loader's form (issue 28, item 2).
+"""Synthetic platoons with a known truth, in the OpenACC loader's form.
 
 A leader and ``n`` followers, each follower with its own known lower level (any of the
 three models, optionally with effects) and constant-time-gap upper level (paper Eq. 3:

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import os
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -145,21 +144,15 @@ def add_threads(p: argparse.ArgumentParser) -> None:
 
 
 class _Count(argparse.Action):
-    """An integer option (``>= minimum``) whose old spellings (``deprecated``) still
-    work with a deprecation note on stderr."""
+    """An integer option (``>= minimum``)."""
 
-    def __init__(self, *a: Any, minimum: int = 1, deprecated: Sequence[str] = (),
-                 **k: Any) -> None:
+    def __init__(self, *a: Any, minimum: int = 1, **k: Any) -> None:
         super().__init__(*a, **k)
         self.minimum = minimum
-        self.deprecated = tuple(deprecated)
 
     def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace,
                  values: Any, option_string: str | None = None) -> None:
         name = self.option_strings[0]
-        if option_string in self.deprecated:
-            print(f"{parser.prog}: note: {option_string} is deprecated; use {name}",
-                  file=sys.stderr)
         # ValueError: the avll entry point reports it in one line with exit code 2
         try:
             n = int(str(values))
@@ -171,17 +164,13 @@ class _Count(argparse.Action):
 
 
 def add_ga_budget(p: argparse.ArgumentParser, *, generations: int, starts: int,
-                  pop_size: int | None = None, what: str = "",
-                  old_generations: Sequence[str] = ()) -> None:
-    """The GA budget, named alike on every command: ``--max-generations`` (per start;
-    ``old_generations`` are accepted old spellings), ``--starts`` and, with
-    ``pop_size``, ``--pop-size`` (0: automatic)."""
+                  pop_size: int | None = None, what: str = "") -> None:
+    """The GA budget, named alike on every command: ``--max-generations`` (per start),
+    ``--starts`` and, with ``pop_size``, ``--pop-size`` (0: automatic)."""
     of = f" of {what}" if what else ""
-    p.add_argument("--max-generations", *old_generations, dest="max_generations",
-                   action=_Count, deprecated=tuple(old_generations), default=generations,
-                   metavar="N", help=f"GA generation budget per start{of} (default: "
-                   f"{generations})" + (f"; {', '.join(old_generations)} is the deprecated "
-                                        "spelling" if old_generations else ""))
+    p.add_argument("--max-generations", dest="max_generations", action=_Count,
+                   default=generations, metavar="N",
+                   help=f"GA generation budget per start{of} (default: {generations})")
     p.add_argument("--starts", action=_Count, default=starts, metavar="N",
                    help=f"independent GA starts{of}, the best kept (default: {starts})")
     if pop_size is not None:

@@ -35,7 +35,7 @@ def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str
     """Runs, closed loop, free upper gains and initial state for ``avll calibrate``.
 
     * ``--format carma`` also reads a folder of CARMA files; ``--regime`` keeps the
-      launch or cruise parts (:func:`avll.fielddata.split_launch_cruise`).
+      launch or cruise parts (:func:`avll.studies.fielddata.split_launch_cruise`).
     * Mixed command kinds (the OpenACC folder: platoon pairs without a command and
       free-flow runs with a set speed) keep the kind given by ``--command-kind``, or
       else the closed-loop pairs (a note on stderr says so).

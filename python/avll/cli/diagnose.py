@@ -7,7 +7,7 @@ options are the shared ones of :mod:`avll.cli._common`: ``--model``, ``--format`
 ``--command-kind``, run selections by id or glob pattern, ``--seed``, ``--threads``,
 ``--json``, ``--progress``/``-q``; the output paths are checked before any work.
 
-The command's contract (issue 13; scripts depend on it)::
+The command's contract (scripts depend on it)::
 
     avll diagnose DATA --command-kind ... --model ... --cal-runs ... [--val-runs ...]
         [--test-runs ...] --seed N --json OUT.json [--report DIR]
@@ -19,7 +19,7 @@ import argparse
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from ..defaults import DEFAULT_STARTS
+from ..defaults import DEFAULT_STARTS, GA_OPTIONS
 from ..diagnose.defaults import MIN_GAIN
 from ._common import (
     add_astazero_options,
@@ -152,7 +152,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"effect (default: {MIN_GAIN})")
     p.add_argument("--max-effects", type=int, default=3,
                    help="at most this many effects (default: 3)")
-    add_ga_budget(p, generations=300, starts=DEFAULT_STARTS, what="every fit")
+    add_ga_budget(p, generations=GA_OPTIONS["max_generations"], starts=DEFAULT_STARTS,
+                  what="every fit")
     p.add_argument("--candidates", default=None, metavar="E[,E...]",
                    help="effects offered, comma-separated (default: every registered "
                    "effect that applies to the data)")

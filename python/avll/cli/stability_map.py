@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..paper import SECTION_IV_GRID
 from ._common import (
     add_json,
     add_models,
@@ -288,16 +289,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="map the calibrated models of this JSON (avll calibrate --json) "
                    "instead of Table II; --models then picks among them (default: Table "
                    "II's models)")
-    p.add_argument("--kg", nargs=3, default=["0.001", "2", "400"], metavar=("MIN", "MAX", "N"),
-                   help="kg axis in 1/s², log-spaced (default: 0.001 2 400)")
+    grid = {k: [f"{x:g}" for x in SECTION_IV_GRID[k]] for k in ("kg", "Tg", "kv")}
+    p.add_argument("--kg", nargs=3, default=grid["kg"], metavar=("MIN", "MAX", "N"),
+                   help=f"kg axis in 1/s², log-spaced (default: {' '.join(grid['kg'])}, "
+                   "the paper's Section IV grid)")
     p.add_argument("--kg-linear", dest="kg_log", action="store_false",
                    help="space the kg axis linearly instead of logarithmically (default: "
                    "off, log-spaced)")
-    p.add_argument("--tg", nargs=3, default=["0", "15", "151"], metavar=("MIN", "MAX", "N"),
-                   help="Tg axis in s (default: 0 15 151, a 0.1 s step)")
-    p.add_argument("--kv", nargs=3, default=["0", "1", "101"], metavar=("MIN", "MAX", "N"),
-                   help="kv axis in 1/s (default: 0 1 101)")
-    p.add_argument("--pade-order", type=int, default=2,
+    p.add_argument("--tg", nargs=3, default=grid["Tg"], metavar=("MIN", "MAX", "N"),
+                   help=f"Tg axis in s (default: {' '.join(grid['Tg'])})")
+    p.add_argument("--kv", nargs=3, default=grid["kv"], metavar=("MIN", "MAX", "N"),
+                   help=f"kv axis in 1/s (default: {' '.join(grid['kv'])})")
+    p.add_argument("--pade-order", type=int, default=SECTION_IV_GRID["pade_order"],
                    help="Padé order of the dead time, 1..10 (default: 2, the paper's)")
     add_threads(p)
     p.add_argument("--out", default="stability-map.png", metavar="PATH",
