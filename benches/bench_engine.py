@@ -1,7 +1,15 @@
-"""avll's rollout engine against numba peers, side by side in one process (issue 10).
+"""avll's rollout engine against numba peers, side by side in one process.
 
     python benches/bench_engine.py [--quick] [--repeat 10] [--seconds 1] [--json OUT]
-        [--only open,cost]
+        [--only open,cost] [--allocator default|keep]
+
+The allocator is left as every user runs it (``--allocator keep`` makes glibc keep
+freed memory, to time the stepping alone). Each rollout workload (a-c) gives two
+tables from one round-robin: without ``out=`` (avll allocates its outputs; the numba
+peers allocate theirs per call) and with ``out=`` (avll and the peers write into
+arrays allocated once). Ratios are given as the ratio of best times and as the median
+and range, over the rounds, of the best peer's CPU time over avll's in the same round
+(paired: load hits both alike); the target is judged on the median.
 
 Workloads (the paper's Table II proposed model, dt = 0.05 s, at rest):
 

@@ -129,21 +129,23 @@ def _no_overlap(outs: Sequence[tuple[str, np.ndarray]], inputs: Sequence[np.ndar
 _FIELDS = ("a", "v", "x", "command")
 
 
+def _out_seq(out: Any) -> tuple[Any, ...]:
+    """The four output arrays (a, v, x, command) of a :class:`Trajectory` or a
+    sequence of four (each array is checked by the binding)."""
+    if isinstance(out, Trajectory):
+        return (out.a, out.v, out.x, out.command)
+    if isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__") or len(out) != 4:
+        raise ValueError("out: must be an avll.Trajectory or a sequence of four arrays "
+                         "(a, v, x, command)")
+    return tuple(out)
+
+
 def _out_traj(
     out: Any, shape: tuple[int, ...], inputs: Sequence[np.ndarray], order: str = "C"
 ) -> tuple[np.ndarray, ...]:
-    """The four output arrays (a, v, x, command) of a :class:`Trajectory` or a
-    sequence of four arrays, checked (see :func:`_out_array`)."""
-    if isinstance(out, Trajectory):
-        arrs = tuple(getattr(out, f) for f in _FIELDS)
-        names = [f"out.{f}" for f in _FIELDS]
-    else:
-        if isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__") \
-                or len(out) != 4:
-            raise ValueError("out: must be an avll.Trajectory or a sequence of four arrays "
-                             "(a, v, x, command)")
-        arrs = tuple(out)
-        names = [f"out[{k}] ({f})" for k, f in enumerate(_FIELDS)]
+    """:func:`_out_seq`, each array checked here (see :func:`_out_array`)."""
+    arrs = _out_seq(out)
+    names = [f"out[{k}] ({f})" for k, f in enumerate(_FIELDS)]
     checked = tuple(_out_array(n, a, shape, order) for n, a in zip(names, arrs, strict=True))
     _no_overlap(list(zip(names, checked, strict=True)), inputs)
     return checked
@@ -153,6 +155,13 @@ def _traj_out(out: Any, arrs: tuple[np.ndarray, ...]) -> Trajectory:
     """The result of a call with ``out=``: the caller's Trajectory itself, or a new one
     over the caller's arrays."""
     return out if isinstance(out, Trajectory) else Trajectory(*arrs)
+
+
+def _dt(dt: Any) -> float:
+    """``dt`` checked (a positive finite number), with a fast path for a float."""
+    if type(dt) is float and 0.0 < dt < math.inf:
+        return dt
+    return check_number(dt, "dt", positive=True)
 
 
 def _f64(name: str, x: Any) -> np.ndarray:
@@ -231,12 +240,10 @@ def simulate(
     the module doc).
     """
     name, p = _model(model)
-    dt = check_number(dt, "dt", positive=True)
+    dt = _dt(dt)
     u = _f64("command", command)
-    if out is not None:
-        _out_array("out", out, (u.size,))
-        _no_overlap([("out", out)], [u])
     check_lower_level(model, dt)
+    # `out` is checked by the binding (dtype, shape, layout, writeable, shared memory)
     y = _core.simulate(name, p, u, dt, init, out)
     _finite_or_raise(model, dt, y)
     return y
@@ -262,7 +269,7 @@ def simulate_full(
     dt = check_number(dt, "dt", positive=True)
     u = _f64("command", command)
     v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
-    arrs = None if out is None else _out_traj(out, (u.size,), [u])
+    arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
     check_lower_level(model, dt)
     d = _core.simulate_full(name, p, u, dt, command_kind, init, v0, x0, out=arrs)
     _finite_or_raise(model, dt, d["a"], d["v"])
@@ -289,12 +296,12 @@ def closed_loop(
     divergence on."""
     name, p = _model(model)
     up = _upper(upper)
-    dt = check_number(dt, "dt", positive=True)
+    dt = _dt(dt)
     lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
     v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
     if lv.size != lx.size:
         raise ValueError(f"lead_v: length {lv.size} differs from lead_x's {lx.size}")
-    arrs = None if out is None else _out_traj(out, (lx.size,), [lx, lv])
+    arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
     check_lower_level(model, dt)
     d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0, out=arrs)
     return Trajectory(**d) if arrs is None else _traj_out(out, arrs)
@@ -324,7 +331,7 @@ def platoon(
     nf = check_int(followers, "followers", min=1)
     name, p = _model(model)
     up = _upper(upper)
-    dt = check_number(dt, "dt", positive=True)
+    dt = _dt(dt)
     lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
     arrs = None if out is None else _out_traj(out, (nf, lx.size), [lx, lv], order="F")
     if arrs is None:

@@ -101,10 +101,13 @@ fn out_arg<'py, D: numpy::ndarray::Dimension>(
     obj: &Bound<'py, PyAny>,
     shape: &[usize],
 ) -> PyResult<Bound<'py, PyArray<f64, D>>> {
-    let want = format!("a float64 numpy array of shape {shape:?}, C-contiguous and writeable");
+    let want = format!(
+        "a float64 numpy array of shape {}, C-contiguous and writeable",
+        py_shape(shape)
+    );
     let arr = obj.cast::<PyArray<f64, D>>().map_err(|_| {
         let got = match obj.cast::<numpy::PyUntypedArray>() {
-            Ok(a) => format!("an array of dtype {} and shape {:?}", a.dtype(), a.shape()),
+            Ok(a) => format!("dtype {} (shape {})", a.dtype(), py_shape(a.shape())),
             Err(_) => format!(
                 "{}",
                 obj.get_type()
@@ -117,8 +120,8 @@ fn out_arg<'py, D: numpy::ndarray::Dimension>(
     })?;
     if arr.shape() != shape {
         return Err(PyValueError::new_err(format!(
-            "{name}: must be {want}, got shape {:?}",
-            arr.shape()
+            "{name}: must be {want}, got shape {}",
+            py_shape(arr.shape())
         )));
     }
     if !arr.is_c_contiguous() {
@@ -129,8 +132,32 @@ fn out_arg<'py, D: numpy::ndarray::Dimension>(
     Ok(arr.clone())
 }
 
-/// Mutable borrows of output arrays, or a `ValueError` (not writeable, or
-/// overlapping each other or an input).
+/// A shape as Python prints it: `(5,)`, `(3, 4)`.
+fn py_shape(s: &[usize]) -> String {
+    match s {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            s.iter()
+                .map(|n| n.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// The name of output `i` of `n`: `out`, or `out[1] (v)` for the four arrays of a
+/// trajectory.
+fn out_label(name: &str, i: usize, n: usize) -> String {
+    match n {
+        1 => name.to_string(),
+        4 => format!("{name}[{i}] ({})", ["a", "v", "x", "command"][i]),
+        _ => format!("{name}[{i}]"),
+    }
+}
+
+/// Mutable borrows of output arrays, or a `ValueError` (read-only, or sharing
+/// memory with each other or an input).
 fn borrow_out<'py, D: numpy::ndarray::Dimension>(
     name: &str,
     arrs: &[Bound<'py, PyArray<f64, D>>],
@@ -139,16 +166,14 @@ fn borrow_out<'py, D: numpy::ndarray::Dimension>(
         .enumerate()
         .map(|(i, a)| {
             a.try_readwrite().map_err(|e| {
-                let which = if arrs.len() > 1 {
-                    format!("{name}[{i}]")
-                } else {
-                    name.to_string()
-                };
+                let which = out_label(name, i, arrs.len());
                 PyValueError::new_err(match e {
-                    numpy::BorrowError::NotWriteable => format!("{which}: is not writeable"),
+                    numpy::BorrowError::NotWriteable => {
+                        format!("{which}: must be writeable, got a read-only array")
+                    }
                     _ => format!(
-                        "{which}: overlaps another output or an input (outputs must be \
-                         distinct arrays that share no memory with the inputs)"
+                        "{which}: shares memory with another output or an input; pass \
+                         separate arrays"
                     ),
                 })
             })
@@ -165,17 +190,21 @@ fn out_args<'py, D: numpy::ndarray::Dimension, const K: usize>(
     let items: Vec<Bound<'py, PyAny>> = obj
         .try_iter()
         .and_then(|it| it.collect::<PyResult<Vec<_>>>())
-        .map_err(|_| PyValueError::new_err(format!("{name}: must be a sequence of {K} arrays")))?;
+        .map_err(|_| {
+            PyValueError::new_err(format!(
+                "{name}: must be an avll.Trajectory or a sequence of {K} arrays"
+            ))
+        })?;
     if items.len() != K {
         return Err(PyValueError::new_err(format!(
-            "{name}: must be a sequence of {K} arrays, got {}",
+            "{name}: must be an avll.Trajectory or a sequence of {K} arrays, got {}",
             items.len()
         )));
     }
     let v: Vec<_> = items
         .iter()
         .enumerate()
-        .map(|(i, o)| out_arg::<D>(&format!("{name}[{i}]"), o, shape))
+        .map(|(i, o)| out_arg::<D>(&out_label(name, i, K), o, shape))
         .collect::<PyResult<_>>()?;
     Ok(v.try_into().unwrap_or_else(|_| unreachable!()))
 }
