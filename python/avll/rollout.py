@@ -182,6 +182,24 @@ def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     return model.name, model.values()
 
 
+#: The last model checked by :func:`_model_at`, with its ``dt``, name and values.
+_last: tuple[Any, float, str, list[float]] | None = None
+
+
+def _model_at(model: LowerLevelModel, dt: float) -> tuple[str, list[float]]:
+    """:func:`_model` and :func:`check_lower_level` at ``dt``, remembered for the last
+    model object (models are frozen: the same object has the same values), so that a
+    loop of calls on one model pays for them once."""
+    global _last
+    c = _last  # one read: another thread may replace it, never half of it
+    if c is not None and c[0] is model and c[1] == dt:
+        return c[2], c[3]
+    name, p = _model(model)
+    check_lower_level(model, dt)
+    _last = (model, dt, name, p)
+    return name, list(p)
+
+
 def _upper(upper: Any) -> UpperLevel:
     if not isinstance(upper, UpperLevel):
         raise TypeError(f"upper: expected an avll.UpperLevel, got {upper!r:.60}")
@@ -239,10 +257,9 @@ def simulate(
     (returned; see the module doc). An unstable lower level is a ``ValueError`` (see
     the module doc).
     """
-    name, p = _model(model)
     dt = _dt(dt)
     u = _f64("command", command)
-    check_lower_level(model, dt)
+    name, p = _model_at(model, dt)
     # `out` is checked by the binding (dtype, shape, layout, writeable, shared memory)
     y = _core.simulate(name, p, u, dt, init, out)
     _finite_or_raise(model, dt, y)
@@ -294,7 +311,8 @@ def closed_loop(
     unstable lower level is a ``ValueError``; a follower that diverges with a stable
     lower level (unstable upper-level gains) has a trajectory that is NaN from the
     divergence on."""
-    name, p = _model(model)
+    if not isinstance(model, LowerLevelModel):
+        _model(model)  # the error naming it
     up = _upper(upper)
     dt = _dt(dt)
     lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
@@ -302,7 +320,7 @@ def closed_loop(
     if lv.size != lx.size:
         raise ValueError(f"lead_v: length {lv.size} differs from lead_x's {lx.size}")
     arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
-    check_lower_level(model, dt)
+    name, p = _model_at(model, dt)
     d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0, out=arrs)
     return Trajectory(**d) if arrs is None else _traj_out(out, arrs)
 
