@@ -262,28 +262,31 @@ def test_core_checks_out_itself() -> None:
 # ------------------------------------------------------- recycled output blocks
 
 def test_recycled_blocks_never_alias_a_live_array() -> None:
-    """Outputs above the threshold come from recycled blocks: an array kept alive
-    keeps its values whatever later calls write, and a freed one is reused."""
-    n = 100_000
-    u1, u2 = command(n, seed=1), command(n, seed=2)
-    first = avll.simulate(MODEL, u1, DT)
-    keep = first.copy()
-    assert isinstance(first.base, _core.OutputBlock)
-    for _ in range(3):
-        second = avll.simulate(MODEL, u2, DT)
-        assert not np.shares_memory(first, second)
-        del second
-    same_bits(first, keep)
-    tr = avll.closed_loop(MODEL, *leader(n), DT, UP, v0=12.0, x0=0.0)
-    arrays = [tr.a, tr.v, tr.x, tr.command]
+    """A trajectory's arrays above the threshold come from recycled blocks: an array
+    kept alive keeps its values whatever later calls write, and a freed one is
+    reused."""
+    n = 50_000
+    lx, lv = leader(n)
+    first = avll.closed_loop(MODEL, lx, lv, DT, UP, v0=12.0, x0=0.0)
+    keep = [a.copy() for a in (first.a, first.v, first.x, first.command)]
+    assert all(isinstance(a.base, _core.OutputBlock)
+               for a in (first.a, first.v, first.x, first.command))
+    arrays = [first.a, first.v, first.x, first.command]
     for i, a in enumerate(arrays):
-        assert not np.shares_memory(a, first)
         for b in arrays[i + 1:]:
             assert not np.shares_memory(a, b)
-    # a view outliving its array keeps the block alive
-    view = avll.simulate(MODEL, u1, DT)[10:20]
-    avll.simulate(MODEL, u2, DT)
-    same_bits(view, keep[10:20])
+    for k in range(3):
+        second = avll.closed_loop(MODEL, lx, lv, DT, UP, v0=11.0 + k, x0=0.0)
+        for a in arrays:
+            for b in (second.a, second.v, second.x, second.command):
+                assert not np.shares_memory(a, b)
+        del second
+    for a, b in zip(arrays, keep, strict=True):
+        same_bits(a, b)
+    # a view outliving its trajectory keeps the block alive
+    view = avll.closed_loop(MODEL, lx, lv, DT, UP, v0=12.0, x0=0.0).v[10:20]
+    avll.closed_loop(MODEL, lx, lv, DT, UP, v0=3.0, x0=0.0)
+    same_bits(view, keep[1][10:20])
 
 
 def test_recycled_results_equal_fresh_ones() -> None:
@@ -312,11 +315,12 @@ def test_recycled_results_equal_fresh_ones() -> None:
 def test_output_cache_bound() -> None:
     _, limit = output_cache()
     try:
-        avll.simulate(MODEL, command(50_000), DT)  # freed at once: cached
+        lx, lv = leader(50_000)
+        avll.closed_loop(MODEL, lx, lv, DT, UP, v0=12.0, x0=0.0)  # freed at once: cached
         held, _ = output_cache()
-        assert 0 < held <= limit
+        assert 4 * 50_000 * 8 <= held <= limit
         assert output_cache(0) == (0, 0)
-        avll.simulate(MODEL, command(50_000), DT)
+        avll.closed_loop(MODEL, lx, lv, DT, UP, v0=12.0, x0=0.0)
         assert output_cache()[0] == 0  # nothing kept with limit 0
         with pytest.raises(ValueError, match="limit"):
             output_cache(-1)

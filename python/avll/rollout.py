@@ -34,11 +34,13 @@ argument. The values are bit-identical to those of the call without ``out=``. Wh
 call raises after it started writing (e.g. a diverged open-loop response), the
 contents of ``out`` are unspecified.
 
-Without ``out=``, outputs of 128 KiB and more live in blocks avll recycles: when
-numpy frees such an array, its block goes back to a cache of at most 128 MiB (oldest
-blocks released first), and the next call takes it with its pages already mapped
-instead of page-faulting fresh ones; fresh blocks of 2 MiB and more are advised for
-transparent huge pages. :func:`output_cache` reports or bounds the cache (``limit=0``
+Without ``out=``, the arrays of a trajectory (128 KiB and more each), and any output
+beyond 32 MiB, live in blocks avll recycles: when numpy frees such an array, its block
+goes back to a cache of at most 128 MiB (oldest blocks released first), and the next
+call takes it with its pages already mapped instead of page-faulting fresh ones;
+fresh blocks of 2 MiB and more are advised for transparent huge pages. A single
+smaller output (:func:`simulate`) is an ordinary numpy array, which glibc already
+recycles. :func:`output_cache` reports or bounds the cache (``limit=0``
 empties and disables it). Nothing process-wide (allocator settings) is changed.
 
 Memory. :func:`platoon` and :func:`batch_cost` estimate the bytes their outputs need

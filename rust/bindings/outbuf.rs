@@ -10,7 +10,7 @@
 //! Here an output array's base object owns an avll block; when numpy frees the
 //! array, the block goes back to a cache (at most [`DEFAULT_LIMIT`] bytes, oldest
 //! blocks released first) from which the next call takes it, its pages already
-//! mapped. Nothing process-wide changes: the cache holds only avll's own output
+//! mapped (see [`pooled`] for which outputs). Nothing process-wide changes: the cache holds only avll's own output
 //! blocks, and `output_cache(limit)` bounds or empties it.
 //!
 //! A fresh block of 2 MiB or more is 2 MiB-aligned, a multiple of 2 MiB, and advised
@@ -30,6 +30,9 @@ use std::sync::Mutex;
 /// Outputs below this many bytes are plain numpy arrays (glibc's initial mmap
 /// threshold: below it glibc serves them from its heap).
 pub(super) const SMALL: usize = 128 << 10;
+/// glibc's largest adaptive mmap threshold on 64-bit systems (32 MiB): one freed
+/// chunk up to this size is kept in its heap and reused.
+pub(super) const GLIBC_MAX: usize = 32 << 20;
 /// Default bound of the cache of freed blocks (bytes).
 pub const DEFAULT_LIMIT: usize = 128 << 20;
 const HUGE: usize = 2 << 20;
@@ -205,10 +208,27 @@ fn owner(py: Python<'_>, n: usize) -> Option<(Bound<'_, OutputBlock>, *const f64
     Some((o, ptr))
 }
 
-/// An uninitialised C-contiguous (n,) float64 array for a rollout to fill. The caller
-/// must write every element before Python sees the array.
-pub(super) fn empty1(py: Python<'_>, n: usize) -> Bound<'_, PyArray1<f64>> {
-    if n * 8 >= SMALL {
+/// Whether an output of `n` doubles goes into an avll block: from [`SMALL`] bytes
+/// when the call returns `several` arrays, else (one array) above [`GLIBC_MAX`].
+///
+/// One output array below glibc's largest adaptive mmap threshold is left to numpy
+/// (glibc): after the first call glibc serves it from its heap, reusing the chunk
+/// the previous result freed, and that chunk is shared with the rest of the
+/// program's allocations, so it is often still in cache (measured, open loop at 1e5
+/// samples interleaved with numba loops that allocate: median 958-1022 M steps/s
+/// through numpy against 852-870 through the cache). Several arrays (four for a
+/// trajectory) add up beyond glibc's trim threshold, which returns them to the
+/// kernel on every call: those are what the cache is for.
+fn pooled(n: usize, several: bool) -> bool {
+    let bytes = n.saturating_mul(8);
+    bytes >= SMALL && (several || bytes > GLIBC_MAX)
+}
+
+/// An uninitialised C-contiguous (n,) float64 array for a rollout to fill (`several`:
+/// one of several outputs of the call, see [`pooled`]). The caller must write every
+/// element before Python sees the array.
+pub(super) fn empty1(py: Python<'_>, n: usize, several: bool) -> Bound<'_, PyArray1<f64>> {
+    if pooled(n, several) {
         if let Some((o, ptr)) = owner(py, n) {
             // SAFETY: the block holds n doubles, is owned by `o` (the array's base)
             // and is not reallocated while `o` lives.
@@ -223,9 +243,14 @@ pub(super) fn empty1(py: Python<'_>, n: usize) -> Bound<'_, PyArray1<f64>> {
 }
 
 /// As [`empty1`], a C-contiguous (rows, cols) array.
-pub(super) fn empty2(py: Python<'_>, rows: usize, cols: usize) -> Bound<'_, PyArray2<f64>> {
+pub(super) fn empty2(
+    py: Python<'_>,
+    rows: usize,
+    cols: usize,
+    several: bool,
+) -> Bound<'_, PyArray2<f64>> {
     let n = rows.saturating_mul(cols);
-    if n.saturating_mul(8) >= SMALL {
+    if pooled(n, several) {
         if let Some((o, ptr)) = owner(py, n) {
             // SAFETY: as in `empty1`.
             return unsafe {
@@ -239,9 +264,9 @@ pub(super) fn empty2(py: Python<'_>, rows: usize, cols: usize) -> Bound<'_, PyAr
 }
 
 /// As [`empty1`], a C-contiguous (d0, d1, d2) array.
-pub(super) fn empty3(py: Python<'_>, d: [usize; 3]) -> Bound<'_, PyArray3<f64>> {
+pub(super) fn empty3(py: Python<'_>, d: [usize; 3], several: bool) -> Bound<'_, PyArray3<f64>> {
     let n = d[0].saturating_mul(d[1]).saturating_mul(d[2]);
-    if n.saturating_mul(8) >= SMALL {
+    if pooled(n, several) {
         if let Some((o, ptr)) = owner(py, n) {
             // SAFETY: as in `empty1`.
             return unsafe {

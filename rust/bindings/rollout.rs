@@ -230,7 +230,7 @@ fn simulate<'py>(
         Some(o) => out_arg::<Ix1>("out", o, &[u.len()])?,
         // uninitialised: `simulate_into` writes every element before Python can see
         // the array, and on an error it is dropped unseen
-        None => outbuf::empty1(py, u.len()),
+        None => outbuf::empty1(py, u.len(), false),
     };
     {
         let mut w = borrow_out("out", std::slice::from_ref(&y))?;
@@ -250,7 +250,7 @@ fn four<'py>(
 ) -> PyResult<[Bound<'py, PyArray1<f64>>; 4]> {
     match out {
         Some(o) => out_args::<Ix1, 4>("out", o, &[t]),
-        None => Ok(std::array::from_fn(|_| outbuf::empty1(py, t))),
+        None => Ok(std::array::from_fn(|_| outbuf::empty1(py, t, true))),
     }
 }
 
@@ -408,7 +408,7 @@ fn platoon<'py>(
     // rows of `followers` doubles then never straddle two cache lines needlessly.
     let arrs: [Bound<'py, PyArray2<f64>>; 4] = match &out {
         Some(o) => out_args::<Ix2, 4>("out", o, &[lx.len(), followers])?,
-        None => std::array::from_fn(|_| outbuf::empty2(py, lx.len(), followers)),
+        None => std::array::from_fn(|_| outbuf::empty2(py, lx.len(), followers, true)),
     };
     {
         let mut ws = borrow_out("out", &arrs)?;
@@ -520,7 +520,7 @@ fn simulate_batch<'py>(
     // invalid rows).
     let out: [Bound<'py, PyArray3<f64>>; 1] = match &out {
         Some(o) => [out_arg::<Ix3>("out", o, &[3, p, t])?],
-        None => [outbuf::empty3(py, [3, p, t])],
+        None => [outbuf::empty3(py, [3, p, t], false)],
     };
     {
         let mut w = borrow_out("out", &out)?;
