@@ -9,7 +9,9 @@ tables from one round-robin: without ``out=`` (avll allocates its outputs; the n
 peers allocate theirs per call) and with ``out=`` (avll and the peers write into
 arrays allocated once). Ratios are given as the ratio of best times and as the median
 and range, over the rounds, of the best peer's CPU time over avll's in the same round
-(paired: load hits both alike); the target is judged on the median.
+(paired: load hits both alike); the target is judged on the median. Each timed call
+is the second of two back-to-back calls of the same implementation (the steady state
+of a loop of calls).
 
 Workloads (the paper's Table II proposed model, dt = 0.05 s, at rest):
 
@@ -119,9 +121,12 @@ def measure(
     fns: Sequence[Callable[[], object]], repeat: int, seconds: float = 0.0
 ) -> list[Timing]:
     """Best CPU and wall times of each call, and its mean page faults: one warm-up
-    call each, then rounds calling every function once in turn (round-robin, so that
-    load changes and the allocator's state hit every implementation alike), at
-    least ``repeat`` rounds and until the rounds took ``seconds`` per function."""
+    call each, then rounds calling every function in turn (round-robin, so that load
+    changes hit every implementation alike), at least ``repeat`` rounds and until the
+    rounds took ``seconds`` per function. In a round each function is called twice
+    back to back and the second call is timed: the state a loop of calls to one
+    implementation runs in (its memory and caches as its previous call left them),
+    not the state another implementation's call left."""
     for fn in fns:
         fn()
     cpus: list[list[float]] = [[] for _ in fns]
@@ -129,9 +134,10 @@ def measure(
     faults: list[int] = [0 for _ in fns]
     start = time.perf_counter()
     rounds = 0
-    while rounds < max(1, repeat) or time.perf_counter() - start < seconds * len(fns):
+    while rounds < max(1, repeat) or time.perf_counter() - start < 2 * seconds * len(fns):
         rounds += 1
         for k, fn in enumerate(fns):
+            fn()
             f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             w0, c0 = time.perf_counter(), time.process_time()
             fn()
@@ -674,6 +680,30 @@ def write_json(path: Path, doc: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
+def _in_fresh_process(workload: str, n: int, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Runs one rollout workload at one size in a fresh Python process (its tables
+    are printed there); returns its tables as JSON dicts."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "w.json"
+        cmd = [
+            sys.executable, str(Path(__file__).resolve()), "--same-process", "--only",
+            workload, f"--{workload}-samples", str(n), "--followers", str(args.followers),
+            "--repeat", str(args.repeat), "--seconds", str(args.seconds), "--allocator",
+            args.allocator, "--json", str(out),
+        ]  # fmt: skip
+        sys.stdout.flush()
+        rc = subprocess.run(cmd, check=False).returncode
+        if rc == 1:
+            raise PeerMismatch(f"{workload} at {n:,} samples: see above")
+        if rc != 0:
+            raise KeyboardInterrupt if rc == 130 else RuntimeError(f"{workload}: exit {rc}")
+        doc = json.loads(out.read_text())
+    return list(doc["workloads"])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the selected workloads, prints one table each; returns the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -695,6 +725,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="small sizes, 2 repeats")
     ap.add_argument("--only", default="open,closed,platoon,cost", help="workloads to run")
     ap.add_argument("--json", type=Path, default=None, help="write the tables here")
+    ap.add_argument(
+        "--same-process", action="store_true",
+        help="run the rollout workloads in this process (by default each (workload, "
+        "size) runs in a fresh process, so that glibc's adaptive thresholds, which "
+        "earlier allocations raise, do not carry from one workload to the next)",
+    )  # fmt: skip
     ap.add_argument(
         "--allocator", choices=["keep", "default"], default="default",
         help="default (the default): the allocator as every user runs it; keep: glibc "
@@ -732,6 +768,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "model": MODEL.to_dict(),
         "tolerance": TOL,
         "allocator": alloc,
+        "isolation": "one process for all workloads" if args.same_process else
+        "each rollout workload and size in a fresh process",
     }
     print(
         f"avll {avll.__version__}, numba {numba.__version__}, numpy {np.__version__}; "
@@ -745,22 +783,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     tables: list[Table] = []
     scalings: list[dict[str, Any]] = []
     interrupted = False
+    isolated: list[dict[str, Any]] = []
     try:
-        if "open" in only:
-            for n in args.open_samples:
-                for t in bench_open(n, args.repeat, args.seconds):
+        rollouts = [
+            (w, n)
+            for w, sizes in (("open", args.open_samples), ("closed", args.closed_samples),
+                             ("platoon", args.platoon_samples))
+            if w in only
+            for n in sizes
+        ]
+        for w, n in rollouts:
+            if args.same_process:
+                if w == "open":
+                    ts = bench_open(n, args.repeat, args.seconds)
+                elif w == "closed":
+                    ts = bench_closed(n, args.repeat, args.seconds)
+                else:
+                    ts = bench_platoon(n, args.followers, args.repeat, args.seconds)
+                for t in ts:
                     tables.append(t)
                     print_table(t)
-        if "closed" in only:
-            for n in args.closed_samples:
-                for t in bench_closed(n, args.repeat, args.seconds):
-                    tables.append(t)
-                    print_table(t)
-        if "platoon" in only:
-            for n in args.platoon_samples:
-                for t in bench_platoon(n, args.followers, args.repeat, args.seconds):
-                    tables.append(t)
-                    print_table(t)
+            else:
+                isolated += _in_fresh_process(w, n, args)
         if "cost" in only:
             runs = paper_experiment(seed=0, runs=PAPER_CAL_RUNS, duration=300.0)
             for n_params, rs, key, label in (
@@ -792,7 +836,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         doc = {
             "meta": meta,
             "interrupted": interrupted,
-            "workloads": [t.to_json() for t in tables],
+            "workloads": isolated + [t.to_json() for t in tables],
             "scaling": scalings,
         }
         write_json(args.json, doc)

@@ -44,7 +44,8 @@ def render(d: dict, fresh: dict | None = None) -> str:
     lines = [
         f"Measured by `benches/bench_engine.py` (avll {m['avll']}, numba {m['numba']}, "
         f"numpy {m['numpy']}; {m['machine']}, {m['cpus']} CPUs; load average at start "
-        f"{load}; {_calls(m)}, CPU time, so rates are per core; {alloc}). "
+        f"{load}; {_calls(m)}, CPU time, so rates are per core; {alloc}"
+        + (f"; {m['isolation']}" if "isolation" in m else "") + "). "
         f"Every peer was checked equal to avll to {m['tolerance']:g} before timing.",
         "",
         *_summary(d),
