@@ -516,8 +516,11 @@ def bench_platoon(n: int, followers: int, repeat: int, seconds: float = 0.0) -> 
     tr = call()
     if not np.all(np.isfinite(tr.a)):
         raise PeerMismatch("platoon: a follower diverges on this leader; nothing timed")
-    want = (tr.a, tr.v, tr.x, tr.command)
-    mine = tuple(np.empty((n, followers)).T for _ in range(4))
+    want = tuple(a.copy() for a in (tr.a, tr.v, tr.x, tr.command))
+    # The loop a user writes: each implementation writes into the arrays its own
+    # first call returned (avll's are 64-byte aligned blocks; its lane groups store
+    # 32 bytes at a time into rows of `followers` doubles).
+    mine = call()
     _same_bits("platoon", call(mine).__dict__.values(), want)
     steps = n * followers
     fns: list[Callable[[], object]] = [call, lambda: call(mine)]
@@ -528,9 +531,10 @@ def bench_platoon(n: int, followers: int, repeat: int, seconds: float = 0.0) -> 
             _checked(f"platoon, {p.name}", p.run(prep, up, lx, lv, followers), want, CHECK_SAMPLES)
         )
         fns.append(lambda p=p, prep=prep: p.run(prep, up, lx, lv, followers))
+    twins = {q.variant: q for q in peers.PLATOON_PEERS}
     for p in peers.PLATOON_INTO_PEERS:
         prep = p.prepare(MODEL, DT)
-        buf = tuple(np.empty((n, followers)).T for _ in range(4))
+        buf = tuple(twins[p.variant].run(prep, up, lx, lv, followers))
         got = p.run(prep, up, lx, lv, followers, buf)
         into_diffs.append(_checked(f"platoon, {p.name}", got, want, CHECK_SAMPLES))
         fns.append(lambda p=p, prep=prep, buf=buf: p.run(prep, up, lx, lv, followers, buf))
