@@ -108,13 +108,11 @@ fn out_arg<'py, D: numpy::ndarray::Dimension>(
     let arr = obj.cast::<PyArray<f64, D>>().map_err(|_| {
         let got = match obj.cast::<numpy::PyUntypedArray>() {
             Ok(a) => format!("dtype {} (shape {})", a.dtype(), py_shape(a.shape())),
-            Err(_) => format!(
-                "{}",
-                obj.get_type()
-                    .name()
-                    .map(|n| n.to_string())
-                    .unwrap_or_default()
-            ),
+            Err(_) => obj
+                .get_type()
+                .name()
+                .map(|n| n.to_string())
+                .unwrap_or_default(),
         };
         PyValueError::new_err(format!("{name}: must be {want}, got {got}"))
     })?;
