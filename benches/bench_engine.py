@@ -1,7 +1,17 @@
-"""avll's rollout engine against numba peers, side by side in one process (issue 10).
+"""avll's rollout engine against numba peers, side by side in one process.
 
     python benches/bench_engine.py [--quick] [--repeat 10] [--seconds 1] [--json OUT]
-        [--only open,cost]
+        [--only open,cost] [--allocator default|keep]
+
+The allocator is left as every user runs it (``--allocator keep`` makes glibc keep
+freed memory, to time the stepping alone). Each rollout workload (a-c) gives two
+tables from one round-robin: without ``out=`` (avll allocates its outputs; the numba
+peers allocate theirs per call) and with ``out=`` (avll and the peers write into
+arrays allocated once). Ratios are given as the ratio of best times and as the median
+and range, over the rounds, of the best peer's CPU time over avll's in the same round
+(paired: load hits both alike); the target is judged on the median. Each timed call
+is the second of two back-to-back calls of the same implementation (the steady state
+of a loop of calls).
 
 Workloads (the paper's Table II proposed model, dt = 0.05 s, at rest):
 
@@ -103,15 +113,20 @@ class Timing:
     faults: float = 0.0
     #: Timed calls.
     calls: int = 0
+    #: CPU time of every timed call, round by round (paired across implementations).
+    rounds: list[float] = field(default_factory=list)
 
 
 def measure(
     fns: Sequence[Callable[[], object]], repeat: int, seconds: float = 0.0
 ) -> list[Timing]:
     """Best CPU and wall times of each call, and its mean page faults: one warm-up
-    call each, then rounds calling every function once in turn (round-robin, so that
-    load changes and the allocator's state hit every implementation alike), at
-    least ``repeat`` rounds and until the rounds took ``seconds`` per function."""
+    call each, then rounds calling every function in turn (round-robin, so that load
+    changes hit every implementation alike), at least ``repeat`` rounds and until the
+    rounds took ``seconds`` per function. In a round each function is called twice
+    back to back and the second call is timed: the state a loop of calls to one
+    implementation runs in (its memory and caches as its previous call left them),
+    not the state another implementation's call left."""
     for fn in fns:
         fn()
     cpus: list[list[float]] = [[] for _ in fns]
@@ -119,9 +134,10 @@ def measure(
     faults: list[int] = [0 for _ in fns]
     start = time.perf_counter()
     rounds = 0
-    while rounds < max(1, repeat) or time.perf_counter() - start < seconds * len(fns):
+    while rounds < max(1, repeat) or time.perf_counter() - start < 2 * seconds * len(fns):
         rounds += 1
         for k, fn in enumerate(fns):
+            fn()
             f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             w0, c0 = time.perf_counter(), time.process_time()
             fn()
@@ -129,7 +145,7 @@ def measure(
             walls[k].append(time.perf_counter() - w0)
             faults[k] += resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
     return [
-        Timing(min(c), min(w), f / rounds, rounds)
+        Timing(min(c), min(w), f / rounds, rounds, c)
         for c, w, f in zip(cpus, walls, faults, strict=True)
     ]
 
@@ -169,7 +185,7 @@ def row(
     """A result row from a timing (``steps`` per call)."""
     return Row(
         name, variant, steps / t.cpu / 1e6, t.cpu, t.wall, diff,
-        {"faults_per_call": t.faults, **(extra or {})},
+        {"faults_per_call": t.faults, **(extra or {})}, t.rounds,
     )  # fmt: skip
 
 
@@ -184,6 +200,8 @@ class Row:
     wall_s: float
     max_rel_diff: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    #: CPU time per timed call, round by round (not in the JSON).
+    rounds: list[float] = field(default_factory=list)
 
 
 @dataclass
@@ -205,13 +223,29 @@ class Table:
         return max(self.peers, key=lambda r: r.rate)
 
     def ratio(self) -> float:
-        """avll's rate over the best peer's."""
+        """avll's rate over the best peer's (best CPU time of each)."""
         return self.avll.rate / self.best_peer().rate
+
+    def paired(self) -> list[float]:
+        """Round by round, the best peer's CPU time over avll's in the same round
+        (the calls ran back to back, so load hits both alike)."""
+        return [p / a for a, p in zip(self.avll.rounds, self.best_peer().rounds, strict=True)]
+
+    def ratio_median(self) -> float:
+        """Median of the paired ratios (best-of ratio when no rounds were kept)."""
+        r = self.paired()
+        return float(np.median(r)) if r else self.ratio()
+
+    def met(self) -> bool | None:
+        """Whether the median paired ratio reaches the target."""
+        return None if self.target is None else self.ratio_median() >= self.target
 
     def to_json(self) -> dict[str, Any]:
         """Strict-JSON-ready dict (every number finite)."""
         best = self.best_peer()
         ratio = self.ratio()
+        pr = self.paired() or [ratio]
+        med = self.ratio_median()
         return {
             "key": self.key,
             "title": self.title,
@@ -223,9 +257,13 @@ class Table:
             "best_peer": best.name,
             "ratio": ratio,
             "ratio_basis": self.ratio_basis,
+            "ratio_median": med,
+            "ratio_range": [min(pr), max(pr)],
+            "ratio_quartiles": [float(np.percentile(pr, 25)), float(np.percentile(pr, 75))],
+            "paired_rounds": len(pr),
             "target": self.target,
-            "met": None if self.target is None else ratio >= self.target,
-            "shortfall_factor": None if self.target is None else max(1.0, self.target / ratio),
+            "met": self.met(),
+            "shortfall_factor": None if self.target is None else max(1.0, self.target / med),
             "avll_rate_needed": None if self.target is None else self.target * best.rate,
             **({} if self.target is not None else {"target_reason": NO_TARGET}),
         }
@@ -265,13 +303,14 @@ def print_table(t: Table) -> None:
         flt = f"{r.extra.get('faults_per_call', float('nan')):>8.0f}"
         print(f"  {r.name:<{w}}{r.rate:>11.1f}{wr}{diff:>14}{flt}")
     best = t.best_peer()
-    line = f"  {t.ratio_basis}: {t.ratio():.2f}x (best peer: {best.name}); "
+    pr = t.paired() or [t.ratio()]
+    print(f"  {t.ratio_basis}: {t.ratio():.2f}x best-of (best peer: {best.name})")
+    line = (f"  paired per round: median {t.ratio_median():.2f}x, range "
+            f"{min(pr):.2f}-{max(pr):.2f}x over {len(pr)} rounds; ")
     if t.target is None:
         line += "no target (informational: " + NO_TARGET + ")"
     else:
-        line += f"target >= {t.target}x: {verdict(t.ratio(), t.target)}"
-        if t.ratio() < t.target:
-            line += f"; avll needs {t.target * best.rate:.0f} M steps/s"
+        line += f"target >= {t.target}x (median): {verdict(t.ratio_median(), t.target)}"
     print(line)
 
 
@@ -346,107 +385,171 @@ def _checked(
         raise PeerMismatch(str(e)) from None
 
 
-def bench_open(n: int, repeat: int, seconds: float = 0.0) -> Table:
-    """(a) open-loop rollout."""
+def _pair(
+    key: str,
+    title: str,
+    steps: int,
+    basis: str,
+    avll_name: str,
+    t_alloc: Timing,
+    t_out: Timing,
+    alloc_peers: Sequence[peers.Peer],
+    alloc_t: Sequence[Timing],
+    alloc_d: Sequence[float],
+    into_peers: Sequence[peers.Peer],
+    into_t: Sequence[Timing],
+    into_d: Sequence[float],
+) -> list[Table]:
+    """The two tables of one workload: without ``out=`` (avll and the peers allocate
+    their outputs per call) and with it (both write into arrays allocated once)."""
+    return [
+        Table(
+            key,
+            f"{title}, without out= (outputs allocated per call)",
+            steps,
+            basis,
+            row(avll_name, "avll", steps, t_alloc),
+            [row(p.name, p.variant, steps, t, d)
+             for p, t, d in zip(alloc_peers, alloc_t, alloc_d, strict=True)],
+            TARGET_ONE_CORE,
+        ),
+        Table(
+            f"{key}_out",
+            f"{title}, with out= (outputs allocated once)",
+            steps,
+            basis,
+            row(f"{avll_name}(..., out=)", "avll", steps, t_out),
+            [row(p.name, p.variant, steps, t, d)
+             for p, t, d in zip(into_peers, into_t, into_d, strict=True)],
+            TARGET_ONE_CORE,
+        ),
+    ]
+
+
+def _same_bits(name: str, got: Sequence[np.ndarray], want: Sequence[np.ndarray]) -> None:
+    """avll with ``out=`` must give the allocating call's values bit for bit."""
+    for g, w in zip(got, want, strict=True):
+        if not np.array_equal(np.asarray(g).view(np.int64), np.asarray(w).view(np.int64)):
+            raise PeerMismatch(f"{name}: avll with out= differs from avll without it")
+
+
+def bench_open(n: int, repeat: int, seconds: float = 0.0) -> list[Table]:
+    """(a) open-loop rollout, without and with ``out=``."""
     u = command(n)
     want = avll.simulate(MODEL, u, DT)
-    fns: list[Callable[[], object]] = [lambda: avll.simulate(MODEL, u, DT)]
-    diffs = []
+    y = np.empty(n)
+    _same_bits("open loop", [avll.simulate(MODEL, u, DT, out=y)], [want])
+    fns: list[Callable[[], object]] = [
+        lambda: avll.simulate(MODEL, u, DT),
+        lambda: avll.simulate(MODEL, u, DT, out=y),
+    ]
+    diffs, into_diffs = [], []
     for p in peers.OPEN_PEERS:
         prep = p.prepare(MODEL, DT)
         diffs.append(_checked(f"open loop, {p.name}", [p.run(prep, u)], [want]))
         fns.append(lambda p=p, prep=prep: p.run(prep, u))
-    t, *tps = measure(fns, repeat, seconds)
-    rows = [
-        row(p.name, p.variant, n, tp, d)
-        for p, tp, d in zip(peers.OPEN_PEERS, tps, diffs, strict=True)
-    ]
-    return Table(
-        f"open_{n}",
-        f"(a) open-loop rollout, proposed model, {n:,} samples",
-        n,
-        f"one thread, best CPU time of {t.calls} calls each (round-robin)",
-        row("avll.simulate", "avll", n, t),
-        rows,
-        TARGET_ONE_CORE,
-    )
+    for p in peers.OPEN_INTO_PEERS:
+        prep = p.prepare(MODEL, DT)
+        buf = np.empty(n)
+        into_diffs.append(_checked(f"open loop, {p.name}", [p.run(prep, u, buf)], [want]))
+        fns.append(lambda p=p, prep=prep, buf=buf: p.run(prep, u, buf))
+    t, t_out, *tps = measure(fns, repeat, seconds)
+    na = len(peers.OPEN_PEERS)
+    return _pair(
+        f"open_{n}", f"(a) open-loop rollout, proposed model, {n:,} samples", n,
+        f"one thread, best CPU time of {t.calls} calls each (round-robin)", "avll.simulate",
+        t, t_out, peers.OPEN_PEERS, tps[:na], diffs, peers.OPEN_INTO_PEERS, tps[na:],
+        into_diffs,
+    )  # fmt: skip
 
 
-def bench_closed(n: int, repeat: int, seconds: float = 0.0) -> Table:
-    """(b) closed loop behind a recorded leader."""
+def bench_closed(n: int, repeat: int, seconds: float = 0.0) -> list[Table]:
+    """(b) closed loop behind a recorded leader, without and with ``out=``."""
     lx, lv = leader(n)
     v0, x0 = float(lv[0]), float(lx[0]) - (UPPER_CLOSED.Gmin + UPPER_CLOSED.Tg * lv[0])
 
-    def call() -> avll.Trajectory:
-        return avll.closed_loop(MODEL, lx, lv, DT, UPPER_CLOSED, v0=v0, x0=x0)
+    def call(out: Any = None) -> avll.Trajectory:
+        return avll.closed_loop(MODEL, lx, lv, DT, UPPER_CLOSED, v0=v0, x0=x0, out=out)
 
     tr = call()
     if not np.all(np.isfinite(tr.a)):
         raise PeerMismatch("closed loop: the follower diverges on this leader; nothing timed")
     want = (tr.a, tr.v, tr.x, tr.command)
-    fns: list[Callable[[], object]] = [call]
-    diffs = []
+    mine = tuple(np.empty(n) for _ in range(4))
+    _same_bits("closed loop", call(mine).__dict__.values(), want)
+    fns: list[Callable[[], object]] = [call, lambda: call(mine)]
+    diffs, into_diffs = [], []
     for p in peers.CLOSED_PEERS:
         prep = p.prepare(MODEL, DT)
         got = p.run(prep, UPPER_CLOSED, lx, lv, v0, x0)
         diffs.append(_checked(f"closed loop, {p.name}", got, want, CHECK_SAMPLES))
         fns.append(lambda p=p, prep=prep: p.run(prep, UPPER_CLOSED, lx, lv, v0, x0))
+    for p in peers.CLOSED_INTO_PEERS:
+        prep = p.prepare(MODEL, DT)
+        buf = tuple(np.empty(n) for _ in range(4))
+        got = p.run(prep, UPPER_CLOSED, lx, lv, v0, x0, buf)
+        into_diffs.append(_checked(f"closed loop, {p.name}", got, want, CHECK_SAMPLES))
+        fns.append(lambda p=p, prep=prep, buf=buf: p.run(prep, UPPER_CLOSED, lx, lv, v0, x0, buf))
     del got
-    t, *tps = measure(fns, repeat, seconds)
-    rows = [
-        row(p.name, p.variant, n, tp, d)
-        for p, tp, d in zip(peers.CLOSED_PEERS, tps, diffs, strict=True)
-    ]
-    return Table(
+    t, t_out, *tps = measure(fns, repeat, seconds)
+    na = len(peers.CLOSED_PEERS)
+    return _pair(
         f"closed_{n}",
         f"(b) closed loop behind a recorded leader (Eq. 3, kg {UPPER_CLOSED.kg}, "
         f"Tg {UPPER_CLOSED.Tg} s), {n:,} samples",
         n,
         f"one thread, best CPU time of {t.calls} calls each (round-robin)"
         + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
-        row("avll.closed_loop", "avll", n, t),
-        rows,
-        TARGET_ONE_CORE,
-    )
+        "avll.closed_loop", t, t_out, peers.CLOSED_PEERS, tps[:na], diffs,
+        peers.CLOSED_INTO_PEERS, tps[na:], into_diffs,
+    )  # fmt: skip
 
 
-def bench_platoon(n: int, followers: int, repeat: int, seconds: float = 0.0) -> Table:
-    """(c) platoon behind a recorded leader."""
+def bench_platoon(n: int, followers: int, repeat: int, seconds: float = 0.0) -> list[Table]:
+    """(c) platoon behind a recorded leader, without and with ``out=``."""
     lx, lv = leader(n, seed=3)
     up = UPPER_PLATOON
 
-    def call() -> avll.Trajectory:
-        return avll.platoon(MODEL, lx, lv, DT, up, followers)
+    def call(out: Any = None) -> avll.Trajectory:
+        return avll.platoon(MODEL, lx, lv, DT, up, followers, out=out)
 
     tr = call()
     if not np.all(np.isfinite(tr.a)):
         raise PeerMismatch("platoon: a follower diverges on this leader; nothing timed")
-    want = (tr.a, tr.v, tr.x, tr.command)
+    want = tuple(a.copy() for a in (tr.a, tr.v, tr.x, tr.command))
+    # The loop a user writes: each implementation writes into the arrays its own
+    # first call returned (avll's are 64-byte aligned blocks; its lane groups store
+    # 32 bytes at a time into rows of `followers` doubles).
+    mine = call()
+    _same_bits("platoon", call(mine).__dict__.values(), want)
     steps = n * followers
-    fns: list[Callable[[], object]] = [call]
-    diffs = []
+    fns: list[Callable[[], object]] = [call, lambda: call(mine)]
+    diffs, into_diffs = [], []
     for p in peers.PLATOON_PEERS:
         prep = p.prepare(MODEL, DT)
         diffs.append(
             _checked(f"platoon, {p.name}", p.run(prep, up, lx, lv, followers), want, CHECK_SAMPLES)
         )
         fns.append(lambda p=p, prep=prep: p.run(prep, up, lx, lv, followers))
-    t, *tps = measure(fns, repeat, seconds)
-    rows = [
-        row(p.name, p.variant, steps, tp, d)
-        for p, tp, d in zip(peers.PLATOON_PEERS, tps, diffs, strict=True)
-    ]
-    return Table(
+    twins = {q.variant: q for q in peers.PLATOON_PEERS}
+    for p in peers.PLATOON_INTO_PEERS:
+        prep = p.prepare(MODEL, DT)
+        buf = tuple(twins[p.variant].run(prep, up, lx, lv, followers))
+        got = p.run(prep, up, lx, lv, followers, buf)
+        into_diffs.append(_checked(f"platoon, {p.name}", got, want, CHECK_SAMPLES))
+        fns.append(lambda p=p, prep=prep, buf=buf: p.run(prep, up, lx, lv, followers, buf))
+    t, t_out, *tps = measure(fns, repeat, seconds)
+    na = len(peers.PLATOON_PEERS)
+    return _pair(
         f"platoon_{followers}x{n}",
         f"(c) {followers}-car platoon (Eq. 3, kg {up.kg}, kv {up.kv}, Tg {up.Tg} s), {n:,} samples",
         steps,
         f"one thread, best CPU time of {t.calls} calls each (round-robin); "
         "steps = followers x samples"
         + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
-        row("avll.platoon", "avll", steps, t),
-        rows,
-        TARGET_ONE_CORE,
-    )
+        "avll.platoon", t, t_out, peers.PLATOON_PEERS, tps[:na], diffs,
+        peers.PLATOON_INTO_PEERS, tps[na:], into_diffs,
+    )  # fmt: skip
 
 
 def bench_cost(
@@ -581,6 +684,30 @@ def write_json(path: Path, doc: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
+def _in_fresh_process(workload: str, n: int, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Runs one rollout workload at one size in a fresh Python process (its tables
+    are printed there); returns its tables as JSON dicts."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "w.json"
+        cmd = [
+            sys.executable, str(Path(__file__).resolve()), "--same-process", "--only",
+            workload, f"--{workload}-samples", str(n), "--followers", str(args.followers),
+            "--repeat", str(args.repeat), "--seconds", str(args.seconds), "--allocator",
+            args.allocator, "--json", str(out),
+        ]  # fmt: skip
+        sys.stdout.flush()
+        rc = subprocess.run(cmd, check=False).returncode
+        if rc == 1:
+            raise PeerMismatch(f"{workload} at {n:,} samples: see above")
+        if rc != 0:
+            raise KeyboardInterrupt if rc == 130 else RuntimeError(f"{workload}: exit {rc}")
+        doc = json.loads(out.read_text())
+    return list(doc["workloads"])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the selected workloads, prints one table each; returns the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -603,10 +730,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--only", default="open,closed,platoon,cost", help="workloads to run")
     ap.add_argument("--json", type=Path, default=None, help="write the tables here")
     ap.add_argument(
-        "--allocator", choices=["keep", "default"], default="keep",
-        help="keep: glibc keeps freed memory, so that no implementation's fresh outputs "
-        "page-fault (the default: timings then measure the stepping); default: leave "
-        "glibc's adaptive thresholds, which decide per run whether all of them do",
+        "--same-process", action="store_true",
+        help="run the rollout workloads in this process (by default each (workload, "
+        "size) runs in a fresh process, so that glibc's adaptive thresholds, which "
+        "earlier allocations raise, do not carry from one workload to the next)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--allocator", choices=["keep", "default"], default="default",
+        help="default (the default): the allocator as every user runs it; keep: glibc "
+        "keeps freed memory (mallopt), so that no implementation's fresh outputs "
+        "page-fault (timings then measure the stepping alone)",
     )  # fmt: skip
     args = ap.parse_args(argv)
     if args.quick:
@@ -639,6 +772,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "model": MODEL.to_dict(),
         "tolerance": TOL,
         "allocator": alloc,
+        "isolation": "one process for all workloads" if args.same_process else
+        "each rollout workload and size in a fresh process",
     }
     print(
         f"avll {avll.__version__}, numba {numba.__version__}, numpy {np.__version__}; "
@@ -652,19 +787,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     tables: list[Table] = []
     scalings: list[dict[str, Any]] = []
     interrupted = False
+    isolated: list[dict[str, Any]] = []
     try:
-        if "open" in only:
-            for n in args.open_samples:
-                tables.append(bench_open(n, args.repeat, args.seconds))
-                print_table(tables[-1])
-        if "closed" in only:
-            for n in args.closed_samples:
-                tables.append(bench_closed(n, args.repeat, args.seconds))
-                print_table(tables[-1])
-        if "platoon" in only:
-            for n in args.platoon_samples:
-                tables.append(bench_platoon(n, args.followers, args.repeat, args.seconds))
-                print_table(tables[-1])
+        rollouts = [
+            (w, n)
+            for w, sizes in (("open", args.open_samples), ("closed", args.closed_samples),
+                             ("platoon", args.platoon_samples))
+            if w in only
+            for n in sizes
+        ]
+        for w, n in rollouts:
+            if args.same_process:
+                if w == "open":
+                    ts = bench_open(n, args.repeat, args.seconds)
+                elif w == "closed":
+                    ts = bench_closed(n, args.repeat, args.seconds)
+                else:
+                    ts = bench_platoon(n, args.followers, args.repeat, args.seconds)
+                for t in ts:
+                    tables.append(t)
+                    print_table(t)
+            else:
+                isolated += _in_fresh_process(w, n, args)
         if "cost" in only:
             runs = paper_experiment(seed=0, runs=PAPER_CAL_RUNS, duration=300.0)
             for n_params, rs, key, label in (
@@ -696,7 +840,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         doc = {
             "meta": meta,
             "interrupted": interrupted,
-            "workloads": [t.to_json() for t in tables],
+            "workloads": isolated + [t.to_json() for t in tables],
             "scaling": scalings,
         }
         write_json(args.json, doc)

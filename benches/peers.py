@@ -96,6 +96,9 @@ __all__ = [
     "OPEN_PEERS",
     "CLOSED_PEERS",
     "PLATOON_PEERS",
+    "OPEN_INTO_PEERS",
+    "CLOSED_INTO_PEERS",
+    "PLATOON_INTO_PEERS",
     "COST_PEERS",
     "Peer",
     "set_threads",
@@ -241,6 +244,13 @@ def _pow2(n: int) -> int:
 
 @njit(**JIT)
 def _open_plain(phi, g0, g1, c, k, i, u):  # pragma: no cover - compiled
+    y = np.empty(u.size)
+    _open_plain_into(phi, g0, g1, c, k, i, u, y)
+    return y
+
+
+@njit(**JIT)
+def _open_plain_into(phi, g0, g1, c, k, i, u, y):  # pragma: no cover - compiled
     T = u.size
     cap = 1
     while cap < i + 2:
@@ -252,7 +262,6 @@ def _open_plain(phi, g0, g1, c, k, i, u):  # pragma: no cover - compiled
     c0, c1 = c[0], c[1]
     x0 = 0.0
     x1 = 0.0
-    y = np.empty(T)
     for n in range(T):
         yn = c0 * x0 + c1 * x1
         y[n] = yn
@@ -263,11 +272,17 @@ def _open_plain(phi, g0, g1, c, k, i, u):  # pragma: no cover - compiled
             p00 * x0 + p01 * x1 + a0 * w0 + b0 * w1,
             p10 * x0 + p11 * x1 + a1 * w0 + b1 * w1,
         )
-    return y
 
 
 @njit(**FAST)
 def _open_modal(lam, g0, g1, c, k, i, u):  # pragma: no cover - compiled
+    y = np.empty(u.size)
+    _open_modal_into(lam, g0, g1, c, k, i, u, y)
+    return y
+
+
+@njit(**FAST)
+def _open_modal_into(lam, g0, g1, c, k, i, u, y):  # pragma: no cover - compiled
     # Modal form: one multiply-add per mode on the state's dependency chain. The
     # delay line is a power-of-two ring buffer indexed with a mask (no branch, stays
     # in L1: a full-length u_ref array is 4x slower at 1e6 samples, page faults);
@@ -281,7 +296,6 @@ def _open_modal(lam, g0, g1, c, k, i, u):  # pragma: no cover - compiled
         cap *= 2
     mask = cap - 1
     buf = np.zeros(cap)
-    y = np.empty(T)
     z0 = 0.0
     z1 = 0.0
     w1 = 0.0
@@ -293,7 +307,6 @@ def _open_modal(lam, g0, g1, c, k, i, u):  # pragma: no cover - compiled
         z0 = l0 * z0 + (a0 * w0 + b0 * w1)
         z1 = l1 * z1 + (a1 * w0 + b1 * w1)
         w1 = w0
-    return y
 
 
 @dataclass(frozen=True)
@@ -340,6 +353,13 @@ def block(md: Modal) -> Block:
 
 @njit(**FAST)
 def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - compiled
+    y = np.empty(u.size)
+    _open_block_into(lam, g0, g1, c, k, i, yx, yg, s, l4, u, y)
+    return y
+
+
+@njit(**FAST)
+def _open_block_into(lam, g0, g1, c, k, i, yx, yg, s, l4, u, y):  # pragma: no cover
     # Four samples per iteration when the dead time is at least four samples: the
     # block reads its five line outputs before writing its four references. The
     # line is a power-of-two ring with a mirror of its first eight slots, so the five
@@ -347,7 +367,6 @@ def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - c
     # go one by one as in the modal loop. Every coefficient is a local (numba's arrays
     # may alias the outputs, so LLVM would reload them after each store).
     T = u.size
-    y = np.empty(T)
     cap = 4
     while cap < i + 8:
         cap *= 2
@@ -406,7 +425,6 @@ def _open_block(lam, g0, g1, c, k, i, yx, yg, s, l4, u):  # pragma: no cover - c
         z0 = lam[0] * z0 + (g0[0] * w0 + g1[0] * w1)
         z1 = lam[1] * z1 + (g0[1] * w0 + g1[1] * w1)
         w1 = w0
-    return y
 
 
 def open_block(bl: Block, u: np.ndarray) -> np.ndarray:
@@ -425,6 +443,28 @@ def open_modal(md: Modal, u: np.ndarray) -> np.ndarray:
     return _open_modal(md.lam, md.g0, md.g1, md.c, md.k, md.i, u)
 
 
+# The same loops writing into an array the caller allocated once (``out``).
+
+
+def open_plain_into(d: Discrete, u: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """:func:`open_plain` into ``out``."""
+    _open_plain_into(d.phi, d.g0, d.g1, d.c, d.k, d.i, u, out)
+    return out
+
+
+def open_modal_into(md: Modal, u: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """:func:`open_modal` into ``out``."""
+    _open_modal_into(md.lam, md.g0, md.g1, md.c, md.k, md.i, u, out)
+    return out
+
+
+def open_block_into(bl: Block, u: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """:func:`open_block` into ``out``."""
+    md = bl.md
+    _open_block_into(md.lam, md.g0, md.g1, md.c, md.k, md.i, bl.yx, bl.yg, bl.s, bl.l4, u, out)
+    return out
+
+
 # ---------------------------------------------------------------------------
 # (b) Closed loop behind a recorded leader.
 # ---------------------------------------------------------------------------
@@ -441,6 +481,16 @@ def _nan_from(a, v, x, cmd, start):  # pragma: no cover - compiled
 
 @njit(**JIT)
 def _closed_plain(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0):  # pragma: no cover
+    T = lx.size
+    a, v, x, cmd = np.empty(T), np.empty(T), np.empty(T), np.empty(T)
+    _closed_plain_into(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0, a, v, x, cmd)
+    return a, v, x, cmd
+
+
+@njit(**JIT)
+def _closed_plain_into(
+    phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0, a, v, x, cmd
+):  # pragma: no cover
     # The plain loop: the full 4x4 step as scalars, a ring buffer for the delay line,
     # the divergence test on every sample.
     T = lx.size
@@ -456,10 +506,6 @@ def _closed_plain(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0):  # pr
     a0, a1, a2, a3 = g0[0], g0[1], g0[2], g0[3]
     b0, b1, b2, b3 = g1[0], g1[1], g1[2], g1[3]
     c0, c1 = c[0], c[1]
-    a = np.empty(T)
-    v = np.empty(T)
-    x = np.empty(T)
-    cmd = np.empty(T)
     s0 = 0.0
     s1 = 0.0
     s2 = v0
@@ -486,7 +532,6 @@ def _closed_plain(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0):  # pr
             p30 * s0 + p31 * s1 + p32 * s2 + a3 * w0 + b3 * w1 + p33 * s3,
         )
     _nan_from(a, v, x, cmd, written)
-    return a, v, x, cmd
 
 
 @njit(**JIT)
@@ -505,6 +550,16 @@ def _first_diverged(a, start, stop):  # pragma: no cover - compiled
 
 @njit(**FAST)
 def _closed_modal(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0):  # pragma: no cover
+    T = lx.size
+    a, v, x, cmd = np.empty(T), np.empty(T), np.empty(T), np.empty(T)
+    _closed_modal_into(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0, a, v, x, cmd)
+    return a, v, x, cmd
+
+
+@njit(**FAST)
+def _closed_modal_into(
+    phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0, a, v, x, cmd
+):  # pragma: no cover
     # Modal model states z0, z1 (diagonal), then the integrators' rows:
     # v' = pv0 z0 + pv1 z1 + pvv v + inputs, x' = px0 z0 + px1 z1 + pxv v + pxx x + inputs.
     # u_ref goes through a masked power-of-two ring buffer (branch-free, in L1). The
@@ -518,10 +573,6 @@ def _closed_modal(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0):  # pr
     a0, a1, av, ax = g0[0], g0[1], g0[2], g0[3]
     b0, b1, bv, bx = g1[0], g1[1], g1[2], g1[3]
     c0, c1 = c[0], c[1]
-    a = np.empty(T)
-    v = np.empty(T)
-    x = np.empty(T)
-    cmd = np.empty(T)
     cap = 1
     while cap < i + 2:
         cap *= 2
@@ -556,7 +607,6 @@ def _closed_modal(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, v0, x0):  # pr
             written = bad + 1
             break
     _nan_from(a, v, x, cmd, written)
-    return a, v, x, cmd
 
 
 def closed_plain(
@@ -577,6 +627,30 @@ def closed_modal(
         md.phi, md.g0, md.g1, md.c, md.k, md.i, up.kg, up.kv, up.Tg, up.Gmin, lead_x, lead_v,
         float(v0), float(x0),
     )  # fmt: skip
+
+
+def closed_plain_into(
+    d: Discrete, up: avll.UpperLevel, lead_x: np.ndarray, lead_v: np.ndarray, v0: float,
+    x0: float, out: tuple[np.ndarray, ...],
+) -> tuple[np.ndarray, ...]:
+    """:func:`closed_plain` into the four arrays ``out`` (a, v, x, command)."""
+    _closed_plain_into(
+        d.phi, d.g0, d.g1, d.c, d.k, d.i, up.kg, up.kv, up.Tg, up.Gmin, lead_x, lead_v,
+        float(v0), float(x0), *out,
+    )
+    return out
+
+
+def closed_modal_into(
+    md: Modal, up: avll.UpperLevel, lead_x: np.ndarray, lead_v: np.ndarray, v0: float,
+    x0: float, out: tuple[np.ndarray, ...],
+) -> tuple[np.ndarray, ...]:
+    """:func:`closed_modal` into the four arrays ``out`` (a, v, x, command)."""
+    _closed_modal_into(
+        md.phi, md.g0, md.g1, md.c, md.k, md.i, up.kg, up.kv, up.Tg, up.Gmin, lead_x, lead_v,
+        float(v0), float(x0), *out,
+    )
+    return out
 
 
 # ---------------------------------------------------------------------------
@@ -624,6 +698,16 @@ def platoon_plain(
 
 @njit(**JIT)
 def _platoon_tm(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, F):  # pragma: no cover
+    T = lx.size
+    A, V, X, U = np.empty((T, F)), np.empty((T, F)), np.empty((T, F)), np.empty((T, F))
+    _platoon_tm_into(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, F, A, V, X, U)
+    return A, V, X, U
+
+
+@njit(**JIT)
+def _platoon_tm_into(
+    phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, F, A, V, X, U
+):  # pragma: no cover
     # Time-major: all followers advance one sample together. Follower j's command at
     # sample n uses follower j-1's state at n, so within a sample the followers are
     # independent recurrences: the loops over j vectorize. Outputs are (sample,
@@ -635,10 +719,6 @@ def _platoon_tm(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, F):  # pragma: n
     a0, a1, av, ax = g0[0], g0[1], g0[2], g0[3]
     b0, b1, bv, bx = g1[0], g1[1], g1[2], g1[3]
     c0, c1 = c[0], c[1]
-    A = np.empty((T, F))
-    V = np.empty((T, F))
-    X = np.empty((T, F))
-    U = np.empty((T, F))
     cap = 1
     while cap < i + 2:
         cap *= 2
@@ -689,7 +769,6 @@ def _platoon_tm(phi, g0, g1, c, k, i, kg, kv, tg, gmin, lx, lv, F):  # pragma: n
             sv[j] = pvv * vv + (pv0 * zz0 + pv1 * zz1) + (av * w0 + bv * wp)
             sx[j] = pxx * sx[j] + pxv * vv + (px0 * zz0 + px1 * zz1) + (ax * w0 + bx * wp)
             w1[j] = w0
-    return A, V, X, U
 
 
 def platoon_time_major(
@@ -703,6 +782,22 @@ def platoon_time_major(
     )  # fmt: skip
     out = (A.T, V.T, X.T, U.T)
     if _first_diverged(A.reshape(-1), 0, A.size) >= 0:  # a scan, no temporaries
+        _platoon_nan(*out)
+    return out
+
+
+def platoon_time_major_into(
+    md: Modal, up: avll.UpperLevel, lead_x: np.ndarray, lead_v: np.ndarray, followers: int,
+    out: tuple[np.ndarray, ...],
+) -> tuple[np.ndarray, ...]:
+    """:func:`platoon_time_major` into ``out``: four (follower, sample) arrays that
+    are transposes of C-contiguous (sample, follower) arrays."""
+    A, V, X, U = (o.T for o in out)
+    _platoon_tm_into(
+        md.phi, md.g0, md.g1, md.c, md.k, md.i, up.kg, up.kv, up.Tg, up.Gmin, lead_x, lead_v,
+        int(followers), A, V, X, U,
+    )  # fmt: skip
+    if _first_diverged(A.reshape(-1), 0, A.size) >= 0:
         _platoon_nan(*out)
     return out
 
@@ -1176,6 +1271,21 @@ CLOSED_PEERS = (
 PLATOON_PEERS = (
     Peer("numba plain loop, follower-major", "plain", _disc4, platoon_plain),
     Peer("numba modal, time-major (followers vectorized)", "best", _modal4, platoon_time_major),
+)
+#: The peers writing into outputs the caller allocated once: run(prepared, ..., out),
+#: the same arguments as the allocating peers' followed by the outputs.
+OPEN_INTO_PEERS = (
+    Peer("numba plain loop into a preallocated array", "plain", _disc, open_plain_into),
+    Peer("numba modal into a preallocated array", "best", _modal, open_modal_into),
+    Peer("numba block form into a preallocated array", "block", _block, open_block_into),
+)
+CLOSED_INTO_PEERS = (
+    Peer("numba plain loop into preallocated arrays", "plain", _disc4, closed_plain_into),
+    Peer("numba modal into preallocated arrays", "best", _modal4, closed_modal_into),
+)
+PLATOON_INTO_PEERS = (
+    Peer("numba modal, time-major, into preallocated arrays", "best", _modal4,
+         platoon_time_major_into),
 )
 #: run(params, prepared) -> (P, R) costs; prepare(runs) -> packed runs
 COST_PEERS = (

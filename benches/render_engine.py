@@ -1,14 +1,14 @@
-"""Renders ``bench_engine.py --json`` output as the docs' engine table.
+"""Renders ``bench_engine.py --json`` output as the docs' engine tables.
 
     python benches/bench_engine.py --json docs/_generated/engine_bench.json
-    python benches/bench_engine.py --allocator default \
-        --json docs/_generated/engine_bench_default.json
     python benches/render_engine.py docs/_generated/engine_bench.json \
-        docs/_generated/engine_bench.md --fresh docs/_generated/engine_bench_default.json
+        docs/_generated/engine_bench.md
 
-Every number in the table comes from the JSON (rates in M steps/s per core, the
-ratio avll / best peer, the issue-10 target and whether it is met); the machine, the
-versions and the load average during the run are stated with it.
+Every number in the tables comes from the JSON (rates in M steps/s per core, the
+ratio avll / best peer as the median and range of the paired rounds and as the ratio
+of best times, the target and whether the median meets it); the machine, the
+versions, the allocator and the load average during the run are stated with it.
+``--fresh`` (optional) appends the summary of a second run (e.g. ``--allocator keep``).
 """
 
 from __future__ import annotations
@@ -44,7 +44,8 @@ def render(d: dict, fresh: dict | None = None) -> str:
     lines = [
         f"Measured by `benches/bench_engine.py` (avll {m['avll']}, numba {m['numba']}, "
         f"numpy {m['numpy']}; {m['machine']}, {m['cpus']} CPUs; load average at start "
-        f"{load}; {_calls(m)}, CPU time, so rates are per core; {alloc}). "
+        f"{load}; {_calls(m)}, CPU time, so rates are per core; {alloc}"
+        + (f"; {m['isolation']}" if "isolation" in m else "") + "). "
         f"Every peer was checked equal to avll to {m['tolerance']:g} before timing.",
         "",
         *_summary(d),
@@ -78,30 +79,39 @@ def render(d: dict, fresh: dict | None = None) -> str:
         fload = ", ".join(f"{x:.1f}" for x in fm.get("load_average_start", []))
         lines += [
             "",
-            f"The same benchmark with the allocator left as glibc sets it (`--allocator "
-            f"default`; load average at start {fload}): whether fresh outputs page-fault "
-            "then depends on glibc's adaptive thresholds, which this run's earlier "
-            "allocations set.",
+            f"The same benchmark run again ({fm.get('allocator', 'allocator left as it is')}; "
+            f"load average at start {fload}):",
             "",
             *_summary(fresh),
         ]
     return "\n".join(lines) + "\n"
 
 
+def _ratio(w: dict) -> str:
+    """Median of the paired rounds with their range (runs before the pairing: the
+    ratio of best times)."""
+    if "ratio_median" not in w:
+        return f"{w['ratio']:.2f}x"
+    lo, hi = w["ratio_range"]
+    return f"{w['ratio_median']:.2f}x ({lo:.2f}-{hi:.2f})"
+
+
 def _summary(d: dict) -> list[str]:
     lines = [
-        "| workload | avll | best peer | avll / best peer | target | met "
-        "| page faults per call (avll, best peer) |",
-        "|---|---|---|---|---|---|---|",
+        "| workload | avll | best peer | avll / best peer: median of paired rounds (range) "
+        "| ratio of best times | target | met | page faults per call (avll, best peer) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for w in d["workloads"]:
         best = max(w["peers"], key=lambda p: p["rate"])
         target = w.get("target")
         met = "" if target is None else ("yes" if w.get("met") else "no")
+        if target is not None and not w.get("met") and w.get("shortfall_factor"):
+            met += f" (short by {w['shortfall_factor']:.2f}x)"
         lines.append(
             f"| {w['title']} | {w['avll']['rate']:.0f} | {best['rate']:.0f} ({best['name']}) "
-            f"| {w['ratio']:.2f}x | {'' if target is None else f'>= {target:g}x'} | {met} "
-            f"| {_faults(w['avll'])}, {_faults(best)} |"
+            f"| {_ratio(w)} | {w['ratio']:.2f}x | {'' if target is None else f'>= {target:g}x'} "
+            f"| {met} | {_faults(w['avll'])}, {_faults(best)} |"
         )
     return lines
 
@@ -111,7 +121,7 @@ def main() -> None:
     ap.add_argument("json", type=Path)
     ap.add_argument("out", type=Path)
     ap.add_argument("--fresh", type=Path, default=None,
-                    help="a run with --allocator default, summarized after the tables")
+                    help="a second run (e.g. --allocator keep), summarized after the tables")
     a = ap.parse_args()
     fresh = None if a.fresh is None else json.loads(a.fresh.read_text())
     text = render(json.loads(a.json.read_text()), fresh)

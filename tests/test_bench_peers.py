@@ -133,6 +133,43 @@ def test_platoon_peers_equal_avll(peer: peers.Peer, up: avll.UpperLevel) -> None
         assert np.isnan(tr.a[-1]).all() and np.isfinite(tr.a[0]).all()
 
 
+@pytest.mark.parametrize("peer", peers.OPEN_INTO_PEERS, ids=lambda p: p.variant)
+def test_open_loop_into_peers_equal_avll(peer: peers.Peer) -> None:
+    prep = _prepare(peer, PROPOSED)
+    u = _command(700)
+    out = np.full(700, 7.0)
+    assert peer.run(prep, u, out) is out
+    assert peers.check_close("open", out, avll.simulate(PROPOSED, u, DT)) <= 1e-9
+
+
+@pytest.mark.parametrize("peer", peers.CLOSED_INTO_PEERS, ids=lambda p: p.variant)
+@pytest.mark.parametrize("kg", [0.5, 6.0], ids=["stable", "diverges"])
+def test_closed_loop_into_peers_equal_avll(peer: peers.Peer, kg: float) -> None:
+    prep = _prepare(peer, PROPOSED)
+    lx, lv = _leader(3000)
+    up = avll.UpperLevel(kg=kg, kv=0.1, Tg=1.8, Gmin=9.5)
+    v0, x0 = float(lv[0]), float(lx[0]) - 30.0
+    tr = avll.closed_loop(PROPOSED, lx, lv, DT, up, v0=v0, x0=x0)
+    out = tuple(np.full(3000, 7.0) for _ in range(4))
+    peer.run(prep, up, lx, lv, v0, x0, out)
+    for g, w, name in zip(out, (tr.a, tr.v, tr.x, tr.command), "avxu", strict=True):
+        assert peers.check_close(name, g, w) <= 1e-9
+
+
+@pytest.mark.parametrize("peer", peers.PLATOON_INTO_PEERS, ids=lambda p: p.variant)
+@pytest.mark.parametrize("kg", [0.2, 0.5], ids=["string-stable", "diverges"])
+def test_platoon_into_peers_equal_avll(peer: peers.Peer, kg: float) -> None:
+    prep = _prepare(peer, PROPOSED)
+    lx, lv = _leader(2500)
+    up = avll.UpperLevel(kg=kg, kv=0.2 if kg == 0.2 else 0.0, Tg=3.0 if kg == 0.2 else 1.8,
+                         Gmin=9.5)
+    tr = avll.platoon(PROPOSED, lx, lv, DT, up, 20)
+    out = tuple(np.full((2500, 20), 7.0).T for _ in range(4))
+    peer.run(prep, up, lx, lv, 20, out)
+    for g, w, name in zip(out, (tr.a, tr.v, tr.x, tr.command), "avxu", strict=True):
+        assert peers.check_close(name, g, w) <= 1e-9
+
+
 def _cost_rows() -> np.ndarray:
     rng = np.random.default_rng(3)
     base = PROPOSED.to_array()
@@ -198,20 +235,28 @@ def test_bench_engine_runs_and_writes_strict_json(tmp_path: Path) -> None:
     argv = [
         "--only", "open,cost", "--open-samples", "3000", "--cost-params", "60",
         "--cost-runs-params", "12", "--repeat", "1", "--json", str(out),
-        # the allocator left alone: `keep` would raise this test process's thresholds
+        # the allocator left alone (the default; `keep` would raise this test
+        # process's thresholds)
         "--allocator", "default",
     ]  # fmt: skip
     assert bench_engine.main(argv) == 0
     doc = json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"non-strict {c}"))
     keys = [w["key"] for w in doc["workloads"]]
     assert keys == [
-        "open_3000", "cost_1run_1t", "cost_1run_2t", "cost_10runs_1t", "cost_10runs_2t",
+        "open_3000", "open_3000_out", "cost_1run_1t", "cost_1run_2t", "cost_10runs_1t",
+        "cost_10runs_2t",
     ]  # fmt: skip
-    n_peers = {"open": len(peers.OPEN_PEERS), "cost": len(peers.COST_PEERS)}
+    n_peers = {"open": len(peers.OPEN_PEERS), "open_out": len(peers.OPEN_INTO_PEERS),
+               "cost": len(peers.COST_PEERS)}
     for w in doc["workloads"]:
-        assert w["avll"]["rate"] > 0 and len(w["peers"]) == n_peers[w["key"].split("_")[0]]
+        kind = "open_out" if w["key"].endswith("_out") else w["key"].split("_")[0]
+        assert w["avll"]["rate"] > 0 and len(w["peers"]) == n_peers[kind]
         assert all(p["max_rel_diff"] <= 1e-9 for p in w["peers"])
         assert w["ratio"] == pytest.approx(w["avll"]["rate"] / max(p["rate"] for p in w["peers"]))
+        lo, hi = w["ratio_range"]
+        assert lo <= w["ratio_median"] <= hi and w["paired_rounds"] >= 1
+        if w["target"] is not None:
+            assert w["met"] == (w["ratio_median"] >= w["target"])
         assert all(r["faults_per_call"] >= 0 for r in [w["avll"], *w["peers"]])
     assert [s["threads"] for s in doc["scaling"]] == [[1, 2], [1, 2]]
     assert doc["meta"]["allocator"] == "allocator left as it is"

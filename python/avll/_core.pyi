@@ -40,6 +40,7 @@ def simulate(
     command: npt.NDArray[np.float64],
     dt: float,
     init: str = "rest",
+    out: npt.NDArray[np.float64] | None = None,
 ) -> npt.NDArray[np.float64]: ...
 def simulate_full(
     model: str,
@@ -53,6 +54,7 @@ def simulate_full(
     effects: list[str] = ...,
     effect_params: list[float] = ...,
     exo: dict[str, npt.NDArray[np.float64]] = ...,
+    out: Any = None,
 ) -> dict[str, npt.NDArray[np.float64]]: ...
 def closed_loop(
     model: str,
@@ -69,6 +71,7 @@ def closed_loop(
     effects: list[str] = ...,
     effect_params: list[float] = ...,
     exo: dict[str, npt.NDArray[np.float64]] = ...,
+    out: Any = None,
 ) -> dict[str, npt.NDArray[np.float64]]: ...
 def platoon(
     model: str,
@@ -81,6 +84,7 @@ def platoon(
     tg: float,
     gmin: float,
     followers: int,
+    out: Any = None,
 ) -> dict[str, npt.NDArray[np.float64]]: ...
 def batch_cost(
     model: str,
@@ -93,6 +97,7 @@ def batch_cost(
     init: str = "rest",
     closed_loop: bool = False,
     threads: int = 0,
+    out: npt.NDArray[np.float64] | None = None,
 ) -> npt.NDArray[np.float64]: ...
 def simulate_batch(
     model: str,
@@ -105,7 +110,14 @@ def simulate_batch(
     init: str = "rest",
     closed_loop: bool = False,
     threads: int = 0,
+    out: npt.NDArray[np.float64] | None = None,
 ) -> dict[str, npt.NDArray[np.float64]]: ...
+
+# --- output arrays (rust/bindings/outbuf.rs) ---
+@final
+class OutputBlock: ...
+
+def output_cache(limit: int | None = None) -> tuple[int, int]: ...
 
 # --- calibration (rust/bindings/ga.rs) ---
 def calibrate(

@@ -23,6 +23,26 @@ an array of NaN for such a model. A closed loop whose lower level is stable but 
 car-following loop diverges (unstable upper-level gains) is a legitimate result: its
 trajectory is NaN from the divergence on.
 
+Output arrays (numpy's ``out=``). :func:`simulate`, :func:`simulate_full`,
+:func:`closed_loop`, :func:`platoon`, :func:`batch_cost` and :func:`simulate_batch`
+take ``out=``: arrays the caller allocated once, written in place (every element) and
+referred to by the result, so that a loop of calls pays for no new memory. Each must be
+a float64 numpy array of the result's shape, C-contiguous (for the platoon: laid out
+as the platoon returns its arrays, see :func:`platoon`), writeable, and share no memory
+with the inputs or the other outputs; anything else is a ``ValueError`` naming the
+argument. The values are bit-identical to those of the call without ``out=``. When a
+call raises after it started writing (e.g. a diverged open-loop response), the
+contents of ``out`` are unspecified.
+
+Without ``out=``, the arrays of a trajectory (128 KiB and more each), and any output
+beyond 32 MiB, live in blocks avll recycles: when numpy frees such an array, its block
+goes back to a cache of at most 128 MiB (oldest blocks released first), and the next
+call takes it with its pages already mapped instead of page-faulting fresh ones;
+fresh blocks of 2 MiB and more are advised for transparent huge pages. A single
+smaller output (:func:`simulate`) is an ordinary numpy array, which glibc already
+recycles. :func:`output_cache` reports or bounds the cache (``limit=0``
+empties and disables it). Nothing process-wide (allocator settings) is changed.
+
 Memory. :func:`platoon` and :func:`batch_cost` estimate the bytes their outputs need
 (``followers x samples x 4 arrays x 8 bytes``, twice while copying; ``P x R x 8``) and
 refuse a call that cannot fit in the available memory with a ``ValueError`` that says
@@ -47,6 +67,7 @@ from .models import LowerLevelModel, UpperLevel, model_class
 
 __all__ = [
     "Trajectory",
+    "output_cache",
     "simulate",
     "simulate_full",
     "closed_loop",
@@ -67,6 +88,84 @@ class Trajectory:
     command: np.ndarray
 
 
+def output_cache(limit: int | None = None) -> tuple[int, int]:
+    """Bytes of freed output blocks avll keeps for reuse (see the module doc) and
+    their bound; ``limit`` (bytes) sets the bound first, ``0`` releases every block
+    and keeps none from then on."""
+    if limit is not None:
+        limit = check_int(limit, "limit", min=0)
+    return _core.output_cache(limit)
+
+
+def _out_array(name: str, arr: Any, shape: tuple[int, ...], order: str = "C") -> np.ndarray:
+    """A caller's output array, checked: numpy float64 of ``shape``, contiguous in
+    ``order`` ("C", or "F" for the platoon's transposed layout), writeable."""
+    lay = ("C-contiguous" if order == "C" else
+           f"Fortran-ordered (e.g. np.empty({shape[::-1]}).T)")
+    want = f"a float64 numpy array of shape {shape}, {lay} and writeable"
+    if not isinstance(arr, np.ndarray):
+        raise ValueError(f"{name}: must be {want}, got {type(arr).__name__}")
+    if arr.dtype != np.float64:
+        raise ValueError(f"{name}: must be {want}, got dtype {arr.dtype}")
+    if arr.shape != shape:
+        raise ValueError(f"{name}: must be {want}, got shape {arr.shape}")
+    if not (arr.flags.c_contiguous if order == "C" else arr.flags.f_contiguous):
+        raise ValueError(f"{name}: must be {want}, got a non-contiguous array")
+    if not arr.flags.writeable:
+        raise ValueError(f"{name}: must be {want}, got a read-only array")
+    return arr
+
+
+def _no_overlap(outs: Sequence[tuple[str, np.ndarray]], inputs: Sequence[np.ndarray]) -> None:
+    """``ValueError`` when an output array may share memory with an input or with
+    another output (numpy's bounds test)."""
+    for k, (name, o) in enumerate(outs):
+        for a in inputs:
+            if np.may_share_memory(o, a):
+                raise ValueError(f"{name}: shares memory with an input; pass a separate array")
+        for other, o2 in outs[k + 1 :]:
+            if np.may_share_memory(o, o2):
+                raise ValueError(f"{name}: shares memory with {other}; pass separate arrays")
+
+
+_FIELDS = ("a", "v", "x", "command")
+
+
+def _out_seq(out: Any) -> tuple[Any, ...]:
+    """The four output arrays (a, v, x, command) of a :class:`Trajectory` or a
+    sequence of four (each array is checked by the binding)."""
+    if isinstance(out, Trajectory):
+        return (out.a, out.v, out.x, out.command)
+    if isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__") or len(out) != 4:
+        raise ValueError("out: must be an avll.Trajectory or a sequence of four arrays "
+                         "(a, v, x, command)")
+    return tuple(out)
+
+
+def _out_traj(
+    out: Any, shape: tuple[int, ...], inputs: Sequence[np.ndarray], order: str = "C"
+) -> tuple[np.ndarray, ...]:
+    """:func:`_out_seq`, each array checked here (see :func:`_out_array`)."""
+    arrs = _out_seq(out)
+    names = [f"out[{k}] ({f})" for k, f in enumerate(_FIELDS)]
+    checked = tuple(_out_array(n, a, shape, order) for n, a in zip(names, arrs, strict=True))
+    _no_overlap(list(zip(names, checked, strict=True)), inputs)
+    return checked
+
+
+def _traj_out(out: Any, arrs: tuple[np.ndarray, ...]) -> Trajectory:
+    """The result of a call with ``out=``: the caller's Trajectory itself, or a new one
+    over the caller's arrays."""
+    return out if isinstance(out, Trajectory) else Trajectory(*arrs)
+
+
+def _dt(dt: Any) -> float:
+    """``dt`` checked (a positive finite number), with a fast path for a float."""
+    if type(dt) is float and 0.0 < dt < math.inf:
+        return dt
+    return check_number(dt, "dt", positive=True)
+
+
 def _f64(name: str, x: Any) -> np.ndarray:
     if isinstance(x, (str, bytes)) or x is None:
         raise ValueError(f"{name}: expected an array of numbers, got {x!r:.40}")
@@ -83,6 +182,24 @@ def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     if not isinstance(model, LowerLevelModel):
         raise ValueError(f"model: expected an avll model object, got {type(model).__name__}")
     return model.name, model.values()
+
+
+#: The last model checked by :func:`_model_at`, with its ``dt``, name and values.
+_last: tuple[Any, float, str, list[float]] | None = None
+
+
+def _model_at(model: LowerLevelModel, dt: float) -> tuple[str, list[float]]:
+    """:func:`_model` and :func:`check_lower_level` at ``dt``, remembered for the last
+    model object (models are frozen: the same object has the same values), so that a
+    loop of calls on one model pays for them once."""
+    global _last
+    c = _last  # one read: another thread may replace it, never half of it
+    if c is not None and c[0] is model and c[1] == dt:
+        return c[2], c[3]
+    name, p = _model(model)
+    check_lower_level(model, dt)
+    _last = (model, dt, name, p)
+    return name, list(p)
 
 
 def _upper(upper: Any) -> UpperLevel:
@@ -130,18 +247,23 @@ def _finite_or_raise(model: LowerLevelModel, dt: float, *arrays: np.ndarray) -> 
                              "is out of range")
 
 
-def simulate(model: LowerLevelModel, command: Any, dt: float, *, init: str = "rest") -> np.ndarray:
+def simulate(
+    model: LowerLevelModel, command: Any, dt: float, *, init: str = "rest",
+    out: np.ndarray | None = None,
+) -> np.ndarray:
     """Open-loop response of ``model`` to ``command`` sampled every ``dt`` seconds.
 
     For an acceleration command the response is the acceleration; for a speed
     command, the speed. ``init`` is ``"rest"`` or ``"steady"`` (see the module doc).
-    An unstable lower level is a ``ValueError`` (see the module doc).
+    ``out``: a float64 array of the command's length to write the response into
+    (returned; see the module doc). An unstable lower level is a ``ValueError`` (see
+    the module doc).
     """
-    name, p = _model(model)
-    dt = check_number(dt, "dt", positive=True)
+    dt = _dt(dt)
     u = _f64("command", command)
-    check_lower_level(model, dt)
-    y = _core.simulate(name, p, u, dt, init)
+    name, p = _model_at(model, dt)
+    # `out` is checked by the binding (dtype, shape, layout, writeable, shared memory)
+    y = _core.simulate(name, p, u, dt, init, out)
     _finite_or_raise(model, dt, y)
     return y
 
@@ -155,18 +277,22 @@ def simulate_full(
     init: str = "rest",
     v0: float = 0.0,
     x0: float = 0.0,
+    out: Trajectory | Sequence[np.ndarray] | None = None,
 ) -> Trajectory:
     """Open-loop rollout with speed and position. For a speed command, ``a`` is the
-    time derivative of the simulated speed at each sample (right limit). An unstable
-    lower level is a ``ValueError`` (see the module doc)."""
+    time derivative of the simulated speed at each sample (right limit). ``out``: a
+    :class:`Trajectory` or four arrays (a, v, x, command) of the command's length to
+    write into (see the module doc). An unstable lower level is a ``ValueError``
+    (see the module doc)."""
     name, p = _model(model)
     dt = check_number(dt, "dt", positive=True)
     u = _f64("command", command)
     v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
+    arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
     check_lower_level(model, dt)
-    d = _core.simulate_full(name, p, u, dt, command_kind, init, v0, x0)
+    d = _core.simulate_full(name, p, u, dt, command_kind, init, v0, x0, out=arrs)
     _finite_or_raise(model, dt, d["a"], d["v"])
-    return Trajectory(**d)
+    return Trajectory(**d) if arrs is None else _traj_out(out, arrs)
 
 
 def closed_loop(
@@ -178,20 +304,27 @@ def closed_loop(
     *,
     v0: float,
     x0: float,
+    out: Trajectory | Sequence[np.ndarray] | None = None,
 ) -> Trajectory:
     """Car following behind a recorded leader: the upper law (Eq. 3) evaluated at the
     samples commands the lower level; the follower starts at speed ``v0`` and position
-    ``x0`` with the lower level at rest. An unstable lower level is a ``ValueError``; a
-    follower that diverges with a stable lower level (unstable upper-level gains) has a
-    trajectory that is NaN from the divergence on."""
-    name, p = _model(model)
+    ``x0`` with the lower level at rest. ``out``: a :class:`Trajectory` or four arrays
+    (a, v, x, command) of the leader's length to write into (see the module doc). An
+    unstable lower level is a ``ValueError``; a follower that diverges with a stable
+    lower level (unstable upper-level gains) has a trajectory that is NaN from the
+    divergence on."""
+    if not isinstance(model, LowerLevelModel):
+        _model(model)  # the error naming it
     up = _upper(upper)
-    dt = check_number(dt, "dt", positive=True)
+    dt = _dt(dt)
     lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
     v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
-    check_lower_level(model, dt)
-    d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0)
-    return Trajectory(**d)
+    if lv.size != lx.size:
+        raise ValueError(f"lead_v: length {lv.size} differs from lead_x's {lx.size}")
+    arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
+    name, p = _model_at(model, dt)
+    d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0, out=arrs)
+    return Trajectory(**d) if arrs is None else _traj_out(out, arrs)
 
 
 def platoon(
@@ -201,10 +334,16 @@ def platoon(
     dt: float,
     upper: UpperLevel,
     followers: int,
+    *,
+    out: Trajectory | Sequence[np.ndarray] | None = None,
 ) -> Trajectory:
     """``followers`` identical vehicles behind a recorded leader, each starting at the
     leader's initial speed and the equilibrium gap ``Gmin + Tg v``. Arrays are
-    (follower, sample). ``followers`` must be an integer >= 1; a platoon whose arrays
+    (follower, sample), laid out sample-major (Fortran order: each is the transpose
+    of a C-contiguous (sample, follower) array, the layout the stepping writes).
+    ``out``: a :class:`Trajectory` or four such (followers, samples) arrays to write
+    into, e.g. a platoon's earlier result or ``np.empty((samples, followers)).T``
+    (see the module doc). ``followers`` must be an integer >= 1; a platoon whose arrays
     cannot fit in memory is refused with a ``ValueError`` (simulate it in slices of
     followers: the last follower of a slice is the leader of the next). An unstable
     lower level is a ``ValueError``; a diverging follower (and every one behind it) is
@@ -212,18 +351,22 @@ def platoon(
     nf = check_int(followers, "followers", min=1)
     name, p = _model(model)
     up = _upper(upper)
-    dt = check_number(dt, "dt", positive=True)
+    dt = _dt(dt)
     lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
-    per = 2 * 4 * 8 * max(lx.size, 1)
-    need = float(nf) * per
-    check_memory(
-        need, f"platoon: followers={nf} x {lx.size} samples x 4 arrays x 8 bytes (twice while "
-        "copying)",
-        "simulate fewer followers per call (the last follower's x and v lead the next slice)",
-        per=per, unit="followers")
+    arrs = None if out is None else _out_traj(out, (nf, lx.size), [lx, lv], order="F")
+    if arrs is None:
+        per = 2 * 4 * 8 * max(lx.size, 1)
+        need = float(nf) * per
+        check_memory(
+            need, f"platoon: followers={nf} x {lx.size} samples x 4 arrays x 8 bytes (twice "
+            "while copying)",
+            "simulate fewer followers per call (the last follower's x and v lead the next "
+            "slice)",
+            per=per, unit="followers")
     check_lower_level(model, dt)
-    d = _core.platoon(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, nf)
-    return Trajectory(**d)
+    d = _core.platoon(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, nf,
+                      out=None if arrs is None else [a.T for a in arrs])
+    return Trajectory(**d) if arrs is None else _traj_out(out, arrs)
 
 
 def _concat(runs: Sequence[Run], attr: str, needed: bool) -> np.ndarray | None:
@@ -248,8 +391,10 @@ def batch_cost(
     closed_loop: bool = False,
     upper_free: Sequence[int] = (),
     threads: int = 0,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Per-run costs of many parameter sets: a (P, R) array.
+    """Per-run costs of many parameter sets: a (P, R) array (``out``, a float64 (P, R)
+    array to write into, when given; see the module doc).
 
     Each cost is ``wa MSE(a) + wv MSE(v) + wx MSE(x)`` over the run's samples (paper
     Eq. 6 with the default weights); Eq. 6 itself is the mean over runs. Open loop
@@ -266,13 +411,16 @@ def batch_cost(
     if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__len__"):
         raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
     nr = max(len(runs), 1)
+    if out is not None:
+        _out_array("out", out, (p.shape[0], len(runs)))
+        _no_overlap([("out", out)], [p])
     check_memory(8.0 * p.shape[0] * nr,
                  f"batch_cost: {p.shape[0]} parameter rows x {len(runs)} runs x 8 bytes",
                  "evaluate the parameter rows in slices", per=8.0 * nr, unit="rows")
     kw = pack_runs(
         runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
     )
-    return _core.batch_cost(cls.name, p, threads=nt, **kw)
+    return _core.batch_cost(cls.name, p, threads=nt, out=out, **kw)
 
 
 def params_2d(params: Any, name: str = "params") -> np.ndarray:
@@ -371,6 +519,7 @@ def simulate_batch(
     closed_loop: bool = False,
     upper_free: Sequence[int] = (),
     threads: int = 0,
+    out: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Simulates P parameter rows on R runs in one parallel call, exactly as the cost
     sees them (same drive, initial state, effects and free upper-level gains).
@@ -379,7 +528,9 @@ def simulate_batch(
     ``a``, ``v``, ``x`` (each a list over runs of (P, len(run)) arrays) and
     ``residual`` (simulated minus measured acceleration, same shapes). Rows the cost
     calls invalid or unstable are NaN; a closed loop that diverges is NaN after the
-    divergence.
+    divergence. ``out``: a float64 C-contiguous (3, P, T) array (``T`` the runs' total
+    length) to write a, v, x into, run after run; the lists then hold views of it
+    (``residual`` is new; see the module doc).
     """
     cls = model_class(model)
     p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
@@ -393,10 +544,14 @@ def simulate_batch(
         runs, weights=(1.0, *has), init=init, closed_loop=closed_loop, upper_free=upper_free
     )
     kw["weights"] = tuple(float(w) for w in weights)
-    d = _core.simulate_batch(cls.name, p, effects=list(effects), threads=int(threads), **kw)
+    if out is not None:
+        _out_array("out", out, (3, p.shape[0], int(kw["runs"].total)))
+        _no_overlap([("out", out)], [p])
+    d = _core.simulate_batch(cls.name, p, effects=list(effects), threads=int(threads), out=out,
+                             **kw)
     off = kw["runs"].offsets
-    out: dict[str, Any] = {}
+    res: dict[str, Any] = {}
     for k in ("a", "v", "x"):
-        out[k] = [d[k][:, off[j] : off[j + 1]] for j in range(len(runs))]
-    out["residual"] = [out["a"][j] - runs[j].a[None, :] for j in range(len(runs))]
-    return out
+        res[k] = [d[k][:, off[j] : off[j + 1]] for j in range(len(runs))]
+    res["residual"] = [res["a"][j] - runs[j].a[None, :] for j in range(len(runs))]
+    return res

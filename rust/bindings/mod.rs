@@ -8,6 +8,7 @@
 mod checks;
 mod effects;
 mod ga;
+mod outbuf;
 mod rollout;
 mod runs;
 mod stability;
@@ -64,6 +65,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     runs::register(m)?;
     rollout::register(m)?;
+    outbuf::register(m)?;
     effects::register(m)?;
     ga::register(m)?;
     stability::register(m)?;

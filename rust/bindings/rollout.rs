@@ -2,15 +2,17 @@
 //! rollout runs on the one kernel, `crate::sim`).
 
 use super::effects::{effects_of, Exo};
+use super::outbuf;
 use super::runs::RunSet;
 use super::{guard, slice1, slice2};
 use crate::effects::{AnyEffect, EffectList};
 use crate::model::{CommandKind, Linear, ModelKind};
 use crate::sim::rollout::{self, EffectsRef, Out, TimeMajor};
 use crate::sim::{CostSpec, Init, Upper};
+use numpy::ndarray::{Ix1, Ix2, Ix3};
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
-    PyUntypedArrayMethods,
+    IntoPyArray, PyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1,
+    PyReadonlyArray2, PyReadwriteArray, PyUntypedArrayMethods,
 };
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -92,9 +94,124 @@ fn model_params(model: &str) -> PyResult<Vec<&'static str>> {
     guard(|| Ok(ModelKind::from_name(model)?.params().to_vec()))
 }
 
-/// Open-loop response of a model to a command (see `avll.simulate`).
+/// A caller's output array (numpy's `out=`): float64 of the expected shape,
+/// C-contiguous; a `ValueError` naming the argument otherwise.
+fn out_arg<'py, D: numpy::ndarray::Dimension>(
+    name: &str,
+    obj: &Bound<'py, PyAny>,
+    shape: &[usize],
+) -> PyResult<Bound<'py, PyArray<f64, D>>> {
+    let want = format!(
+        "a float64 numpy array of shape {}, C-contiguous and writeable",
+        py_shape(shape)
+    );
+    let arr = obj.cast::<PyArray<f64, D>>().map_err(|_| {
+        let got = match obj.cast::<numpy::PyUntypedArray>() {
+            Ok(a) => format!("dtype {} (shape {})", a.dtype(), py_shape(a.shape())),
+            Err(_) => obj
+                .get_type()
+                .name()
+                .map(|n| n.to_string())
+                .unwrap_or_default(),
+        };
+        PyValueError::new_err(format!("{name}: must be {want}, got {got}"))
+    })?;
+    if arr.shape() != shape {
+        return Err(PyValueError::new_err(format!(
+            "{name}: must be {want}, got shape {}",
+            py_shape(arr.shape())
+        )));
+    }
+    if !arr.is_c_contiguous() {
+        return Err(PyValueError::new_err(format!(
+            "{name}: must be {want}, got a non-contiguous array"
+        )));
+    }
+    Ok(arr.clone())
+}
+
+/// A shape as Python prints it: `(5,)`, `(3, 4)`.
+fn py_shape(s: &[usize]) -> String {
+    match s {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            s.iter()
+                .map(|n| n.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// The name of output `i` of `n`: `out`, or `out[1] (v)` for the four arrays of a
+/// trajectory.
+fn out_label(name: &str, i: usize, n: usize) -> String {
+    match n {
+        1 => name.to_string(),
+        4 => format!("{name}[{i}] ({})", ["a", "v", "x", "command"][i]),
+        _ => format!("{name}[{i}]"),
+    }
+}
+
+/// Mutable borrows of output arrays, or a `ValueError` (read-only, or sharing
+/// memory with each other or an input).
+fn borrow_out<'py, D: numpy::ndarray::Dimension>(
+    name: &str,
+    arrs: &[Bound<'py, PyArray<f64, D>>],
+) -> PyResult<Vec<PyReadwriteArray<'py, f64, D>>> {
+    arrs.iter()
+        .enumerate()
+        .map(|(i, a)| {
+            a.try_readwrite().map_err(|e| {
+                let which = out_label(name, i, arrs.len());
+                PyValueError::new_err(match e {
+                    numpy::BorrowError::NotWriteable => {
+                        format!("{which}: must be writeable, got a read-only array")
+                    }
+                    _ => format!(
+                        "{which}: shares memory with another output or an input; pass \
+                         separate arrays"
+                    ),
+                })
+            })
+        })
+        .collect()
+}
+
+/// `K` caller arrays (a tuple of `K`) of one shape, checked by [`out_arg`].
+fn out_args<'py, D: numpy::ndarray::Dimension, const K: usize>(
+    name: &str,
+    obj: &Bound<'py, PyAny>,
+    shape: &[usize],
+) -> PyResult<[Bound<'py, PyArray<f64, D>>; K]> {
+    let items: Vec<Bound<'py, PyAny>> = obj
+        .try_iter()
+        .and_then(|it| it.collect::<PyResult<Vec<_>>>())
+        .map_err(|_| {
+            PyValueError::new_err(format!(
+                "{name}: must be an avll.Trajectory or a sequence of {K} arrays"
+            ))
+        })?;
+    if items.len() != K {
+        return Err(PyValueError::new_err(format!(
+            "{name}: must be an avll.Trajectory or a sequence of {K} arrays, got {}",
+            items.len()
+        )));
+    }
+    let v: Vec<_> = items
+        .iter()
+        .enumerate()
+        .map(|(i, o)| out_arg::<D>(&out_label(name, i, K), o, shape))
+        .collect::<PyResult<_>>()?;
+    Ok(v.try_into().unwrap_or_else(|_| unreachable!()))
+}
+
+/// Open-loop response of a model to a command (see `avll.simulate`), into `out`
+/// when given (returned).
 #[pyfunction]
-#[pyo3(signature = (model, params, command, dt, init = "rest"))]
+#[pyo3(signature = (model, params, command, dt, init = "rest", out = None))]
+#[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
     model: &str,
@@ -102,116 +219,53 @@ fn simulate<'py>(
     command: PyReadonlyArray1<'py, f64>,
     dt: f64,
     init: &str,
+    out: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let lin = linear(model, &params)?;
     let init = guard(|| Init::from_name(init))?;
     let u = slice1("command", &command)?;
-    // SAFETY: uninitialised (no page-zeroing pass); `simulate_into` writes every
-    // element before Python can see the array, and on an error it is dropped unseen.
-    let y = unsafe { PyArray1::<f64>::new(py, u.len(), false) };
+    let y = match &out {
+        Some(o) => out_arg::<Ix1>("out", o, &[u.len()])?,
+        // uninitialised: `simulate_into` writes every element before Python can see
+        // the array, and on an error it is dropped unseen
+        None => outbuf::empty1(py, u.len(), false),
+    };
     {
-        let mut w = y.readwrite();
-        let out = w.as_slice_mut()?;
+        let mut w = borrow_out("out", std::slice::from_ref(&y))?;
+        let out = w[0].as_slice_mut()?;
         py.detach(|| guard(|| rollout::simulate_into(&lin, u, dt, init, out)))?;
     }
     Ok(y)
 }
 
-/// Four new (rows, T) arrays a, v, x, command.
-type Arrays<'py> = [Bound<'py, PyArray2<f64>>; 4];
-
-/// Four new uninitialised (rows, T) arrays for the rollouts to fill.
-///
-/// Allocating through numpy without zeroing avoids a page-zeroing pass over every
-/// output (the first version spent up to half of a long rollout page-faulting fresh
-/// zeroed buffers). Every rollout that receives them writes each element (NaN after
-/// a divergence) before returning, and an error drops them unseen.
-fn arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> Arrays<'py> {
-    // SAFETY: see above: fully written before Python sees them.
-    std::array::from_fn(|_| unsafe { PyArray2::<f64>::new(py, [rows, t], false) })
+/// Four (T,) arrays a, v, x, command: the caller's (`out`, a sequence of four) or
+/// new uninitialised ones, which every rollout that receives them writes in full
+/// (NaN after a divergence) before returning; an error drops them unseen.
+fn four<'py>(
+    py: Python<'py>,
+    out: Option<&Bound<'py, PyAny>>,
+    t: usize,
+) -> PyResult<[Bound<'py, PyArray1<f64>>; 4]> {
+    match out {
+        Some(o) => out_args::<Ix1, 4>("out", o, &[t]),
+        None => Ok(std::array::from_fn(|_| outbuf::empty1(py, t, true))),
+    }
 }
 
-/// [`arrays`] starting on a 64-byte boundary (a cache line): views into numpy
-/// arrays 8 elements longer (the 8 spare elements zeroed). The platoon's lane
-/// groups store 4 doubles (32 bytes) at a time into rows of `followers` doubles;
-/// from malloc's 16-byte alignment, every other such store would straddle two
-/// cache lines.
-fn aligned_arrays<'py>(py: Python<'py>, rows: usize, t: usize) -> PyResult<Arrays<'py>> {
-    let n = rows * t;
-    let one = || -> PyResult<Bound<'py, PyArray2<f64>>> {
-        // SAFETY: the spare elements are zeroed below, the view is fully written
-        // before Python sees it (as `arrays`).
-        let base = unsafe { PyArray1::<f64>::new(py, n + 8, false) };
-        let k = {
-            let mut w = base.readwrite();
-            let s = w.as_slice_mut()?;
-            let k = s.as_ptr().align_offset(64).min(8);
-            s[..k].fill(0.0);
-            s[k + n..].fill(0.0);
-            k
-        };
-        let view = base.get_item(pyo3::types::PySlice::new(
-            py,
-            k as isize,
-            (k + n) as isize,
-            1,
-        ))?;
-        let view = view.cast_into::<PyArray1<f64>>()?;
-        view.reshape([rows, t])
-    };
-    Ok([one()?, one()?, one()?, one()?])
-}
-
-fn dict_of<'py>(py: Python<'py>, arrs: Arrays<'py>, flat: bool) -> PyResult<Bound<'py, PyDict>> {
+fn dict_of<'py, D: numpy::ndarray::Dimension>(
+    py: Python<'py>,
+    arrs: [Bound<'py, PyArray<f64, D>>; 4],
+    transpose: bool,
+) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     for (k, a) in ["a", "v", "x", "command"].into_iter().zip(arrs) {
-        if flat {
-            let n = a.len();
-            d.set_item(k, a.reshape([n; 1])?)?;
+        if transpose {
+            d.set_item(k, a.as_any().getattr("T")?)?;
         } else {
             d.set_item(k, a)?;
         }
     }
     Ok(d)
-}
-
-/// Runs `f` on mutable row slices of the four arrays (one `Out` per row).
-fn with_outs<R>(arrs: &Arrays<'_>, f: impl FnOnce(&mut [Out]) -> R) -> PyResult<R> {
-    let mut ws: Vec<_> = arrs.iter().map(|a| a.readwrite()).collect();
-    let [wa, wv, wx, wu] = &mut ws[..] else {
-        unreachable!()
-    };
-    let (sa, sv, sx, su) = (
-        wa.as_slice_mut()?,
-        wv.as_slice_mut()?,
-        wx.as_slice_mut()?,
-        wu.as_slice_mut()?,
-    );
-    let rows = arrs[0].shape()[0];
-    let t = arrs[0].shape()[1];
-    let mut outs: Vec<Out> = if t == 0 {
-        (0..rows)
-            .map(|_| Out {
-                a: &mut [],
-                v: &mut [],
-                x: &mut [],
-                u: None,
-            })
-            .collect()
-    } else {
-        sa.chunks_mut(t)
-            .zip(sv.chunks_mut(t))
-            .zip(sx.chunks_mut(t))
-            .zip(su.chunks_mut(t))
-            .map(|(((a, v), x), u)| Out {
-                a,
-                v,
-                x,
-                u: Some(u),
-            })
-            .collect()
-    };
-    Ok(f(&mut outs))
 }
 
 fn exo_slices<'a>(exo: &'a Exo<'_>) -> PyResult<Vec<(&'a str, &'a [f64])>> {
@@ -221,9 +275,9 @@ fn exo_slices<'a>(exo: &'a Exo<'_>) -> PyResult<Vec<(&'a str, &'a [f64])>> {
 }
 
 /// Open-loop rollout with speed and position (optionally with effects): dict of
-/// arrays a, v, x, command.
+/// arrays a, v, x, command (the caller's four `out` arrays when given).
 #[pyfunction]
-#[pyo3(signature = (model, params, command, dt, command_kind = "acceleration", init = "rest", v0 = 0.0, x0 = 0.0, effects = Vec::new(), effect_params = Vec::new(), exo = Exo::new()))]
+#[pyo3(signature = (model, params, command, dt, command_kind = "acceleration", init = "rest", v0 = 0.0, x0 = 0.0, effects = Vec::new(), effect_params = Vec::new(), exo = Exo::new(), out = None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate_full<'py>(
     py: Python<'py>,
@@ -238,6 +292,7 @@ fn simulate_full<'py>(
     effects: Vec<String>,
     effect_params: Vec<f64>,
     exo: Exo<'py>,
+    out: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let kind = guard(|| CommandKind::from_name(command_kind))?;
     let init = guard(|| Init::from_name(init))?;
@@ -245,34 +300,36 @@ fn simulate_full<'py>(
     let effs: Vec<AnyEffect> = effects_of(&effects, &effect_params, kind)?;
     let u = slice1("command", &command)?;
     let ex = exo_slices(&exo)?;
-    let arrs = arrays(py, 1, u.len());
-    with_outs(&arrs, |outs| {
-        let o = outs.iter_mut().next().map(|o| Out {
-            a: &mut *o.a,
-            v: &mut *o.v,
-            x: &mut *o.x,
+    let arrs = four(py, out.as_ref(), u.len())?;
+    {
+        let mut ws = borrow_out("out", &arrs)?;
+        let [wa, wv, wx, wu] = &mut ws[..] else {
+            unreachable!()
+        };
+        let o = Out {
+            a: wa.as_slice_mut()?,
+            v: wv.as_slice_mut()?,
+            x: wx.as_slice_mut()?,
             u: None,
-        });
+        };
+        let cmd = wu.as_slice_mut()?;
         let eff = EffectsRef {
             effects: &effs,
             exo: &ex,
         };
         py.detach(|| {
-            guard(|| match o {
-                Some(o) => rollout::simulate_full_into(&lin, &eff, kind, u, dt, init, v0, x0, o),
-                None => Ok(()),
-            })
-        })
-    })??;
-    let d = dict_of(py, arrs, true)?;
-    d.set_item("command", u.to_vec().into_pyarray(py))?;
-    Ok(d)
+            guard(|| rollout::simulate_full_into(&lin, &eff, kind, u, dt, init, v0, x0, o))
+        })?;
+        cmd.copy_from_slice(u);
+    }
+    dict_of(py, arrs, false)
 }
 
 /// Closed-loop car following behind a recorded leader (upper law Eq. 3), optionally
-/// with effects: dict of arrays a, v, x, command.
+/// with effects: dict of arrays a, v, x, command (the caller's four `out` arrays
+/// when given).
 #[pyfunction]
-#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, v0, x0, effects = Vec::new(), effect_params = Vec::new(), exo = Exo::new()))]
+#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, v0, x0, effects = Vec::new(), effect_params = Vec::new(), exo = Exo::new(), out = None))]
 #[allow(clippy::too_many_arguments)]
 fn closed_loop<'py>(
     py: Python<'py>,
@@ -290,6 +347,7 @@ fn closed_loop<'py>(
     effects: Vec<String>,
     effect_params: Vec<f64>,
     exo: Exo<'py>,
+    out: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let lin = linear(model, &params)?;
     let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
@@ -297,42 +355,34 @@ fn closed_loop<'py>(
     let lx = slice1("lead_x", &lead_x)?;
     let lv = slice1("lead_v", &lead_v)?;
     let ex = exo_slices(&exo)?;
-    let arrs = arrays(py, 1, lx.len());
-    with_outs(&arrs, |outs| {
+    let arrs = four(py, out.as_ref(), lx.len())?;
+    {
+        let mut ws = borrow_out("out", &arrs)?;
+        let [wa, wv, wx, wu] = &mut ws[..] else {
+            unreachable!()
+        };
+        let o = Out {
+            a: wa.as_slice_mut()?,
+            v: wv.as_slice_mut()?,
+            x: wx.as_slice_mut()?,
+            u: Some(wu.as_slice_mut()?),
+        };
         let eff = EffectsRef {
             effects: &effs,
             exo: &ex,
         };
-        py.detach(|| {
-            guard(|| match outs.iter_mut().next() {
-                Some(o) => rollout::closed_loop_into(
-                    &lin,
-                    &eff,
-                    &up,
-                    lx,
-                    lv,
-                    dt,
-                    v0,
-                    x0,
-                    Out {
-                        a: &mut *o.a,
-                        v: &mut *o.v,
-                        x: &mut *o.x,
-                        u: o.u.as_deref_mut(),
-                    },
-                ),
-                None => Ok(()),
-            })
-        })
-    })??;
-    dict_of(py, arrs, true)
+        py.detach(|| guard(|| rollout::closed_loop_into(&lin, &eff, &up, lx, lv, dt, v0, x0, o)))?;
+    }
+    dict_of(py, arrs, false)
 }
 
 /// Platoon of `followers` identical vehicles (time-major stepping): dict of
 /// (followers, T) arrays a, v, x, command — transposed views of sample-major (T,
-/// followers) arrays, the layout the stepping writes contiguously.
+/// followers) arrays, the layout the stepping writes contiguously. `out`: four
+/// C-contiguous (T, followers) arrays to write into instead (the transposes of the
+/// arrays a platoon returns).
 #[pyfunction]
-#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, followers))]
+#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, followers, out = None))]
 #[allow(clippy::too_many_arguments)]
 fn platoon<'py>(
     py: Python<'py>,
@@ -346,14 +396,20 @@ fn platoon<'py>(
     tg: f64,
     gmin: f64,
     followers: usize,
+    out: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let lin = linear(model, &params)?;
     let up = Upper { kg, kv, tg, gmin };
     let lx = slice1("lead_x", &lead_x)?;
     let lv = slice1("lead_v", &lead_v)?;
-    let arrs = aligned_arrays(py, lx.len(), followers)?;
+    // The blocks of `outbuf` are page-aligned: the lane groups' 32-byte stores into
+    // rows of `followers` doubles then never straddle two cache lines needlessly.
+    let arrs: [Bound<'py, PyArray2<f64>>; 4] = match &out {
+        Some(o) => out_args::<Ix2, 4>("out", o, &[lx.len(), followers])?,
+        None => std::array::from_fn(|_| outbuf::empty2(py, lx.len(), followers, true)),
+    };
     {
-        let mut ws: Vec<_> = arrs.iter().map(|a| a.readwrite()).collect();
+        let mut ws = borrow_out("out", &arrs)?;
         let [wa, wv, wx, wu] = &mut ws[..] else {
             unreachable!()
         };
@@ -368,18 +424,14 @@ fn platoon<'py>(
             guard(|| rollout::platoon_into(&lin, &EffectsRef::NONE, &up, lx, lv, dt, &mut tm))
         })?;
     }
-    let d = PyDict::new(py);
-    for (k, a) in ["a", "v", "x", "command"].into_iter().zip(arrs) {
-        d.set_item(k, a.as_any().getattr("T")?)?;
-    }
-    Ok(d)
+    dict_of(py, arrs, true)
 }
 
 /// Per-run costs (Eq. 6) of many parameter rows `[model | effects (canonical) | free
 /// upper]` over a run set, in parallel: a (P, R) array; invalid or unstable rows
 /// get `inf`.
 #[pyfunction]
-#[pyo3(signature = (model, params, runs, effects=Vec::new(), upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, threads=0))]
+#[pyo3(signature = (model, params, runs, effects=Vec::new(), upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, threads=0, out=None))]
 #[allow(clippy::too_many_arguments)]
 fn batch_cost<'py>(
     py: Python<'py>,
@@ -393,6 +445,7 @@ fn batch_cost<'py>(
     init: &str,
     closed_loop: bool,
     threads: usize,
+    out: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let spec = cost_spec(
         model,
@@ -407,19 +460,32 @@ fn batch_cost<'py>(
     let rs = runs.get();
     let refs = rs.refs();
     let r = refs.len();
-    let out = py.detach(|| {
+    let dst = match &out {
+        Some(o) => Some(out_arg::<Ix2>("out", o, &[p, r])?),
+        None => None,
+    };
+    let costs = py.detach(|| {
         guard(|| {
             crate::parallel::with_threads(threads, || crate::sim::batch_cost(&spec, rows, &refs))?
         })
     })?;
-    out.into_pyarray(py).reshape([p, r])
+    match dst {
+        Some(d) => {
+            // (P, R) values: the copy is negligible next to the P x R rollouts
+            borrow_out("out", std::slice::from_ref(&d))?[0]
+                .as_slice_mut()?
+                .copy_from_slice(&costs);
+            Ok(d)
+        }
+        None => costs.into_pyarray(py).reshape([p, r]),
+    }
 }
 
 /// Simulated acceleration, speed and position of every parameter row on every run
 /// of a run set, as the cost sees them: dict of (P, T) arrays a, v, x (run `r` at
 /// `runs.offsets[r]`); rows the cost calls invalid or unstable are NaN.
 #[pyfunction]
-#[pyo3(signature = (model, params, runs, effects=Vec::new(), upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, threads=0))]
+#[pyo3(signature = (model, params, runs, effects=Vec::new(), upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, threads=0, out=None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate_batch<'py>(
     py: Python<'py>,
@@ -433,6 +499,7 @@ fn simulate_batch<'py>(
     init: &str,
     closed_loop: bool,
     threads: usize,
+    out: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let spec = cost_spec(
         model,
@@ -447,12 +514,15 @@ fn simulate_batch<'py>(
     let rs = runs.get();
     let refs = rs.refs();
     let t = rs.len_total();
-    // SAFETY: `simulate_batch` writes every element (NaN for invalid rows).
-    let out: [Bound<'py, PyArray3<f64>>; 1] =
-        [unsafe { PyArray3::<f64>::new(py, [3, p, t], false) }];
+    // New arrays are uninitialised: `simulate_batch` writes every element (NaN for
+    // invalid rows).
+    let out: [Bound<'py, PyArray3<f64>>; 1] = match &out {
+        Some(o) => [out_arg::<Ix3>("out", o, &[3, p, t])?],
+        None => [outbuf::empty3(py, [3, p, t], false)],
+    };
     {
-        let mut w = out[0].readwrite();
-        let s = w.as_slice_mut()?;
+        let mut w = borrow_out("out", &out)?;
+        let s = w[0].as_slice_mut()?;
         let (a, rest) = s.split_at_mut(p * t);
         let (v, x) = rest.split_at_mut(p * t);
         py.detach(|| {
