@@ -34,6 +34,7 @@ import numpy as np
 
 from . import _core
 from . import stability as S
+from ._limits import check_int, check_memory, check_threads
 from .models import LowerLevelModel
 
 __all__ = [
@@ -80,6 +81,22 @@ def _chunk_sizes(chunks: Mapping[str, int], shape: tuple[int, int, int]) -> tupl
     return tuple(out[d] for d in DIMS)
 
 
+def _point_bytes(order: int) -> float:
+    """Peak bytes per grid point of one map computation: the uint8 code for a Padé
+    map; the three float64 meshgrid axes, the code and the settled flag for the exact
+    delay (``order == 0``)."""
+    return 1.0 if order else 3 * 8.0 + 2.0
+
+
+def _block_memory(what: str, points: float, order: int, hint: str) -> None:
+    per = _point_bytes(order)
+    check_memory(points * per, f"{what}: {points:.0f} points x {per:g} bytes", hint,
+                 per=per, unit="points")
+
+
+_CHUNK_HINT = "use smaller chunks (e.g. chunks={'kg': 200, 'Tg': 200})"
+
+
 def _map_block(
     model_name: str,
     params: list[float],
@@ -97,6 +114,9 @@ def _map_block(
     k = np.array(kg[loc[0][0] : loc[0][1]], dtype=np.float64)
     t = np.array(tg[loc[1][0] : loc[1][1]], dtype=np.float64)
     v = np.array(kv[loc[2][0] : loc[2][1]], dtype=np.float64)
+    # checked where the chunk is computed (a worker may have less memory than the client)
+    _block_memory(f"map_dataset: a chunk of {k.size} kg x {t.size} Tg x {v.size} kv",
+                  float(k.size) * t.size * v.size, order, _CHUNK_HINT)
     if order == 0:
         g = [np.ascontiguousarray(a.ravel()) for a in np.meshgrid(k, t, v, indexing="ij")]
         codes, _ = _core.delay_points(model_name, params, g[0], g[1], g[2], budget, threads)
@@ -138,11 +158,13 @@ def map_dataset(
     name, p = S._model(model)
     coords = {"kg": kg_a, "Tg": tg_a, "kv": kv_a}
     attrs = _map_attrs(model, pade_order)
+    budget = check_int(budget, "budget", min=1)
     if chunks is None:
-        th = 0 if threads is None else int(threads)
-        if th < 0:
-            raise ValueError(f"threads: must be >= 0, got {threads}")
+        th = check_threads(0 if threads is None else threads)
         if order == 0:
+            _block_memory(f"map_dataset: {kg_a.size} kg x {tg_a.size} Tg x {kv_a.size} kv",
+                          float(kg_a.size) * tg_a.size * kv_a.size, order,
+                          "pass chunks= to compute it chunk by chunk, or split the grid")
             g = np.meshgrid(kg_a, tg_a, kv_a, indexing="ij")
             codes, _ = S.exact_delay_codes(model, *g, threads=th, budget=budget)
             data = codes.reshape(g[0].shape)
@@ -152,11 +174,12 @@ def map_dataset(
     import dask.array as da
     from dask.base import tokenize
 
-    th = 1 if threads is None else int(threads)
-    if th < 0:
-        raise ValueError(f"threads: must be >= 0, got {threads}")
+    th = check_threads(1 if threads is None else threads)
     shape = (kg_a.size, tg_a.size, kv_a.size)
     cs = _chunk_sizes(chunks, shape)
+    # one chunk must fit here too (a local scheduler computes it in this process)
+    _block_memory(f"map_dataset: a chunk of {cs[0]} kg x {cs[1]} Tg x {cs[2]} kv",
+                  float(cs[0]) * cs[1] * cs[2], order, _CHUNK_HINT)
     tok = tokenize(name, p, kg_a, tg_a, kv_a, order, budget)
     arr = da.map_blocks(
         _map_block,
@@ -353,6 +376,9 @@ def _sweep_task(
 ) -> Any:
     name, p = S._model(model)
     kg, tg, kv = (np.array(a, dtype=np.float64) for a in (kg, tg, kv))
+    _block_memory(f"sweep: one map of {kg.size} kg x {tg.size} Tg x {kv.size} kv on a worker",
+                  float(kg.size) * tg.size * kv.size, S._pade_arg(order),
+                  "split the grid (e.g. a few kv values per call) and concatenate")
     codes = _map_block(
         name, p, kg, tg, kv, S._pade_arg(order), threads, S.EXACT_BUDGET,
         block_info={None: {"array-location": [(0, kg.size), (0, tg.size), (0, kv.size)]}},
@@ -395,10 +421,22 @@ def sweep(
         raise ValueError("pade_orders: no orders given")
     if reduce not in (None, "thresholds"):
         raise ValueError(f"reduce: must be None or 'thresholds', got {reduce!r}")
+    threads = check_threads(threads)
     tasks = [(m, o) for m in ms for o in orders]
+    points = float(kg_a.size) * tg_a.size * kv_a.size
+    hint = "split the grid (e.g. a few kv values per call) and concatenate"
+    # one task's map on a worker, before any cluster is started or contacted
+    _block_memory(f"sweep: one map of {kg_a.size} kg x {tg_a.size} Tg x {kv_a.size} kv",
+                  points, 0 if None in orders else 1, hint)
+    if reduce is None:
+        # the gathered maps and their stacked copy, here
+        check_memory(2.0 * points * len(tasks),
+                     f"sweep: {len(ms)} members x {len(orders)} orders x {points:.0f} points "
+                     f"gathered and stacked (2 bytes per point)",
+                     f"{hint}, or pass reduce='thresholds'")
     with _ClientScope(client) as c:
         futs = [
-            c.submit(_sweep_task, m, kg_a, tg_a, kv_a, o, int(threads), reduce, pure=False)
+            c.submit(_sweep_task, m, kg_a, tg_a, kv_a, o, threads, reduce, pure=False)
             for m, o in tasks
         ]
         res = c.gather(futs)
@@ -521,6 +559,15 @@ _PROBLEM_KW = ("bounds", "closed_loop", "upper_free", "weights", "init")
 _RUN_KW = ("initial", "target")
 
 
+def _problem_kw(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The problem keywords of :func:`avll.calibrate_many` in ``kwargs``, with its
+    defaults."""
+    pk: dict[str, Any] = {"bounds": None, "closed_loop": False, "upper_free": (),
+                          "weights": (1.0, 0.0, 0.0), "init": "rest"}
+    pk.update({k: kwargs[k] for k in _PROBLEM_KW if k in kwargs})
+    return pk
+
+
 def _calibrate_block(
     model: Any, runs: list[Any], block: list[tuple[int, list[Any]]], seed: int, threads: int,
     kwargs: dict[str, Any],
@@ -532,11 +579,8 @@ def _calibrate_block(
 
     from .calibrate import _per_run, _problem, _result, _run, _subset_indices
 
-    pk: dict[str, Any] = {"bounds": None, "closed_loop": False, "upper_free": (),
-                          "weights": (1.0, 0.0, 0.0), "init": "rest"}
-    pk.update({k: kwargs[k] for k in _PROBLEM_KW if k in kwargs})
     ga = {k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW}
-    prob = _problem(model, runs, **pk)
+    prob = _problem(model, runs, **_problem_kw(kwargs))
     out = []
     for k, sub in block:
         idx = _subset_indices(prob.runs, sub, k)
@@ -572,13 +616,18 @@ def calibrate_many_distributed(
     results are the same. ``kwargs`` are those of :func:`avll.calibrate_many` (bounds,
     closed_loop, upper_free, weights, init, initial, target and GA options; one start
     per problem; no progress bar)."""
+    from .calibrate import _ga_kwargs, _ga_memory, _problem
+    from ._limits import check_seed
+
     for bad in ("starts", "progress"):
         if bad in kwargs:
             v = kwargs.pop(bad)
-            if (bad == "starts" and int(v) != 1) or (bad == "progress" and v):
+            if (bad == "starts" and check_int(v, "starts", min=1) != 1) or (
+                    bad == "progress" and v):
                 raise ValueError(f"{bad}: not supported by calibrate_many_distributed")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed: must be a non-negative integer, got {seed!r}")
+    seed = check_seed(seed)
+    threads = check_threads(threads)
+    batch = check_int(batch, "batch", min=1)
     runs = list(runs)
     if isinstance(subsets, str):
         if subsets != "per_run":
@@ -588,14 +637,18 @@ def calibrate_many_distributed(
         subs = [list(s) for s in subsets]
     if not subs:
         raise ValueError("subsets: no problems given")
-    if isinstance(batch, bool) or int(batch) < 1:
-        raise ValueError(f"batch: must be an integer >= 1, got {batch!r}")
+    # here, before any cluster is contacted: every keyword known (a misspelt one is an
+    # error, not a remote traceback or a silently ignored option), the problem valid,
+    # and a task's populations within this machine's memory
+    ga = _ga_kwargs({k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW})
+    prob = _problem(model, runs, **_problem_kw(kwargs))
+    _ga_memory(prob, min(batch, len(subs)), ga)
     items = list(enumerate(subs))
-    blocks = [items[i : i + int(batch)] for i in range(0, len(items), int(batch))]
+    blocks = [items[i : i + batch] for i in range(0, len(items), batch)]
     with _ClientScope(client) as c:
         runs_f = c.scatter(runs, broadcast=True)
         futs = [
-            c.submit(_calibrate_block, model, runs_f, b, int(seed), int(threads), kwargs,
+            c.submit(_calibrate_block, model, runs_f, b, seed, threads, kwargs,
                      pure=False)
             for b in blocks
         ]
@@ -618,15 +671,24 @@ def bootstrap_distributed(
     """:func:`avll.bootstrap` with the resamples calibrated on a ``dask.distributed``
     client (:func:`calibrate_many_distributed`): the same resamples (drawn from
     ``seed``) and the same seeds, so the same :class:`avll.Bootstrap`."""
+    from ._limits import check_number, check_seed
     from .calibrate import Bootstrap
 
-    if int(n) < 2:
-        raise ValueError(f"n: must be >= 2, got {n}")
+    n = check_int(n, "n", min=2)
+    level = check_number(level, "level")
     if not 0 < level < 1:
         raise ValueError(f"level: must be in (0, 1), got {level}")
+    seed = check_seed(seed)
     runs = list(runs)
-    rng = np.random.default_rng(int(seed))
-    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(int(n))]
+    if not runs:
+        raise ValueError("runs: no runs given")
+    # the resample lists (Python ints), as avll.bootstrap estimates them; the GA's own
+    # estimate follows in calibrate_many_distributed
+    check_memory(80.0 * n * len(runs), f"bootstrap_distributed: n={n} resamples x "
+                 f"{len(runs)} runs", "use fewer resamples per call and pool the samples",
+                 per=80.0 * len(runs), unit="resamples")
+    rng = np.random.default_rng(seed)
+    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(n)]
     res = calibrate_many_distributed(model, runs, subsets, client=client, seed=seed,
                                      batch=batch, threads=threads, **kwargs)
     names = tuple(res[0].params) + ("dc_gain",)
