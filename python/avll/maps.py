@@ -4,12 +4,14 @@
   ``("kg", "Tg", "kv")`` and the model, Padé order and code meanings as attributes.
   With ``chunks`` it is Dask-backed: every chunk is computed by the Rust kernel
   (``dask.array.map_blocks``) on the current Dask scheduler or
-  ``distributed.Client`` when it is needed, so ``.to_zarr(...)`` streams a map larger
-  than memory with memory bounded by a few chunks.
+  ``distributed.Client`` when it is needed, so :func:`write_map` streams a map
+  larger than memory to Zarr with memory bounded by a few chunks (and marks the store
+  complete when the last chunk is written; a plain ``.to_zarr`` does not).
 * :func:`map_thresholds`: the thresholds of a map (eager or Dask-backed) by
   reductions over the chunks, without materialising the map.
 * :func:`write_map` / :func:`open_map`: Zarr or netCDF files (written to a temporary
-  name, then renamed).
+  name, then renamed; a Zarr store carries a completeness marker written last, and
+  :func:`open_map` refuses a store without it).
 * :func:`sweep`, :func:`calibrate_many_distributed`, :func:`min_stable_tg_samples`:
   many maps (models × Padé orders × parameter samples), many calibrations and many
   infima on a ``dask.distributed`` client (a local cluster by default), with the same
@@ -43,6 +45,7 @@ __all__ = [
     "map_thresholds",
     "write_map",
     "open_map",
+    "COMPLETE_MARKER",
     "sweep",
     "stability_probability",
     "min_stable_tg_samples",
@@ -147,8 +150,10 @@ def map_dataset(
     Dask-backed and nothing is computed until it is needed: every chunk is computed
     by the Rust kernel with ``threads`` threads (default 1 per chunk, so the
     scheduler's workers give the parallelism) on the current Dask scheduler or
-    client. ``.to_zarr(path)`` (or :func:`write_map`) then streams it to disk with
-    memory bounded by the chunks in flight. The codes are the same as the eager
+    client. :func:`write_map` then streams it to a Zarr store with memory bounded by
+    the chunks in flight, and marks the store complete once every chunk is written
+    (:func:`open_map` refuses a store without the mark; a plain ``.to_zarr`` writes
+    none, so its interrupted output would read as a map with zeros in the holes). The codes are the same as the eager
     map's, bit for bit.
     """
     import xarray as xr
@@ -254,12 +259,90 @@ def _format(path: str, fmt: str | None) -> str:
     return fmt
 
 
+#: The completeness marker of a Zarr store written by :func:`write_map`: an empty Zarr
+#: group of this name in the store's root (its attributes say who wrote it and the
+#: variables' shapes), created after every chunk and the metadata are on disk. xarray
+#: does not read groups, so copying the map with ``.to_zarr`` does not copy the mark.
+#: :func:`open_map` refuses a Zarr store without it.
+COMPLETE_MARKER = "avll_complete"
+
+
+def _remove_tree(path: str) -> None:
+    """Removes a folder, also when a straggling writer recreates it meanwhile."""
+    import time
+
+    for _ in range(20):
+        shutil.rmtree(path, ignore_errors=True)
+        if not os.path.exists(path):
+            time.sleep(0.05)
+            if not os.path.exists(path):
+                return
+    shutil.rmtree(path, ignore_errors=True)  # pragma: no cover - a writer that never stops
+
+
+def _to_zarr(ds: Any, path: str) -> None:
+    """``ds.to_zarr(path)``; a Dask-backed dataset on the default threaded scheduler
+    runs on a thread pool that is drained (the chunks in flight finished) before this
+    returns or raises, so no chunk is written into ``path`` after a Ctrl-C."""
+    lazy = any(hasattr(v.data, "dask") for v in ds.variables.values())
+    if lazy:
+        import dask
+        import dask.threaded
+        from dask.base import get_scheduler
+
+        sched = get_scheduler()
+        if sched is None or sched is dask.threaded.get:
+            from concurrent.futures import ThreadPoolExecutor
+
+            from . import _atomic
+
+            pool = ThreadPoolExecutor(max_workers=os.cpu_count() or 1)
+            try:
+                with dask.config.set(scheduler="threads", pool=pool):
+                    ds.to_zarr(path, mode="w", consolidated=False)
+            finally:
+                with _atomic.deferred_sigint():
+                    pool.shutdown(wait=True, cancel_futures=True)
+            return
+    ds.to_zarr(path, mode="w", consolidated=False)
+
+
+def _mark_complete(store: str, ds: Any) -> None:
+    import zarr
+
+    root = zarr.open_group(store, mode="r+")
+    root.create_group(COMPLETE_MARKER, attributes={
+        "writer": "avll.write_map", "complete": True,
+        "variables": {str(k): [int(n) for n in v.shape] for k, v in ds.data_vars.items()},
+    })
+
+
+def _is_marked(store: str) -> bool:
+    import zarr
+
+    try:
+        root = zarr.open_group(store, mode="r")
+        g = root[COMPLETE_MARKER]
+    except (KeyError, FileNotFoundError, ValueError, TypeError, OSError):
+        return False
+    return isinstance(g, zarr.Group) and g.attrs.get("complete") is True
+
+
 def write_map(data: Any, path: str | os.PathLike[str], format: str | None = None) -> str:
     """Writes a labelled map, boundary or dataset to Zarr (a directory) or netCDF
     (``format`` from the suffix ``.zarr`` / ``.nc`` unless given), through a temporary
     name renamed into place. A Dask-backed map is streamed chunk by chunk. Returns
-    the path."""
+    the path.
+
+    A Zarr store gets the completeness marker :data:`COMPLETE_MARKER` once every chunk
+    is written, and :func:`open_map` refuses a store without it: write Zarr maps with
+    this function rather than ``.to_zarr``, whose interrupted output opens as a
+    complete map with the missing chunks read as 0 ("locally unstable"). On Ctrl-C
+    (or any error) the temporary store is removed and an existing ``path`` is left as
+    it was."""
     import xarray as xr
+
+    from . import _atomic
 
     p = os.fspath(path)
     fmt = _format(p, format)
@@ -271,36 +354,56 @@ def write_map(data: Any, path: str | os.PathLike[str], format: str | None = None
         raise ValueError(f"data: expected an xarray DataArray or Dataset, got {type(data)}")
     parent = os.path.dirname(os.path.abspath(p)) or "."
     if fmt == "zarr":
-        tmp = tempfile.mkdtemp(prefix=".avll-", suffix=".zarr", dir=parent)
+        if os.path.exists(p) and not os.path.isdir(p):
+            raise ValueError(f"path: {p} exists and is not a folder (a Zarr store is one)")
+        with _atomic.deferred_sigint():
+            tmp = tempfile.mkdtemp(prefix=".avll-", suffix=".zarr", dir=parent)
         try:
-            ds.to_zarr(tmp, mode="w", consolidated=False)
-            if os.path.isdir(p):
-                shutil.rmtree(p)
-            os.replace(tmp, p)
+            _to_zarr(ds, tmp)
+            _mark_complete(tmp, ds)
+            with _atomic.deferred_sigint():
+                if os.path.isdir(p):
+                    shutil.rmtree(p)
+                os.replace(tmp, p)
         except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
+            with _atomic.deferred_sigint():
+                _remove_tree(tmp)
             raise
     else:
-        fd, tmp = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
-        os.close(fd)
+        with _atomic.deferred_sigint():
+            fd, tmp = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
+            os.close(fd)
         try:
             ds.to_netcdf(tmp, engine="h5netcdf")
             os.replace(tmp, p)
         except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+            with _atomic.deferred_sigint():
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
             raise
     return p
 
 
 def open_map(path: str | os.PathLike[str], format: str | None = None) -> Any:
     """Opens what :func:`write_map` wrote: a DataArray when the file holds one
-    variable, else the Dataset (lazily for Zarr)."""
+    variable, else the Dataset (lazily for Zarr). A Zarr store without the
+    completeness marker of :func:`write_map` (one written by ``.to_zarr``, or whose
+    writing was interrupted) is refused with a ``ValueError``."""
     import xarray as xr
 
     p = os.fspath(path)
     fmt = _format(p, format)
     if fmt == "zarr":
+        if not os.path.isdir(p):
+            raise ValueError(f"path: {p} is not a Zarr store (no such folder)")
+        if not _is_marked(p):
+            raise ValueError(
+                f"path: {p} has no completeness marker (the group {COMPLETE_MARKER!r}): it "
+                "was not "
+                "written by avll.write_map, or its writing was interrupted, so chunks may "
+                "be missing (a missing chunk reads as 0, 'locally unstable'); write it "
+                "again with avll.write_map"
+            )
         ds = xr.open_zarr(p, consolidated=False)
     else:
         ds = xr.load_dataset(p, engine="h5netcdf")
