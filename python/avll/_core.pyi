@@ -132,6 +132,8 @@ def derive_seed(seed: int, k: int) -> int: ...
 
 # --- stability (rust/bindings/stability.rs) ---
 PADE_MAX_ORDER: int
+MAX_SCAN: int
+MAX_GRID: int
 
 def stability_map(
     model: str,
