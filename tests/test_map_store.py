@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from signal_helpers import SIGINT_DEFAULT
 
 import avll
 from avll import maps as avll_maps
-from signal_helpers import SIGINT_DEFAULT
 
 pytest.importorskip("zarr")
 pytest.importorskip("dask")

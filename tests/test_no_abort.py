@@ -59,6 +59,11 @@ ABORTING = {
         "block_info={None: {'array-location': [(0, 3000), (0, 3000), (0, 3000)]}})"),
     "map_dataset_exact_eager": ("avll.map_dataset(m, np.linspace(0.1, 1, 1000), "
                                 "np.linspace(0, 15, 1000), np.linspace(0, 1, 1000), None)"),
+    # numpy allocations that ended in MemoryError (no estimate)
+    "pade_error_map": ("avll.pade_error_map(m, np.linspace(0.1, 1, 1000), np.linspace(0, 15, "
+                       "1000), np.linspace(0, 1, 200))"),
+    "stability_probability": ("avll.stability_probability([m] * 50, np.linspace(0.1, 1, 1000), "
+                              "np.linspace(0, 15, 1000), np.linspace(0, 1, 50))"),
     # distributed work: refused before any cluster is contacted (no server at port 9)
     "sweep": ("avll.sweep([m], np.linspace(0.1, 1, 3000), np.linspace(0, 15, 3000), "
               "np.linspace(0, 1, 3000), client='tcp://127.0.0.1:9')"),

@@ -153,8 +153,8 @@ def map_dataset(
     client. :func:`write_map` then streams it to a Zarr store with memory bounded by
     the chunks in flight, and marks the store complete once every chunk is written
     (:func:`open_map` refuses a store without the mark; a plain ``.to_zarr`` writes
-    none, so its interrupted output would read as a map with zeros in the holes). The codes are the same as the eager
-    map's, bit for bit.
+    none, so its interrupted output would read as a map with zeros in the holes). The
+    codes are the same as the eager map's, bit for bit.
     """
     import xarray as xr
 
@@ -587,6 +587,14 @@ def stability_probability(
     import xarray as xr
 
     names, ms = _members(models)
+    if chunks is None:
+        kg_a, tg_a, kv_a = S._axis("kg", kg), S._axis("tg", tg), S._axis("kv", kv)
+        points = float(kg_a.size) * tg_a.size * kv_a.size
+        # every sample's map, its stable mask and their stacked copy; the float64 mean
+        check_memory(points * (3.0 * len(ms) + 8.0),
+                     f"stability_probability: {len(ms)} samples x {points:.0f} points",
+                     "pass chunks= to reduce chunk by chunk, or split the grid",
+                     per=3.0 * points, unit="samples")
     maps = [map_dataset(m, kg, tg, kv, pade_order, chunks=chunks) for m in ms]
     stacked = xr.concat([(mp == S.STABLE) for mp in maps], dim="member")
     prob = stacked.mean("member", dtype=np.float64)
@@ -719,8 +727,8 @@ def calibrate_many_distributed(
     results are the same. ``kwargs`` are those of :func:`avll.calibrate_many` (bounds,
     closed_loop, upper_free, weights, init, initial, target and GA options; one start
     per problem; no progress bar)."""
-    from .calibrate import _ga_kwargs, _ga_memory, _problem
     from ._limits import check_seed
+    from .calibrate import _ga_kwargs, _ga_memory, _problem
 
     for bad in ("starts", "progress"):
         if bad in kwargs:

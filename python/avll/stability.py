@@ -869,6 +869,11 @@ def pade_error_map(
 
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     orders = [_order(o) for o in orders]
+    check_threads(threads)
+    # the meshgrid and the exact codes, then per order a Padé map and three masks
+    _grid_memory(f"pade_error_map: {kg.size} kg x {tg.size} tg x {kv.size} kv x "
+                 f"{len(orders)} orders", float(kg.size) * tg.size * kv.size,
+                 _POINT_BYTES + 4.0 * len(orders))
     g = np.meshgrid(kg, tg, kv, indexing="ij")
     codes, ok = exact_delay_codes(model, *g, threads=threads, budget=budget)
     exact = codes.reshape(g[0].shape)

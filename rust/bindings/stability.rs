@@ -229,7 +229,7 @@ fn stability_boundary<'py>(
         crate::error::check_series("u", u)?;
         crate::error::check_series("w", w)
     })?;
-    let total = u.len().checked_mul(w.len()).unwrap_or(usize::MAX);
+    let total = u.len().saturating_mul(w.len());
     let mut out = try_filled("stability_boundary: the boundary", total, f64::NAN)?;
     // rows per chunk: about 4096 boundary searches between Ctrl-C checks
     let rows = (4096 / w.len().max(1)).max(1);
