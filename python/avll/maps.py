@@ -356,9 +356,11 @@ def write_map(data: Any, path: str | os.PathLike[str], format: str | None = None
     if fmt == "zarr":
         if os.path.exists(p) and not os.path.isdir(p):
             raise ValueError(f"path: {p} exists and is not a folder (a Zarr store is one)")
-        with _atomic.deferred_sigint():
-            tmp = tempfile.mkdtemp(prefix=".avll-", suffix=".zarr", dir=parent)
+        tmp: str | None = None
         try:
+            # a Ctrl-C during mkdtemp is raised when the block ends, with tmp known
+            with _atomic.deferred_sigint():
+                tmp = tempfile.mkdtemp(prefix=".avll-", suffix=".zarr", dir=parent)
             _to_zarr(ds, tmp)
             _mark_complete(tmp, ds)
             with _atomic.deferred_sigint():
@@ -366,20 +368,23 @@ def write_map(data: Any, path: str | os.PathLike[str], format: str | None = None
                     shutil.rmtree(p)
                 os.replace(tmp, p)
         except BaseException:
-            with _atomic.deferred_sigint():
-                _remove_tree(tmp)
+            if tmp is not None:
+                with _atomic.deferred_sigint():
+                    _remove_tree(tmp)
             raise
     else:
-        with _atomic.deferred_sigint():
-            fd, tmp = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
-            os.close(fd)
+        tmp_nc: str | None = None
         try:
-            ds.to_netcdf(tmp, engine="h5netcdf")
-            os.replace(tmp, p)
-        except BaseException:
             with _atomic.deferred_sigint():
-                if os.path.exists(tmp):
-                    os.unlink(tmp)
+                fd, tmp_nc = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
+                os.close(fd)
+            ds.to_netcdf(tmp_nc, engine="h5netcdf")
+            os.replace(tmp_nc, p)
+        except BaseException:
+            if tmp_nc is not None:
+                with _atomic.deferred_sigint():
+                    if os.path.exists(tmp_nc):
+                        os.unlink(tmp_nc)
             raise
     return p
 
