@@ -138,3 +138,14 @@ def test_a_nan_cell_is_not_called_empty(tmp_path: Path, cell: str) -> None:
     df.to_csv(tmp_path / "x.csv", index=False)
     with pytest.raises(avll.DataError, match=r"column 'v' line 7: is empty"):
         avll.io.read_runs(tmp_path / "x.csv", command_kind="acceleration")
+
+
+def test_the_documented_bounds_are_the_code() -> None:
+    from avll import stability
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "guarantees.md").read_text()
+    assert f"at most {_common.MAX_COLUMNS:,} columns" in text
+    assert f"at most {_common.MAX_HEADER_BYTES:,} bytes" in text
+    assert f"at most {_common.MAX_PARQUET_FOOTER // 2**20} MiB" in text
+    assert f"`n_scan` at most {stability.MAX_SCAN:,}" in text
+    assert f"`n_grid` at most {stability.MAX_GRID:,}" in text
