@@ -178,3 +178,28 @@ def test_exact_delay_codes_refuses_unknown_keywords() -> None:
 def test_integer_arguments_refuse_non_integers(call: object) -> None:
     with pytest.raises(TypeError, match="must be an integer"):
         call()  # type: ignore[operator]
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="RLIMIT_AS is a Linux limit here")
+def test_cli_stability_map_scheduler_refuses_with_the_estimate(tmp_path: object) -> None:
+    """``stability-map --scheduler`` went to the cluster without an estimate: now the
+    sweep refuses before any scheduler is contacted (none listens at port 9)."""
+    import resource
+    from pathlib import Path
+
+    out = Path(str(tmp_path)) / "m.png"
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (LIMIT, LIMIT))
+
+    res = subprocess.run(
+        [sys.executable, "-m", "avll", "stability-map", "--models", "second", "--kg", "0.01",
+         "1", "3000", "--tg", "0", "15", "3000", "--kv", "0", "1", "3000", "--scheduler",
+         "tcp://127.0.0.1:9", "--out", str(out)],
+        capture_output=True, text=True, timeout=300, preexec_fn=limit,
+        env={**os.environ, "RAYON_NUM_THREADS": "2"})
+    assert res.returncode == 2, res.stderr[-2000:]
+    assert "Traceback" not in res.stderr
+    assert re.search(r"sweep: one map of 3000 kg x 3000 Tg x 3000 kv.*needs about 27\.0 GB",
+                     res.stderr), res.stderr
+    assert not out.exists()

@@ -420,12 +420,14 @@ def exact_delay_string(
     w_max = check_number(w_max, "w_max", positive=True)
     xtol = check_number(xtol, "xtol", positive=True)
     name, p = _model(model)
-    kg, tg, kv = _points(kg, tg, kv)
-    # verdicts (Verdict + 2 flags) and margins per point, n_w samples twice per thread
-    check_memory(kg.size * (3.0 + 8.0) + _n_threads(threads) * 16.0 * n_w,
-                 f"exact_delay_string: {kg.size} points, n_w={n_w}",
+    # contiguous copies of the inputs, verdicts (Verdict + 2 flags) and margins per
+    # point; n_w samples twice per thread
+    n_pts = _broadcast_size(kg, tg, kv)
+    check_memory(n_pts * (_POINT_BYTES + 9.0) + _n_threads(threads) * 16.0 * n_w,
+                 f"exact_delay_string: {n_pts:.0f} points, n_w={n_w}",
                  "split the points into several calls and concatenate",
-                 per=11.0, unit="points")
+                 per=_POINT_BYTES + 9.0, unit="points")
+    kg, tg, kv = _points(kg, tg, kv)
     st, _ok = _core.delay_string(name, p, kg, tg, kv, int(budget), int(threads))
     margin = _core.delay_margin(
         name, p, kg, tg, kv, float(w_min), float(w_max), int(n_w), float(xtol), int(threads)
