@@ -44,6 +44,15 @@ def _read_in_child(path: Path, fmt: str) -> subprocess.CompletedProcess[str]:
                           timeout=120)
 
 
+@pytest.mark.parametrize("fmt", ["canonical", "generic", "carma", "openacc",
+                                 "openacc-astazero"])
+def test_read_runs_of_a_fifo_is_refused_in_every_format(tmp_path: Path, fmt: str) -> None:
+    os.mkfifo(tmp_path / "b.csv")
+    res = _read_in_child(tmp_path / "b.csv", fmt)
+    assert res.returncode == 0, res.stderr
+    assert "b.csv: is a FIFO (named pipe)" in res.stdout, res.stdout + res.stderr
+
+
 @pytest.mark.parametrize("fmt", ["canonical", "generic"])
 @pytest.mark.parametrize("target", ["folder", "file"])
 def test_a_fifo_is_refused_not_opened(tmp_path: Path, fmt: str, target: str) -> None:

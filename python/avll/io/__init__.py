@@ -117,6 +117,8 @@ def _read_runs(path: str | Path, command_kind: str | None, format: str,
         for f in files:
             runs += loader(f, command_kind=command_kind, **options)
         return runs
+    if not stat.S_ISDIR(st.st_mode):
+        check_regular_file(p)  # every format: a FIFO or a device is never opened
     return loader(p, command_kind=command_kind, **options)
 
 
