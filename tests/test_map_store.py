@@ -115,11 +115,15 @@ def test_ctrl_c_during_write_map_leaves_no_temporary(tmp_path: Path) -> None:
         time.sleep(0.5)  # a straggling chunk writer would show up by now
         left = sorted(os.listdir(out))
         outcomes.append((delay, p.returncode, left))
-        assert p.returncode in (0, 130), stderr
+        # 130: interrupted in write_map; 0: finished first; -SIGINT: the signal landed
+        # after the child's own handler (interpreter exit), whatever write_map did
+        assert p.returncode in (0, 130, -signal.SIGINT), stderr
         if p.returncode == 0:
             assert left == ["m.zarr"], outcomes
-            assert avll.open_map(out / "m.zarr").shape == (200, 200, 100)
-        else:
+        elif p.returncode == 130:
             assert left == [], outcomes
+        assert left in ([], ["m.zarr"]), outcomes  # never a temporary store
+        if left:
+            assert avll.open_map(out / "m.zarr").shape == (200, 200, 100)
         shutil.rmtree(out)
     assert any(rc == 130 for _, rc, _ in outcomes), outcomes  # some Ctrl-C hit the write
