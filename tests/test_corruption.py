@@ -85,7 +85,7 @@ def _(d: Path, out: Path) -> list[str]:
     return _load(_canonical(d, _cell("v", 12, "abc")), out)
 
 
-@case("canonical/NaN cell", "column 'a' line 9: is empty")
+@case("canonical/NaN cell", "column 'a' line 9: 'nan' is not a number")
 def _(d: Path, out: Path) -> list[str]:
     return _load(_canonical(d, _cell("a", 7, "nan")), out)
 

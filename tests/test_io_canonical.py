@@ -60,7 +60,7 @@ def _write(tmp_path: Path, text: str, kind: str | None = "acceleration") -> Path
         ("run,t,command\n1,0,1\n1,0.1,1\n", "missing column(s) 'a'"),
         ("run,t,a\n1,0,1\n1,0.1,1\n1,0.05,1\n", "column 't' line 4: time goes backwards"),
         ("run,t,a\n1,0,1\n1,0.1,1\n1,0.1,1\n", "column 't' line 4: time repeats"),
-        ("run,t,a\n1,0,1\n1,0.1,nan\n", "column 'a' line 3: is empty"),
+        ("run,t,a\n1,0,1\n1,0.1,nan\n", "column 'a' line 3: 'nan' is not a number"),
         ("run,t,a\n1,0,1\n1,0.1,\n", "column 'a' line 3: is empty"),
         ("run,t,a\n1,0,1\n1,0.1,abc\n", "column 'a' line 3: 'abc' is not a number"),
         ("run,t,a\n1,0,1\n1,0.1,inf\n", "column 'a' line 3: value inf is not finite"),

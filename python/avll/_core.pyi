@@ -146,6 +146,8 @@ def ga_check(options: dict[str, Any] | None = None) -> dict[str, int | float | b
 
 # --- stability (rust/bindings/stability.rs) ---
 PADE_MAX_ORDER: int
+MAX_SCAN: int
+MAX_GRID: int
 
 def stability_map(
     model: str,

@@ -4,12 +4,14 @@
   ``("kg", "Tg", "kv")`` and the model, Padé order and code meanings as attributes.
   With ``chunks`` it is Dask-backed: every chunk is computed by the Rust kernel
   (``dask.array.map_blocks``) on the current Dask scheduler or
-  ``distributed.Client`` when it is needed, so ``.to_zarr(...)`` streams a map larger
-  than memory with memory bounded by a few chunks.
+  ``distributed.Client`` when it is needed, so :func:`write_map` streams a map
+  larger than memory to Zarr with memory bounded by a few chunks (and marks the store
+  complete when the last chunk is written; a plain ``.to_zarr`` does not).
 * :func:`map_thresholds`: the thresholds of a map (eager or Dask-backed) by
   reductions over the chunks, without materialising the map.
 * :func:`write_map` / :func:`open_map`: Zarr or netCDF files (written to a temporary
-  name, then renamed).
+  name, then renamed; a Zarr store carries a completeness marker written last, and
+  :func:`open_map` refuses a store without it).
 * :func:`sweep`, :func:`calibrate_many_distributed`, :func:`min_stable_tg_samples`:
   many maps (models × Padé orders × parameter samples), many calibrations and many
   infima on a ``dask.distributed`` client (a local cluster by default), with the same
@@ -34,6 +36,7 @@ import numpy as np
 
 from . import _core
 from . import stability as S
+from ._limits import check_int, check_memory, check_threads
 from .models import LowerLevelModel
 
 __all__ = [
@@ -42,6 +45,7 @@ __all__ = [
     "map_thresholds",
     "write_map",
     "open_map",
+    "COMPLETE_MARKER",
     "sweep",
     "stability_probability",
     "min_stable_tg_samples",
@@ -80,6 +84,22 @@ def _chunk_sizes(chunks: Mapping[str, int], shape: tuple[int, int, int]) -> tupl
     return tuple(out[d] for d in DIMS)
 
 
+def _point_bytes(order: int) -> float:
+    """Peak bytes per grid point of one map computation: the uint8 code for a Padé
+    map; the three float64 meshgrid axes, the code and the settled flag for the exact
+    delay (``order == 0``)."""
+    return 1.0 if order else 3 * 8.0 + 2.0
+
+
+def _block_memory(what: str, points: float, order: int, hint: str) -> None:
+    per = _point_bytes(order)
+    check_memory(points * per, f"{what}: {points:.0f} points x {per:g} bytes", hint,
+                 per=per, unit="points")
+
+
+_CHUNK_HINT = "use smaller chunks (e.g. chunks={'kg': 200, 'Tg': 200})"
+
+
 def _map_block(
     model_name: str,
     params: list[float],
@@ -97,6 +117,9 @@ def _map_block(
     k = np.array(kg[loc[0][0] : loc[0][1]], dtype=np.float64)
     t = np.array(tg[loc[1][0] : loc[1][1]], dtype=np.float64)
     v = np.array(kv[loc[2][0] : loc[2][1]], dtype=np.float64)
+    # checked where the chunk is computed (a worker may have less memory than the client)
+    _block_memory(f"map_dataset: a chunk of {k.size} kg x {t.size} Tg x {v.size} kv",
+                  float(k.size) * t.size * v.size, order, _CHUNK_HINT)
     if order == 0:
         g = [np.ascontiguousarray(a.ravel()) for a in np.meshgrid(k, t, v, indexing="ij")]
         codes, _ = _core.delay_points(model_name, params, g[0], g[1], g[2], budget, threads)
@@ -127,9 +150,11 @@ def map_dataset(
     Dask-backed and nothing is computed until it is needed: every chunk is computed
     by the Rust kernel with ``threads`` threads (default 1 per chunk, so the
     scheduler's workers give the parallelism) on the current Dask scheduler or
-    client. ``.to_zarr(path)`` (or :func:`write_map`) then streams it to disk with
-    memory bounded by the chunks in flight. The codes are the same as the eager
-    map's, bit for bit.
+    client. :func:`write_map` then streams it to a Zarr store with memory bounded by
+    the chunks in flight, and marks the store complete once every chunk is written
+    (:func:`open_map` refuses a store without the mark; a plain ``.to_zarr`` writes
+    none, so its interrupted output would read as a map with zeros in the holes). The
+    codes are the same as the eager map's, bit for bit.
     """
     import xarray as xr
 
@@ -138,11 +163,13 @@ def map_dataset(
     name, p = S._model(model)
     coords = {"kg": kg_a, "Tg": tg_a, "kv": kv_a}
     attrs = _map_attrs(model, pade_order)
+    budget = check_int(budget, "budget", min=1)
     if chunks is None:
-        th = 0 if threads is None else int(threads)
-        if th < 0:
-            raise ValueError(f"threads: must be >= 0, got {threads}")
+        th = check_threads(0 if threads is None else threads)
         if order == 0:
+            _block_memory(f"map_dataset: {kg_a.size} kg x {tg_a.size} Tg x {kv_a.size} kv",
+                          float(kg_a.size) * tg_a.size * kv_a.size, order,
+                          "pass chunks= to compute it chunk by chunk, or split the grid")
             g = np.meshgrid(kg_a, tg_a, kv_a, indexing="ij")
             codes, _ = S.exact_delay_codes(model, *g, threads=th, budget=budget)
             data = codes.reshape(g[0].shape)
@@ -152,11 +179,12 @@ def map_dataset(
     import dask.array as da
     from dask.base import tokenize
 
-    th = 1 if threads is None else int(threads)
-    if th < 0:
-        raise ValueError(f"threads: must be >= 0, got {threads}")
+    th = check_threads(1 if threads is None else threads)
     shape = (kg_a.size, tg_a.size, kv_a.size)
     cs = _chunk_sizes(chunks, shape)
+    # one chunk must fit here too (a local scheduler computes it in this process)
+    _block_memory(f"map_dataset: a chunk of {cs[0]} kg x {cs[1]} Tg x {cs[2]} kv",
+                  float(cs[0]) * cs[1] * cs[2], order, _CHUNK_HINT)
     tok = tokenize(name, p, kg_a, tg_a, kv_a, order, budget)
     arr = da.map_blocks(
         _map_block,
@@ -202,12 +230,90 @@ def _format(path: str, fmt: str | None) -> str:
     return fmt
 
 
+#: The completeness marker of a Zarr store written by :func:`write_map`: an empty Zarr
+#: group of this name in the store's root (its attributes say who wrote it and the
+#: variables' shapes), created after every chunk and the metadata are on disk. xarray
+#: does not read groups, so copying the map with ``.to_zarr`` does not copy the mark.
+#: :func:`open_map` refuses a Zarr store without it.
+COMPLETE_MARKER = "avll_complete"
+
+
+def _remove_tree(path: str) -> None:
+    """Removes a folder, also when a straggling writer recreates it meanwhile."""
+    import time
+
+    for _ in range(20):
+        shutil.rmtree(path, ignore_errors=True)
+        if not os.path.exists(path):
+            time.sleep(0.05)
+            if not os.path.exists(path):
+                return
+    shutil.rmtree(path, ignore_errors=True)  # pragma: no cover - a writer that never stops
+
+
+def _to_zarr(ds: Any, path: str) -> None:
+    """``ds.to_zarr(path)``; a Dask-backed dataset on the default threaded scheduler
+    runs on a thread pool that is drained (the chunks in flight finished) before this
+    returns or raises, so no chunk is written into ``path`` after a Ctrl-C."""
+    lazy = any(hasattr(v.data, "dask") for v in ds.variables.values())
+    if lazy:
+        import dask
+        import dask.threaded
+        from dask.base import get_scheduler
+
+        sched = get_scheduler()
+        if sched is None or sched is dask.threaded.get:
+            from concurrent.futures import ThreadPoolExecutor
+
+            from . import _atomic
+
+            pool = ThreadPoolExecutor(max_workers=os.cpu_count() or 1)
+            try:
+                with dask.config.set(scheduler="threads", pool=pool):
+                    ds.to_zarr(path, mode="w", consolidated=False)
+            finally:
+                with _atomic.deferred_sigint():
+                    pool.shutdown(wait=True, cancel_futures=True)
+            return
+    ds.to_zarr(path, mode="w", consolidated=False)
+
+
+def _mark_complete(store: str, ds: Any) -> None:
+    import zarr
+
+    root = zarr.open_group(store, mode="r+")
+    root.create_group(COMPLETE_MARKER, attributes={
+        "writer": "avll.write_map", "complete": True,
+        "variables": {str(k): [int(n) for n in v.shape] for k, v in ds.data_vars.items()},
+    })
+
+
+def _is_marked(store: str) -> bool:
+    import zarr
+
+    try:
+        root = zarr.open_group(store, mode="r")
+        g = root[COMPLETE_MARKER]
+    except (KeyError, FileNotFoundError, ValueError, TypeError, OSError):
+        return False
+    return isinstance(g, zarr.Group) and g.attrs.get("complete") is True
+
+
 def write_map(data: Any, path: str | os.PathLike[str], format: str | None = None) -> str:
     """Writes a labelled map, boundary or dataset to Zarr (a directory) or netCDF
     (``format`` from the suffix ``.zarr`` / ``.nc`` unless given), through a temporary
     name renamed into place. A Dask-backed map is streamed chunk by chunk. Returns
-    the path."""
+    the path.
+
+    A Zarr store gets the completeness marker :data:`COMPLETE_MARKER` once every chunk
+    is written, and :func:`open_map` refuses a store without it: write Zarr maps with
+    this function rather than ``.to_zarr``, whose interrupted output opens as a
+    complete map with the missing chunks read as 0 ("locally unstable"). On Ctrl-C
+    (or any error) the temporary store is removed and an existing ``path`` is left as
+    it was."""
     import xarray as xr
+
+    from . import _atomic
 
     p = os.fspath(path)
     fmt = _format(p, format)
@@ -219,36 +325,61 @@ def write_map(data: Any, path: str | os.PathLike[str], format: str | None = None
         raise ValueError(f"data: expected an xarray DataArray or Dataset, got {type(data)}")
     parent = os.path.dirname(os.path.abspath(p)) or "."
     if fmt == "zarr":
-        tmp = tempfile.mkdtemp(prefix=".avll-", suffix=".zarr", dir=parent)
+        if os.path.exists(p) and not os.path.isdir(p):
+            raise ValueError(f"path: {p} exists and is not a folder (a Zarr store is one)")
+        tmp: str | None = None
         try:
-            ds.to_zarr(tmp, mode="w", consolidated=False)
-            if os.path.isdir(p):
-                shutil.rmtree(p)
-            os.replace(tmp, p)
+            # a Ctrl-C during mkdtemp is raised when the block ends, with tmp known
+            with _atomic.deferred_sigint():
+                tmp = tempfile.mkdtemp(prefix=".avll-", suffix=".zarr", dir=parent)
+            _to_zarr(ds, tmp)
+            _mark_complete(tmp, ds)
+            with _atomic.deferred_sigint():
+                if os.path.isdir(p):
+                    shutil.rmtree(p)
+                os.replace(tmp, p)
         except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
+            if tmp is not None:
+                with _atomic.deferred_sigint():
+                    _remove_tree(tmp)
             raise
     else:
-        fd, tmp = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
-        os.close(fd)
+        tmp_nc: str | None = None
         try:
-            ds.to_netcdf(tmp, engine="h5netcdf")
-            os.replace(tmp, p)
+            with _atomic.deferred_sigint():
+                fd, tmp_nc = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
+                os.close(fd)
+            ds.to_netcdf(tmp_nc, engine="h5netcdf")
+            os.replace(tmp_nc, p)
         except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+            if tmp_nc is not None:
+                with _atomic.deferred_sigint():
+                    if os.path.exists(tmp_nc):
+                        os.unlink(tmp_nc)
             raise
     return p
 
 
 def open_map(path: str | os.PathLike[str], format: str | None = None) -> Any:
     """Opens what :func:`write_map` wrote: a DataArray when the file holds one
-    variable, else the Dataset (lazily for Zarr)."""
+    variable, else the Dataset (lazily for Zarr). A Zarr store without the
+    completeness marker of :func:`write_map` (one written by ``.to_zarr``, or whose
+    writing was interrupted) is refused with a ``ValueError``."""
     import xarray as xr
 
     p = os.fspath(path)
     fmt = _format(p, format)
     if fmt == "zarr":
+        if not os.path.isdir(p):
+            raise ValueError(f"path: {p} is not a Zarr store (no such folder)")
+        if not _is_marked(p):
+            raise ValueError(
+                f"path: {p} has no completeness marker (the group {COMPLETE_MARKER!r}): it "
+                "was not "
+                "written by avll.write_map, or its writing was interrupted, so chunks may "
+                "be missing (a missing chunk reads as 0, 'locally unstable'); write it "
+                "again with avll.write_map"
+            )
         ds = xr.open_zarr(p, consolidated=False)
     else:
         ds = xr.load_dataset(p, engine="h5netcdf")
@@ -324,6 +455,9 @@ def _sweep_task(
 ) -> Any:
     name, p = S._model(model)
     kg, tg, kv = (np.array(a, dtype=np.float64) for a in (kg, tg, kv))
+    _block_memory(f"sweep: one map of {kg.size} kg x {tg.size} Tg x {kv.size} kv on a worker",
+                  float(kg.size) * tg.size * kv.size, S._pade_arg(order),
+                  "split the grid (e.g. a few kv values per call) and concatenate")
     codes = _map_block(
         name, p, kg, tg, kv, S._pade_arg(order), threads, S.EXACT_BUDGET,
         block_info={None: {"array-location": [(0, kg.size), (0, tg.size), (0, kv.size)]}},
@@ -366,10 +500,22 @@ def sweep(
         raise ValueError("pade_orders: no orders given")
     if reduce not in (None, "thresholds"):
         raise ValueError(f"reduce: must be None or 'thresholds', got {reduce!r}")
+    threads = check_threads(threads)
     tasks = [(m, o) for m in ms for o in orders]
+    points = float(kg_a.size) * tg_a.size * kv_a.size
+    hint = "split the grid (e.g. a few kv values per call) and concatenate"
+    # one task's map on a worker, before any cluster is started or contacted
+    _block_memory(f"sweep: one map of {kg_a.size} kg x {tg_a.size} Tg x {kv_a.size} kv",
+                  points, 0 if None in orders else 1, hint)
+    if reduce is None:
+        # the gathered maps and their stacked copy, here
+        check_memory(2.0 * points * len(tasks),
+                     f"sweep: {len(ms)} members x {len(orders)} orders x {points:.0f} points "
+                     f"gathered and stacked (2 bytes per point)",
+                     f"{hint}, or pass reduce='thresholds'")
     with _ClientScope(client) as c:
         futs = [
-            c.submit(_sweep_task, m, kg_a, tg_a, kv_a, o, int(threads), reduce, pure=False)
+            c.submit(_sweep_task, m, kg_a, tg_a, kv_a, o, threads, reduce, pure=False)
             for m, o in tasks
         ]
         res = c.gather(futs)
@@ -417,6 +563,14 @@ def stability_probability(
     import xarray as xr
 
     names, ms = _members(models)
+    if chunks is None:
+        kg_a, tg_a, kv_a = S._axis("kg", kg), S._axis("tg", tg), S._axis("kv", kv)
+        points = float(kg_a.size) * tg_a.size * kv_a.size
+        # every sample's map, its stable mask and their stacked copy; the float64 mean
+        check_memory(points * (3.0 * len(ms) + 8.0),
+                     f"stability_probability: {len(ms)} samples x {points:.0f} points",
+                     "pass chunks= to reduce chunk by chunk, or split the grid",
+                     per=3.0 * points, unit="samples")
     maps = [map_dataset(m, kg, tg, kv, pade_order, chunks=chunks) for m in ms]
     stacked = xr.concat([(mp == S.STABLE) for mp in maps], dim="member")
     prob = stacked.mean("member", dtype=np.float64)
@@ -492,6 +646,15 @@ _PROBLEM_KW = ("bounds", "closed_loop", "upper_free", "weights", "init")
 _RUN_KW = ("initial", "target")
 
 
+def _problem_kw(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The problem keywords of :func:`avll.calibrate_many` in ``kwargs``, with its
+    defaults."""
+    pk: dict[str, Any] = {"bounds": None, "closed_loop": False, "upper_free": (),
+                          "weights": (1.0, 0.0, 0.0), "init": "rest"}
+    pk.update({k: kwargs[k] for k in _PROBLEM_KW if k in kwargs})
+    return pk
+
+
 def _calibrate_block(
     model: Any, runs: list[Any], block: list[tuple[int, list[Any]]], seed: int, threads: int,
     kwargs: dict[str, Any],
@@ -503,11 +666,8 @@ def _calibrate_block(
 
     from .calibration import _per_run, _problem, _result, _run, _subset_indices
 
-    pk: dict[str, Any] = {"bounds": None, "closed_loop": False, "upper_free": (),
-                          "weights": (1.0, 0.0, 0.0), "init": "rest"}
-    pk.update({k: kwargs[k] for k in _PROBLEM_KW if k in kwargs})
     ga = {k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW}
-    prob = _problem(model, runs, **pk)
+    prob = _problem(model, runs, **_problem_kw(kwargs))
     out = []
     for k, sub in block:
         idx = _subset_indices(prob.runs, sub, k)
@@ -543,13 +703,18 @@ def calibrate_many_distributed(
     results are the same. ``kwargs`` are those of :func:`avll.calibrate_many` (bounds,
     closed_loop, upper_free, weights, init, initial, target and GA options; one start
     per problem; no progress bar)."""
+    from ._limits import check_seed
+    from .calibration import _ga_kwargs, _ga_memory, _problem
+
     for bad in ("starts", "progress"):
         if bad in kwargs:
             v = kwargs.pop(bad)
-            if (bad == "starts" and int(v) != 1) or (bad == "progress" and v):
+            if (bad == "starts" and check_int(v, "starts", min=1) != 1) or (
+                    bad == "progress" and v):
                 raise ValueError(f"{bad}: not supported by calibrate_many_distributed")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed: must be a non-negative integer, got {seed!r}")
+    seed = check_seed(seed)
+    threads = check_threads(threads)
+    batch = check_int(batch, "batch", min=1)
     runs = list(runs)
     if isinstance(subsets, str):
         if subsets != "per_run":
@@ -559,14 +724,18 @@ def calibrate_many_distributed(
         subs = [list(s) for s in subsets]
     if not subs:
         raise ValueError("subsets: no problems given")
-    if isinstance(batch, bool) or int(batch) < 1:
-        raise ValueError(f"batch: must be an integer >= 1, got {batch!r}")
+    # here, before any cluster is contacted: every keyword known (a misspelt one is an
+    # error, not a remote traceback or a silently ignored option), the problem valid,
+    # and a task's populations within this machine's memory
+    ga = _ga_kwargs({k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW})
+    prob = _problem(model, runs, **_problem_kw(kwargs))
+    _ga_memory(prob, min(batch, len(subs)), ga)
     items = list(enumerate(subs))
-    blocks = [items[i : i + int(batch)] for i in range(0, len(items), int(batch))]
+    blocks = [items[i : i + batch] for i in range(0, len(items), batch)]
     with _ClientScope(client) as c:
         runs_f = c.scatter(runs, broadcast=True)
         futs = [
-            c.submit(_calibrate_block, model, runs_f, b, int(seed), int(threads), kwargs,
+            c.submit(_calibrate_block, model, runs_f, b, seed, threads, kwargs,
                      pure=False)
             for b in blocks
         ]
@@ -589,15 +758,24 @@ def bootstrap_distributed(
     """:func:`avll.bootstrap` with the resamples calibrated on a ``dask.distributed``
     client (:func:`calibrate_many_distributed`): the same resamples (drawn from
     ``seed``) and the same seeds, so the same :class:`avll.Bootstrap`."""
+    from ._limits import check_number, check_seed
     from .calibration import Bootstrap
 
-    if int(n) < 2:
-        raise ValueError(f"n: must be >= 2, got {n}")
+    n = check_int(n, "n", min=2)
+    level = check_number(level, "level")
     if not 0 < level < 1:
         raise ValueError(f"level: must be in (0, 1), got {level}")
+    seed = check_seed(seed)
     runs = list(runs)
-    rng = np.random.default_rng(int(seed))
-    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(int(n))]
+    if not runs:
+        raise ValueError("runs: no runs given")
+    # the resample lists (Python ints), as avll.bootstrap estimates them; the GA's own
+    # estimate follows in calibrate_many_distributed
+    check_memory(80.0 * n * len(runs), f"bootstrap_distributed: n={n} resamples x "
+                 f"{len(runs)} runs", "use fewer resamples per call and pool the samples",
+                 per=80.0 * len(runs), unit="resamples")
+    rng = np.random.default_rng(seed)
+    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(n)]
     res = calibrate_many_distributed(model, runs, subsets, client=client, seed=seed,
                                      batch=batch, threads=threads, **kwargs)
     names = tuple(res[0].params) + ("dc_gain",)

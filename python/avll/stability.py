@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import _atomic, _core
-from ._limits import check_int, check_memory, check_number, check_threads
+from ._limits import check_int, check_memory, check_number, check_threads, fmt_bytes
 from .models import LowerLevelModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -94,6 +94,29 @@ def _grid_memory(what: str, points: float, per_point: float) -> None:
     check_memory(points * per_point, f"{what}: {points:.0f} points x {per_point:g} bytes",
                  "split the grid (e.g. a few kv values per call) and concatenate",
                  per=per_point, unit="points")
+
+
+#: Largest ``n_scan`` (and ``n_w``) the engine accepts (a scan holds that many points
+#: per thread).
+MAX_SCAN: int = int(_core.MAX_SCAN)
+#: Largest ``n_grid`` of :func:`min_stable_tg` / :func:`kv_supremum`.
+MAX_GRID: int = int(_core.MAX_GRID)
+
+
+def _n_threads(threads: int) -> int:
+    """The worker threads a call with ``threads`` (0 = all cores) runs."""
+    return threads if threads > 0 else int(_core.available_cores())
+
+
+def _scan_memory(what: str, n_scan: int, threads: int, out_bytes: float = 0.0) -> None:
+    """A boundary-type search: ``out_bytes`` of output, plus per thread a scan of
+    ``n_scan`` points (8 bytes) and verdicts (1 byte) and its refined copy."""
+    per_thread = 2.0 * (n_scan + 16) * 9.0
+    check_memory(out_bytes + _n_threads(threads) * per_thread,
+                 f"{what}: {fmt_bytes(out_bytes)} of output + {_n_threads(threads)} threads x "
+                 f"n_scan={n_scan}",
+                 "use a smaller n_scan or fewer threads, or split the grid into several calls "
+                 "and concatenate")
 
 
 def _axis(name: str, x: Any) -> np.ndarray:
@@ -357,6 +380,17 @@ EXACT_N_W = 3000
 EXACT_BUDGET = 20_000
 
 
+#: Bytes per scattered point of an exact-delay call: three contiguous float64 copies
+#: of the broadcast inputs, the uint8 code and the bool flag.
+_POINT_BYTES = 3 * 8.0 + 2.0
+
+
+def _broadcast_size(*arrays: Any) -> float:
+    """The number of points :func:`_points` makes of the arrays (each is flattened;
+    the lengths broadcast), before any copy is made."""
+    return float(max(np.size(a) for a in arrays))
+
+
 def _points(kg: Any, tg: Any, kv: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     arrs = np.broadcast_arrays(
         *(np.atleast_1d(np.asarray(a, dtype=np.float64)).ravel() for a in (kg, tg, kv))
@@ -393,9 +427,20 @@ def exact_delay_string(
     minimum refined by golden section to ``xtol`` in ``log ω``; it is informative only
     (the verdict does not use it).
     """
-    n_w = check_int(n_w, "n_w", min=2)
+    n_w = check_int(n_w, "n_w", min=2, max=MAX_SCAN)
+    budget = check_int(budget, "budget", min=1)
     threads = check_threads(threads)
+    w_min = check_number(w_min, "w_min", positive=True)
+    w_max = check_number(w_max, "w_max", positive=True)
+    xtol = check_number(xtol, "xtol", positive=True)
     name, p = _model(model)
+    # contiguous copies of the inputs, verdicts (Verdict + 2 flags) and margins per
+    # point; n_w samples twice per thread
+    n_pts = _broadcast_size(kg, tg, kv)
+    check_memory(n_pts * (_POINT_BYTES + 9.0) + _n_threads(threads) * 16.0 * n_w,
+                 f"exact_delay_string: {n_pts:.0f} points, n_w={n_w}",
+                 "split the points into several calls and concatenate",
+                 per=_POINT_BYTES + 9.0, unit="points")
     kg, tg, kv = _points(kg, tg, kv)
     st, _ok = _core.delay_string(name, p, kg, tg, kv, int(budget), int(threads))
     margin = _core.delay_margin(
@@ -413,7 +458,6 @@ def exact_delay_codes(
     orders: Sequence[int] | None = None,
     threads: int = 0,
     budget: int = EXACT_BUDGET,
-    **_ignored: Any,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Codes with the true delay at scattered points, and a flag array ``settled``.
 
@@ -421,13 +465,18 @@ def exact_delay_codes(
     exactly (crossing frequencies from ``|A(jω)| = |B(jω)|``, crossing directions and
     the root count of the delay-free polynomial), string stability by the certified
     sweep of :func:`exact_delay_string`. ``settled`` is False where a test could not
-    decide (a point on a boundary; the code is then 0 or 1, never 2). ``orders`` and
-    other keywords of the former Padé-agreement implementation are accepted and
-    ignored.
+    decide (a point on a boundary; the code is then 0 or 1, never 2). ``orders`` (a
+    keyword of the former Padé-agreement implementation) is accepted and ignored; any
+    other keyword is an error.
     """
     threads = check_threads(threads)
+    budget = check_int(budget, "budget", min=1)
     del orders
     name, p = _model(model)
+    check_memory(_broadcast_size(kg, tg, kv) * _POINT_BYTES,
+                 f"exact_delay_codes: {_broadcast_size(kg, tg, kv):.0f} points",
+                 "split the points into several calls and concatenate",
+                 per=_POINT_BYTES, unit="points")
     kg, tg, kv = _points(kg, tg, kv)
     codes, ok = _core.delay_points(name, p, kg, tg, kv, int(budget), int(threads))
     return codes, ok
@@ -596,12 +645,15 @@ def boundary(
     name, p = _model(model)
     log = axis == "kg" and lo > 0
     lev = _level_arg(level)
-    if int(threads) < 0:
-        raise ValueError(f"threads: must be >= 0, got {threads}")
+    threads = check_threads(threads)
+    n_scan = check_int(n_scan, "n_scan", min=2, max=MAX_SCAN)
+    rtol = check_number(rtol, "rtol", positive=True)
+    _scan_memory(f"boundary: {u.size} {fixed[0]} x {w.size} {fixed[1]}", n_scan, threads,
+                 8.0 * u.size * w.size)
     args = (name, p, _AXES[axis], u, w, lo, hi, "inf" if end == "min" else "sup")
     kw: dict[str, Any] = dict(
-        pade_order=_pade_arg(pade_order), level=lev, n_scan=int(n_scan), log=log,
-        rtol=float(rtol), threads=int(threads),
+        pade_order=_pade_arg(pade_order), level=lev, n_scan=n_scan, log=log,
+        rtol=rtol, threads=threads,
     )
     from .progress import Progress, resolve_mode
 
@@ -667,9 +719,12 @@ def stable_intervals(
             point.append(float(v))
     lo, hi = _range_arg("search_range", search_range or DEFAULT_RANGES[ax])
     name, p = _model(model)
+    n_scan = check_int(n_scan, "n_scan", min=2, max=MAX_SCAN)
+    rtol = check_number(rtol, "rtol", positive=True)
+    _scan_memory("stable_intervals", n_scan, 1)
     ivs = _core.stability_intervals(
         name, p, _AXES[ax], point, lo, hi, _pade_arg(pade_order), _level_arg(level),
-        int(n_scan), ax == "kg" and lo > 0, float(rtol),
+        n_scan, ax == "kg" and lo > 0, rtol,
     )
     return [(a, b) for a, b, _, _ in ivs]
 
@@ -734,9 +789,13 @@ def _extremum(
             raise ValueError(f"kg_range: the lower end must be > 0 (kg = 0 is never "
                              f"asymptotically stable), got {lo}")
         rs.append((lo, hi, label == "kg"))
+    n_scan = check_int(n_scan, "n_scan", min=2, max=MAX_SCAN)
+    n_grid = check_int(n_grid, "n_grid", min=2, max=MAX_GRID)
+    threads = check_threads(threads)
+    _scan_memory(which, n_scan, threads, 3 * 8.0 * n_grid)
     val, at, at_end, edge, evals = _core.stability_extremum(
-        name, p, which, rs[0], rs[1], rs[2], _pade_arg(pade_order), int(n_scan),
-        n_grid=int(n_grid), threads=int(threads),
+        name, p, which, rs[0], rs[1], rs[2], _pade_arg(pade_order), n_scan,
+        n_grid=n_grid, threads=threads,
     )
     labels = (r1[0], r2[0])
     coords = dict(zip(("kg", "tg", "kv"), at, strict=True))
@@ -826,6 +885,11 @@ def pade_error_map(
 
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     orders = [_order(o) for o in orders]
+    check_threads(threads)
+    # the meshgrid and the exact codes, then per order a Padé map and three masks
+    _grid_memory(f"pade_error_map: {kg.size} kg x {tg.size} tg x {kv.size} kv x "
+                 f"{len(orders)} orders", float(kg.size) * tg.size * kv.size,
+                 _POINT_BYTES + 4.0 * len(orders))
     g = np.meshgrid(kg, tg, kv, indexing="ij")
     codes, ok = exact_delay_codes(model, *g, threads=threads, budget=budget)
     exact = codes.reshape(g[0].shape)

@@ -42,6 +42,31 @@ pub(crate) fn guard<T>(f: impl FnOnce() -> Result<T, AvllError>) -> PyResult<T> 
     }
 }
 
+/// A vector of `n` copies of `fill`, allocated fallibly: a size the process cannot
+/// get (or whose byte count overflows) is a `ValueError` naming `what` and the
+/// estimate, not an abort of the process (Rust aborts on a failed infallible
+/// allocation).
+pub(crate) fn try_filled<T: Clone>(what: &str, n: usize, fill: T) -> PyResult<Vec<T>> {
+    let bytes = n.checked_mul(std::mem::size_of::<T>().max(1));
+    let refuse = || {
+        let size = match bytes {
+            Some(b) => format!("{:.1} GB", b as f64 / 1e9),
+            None => "more bytes than an address space holds".to_string(),
+        };
+        PyValueError::new_err(format!(
+            "{what}: {n} values need about {size}, which cannot be allocated; split the work \
+             into smaller calls"
+        ))
+    };
+    if bytes.is_none_or(|b| b > isize::MAX as usize) {
+        return Err(refuse());
+    }
+    let mut v: Vec<T> = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| refuse())?;
+    v.resize(n, fill);
+    Ok(v)
+}
+
 /// A contiguous 1-D float64 view, or a `ValueError` naming the argument.
 pub(crate) fn slice1<'a>(arg: &str, a: &'a PyReadonlyArray1<'_, f64>) -> PyResult<&'a [f64]> {
     a.as_slice()

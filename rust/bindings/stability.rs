@@ -1,6 +1,6 @@
 //! Bindings of the stability engine (paper Section IV).
 
-use super::{guard, slice1};
+use super::{guard, slice1, try_filled};
 use crate::model::ModelKind;
 use crate::stability::boundary::{self, Axis, End, PointTest, Scan};
 use crate::stability::delay::DelayLoop;
@@ -13,6 +13,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Points per chunk between two GIL re-acquisitions (Ctrl-C check, progress).
 const CHUNK: usize = 1 << 20;
+/// Largest scan length along a searched axis: every boundary search holds `n_scan`
+/// points and verdicts per thread (about 9 bytes each) and evaluates the test at each.
+pub const MAX_SCAN: usize = 10_000_000;
+/// Largest `n_grid` of an extremum search (a grid of `n_grid` points per dimension).
+pub const MAX_GRID: usize = 100_000;
 
 fn loop_model(model: &str, params: &[f64], pade_order: usize) -> PyResult<LoopModel> {
     guard(|| {
@@ -44,7 +49,7 @@ fn stability_map<'py>(
     let (kg, tg, kv) = (slice1("kg", &kg)?, slice1("tg", &tg)?, slice1("kv", &kv)?);
     let axes = guard(|| grid::Axes::new(kg, tg, kv))?;
     let total = axes.len();
-    let mut out = vec![0u8; total];
+    let mut out = try_filled("stability_map: the map", total, 0u8)?;
     let mut start = 0;
     while start < total {
         let end = (start + CHUNK).min(total);
@@ -158,9 +163,9 @@ fn check_scan(lo: f64, hi: f64, n_scan: usize, log: bool, rtol: f64, level: u8) 
             "range: a log-spaced scan needs lo > 0, got {lo}"
         )));
     }
-    if n_scan < 2 {
+    if !(2..=MAX_SCAN).contains(&n_scan) {
         return Err(PyValueError::new_err(format!(
-            "n_scan: must be >= 2, got {n_scan}"
+            "n_scan: must be in 2..={MAX_SCAN}, got {n_scan}"
         )));
     }
     if !(rtol > 0.0 && rtol < 1.0) {
@@ -224,8 +229,8 @@ fn stability_boundary<'py>(
         crate::error::check_series("u", u)?;
         crate::error::check_series("w", w)
     })?;
-    let total = u.len() * w.len();
-    let mut out = vec![f64::NAN; total];
+    let total = u.len().saturating_mul(w.len());
+    let mut out = try_filled("stability_boundary: the boundary", total, f64::NAN)?;
     // rows per chunk: about 4096 boundary searches between Ctrl-C checks
     let rows = (4096 / w.len().max(1)).max(1);
     let mut r0 = 0;
@@ -375,9 +380,9 @@ fn stability_extremum(
         rtol,
         2,
     )?;
-    if n_grid < 2 {
+    if !(2..=MAX_GRID).contains(&n_grid) {
         return Err(PyValueError::new_err(format!(
-            "n_grid: must be >= 2, got {n_grid}"
+            "n_grid: must be in 2..={MAX_GRID}, got {n_grid}"
         )));
     }
     if !(xtol > 0.0 && xtol < 1.0) {
@@ -505,8 +510,8 @@ fn delay_points<'py>(
 ) -> PyResult<(Bound<'py, PyArray1<u8>>, Bound<'py, PyArray1<bool>>)> {
     let (dl, kg, tg, kv) = delay_points_setup(model, &params, &kg, &tg, &kv, budget)?;
     let n = kg.len();
-    let mut codes = vec![0u8; n];
-    let mut ok = vec![false; n];
+    let mut codes = try_filled("delay_points: the codes", n, 0u8)?;
+    let mut ok = try_filled("delay_points: the flags", n, false)?;
     let chunk = 4096;
     let mut s = 0;
     while s < n {
@@ -561,7 +566,12 @@ fn delay_margin<'py>(
             "xtol: must be > 0, got {xtol}"
         )));
     }
-    let mut out = vec![0.0; kg.len()];
+    if !(2..=MAX_SCAN).contains(&n_w) {
+        return Err(PyValueError::new_err(format!(
+            "n_w: must be in 2..={MAX_SCAN}, got {n_w}"
+        )));
+    }
+    let mut out = try_filled("delay_margin: the margins", kg.len(), 0.0)?;
     py.detach(|| {
         guard(|| {
             crate::parallel::with_threads(threads, || {
@@ -609,6 +619,8 @@ fn delay_string<'py>(
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("PADE_MAX_ORDER", pade::MAX_ORDER)?;
+    m.add("MAX_SCAN", MAX_SCAN)?;
+    m.add("MAX_GRID", MAX_GRID)?;
     m.add_function(wrap_pyfunction!(stability_map, m)?)?;
     m.add_function(wrap_pyfunction!(stability_points, m)?)?;
     m.add_function(wrap_pyfunction!(stability_polys, m)?)?;

@@ -18,12 +18,20 @@ stretch of each follower, with car model, ACC state, gap setting and its rank in
 from __future__ import annotations
 
 import re
+import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from ..data import DataError, Run
-from ._common import check_runs_for_delay, strict_warnings, summarize, with_strict
+from ._common import (
+    check_regular_file,
+    check_runs_for_delay,
+    stat_path,
+    strict_warnings,
+    summarize,
+    with_strict,
+)
 from .canonical import load_canonical, write_runs
 from .carma import carma_report
 from .carma import load_carma as _load_carma
@@ -96,19 +104,22 @@ def _read_runs(path: str | Path, command_kind: str | None, format: str,
             f"format: unknown format {format!r}; known: {', '.join(sorted(FORMATS))}"
         ) from None
     p = Path(path)
-    if not p.exists():
-        raise DataError(f"{p}: no such file or folder")
-    if p.is_dir() and format in _PER_FILE:
+    st = stat_path(p)  # a DataError for a missing path or a symbolic link loop
+    if stat.S_ISDIR(st.st_mode) and format in _PER_FILE:
         files = sorted(
             (f for f in p.iterdir() if f.suffix.lower() in (".csv", ".parquet", ".pq")),
             key=_natural,
         )
         if not files:
             raise DataError(f"{p}: no CSV or Parquet files in this folder")
+        for f in files:  # all checked before any is read: a FIFO would block the read
+            check_regular_file(f)
         runs: list[Run] = []
         for f in files:
             runs += loader(f, command_kind=command_kind, **options)
         return runs
+    if not stat.S_ISDIR(st.st_mode):
+        check_regular_file(p)  # every format: a FIFO or a device is never opened
     return loader(p, command_kind=command_kind, **options)
 
 

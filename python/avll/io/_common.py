@@ -16,14 +16,24 @@ likely unit; a value that is physically possible but outside the plausible range
 every :class:`avll.DataWarning` into a :class:`DataError`. Units are never
 converted: a speed in km/h or mph (detected from the acceleration or the position)
 and time stamps in milliseconds are errors that say so.
+
+Files: the loaders read regular files only (:func:`check_regular_file`): a FIFO, a
+socket or a device is refused before it is opened (opening a FIFO would wait for a
+writer forever), and so is a symbolic link loop. The header of a CSV file is bounded
+(:func:`check_header`): at most :data:`MAX_HEADER_BYTES` bytes and
+:data:`MAX_COLUMNS` columns (a Parquet file: :data:`MAX_COLUMNS` columns and a
+footer of at most :data:`MAX_PARQUET_FOOTER` bytes), checked before the file is parsed.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import functools
 import math
+import os
+import stat
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -49,12 +59,126 @@ __all__ = [
     "check_signal",
     "check_columns",
     "check_unique_header",
+    "check_regular_file",
+    "check_header",
+    "MAX_COLUMNS",
+    "MAX_HEADER_BYTES",
+    "MAX_PARQUET_FOOTER",
     "strict_warnings",
     "with_strict",
     "RANGES",
     "contiguous",
     "summarize",
 ]
+
+#: Most columns a data file may have (the formats have a few dozen at most).
+MAX_COLUMNS = 10_000
+#: Longest CSV header line, in bytes.
+MAX_HEADER_BYTES = 1_000_000
+#: Largest Parquet footer (the schema and the row-group metadata), in bytes.
+MAX_PARQUET_FOOTER = 64 * 2**20
+
+
+def _file_kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "not a regular file"
+
+
+def stat_path(path: str | Path, what: str = "file or folder") -> os.stat_result:
+    """``os.stat`` of ``path`` (links followed) as a :class:`DataError` naming the
+    path: no such ``what``, a symbolic link loop, or no permission."""
+    p = Path(path)
+    try:
+        return os.stat(p)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise DataError(f"{p}: a symbolic link loop (a link that leads back to itself); "
+                            "not followed") from None
+        if e.errno in (errno.ENOENT, errno.ENOTDIR):
+            broken = " (a broken symbolic link)" if os.path.islink(p) else ""
+            raise DataError(f"{p}: no such {what}{broken}") from None
+        if e.errno == errno.ENAMETOOLONG:
+            raise DataError(f"{p}: the path is too long") from None
+        raise DataError(f"{p}: cannot be read ({e.strerror})") from None
+
+
+def check_regular_file(path: str | Path) -> os.stat_result:
+    """Refuses (:class:`DataError`) anything but a regular file, before it is opened:
+    a folder, a FIFO, a socket, a device, a symbolic link loop or a missing file."""
+    p = Path(path)
+    st = stat_path(p, "file")
+    if not stat.S_ISREG(st.st_mode):
+        raise DataError(f"{p}: is {_file_kind(st.st_mode)}, expected a CSV or Parquet "
+                        "file; avll reads regular files only")
+    return st
+
+
+def _header_end(prefix: bytes) -> int | None:
+    """Where the first CSV record of ``prefix`` ends (a newline outside quotes)."""
+    quotes = 0
+    start = 0
+    while True:
+        i = prefix.find(b"\n", start)
+        if i < 0:
+            return None
+        quotes += prefix.count(b'"', start, i)
+        if quotes % 2 == 0:
+            return i
+        start = i + 1
+
+
+def check_header(path: str | Path) -> None:
+    """Bounds what the header of a data file can cost before it is parsed: a CSV
+    header line of at most :data:`MAX_HEADER_BYTES` bytes and :data:`MAX_COLUMNS`
+    fields; a Parquet file with a footer of at most :data:`MAX_PARQUET_FOOTER` bytes
+    and at most :data:`MAX_COLUMNS` columns. A :class:`DataError` otherwise."""
+    p = Path(path)
+    if p.suffix.lower() in (".parquet", ".pq"):
+        size = p.stat().st_size
+        with open(p, "rb") as f:
+            if size >= 12:
+                f.seek(size - 8)
+                tail = f.read(8)
+                footer = int.from_bytes(tail[:4], "little")
+                if tail[4:] == b"PAR1" and footer > MAX_PARQUET_FOOTER:
+                    raise DataError(f"{p}: a Parquet footer (schema) of {footer} bytes, more "
+                                    f"than the {MAX_PARQUET_FOOTER} accepted; not a data "
+                                    "file of runs")
+        try:
+            import pyarrow.parquet as pq
+
+            n = len(pq.read_schema(p).names)
+        except Exception:  # noqa: BLE001 - the parser reports a bad file itself
+            return
+        if n > MAX_COLUMNS:
+            raise DataError(f"{p}: {n} columns, more than the {MAX_COLUMNS} accepted; not a "
+                            "data file of runs")
+        return
+    with open(p, "rb") as f:
+        prefix = f.read(MAX_HEADER_BYTES + 1)
+    end = _header_end(prefix)
+    if end is None:
+        if len(prefix) <= MAX_HEADER_BYTES:
+            end = len(prefix)  # a header without a newline: the whole (short) file
+        else:
+            raise DataError(f"{p}: the header line is longer than {MAX_HEADER_BYTES} bytes; "
+                            f"a data file of runs has a short header (at most {MAX_COLUMNS} "
+                            "columns)")
+    n = prefix.count(b",", 0, end) + 1  # an upper bound of the fields (commas in quotes)
+    if n > MAX_COLUMNS:
+        text = prefix[:end].decode("utf-8", errors="replace")
+        n = len(next(csv.reader([text]), []))
+        if n > MAX_COLUMNS:
+            raise DataError(f"{p}: the header has {n} columns, more than the {MAX_COLUMNS} "
+                            "accepted; a data file of runs has a few dozen")
+
 
 #: Speeds above this (m/s, 252 km/h) are not plausible for road vehicles.
 MAX_PLAUSIBLE_SPEED = 70.0
@@ -166,12 +290,12 @@ def read_table(path: str | Path, *, encoding: str = "utf-8-sig") -> pd.DataFrame
     ``OSError`` when the file cannot be read.
     """
     p = Path(path)
-    if not p.exists():
+    if not os.path.lexists(p):
         raise FileNotFoundError(f"{p}: no such file")
-    if p.is_dir():
-        raise DataError(f"{p}: is a directory, expected a CSV or Parquet file")
-    if p.stat().st_size == 0:
+    st = check_regular_file(p)
+    if st.st_size == 0:
         raise DataError(f"{p}: empty file (no header, no data)")
+    check_header(p)
     suffix = p.suffix.lower()
     if suffix in (".parquet", ".pq"):
         try:

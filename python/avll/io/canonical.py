@@ -38,6 +38,8 @@ from __future__ import annotations
 import json
 import math
 import numbers
+import os
+import stat
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -49,7 +51,16 @@ import pandas as pd
 from .. import _atomic
 from ..data import COMMAND_KINDS, DataError, DataWarning, Run
 from ..models import UpperLevel
-from ._common import check_columns, check_time_step, check_unique_header, strict_warnings
+from ._common import (
+    _file_kind,
+    check_columns,
+    check_header,
+    check_regular_file,
+    check_time_step,
+    check_unique_header,
+    stat_path,
+    strict_warnings,
+)
 
 __all__ = ["load_canonical", "write_runs", "validate_sidecar", "REQUIRED", "OPTIONAL",
            "sidecar_path", "MAX_SIDECAR_DEPTH"]
@@ -72,8 +83,8 @@ def sidecar_path(path: Path) -> Path:
 
 
 def _read_table(path: Path) -> pd.DataFrame:
-    if path.is_dir():
-        raise DataError(f"{path}: is a folder, expected a CSV or Parquet file")
+    check_regular_file(path)
+    check_header(path)
     if path.suffix.lower() in (".parquet", ".pq"):
         try:
             df = pd.read_parquet(path)
@@ -104,7 +115,10 @@ def _numeric(path: Path, df: pd.DataFrame, col: str, line0: int) -> np.ndarray:
         if bad.size:
             i = int(bad[0])
             raw = txt.iloc[i]
-            what = "is empty" if raw in ("", "nan", "NaN", "NA") else f"{raw!r} is not a number"
+            what = ("is empty" if raw == "" else
+                    f"{raw!r} is not a number (NaN is not allowed)"
+                    if raw.lower().lstrip("+-") in ("nan", "na")
+                    else f"{raw!r} is not a number")
             raise DataError(f"{path}: column {col!r} line {i + line0}: {what}")
         arr = vals.to_numpy(dtype=np.float64)
     else:
@@ -195,11 +209,13 @@ def validate_sidecar(doc: Any, sc: Path | str = "sidecar") -> dict[str, Any]:
 
 def _sidecar(path: Path) -> dict[str, Any]:
     sc = sidecar_path(path)
-    if not sc.exists():
+    if not os.path.lexists(sc):
         return {"runs": {}}
-    if sc.is_dir():
-        raise DataError(f"{sc}: is a folder, expected the JSON sidecar")
-    if sc.stat().st_size > MAX_SIDECAR_BYTES:
+    st = stat_path(sc, "sidecar")
+    if not stat.S_ISREG(st.st_mode):
+        raise DataError(f"{sc}: is {_file_kind(st.st_mode)}, expected the JSON sidecar "
+                        "(a regular file)")
+    if st.st_size > MAX_SIDECAR_BYTES:
         raise DataError(f"{sc}: larger than {MAX_SIDECAR_BYTES // 2**20} MB; not a sidecar")
     try:
         data = json.loads(sc.read_text(encoding="utf-8"), object_pairs_hook=_no_duplicates)
