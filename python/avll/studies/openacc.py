@@ -1114,9 +1114,22 @@ def _vs(cars: Sequence[Mapping[str, Any]], pred: str, meas: str, ci: str | None,
             "mean_error": _fin(np.mean(err)) if err.size else None,
             "median_abs_error": _fin(np.median(np.abs(err))) if err.size else None,
             "within_10pct": _fin(np.mean(np.abs(err) <= 0.10)) if err.size else None,
+            "within_10pct_count": int(np.sum(np.abs(err) <= 0.10)),
             "underestimated": int(np.sum(err < 0)),
             "n_with_interval": len(with_ci),
-            "inside_measured_ci": _fin(np.mean(inside)) if inside else None}
+            "inside_measured_ci": _fin(np.mean(inside)) if inside else None,
+            "inside_measured_ci_count": int(np.sum(inside)) if inside else 0}
+
+
+def _rel(cars: Sequence[Mapping[str, Any]], a: str, b: str, group: str) -> dict[str, Any]:
+    """``a / b - 1`` over the cars of ``group`` with both finite: ``n``, ``mean`` and
+    ``median_abs``."""
+    d = np.asarray([c[a] / c[b] - 1.0 for c in cars if c["group"] == group
+                    and c.get(a) is not None and c.get(b) is not None
+                    and math.isfinite(c[b]) and c[b] > 0], dtype=float)
+    return {"a": a, "b": b, "n": int(d.size), "mean_rel_diff": _fin(np.mean(d)) if d.size
+            else None, "median_abs_rel_diff": _fin(np.median(np.abs(d))) if d.size else None,
+            "within_10pct_count": int(np.sum(np.abs(d) <= 0.10))}
 
 
 def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, Any]:
@@ -1130,6 +1143,7 @@ def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, 
                   "together, predicting the held-out file",
         "cars_with_prediction": sum(c["amplification_predicted_oos"] is not None
                                     for c in cars),
+        "cars_with_time_gap_oos": sum(c["time_gap_effective_oos"] is not None for c in cars),
         "cars_without_other_file": sum(not c["oos_files"] for c in cars),
         "interval_reason": OOS_CI_REASON,
     }
@@ -1148,13 +1162,13 @@ def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, 
                                              "amplification_measured",
                                              "amplification_measured_ci", grp),
         }
-        tg = [(c["time_gap_effective_oos"], c["time_gap_effective"]) for c in cars
-              if c["group"] == grp and c["time_gap_effective_oos"] is not None
-              and c["time_gap_effective"] is not None]
-        d = np.asarray([a / b - 1.0 for a, b in tg], dtype=float)
-        out[grp]["time_gap_effective_oos_vs_in_sample"] = {
-            "n": int(d.size), "mean_rel_diff": _fin(np.mean(d)) if d.size else None,
-            "median_abs_rel_diff": _fin(np.median(np.abs(d))) if d.size else None}
+        out[grp]["time_gap_effective_oos_vs_in_sample"] = _rel(
+            cars, "time_gap_effective_oos", "time_gap_effective", grp)
+        # the model-free counterpart: the median measured time headway (gap / speed)
+        out[grp]["time_gap_effective_oos_vs_headway_measured"] = _rel(
+            cars, "time_gap_effective_oos", "headway_measured", grp)
+        out[grp]["time_gap_effective_in_sample_vs_headway_measured"] = _rel(
+            cars, "time_gap_effective", "headway_measured", grp)
     return out
 
 
@@ -1185,17 +1199,23 @@ def _oos_lines(s: Mapping[str, Any]) -> list[str]:
             d = o[grp][key]
             if not d["n"]:
                 continue
-            share = (f"{_f(d['inside_measured_ci'])} of {d['n_with_interval']}"
-                     if d["inside_measured_ci"] is not None else "–")
+            share = (f"{d['inside_measured_ci_count']} of {d['n_with_interval']}"
+                     if d["n_with_interval"] else "–")
             lines.append(f"| {grp} | {lab} | {d['n']} | {_f(d['mean_error'], 3)} | "
-                         f"{_f(d['median_abs_error'], 3)} | {_f(d['within_10pct'])} | "
+                         f"{_f(d['median_abs_error'], 3)} | {d['within_10pct_count']} | "
                          f"{share} | {d['underestimated']} |")
-    t = o["acc"]["time_gap_effective_oos_vs_in_sample"]
-    if t["n"]:
-        lines += ["", f"Effective time gap Tg + Gmin/v̄ out of sample vs in-sample (ACC "
-                  f"cars, n = {t['n']}): mean relative difference "
-                  f"{_f(t['mean_rel_diff'], 3)}, median absolute "
-                  f"{_f(t['median_abs_rel_diff'], 3)}."]
+    tl = (("time_gap_effective_oos_vs_headway_measured", "out of sample vs the measured "
+           "headway (median gap / speed, no model)"),
+          ("time_gap_effective_in_sample_vs_headway_measured", "in-sample vs the measured "
+           "headway"),
+          ("time_gap_effective_oos_vs_in_sample", "out of sample vs in-sample"))
+    parts = [f"{lab}: n {t['n']}, mean relative difference {_f(t['mean_rel_diff'], 3)}, "
+             f"median absolute {_f(t['median_abs_rel_diff'], 3)}, within 10 % "
+             f"{t['within_10pct_count']}" for key, lab in tl
+             for t in (o["acc"][key],) if t["n"]]
+    if parts:
+        lines += ["", "Effective time gap Tg + Gmin/v̄ at the held-out run's mean speed (ACC "
+                  "cars; no interval yet): " + "; ".join(parts) + "."]
     return lines + [""]
 
 
