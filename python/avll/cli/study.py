@@ -122,7 +122,8 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
                    help="keep these tracks, e.g. dynamic,handling (default: all)")
     p.add_argument("--no-out-of-sample", action="store_true",
                    help="skip the out-of-sample step (one model per car and setting "
-                   "calibrated on the car's other files, predicting the held-out file)")
+                   "calibrated on the car's other files, predicting the held-out file; "
+                   "default: run it)")
     add_progress(p)
     declare_io(p, inputs=("path",), files=("json",), folders=("out",))
     p.set_defaults(func=_openacc)
