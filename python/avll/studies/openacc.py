@@ -56,6 +56,26 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    amplification; one shorter than :data:`MIN_BLOCKS` bootstrap blocks gets no
    interval (each ``null`` with a ``_reason``: a block bootstrap over one or two
    blocks only rotates the record and its interval collapses).
+   Beside the band RMS ratio, the H1 cross-spectral band gain of predecessor ->
+   follower speed (:func:`avll.spectral.h1_band_gain`: power-weighted over the
+   band, with the band's coherence and a 95 % interval): per car
+   ``amplification_measured_h1``, ``amplification_measured_h1_ci``, ``coherence``.
+   Like with like: ``|H(jω)|`` on the predecessor's spectrum is compared with the
+   H1 gain, a replay with the RMS ratio.
+4. **Out of sample** (the headline; the figures above are in-sample: each car's
+   model is calibrated on the run it is compared on). Leave one file out: for
+   every run, one model of ``model`` is calibrated on all the runs of the same car
+   (campaign, car, setting, ACC state) from the car's OTHER files, together (one
+   multi-run problem of :func:`avll.calibrate_many`, same budget and box), and
+   predicts the held-out run: ``amplification_predicted_oos`` (``|H|`` vs H1),
+   ``amplification_replay_oos`` (replay vs the RMS ratio) and
+   ``time_gap_effective_oos`` (``Tg + Gmin / v̄`` at the held-out run's mean
+   speed, compared with the measured headway). Each is ``null`` with a
+   ``_reason`` when the car has no other file of its setting; their ``_ci`` are
+   ``null`` with a reason until the calibration returns parameter intervals. The
+   summary's ``out_of_sample`` gives, per group, the bias (mean error), the share
+   within 10 % and the share inside the measured 95 % interval, out of sample and
+   in-sample.
 
 **ACC state** (the run meta's ``acc``): runs under ACC are the study's cars;
 human-driven runs (``acc`` False) are calibrated with the same closed-loop
