@@ -1392,6 +1392,14 @@ def _tables(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str,
                      "A_measured": c["amplification_measured"], "A_ci_low": ci[0],
                      "A_ci_high": ci[1], "A_predicted_H": c["amplification_predicted"],
                      "A_replay": c["amplification_replay"],
+                     "A_measured_h1": c["amplification_measured_h1"],
+                     "A_h1_ci_low": (c["amplification_measured_h1_ci"] or [None])[0],
+                     "A_h1_ci_high": (c["amplification_measured_h1_ci"] or [None, None])[1],
+                     "coherence": c["coherence"],
+                     "A_predicted_H_oos": c["amplification_predicted_oos"],
+                     "A_replay_oos": c["amplification_replay_oos"],
+                     "time_gap_effective_oos": c["time_gap_effective_oos"],
+                     "oos_files": len(c["oos_files"]),
                      "at_bound": "/".join(c["at_bound"])})
     per_model = []
     for c in cars:
@@ -1665,7 +1673,15 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
               _md_table(tables["cars"][["file", "car", "setting", "position", "Tg", "Gmin",
                                         "time_gap_effective", "headway_measured", "cal_mse",
                                         "A_measured", "A_ci_low", "A_ci_high",
-                                        "A_predicted_H", "A_replay"]], 2), ""]
+                                        "A_predicted_H", "A_replay"]], 2), "",
+              "Per car, like with like (main model; `_oos`: out of sample, from the car's "
+              "other files of its setting; `oos_files`: how many):", "",
+              _md_table(tables["cars"][["file", "car", "setting", "A_measured_h1",
+                                        "A_h1_ci_low", "A_h1_ci_high", "coherence",
+                                        "A_predicted_H", "A_predicted_H_oos", "A_measured",
+                                        "A_replay", "A_replay_oos", "time_gap_effective",
+                                        "time_gap_effective_oos", "headway_measured",
+                                        "oos_files"]], 2), ""]
     out10 = [c for c in acc if c["models"][main]["amplification_replay_error"] is not None
              and abs(c["models"][main]["amplification_replay_error"]) > 0.10]
     if out10:
