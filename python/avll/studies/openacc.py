@@ -1478,7 +1478,18 @@ def _findings(s: Mapping[str, Any]) -> list[str]:
              for c in so["checks"] if not c["held"]]
     camps = "; ".join(f"{k}: {v['held']} of {v['checked']}"
                       for k, v in so["campaigns"].items())
-    out = [f"- **Setting order**: the calibrated Tg ({main} model) is longer for the longer "
+    out = []
+    o = s["out_of_sample"]["acc"]["oos_H_vs_h1"] if s["out_of_sample"]["enabled"] else None
+    if o is not None and o["n"]:
+        ins = s["out_of_sample"]["acc"]["in_sample_H_vs_h1"]
+        out.append(f"- **Out of sample** ({main} model calibrated on each car's other files "
+                   f"of its setting; abs H(jω) vs the H1 measured gain, ACC cars): n "
+                   f"{o['n']}, mean error {_f(o['mean_error'], 3)}, within 10 % for "
+                   f"{o['within_10pct_count']}, inside the measured 95 % interval for "
+                   f"{o['inside_measured_ci_count']} of {o['n_with_interval']} (in-sample: "
+                   f"mean error {_f(ins['mean_error'], 3)}, within 10 % for "
+                   f"{ins['within_10pct_count']} of {ins['n']}).")
+    out += [f"- **Setting order**: the calibrated Tg ({main} model) is longer for the longer "
            f"ACC setting in {so['held']} of {so['checked']} checks (car model × pair of "
            "settings, each campaign's own order of its settings"
            + (f"; per campaign: {camps}" if multi and camps else "") + ")"
