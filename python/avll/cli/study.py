@@ -53,7 +53,7 @@ def _openacc(args: argparse.Namespace) -> int:
                        max_generations=args.max_generations, pop_size=args.pop_size,
                        starts=args.starts, band=band, n_boot=args.bootstrap,
                        gmin_max=args.gmin_max, acc_unknown=args.acc_unknown,
-                       **load)  # fmt: skip
+                       out_of_sample=not args.no_out_of_sample, **load)  # fmt: skip
     log(f"writing {args.out}" + (f" and {args.json}" if args.json else ""))
     st.save(args.out, args.json)
     s = st.summary
@@ -66,6 +66,13 @@ def _openacc(args: argparse.Namespace) -> int:
           + (f" ({camps})" if len(so["campaigns"]) > 1 else "")
           + f"; best amplification predictor: |H| {best['amplification_H'] or 'none'}, "
           f"replay {best['amplification_replay'] or 'none'}; wrote {args.out}")
+    oos = s["out_of_sample"]["acc"]["oos_H_vs_h1"]
+    if oos["n"]:
+        inside = oos["inside_measured_ci"]
+        print(f"out of sample (ACC cars, abs H vs H1): n {oos['n']}, mean error "
+              f"{oos['mean_error']:+.3f}, within 10 % {oos['within_10pct']:.2f}, inside the "
+              "measured 95 % interval "
+              + ("n/a" if inside is None else f"{inside:.2f} of {oos['n_with_interval']}"))
     return 0
 
 
@@ -114,6 +121,10 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
                    help="keep these car models, comma-separated (default: all)")
     p.add_argument("--track", default=None,
                    help="keep these tracks, e.g. dynamic,handling (default: all)")
+    p.add_argument("--no-out-of-sample", action="store_true",
+                   help="skip the out-of-sample step (one model per car and setting "
+                   "calibrated on the car's other files, predicting the held-out file; "
+                   "default: run it)")
     add_progress(p)
     declare_io(p, inputs=("path",), files=("json",), folders=("out",))
     p.set_defaults(func=_openacc)

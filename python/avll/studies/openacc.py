@@ -56,6 +56,26 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    amplification; one shorter than :data:`MIN_BLOCKS` bootstrap blocks gets no
    interval (each ``null`` with a ``_reason``: a block bootstrap over one or two
    blocks only rotates the record and its interval collapses).
+   Beside the band RMS ratio, the H1 cross-spectral band gain of predecessor ->
+   follower speed (:func:`avll.spectral.h1_band_gain`: power-weighted over the
+   band, with the band's coherence and a 95 % interval): per car
+   ``amplification_measured_h1``, ``amplification_measured_h1_ci``, ``coherence``.
+   Like with like: ``|H(jω)|`` on the predecessor's spectrum is compared with the
+   H1 gain, a replay with the RMS ratio.
+4. **Out of sample** (the headline; the figures above are in-sample: each car's
+   model is calibrated on the run it is compared on). Leave one file out: for
+   every run, one model of ``model`` is calibrated on all the runs of the same car
+   (campaign, car, setting, ACC state) from the car's OTHER files, together (one
+   multi-run problem of :func:`avll.calibrate_many`, same budget and box), and
+   predicts the held-out run: ``amplification_predicted_oos`` (``|H|`` vs H1),
+   ``amplification_replay_oos`` (replay vs the RMS ratio) and
+   ``time_gap_effective_oos`` (``Tg + Gmin / v̄`` at the held-out run's mean
+   speed, compared with the measured headway). Each is ``null`` with a
+   ``_reason`` when the car has no other file of its setting; their ``_ci`` are
+   ``null`` with a reason until the calibration returns parameter intervals. The
+   summary's ``out_of_sample`` gives, per group, the bias (mean error), the share
+   within 10 % and the share inside the measured 95 % interval, out of sample and
+   in-sample.
 
 **ACC state** (the run meta's ``acc``): runs under ACC are the study's cars;
 human-driven runs (``acc`` False) are calibrated with the same closed-loop
@@ -532,6 +552,7 @@ def openacc_study(
     gmin_max: float = GMIN_MAX,
     acc_unknown: str = "exclude",
     figures: bool = True,
+    out_of_sample: bool = True,
     **load_options: Any,
 ) -> OpenACCStudy:
     """Runs the study (see the module doc) on native OpenACC data at ``path`` (a
@@ -557,6 +578,8 @@ def openacc_study(
     models = list(dict.fromkeys([model, *models]))
     for m in models:
         model_class(m)
+    if not isinstance(out_of_sample, bool):
+        raise ValueError(f"out_of_sample: must be True or False, got {out_of_sample!r}")
     if acc_unknown not in ACC_UNKNOWN:
         raise ValueError(f"acc_unknown: must be one of {', '.join(ACC_UNKNOWN)}, got "
                          f"{acc_unknown!r}")
@@ -625,6 +648,20 @@ def openacc_study(
     cars = []
     for i, (r, meta) in enumerate(zip(runs, metas, strict=True)):
         cars.append(_car_entry(i, r, meta, models, model, results, band, n_boot, block, seed))
+    oos_plan = _oos_plan(metas) if out_of_sample else None
+    oos_res: list[Any] = []
+    if oos_plan is not None and oos_plan["subsets"]:
+        say(f"out of sample: calibrating {model} on each car's other files of its setting "
+            f"({len(oos_plan['subsets'])} problems, leave one file out)")
+        oos_res = calibrate_many(
+            model, runs, oos_plan["subsets"], seed=int(seed) + 7919, threads=threads,
+            progress=progress, bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True,
+            upper_free=_UPPER, weights=WEIGHTS, init="rest", starts=starts,
+            max_generations=max_generations, pop_size=pop_size)  # fmt: skip
+        if any(r.interrupted for r in oos_res):
+            raise KeyboardInterrupt
+    for i, (r, c) in enumerate(zip(runs, cars, strict=True)):
+        c.update(_oos_entry(i, r, c, model, oos_plan, oos_res, runs, band))
     acc_rows = [{"campaign": c["campaign"], "car": c["car"],
                  "setting": c["setting"] if c["_in_order"] else None,
                  "setting_rank": c["setting_rank"], "Tg": c["Tg"],
@@ -666,6 +703,20 @@ def openacc_study(
         "setting_order_measured_headway": _short(order_meas),
         "setting_order_with_mixed": _short(order_all),
         "model_comparison": comparison,
+        "estimates": {
+            "amplification_measured": "band RMS ratio (follower / predecessor speed), "
+                                      "block-bootstrap interval; compared with replays",
+            "amplification_measured_h1": "H1 cross-spectral band gain, power-weighted over "
+                                         "the band, with coherence and analytic interval "
+                                         "(avll.spectral.h1_band_gain); compared with abs H",
+            "amplification_predicted": "in-sample: abs H of the model calibrated on this "
+                                       "run, on its predecessor's spectrum",
+            "amplification_replay": "in-sample: that model replayed on this run",
+            "amplification_predicted_oos": "out of sample: abs H of the model calibrated "
+                                           "on the car's other files of the same setting",
+            "amplification_replay_oos": "out of sample: that model replayed on this run",
+        },
+        "out_of_sample": _oos_summary(cars, out_of_sample),
         "car_overview": _car_overview(cars, left_out, dropped),
         "left_out": left_out,
         "dropped_by_loader": dropped,
@@ -824,6 +875,40 @@ def measured_amplification(v: np.ndarray, lead_v: np.ndarray, dt: float, *,
     return out
 
 
+def _h1_entry(r: Run, band: Sequence[float], short: str | None,
+              reasons: dict[str, str]) -> dict[str, Any]:
+    """The H1 band gain of the car's predecessor -> own speed
+    (:func:`avll.spectral.h1_band_gain`): ``amplification_measured_h1``, its 95 %
+    interval ``amplification_measured_h1_ci`` and the band's power-weighted
+    ``coherence``; each None with its reason in ``reasons``."""
+    from ..spectral import h1_band_gain
+
+    out: dict[str, Any] = {"amplification_measured_h1": None,
+                           "amplification_measured_h1_ci": None, "coherence": None}
+    if short is not None:
+        for k in out:
+            reasons[k] = short
+        return out
+    assert r.v is not None and r.lead_v is not None
+    g = h1_band_gain(r.lead_v, r.v, r.dt, band)
+    gain = _fin(g.gain) if g.gain is not None else None
+    out["amplification_measured_h1"] = gain
+    if gain is None:
+        why = g.reason or "the H1 band gain is not finite"
+        reasons["amplification_measured_h1"] = why
+    ci = g.ci
+    if gain is not None and ci is not None and all(_fin(x) is not None for x in ci):
+        out["amplification_measured_h1_ci"] = [float(ci[0]), float(ci[1])]
+    else:
+        reasons["amplification_measured_h1_ci"] = (
+            g.ci_reason or g.reason or "no interval for the H1 band gain")
+    coh = _fin(g.coherence) if g.coherence is not None else None
+    out["coherence"] = coh
+    if coh is None:
+        reasons["coherence"] = g.reason or "the band's coherence is not finite"
+    return out
+
+
 def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], main: str,
                results: Mapping[str, list[Any]], band: Sequence[float], n_boot: int,
                block: float, seed: int) -> dict[str, Any]:
@@ -852,6 +937,7 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
     if "ci_reason" in ma:
         reasons["amplification_measured_ci"] = ma["ci_reason"]
     short = _short_record(len(r), r.dt, band)
+    e.update(_h1_entry(r, band, short, reasons))
     e["headway_measured"] = _headway(r)
     per: dict[str, Any] = {}
     for m in models:
@@ -909,6 +995,247 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
     for k, v in reasons.items():
         e[f"{k}_reason"] = v
     return e
+
+
+#: Why the out-of-sample prediction has no interval yet.
+OOS_CI_REASON = ("no parameter intervals yet: the calibration returns point estimates only "
+                 "(issue 28, item 1); no interval is invented")
+
+
+def _oos_key(meta: Mapping[str, Any]) -> tuple[Any, ...] | None:
+    """The car's out-of-sample group: campaign, car, setting (its rank, else the raw
+    setting) and ACC state; None when the setting is unknown."""
+    st = meta["setting_rank"] if meta["setting_rank"] is not None else meta["setting"]
+    if st is None:
+        return None
+    return (meta["campaign"], meta["car"], st, meta["acc"] is not False)
+
+
+def _oos_plan(metas: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Leave one file out: per run, the runs of the same group (:func:`_oos_key`)
+    from OTHER files (``others``, None with ``reasons`` when there is none), and
+    the distinct calibration problems (``subsets``, run indices) with each run's
+    problem (``problem``)."""
+    groups: dict[tuple[Any, ...], list[int]] = {}
+    for i, m in enumerate(metas):
+        k = _oos_key(m)
+        if k is not None:
+            groups.setdefault(k, []).append(i)
+    subsets: list[list[int]] = []
+    index: dict[tuple[int, ...], int] = {}
+    problem: list[int | None] = []
+    reasons: list[str | None] = []
+    for m in metas:
+        k = _oos_key(m)
+        if k is None:
+            problem.append(None)
+            reasons.append("the run's setting is unknown: no other file of the same setting")
+            continue
+        others = tuple(j for j in groups[k] if metas[j]["file"] != m["file"])
+        if not others:
+            problem.append(None)
+            reasons.append(f"no other file of the same setting for this car ({m['car']}, "
+                           f"setting {m['setting']}, {_acc_label(m['acc'])}, campaign "
+                           f"{m['campaign'] or '–'}) to calibrate on")
+            continue
+        if others not in index:
+            index[others] = len(subsets)
+            subsets.append(list(others))
+        problem.append(index[others])
+        reasons.append(None)
+    return {"subsets": subsets, "problem": problem, "reasons": reasons}
+
+
+def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
+               plan: Mapping[str, Any] | None, res: Sequence[Any], runs: Sequence[Run],
+               band: Sequence[float]) -> dict[str, Any]:
+    """The held-out prediction of run ``i`` from the model calibrated on its car's
+    other files of the same setting: ``amplification_predicted_oos`` (abs H of that
+    model on this run's predecessor spectrum, to compare with the H1 measured gain),
+    ``amplification_replay_oos`` (that model replayed behind this run's predecessor,
+    to compare with the measured RMS ratio), ``time_gap_effective_oos`` (its
+    ``Tg + Gmin / v̄`` at this run's mean speed), their errors and ``_ci`` (None
+    with a reason), ``oos_files`` and ``oos_params``; each None with a ``_reason``."""
+    keys = ("amplification_predicted_oos", "amplification_replay_oos", "time_gap_effective_oos")
+    e: dict[str, Any] = {k: None for k in keys}
+    e.update({"amplification_predicted_oos_ci": None, "time_gap_effective_oos_ci": None,
+              "amplification_predicted_oos_error": None,
+              "amplification_replay_oos_error": None, "oos_files": [], "oos_params": None})
+    why: str | None
+    if plan is None:
+        why = "out-of-sample step not run (out_of_sample=False)"
+    else:
+        why = plan["reasons"][i]
+    if why is not None:
+        for k in (*keys, "amplification_predicted_oos_ci", "time_gap_effective_oos_ci"):
+            e[f"{k}_reason"] = why
+        return e
+    assert plan is not None and r.v is not None and r.lead_v is not None
+    k = plan["problem"][i]
+    fit = res[k]
+    params = dict(fit.params)
+    mod = _model_of(main, params)
+    up = _upper_of(params)
+    e["oos_files"] = sorted({str(runs[j].meta.get("file") or runs[j].run_id)
+                             for j in plan["subsets"][k]})
+    e["oos_params"] = params
+    e["oos_at_bound"] = list(fit.at_bound)
+    e["time_gap_effective_oos"] = _fin(up.Tg + up.Gmin / max(float(np.mean(r.v)), 0.1))
+    if e["time_gap_effective_oos"] is None:
+        e["time_gap_effective_oos_reason"] = "not finite"
+    short = _short_record(len(r), r.dt, band)
+    codes, _settled = exact_delay_codes(mod, up.kg, up.Tg, up.kv)
+    code = int(codes[0])
+    e["string_stable_oos"] = (code == 2) if code else None
+    if short is not None:
+        e["amplification_predicted_oos_reason"] = short
+        e["amplification_replay_oos_reason"] = short
+    else:
+        if not code:
+            e["amplification_predicted_oos_reason"] = (
+                "the out-of-sample closed loop is locally unstable (true delay): abs H(jω) "
+                "is not its gain")
+            e["string_stable_oos_reason"] = "the out-of-sample closed loop is locally unstable"
+        else:
+            a_h = _fin(predicted_amplification(mod, up, r.lead_v, r.dt, band))
+            e["amplification_predicted_oos"] = a_h
+            if a_h is None:
+                e["amplification_predicted_oos_reason"] = "no periodogram bin in the band"
+        a_r = _fin(replay_amplification(mod, up, r, band)[0])
+        e["amplification_replay_oos"] = a_r
+        if a_r is None:
+            e["amplification_replay_oos_reason"] = ("the out-of-sample closed loop diverges "
+                                                    "in replay")
+    h1, ratio = car["amplification_measured_h1"], car["amplification_measured"]
+    if e["amplification_predicted_oos"] is not None and h1:
+        e["amplification_predicted_oos_error"] = e["amplification_predicted_oos"] / h1 - 1.0
+    if e["amplification_replay_oos"] is not None and ratio:
+        e["amplification_replay_oos_error"] = e["amplification_replay_oos"] / ratio - 1.0
+    e["amplification_predicted_oos_ci_reason"] = OOS_CI_REASON
+    e["time_gap_effective_oos_ci_reason"] = OOS_CI_REASON
+    return e
+
+
+def _vs(cars: Sequence[Mapping[str, Any]], pred: str, meas: str, ci: str | None,
+        group: str) -> dict[str, Any]:
+    """A prediction ``pred`` against a measurement ``meas`` (its interval ``ci``) over
+    the cars of ``group`` with both: ``n``, ``mean_error`` (bias of
+    ``pred / meas - 1``), ``median_abs_error``, ``within_10pct`` and
+    ``inside_measured_ci`` (shares; None when n is 0), ``underestimated`` (count)."""
+    cs = [c for c in cars if c["group"] == group and c.get(pred) is not None
+          and c.get(meas)]
+    err = np.asarray([c[pred] / c[meas] - 1.0 for c in cs], dtype=float)
+    with_ci = [c for c in cs if ci is not None and c.get(ci) is not None
+               and c[ci][0] is not None]
+    inside = [c[ci][0] <= c[pred] <= c[ci][1] for c in with_ci] if ci else []
+    return {"prediction": pred, "measurement": meas, "interval": ci, "group": group,
+            "n": int(err.size),
+            "mean_error": _fin(np.mean(err)) if err.size else None,
+            "median_abs_error": _fin(np.median(np.abs(err))) if err.size else None,
+            "within_10pct": _fin(np.mean(np.abs(err) <= 0.10)) if err.size else None,
+            "within_10pct_count": int(np.sum(np.abs(err) <= 0.10)),
+            "underestimated": int(np.sum(err < 0)),
+            "n_with_interval": len(with_ci),
+            "inside_measured_ci": _fin(np.mean(inside)) if inside else None,
+            "inside_measured_ci_count": int(np.sum(inside)) if inside else 0}
+
+
+def _rel(cars: Sequence[Mapping[str, Any]], a: str, b: str, group: str) -> dict[str, Any]:
+    """``a / b - 1`` over the cars of ``group`` with both finite: ``n``, ``mean`` and
+    ``median_abs``."""
+    d = np.asarray([c[a] / c[b] - 1.0 for c in cars if c["group"] == group
+                    and c.get(a) is not None and c.get(b) is not None
+                    and math.isfinite(c[b]) and c[b] > 0], dtype=float)
+    return {"a": a, "b": b, "n": int(d.size), "mean_rel_diff": _fin(np.mean(d)) if d.size
+            else None, "median_abs_rel_diff": _fin(np.median(np.abs(d))) if d.size else None,
+            "within_10pct_count": int(np.sum(np.abs(d) <= 0.10))}
+
+
+def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, Any]:
+    """The out-of-sample headline and its in-sample counterparts, like with like:
+    abs H of the model on the predecessor's spectrum vs the H1 measured gain; a
+    replay vs the measured band RMS ratio; per group (ACC, human)."""
+    out: dict[str, Any] = {
+        "enabled": bool(enabled),
+        "method": "leave one file out: one model per car (campaign, car, setting, ACC "
+                  "state) calibrated on the car's other files of the same setting, all "
+                  "together, predicting the held-out file",
+        "cars_with_prediction": sum(c["amplification_predicted_oos"] is not None
+                                    for c in cars),
+        "cars_with_time_gap_oos": sum(c["time_gap_effective_oos"] is not None for c in cars),
+        "cars_without_other_file": sum(not c["oos_files"] for c in cars),
+        "interval_reason": OOS_CI_REASON,
+    }
+    for grp in ("acc", "human"):
+        out[grp] = {
+            "oos_H_vs_h1": _vs(cars, "amplification_predicted_oos",
+                               "amplification_measured_h1", "amplification_measured_h1_ci",
+                               grp),
+            "in_sample_H_vs_h1": _vs(cars, "amplification_predicted",
+                                     "amplification_measured_h1",
+                                     "amplification_measured_h1_ci", grp),
+            "oos_replay_vs_ratio": _vs(cars, "amplification_replay_oos",
+                                       "amplification_measured",
+                                       "amplification_measured_ci", grp),
+            "in_sample_replay_vs_ratio": _vs(cars, "amplification_replay",
+                                             "amplification_measured",
+                                             "amplification_measured_ci", grp),
+        }
+        out[grp]["time_gap_effective_oos_vs_in_sample"] = _rel(
+            cars, "time_gap_effective_oos", "time_gap_effective", grp)
+        # the model-free counterpart: the median measured time headway (gap / speed)
+        out[grp]["time_gap_effective_oos_vs_headway_measured"] = _rel(
+            cars, "time_gap_effective_oos", "headway_measured", grp)
+        out[grp]["time_gap_effective_in_sample_vs_headway_measured"] = _rel(
+            cars, "time_gap_effective", "headway_measured", grp)
+    return out
+
+
+def _oos_lines(s: Mapping[str, Any]) -> list[str]:
+    """The report's out-of-sample section (the headline), with its in-sample
+    counterparts, like with like."""
+    o = s["out_of_sample"]
+    lines = ["## Out of sample (headline)", ""]
+    if not o["enabled"]:
+        return lines + ["Not run (out_of_sample=False).", ""]
+    lines += [
+        f"Method: {o['method']}. Cars with a held-out prediction: "
+        f"{o['cars_with_prediction']}; without another file of their setting: "
+        f"{o['cars_without_other_file']}. Like with like: abs H(jω) of a model on the "
+        "held-out run's predecessor spectrum is compared with the H1 cross-spectral band "
+        "gain (95 % analytic interval); a model's replay with the band RMS ratio (95 % "
+        f"block-bootstrap interval). The prediction has no interval yet: {o['interval_reason']}.",
+        "",
+        "| cars | comparison | n | mean error (bias) | median abs error | within 10 % | "
+        "inside the measured 95 % interval | under-estimated |",
+        "|---|---|---|---|---|---|---|---|"]
+    labels = (("oos_H_vs_h1", "out of sample: abs H vs H1"),
+              ("in_sample_H_vs_h1", "in-sample: abs H vs H1"),
+              ("oos_replay_vs_ratio", "out of sample: replay vs RMS ratio"),
+              ("in_sample_replay_vs_ratio", "in-sample: replay vs RMS ratio"))
+    for grp in ("acc", "human"):
+        for key, lab in labels:
+            d = o[grp][key]
+            if not d["n"]:
+                continue
+            share = (f"{d['inside_measured_ci_count']} of {d['n_with_interval']}"
+                     if d["n_with_interval"] else "–")
+            lines.append(f"| {grp} | {lab} | {d['n']} | {_f(d['mean_error'], 3)} | "
+                         f"{_f(d['median_abs_error'], 3)} | {d['within_10pct_count']} | "
+                         f"{share} | {d['underestimated']} |")
+    tl = (("time_gap_effective_oos_vs_headway_measured", "out of sample vs the measured "
+           "headway (median gap / speed, no model)"),
+          ("time_gap_effective_in_sample_vs_headway_measured", "in-sample vs the measured "
+           "headway"),
+          ("time_gap_effective_oos_vs_in_sample", "out of sample vs in-sample"))
+    parts = [f"{lab}: n {t['n']}, mean relative difference {_f(t['mean_rel_diff'], 3)}, "
+             f"median absolute {_f(t['median_abs_rel_diff'], 3)}, within 10 % "
+             f"{t['within_10pct_count']}" for key, lab in tl
+             for t in (o["acc"][key],) if t["n"]]
+    if parts:
+        lines += ["", "Effective time gap Tg + Gmin/v̄ at the held-out run's mean speed (ACC "
+                  "cars; no interval yet): " + "; ".join(parts) + "."]
+    return lines + [""]
 
 
 def _public(c: Mapping[str, Any]) -> dict[str, Any]:
@@ -1064,6 +1391,14 @@ def _tables(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str,
                      "A_measured": c["amplification_measured"], "A_ci_low": ci[0],
                      "A_ci_high": ci[1], "A_predicted_H": c["amplification_predicted"],
                      "A_replay": c["amplification_replay"],
+                     "A_measured_h1": c["amplification_measured_h1"],
+                     "A_h1_ci_low": (c["amplification_measured_h1_ci"] or [None])[0],
+                     "A_h1_ci_high": (c["amplification_measured_h1_ci"] or [None, None])[1],
+                     "coherence": c["coherence"],
+                     "A_predicted_H_oos": c["amplification_predicted_oos"],
+                     "A_replay_oos": c["amplification_replay_oos"],
+                     "time_gap_effective_oos": c["time_gap_effective_oos"],
+                     "oos_files": len(c["oos_files"]),
                      "at_bound": "/".join(c["at_bound"])})
     per_model = []
     for c in cars:
@@ -1142,7 +1477,18 @@ def _findings(s: Mapping[str, Any]) -> list[str]:
              for c in so["checks"] if not c["held"]]
     camps = "; ".join(f"{k}: {v['held']} of {v['checked']}"
                       for k, v in so["campaigns"].items())
-    out = [f"- **Setting order**: the calibrated Tg ({main} model) is longer for the longer "
+    out = []
+    o = s["out_of_sample"]["acc"]["oos_H_vs_h1"] if s["out_of_sample"]["enabled"] else None
+    if o is not None and o["n"]:
+        ins = s["out_of_sample"]["acc"]["in_sample_H_vs_h1"]
+        out.append(f"- **Out of sample** ({main} model calibrated on each car's other files "
+                   f"of its setting; abs H(jω) vs the H1 measured gain, ACC cars): n "
+                   f"{o['n']}, mean error {_f(o['mean_error'], 3)}, within 10 % for "
+                   f"{o['within_10pct_count']}, inside the measured 95 % interval for "
+                   f"{o['inside_measured_ci_count']} of {o['n_with_interval']} (in-sample: "
+                   f"mean error {_f(ins['mean_error'], 3)}, within 10 % for "
+                   f"{ins['within_10pct_count']} of {ins['n']}).")
+    out += [f"- **Setting order**: the calibrated Tg ({main} model) is longer for the longer "
            f"ACC setting in {so['held']} of {so['checked']} checks (car model × pair of "
            "settings, each campaign's own order of its settings"
            + (f"; per campaign: {camps}" if multi and camps else "") + ")"
@@ -1298,7 +1644,12 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
     if hum:
         lines += ["Human control (no ACC): Tg " + ", ".join(
             f"{c['car']} {_f(c['Tg'])} s" for c in hum) + ".", ""]
-    lines += ["## Amplification: measured vs predicted", ""]
+    lines += _oos_lines(s)
+    lines += ["## Amplification: measured vs predicted (in-sample)", "",
+              "In-sample: each car's model is calibrated on the run it is compared on. "
+              "The measured amplification here is the band RMS ratio with its block-"
+              "bootstrap interval (for abs H against the H1 gain, like with like, see "
+              "'Out of sample').", ""]
     best = comp["best"]
     lines.append("| model | prediction | cars | n | median abs error | mean error | "
                  "within 10 % | inside CI | under-estimated | corr(error, measured) |")
@@ -1332,7 +1683,15 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
               _md_table(tables["cars"][["file", "car", "setting", "position", "Tg", "Gmin",
                                         "time_gap_effective", "headway_measured", "cal_mse",
                                         "A_measured", "A_ci_low", "A_ci_high",
-                                        "A_predicted_H", "A_replay"]], 2), ""]
+                                        "A_predicted_H", "A_replay"]], 2), "",
+              "Per car, like with like (main model; `_oos`: out of sample, from the car's "
+              "other files of its setting; `oos_files`: how many):", "",
+              _md_table(tables["cars"][["file", "car", "setting", "A_measured_h1",
+                                        "A_h1_ci_low", "A_h1_ci_high", "coherence",
+                                        "A_predicted_H", "A_predicted_H_oos", "A_measured",
+                                        "A_replay", "A_replay_oos", "time_gap_effective",
+                                        "time_gap_effective_oos", "headway_measured",
+                                        "oos_files"]], 2), ""]
     out10 = [c for c in acc if c["models"][main]["amplification_replay_error"] is not None
              and abs(c["models"][main]["amplification_replay_error"]) > 0.10]
     if out10:
