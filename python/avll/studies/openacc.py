@@ -103,8 +103,8 @@ import numpy as np
 from .. import _atomic
 from ..calibration import calibrate_many
 from ..data import Run
+from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_STARTS, GA_OPTIONS, UPPER_PLACEHOLDER
 from ..defaults import UPPER_NAMES as _UPPER
-from ..defaults import UPPER_PLACEHOLDER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODELS as _MODELS
 from ..rollout import closed_loop
@@ -134,8 +134,9 @@ __all__ = [
     "ACC_UNKNOWN",
 ]
 
-#: Objective weights (wa, wv, wx) of the closed-loop calibration.
-WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.01)
+#: Objective weights (wa, wv, wx) of the closed-loop calibration: the project's one
+#: closed-loop weighting (:data:`avll.defaults.CLOSED_LOOP_WEIGHTS`).
+WEIGHTS: tuple[float, float, float] = CLOSED_LOOP_WEIGHTS
 #: Band (Hz) of the amplification.
 DEFAULT_BAND: tuple[float, float] = (0.02, 0.2)
 #: Seconds cut at each end of the band-passed signals.
@@ -543,9 +544,9 @@ def openacc_study(
     threads: int = 0,
     progress: bool | str = False,
     log: Callable[[str], Any] | None = None,
-    max_generations: int = 300,
-    pop_size: int = 0,
-    starts: int = 2,
+    max_generations: int | None = None,
+    pop_size: int | None = None,
+    starts: int | None = None,
     band: Sequence[float] = DEFAULT_BAND,
     n_boot: int = N_BOOT,
     block: float = BLOCK,
@@ -561,8 +562,8 @@ def openacc_study(
     read by :func:`run_meta`). ``model`` is the lower-level model of the contract's
     ``params``, ``Tg`` and ``amplification_predicted``; ``models`` are compared
     (``model`` is added if missing). ``max_generations``, ``pop_size`` and
-    ``starts`` set the GA budget (the defaults are the GA's full budget with two
-    independent starts per car); ``load_options`` go to the loader (``setting``,
+    ``starts`` set the GA budget (``None``: :data:`avll.defaults.GA_OPTIONS` and
+    :data:`avll.defaults.DEFAULT_STARTS` independent starts per car); ``load_options`` go to the loader (``setting``,
     ``car``, ``track``, ...).
 
     ACC state (``meta["acc"]``): runs under ACC (True) are the study's cars; human
@@ -574,6 +575,9 @@ def openacc_study(
     ``log`` receives progress lines."""
     say = log or (lambda s: None)
     t0 = time.perf_counter()
+    max_generations = GA_OPTIONS["max_generations"] if max_generations is None else max_generations
+    pop_size = GA_OPTIONS["pop_size"] if pop_size is None else pop_size
+    starts = DEFAULT_STARTS if starts is None else starts
     model_class(model)
     models = list(dict.fromkeys([model, *models]))
     for m in models:

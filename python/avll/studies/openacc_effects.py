@@ -1,4 +1,4 @@
-"""Which effect closes the amplification gap? (issue 14, item 3, meets issue 13)
+"""Which effect closes the amplification gap?
 
 :func:`avll.studies.openacc.openacc_study` compares, per car, the measured
 amplification of the predecessor's speed oscillations with the amplification of
@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from ..data import Run
+from ..defaults import GA_OPTIONS
 from ..effects import EFFECTS, WithEffects, batch_cost_effects, closed_loop_effects
 from ..models import UpperLevel
 from .openacc import WEIGHTS, OpenACCStudy, _model_of, _upper_of, amplification
@@ -103,7 +104,7 @@ def effect_gaps(
     tol: float = 0.10,
     min_gain: float = 0.02,
     seed: int = 0,
-    max_generations: int = 300,
+    max_generations: int | None = None,
     starts: int = 1,
     threads: int = 0,
     band: Sequence[float] | None = None,
@@ -126,6 +127,8 @@ def effect_gaps(
         if e not in EFFECTS:
             raise ValueError(f"effects: unknown effect {e!r}; known: {', '.join(EFFECTS)}")
     say = log or (lambda s: None)
+    if max_generations is None:
+        max_generations = GA_OPTIONS["max_generations"]
     s = study.summary
     band = tuple(s["band_hz"]) if band is None else tuple(band)
     gmax = float(s["bounds"]["Gmin"][1]) if gmin_max is None else float(gmin_max)
