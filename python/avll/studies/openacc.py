@@ -563,8 +563,8 @@ def openacc_study(
     ``params``, ``Tg`` and ``amplification_predicted``; ``models`` are compared
     (``model`` is added if missing). ``max_generations``, ``pop_size`` and
     ``starts`` set the GA budget (``None``: :data:`avll.defaults.GA_OPTIONS` and
-    :data:`avll.defaults.DEFAULT_STARTS` independent starts per car); ``load_options`` go to the loader (``setting``,
-    ``car``, ``track``, ...).
+    :data:`avll.defaults.DEFAULT_STARTS` independent starts per car);
+    ``load_options`` go to the loader (``setting``, ``car``, ``track``, ...).
 
     ACC state (``meta["acc"]``): runs under ACC (True) are the study's cars; human
     runs (False) are calibrated with the same closed-loop structure and reported
