@@ -42,6 +42,7 @@ GUIDES: dict[str, str] = {
     "stability-map": "docs/guide/stability.md",
     "diagnose": "docs/guide/diagnose.md",
     "reproduce": "docs/guide/reproduce.md",
+    "data": "docs/data.md",
 }
 
 

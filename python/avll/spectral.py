@@ -69,6 +69,8 @@ from ._limits import check_number
 
 __all__ = [
     "DEFAULT_BAND",
+    "TRIM",
+    "bandpass",
     "MIN_SEGMENTS",
     "MIN_EXCITATION",
     "MAX_LAG",
@@ -77,8 +79,10 @@ __all__ = [
     "welch_effective_averages",
 ]
 
-#: Band (Hz) of the amplification (the OpenACC study's band).
+#: Band (Hz) of the amplification (the OpenACC study's band, :mod:`avll.studies.openacc`).
 DEFAULT_BAND: tuple[float, float] = (0.02, 0.2)
+#: Seconds cut at each end of the band-passed signals.
+TRIM = 5.0
 #: Fewest Welch segments for an estimate (with one segment the coherence is 1 by
 #: construction and H1 is a ratio of two periodograms).
 MIN_SEGMENTS = 3
@@ -129,6 +133,30 @@ class BandGain:
                 "n_effective": self.n_effective, "segment_s": self.segment_s,
                 "excitation": self.excitation, "reason": self.reason,
                 "ci_reason": self.ci_reason, "lag_s": self.lag_s, "method": self.method}
+
+
+def _check_band(band: Sequence[float], dt: float) -> tuple[float, float]:
+    lo, hi = (float(b) for b in band)
+    if not (0 < lo < hi < 0.5 / dt):
+        raise ValueError(f"band: need 0 < low < high < {0.5 / dt:g} Hz, got ({lo:g}, {hi:g})")
+    return lo, hi
+
+
+def bandpass(x: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
+             trim: float = TRIM) -> np.ndarray:
+    """``x`` detrended (straight line), band-passed by a zero-phase 2nd-order
+    Butterworth filter (forwards and backwards) and with ``trim`` seconds cut at
+    each end."""
+    from scipy import signal
+
+    lo, hi = _check_band(band, dt)
+    x = np.asarray(x, dtype=np.float64)
+    k = int(round(trim / dt))
+    if x.shape[0] <= 2 * k + 20:
+        raise ValueError(f"record of {x.shape[0] * dt:g} s is too short for trim {trim:g} s")
+    sos = signal.butter(2, [lo * 2 * dt, hi * 2 * dt], btype="bandpass", output="sos")
+    y = signal.sosfiltfilt(sos, signal.detrend(x))
+    return y[k:x.shape[0] - k] if k else y
 
 
 def welch_effective_averages(k: int, n: int = 0, step: int = 0) -> float:
@@ -261,12 +289,10 @@ def _fine_weights(x: np.ndarray, dt: float, f: np.ndarray, lo: float, hi: float
     """Weights of the Welch bins ``f`` such that ``sum_k W_k |H1(f_k)|^2`` is
     ``sum_j |H1(f_j)|^2 P(f_j) / sum_j P(f_j)`` over the band's bins ``f_j`` of ``P``, the
     periodogram (Hann) of the whole record of the predecessor's speed band-passed as
-    the study does (:func:`avll.studies.openacc.bandpass`), ``|H1|^2`` interpolated
+    the study does (:func:`bandpass`), ``|H1|^2`` interpolated
     linearly between the Welch bins: exactly the weighting
     :func:`avll.studies.openacc.predicted_amplification` gives a model's ``|H|``."""
     from scipy import signal
-
-    from .studies.openacc import bandpass
 
     try:
         xb = bandpass(x, dt, (lo, hi))

@@ -108,6 +108,7 @@ from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODELS as _MODELS
 from ..rollout import closed_loop
+from ..spectral import DEFAULT_BAND, TRIM, _check_band, bandpass
 from ..stability import exact_delay_codes
 
 __all__ = [
@@ -137,10 +138,6 @@ __all__ = [
 #: Objective weights (wa, wv, wx) of the closed-loop calibration: the project's one
 #: closed-loop weighting (:data:`avll.defaults.CLOSED_LOOP_WEIGHTS`).
 WEIGHTS: tuple[float, float, float] = CLOSED_LOOP_WEIGHTS
-#: Band (Hz) of the amplification.
-DEFAULT_BAND: tuple[float, float] = (0.02, 0.2)
-#: Seconds cut at each end of the band-passed signals.
-TRIM = 5.0
 #: Block length (s) of the bootstrap over time.
 BLOCK = 20.0
 #: Bootstrap resamples.
@@ -163,30 +160,6 @@ _RANK = {"S": 0, "M": 1, "L": 2}
 # ---------------------------------------------------------------------------
 # Signal measures
 # ---------------------------------------------------------------------------
-
-
-def _check_band(band: Sequence[float], dt: float) -> tuple[float, float]:
-    lo, hi = (float(b) for b in band)
-    if not (0 < lo < hi < 0.5 / dt):
-        raise ValueError(f"band: need 0 < low < high < {0.5 / dt:g} Hz, got ({lo:g}, {hi:g})")
-    return lo, hi
-
-
-def bandpass(x: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
-             trim: float = TRIM) -> np.ndarray:
-    """``x`` detrended (straight line), band-passed by a zero-phase 2nd-order
-    Butterworth filter (forwards and backwards) and with ``trim`` seconds cut at
-    each end."""
-    from scipy import signal
-
-    lo, hi = _check_band(band, dt)
-    x = np.asarray(x, dtype=np.float64)
-    k = int(round(trim / dt))
-    if x.shape[0] <= 2 * k + 20:
-        raise ValueError(f"record of {x.shape[0] * dt:g} s is too short for trim {trim:g} s")
-    sos = signal.butter(2, [lo * 2 * dt, hi * 2 * dt], btype="bandpass", output="sos")
-    y = signal.sosfiltfilt(sos, signal.detrend(x))
-    return y[k:x.shape[0] - k] if k else y
 
 
 def _rms(x: np.ndarray) -> float:
