@@ -51,10 +51,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import _core
-from ._limits import check_memory, check_number, check_seed, check_threads
-from .data import Run
+from ._limits import check_memory, check_number, check_threads
 from .models import LowerLevelModel, UpperLevel, model_class
-from .rollout import Trajectory, _f64, _upper, check_lower_level, pack_runs
+from .rollout import Trajectory, _f64, _upper, check_lower_level
 from .rollout import params_2d as _params_2d
 
 __all__ = [
@@ -591,7 +590,7 @@ def batch_cost_effects(
     base: str | type[LowerLevelModel],
     effects: Sequence[str],
     params: Any,
-    runs: Sequence[Run],
+    runs: Any,
     *,
     weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
     init: str = "rest",
@@ -600,51 +599,29 @@ def batch_cost_effects(
     threads: int = 0,
 ) -> np.ndarray:
     """Per-run costs (P, R) of parameter rows ``[base | effects | free upper]`` (effects
-    in the canonical order, see :data:`CANONICAL_ORDER`), as :func:`avll.batch_cost`.
-    Invalid or unstable rows cost ``inf``."""
+    in the canonical order, see :data:`CANONICAL_ORDER`), as :func:`avll.batch_cost`,
+    on an :class:`avll.RunSet` or a list of runs (packed once). Invalid or unstable
+    rows cost ``inf``."""
+    from .runs import as_runset
+
     threads = check_threads(threads)
-    cls, names, p, kw = _batch_args(base, effects, params, runs, weights=weights, init=init,
-                                    closed_loop=closed_loop, upper_free=upper_free)  # fmt: skip
-    nr = max(len(kw["runs"]), 1)
+    cls = model_class(base)
+    names = canonical(list(effects))
+    rs = as_runset(runs)
+    kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
+                    upper_free=upper_free, effects=names)  # fmt: skip
+    p = _params_2d(params)
+    nr = max(len(rs), 1)
     check_memory(8.0 * p.shape[0] * nr,
                  f"batch_cost_effects: {p.shape[0]} parameter rows x {nr} runs x 8 bytes",
                  "evaluate the parameter rows in slices", per=8.0 * nr, unit="rows")
     return _core.batch_cost(cls.name, p, effects=list(names), threads=threads, **kw)
 
 
-def _batch_args(
-    base: str | type[LowerLevelModel],
-    effects: Sequence[str],
-    params: Any,
-    runs: Sequence[Run],
-    *,
-    weights: tuple[float, float, float],
-    init: str,
-    closed_loop: bool,
-    upper_free: Sequence[int],
-) -> tuple[type[LowerLevelModel], tuple[str, ...], np.ndarray, dict[str, Any]]:
-    """The concatenated run arrays and options shared by the batched functions."""
-    cls = model_class(base)
-    names = canonical(list(effects))
-    kw = pack_runs(
-        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
-    )
-    p = _params_2d(params)
-    for n in names:
-        sig = EFFECTS[n].exo
-        if sig is not None:
-            for r in runs:
-                if sig not in r.exo:
-                    raise ValueError(
-                        f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'"
-                    )
-    return cls, names, p, kw
-
-
 def calibrate_effects(
     base: str | type[LowerLevelModel],
     effects: Sequence[str],
-    runs: Sequence[Run],
+    runs: Any,
     lower: Sequence[float],
     upper: Sequence[float],
     scale: Sequence[str],
@@ -661,31 +638,39 @@ def calibrate_effects(
     threads: int = 0,
     starts: int = 1,
 ) -> dict[str, Any]:
-    """Calibrates base + effects (+ free upper-level gains) by the project's Rust GA on
-    the mean over runs of the effects cost. ``lower``, ``upper``, ``scale``
-    (``"linear"``/``"log"``) give the box of the row ``[base | effects | free upper]``;
-    ``initial`` rows join the first population. Returns the GA's result dict (``x``,
-    ``f``, ``generations``, ``stop``, ``per_run_cost``, ...): with ``starts > 1``
-    independent GA runs (seeds ``derive_seed(seed, j)``, run in turn with all the
-    threads each, as :func:`avll.calibrate`), the best. Same seed, same result whatever
-    the thread count. ``max_generations`` and ``pop_size`` (``None``: the defaults of
-    :data:`avll.defaults.GA_OPTIONS`) are checked by the Rust core."""
-    seed = check_seed(seed)
-    threads = check_threads(threads)
-    cls, names, _, kw = _batch_args(base, effects, np.zeros((1, 1)), runs, weights=weights,
-                                    init=init, closed_loop=closed_loop,
-                                    upper_free=upper_free)  # fmt: skip
-    ini = None if initial is None else np.ascontiguousarray(np.atleast_2d(initial), dtype=float)
+    """:func:`avll.calibrate` of base + effects (+ free upper-level gains) in the box
+    ``lower``, ``upper``, ``scale`` (``"linear"``/``"log"``) of the row
+    ``[base | effects | free upper]``; ``initial`` rows join the first population;
+    ``starts`` independent GA runs in turn, the best kept. Returns the GA's fields as
+    a dict (``x``, ``f``, ``f_ga``, ``generations``, ``evaluations``, ``stop``,
+    ``interrupted``, ``history``, ``per_run_cost``) and the
+    :class:`avll.CalibrationResult` itself under ``"result"``. ``max_generations``
+    and ``pop_size`` (``None``: the defaults of :data:`avll.defaults.GA_OPTIONS`) are
+    checked by the Rust core."""
+    from .calibration import _calibrate, default_bounds
+    from .runs import as_runset
+
+    rs = as_runset(runs)
+    names = canonical(list(effects))
+    box = list(default_bounds(base, list(upper_free), names, rs.command_kind))
+    lens = (len(lower), len(upper), len(scale))
+    if lens != (len(box),) * 3:
+        raise ValueError(f"bounds: lower, upper and scale need {len(box)} values each "
+                         f"({', '.join(box)}), got {lens}")  # fmt: skip
+    bounds = {n: (lo, hi, str(sc)) for n, lo, hi, sc in zip(box, lower, upper, scale,
+                                                             strict=True)}  # fmt: skip
     if isinstance(starts, bool) or int(starts) < 1:
         raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
-    n = int(starts)
-    opts = {"seed": int(seed)} | {k: v for k, v in (("max_generations", max_generations),
-                                                   ("pop_size", pop_size)) if v is not None}
-    outs = _core.calibrate(
-        cls.name, lower_bounds=[float(x) for x in lower],
-        upper_bounds=[float(x) for x in upper], scale=[str(x) for x in scale],
-        effects=list(names), options=opts, initial=ini, progress=progress,
-        problems=None if n == 1 else [list(range(len(runs)))] * n, derive_seeds=n > 1,
-        in_turn=True, threads=int(threads), **kw,
+    opts = {k: v for k, v in (("max_generations", max_generations), ("pop_size", pop_size))
+            if v is not None}  # fmt: skip
+    ini = None if initial is None else list(np.atleast_2d(np.asarray(initial, dtype=float)))
+    res = _calibrate(
+        model_class(base), rs, effects=names, bounds=bounds, seed=seed,
+        closed_loop=closed_loop, upper_free=list(upper_free), weights=weights, init=init,
+        initial=ini, target=None, starts=int(starts), threads=threads,
+        progress=False if progress is None else progress, ga_options=opts,
     )  # fmt: skip
-    return dict(min(outs, key=lambda r: float(r["f"])))
+    return {"x": res.x, "f": res.cost, "f_ga": res.cost_ga, "generations": res.generations,
+            "evaluations": res.evaluations, "stop": res.stop, "interrupted": res.interrupted,
+            "history": res.history, "per_run_cost": np.array(list(res.per_run_mse.values())),
+            "result": res}  # fmt: skip
