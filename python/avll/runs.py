@@ -12,8 +12,8 @@ door (:func:`as_runset`).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from typing import Any
+from collections.abc import Iterable, Iterator, Sequence
+from typing import Any, overload
 
 import numpy as np
 
@@ -34,14 +34,16 @@ def _concat(runs: Sequence[Run], attr: str) -> np.ndarray | None:
     return np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
 
 
-class RunSet:
-    """Runs packed once into Rust (a view on some of them: see :meth:`subset`).
+class RunSet(Sequence[Run]):
+    """Runs packed once into Rust (a view on some of them: see :meth:`subset`); a
+    sequence of its :class:`avll.Run` objects, so that code written for a list of
+    runs takes it as it is.
 
     ``RunSet(runs)`` packs every column that all ``runs`` have; ``len()`` is the
     number of runs, :attr:`run_ids` their ids, :attr:`runs` the :class:`avll.Run`
     objects themselves (kept for labels and error messages)."""
 
-    __slots__ = ("_handle", "_runs", "_all_runs", "_cols", "_has_upper")
+    __slots__ = ("_handle", "_runs", "_all_runs", "_cols", "_has_upper", "_upper")
 
     def __init__(self, runs: Iterable[Run]) -> None:
         if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__iter__"):
@@ -74,10 +76,12 @@ class RunSet:
         self._runs = runs
         self._cols = frozenset(c for c, v in cols.items() if v is not None)
         self._has_upper = has_upper
+        self._upper: Any = None
 
     @classmethod
-    def _view(cls, parent: RunSet, handle: Any) -> RunSet:
+    def _view(cls, parent: RunSet, handle: Any, upper: Any = None) -> RunSet:
         new = cls.__new__(cls)
+        new._upper = upper
         new._handle = handle
         new._all_runs = parent._all_runs
         new._runs = tuple(parent._all_runs[i] for i in handle.index)
@@ -89,6 +93,19 @@ class RunSet:
 
     def __len__(self) -> int:
         return len(self._handle)
+
+    def __iter__(self) -> Iterator[Run]:
+        return iter(self._runs)
+
+    @overload
+    def __getitem__(self, i: int) -> Run: ...
+    @overload
+    def __getitem__(self, i: slice) -> RunSet: ...
+    def __getitem__(self, i: int | slice) -> Run | RunSet:
+        """Run ``i``, or a view on the runs of a slice."""
+        if isinstance(i, slice):
+            return self.subset(range(len(self))[i])
+        return self._runs[i]
 
     @property
     def handle(self) -> Any:
@@ -158,7 +175,21 @@ class RunSet:
     def subset(self, subset: Iterable[Any]) -> RunSet:
         """A view on some runs (positions or run ids, repeats allowed) sharing the
         packed arrays."""
-        return RunSet._view(self, self._handle.take(self.indices(subset)))
+        return RunSet._view(self, self._handle.take(self.indices(subset)), self._upper)
+
+    @property
+    def upper(self) -> Any:
+        """The upper-level law that replaces every run's own in the simulations and
+        errors of the diagnosis (:meth:`with_upper`), or None."""
+        return self._upper
+
+    def with_upper(self, upper: Any) -> RunSet:
+        """The same runs (the same packed arrays) with ``upper`` (an
+        :class:`avll.UpperLevel`) replacing each run's upper-level law wherever the
+        set is simulated or scored by :func:`avll.diagnose.fitting.simulate_runs` and
+        :func:`avll.diagnose.fitting.run_mse` (the gains enter the parameter row as
+        free gains: nothing is packed again)."""
+        return RunSet._view(self, self._handle, upper)
 
     def cost_kw(
         self,

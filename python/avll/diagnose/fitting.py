@@ -80,10 +80,10 @@ def simulate_runs(
     """The simulated acceleration of every run (open loop from the recorded command,
     or closed loop behind the recorded leader), as in the calibration cost: one
     batched call on the run set (``runs`` packed once if a list). ``upper`` replaces
-    the runs' upper-level law."""
+    the runs' upper-level law (default: the run set's, :meth:`avll.RunSet.with_upper`)."""
     rs = as_runset(runs)
     closed = _closed(rs, closed_loop)
-    row, free = _row(model, upper)
+    row, free = _row(model, upper if upper is not None else rs.upper)
     kw = rs.cost_kw(init=_init(rs, init), closed_loop=closed, upper_free=free,
                     effects=model.effect_names)  # fmt: skip
     d = _core.simulate_batch(model.base.name, row, effects=list(model.effect_names),
@@ -99,7 +99,7 @@ def run_mse(
     """Per-run MSE of the acceleration (paper Eq. 6 per run); ``inf`` if unstable. The
     one per-run error of the diagnosis: the Rust batched cost on the run set."""
     rs = as_runset(runs)
-    row, free = _row(model, upper)
+    row, free = _row(model, upper if upper is not None else rs.upper)
     c = batch_cost_effects(
         model.base.name, model.effect_names, row, rs, closed_loop=_closed(rs, closed_loop),
         init=_init(rs, init), threads=threads, upper_free=free,
