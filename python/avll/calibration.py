@@ -43,7 +43,7 @@ from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import MODEL_TITLES as _LABELS
 from .paper import PAPER_CAL_RUNS
 from .rollout import closed_loop, simulate
-from .runs import RunSet, as_runset
+from .runs import RunSet, as_runset, positions
 
 __all__ = [
     "DEFAULT_BOUNDS",
@@ -56,6 +56,7 @@ __all__ = [
     "default_bounds",
     "calibrate",
     "calibrate_many",
+    "calibrate_effects",
     "bootstrap",
     "paper_workflow",
     "split_runs",
@@ -208,6 +209,11 @@ class _Problem:
     weights: tuple[float, float, float]
     init: str
     closed_loop: bool
+
+    @property
+    def runs(self) -> list[Run]:
+        """The runs of the problem (``avll.maps`` reads them)."""
+        return list(self.rs.runs)
 
 
 class _Packs:
@@ -594,6 +600,11 @@ def _check_finite_fit(prob: _Problem, raw: dict[str, Any], where: str) -> None:
         f"command kind and the bounds ({', '.join(prob.names)})")
 
 
+def _subset_indices(runs: Sequence[Run], subset: Sequence[Any], k: int) -> list[int]:
+    """Run positions of ``subset`` (positions or run ids) in ``runs`` (``avll.maps``)."""
+    return positions([r.run_id for r in runs], subset, f"subsets[{k}]")
+
+
 def _with_start(model: Any, initial: Sequence[Any] | None) -> Sequence[Any] | None:
     """``initial`` with the parameters of a model instance given as ``model``."""
     row = _split_model(model, ())[2] if not isinstance(model, (str, type)) else None
@@ -668,6 +679,63 @@ def calibrate_many(
         res = _result(prob, raw, rs, _core.derive_seed(int(seed), k * n_st + j), per_run)
         out.append(replace(res, start_costs=tuple(float(r["f"]) for r in group)))
     return out
+
+
+def calibrate_effects(
+    base: str | type[LowerLevelModel],
+    effects: Sequence[str],
+    runs: Any,
+    lower: Sequence[float],
+    upper: Sequence[float],
+    scale: Sequence[str],
+    *,
+    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    upper_free: Sequence[int] = (),
+    initial: Any = None,
+    seed: int = 0,
+    max_generations: int | None = None,
+    pop_size: int | None = None,
+    progress: Any = None,
+    threads: int = 0,
+    starts: int = 1,
+) -> dict[str, Any]:
+    """:func:`avll.calibrate` of base + effects (+ free upper-level gains) in the box
+    ``lower``, ``upper``, ``scale`` (``"linear"``/``"log"``) of the row
+    ``[base | effects | free upper]``; ``initial`` rows join the first population;
+    ``starts`` independent GA runs in turn, the best kept. Returns the GA's fields as
+    a dict (``x``, ``f``, ``f_ga``, ``generations``, ``evaluations``, ``stop``,
+    ``interrupted``, ``history``, ``per_run_cost``) and the
+    :class:`avll.CalibrationResult` itself under ``"result"``. ``max_generations``
+    and ``pop_size`` (``None``: the defaults of :data:`avll.defaults.GA_OPTIONS`) are
+    checked by the Rust core."""
+    from .effects import canonical
+
+    rs = as_runset(runs)
+    names = canonical(list(effects))
+    box = list(default_bounds(base, list(upper_free), names, rs.command_kind))
+    lens = (len(lower), len(upper), len(scale))
+    if lens != (len(box),) * 3:
+        raise ValueError(f"bounds: lower, upper and scale need {len(box)} values each "
+                         f"({', '.join(box)}), got {lens}")  # fmt: skip
+    bounds = {n: (lo, hi, str(sc)) for n, lo, hi, sc in zip(box, lower, upper, scale,
+                                                             strict=True)}  # fmt: skip
+    if isinstance(starts, bool) or int(starts) < 1:
+        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
+    opts = {k: v for k, v in (("max_generations", max_generations), ("pop_size", pop_size))
+            if v is not None}  # fmt: skip
+    ini = None if initial is None else list(np.atleast_2d(np.asarray(initial, dtype=float)))
+    res = _calibrate(
+        model_class(base), rs, effects=names, bounds=bounds, seed=seed,
+        closed_loop=closed_loop, upper_free=list(upper_free), weights=weights, init=init,
+        initial=ini, target=None, starts=int(starts), threads=threads,
+        progress=False if progress is None else progress, ga_options=opts,
+    )  # fmt: skip
+    return {"x": res.x, "f": res.cost, "f_ga": res.cost_ga, "generations": res.generations,
+            "evaluations": res.evaluations, "stop": res.stop, "interrupted": res.interrupted,
+            "history": res.history, "per_run_cost": np.array(list(res.per_run_mse.values())),
+            "result": res}  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -157,20 +157,7 @@ class RunSet(Sequence[Run]):
 
     def indices(self, subset: Iterable[Any], name: str = "subset") -> list[int]:
         """Run positions of ``subset`` (positions or run ids; repeats allowed)."""
-        ids = {rid: i for i, rid in enumerate(self.run_ids)}
-        out = []
-        for s in subset:
-            if isinstance(s, (int, np.integer)) and not isinstance(s, bool):
-                if not 0 <= int(s) < len(self):
-                    raise ValueError(f"{name}: run index {s} is out of range 0..{len(self) - 1}")
-                out.append(int(s))
-            elif str(s) in ids:
-                out.append(ids[str(s)])
-            else:
-                raise ValueError(f"{name}: unknown run {s!r}")
-        if not out:
-            raise ValueError(f"{name}: is empty")
-        return out
+        return positions(self.run_ids, subset, name)
 
     def subset(self, subset: Iterable[Any]) -> RunSet:
         """A view on some runs (positions or run ids, repeats allowed) sharing the
@@ -242,6 +229,25 @@ class RunSet(Sequence[Run]):
 
     def __repr__(self) -> str:
         return f"avll.RunSet({len(self)} runs, {self.total} samples)"
+
+
+def positions(run_ids: Sequence[str], subset: Iterable[Any], name: str) -> list[int]:
+    """Positions in ``run_ids`` of ``subset`` (positions or run ids; repeats allowed),
+    a ValueError naming ``name`` for an unknown run or an empty subset."""
+    ids = {rid: i for i, rid in enumerate(run_ids)}
+    out = []
+    for s in subset:
+        if isinstance(s, (int, np.integer)) and not isinstance(s, bool):
+            if not 0 <= int(s) < len(run_ids):
+                raise ValueError(f"{name}: run index {s} is out of range 0..{len(run_ids) - 1}")
+            out.append(int(s))
+        elif str(s) in ids:
+            out.append(ids[str(s)])
+        else:
+            raise ValueError(f"{name}: unknown run {s!r}")
+    if not out:
+        raise ValueError(f"{name}: is empty")
+    return out
 
 
 def as_runset(runs: RunSet | Iterable[Run]) -> RunSet:

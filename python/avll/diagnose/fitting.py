@@ -1,6 +1,6 @@
 """Simulation and calibration for the residual loop: the runs' simulated
 acceleration, per-run errors, and the one fitting driver (:func:`fit_full`: the
-project's Rust GA through :func:`avll.effects.calibrate_effects` in the box of
+project's Rust GA through :func:`avll.calibration.calibrate_effects` in the box of
 :data:`avll.calibration.DEFAULT_BOUNDS` and the effects' own bounds)."""
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ from scipy import optimize
 
 from .. import _core
 from .._limits import check_seed, check_threads
-from ..calibration import default_bounds
+from ..calibration import calibrate_effects, default_bounds
 from ..data import Run
 from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS
 from ..defaults import UPPER_BOUNDS as _UB
 from ..defaults import UPPER_NAMES as _UPPER_NAMES
-from ..effects import EFFECTS, WithEffects, batch_cost_effects, calibrate_effects, canonical
+from ..effects import EFFECTS, WithEffects, batch_cost_effects, canonical
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..runs import RunSet, as_runset
 
@@ -215,7 +215,7 @@ def fit_full(
     :data:`avll.defaults.CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration
     alone leaves the upper law's spacing unidentified. The loop reports acceleration
     MSEs. ``optimizer``: ``"ga"`` (the project's Rust GA,
-    :func:`avll.effects.calibrate_effects`, with ``starts`` independent starts as
+    :func:`avll.calibration.calibrate_effects`, with ``starts`` independent starts as
     :func:`avll.calibrate`) or ``"de"`` (``scipy.optimize.differential_evolution`` on
     the batched cost). ``pop_size`` and ``max_generations`` are the GA's (``None``:
     :data:`avll.defaults.GA_OPTIONS`); with ``"de"``, scipy's ``popsize`` (``None``:
