@@ -286,8 +286,13 @@ def _problem(
     if free and not closed_loop:
         raise ValueError("upper_free: the upper-level gains can only be calibrated in closed loop")
     rs = (packs or _Packs()).get(runs)
+    exo: dict[str, str] = {}
+    if names:
+        from .effects import exo_needs
+
+        exo = exo_needs(names)
     kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop, upper_free=free,
-                    effects=names)  # fmt: skip
+                    exo=exo)  # fmt: skip
     kw["effects"] = list(names)
     w = kw["weights"]
     lo_names, lo, hi, sc = _resolve_bounds(cls, free, bounds, names, rs.command_kind)

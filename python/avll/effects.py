@@ -585,6 +585,11 @@ def closed_loop_effects(
     return Trajectory(**d)
 
 
+def exo_needs(effects: Sequence[str]) -> dict[str, str]:
+    """The exogenous signal each of ``effects`` reads (effect name -> signal name)."""
+    return {n: s for n in effects if (s := EFFECTS[n].exo) is not None}
+
+
 def batch_cost_effects(
     base: str | type[LowerLevelModel],
     effects: Sequence[str],
@@ -608,7 +613,7 @@ def batch_cost_effects(
     names = canonical(list(effects))
     rs = as_runset(runs)
     kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
-                    upper_free=upper_free, effects=names)  # fmt: skip
+                    upper_free=upper_free, exo=exo_needs(names))  # fmt: skip
     p = _params_2d(params)
     nr = max(len(rs), 1)
     check_memory(8.0 * p.shape[0] * nr,

@@ -12,7 +12,7 @@ door (:func:`as_runset`).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any, overload
 
 import numpy as np
@@ -185,12 +185,13 @@ class RunSet(Sequence[Run]):
         init: str = "rest",
         closed_loop: bool = False,
         upper_free: Sequence[int] = (),
-        effects: Sequence[str] = (),
+        exo: Mapping[str, str] | None = None,
     ) -> dict[str, Any]:
         """The run set and cost options of the Rust batched calls, after checking that
         every run has what this objective needs (the command in open loop, the leader,
         speed, position and upper-level law in closed loop, ``v``/``x`` when weighted,
-        each effect's exogenous signal)."""
+        the exogenous signal each effect of ``exo`` (effect name -> signal name,
+        :func:`avll.effects.exo_needs`) reads)."""
         try:
             if len(weights) != 3:
                 raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
@@ -207,15 +208,10 @@ class RunSet(Sequence[Run]):
                 if not self._has_upper[i]:
                     raise ValueError(f"run {self._all_runs[i].run_id!r}: closed loop needs its "
                                      "upper-level law")  # fmt: skip
-        if effects:
-            from .effects import EFFECTS
-
-            for n in effects:
-                sig = EFFECTS[n].exo
-                if sig is not None and sig not in self.exo_names:
-                    bad = next(r for r in self._runs if sig not in r.exo)
-                    raise ValueError(
-                        f"run {bad.run_id!r}: effect {n!r} needs the column 'exo_{sig}'")
+        for n, sig in (exo or {}).items():
+            if sig not in self.exo_names:
+                bad = next(r for r in self._all_runs if sig not in r.exo)
+                raise ValueError(f"run {bad.run_id!r}: effect {n!r} needs the column 'exo_{sig}'")
         return dict(runs=self._handle, upper_free=free, command_kind=self.command_kind,
                     weights=(wa, wv, wx), init=init, closed_loop=bool(closed_loop))  # fmt: skip
 

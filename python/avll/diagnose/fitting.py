@@ -1,7 +1,8 @@
 """Simulation and calibration for the residual loop: the runs' simulated
-acceleration, per-run errors, and the one fitting driver (:func:`fit_full`: the
-project's Rust GA through :func:`avll.calibration.calibrate_effects` in the box of
-:data:`avll.calibration.DEFAULT_BOUNDS` and the effects' own bounds)."""
+acceleration, per-run errors, and the loop's fit (:func:`fit_full`: the one
+calibration, :func:`avll.calibrate` through :func:`avll.calibration.calibrate_effects`,
+in the box of :func:`avll.calibration.default_bounds`). Each takes an
+:class:`avll.RunSet` (a list of runs is packed once)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from ..data import Run
 from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS
 from ..defaults import UPPER_BOUNDS as _UB
 from ..defaults import UPPER_NAMES as _UPPER_NAMES
-from ..effects import EFFECTS, WithEffects, batch_cost_effects, canonical
+from ..effects import EFFECTS, WithEffects, batch_cost_effects, canonical, exo_needs
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..runs import RunSet, as_runset
 
@@ -85,7 +86,7 @@ def simulate_runs(
     closed = _closed(rs, closed_loop)
     row, free = _row(model, upper if upper is not None else rs.upper)
     kw = rs.cost_kw(init=_init(rs, init), closed_loop=closed, upper_free=free,
-                    effects=model.effect_names)  # fmt: skip
+                    exo=exo_needs(model.effect_names))  # fmt: skip
     d = _core.simulate_batch(model.base.name, row, effects=list(model.effect_names),
                              threads=check_threads(threads), **kw)  # fmt: skip
     off = rs.offsets
