@@ -110,3 +110,48 @@ def test_section_iv_grid_is_defined_once() -> None:
     s = Settings()
     assert (s.pade_order, s.kv_tg_step, s.kv_tol) == (G["pade_order"], G["kv_tg_step"],
                                                       G["kv_tol"])
+
+
+def test_search_boxes_come_from_one_place() -> None:
+    from avll.calibration import DEFAULT_BOUNDS, UPPER_BOUNDS, default_bounds
+    from avll.diagnose.fitting import _space
+    from avll.effects import EFFECTS
+
+    box = default_bounds("proposed", ("kg", "Gmin"), ("asymmetric", "delay"), "speed")
+    assert list(box) == [*DEFAULT_BOUNDS["proposed"], "delay.tau", "asymmetric.kb",
+                         "asymmetric.rb", "kg", "Gmin"]  # effects in canonical order
+    assert box["asymmetric.kb"] == (1.0, 1.0, "linear")  # a speed command fixes it
+    assert box["delay.tau"] == (*EFFECTS["delay"].bounds[0], "linear")
+    assert box["Gmin"] == UPPER_BOUNDS["Gmin"]
+    # the diagnosis searches the same box (its upper-law entries overridable)
+    sp = _space("proposed", ("asymmetric", "delay"), "speed", upper_free=True,
+                upper_bounds={"Gmin": (0.0, 50.0)})
+    full = default_bounds("proposed", ("kg", "kv", "Tg", "Gmin"), ("asymmetric", "delay"),
+                          "speed")
+    assert sp.names == tuple(full)
+    assert list(sp.lo) == [b[0] for b in full.values()]
+    assert list(sp.hi[:-1]) == [b[1] for b in full.values()][:-1] and sp.hi[-1] == 50.0
+    assert list(sp.log) == [b[2] == "log" for b in full.values()]
+    with pytest.raises(ValueError, match="upper_bounds: unknown gain 'G0'"):
+        _space("second", (), upper_free=True, upper_bounds={"G0": (0, 1)})
+
+
+def test_the_diagnosis_settings_come_from_the_effect_registry() -> None:
+    from avll.diagnose.fitting import _fixed
+    from avll.diagnose.signatures import _TRIALS_FROM_DATA, _effect_grid
+    from avll.effects import EFFECTS
+
+    for name, cls in EFFECTS.items():
+        assert cls.signature in ("linear", "setting", "each", "scaled"), name
+        for kind, fixed in cls.fixed.items():
+            assert kind in ("acceleration", "speed") and set(fixed) <= set(cls.param_names())
+        if cls.excludes is not None:  # refused together, both ways
+            assert EFFECTS[cls.excludes].excludes == name
+        for t in cls.trials:
+            assert set(t) == set(cls.param_names()), name
+        # a threshold effect's trials come from the data or from the class
+        if cls.signature != "linear":
+            assert cls.trials or name in _TRIALS_FROM_DATA, name
+    assert _fixed("asymmetric", "kb", "speed") == 1.0
+    assert _fixed("asymmetric", "kb", "acceleration") is None
+    assert _effect_grid("grade", [], []) == [dict(t) for t in EFFECTS["grade"].trials]
