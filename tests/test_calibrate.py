@@ -172,15 +172,16 @@ def test_workflow_packs_the_runs_once(
 ) -> None:
     """paper_workflow packs the calibration runs and the validation runs once each for
     all models (issue 10, item 4), with the same results as packing per call."""
-    cm = sys.modules["avll.calibration"]
+    from avll import _core
+
     calls: list[int] = []
-    real = cm.pack_runs
+    real = _core.RunSet
 
-    def counting(runs: list[avll.Run], **kw: object) -> dict:
-        calls.append(len(runs))
-        return real(runs, **kw)  # type: ignore[arg-type]
+    def counting(offsets: list[int], *a: object, **kw: object) -> object:
+        calls.append(len(offsets) - 1)
+        return real(offsets, *a, **kw)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(cm, "pack_runs", counting)
+    monkeypatch.setattr(_core, "RunSet", counting)
     runs = proposed_data[:6]
     models = ("first", "second", "proposed")
     wf = paper_workflow(runs, cal_runs=None, models=models, seed=2, max_generations=4,

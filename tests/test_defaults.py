@@ -54,9 +54,9 @@ def test_numpy_values_are_accepted() -> None:
 
 
 def test_signatures_take_none_for_the_ga_budget() -> None:
+    from avll.calibration import calibrate_effects
     from avll.diagnose import effect_loop
     from avll.diagnose.fitting import fit, fit_full
-    from avll.effects import calibrate_effects
 
     for fn in (calibrate_effects, fit, fit_full, effect_loop):
         params = inspect.signature(fn).parameters

@@ -273,7 +273,7 @@ def test_stability_maps_redrawn_with_an_effect() -> None:
 
 
 def test_ga_calibration_recovers_effect_params_thread_independently() -> None:
-    from avll.effects import calibrate_effects
+    from avll.calibration import calibrate_effects
 
     base = avll.SecondOrder(K0=0.9, m2=0.3, m3=1.0, Td=0.25)
     truth = WithEffects(base, (Saturation(0.9, 1.2),))

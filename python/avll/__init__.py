@@ -25,6 +25,7 @@ from .models import (
 #: the Rust core, the models and the data class; see ``benches/bench_import.py``).
 _LAZY_NAMES: dict[str, str] = {
     "read_manifest": "_atomic",
+    "RunSet": "runs",
     **dict.fromkeys(("Bootstrap", "CalibrationResult", "Workflow", "bootstrap", "calibrate",
                      "calibrate_many", "paper_workflow"), "calibration"),
     **dict.fromkeys(("EFFECTS", "Asymmetric", "Deadband", "Delay", "Grade", "PowerLimit",
@@ -51,6 +52,7 @@ __all__ = [
     "DataWarning",
     "PlausibilityWarning",
     "Run",
+    "RunSet",
     "MODELS",
     "FirstOrderLag",
     "LowerLevelModel",

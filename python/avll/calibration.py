@@ -42,7 +42,8 @@ from .defaults import UPPER_NAMES as _UPPER_NAMES
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import MODEL_TITLES as _LABELS
 from .paper import PAPER_CAL_RUNS
-from .rollout import closed_loop, pack_runs, simulate
+from .rollout import closed_loop, simulate
+from .runs import RunSet, as_runset, positions
 
 __all__ = [
     "DEFAULT_BOUNDS",
@@ -55,6 +56,7 @@ __all__ = [
     "default_bounds",
     "calibrate",
     "calibrate_many",
+    "calibrate_effects",
     "bootstrap",
     "paper_workflow",
     "split_runs",
@@ -103,8 +105,10 @@ def _resolve_bounds(
     cls: type[LowerLevelModel],
     free: Sequence[int],
     bounds: Mapping[str, Sequence[Any]] | None,
+    effects: Sequence[str] = (),
+    kind: str = "acceleration",
 ) -> tuple[list[str], list[float], list[float], list[str]]:
-    box = default_bounds(cls, free)
+    box = default_bounds(cls, free, effects, kind)
     names = list(box)
     for k, b in (bounds or {}).items():
         if k not in box:
@@ -144,7 +148,11 @@ class CalibrationResult:
     acceleration MSE with the default weights); ``upper`` the calibrated upper-level
     gains (closed loop with ``upper_free``); ``history`` the best cost after each
     generation; ``interrupted`` is true when Ctrl-C (or the progress callable)
-    stopped the search, the result then being the best so far.
+    stopped the search, the result then being the best so far. With effects,
+    ``model`` is the base model and ``with_effects`` the base with its calibrated
+    effects; ``x`` is the calibrated row ``[model | effects | free upper gains]``
+    (the order of ``bounds``). ``intervals`` (name -> (low, high)) is ``None`` until a
+    method that estimates them fills it.
     """
 
     model: LowerLevelModel
@@ -163,11 +171,19 @@ class CalibrationResult:
     #: Final cost of each independent start that ran (the best is the result; with a
     #: target, the starts after the first that reached it do not run).
     start_costs: tuple[float, ...] = ()
+    with_effects: Any = None
+    x: np.ndarray | None = None
+    intervals: dict[str, tuple[float, float]] | None = None
 
     @property
     def params(self) -> dict[str, float]:
-        """The calibrated parameters by name (model, then free upper-level gains)."""
-        return {**self.model.to_dict(), **self.upper}
+        """The calibrated parameters by name (model, then effects as ``"effect.param"``,
+        then free upper-level gains)."""
+        eff: dict[str, float] = {}
+        if self.with_effects is not None:
+            eff = {f"{e.name}.{k}": v for e in self.with_effects.effects
+                   for k, v in e.to_dict().items()}  # fmt: skip
+        return {**self.model.to_dict(), **eff, **self.upper}
 
     def plot(self) -> Any:
         """The GA's convergence: best cost per generation (a Figure,
@@ -182,7 +198,8 @@ class CalibrationResult:
 @dataclass(frozen=True)
 class _Problem:
     cls: type[LowerLevelModel]
-    runs: list[Run]
+    rs: RunSet
+    effects: tuple[str, ...]
     free: list[int]
     names: list[str]
     lower: list[float]
@@ -193,72 +210,93 @@ class _Problem:
     init: str
     closed_loop: bool
 
+    @property
+    def runs(self) -> list[Run]:
+        """The runs of the problem (``avll.maps`` reads them)."""
+        return list(self.rs.runs)
+
 
 class _Packs:
-    """Run sets packed once (``pack_runs``: one ``_core.RunSet`` each) and reused for
+    """Run sets packed once (one :class:`avll.RunSet` per list of runs) and reused for
     the rest of one top-level call (e.g. :func:`paper_workflow` calibrating several
     models on the same runs and validating each on the same other runs). Keyed by the
-    runs' identities and the cost options; the entries hold the runs, so the
-    identities stay valid while the cache lives."""
+    runs' identities; the entries hold the runs, so the identities stay valid while
+    the cache lives."""
 
     def __init__(self) -> None:
-        self._packed: dict[Any, tuple[list[Run], dict[str, Any]]] = {}
+        self._packed: dict[Any, RunSet] = {}
         #: How many run sets were built and how many calls reused one.
         self.built = 0
         self.reused = 0
 
-    def get(
-        self,
-        runs: Sequence[Run],
-        *,
-        weights: Sequence[float],
-        init: str,
-        closed_loop: bool,
-        upper_free: Sequence[int],
-    ) -> dict[str, Any]:
-        """``pack_runs(runs, ...)``, built on the first request only."""
+    def get(self, runs: RunSet | Sequence[Run]) -> RunSet:
+        """The run set of ``runs``, built on the first request only."""
+        if isinstance(runs, RunSet):
+            return runs
+        if not isinstance(runs, (list, tuple)):
+            return RunSet(runs)  # names a wrong type; an iterator is used once
         runs = list(runs)
-        try:
-            opts = (tuple(float(w) for w in weights), str(init), bool(closed_loop),
-                    tuple(int(i) for i in upper_free))  # fmt: skip
-        except (TypeError, ValueError):
-            opts = None  # pack_runs names the bad argument
-        key = (tuple(id(r) for r in runs), opts)
-        hit = self._packed.get(key) if opts is not None else None
+        key = tuple(id(r) for r in runs)
+        hit = self._packed.get(key)
         if hit is not None:
             self.reused += 1
-            return dict(hit[1])
-        kw = pack_runs(
-            runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
-        )
+            return hit
+        rs = RunSet(runs)
         self.built += 1
-        if opts is not None:
-            self._packed[key] = (runs, kw)
-        return dict(kw)
+        self._packed[key] = rs
+        return rs
+
+
+def _split_model(model: Any, effects: Sequence[str]) -> tuple[type[LowerLevelModel],
+                                                             tuple[str, ...], np.ndarray | None]:
+    """The base model class, the effects (canonical order) and, for a model instance,
+    its parameter row (a start for the search)."""
+    from .effects import WithEffects, canonical
+
+    row = None
+    if isinstance(model, WithEffects):
+        if effects:
+            raise ValueError("effects: give them either in the model or as effects=, not both")
+        names = tuple(model.effect_names)
+        row = np.asarray(model.to_array(), dtype=np.float64)
+        model = type(model.base)
+    else:
+        names = tuple(canonical(list(effects))) if effects else ()
+        if isinstance(model, LowerLevelModel) and not names:
+            row = np.asarray(model.to_array(), dtype=np.float64)
+        if isinstance(model, LowerLevelModel):
+            model = type(model)
+    return model_class(model), names, row
 
 
 def _problem(
     model: Any,
-    runs: Sequence[Run],
+    runs: RunSet | Sequence[Run],
     *,
     bounds: Mapping[str, Sequence[Any]] | None,
     closed_loop: bool,
     upper_free: Sequence[int | str],
     weights: Sequence[float],
     init: str,
+    effects: Sequence[str] = (),
     packs: _Packs | None = None,
 ) -> _Problem:
-    cls = model_class(model)
-    runs = list(runs)
+    cls, names, _ = _split_model(model, effects)
     free = [_upper_index(u) for u in upper_free]
     if free and not closed_loop:
         raise ValueError("upper_free: the upper-level gains can only be calibrated in closed loop")
-    kw = (packs or _Packs()).get(
-        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=free
-    )
+    rs = (packs or _Packs()).get(runs)
+    exo: dict[str, str] = {}
+    if names:
+        from .effects import exo_needs
+
+        exo = exo_needs(names)
+    kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop, upper_free=free,
+                    exo=exo)  # fmt: skip
+    kw["effects"] = list(names)
     w = kw["weights"]
-    names, lo, hi, sc = _resolve_bounds(cls, free, bounds)
-    return _Problem(cls, runs, free, names, lo, hi, sc, kw, w, init, closed_loop)
+    lo_names, lo, hi, sc = _resolve_bounds(cls, free, bounds, names, rs.command_kind)
+    return _Problem(cls, rs, names, free, lo_names, lo, hi, sc, kw, w, init, closed_loop)
 
 
 def _ga_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
@@ -274,7 +312,7 @@ def _ga_memory(prob: _Problem, n_problems: int, ga: dict[str, Any]) -> None:
     """Refuses a calibration whose populations cannot fit in memory."""
     d = len(prob.names)
     pop = ga["pop_size"] or max(16 * d, 40)
-    runs = len(prob.runs)
+    runs = len(prob.rs)
     per = 8.0 * (4 * pop * (d + 2) + ga["max_generations"] + runs + d)
     check_memory(per * n_problems,
                  f"calibrate: {n_problems} problem(s) x population {pop} x {d} parameters",
@@ -336,7 +374,14 @@ def _result(
     x = np.asarray(raw["x"], dtype=np.float64)
     n_model = len(prob.cls.param_names())
     model = prob.cls.from_array(x[:n_model])
-    upper = {_UPPER_NAMES[i]: float(x[n_model + j]) for j, i in enumerate(prob.free)}
+    with_effects = None
+    n_row = n_model
+    if prob.effects:
+        from .effects import WithEffects
+
+        n_row = len(x) - len(prob.free)
+        with_effects = WithEffects.from_array(prob.cls.name, list(prob.effects), x[:n_row])
+    upper = {_UPPER_NAMES[i]: float(x[n_row + j]) for j, i in enumerate(prob.free)}
 
     def unit(v: float, lo: float, hi: float, sc: str) -> float:
         if sc == "log":
@@ -365,6 +410,8 @@ def _result(
         },
         upper=upper,
         at_bound=at_bound,
+        with_effects=with_effects,
+        x=x,
     )
 
 
@@ -423,9 +470,11 @@ def _run(
 
 
 def calibrate(
-    model: str | type[LowerLevelModel],
-    runs: Sequence[Run],
+    model: Any,
+    runs: RunSet | Sequence[Run],
     *,
+    effects: Sequence[str] = (),
+    subsets: Sequence[Sequence[int | str]] | str | None = None,
     bounds: Mapping[str, Sequence[Any]] | None = None,
     seed: int = 0,
     closed_loop: bool = False,
@@ -438,8 +487,16 @@ def calibrate(
     threads: int = 0,
     progress: bool | str | Callable[[dict[str, Any]], Any] = False,
     **ga_options: Any,
-) -> CalibrationResult:
+) -> Any:
     """Calibrates ``model`` on ``runs`` by minimising Eq. 6 with the GA.
+
+    The one calibration entry. ``model`` is a model name or class, or a model
+    instance (a :class:`avll.WithEffects` calibrates its base with its effects; an
+    instance's parameters join the first population); ``effects`` names effects to
+    calibrate with a base given by name. ``runs`` is an :class:`avll.RunSet` or a
+    list of runs (packed once). With ``subsets`` (per problem, run positions or ids,
+    or ``"per_run"``) the independent problems are solved in one parallel call and a
+    list of results is returned (see :func:`calibrate_many`).
 
     ``bounds`` overrides the default box per parameter (``{"Td": (0, 2)}``, optionally
     with a scale: ``{"m3": (1e-3, 1e3, "log")}``). ``closed_loop`` drives the model by
@@ -467,16 +524,23 @@ def calibrate(
     on every candidate, or the data are out of range) raises a ``ValueError``: there is
     no fit to return.
     """
+    if subsets is not None:
+        return calibrate_many(
+            model, runs, subsets, effects=effects, seed=seed, threads=threads,
+            progress=progress, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
+            weights=weights, init=init, initial=initial, target=target, starts=starts,
+            **ga_options,
+        )  # fmt: skip
     return _calibrate(
         model, runs, bounds=bounds, seed=seed, closed_loop=closed_loop, upper_free=upper_free,
         weights=weights, init=init, initial=initial, target=target, starts=starts,
-        threads=threads, progress=progress, ga_options=ga_options,
+        threads=threads, progress=progress, ga_options=ga_options, effects=effects,
     )  # fmt: skip
 
 
 def _calibrate(
-    model: str | type[LowerLevelModel],
-    runs: Sequence[Run],
+    model: Any,
+    runs: RunSet | Sequence[Run],
     *,
     bounds: Mapping[str, Sequence[Any]] | None,
     seed: int,
@@ -491,6 +555,7 @@ def _calibrate(
     progress: bool | str | Callable[[dict[str, Any]], Any],
     ga_options: Mapping[str, Any],
     packs: _Packs | None = None,
+    effects: Sequence[str] = (),
 ) -> CalibrationResult:
     """:func:`calibrate` with the run sets of ``packs`` (packed on first use)."""
     check_seed(seed)
@@ -498,9 +563,10 @@ def _calibrate(
     n = check_int(starts, "starts", min=1)
     prob = _problem(
         model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
-        weights=weights, init=init, packs=packs,
+        weights=weights, init=init, effects=effects, packs=packs,
     )  # fmt: skip
-    all_runs = list(range(len(prob.runs)))
+    initial = _with_start(model, initial)
+    all_runs = list(range(len(prob.rs)))
     raws = _run(
         prob, None if n == 1 else [all_runs] * n, seed=seed, derive_seeds=n > 1,
         initial=initial, target=target, in_turn=True,
@@ -514,7 +580,7 @@ def _calibrate(
     raw["evaluations"] = sum(int(r["evaluations"]) for r in raws)
     raw["interrupted"] = any(bool(r["interrupted"]) for r in raws)
     start_seed = int(seed) if n == 1 else _core.derive_seed(int(seed), best)
-    res = _result(prob, raw, prob.runs, start_seed, _per_run(raw, len(prob.runs)))
+    res = _result(prob, raw, prob.rs.runs, start_seed, _per_run(raw, len(prob.rs)))
     return replace(res, start_costs=tuple(float(r["f"]) for r in raws))
 
 
@@ -540,27 +606,24 @@ def _check_finite_fit(prob: _Problem, raw: dict[str, Any], where: str) -> None:
 
 
 def _subset_indices(runs: Sequence[Run], subset: Sequence[Any], k: int) -> list[int]:
-    ids = {r.run_id: i for i, r in enumerate(runs)}
-    out = []
-    for s in subset:
-        if isinstance(s, (int, np.integer)) and not isinstance(s, bool):
-            if not 0 <= int(s) < len(runs):
-                raise ValueError(f"subsets[{k}]: run index {s} is out of range 0..{len(runs) - 1}")
-            out.append(int(s))
-        elif str(s) in ids:
-            out.append(ids[str(s)])
-        else:
-            raise ValueError(f"subsets[{k}]: unknown run {s!r}")
-    if not out:
-        raise ValueError(f"subsets[{k}]: is empty")
-    return out
+    """Run positions of ``subset`` (positions or run ids) in ``runs`` (``avll.maps``)."""
+    return positions([r.run_id for r in runs], subset, f"subsets[{k}]")
+
+
+def _with_start(model: Any, initial: Sequence[Any] | None) -> Sequence[Any] | None:
+    """``initial`` with the parameters of a model instance given as ``model``."""
+    row = _split_model(model, ())[2] if not isinstance(model, (str, type)) else None
+    if row is None:
+        return initial
+    return [*(initial or ()), row]
 
 
 def calibrate_many(
-    model: str | type[LowerLevelModel],
-    runs: Sequence[Run],
+    model: Any,
+    runs: RunSet | Sequence[Run],
     subsets: Sequence[Sequence[int | str]] | str = "per_run",
     *,
+    effects: Sequence[str] = (),
     seed: int = 0,
     threads: int = 0,
     progress: bool | str | Callable[[dict[str, Any]], Any] = False,
@@ -590,14 +653,15 @@ def calibrate_many(
     n_st = check_int(starts, "starts", min=1)
     prob = _problem(
         model, runs, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
-        weights=weights, init=init,
+        weights=weights, init=init, effects=effects,
     )  # fmt: skip
+    initial = _with_start(model, initial)
     if isinstance(subsets, str):
         if subsets != "per_run":
             raise ValueError(f"subsets: expected run lists or 'per_run', got {subsets!r}")
-        idx = [[i] for i in range(len(prob.runs))]
+        idx = [[i] for i in range(len(prob.rs))]
     else:
-        idx = [_subset_indices(prob.runs, s, k) for k, s in enumerate(subsets)]
+        idx = [prob.rs.indices(s, f"subsets[{k}]") for k, s in enumerate(subsets)]
         if not idx:
             raise ValueError("subsets: no problems given")
     expanded = [sub for sub in idx for _ in range(n_st)]
@@ -615,11 +679,68 @@ def calibrate_many(
         raw["evaluations"] = sum(int(r["evaluations"]) for r in group)
         raw["interrupted"] = any(bool(r["interrupted"]) for r in group)
         uniq = sorted(set(sub))
-        rs = [prob.runs[i] for i in uniq]
-        per_run = _per_run(raw, len(prob.runs))[uniq]
+        rs = [prob.rs.runs[i] for i in uniq]
+        per_run = _per_run(raw, len(prob.rs))[uniq]
         res = _result(prob, raw, rs, _core.derive_seed(int(seed), k * n_st + j), per_run)
         out.append(replace(res, start_costs=tuple(float(r["f"]) for r in group)))
     return out
+
+
+def calibrate_effects(
+    base: str | type[LowerLevelModel],
+    effects: Sequence[str],
+    runs: Any,
+    lower: Sequence[float],
+    upper: Sequence[float],
+    scale: Sequence[str],
+    *,
+    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    init: str = "rest",
+    closed_loop: bool = False,
+    upper_free: Sequence[int] = (),
+    initial: Any = None,
+    seed: int = 0,
+    max_generations: int | None = None,
+    pop_size: int | None = None,
+    progress: Any = None,
+    threads: int = 0,
+    starts: int = 1,
+) -> dict[str, Any]:
+    """:func:`avll.calibrate` of base + effects (+ free upper-level gains) in the box
+    ``lower``, ``upper``, ``scale`` (``"linear"``/``"log"``) of the row
+    ``[base | effects | free upper]``; ``initial`` rows join the first population;
+    ``starts`` independent GA runs in turn, the best kept. Returns the GA's fields as
+    a dict (``x``, ``f``, ``f_ga``, ``generations``, ``evaluations``, ``stop``,
+    ``interrupted``, ``history``, ``per_run_cost``) and the
+    :class:`avll.CalibrationResult` itself under ``"result"``. ``max_generations``
+    and ``pop_size`` (``None``: the defaults of :data:`avll.defaults.GA_OPTIONS`) are
+    checked by the Rust core."""
+    from .effects import canonical
+
+    rs = as_runset(runs)
+    names = canonical(list(effects))
+    box = list(default_bounds(base, list(upper_free), names, rs.command_kind))
+    lens = (len(lower), len(upper), len(scale))
+    if lens != (len(box),) * 3:
+        raise ValueError(f"bounds: lower, upper and scale need {len(box)} values each "
+                         f"({', '.join(box)}), got {lens}")  # fmt: skip
+    bounds = {n: (lo, hi, str(sc)) for n, lo, hi, sc in zip(box, lower, upper, scale,
+                                                             strict=True)}  # fmt: skip
+    if isinstance(starts, bool) or int(starts) < 1:
+        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
+    opts = {k: v for k, v in (("max_generations", max_generations), ("pop_size", pop_size))
+            if v is not None}  # fmt: skip
+    ini = None if initial is None else list(np.atleast_2d(np.asarray(initial, dtype=float)))
+    res = _calibrate(
+        model_class(base), rs, effects=names, bounds=bounds, seed=seed,
+        closed_loop=closed_loop, upper_free=list(upper_free), weights=weights, init=init,
+        initial=ini, target=None, starts=int(starts), threads=threads,
+        progress=False if progress is None else progress, ga_options=opts,
+    )  # fmt: skip
+    return {"x": res.x, "f": res.cost, "f_ga": res.cost_ga, "generations": res.generations,
+            "evaluations": res.evaluations, "stop": res.stop, "interrupted": res.interrupted,
+            "history": res.history, "per_run_cost": np.array(list(res.per_run_mse.values())),
+            "result": res}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -648,8 +769,8 @@ class Bootstrap:
 
 
 def bootstrap(
-    model: str | type[LowerLevelModel],
-    runs: Sequence[Run],
+    model: Any,
+    runs: RunSet | Sequence[Run],
     n: int = 50,
     *,
     seed: int = 0,
@@ -669,9 +790,7 @@ def bootstrap(
         raise ValueError(f"level: must be in (0, 1), got {level!r}")
     seed = check_seed(seed)
     check_threads(threads)
-    runs = list(runs)
-    if not runs:
-        raise ValueError("runs: no runs given")
+    runs = as_runset(runs)
     # the resample lists (Python ints) before the GA's own estimate
     check_memory(80.0 * n * len(runs), f"bootstrap: n={n} resamples x {len(runs)} runs",
                  "use fewer resamples per call and pool the samples", per=80.0 * len(runs),
@@ -899,7 +1018,7 @@ def paper_workflow(
         )  # fmt: skip
         results[cls.name] = res
         if val:
-            kw = packs.get(val, upper_free=free, **cost_kw)
+            kw = packs.get(val).cost_kw(upper_free=free, **cost_kw)
             row = np.ascontiguousarray(np.array(list(res.params.values()), dtype=np.float64))
             c = _core.batch_cost(cls.name, row[None, :], threads=check_threads(threads), **kw)[0]
             val_mse[cls.name] = {r.run_id: float(x) for r, x in zip(val, c, strict=True)}

@@ -51,10 +51,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import _core
-from ._limits import check_memory, check_number, check_seed, check_threads
-from .data import Run
+from ._limits import check_memory, check_number, check_threads
 from .models import LowerLevelModel, UpperLevel, model_class
-from .rollout import Trajectory, _f64, _upper, check_lower_level, pack_runs
+from .rollout import Trajectory, _f64, _upper, check_lower_level
 from .rollout import params_2d as _params_2d
 
 __all__ = [
@@ -77,7 +76,6 @@ __all__ = [
     "simulate_effects",
     "closed_loop_effects",
     "batch_cost_effects",
-    "calibrate_effects",
 ]
 
 
@@ -587,11 +585,16 @@ def closed_loop_effects(
     return Trajectory(**d)
 
 
+def exo_needs(effects: Sequence[str]) -> dict[str, str]:
+    """The exogenous signal each of ``effects`` reads (effect name -> signal name)."""
+    return {n: s for n in effects if (s := EFFECTS[n].exo) is not None}
+
+
 def batch_cost_effects(
     base: str | type[LowerLevelModel],
     effects: Sequence[str],
     params: Any,
-    runs: Sequence[Run],
+    runs: Any,
     *,
     weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
     init: str = "rest",
@@ -600,92 +603,20 @@ def batch_cost_effects(
     threads: int = 0,
 ) -> np.ndarray:
     """Per-run costs (P, R) of parameter rows ``[base | effects | free upper]`` (effects
-    in the canonical order, see :data:`CANONICAL_ORDER`), as :func:`avll.batch_cost`.
-    Invalid or unstable rows cost ``inf``."""
+    in the canonical order, see :data:`CANONICAL_ORDER`), as :func:`avll.batch_cost`,
+    on an :class:`avll.RunSet` or a list of runs (packed once). Invalid or unstable
+    rows cost ``inf``."""
+    from .runs import as_runset
+
     threads = check_threads(threads)
-    cls, names, p, kw = _batch_args(base, effects, params, runs, weights=weights, init=init,
-                                    closed_loop=closed_loop, upper_free=upper_free)  # fmt: skip
-    nr = max(len(kw["runs"]), 1)
+    cls = model_class(base)
+    names = canonical(list(effects))
+    rs = as_runset(runs)
+    kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
+                    upper_free=upper_free, exo=exo_needs(names))  # fmt: skip
+    p = _params_2d(params)
+    nr = max(len(rs), 1)
     check_memory(8.0 * p.shape[0] * nr,
                  f"batch_cost_effects: {p.shape[0]} parameter rows x {nr} runs x 8 bytes",
                  "evaluate the parameter rows in slices", per=8.0 * nr, unit="rows")
     return _core.batch_cost(cls.name, p, effects=list(names), threads=threads, **kw)
-
-
-def _batch_args(
-    base: str | type[LowerLevelModel],
-    effects: Sequence[str],
-    params: Any,
-    runs: Sequence[Run],
-    *,
-    weights: tuple[float, float, float],
-    init: str,
-    closed_loop: bool,
-    upper_free: Sequence[int],
-) -> tuple[type[LowerLevelModel], tuple[str, ...], np.ndarray, dict[str, Any]]:
-    """The concatenated run arrays and options shared by the batched functions."""
-    cls = model_class(base)
-    names = canonical(list(effects))
-    kw = pack_runs(
-        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
-    )
-    p = _params_2d(params)
-    for n in names:
-        sig = EFFECTS[n].exo
-        if sig is not None:
-            for r in runs:
-                if sig not in r.exo:
-                    raise ValueError(
-                        f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'"
-                    )
-    return cls, names, p, kw
-
-
-def calibrate_effects(
-    base: str | type[LowerLevelModel],
-    effects: Sequence[str],
-    runs: Sequence[Run],
-    lower: Sequence[float],
-    upper: Sequence[float],
-    scale: Sequence[str],
-    *,
-    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
-    init: str = "rest",
-    closed_loop: bool = False,
-    upper_free: Sequence[int] = (),
-    initial: Any = None,
-    seed: int = 0,
-    max_generations: int | None = None,
-    pop_size: int | None = None,
-    progress: Any = None,
-    threads: int = 0,
-    starts: int = 1,
-) -> dict[str, Any]:
-    """Calibrates base + effects (+ free upper-level gains) by the project's Rust GA on
-    the mean over runs of the effects cost. ``lower``, ``upper``, ``scale``
-    (``"linear"``/``"log"``) give the box of the row ``[base | effects | free upper]``;
-    ``initial`` rows join the first population. Returns the GA's result dict (``x``,
-    ``f``, ``generations``, ``stop``, ``per_run_cost``, ...): with ``starts > 1``
-    independent GA runs (seeds ``derive_seed(seed, j)``, run in turn with all the
-    threads each, as :func:`avll.calibrate`), the best. Same seed, same result whatever
-    the thread count. ``max_generations`` and ``pop_size`` (``None``: the defaults of
-    :data:`avll.defaults.GA_OPTIONS`) are checked by the Rust core."""
-    seed = check_seed(seed)
-    threads = check_threads(threads)
-    cls, names, _, kw = _batch_args(base, effects, np.zeros((1, 1)), runs, weights=weights,
-                                    init=init, closed_loop=closed_loop,
-                                    upper_free=upper_free)  # fmt: skip
-    ini = None if initial is None else np.ascontiguousarray(np.atleast_2d(initial), dtype=float)
-    if isinstance(starts, bool) or int(starts) < 1:
-        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
-    n = int(starts)
-    opts = {"seed": int(seed)} | {k: v for k, v in (("max_generations", max_generations),
-                                                   ("pop_size", pop_size)) if v is not None}
-    outs = _core.calibrate(
-        cls.name, lower_bounds=[float(x) for x in lower],
-        upper_bounds=[float(x) for x in upper], scale=[str(x) for x in scale],
-        effects=list(names), options=opts, initial=ini, progress=progress,
-        problems=None if n == 1 else [list(range(len(runs)))] * n, derive_seeds=n > 1,
-        in_turn=True, threads=int(threads), **kw,
-    )  # fmt: skip
-    return dict(min(outs, key=lambda r: float(r["f"])))

@@ -3,6 +3,10 @@
 //! diagnosis). Run `r` is `offsets[r]..offsets[r+1]` of every series; `upper` is an
 //! (R, 4) array of kg, kv, Tg, Gmin per run; `exo` maps exogenous signal names
 //! (e.g. `"grade"`) to concatenated series.
+//!
+//! A run set is a view: the packed arrays are shared (`Arc`) and `take(indices)`
+//! gives another view on some of the runs (folds, resamples, candidate subsets)
+//! without copying a sample.
 
 use super::slice1;
 use crate::sim::{RunRef, Upper};
@@ -10,10 +14,18 @@ use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
-/// Measured runs packed once (owned, contiguous), shared by the batched functions.
+/// Measured runs packed once (owned, contiguous), shared by the batched functions:
+/// a view of some of the runs (`index`, into the packed ones) of shared packed data.
 #[pyclass(frozen, module = "avll._core")]
 pub struct RunSet {
+    data: Arc<Packed>,
+    index: Vec<usize>,
+}
+
+/// The packed arrays of every run.
+struct Packed {
     offsets: Vec<usize>,
     dt: Vec<f64>,
     a: Vec<f64>,
@@ -118,7 +130,7 @@ impl RunSet {
             let s = owned(&format!("exo[{k:?}]"), &Some(arr.clone()), total)?;
             ex.push((k.clone(), s.unwrap_or_default()));
         }
-        Ok(Self {
+        let data = Packed {
             command: owned("command", &command, total)?,
             lead_x: owned("lead_x", &lead_x, total)?,
             lead_v: owned("lead_v", &lead_v, total)?,
@@ -129,60 +141,99 @@ impl RunSet {
             a,
             upper,
             exo: ex,
+        };
+        Ok(Self {
+            data: Arc::new(data),
+            index: (0..r).collect(),
         })
     }
 
     /// Number of runs.
     fn __len__(&self) -> usize {
-        self.dt.len()
+        self.index.len()
     }
 
     /// Total number of samples over all runs.
     #[getter]
     fn total(&self) -> usize {
-        self.a.len()
+        self.len_total()
     }
 
-    /// Run boundaries: run `r` is `offsets[r]:offsets[r+1]`.
+    /// Run boundaries: run `r` is `offsets[r]:offsets[r+1]` of the view's runs laid
+    /// end to end (as the batched simulation returns them).
     #[getter]
     fn offsets(&self) -> Vec<usize> {
-        self.offsets.clone()
+        let o = &self.data.offsets;
+        let mut out = Vec::with_capacity(self.index.len() + 1);
+        out.push(0);
+        for &k in &self.index {
+            out.push(out[out.len() - 1] + o[k + 1] - o[k]);
+        }
+        out
+    }
+
+    /// The runs of this view as indices into the packed runs.
+    #[getter]
+    fn index(&self) -> Vec<usize> {
+        self.index.clone()
     }
 
     /// Names of the exogenous series carried.
     #[getter]
     fn exo_names(&self) -> Vec<String> {
-        self.exo.iter().map(|(k, _)| k.clone()).collect()
+        self.data.exo.iter().map(|(k, _)| k.clone()).collect()
+    }
+
+    /// Another view on runs `indices` of this one (repeats allowed), sharing the
+    /// packed arrays (nothing is copied).
+    fn take(&self, indices: Vec<usize>) -> PyResult<Self> {
+        let n = self.index.len();
+        if let Some(&bad) = indices.iter().find(|&&i| i >= n) {
+            return Err(PyValueError::new_err(format!(
+                "indices: run index {bad} is out of range 0..{n}"
+            )));
+        }
+        Ok(Self {
+            data: Arc::clone(&self.data),
+            index: indices.iter().map(|&i| self.index[i]).collect(),
+        })
+    }
+
+    /// Whether `other` shares this run set's packed arrays.
+    fn shares(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.data, &other.data)
     }
 
     fn __repr__(&self) -> String {
         format!(
             "RunSet({} runs, {} samples, exo={:?})",
-            self.dt.len(),
-            self.a.len(),
+            self.index.len(),
+            self.len_total(),
             self.exo_names()
         )
     }
 }
 
 impl RunSet {
-    /// Borrowed runs.
+    /// Borrowed runs (of this view, in its order).
     pub(crate) fn refs(&self) -> Vec<RunRef<'_>> {
-        let o = &self.offsets;
+        let d = &*self.data;
+        let o = &d.offsets;
         fn part<'a>(s: &'a Option<Vec<f64>>, o: &[usize], k: usize) -> Option<&'a [f64]> {
             s.as_ref().map(|s| &s[o[k]..o[k + 1]])
         }
-        (0..self.dt.len())
-            .map(|k| RunRef {
-                dt: self.dt[k],
-                command: part(&self.command, o, k),
-                lead_x: part(&self.lead_x, o, k),
-                lead_v: part(&self.lead_v, o, k),
-                a: &self.a[o[k]..o[k + 1]],
-                v: part(&self.v, o, k),
-                x: part(&self.x, o, k),
-                upper: self.upper[k],
-                exo: self
+        self.index
+            .iter()
+            .map(|&k| RunRef {
+                dt: d.dt[k],
+                command: part(&d.command, o, k),
+                lead_x: part(&d.lead_x, o, k),
+                lead_v: part(&d.lead_v, o, k),
+                a: &d.a[o[k]..o[k + 1]],
+                v: part(&d.v, o, k),
+                x: part(&d.x, o, k),
+                upper: d.upper[k],
+                exo: d
                     .exo
                     .iter()
                     .map(|(n, s)| (n.as_str(), &s[o[k]..o[k + 1]]))
@@ -191,9 +242,10 @@ impl RunSet {
             .collect()
     }
 
-    /// Total samples.
+    /// Total samples of the view's runs.
     pub(crate) fn len_total(&self) -> usize {
-        self.a.len()
+        let o = &self.data.offsets;
+        self.index.iter().map(|&k| o[k + 1] - o[k]).sum()
     }
 }
 

@@ -26,7 +26,8 @@ import numpy as np
 from ..data import Run
 from ..effects import WithEffects, effect_class
 from ..models import LowerLevelModel, UpperLevel, model_class
-from .fitting import _closed, _init, simulate_runs
+from ..runs import as_runset
+from .fitting import _closed, _init, run_mse, simulate_runs
 
 __all__ = ["model_to_dict", "model_from_dict", "simulate_run"]
 
@@ -121,13 +122,12 @@ def simulate_run(
 
 
 def per_run_mse(
-    model: WithEffects, runs: list[Run], *, closed: bool, init: str
+    model: WithEffects, runs: Any, *, closed: bool, init: str
 ) -> dict[str, float]:
     """``{run_id: mean((a - simulate_run(model, run))**2)}`` (``inf`` when the
-    simulation is not finite)."""
-    out = {}
-    for r in runs:
-        s = simulate_runs(model, [r], closed_loop=closed, init=init)[0]
-        m = float(np.mean((r.a - s) ** 2))
-        out[r.run_id] = m if np.isfinite(m) else float("inf")
-    return out
+    simulation is not finite): the Rust batched cost on the run set
+    (:func:`avll.diagnose.fitting.run_mse`; a list of runs is packed once)."""
+    rs = as_runset(runs)
+    c = run_mse(model, rs, closed_loop=closed, init=init)
+    return {rid: float(m) if np.isfinite(m) else float("inf")
+            for rid, m in zip(rs.run_ids, c, strict=True)}  # fmt: skip

@@ -1,26 +1,28 @@
 """Simulation and calibration for the residual loop: the runs' simulated
-acceleration, per-run errors, and the one fitting driver (:func:`fit_full`: the
-project's Rust GA through :func:`avll.effects.calibrate_effects` in the box of
-:data:`avll.calibration.DEFAULT_BOUNDS` and the effects' own bounds)."""
+acceleration, per-run errors, and the loop's fit (:func:`fit_full`: the one
+calibration, :func:`avll.calibrate` through :func:`avll.calibration.calibrate_effects`,
+in the box of :func:`avll.calibration.default_bounds`). Each takes an
+:class:`avll.RunSet` (a list of runs is packed once)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy import optimize
 
+from .. import _core
 from .._limits import check_seed, check_threads
-from ..calibration import default_bounds
+from ..calibration import calibrate_effects, default_bounds
 from ..data import Run
 from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS
 from ..defaults import UPPER_BOUNDS as _UB
 from ..defaults import UPPER_NAMES as _UPPER_NAMES
-from ..effects import EFFECTS, WithEffects, batch_cost_effects, calibrate_effects, canonical
+from ..effects import EFFECTS, WithEffects, batch_cost_effects, canonical, exo_needs
 from ..models import LowerLevelModel, UpperLevel, model_class
-from ..rollout import simulate_batch
+from ..runs import RunSet, as_runset
 
 __all__ = [
     "BASE_BOUNDS",
@@ -45,58 +47,65 @@ BASE_BOUNDS: dict[str, dict[str, tuple[float, float, str]]] = DEFAULT_BOUNDS
 #: rule of :attr:`avll.calibration.CalibrationResult.at_bound`.
 AT_BOUND_TOL: float = 1e-3
 
-def _init(runs: Sequence[Run], init: str) -> str:
+def _init(runs: Any, init: str) -> str:
     """``"auto"``: a speed command starts at its steady state (a run that begins
     while driving), an acceleration command at rest (the paper's experiment)."""
     if init == "auto":
+        runs = runs.runs if isinstance(runs, RunSet) else runs
         return "steady" if runs and runs[0].command_kind == "speed" else "rest"
     if init not in ("rest", "steady"):
         raise ValueError(f"init: must be 'auto', 'rest' or 'steady', got {init!r}")
     return init
 
 
-def _closed(runs: Sequence[Run], closed_loop: bool | None) -> bool:
+def _closed(runs: Any, closed_loop: bool | None) -> bool:
     if closed_loop is not None:
         return bool(closed_loop)
+    runs = runs.runs if isinstance(runs, RunSet) else runs
     return any(r.command is None for r in runs)
 
 
+def _row(model: WithEffects, upper: UpperLevel | None) -> tuple[np.ndarray, list[int]]:
+    """The parameter row of ``model`` (and of an upper-level law that replaces the
+    runs' own: every gain free) and the free gains."""
+    row = np.asarray(model.to_array(), dtype=np.float64)
+    if upper is None:
+        return row[None, :], []
+    return np.concatenate([row, upper.to_array()])[None, :], [0, 1, 2, 3]
+
+
 def simulate_runs(
-    model: WithEffects, runs: Sequence[Run], *, closed_loop: bool | None = None,
-    init: str = "auto",
+    model: WithEffects, runs: RunSet | Sequence[Run], *, closed_loop: bool | None = None,
+    init: str = "auto", upper: UpperLevel | None = None, threads: int = 0,
 ) -> list[np.ndarray]:
     """The simulated acceleration of every run (open loop from the recorded command,
-    or closed loop behind the recorded leader), as in the calibration cost."""
-    closed = _closed(runs, closed_loop)
-    init = _init(runs, init)
-    runs = list(runs)
-    for r in runs:
-        if closed and (r.upper is None or r.lead_x is None or r.lead_v is None or r.v is None):
-            raise ValueError(f"run {r.run_id!r}: closed loop needs lead_x, lead_v, v, upper")
-        for n in model.effect_names:
-            sig = EFFECTS[n].exo
-            if sig is not None and sig not in r.exo:
-                raise ValueError(f"run {r.run_id!r}: effect {n!r} needs the column 'exo_{sig}'")
-    # One batched call for every run (the same rollouts as the cost).
-    sims = simulate_batch(
-        model.base.name, model.to_array()[None, :], runs, effects=model.effect_names,
-        init=init, closed_loop=closed,
-    )  # fmt: skip
-    return [np.asarray(a[0]) for a in sims["a"]]
+    or closed loop behind the recorded leader), as in the calibration cost: one
+    batched call on the run set (``runs`` packed once if a list). ``upper`` replaces
+    the runs' upper-level law (default: the run set's, :meth:`avll.RunSet.with_upper`)."""
+    rs = as_runset(runs)
+    closed = _closed(rs, closed_loop)
+    row, free = _row(model, upper if upper is not None else rs.upper)
+    kw = rs.cost_kw(init=_init(rs, init), closed_loop=closed, upper_free=free,
+                    exo=exo_needs(model.effect_names))  # fmt: skip
+    d = _core.simulate_batch(model.base.name, row, effects=list(model.effect_names),
+                             threads=check_threads(threads), **kw)  # fmt: skip
+    off = rs.offsets
+    return [np.asarray(d["a"][0, off[j] : off[j + 1]]) for j in range(len(rs))]
 
 
 def run_mse(
-    model: WithEffects, runs: Sequence[Run], *, closed_loop: bool | None = None,
-    init: str = "auto", threads: int = 0,
+    model: WithEffects, runs: RunSet | Sequence[Run], *, closed_loop: bool | None = None,
+    init: str = "auto", threads: int = 0, upper: UpperLevel | None = None,
 ) -> np.ndarray:
-    """Per-run MSE of the acceleration (paper Eq. 6 per run); ``inf`` if unstable."""
-    closed = _closed(runs, closed_loop)
+    """Per-run MSE of the acceleration (paper Eq. 6 per run); ``inf`` if unstable. The
+    one per-run error of the diagnosis: the Rust batched cost on the run set."""
+    rs = as_runset(runs)
+    row, free = _row(model, upper if upper is not None else rs.upper)
     c = batch_cost_effects(
-        model.base.name, model.effect_names, model.to_array()[None, :], runs,
-        closed_loop=closed, init=_init(runs, init), threads=threads,
+        model.base.name, model.effect_names, row, rs, closed_loop=_closed(rs, closed_loop),
+        init=_init(rs, init), threads=threads, upper_free=free,
     )  # fmt: skip
     return c[0]
-
 
 
 @dataclass(frozen=True)
@@ -182,7 +191,7 @@ SPEED_COMMAND_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.0)
 def fit_full(
     base: str | type[LowerLevelModel] | LowerLevelModel,
     effects: Sequence[str],
-    runs: Sequence[Run],
+    runs: RunSet | Sequence[Run],
     *,
     start: WithEffects | None = None,
     start_upper: UpperLevel | None = None,
@@ -207,7 +216,7 @@ def fit_full(
     :data:`avll.defaults.CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration
     alone leaves the upper law's spacing unidentified. The loop reports acceleration
     MSEs. ``optimizer``: ``"ga"`` (the project's Rust GA,
-    :func:`avll.effects.calibrate_effects`, with ``starts`` independent starts as
+    :func:`avll.calibration.calibrate_effects`, with ``starts`` independent starts as
     :func:`avll.calibrate`) or ``"de"`` (``scipy.optimize.differential_evolution`` on
     the batched cost). ``pop_size`` and ``max_generations`` are the GA's (``None``:
     :data:`avll.defaults.GA_OPTIONS`); with ``"de"``, scipy's ``popsize`` (``None``:
@@ -218,23 +227,21 @@ def fit_full(
         raise ValueError(f"optimizer: must be 'ga' or 'de', got {optimizer!r}")
     seed = check_seed(seed)
     threads = check_threads(threads)
-    if not runs:
+    if not isinstance(runs, RunSet) and not runs:
         raise ValueError("runs: no runs given")
+    rs = as_runset(runs)
     bname = model_class(base).name
     names = canonical(list(effects))
-    closed = _closed(runs, closed_loop)
+    closed = _closed(rs, closed_loop)
     if upper_free is None:
-        upper_free = closed and any(r.upper is None for r in runs)
-    sp = _space(bname, names, runs[0].command_kind, bool(upper_free),
+        upper_free = closed and any(r.upper is None for r in rs.runs)
+    sp = _space(bname, names, rs.command_kind, bool(upper_free),
                 upper_bounds if upper_free else None)
-    if upper_free:
-        placeholder = UpperLevel(kg=0.0, kv=0.0, Tg=0.0, Gmin=0.0)
-        runs = [replace(r, upper=placeholder) for r in runs]
-    ini = _init(runs, init)
+    ini = _init(rs, init)
     if weights is None:
         if closed:
             weights = CLOSED_LOOP_WEIGHTS
-        elif runs[0].command_kind == "speed" and all(r.v is not None for r in runs):
+        elif rs.command_kind == "speed" and rs.has("v"):
             weights = SPEED_COMMAND_WEIGHTS
         else:
             weights = (1.0, 0.0, 0.0)
@@ -243,7 +250,7 @@ def fit_full(
 
     def f(z: np.ndarray) -> np.ndarray:
         rows = np.vstack([rows_of(zz) for zz in np.atleast_2d(z)])
-        c = batch_cost_effects(bname, names, rows, runs, closed_loop=closed, init=ini,
+        c = batch_cost_effects(bname, names, rows, rs, closed_loop=closed, init=ini,
                                upper_free=free_idx, weights=weights,
                                threads=threads)  # fmt: skip
         m = c.mean(axis=1)
@@ -278,7 +285,7 @@ def fit_full(
                 bar.advance_to(float(info["iteration"]))
 
             out = calibrate_effects(
-                bname, names, runs, list(sp.lo), list(sp.hi),
+                bname, names, rs, list(sp.lo), list(sp.hi),
                 ["log" if lg else "linear" for lg in sp.log], weights=weights, init=ini,
                 closed_loop=closed, upper_free=free_idx, initial=x0p, seed=seed,
                 max_generations=max_generations, pop_size=pop_size,

@@ -57,6 +57,7 @@ from ..defaults import DEFAULT_STARTS, GA_OPTIONS
 from ..effects import EFFECTS, WithEffects
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..progress import messages
+from ..runs import RunSet
 from .contract import model_to_dict, per_run_mse
 from .defaults import DEFAULT_BLOCKS, DEFAULT_FOLDS, FAR_SMALLER, MIN_BLOCK, MIN_GAIN
 from .fitting import _closed, _init, at_bound, fit_full, simulate_runs
@@ -334,21 +335,34 @@ def effect_loop(
                                   optimizer=optimizer, max_generations=max_generations,
                                   starts=starts, threads=threads)  # fmt: skip
 
-    def with_upper(rs: Sequence[Run], up: UpperLevel | None) -> list[Run]:
-        # The calibrated upper-level law replaces the unknown one (on every run: the
-        # same vehicle's law).
-        return [replace(r, upper=up) for r in rs] if upper_free else list(rs)
+    # Every run of the loop packed once: the calibration runs (and the blocks of a
+    # single one), the validation and the test runs; each split and each fold's
+    # training and held-out runs are views on it (index subsets, nothing copied).
+    blocks = [held[0] for _, held in fold_sets] if fold_kind == "blocks" else []
+    packed = RunSet([*cal_runs, *blocks, *val_runs, *test_runs])
+    where = {id(r): i for i, r in enumerate(packed)}
 
-    def residuals(m: WithEffects, rs: Sequence[Run], up: UpperLevel | None) -> list[np.ndarray]:
+    def view(rs: Sequence[Run]) -> RunSet | tuple[()]:
+        return packed.subset([where[id(r)] for r in rs]) if rs else ()
+
+    cal_set, val_set, test_set = view(cal_runs), view(val_runs), view(test_runs)
+    fold_views = [(view(train), view(held)) for train, held in fold_sets]
+
+    def with_upper(rs: RunSet | tuple[()], up: UpperLevel | None) -> Any:
+        # The calibrated upper-level law replaces the unknown one (on every run: the
+        # same vehicle's law), as free gains of the simulated row.
+        return rs.with_upper(up) if upper_free and isinstance(rs, RunSet) else rs
+
+    def residuals(m: WithEffects, rs: Any, up: UpperLevel | None) -> list[np.ndarray]:
         rs = with_upper(rs, up)
         return [r.a - s for r, s in zip(rs, simulate_runs(m, rs, closed_loop=closed,
                                                            init=init), strict=True)]
 
-    def mse(m: WithEffects, rs: Sequence[Run], up: UpperLevel | None) -> dict[str, float]:
+    def mse(m: WithEffects, rs: Any, up: UpperLevel | None) -> dict[str, float]:
         return per_run_mse(m, with_upper(rs, up), closed=closed, init=init) if rs else {}
 
     if baseline is None:
-        current, upper = fit_full(bname, (), cal_runs, seed=seed, progress=progress, **fit_kw)
+        current, upper = fit_full(bname, (), cal_set, seed=seed, progress=progress, **fit_kw)
     else:
         if upper_free:
             raise ValueError("baseline: give runs with their upper-level law in closed loop")
@@ -362,7 +376,7 @@ def effect_loop(
     rejected: list[dict[str, Any]] = []
     trials: list[dict[str, Any]] = []
     for it in range(max_effects):
-        cal_u = with_upper(cal_runs, upper)
+        cal_u = with_upper(cal_set, upper)
         d = diagnose(current, cal_u, closed_loop=closed, alpha=alpha, init=init,
                      candidates=candidates)  # fmt: skip
         diags.append(d)
@@ -371,7 +385,7 @@ def effect_loop(
         ranked = d.ranked[:tries]
         if not ranked:
             break
-        for f, (train, _) in enumerate(fold_sets):
+        for f, (train, _) in enumerate(fold_views):
             if fold_models[f] is None:
                 fold_models[f] = fit_full(bname, current.effect_names, train,
                                           seed=_sub(seed, it, f, 0), **fit_kw)  # fmt: skip
@@ -381,7 +395,7 @@ def effect_loop(
             e0s: list[np.ndarray] = []
             e1s: list[np.ndarray] = []
             fold_gains, new_fold_models = [], []
-            for f, (train, held) in enumerate(fold_sets):
+            for f, (train, held) in enumerate(fold_views):
                 m0, u0 = fold_models[f]  # type: ignore[misc]
                 hint = _fold_hint(m0, with_upper(train, u0), c.effect, closed, init)
                 start = WithEffects(m0.base, (*m0.effects, EFFECTS[c.effect](**hint)))
@@ -431,10 +445,10 @@ def effect_loop(
         accepted = False
         for _, ci, c, rec, new_fold_models in sorted(passed, key=lambda x: (-x[0], x[1])):
             start = WithEffects(current.base, (*current.effects, EFFECTS[c.effect](**c.hint)))
-            new, up1 = fit_full(bname, [*current.effect_names, c.effect], cal_runs, start=start,
+            new, up1 = fit_full(bname, [*current.effect_names, c.effect], cal_set, start=start,
                                 start_upper=upper, seed=_sub(seed, it, 1000, ci),
                                 progress=progress, **fit_kw)  # fmt: skip
-            cal0, cal1 = mse(current, cal_runs, upper), mse(new, cal_runs, up1)
+            cal0, cal1 = mse(current, cal_set, upper), mse(new, cal_set, up1)
             if not _mean(cal1) < _mean(cal0):
                 reason = "refitted on all calibration runs it does not lower their error"
                 rec["passed"] = False
@@ -443,7 +457,7 @@ def effect_loop(
                                  "fold_selection": rec["fold_selection"], "gain": rec["gain"],
                                  "p_value": rec["p_value"], "reasons": [reason]})  # fmt: skip
                 continue
-            val0, val1 = mse(current, val_runs, upper), mse(new, val_runs, up1)
+            val0, val1 = mse(current, val_set, upper), mse(new, val_set, up1)
             eff = dict((e.name, e) for e in new.effects)[c.effect]
             cv = {k: rec[k] for k in ("fold_gains", "gain", "mse_before", "mse_after", "p_value",
                                       "bootstrap_ci", "block_length", "n_boot", "ess_t",
@@ -462,9 +476,9 @@ def effect_loop(
         if not accepted:
             break
     # Only now: the test runs, and the flags.
-    base_mse = {"cal": mse(out_base, cal_runs, base_upper), "val": mse(out_base, val_runs,
-                                                                      base_upper),
-                "test": mse(out_base, test_runs, base_upper)}  # fmt: skip
+    base_mse = {"cal": mse(out_base, cal_set, base_upper),
+                "val": mse(out_base, val_set, base_upper),
+                "test": mse(out_base, test_set, base_upper)}  # fmt: skip
     prev, prev_up = out_base, base_upper
     done: list[Step] = []
     flags: list[dict[str, Any]] = []
@@ -475,7 +489,7 @@ def effect_loop(
                       "message": "baseline parameters at a bound of the search box: "
                                  + ", ".join(a["param"] for a in b_at)})  # fmt: skip
     for k, s in enumerate(steps, 1):
-        t0, t1 = mse(prev, test_runs, prev_up), mse(s.model, test_runs, s.upper)
+        t0, t1 = mse(prev, test_set, prev_up), mse(s.model, test_set, s.upper)
         sflags = []
         vg, tg, cg = _gain(s.val_before, s.val_after), _gain(t0, t1), s.cv["gain"]
         if s.val_before and not vg > 0:
@@ -509,7 +523,7 @@ def effect_loop(
         prev, prev_up = s.model, s.upper
     # What the residual still depends on.
     try:
-        unexplained = residual_structure(current, with_upper(cal_runs, upper), closed_loop=closed,
+        unexplained = residual_structure(current, with_upper(cal_set, upper), closed_loop=closed,
                                          init=init, alpha=structure_alpha,
                                          min_share=min_structure)  # fmt: skip
     except ValueError as e:
@@ -546,7 +560,7 @@ def effect_loop(
 
 
 def _fold_hint(
-    model: WithEffects, train: list[Run], effect: str, closed: bool, init: str
+    model: WithEffects, train: Sequence[Run], effect: str, closed: bool, init: str
 ) -> dict[str, float]:
     """The starting guess of ``effect`` from a diagnosis on the fold's training runs
     only (the effect's neutral parameters when that diagnosis cannot give one)."""

@@ -36,6 +36,7 @@ from scipy import signal, stats
 from ..data import Run
 from ..effects import CANONICAL_ORDER, EFFECTS, WithEffects
 from ..models import LowerLevelModel
+from ..runs import as_runset
 from .fitting import _closed, _fixed, _init, simulate_runs
 from .stats import SignalDependence, _binned, _ess, _lag1, _lstsq
 
@@ -298,6 +299,9 @@ def diagnose(
         model = WithEffects(model, ())
     if not runs:
         raise ValueError("runs: no runs given")
+    # packed once for the many simulations below (a RunSet is used as it is)
+    runs = as_runset(runs)
+    val_runs = as_runset(val_runs) if val_runs else ()
     closed = _closed(runs, closed_loop)
     init = _init(runs, init)
     sims = simulate_runs(model, runs, closed_loop=closed, init=init)
@@ -475,6 +479,7 @@ def residual_structure(
 
     if isinstance(model, LowerLevelModel):
         model = WithEffects(model, ())
+    runs = as_runset(runs)
     closed = _closed(runs, closed_loop)
     init = _init(runs, init)
     sims = simulate_runs(model, runs, closed_loop=closed, init=init)
