@@ -6,6 +6,8 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+#: Digest of the Rust sources this extension was compiled from (build.rs).
+SOURCE_DIGEST: str
 
 # --- run sets (rust/bindings/runs.rs) ---
 @final

@@ -88,6 +88,9 @@ pub(crate) fn slice2<'a>(
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    // The sources this extension was compiled from (build.rs): tests/test_build.py
+    // and .ci/build_identity.py tell a stale or foreign build by it.
+    m.add("SOURCE_DIGEST", env!("AVLL_SOURCE_DIGEST"))?;
     runs::register(m)?;
     rollout::register(m)?;
     outbuf::register(m)?;
