@@ -124,6 +124,14 @@ def command_starts() -> None:
 
 def command_ends() -> None:
     """The command is done (outputs committed or removed): a Ctrl-C from now until the
-    process exits is :func:`quiet_exit` (one line, exit 130), not a signal exit."""
+    interpreter shuts down is :func:`quiet_exit` (one line, exit 130), not a signal exit.
+    Once it shuts down (``atexit``), SIGINT is ignored: while it finalizes, CPython puts
+    the operating system's default action back for a signal that has a Python handler
+    (not for an ignored one), so a Ctrl-C in that last instant would otherwise end the
+    process by the signal, without a word; ignored, the process exits with the
+    command's code."""
     if console and threading.current_thread() is threading.main_thread():
+        import atexit
+
         signal.signal(signal.SIGINT, quiet_exit)
+        atexit.register(signal.signal, signal.SIGINT, signal.SIG_IGN)
