@@ -28,7 +28,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import importlib.util
+import io
 import json
 import re
 import subprocess
@@ -139,7 +141,7 @@ def _via_out(name: str, extra: Sequence[str] = ()) -> Generated:
     (with its JSON beside it when it writes one)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "fragment.md"
-        with contextlib.redirect_stdout(sys.stderr):
+        with contextlib.redirect_stdout(io.StringIO()):  # the scripts echo what they write
             _run_main(name, ["--out", str(out), *extra])
         js = out.with_suffix(".json")
         numbers = json.loads(js.read_text(encoding="utf-8")) if js.exists() else None
@@ -243,6 +245,23 @@ def readme_blocks(text: str) -> list[str]:
 # --------------------------------------------------------------------------- the writer
 
 
+def plain(x: Any) -> Any:
+    """``x`` as strict-JSON-ready data: dataclasses as dicts, non-finite numbers as
+    ``null`` (:func:`avll._atomic.json_safe`)."""
+    from avll import _atomic
+
+    def conv(v: Any) -> Any:
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, dict):
+            return {str(k): conv(w) for k, w in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [conv(w) for w in v]
+        return v
+
+    return json.loads(_atomic.dumps(conv(x)))
+
+
 def write(frag: Fragment, gen: Generated) -> list[Path]:
     """Writes ``gen`` as fragment ``frag``: stamped, atomically, with the strict-JSON
     sidecar of its numbers when there are any."""
@@ -266,7 +285,7 @@ def write(frag: Fragment, gen: Generated) -> list[Path]:
         new = pat.sub(lambda m: marker + content + m.group(3), text, count=1)
         written.append(_atomic.write_text(frag.path, new))
     if gen.numbers is not None:
-        written.append(_atomic.write_json(frag.sidecar, _atomic.json_safe(gen.numbers)))
+        written.append(_atomic.write_json(frag.sidecar, plain(gen.numbers)))
     return written
 
 
@@ -558,12 +577,11 @@ def check(frag: Fragment, a: argparse.Namespace) -> Status:
         gen = frag.generate(a)
         assert gen is not None
         st.compared = "regenerated"
+        st.stale = []  # regenerated: compared, whatever changed since its stamp
         if have != gen.body.rstrip("\n"):
             st.mismatch = _diff(have, gen.body.rstrip("\n"))
         elif gen.numbers is not None:
-            from avll import _atomic
-
-            fresh = json.loads(_atomic.dumps(_atomic.json_safe(gen.numbers)))
+            fresh = plain(gen.numbers)
             if not frag.sidecar.exists():
                 st.mismatch = f"{frag.sidecar.relative_to(ROOT)} is missing"
             elif json.loads(frag.sidecar.read_text(encoding="utf-8")) != fresh:
