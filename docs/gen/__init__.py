@@ -512,6 +512,19 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
 ]}
 
 
+#: Fragments written before this pipeline without a stamp and not regenerated since (their
+#: runs are long science or benchmark runs; re-stamping without regenerating would claim a
+#: commit the numbers did not come from). ``--check`` reports them; the test requires this
+#: set to be exactly the unstamped files, so it shrinks as they are regenerated.
+UNSTAMPED: dict[str, str] = {
+    name: f"unstamped: regenerate with `{COMMAND.format(name=name)}`"
+    + (f" ({REGISTRY[name].note})" if REGISTRY[name].note else "")
+    for name in ("stability-numbers", "stability-uncertainty", "grade-freeflow", "loop-carma",
+                 "loop-openacc", "calibrate-bench", "calibrate-bench-20", "engine-bench",
+                 "findings-openacc")
+}
+
+
 def _engine_bench() -> None:
     """The engine benchmark: two runs of benches/bench_engine.py (tuned and default
     allocator), then benches/render_engine.py (their own functions, unchanged)."""
@@ -655,9 +668,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{f.name:22} {' '.join(flags) or 'ok':48} [{what}]")
             if st.mismatch:
                 print("    " + st.mismatch.replace("\n", "\n    "))
-            if st.stamp is None and not f.cheap:
-                print(f"    unstamped: regenerate with `{COMMAND.format(name=f.name)}`"
-                      + (f" ({f.note})" if f.note else ""))
+            if st.stamp is None:
+                print("    " + UNSTAMPED.get(f.name, "unstamped and not in UNSTAMPED: "
+                                          f"regenerate with `{COMMAND.format(name=f.name)}`"))
         print(f"docs.gen --check: {len(frags)} fragment(s), {bad} mismatch(es), "
               f"{unstamped} unstamped, {stale} stale")
         return 1 if bad or (a.strict and (unstamped or stale)) else 0
