@@ -301,28 +301,30 @@ def restamp(frag: Fragment) -> list[Path]:
 # --------------------------------------------------------------------------- generators
 
 
+def _frag() -> ModuleType:
+    from . import fragments
+
+    return fragments
+
+
 def _bounds(_: argparse.Namespace) -> Generated:
     from avll.calibrate import DEFAULT_BOUNDS, UPPER_BOUNDS
 
-    text = bench("docs_numbers").bounds()
-    return Generated(body(text), {"lower": DEFAULT_BOUNDS, "upper": UPPER_BOUNDS})
+    return Generated(_frag().bounds(), {"lower": DEFAULT_BOUNDS, "upper": UPPER_BOUNDS})
 
 
 def _ga_options(_: argparse.Namespace) -> Generated:
     from avll.calibrate import DEFAULT_STARTS, GA_OPTIONS
 
-    return Generated(body(bench("docs_numbers").ga_options()),
-                     {"starts": DEFAULT_STARTS, **GA_OPTIONS})
+    return Generated(_frag().ga_options(), {"starts": DEFAULT_STARTS, **GA_OPTIONS})
 
 
 def _effects(_: argparse.Namespace) -> Generated:
-    import dataclasses
-
     import avll
 
     numbers = {n: {f.name: list(b) for f, b in zip(dataclasses.fields(c), c.bounds, strict=True)}
                for n, c in avll.EFFECTS.items()}
-    return Generated(body(bench("docs_numbers").effects()), numbers)
+    return Generated(_frag().effects(), numbers)
 
 
 def _datasets(_: argparse.Namespace) -> Generated:
@@ -332,27 +334,24 @@ def _datasets(_: argparse.Namespace) -> Generated:
 
 
 def _readme_section_iv(_: argparse.Namespace) -> Generated:
-    rn = bench("readme_numbers")
-    numbers = rn.section_iv()
-    return Generated(rn.render_section_iv(numbers), numbers)
+    numbers = _frag().section_iv_numbers()
+    return Generated(_frag().render_section_iv(numbers), numbers)
 
 
 def _readme_cli(_: argparse.Namespace) -> Generated:
-    rn = bench("readme_numbers")
-    commands = rn.cli_commands()
-    return Generated(rn.render_cli(commands))
+    return Generated(_frag().render_cli(_frag().cli_commands()))
 
 
-def _docs_numbers(name: str) -> Callable[[argparse.Namespace], Generated]:
+def _fragment(name: str) -> Callable[[argparse.Namespace], Generated]:
+    """One of :mod:`docs.gen.fragments`' expensive tables."""
+
     def gen(a: argparse.Namespace) -> Generated:
-        dn = bench("docs_numbers")
-        if name == "reproduce-data":
-            text = dn.reproduce_data(Path(a.data_root))
-        elif name == "reproduce":
-            text = dn.reproduce(None)
-        else:
-            text = dn.FRAGMENTS[name](a)
-        return Generated(body(text))
+        F = _frag()
+        calls: dict[str, Callable[[], str]] = {
+            "section-iv": F.section_iv, "reproduce": F.reproduce, "seeds": F.seeds,
+            "blind": F.blind, "recovery": F.recovery,
+            "reproduce-data": lambda: F.reproduce_data(Path(a.data_root))}
+        return Generated(calls[name]())
 
     return gen
 
@@ -382,7 +381,7 @@ _LOOP = ("python/avll/diagnose", "python/avll/effects.py", "rust/effects", *_CAL
 _FIELD = ("python/avll/io", "python/avll/data.py", "python/avll/fielddata.py")
 _FINDINGS = ("benches/findings_fielddata.py", "python/avll/studies/fielddata.py", *_FIELD,
              *_CAL, *_MODELS)
-_GEN_SELF = ("docs/gen/__init__.py",)
+_GEN_SELF = ("docs/gen/__init__.py", "docs/gen/fragments.py")
 
 
 def _findings(part: str) -> Fragment:
@@ -403,13 +402,12 @@ def _perf_frag(name: str, script: str) -> Fragment:
 REGISTRY: dict[str, Fragment] = {f.name: f for f in [
     # ---- cheap: regenerated and compared by --check
     Fragment("bounds", "docs/_generated/bounds.md", _bounds,
-             ("python/avll/calibrate.py", "python/avll/defaults.py", *_GEN_SELF,
-              "benches/docs_numbers.py"), cheap=True),
+             ("python/avll/calibrate.py", "python/avll/defaults.py", *_GEN_SELF), cheap=True),
     Fragment("ga-options", "docs/_generated/ga_options.md", _ga_options,
-             ("python/avll/calibrate.py", "rust/optimize", "rust/bindings/ga.rs", *_GEN_SELF,
-              "benches/docs_numbers.py"), cheap=True),
+             ("python/avll/calibrate.py", "rust/optimize", "rust/bindings/ga.rs", *_GEN_SELF),
+             cheap=True),
     Fragment("effects", "docs/_generated/effects.md", _effects,
-             ("python/avll/effects.py", *_GEN_SELF, "benches/docs_numbers.py"), cheap=True),
+             ("python/avll/effects.py", *_GEN_SELF), cheap=True),
     Fragment("datasets", "docs/_generated/datasets.md", _datasets,
              ("python/avll/datasets.py", "python/avll/_dataset_files.py", *_GEN_SELF),
              cheap=True),
@@ -418,28 +416,28 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("benches/stability_limits.py", *_STAB, "python/avll/paper.py", *_GEN_SELF),
              cheap=True),
     Fragment("readme-section-iv", "README.md#section-iv", _readme_section_iv,
-             ("benches/readme_numbers.py", "python/avll/reproduce.py", "python/avll/paper.py",
-              *_STAB, *_GEN_SELF), cheap=True),
+             ("python/avll/reproduce.py", "python/avll/paper.py", *_STAB, *_GEN_SELF),
+             cheap=True),
     Fragment("readme-cli", "README.md#cli", _readme_cli,
-             ("benches/readme_numbers.py", "python/avll/cli", *_GEN_SELF), cheap=True),
+             ("python/avll/cli", *_GEN_SELF), cheap=True),
     # ---- expensive: docs_numbers (minutes)
-    Fragment("section-iv", "docs/_generated/section_iv.md", _docs_numbers("section-iv"),
-             ("benches/docs_numbers.py", "benches/readme_numbers.py", "python/avll/reproduce.py",
+    Fragment("section-iv", "docs/_generated/section_iv.md", _fragment("section-iv"),
+             ("docs/gen/fragments.py", "python/avll/reproduce.py",
               "python/avll/paper.py", *_STAB), cheap=False, note="about a minute"),
-    Fragment("reproduce", "docs/_generated/reproduce.md", _docs_numbers("reproduce"),
-             ("benches/docs_numbers.py", "python/avll/reproduce.py", "python/avll/synth.py",
+    Fragment("reproduce", "docs/_generated/reproduce.md", _fragment("reproduce"),
+             ("docs/gen/fragments.py", "python/avll/reproduce.py", "python/avll/synth.py",
               *_CAL, *_MODELS, *_STAB), cheap=False, note="one avll reproduce run"),
-    Fragment("seeds", "docs/_generated/seeds.md", _docs_numbers("seeds"),
-             ("benches/docs_numbers.py", "python/avll/reproduce.py", "python/avll/synth.py",
+    Fragment("seeds", "docs/_generated/seeds.md", _fragment("seeds"),
+             ("docs/gen/fragments.py", "python/avll/reproduce.py", "python/avll/synth.py",
               *_CAL, *_MODELS, *_STAB), cheap=False, note="three reproductions"),
-    Fragment("blind", "docs/_generated/blind.md", _docs_numbers("blind"),
-             ("benches/docs_numbers.py", "benches/blind_table.py", "python/avll/synth_effects.py",
+    Fragment("blind", "docs/_generated/blind.md", _fragment("blind"),
+             ("docs/gen/fragments.py", "benches/blind_table.py", "python/avll/synth_effects.py",
               *_LOOP), cheap=False),
-    Fragment("recovery", "docs/_generated/recovery.md", _docs_numbers("recovery"),
-             ("benches/docs_numbers.py", "python/avll/synth.py", *_CAL, *_MODELS), cheap=False),
+    Fragment("recovery", "docs/_generated/recovery.md", _fragment("recovery"),
+             ("docs/gen/fragments.py", "python/avll/synth.py", *_CAL, *_MODELS), cheap=False),
     Fragment("reproduce-data", "docs/_generated/reproduce_data.md",
-             _docs_numbers("reproduce-data"),
-             ("benches/docs_numbers.py", "python/avll/reproduce.py", *_FIELD, *_CAL, *_MODELS,
+             _fragment("reproduce-data"),
+             ("docs/gen/fragments.py", "python/avll/reproduce.py", *_FIELD, *_CAL, *_MODELS,
               *_STAB), cheap=False, data=True),
     # ---- expensive: science scripts
     Fragment("stability-numbers", "docs/_generated/stability_numbers.md",
