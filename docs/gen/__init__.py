@@ -420,7 +420,7 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              cheap=True),
     Fragment("readme-cli", "README.md#cli", _readme_cli,
              ("python/avll/cli", *_GEN_SELF), cheap=True),
-    # ---- expensive: docs_numbers (minutes)
+    # ---- expensive: the docs' own tables of docs/gen/fragments.py (minutes)
     Fragment("section-iv", "docs/_generated/section_iv.md", _fragment("section-iv"),
              ("docs/gen/fragments.py", "python/avll/reproduce.py",
               "python/avll/paper.py", *_STAB), cheap=False, note="about a minute"),
