@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import importlib
 import importlib.util
 import io
 import json
@@ -356,6 +357,11 @@ def _fragment(name: str) -> Callable[[argparse.Namespace], Generated]:
     return gen
 
 
+def _study(name: str) -> ModuleType:
+    """``avll.studies.NAME`` (the science lives in the package)."""
+    return importlib.import_module(f"avll.studies.{name}")
+
+
 def _text(fn: Callable[[], str]) -> Callable[[argparse.Namespace], Generated]:
     return lambda _: Generated(body(fn()))
 
@@ -431,8 +437,8 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("docs/gen/fragments.py", "python/avll/reproduce.py", "python/avll/synth.py",
               *_CAL, *_MODELS, *_STAB), cheap=False, note="three reproductions"),
     Fragment("blind", "docs/_generated/blind.md", _fragment("blind"),
-             ("docs/gen/fragments.py", "benches/blind_table.py", "python/avll/synth_effects.py",
-              *_LOOP), cheap=False),
+             ("docs/gen/fragments.py", "python/avll/studies/blind/library.py",
+              "python/avll/synth_effects.py", *_LOOP), cheap=False),
     Fragment("recovery", "docs/_generated/recovery.md", _fragment("recovery"),
              ("docs/gen/fragments.py", "python/avll/synth.py", *_CAL, *_MODELS), cheap=False),
     Fragment("reproduce-data", "docs/_generated/reproduce_data.md",
@@ -454,12 +460,13 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("benches/effect_stability_numbers.py", "python/avll/effect_stability.py",
               "python/avll/effects.py", "rust/effects", *_STAB), cheap=False, note="~30 s"),
     Fragment("blind-stability", "docs/_generated/blind_stability.md",
-             _text(lambda: bench("blind_stability").render()),
-             ("benches/blind_stability.py", "python/avll/synth_blind.py",
+             _text(lambda: _study("blind.stability").render()),
+             ("python/avll/studies/blind/stability.py", "python/avll/synth_blind.py",
               "python/avll/effect_stability.py", *_LOOP), cheap=False, note="~2 min"),
     Fragment("blind-physical", "docs/_generated/blind_physical.md",
-             _text(lambda: bench("blind_physical").render(bench("blind_physical").collect())),
-             ("benches/blind_physical.py", "python/avll/synth_blind.py", *_LOOP), cheap=False),
+             _text(lambda: _study("blind.physical").render(_study("blind.physical").collect())),
+             ("python/avll/studies/blind/physical.py", "python/avll/synth_blind.py", *_LOOP),
+             cheap=False),
     Fragment("grade-freeflow", "docs/_generated/grade_freeflow.md",
              _in_place("grade_freeflow", data=""),
              ("benches/grade_freeflow.py", *_FIELD, *_LOOP), cheap=False, data=True,

@@ -8,8 +8,6 @@ Formerly ``benches/docs_numbers.py`` and ``benches/readme_numbers.py``.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import math
 import os
@@ -317,15 +315,11 @@ def seeds(which: tuple[int, ...] = (0, 1, 2)) -> str:
 
 
 def blind() -> str:
-    """The blind-test table of ``benches/blind_table.py`` without its timing column."""
-    from . import bench
+    """The blind-test table of :mod:`avll.studies.blind.library` without its timing column."""
+    from avll.studies.blind import library
 
-    blind_table = bench("blind_table")
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        blind_table.main()
     rows = []
-    for line in buf.getvalue().splitlines():
+    for line in library.table():
         if line.startswith("|"):
             cells = line.strip().strip("|").split("|")
             rows.append("|" + "|".join(cells[:-1]) + "|")

@@ -16,11 +16,11 @@ bound), whether an acceptable effect was found (:data:`avll.synth_blind.ACCEPTAB
 the controls and the case without a counterpart), the false additions and the MSE
 gains on the validation and the untouched test runs.
 
-    python benches/blind_physical.py              # print the table (a few minutes)
-    python -m docs.gen --only blind-physical      # writes docs/_generated/blind_physical.md
-    python benches/blind_physical.py --only clean,sensor
+    python -m avll.studies.blind.physical          # print the table (a few minutes)
+    python -m docs.gen --only blind-physical       # writes docs/_generated/blind_physical.md
+    python -m avll.studies.blind.physical --only clean,sensor
 
-(``benches/blind_table.py`` is the table of the library-like generator
+(:mod:`avll.studies.blind.library` is the table of the library-like generator
 :mod:`avll.synth_effects`.)
 """
 
@@ -31,7 +31,6 @@ import inspect
 import math
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -40,7 +39,6 @@ from avll.diagnose import effect_loop, run_mse
 from avll.effects import EFFECTS
 from avll.synth_blind import ACCEPTABLE, BLIND_RUNS, SCENARIOS, blind_experiment
 
-ROOT = Path(__file__).resolve().parents[1]
 BASE = "second"
 DATA_SEED = 0
 LOOP_SEED = 1
@@ -97,7 +95,7 @@ def run_case(scenario: str) -> dict[str, Any]:
     available = [e for e in acceptable if e in EFFECTS]
     added = [s.effect for s in res.steps]
     if not acceptable:
-        hit = None  # a control or no counterpart: nothing is right
+        hit: bool | str | None = None  # a control or no counterpart: nothing is right
     elif not available:
         hit = "n/a"
     else:
@@ -290,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rows = collect([n for n in args.only.split(",") if n])
     except ValueError as e:
-        print(f"blind_physical: {e}", file=sys.stderr)
+        print(f"avll.studies.blind.physical: {e}", file=sys.stderr)
         return 2
     print("\n".join(table(rows)))
     print("\n".join(summary(rows)))

@@ -9,14 +9,13 @@ go through :func:`avll.effect_stability.effect_stability`; the *true* vehicle
 speed fundamental over the same window) gives the amplification the models should
 predict. The linearised thresholds exist only for the models.
 
-    python benches/blind_stability.py            # ~2 min, prints it
+    python -m avll.studies.blind.stability       # ~2 min, prints it
 """
 
 from __future__ import annotations
 
 import math
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,7 +25,6 @@ from avll.diagnose import effect_loop
 from avll.effect_stability import EffectStability, effect_stability
 from avll.synth_blind import DEFAULTS, SCENARIOS, blind_experiment, simulate_platoon
 
-ROOT = Path(__file__).resolve().parents[1]
 UPPER = avll.UpperLevel(kg=0.2, kv=0.3, Tg=1.5)
 V0 = 12.0  # inside the speed range of the runs
 AMPS = (0.1, 0.5, 1.0, 2.0, 3.0)
