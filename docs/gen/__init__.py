@@ -31,12 +31,10 @@ import contextlib
 import dataclasses
 import importlib
 import importlib.util
-import io
 import json
 import re
 import subprocess
 import sys
-import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -135,18 +133,6 @@ def _run_main(name: str, argv: Sequence[str]) -> None:
         rc = mod.main()
     if rc not in (None, 0):
         raise RuntimeError(f"benches/{name}.py {' '.join(argv)} exited with {rc}")
-
-
-def _via_out(name: str, extra: Sequence[str] = ()) -> Generated:
-    """A script that takes ``--out FILE``: run it into a temporary file, read it back
-    (with its JSON beside it when it writes one)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "fragment.md"
-        with contextlib.redirect_stdout(io.StringIO()):  # the scripts echo what they write
-            _run_main(name, ["--out", str(out), *extra])
-        js = out.with_suffix(".json")
-        numbers = json.loads(js.read_text(encoding="utf-8")) if js.exists() else None
-        return Generated(body(out.read_text(encoding="utf-8")), numbers)
 
 
 _RAN: set[tuple[str, ...]] = set()
@@ -357,6 +343,11 @@ def _fragment(name: str) -> Callable[[argparse.Namespace], Generated]:
     return gen
 
 
+def _own(name: str) -> ModuleType:
+    """``docs.gen.NAME``: a fragment module of this package."""
+    return importlib.import_module(f"{__name__}.{name}")
+
+
 def _study(name: str) -> ModuleType:
     """``avll.studies.NAME`` (the science lives in the package)."""
     return importlib.import_module(f"avll.studies.{name}")
@@ -418,8 +409,8 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("python/avll/datasets.py", "python/avll/_dataset_files.py", *_GEN_SELF),
              cheap=True),
     Fragment("stability-limits", "docs/_generated/stability_limits.md",
-             lambda _: _via_out("stability_limits"),
-             ("benches/stability_limits.py", *_STAB, "python/avll/paper.py", *_GEN_SELF),
+             _text(lambda: _own("stability_limits").render()),
+             ("docs/gen/stability_limits.py", *_STAB, "python/avll/paper.py", *_GEN_SELF),
              cheap=True),
     Fragment("readme-section-iv", "README.md#section-iv", _readme_section_iv,
              ("python/avll/reproduce.py", "python/avll/paper.py", *_STAB, *_GEN_SELF),
@@ -447,17 +438,17 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
               *_STAB), cheap=False, data=True),
     # ---- expensive: science scripts
     Fragment("stability-numbers", "docs/_generated/stability_numbers.md",
-             lambda _: _via_out("stability_numbers"),
-             ("benches/stability_numbers.py", "python/avll/paper.py", *_STAB), cheap=False,
+             lambda _: Generated(*_own("stability_numbers").render()),
+             ("docs/gen/stability_numbers.py", "python/avll/paper.py", *_STAB), cheap=False,
              sidecars=("docs/_generated/stability_numbers.json",),
              note="minutes (the exact-delay infima)"),
     Fragment("stability-uncertainty", "docs/_generated/stability_uncertainty.md",
-             lambda _: _via_out("stability_uncertainty"),
-             ("benches/stability_uncertainty.py", "python/avll/synth.py", *_CAL, *_MODELS,
+             _text(lambda: _own("stability_uncertainty").render()),
+             ("docs/gen/stability_uncertainty.py", "python/avll/synth.py", *_CAL, *_MODELS,
               *_STAB), cheap=False, note="20 bootstrap calibrations"),
     Fragment("effect-stability", "docs/_generated/effect_stability.md",
-             _text(lambda: bench("effect_stability_numbers").render()),
-             ("benches/effect_stability_numbers.py", "python/avll/effect_stability.py",
+             _text(lambda: _own("effect_stability").render()),
+             ("docs/gen/effect_stability.py", "python/avll/effect_stability.py",
               "python/avll/effects.py", "rust/effects", *_STAB), cheap=False, note="~30 s"),
     Fragment("blind-stability", "docs/_generated/blind_stability.md",
              _text(lambda: _study("blind.stability").render()),

@@ -2,21 +2,15 @@
 --only effect-stability``): two worked examples of
 :func:`avll.effect_stability.effect_stability` (the linearised thresholds side by side
 and the amplification per car against the disturbance amplitude).
-
-    python benches/effect_stability_numbers.py          # ~30 s, prints it
 """
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
 from typing import Any
 
 import avll
 from avll.effect_stability import EffectStability, effect_stability
 from avll.effects import Asymmetric, Saturation, WithEffects
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _f(x: Any, fmt: str = ".4g") -> str:
@@ -100,13 +94,3 @@ def render() -> str:
                  period=20.0, amplitudes=(0.1, 1.0, 4.0), n_cars=5),
     ]  # fmt: skip
     return "\n".join(lines) + "\n"
-
-
-def main() -> int:
-    """Prints the fragment (``python -m docs.gen --only effect-stability`` writes it)."""
-    print(render())
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
