@@ -31,6 +31,7 @@ import contextlib
 import dataclasses
 import importlib
 import importlib.util
+import io
 import json
 import re
 import subprocess
@@ -353,6 +354,26 @@ def _study(name: str) -> ModuleType:
     return importlib.import_module(f"avll.studies.{name}")
 
 
+def _loop_carma(a: argparse.Namespace) -> Generated:
+    """avll.studies.loops.carma: the loop per vehicle (JSON in out/loop_carma, kept
+    between runs), then its table."""
+    mod, out = _study("loops.carma"), ROOT / "out" / "loop_carma"
+    with contextlib.redirect_stdout(io.StringIO()):
+        mod.main(["--data", str(Path(a.data_root) / "carma"), "--out", str(out)])
+    return Generated(body(mod.render(out)))
+
+
+def _loop_openacc(a: argparse.Namespace) -> Generated:
+    """avll.studies.loops.openacc: the loop per case (JSON in out/loop_openacc), then
+    its table."""
+    mod, out, data = _study("loops.openacc"), ROOT / "out" / "loop_openacc", Path(a.data_root)
+    with contextlib.redirect_stdout(io.StringIO()):
+        mod.main(["--data", str(data), "--out", str(out)])
+    cases = [*mod.astazero_cases(data), *mod.zalazone_cases(data)]
+    meta = json.loads((out / "settings.json").read_text(encoding="utf-8"))
+    return Generated(body(mod.render(out, cases, meta)))
+
+
 def _text(fn: Callable[[], str]) -> Callable[[argparse.Namespace], Generated]:
     return lambda _: Generated(body(fn()))
 
@@ -463,11 +484,13 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("benches/grade_freeflow.py", *_FIELD, *_LOOP), cheap=False, data=True,
              sidecars=("docs/_generated/grade_freeflow.json",),
              rerender=_rerender_json("grade_freeflow", "render", "grade_freeflow.json")),
-    Fragment("loop-carma", "docs/_generated/loop_carma.md", _in_place("loop_carma", data="carma"),
-             ("benches/loop_carma.py", "benches/_loop_table.py", *_FIELD, *_LOOP),
+    Fragment("loop-carma", "docs/_generated/loop_carma.md", _loop_carma,
+             ("python/avll/studies/loops/carma.py", "python/avll/studies/loops/table.py",
+              *_FIELD, *_LOOP),
              cheap=False, data=True, note="per-vehicle JSON in out/ (git-ignored)"),
-    Fragment("loop-openacc", "docs/_generated/loop_openacc.md", _in_place("loop_openacc", data=""),
-             ("benches/loop_openacc.py", "benches/_loop_table.py", *_FIELD, *_LOOP),
+    Fragment("loop-openacc", "docs/_generated/loop_openacc.md", _loop_openacc,
+             ("python/avll/studies/loops/openacc.py", "python/avll/studies/loops/table.py",
+              *_FIELD, *_LOOP),
              cheap=False, data=True, note="per-case JSON in out/ (git-ignored)"),
     *[_findings(p) for p in ("loaders", "grade", "firstlook", "closed", "carma", "astazero",
                              "budget", "summary")],
