@@ -374,6 +374,12 @@ def _loop_openacc(a: argparse.Namespace) -> Generated:
     return Generated(body(mod.render(out, cases, meta)))
 
 
+def _numbers(mod: ModuleType, *args: Any) -> Generated:
+    """A study with ``compute(*args)`` (its numbers) and ``render(numbers)``."""
+    d = mod.compute(*args)
+    return Generated(body(mod.render(d)), d)
+
+
 def _text(fn: Callable[[], str]) -> Callable[[argparse.Namespace], Generated]:
     return lambda _: Generated(body(fn()))
 
@@ -480,10 +486,11 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("python/avll/studies/blind/physical.py", "python/avll/synth_blind.py", *_LOOP),
              cheap=False),
     Fragment("grade-freeflow", "docs/_generated/grade_freeflow.md",
-             _in_place("grade_freeflow", data=""),
-             ("benches/grade_freeflow.py", *_FIELD, *_LOOP), cheap=False, data=True,
+             lambda a: _numbers(_study("grade_freeflow"), Path(a.data_root)),
+             ("python/avll/studies/grade_freeflow.py", *_FIELD, *_LOOP), cheap=False, data=True,
              sidecars=("docs/_generated/grade_freeflow.json",),
-             rerender=_rerender_json("grade_freeflow", "render", "grade_freeflow.json")),
+             rerender=lambda: body(_study("grade_freeflow").render(
+                 json.loads((GEN / "grade_freeflow.json").read_text(encoding="utf-8"))))),
     Fragment("loop-carma", "docs/_generated/loop_carma.md", _loop_carma,
              ("python/avll/studies/loops/carma.py", "python/avll/studies/loops/table.py",
               *_FIELD, *_LOOP),
