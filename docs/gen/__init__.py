@@ -16,9 +16,13 @@ it is cheap). The one writer (:func:`write`) stamps a fragment with the avll ver
 git commit and the command, writes it atomically and, when the generator returns raw
 numbers, writes them beside it as strict JSON (``<name>.json``).
 
-Cheap fragments (seconds) are generated here; the long science and benchmark runs are
-still done by their scripts in ``benches/`` (called through their own functions, the
-science is not rewritten here), after which the writer re-stamps what they wrote.
+Cheap fragments take seconds; the expensive ones (minutes to hours) are generated only
+when named with ``--only`` (or ``--all``). Generators are functions that return the
+body (and numbers): the docs' own tables in this package (``fragments.py``,
+``stability_*.py``, ``effect_stability.py``) and the studies in :mod:`avll.studies`
+(``blind``, ``loops``, ``grade_freeflow``). The scripts still in ``benches/`` (the
+field-data findings, the OpenACC findings page, the benchmarks) write their fragments
+themselves, through their own functions, and the writer then re-stamps what they wrote.
 ``--check`` compares the bodies of cheap fragments (not the stamp line) and, for every
 fragment, reports a stale stamp: a commit since the stamp's commit that touches one of
 the fragment's inputs (``git log STAMP..HEAD -- INPUTS``).
