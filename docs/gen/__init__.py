@@ -549,8 +549,7 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
 UNSTAMPED: dict[str, str] = {
     name: f"unstamped: regenerate with `{COMMAND.format(name=name)}`"
     + (f" ({REGISTRY[name].note})" if REGISTRY[name].note else "")
-    for name in ("stability-numbers",
-                 "loop-openacc", "calibrate-bench", "calibrate-bench-20", "engine-bench",
+    for name in ("loop-openacc", "calibrate-bench", "calibrate-bench-20", "engine-bench",
                  "findings-openacc")
 }
 
