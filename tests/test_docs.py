@@ -1,4 +1,4 @@
-"""The documentation's examples run, and its instant generated fragments are current.
+"""The documentation's examples run (the generated fragments: tests/test_docs_gen.py).
 
 Every ```python block of a page under docs/ runs, in page order and in one namespace
 per page, in a temporary folder (blocks that read the field data run when
@@ -12,7 +12,6 @@ import re
 from pathlib import Path
 
 import pytest
-from bench_helpers import load_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -58,28 +57,3 @@ def test_docs_examples_run(page: Path, tmp_path: Path, monkeypatch: pytest.Monke
         ran += 1
     if ran == 0:
         pytest.skip(f"{page.name}: every example needs ../shared/data (absent)")
-
-
-@pytest.mark.parametrize("name", ["bounds", "ga-options", "effects"])
-def test_instant_fragments_are_current(name: str) -> None:
-    dn = load_bench("docs_numbers")
-    path = DOCS / "_generated" / f"{name.replace('-', '_')}.md"
-
-    def body(text: str) -> str:  # the stamp (version, commit) may differ; the table not
-        return "\n".join(line for line in text.splitlines() if line.startswith("|"))
-
-    fresh = dn.FRAGMENTS[name](None)
-    assert body(fresh), f"{name}: the fragment has no table"
-    assert body(path.read_text(encoding="utf-8")) == body(fresh), (
-        f"{path.relative_to(ROOT)} is stale: run python benches/docs_numbers.py --only {name}"
-    )
-
-
-def test_generated_fragments_are_included() -> None:
-    gen = {p.name for p in (DOCS / "_generated").glob("*.md")}
-    included = set()
-    for page in PAGES:
-        included |= {Path(m).name for m in re.findall(r"```\{include\} (\S+)", page.read_text())}
-    mine = {f"{n.replace('-', '_')}.md" for n in load_bench("docs_numbers").FRAGMENTS}
-    assert mine <= gen, f"missing fragments: {sorted(mine - gen)}"
-    assert mine <= included, f"fragments no page includes: {sorted(mine - included)}"

@@ -1,5 +1,5 @@
 """Road grade in the AstaZero free-flow stretches (issue 13, item 5): the generated page
-(``benches/grade_freeflow.py`` -> ``docs/_generated/grade_freeflow.*``) is recomputed and
+(``avll.studies.grade_freeflow`` -> ``docs/_generated/grade_freeflow.*``) is recomputed and
 compared, and what it reports is pinned: the residual of the calibrated base model
 depends on the grade, but the fitted grade gain is a small fraction of an uncompensated
 grade (the ACC compensates it) and the cross-validated loop does not accept ``grade``."""
@@ -11,16 +11,17 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
-from bench_helpers import load_bench
 
 pytestmark = pytest.mark.data
 
 ROOT = Path(__file__).resolve().parents[1]
-STALE = "stale: rerun python benches/grade_freeflow.py (then commit docs/_generated)"
+STALE = "stale: rerun python -m docs.gen --only grade-freeflow (then commit docs/_generated)"
 
 
 def _script() -> ModuleType:
-    return load_bench("grade_freeflow")
+    from avll.studies import grade_freeflow
+
+    return grade_freeflow
 
 
 def test_free_flow_grade_numbers_reproduce(shared_data: Path) -> None:

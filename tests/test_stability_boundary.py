@@ -302,7 +302,7 @@ def test_ctrl_c_stops_an_exact_delay_search() -> None:
 
 
 def test_generated_docs_numbers_match_the_code() -> None:
-    """docs/_generated/stability_numbers.json (benches/stability_numbers.py) is not
+    """docs/_generated/stability_numbers.json (docs/gen/stability_numbers.py) is not
     stale: a few of its numbers recomputed."""
     import json
     import pathlib

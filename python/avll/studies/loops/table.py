@@ -1,6 +1,6 @@
 """The table row of one residual-loop result (the JSON of ``avll diagnose``), shared by
-the generated measured-data tables (``benches/loop_carma.py``,
-``benches/loop_openacc.py``)."""
+the generated measured-data tables (:mod:`avll.studies.loops.carma`,
+:mod:`avll.studies.loops.openacc`)."""
 
 from __future__ import annotations
 
