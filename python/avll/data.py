@@ -126,3 +126,21 @@ class Run:
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
+
+
+def check_runs(runs: Any) -> list[Run]:
+    """``runs`` as a list of :class:`Run` of one command kind, or a ``TypeError`` /
+    ``ValueError`` naming the argument (a single run, a string, an empty sequence,
+    a non-run element, mixed command kinds)."""
+    if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__iter__"):
+        raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
+    runs = list(runs)
+    if not runs:
+        raise ValueError("runs: no runs given")
+    for r in runs:
+        if not isinstance(r, Run):
+            raise ValueError(f"runs: expected avll.Run objects, got {type(r).__name__}")
+    kinds = {r.command_kind for r in runs}
+    if len(kinds) != 1:
+        raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
+    return runs

@@ -46,7 +46,6 @@ The datasets (``info(name)`` says the same, with links):
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 from dataclasses import dataclass, field
@@ -54,6 +53,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 from urllib.parse import quote
 
+from ._atomic import _sha256
 from ._dataset_files import FILES as _FILES
 
 __all__ = [
@@ -299,14 +299,6 @@ def cache_dir() -> Path:
     import pooch
 
     return Path(pooch.os_cache("avll"))
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _is_valid(path: Path, f: DatasetFile) -> bool:

@@ -62,7 +62,7 @@ import numpy as np
 
 from . import _core
 from ._limits import check_int, check_memory, check_number, check_threads
-from .data import Run
+from .data import Run, check_runs
 from .models import LowerLevelModel, UpperLevel, model_class
 
 __all__ = [
@@ -451,17 +451,7 @@ def pack_runs(
     exogenous series (``exo``) that all runs have; those the objective needs must be
     present (the command in open loop, the leader in closed loop, ``v``/``x`` when
     weighted or in closed loop)."""
-    if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__iter__"):
-        raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
-    runs = list(runs)
-    if not runs:
-        raise ValueError("runs: no runs given")
-    for r in runs:
-        if not isinstance(r, Run):
-            raise ValueError(f"runs: expected avll.Run objects, got {type(r).__name__}")
-    kinds = {r.command_kind for r in runs}
-    if len(kinds) != 1:
-        raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
+    runs = check_runs(runs)
     try:
         if len(weights) != 3:
             raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")

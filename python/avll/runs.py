@@ -19,7 +19,7 @@ import numpy as np
 
 from . import _core
 from ._limits import check_number
-from .data import Run
+from .data import Run, check_runs
 
 __all__ = ["RunSet", "as_runset"]
 
@@ -46,17 +46,7 @@ class RunSet(Sequence[Run]):
     __slots__ = ("_handle", "_runs", "_all_runs", "_cols", "_has_upper", "_upper")
 
     def __init__(self, runs: Iterable[Run]) -> None:
-        if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__iter__"):
-            raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
-        runs = tuple(runs)
-        if not runs:
-            raise ValueError("runs: no runs given")
-        for r in runs:
-            if not isinstance(r, Run):
-                raise ValueError(f"runs: expected avll.Run objects, got {type(r).__name__}")
-        kinds = {r.command_kind for r in runs}
-        if len(kinds) != 1:
-            raise ValueError(f"runs: mixed command kinds {sorted(kinds)}")
+        runs = tuple(check_runs(runs))
         offsets = [0, *np.cumsum([len(r) for r in runs]).tolist()]
         has_upper = tuple(r.upper is not None for r in runs)
         upper = None
