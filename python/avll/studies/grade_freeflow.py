@@ -1,4 +1,4 @@
-"""Road grade in free flow (issue 13, item 5): the AstaZero free-flow stretches (the
+"""Road grade in free flow: the AstaZero free-flow stretches (the
 platoon leader alone under its ACC, a constant set speed as the speed command, the road
 grade from ``Slope.csv``) are where the grade shows without a predecessor in the way.
 Does the residual of the calibrated base model depend on the grade, what grade gain does

@@ -976,7 +976,7 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
 
 #: Why the out-of-sample prediction has no interval yet.
 OOS_CI_REASON = ("no parameter intervals yet: the calibration returns point estimates only "
-                 "(issue 28, item 1); no interval is invented")
+                 "(no bootstrap over the calibration yet); no interval is invented")
 
 
 def _oos_key(meta: Mapping[str, Any]) -> tuple[Any, ...] | None:

@@ -1,5 +1,5 @@
 """The blind-test table of the diagnosis loop on the physical generator
-:mod:`avll.synth_blind` (issue 13, item 7).
+:mod:`avll.synth_blind`.
 
 Every scenario's effect is realised in a form the library does not use (power
 limit from engine power, separate brake dynamics, gear-shift torque cuts, a road

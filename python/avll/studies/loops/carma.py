@@ -1,5 +1,5 @@
 """The cross-validated residual loop on CARMA (speed command), per vehicle, with a
-three-way split (issue 13, item 8). Cruise stretches only (the launches are another
+three-way split. Cruise stretches only (the launches are another
 regime, see the field-data guide): calibration on data5 and data9 (two runs: leave-one-
 run-out, so "most folds" means both), validation on data6 (reported only), test on
 data10 (simulated only after the loop). Base model: second order (the paper's models do

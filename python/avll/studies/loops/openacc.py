@@ -1,4 +1,4 @@
-"""The cross-validated residual loop on the OpenACC data (issue 13, item 8): AstaZero per
+"""The cross-validated residual loop on the OpenACC data: AstaZero per
 predecessor->follower pair and ZalaZone per car, closed loop behind the recorded
 predecessor with the upper-level law calibrated alongside (``avll diagnose`` on these
 files does the same), each with a three-way split:
