@@ -109,3 +109,20 @@ def test_effect_loop_packs_its_runs_once(monkeypatch: pytest.MonkeyPatch) -> Non
                                     n_boot=50)  # fmt: skip
     assert built == [4]  # 2 calibration + 1 validation + 1 test run, packed once
     assert res.trials  # the folds and a candidate were cross-validated on it
+
+
+def test_batched_calls_take_a_runset_without_packing_it_again(
+        runs: list[avll.Run], monkeypatch: pytest.MonkeyPatch) -> None:
+    rs = avll.RunSet(runs)
+    params = np.array([[0.6], [0.9], [1.3]])
+    by_list = avll.batch_cost("first", params, runs)
+    built = []
+    real = _core.RunSet
+    monkeypatch.setattr(_core, "RunSet", lambda *a, **k: built.append(1) or real(*a, **k))
+    by_set = avll.batch_cost("first", params, rs)
+    from avll.rollout import simulate_batch
+
+    sims = simulate_batch("first", params[:1], rs)
+    assert built == [], "a RunSet was packed again"
+    np.testing.assert_array_equal(by_set, by_list)
+    assert np.isfinite(by_set).all() and len(sims) > 0

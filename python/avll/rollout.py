@@ -450,7 +450,14 @@ def pack_runs(
     the batched functions. Every series present in all runs is packed, and every
     exogenous series (``exo``) that all runs have; those the objective needs must be
     present (the command in open loop, the leader in closed loop, ``v``/``x`` when
-    weighted or in closed loop)."""
+    weighted or in closed loop). An :class:`avll.RunSet` is not packed
+    again: its own packed arrays are used (:meth:`avll.RunSet.cost_kw` checks what the
+    objective needs)."""
+    from .runs import RunSet
+
+    if isinstance(runs, RunSet):
+        return runs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
+                            upper_free=upper_free)
     runs = check_runs(runs)
     try:
         if len(weights) != 3:
@@ -524,6 +531,7 @@ def simulate_batch(
     """
     cls = model_class(model)
     p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    given = runs  # an avll.RunSet is used as packed
     runs = list(runs)
     if not runs:
         raise ValueError("runs: no runs given")
@@ -531,7 +539,7 @@ def simulate_batch(
     # the integrators (and the effects that read the speed), as in the cost.
     has = [float(all(getattr(r, c) is not None for r in runs)) for c in ("v", "x")]
     kw = pack_runs(
-        runs, weights=(1.0, *has), init=init, closed_loop=closed_loop, upper_free=upper_free
+        given, weights=(1.0, *has), init=init, closed_loop=closed_loop, upper_free=upper_free
     )
     kw["weights"] = tuple(float(w) for w in weights)
     if out is not None:
