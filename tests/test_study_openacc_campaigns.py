@@ -313,9 +313,12 @@ def test_ctrl_c_leaves_the_old_folder_or_the_new_one(when, tmp_path):
            "--max-generations", "3", "--pop-size", "8", "--starts", "1", "--bootstrap", "100",
            "--model", "first", "--models", "first", "-q"]
     assert main([*cli, "--seed", "1"]) == 0
-    root = Path(__file__).resolve().parents[1]
+    import avll
+
+    # the child imports the avll under test (an installed wheel or the source tree)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-        [str(root / "python"), os.environ.get("PYTHONPATH", "")]), "MPLBACKEND": "Agg"}
+        [str(Path(avll.__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")]),
+        "MPLBACKEND": "Agg"}
     p = subprocess.Popen([sys.executable, "-m", "avll", *cli, "--seed", "2"], env=env,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          **SIGINT_DEFAULT)
