@@ -49,7 +49,7 @@ def _result(r: Any) -> dict[str, Any]:
 def cases() -> dict[str, Any]:
     """Every case on 1 and 2 threads: ``{name: {"t1": ..., "t2": ...}}``."""
     import avll
-    from avll.calibrate import calibrate, calibrate_many
+    from avll.calibration import calibrate, calibrate_many
     from avll.synth import paper_experiment
 
     data = paper_experiment(avll.PAPER_TABLE_II["proposed"], seed=11, duration=90.0)

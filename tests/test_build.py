@@ -160,3 +160,18 @@ def test_release_workflow_publishes_tags_by_trusted_publishing() -> None:
             assert "permissions" not in job, name
             assert not _steps(job, "pypa/gh-action-pypi-publish@"), name
     assert _workflow()["permissions"] == {"contents": "read"}
+
+
+def test_build_identity_script_runs_on_this_build(tmp_path: Path) -> None:
+    # .ci/build_identity.py runs only in CI's wheel step: here it dumps this build's
+    # seeded cases and compares them with themselves, so a renamed API breaks it here
+    import subprocess
+
+    script = ROOT / ".ci" / "build_identity.py"
+    out = tmp_path / "this.json"
+    r = subprocess.run([sys.executable, str(script), "dump", str(out)], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    r = subprocess.run([sys.executable, str(script), "compare", str(out), str(out)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "identical bit for bit" in r.stdout, r.stdout + r.stderr
