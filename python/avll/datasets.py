@@ -320,20 +320,24 @@ def fetch(name: str, *, dest: str | os.PathLike[str] | None = None,
     """Dataset ``name`` in a local folder, laid out as listed by :func:`info` (the JRC
     campaigns one flat folder as published); returns the folder.
 
-    Parameters
-    ----------
-    name: the dataset, one of :func:`names`.
-    dest: the folder (created if needed); default ``<cache_dir()>/<name>``.
-    base_url: download every file from ``base_url + "/" + <file name>`` (a flat mirror
-        folder) instead of the dataset's own URLs.
-    progress: ``True`` (a bar on a terminal, a line per file otherwise), ``False``, or one
-        of ``"auto"``, ``"bar"``, ``"log"``, ``"none"`` (see :mod:`avll.progress`).
-
     Files already in the folder with the registered size and SHA-256 are verified, not
     downloaded; the others are downloaded to a temporary name, checked, and renamed.
     Raises ``ValueError`` for an unknown name or a dataset whose files are not
     registered, :class:`DownloadError` (an ``OSError``) naming the dataset, the file and
     the URL when a download fails or does not verify; nothing partial is left behind.
+
+    Parameters
+    ----------
+    name : str
+        The dataset, one of :func:`names`.
+    dest : path, optional
+        The folder (created if needed); default ``<cache_dir()>/<name>``.
+    base_url : str, optional
+        Download every file from ``base_url + "/" + <file name>`` (a flat mirror
+        folder) instead of the dataset's own URLs.
+    progress : bool or str
+        ``True`` (a bar on a terminal, a line per file otherwise), ``False``, or one of
+        ``"auto"``, ``"bar"``, ``"log"``, ``"none"`` (see :mod:`avll.progress`).
     """
     return fetch_report(name, dest=dest, base_url=base_url, progress=progress).folder
 
