@@ -47,6 +47,7 @@ _LAZY_NAMES: dict[str, str] = {
 __all__ = [
     "io",
     "synth",
+    "datasets",
     "__version__",
     "DataError",
     "DataWarning",
@@ -120,7 +121,7 @@ __all__ = [
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
     from . import cli as cli
-    from . import io, synth
+    from . import datasets, io, synth
     from . import plotting as plotting
     from . import progress as progress
     from ._atomic import read_manifest
@@ -184,8 +185,9 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
 
 #: Submodules imported on first use: ``avll.io`` brings pandas (the loaders), which
 #: ``import avll`` alone does not need; ``avll.plotting`` the figures (matplotlib on
-#: first drawing), ``avll.progress`` the progress display, ``avll.cli`` the command.
-_LAZY = ("io", "synth", "plotting", "progress", "cli")
+#: first drawing), ``avll.progress`` the progress display, ``avll.cli`` the command,
+#: ``avll.datasets`` the field data by name (pooch).
+_LAZY = ("io", "synth", "datasets", "plotting", "progress", "cli")
 
 
 def __getattr__(name: str) -> Any:
