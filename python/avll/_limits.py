@@ -216,3 +216,15 @@ def check_memory(nbytes: float, what: str, hint: str, *, per: float | None = Non
             f"{what}: needs about {fmt_bytes(nbytes)} but only {fmt_bytes(avail)} can be "
             f"allocated ({source}); {hint}{fit}"
         )
+
+
+def check_weights(weights: Any) -> tuple[float, float, float]:
+    """The objective's weights ``(wa, wv, wx)`` as three finite floats, or a
+    ``ValueError``/``TypeError`` naming ``weights``."""
+    try:
+        if len(weights) != 3:
+            raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
+        wa, wv, wx = (check_number(w, "weights") for w in weights)
+    except TypeError:
+        raise TypeError(f"weights: expected 3 numbers (a, v, x), got {weights!r}") from None
+    return wa, wv, wx

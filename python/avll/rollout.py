@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from ._limits import check_int, check_memory, check_number, check_threads
+from ._limits import check_int, check_memory, check_number, check_threads, check_weights
 from .data import Run, check_runs
 from .models import LowerLevelModel, UpperLevel, model_class
 
@@ -459,12 +459,7 @@ def pack_runs(
         return runs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
                             upper_free=upper_free)
     runs = check_runs(runs)
-    try:
-        if len(weights) != 3:
-            raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
-        wa, wv, wx = (check_number(w, "weights") for w in weights)
-    except TypeError:
-        raise TypeError(f"weights: expected 3 numbers (a, v, x), got {weights!r}") from None
+    wa, wv, wx = check_weights(weights)
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
     upper = None
     if closed_loop or any(r.upper is not None for r in runs):

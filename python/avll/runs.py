@@ -18,7 +18,7 @@ from typing import Any, overload
 import numpy as np
 
 from . import _core
-from ._limits import check_number
+from ._limits import check_weights
 from .data import Run, check_runs
 
 __all__ = ["RunSet", "as_runset"]
@@ -182,12 +182,7 @@ class RunSet(Sequence[Run]):
         speed, position and upper-level law in closed loop, ``v``/``x`` when weighted,
         the exogenous signal each effect of ``exo`` (effect name -> signal name,
         :func:`avll.effects.exo_needs`) reads)."""
-        try:
-            if len(weights) != 3:
-                raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
-            wa, wv, wx = (check_number(w, "weights") for w in weights)
-        except TypeError:
-            raise TypeError(f"weights: expected 3 numbers (a, v, x), got {weights!r}") from None
+        wa, wv, wx = check_weights(weights)
         need = ["lead_x", "lead_v", "v", "x"] if closed_loop else ["command"]
         need += [c for c, w in (("v", wv), ("x", wx)) if w > 0 and c not in need]
         for c in need:
