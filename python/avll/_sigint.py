@@ -116,10 +116,19 @@ def at_startup() -> None:
 
 
 def command_starts() -> None:
-    """The command runs: Python's own SIGINT handler again (the command handles
-    ``KeyboardInterrupt`` itself and commits or removes its outputs)."""
+    """The command runs: a Ctrl-C raises ``KeyboardInterrupt`` again (the command handles
+    it itself and commits or removes its outputs), through :func:`handler`, which also
+    latches it: a library that turns the ``KeyboardInterrupt`` into another error (a C++
+    extension converting arguments, say) still leaves :func:`interrupted` true, so the
+    command reports the interruption, not that error."""
     if console and signal.getsignal(signal.SIGINT) is quiet_exit:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        clear()
+        signal.signal(signal.SIGINT, handler)
+
+
+def interrupted() -> bool:
+    """Whether a Ctrl-C was latched by :func:`handler` and not cleared since."""
+    return _pending
 
 
 def command_ends() -> None:

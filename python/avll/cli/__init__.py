@@ -201,6 +201,11 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"{_who(command)}: interrupted", file=sys.stderr)
         return 130
     except (ValueError, TypeError, OSError, MemoryError) as e:
+        from .. import _sigint
+
+        if _sigint.console and _sigint.interrupted():  # a Ctrl-C another error hid
+            print(f"{_who(command)}: interrupted", file=sys.stderr)
+            return 130
         msg = " ".join(str(e).split())
         if isinstance(e, MemoryError):
             msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
