@@ -238,15 +238,18 @@ def test_a_ctrl_c_during_a_fit_stops_the_loop(monkeypatch: pytest.MonkeyPatch) -
     """The GA hands back its best point after a Ctrl-C (``interrupted``, see
     ``test_ctrl_c_returns_best_so_far``); the loop's fit must not carry on with it as
     if it were a result."""
-    from avll.diagnose import fitting
+    from dataclasses import replace
+
+    from avll.diagnose import loop
 
     runs = paper_experiment_effects(SECOND, {"saturation": None}, seed=SEED, runs=(1, 3))
-    real = fitting.calibrate_effects
+    real = loop.calibrate
 
     def interrupted(*a, **k):
-        return {**real(*a, **k), "interrupted": True}
+        return replace(real(*a, **k), interrupted=True)
 
-    fitting.fit_full(SECOND, ["saturation"], runs, max_generations=5)  # a result
-    monkeypatch.setattr(fitting, "calibrate_effects", interrupted)
+    kw = dict(max_effects=0, max_generations=5, starts=1)
+    loop.effect_loop(SECOND, runs, **kw)  # a result
+    monkeypatch.setattr(loop, "calibrate", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        fitting.fit_full(SECOND, ["saturation"], runs, max_generations=5)
+        loop.effect_loop(SECOND, runs, **kw)

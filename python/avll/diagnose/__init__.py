@@ -1,4 +1,4 @@
-"""Residual diagnosis and the add-effect / recalibrate loop (issues 6, 13).
+"""Residual diagnosis and the add-effect / recalibrate loop.
 
 Given a calibrated model and runs, :func:`diagnose` looks at the residual
 ``e = a_measured - a_simulated``: its spectrum, autocorrelation, cross-correlation
@@ -16,8 +16,8 @@ One module per job:
   loss-difference test, the moving-block bootstrap;
 * :mod:`avll.diagnose.signatures` — effect signatures, the score test, ranking,
   residual structure;
-* :mod:`avll.diagnose.fitting` — simulation, per-run errors and the one fitting
-  driver (:func:`fit_full`);
+* :mod:`avll.diagnose.fitting` — simulation, per-run errors, the objective weights and
+  the parameters at a bound (the fits are :func:`avll.calibrate` itself);
 * :mod:`avll.diagnose.loop` — folds and the cross-validated loop;
 * :mod:`avll.diagnose.contract` — ``final_model`` as a dict, :func:`model_from_dict`,
   :func:`simulate_run`;
@@ -37,8 +37,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
         SPEED_COMMAND_WEIGHTS,
         UPPER_BOUNDS,
         at_bound,
-        fit,
-        fit_full,
+        calibrate_kw,
+        default_weights,
         run_mse,
         simulate_runs,
     )
@@ -60,7 +60,8 @@ _WHERE = {
     "model_from_dict": "contract", "model_to_dict": "contract", "simulate_run": "contract",
     "BASE_BOUNDS": "fitting", "CLOSED_LOOP_WEIGHTS": "fitting",
     "SPEED_COMMAND_WEIGHTS": "fitting", "UPPER_BOUNDS": "fitting", "at_bound": "fitting",
-    "fit": "fitting", "fit_full": "fitting", "run_mse": "fitting", "simulate_runs": "fitting",
+    "calibrate_kw": "fitting", "default_weights": "fitting", "run_mse": "fitting",
+    "simulate_runs": "fitting",
     "MIN_GAIN": "defaults",
     "LoopResult": "loop", "Step": "loop", "effect_loop": "loop", "make_folds": "loop",
     "mse_table": "report", "plot_diagnosis": "report", "plot_unexplained": "report",
@@ -84,8 +85,8 @@ __all__ = [
     "Diagnosis",
     "Step",
     "LoopResult",
-    "fit",
-    "fit_full",
+    "default_weights",
+    "calibrate_kw",
     "simulate_runs",
     "run_mse",
     "at_bound",

@@ -19,8 +19,8 @@ weaker evidence than folds of separate runs (the JSON says which were used).
 One iteration: diagnose the current model on all calibration runs (the score test
 of :mod:`avll.diagnose.signatures` only *ranks* effects); for each of the ``tries``
 best-ranked effects and each fold, fit the current model and the model with the
-effect on the fold's training runs (the one fitting driver,
-:func:`avll.diagnose.fitting.fit_full`, seeded per fold; the effect's starting guess
+effect on the fold's training runs (the one calibration entry, :func:`avll.calibrate`,
+seeded per fold; the effect's starting guess
 comes from a diagnosis on the training runs only) and compare their squared errors
 on the held-out fold. An effect is **accepted** only if all of:
 
@@ -52,15 +52,16 @@ import numpy as np
 
 from .. import _core
 from .._limits import check_int, check_number, check_seed, check_threads
+from ..calibration import calibrate
 from ..data import Run
-from ..defaults import DEFAULT_STARTS, GA_OPTIONS
+from ..defaults import DEFAULT_STARTS, GA_OPTIONS, UPPER_PLACEHOLDER
 from ..effects import EFFECTS, WithEffects
 from ..models import LowerLevelModel, UpperLevel, model_class
-from ..progress import messages
+from ..progress import Progress, messages
 from ..runs import RunSet
-from .contract import model_to_dict, per_run_mse
+from .contract import model_to_dict
 from .defaults import DEFAULT_BLOCKS, DEFAULT_FOLDS, FAR_SMALLER, MIN_BLOCK, MIN_GAIN
-from .fitting import _closed, _init, at_bound, fit_full, simulate_runs
+from .fitting import at_bound, calibrate_kw, run_mse, simulate_runs
 from .signatures import Diagnosis, diagnose, residual_structure
 from .stats import block_bootstrap_gain, loss_difference_test
 
@@ -274,7 +275,6 @@ def effect_loop(
     baseline: LowerLevelModel | None = None,
     candidates: Sequence[str] | None = None,
     init: str = "auto",
-    optimizer: str = "ga",
     max_generations: int | None = None,
     starts: int = DEFAULT_STARTS,
     structure_alpha: float = 1e-3,
@@ -323,18 +323,13 @@ def effect_loop(
                 raise ValueError(f"{name}: run {i!r} is also in {seen[i]}; the splits must be "
                                  "disjoint")  # fmt: skip
             seen[i] = name
-    every = [*cal_runs, *val_runs, *test_runs]
-    closed = _closed(every, closed_loop)
-    init = _init(cal_runs, init)
+    # The loop's settings of every fit (avll.calibrate's keywords) and simulation.
+    fit_kw = calibrate_kw([*cal_runs, *val_runs, *test_runs], closed_loop, init)
+    closed, init, upper_free = fit_kw["closed_loop"], fit_kw["init"], bool(fit_kw["upper_free"])
     bname = model_class(base).name
     kind = cal_runs[0].command_kind
     fold_sets, fold_kind = make_folds(cal_runs, folds, seed)
     say = messages("avll: diagnose", progress)
-    upper_free = closed and any(r.upper is None for r in every)
-    fit_kw: dict[str, Any] = dict(closed_loop=closed, init=init, upper_free=upper_free,
-                                  optimizer=optimizer, max_generations=max_generations,
-                                  starts=starts, threads=threads)  # fmt: skip
-
     # Every run of the loop packed once: the calibration runs (and the blocks of a
     # single one), the validation and the test runs; each split and each fold's
     # training and held-out runs are views on it (index subsets, nothing copied).
@@ -348,6 +343,35 @@ def effect_loop(
     cal_set, val_set, test_set = view(cal_runs), view(val_runs), view(test_runs)
     fold_views = [(view(train), view(held)) for train, held in fold_sets]
 
+    def fit(names: Sequence[str], rs: Any, seed: int, start: WithEffects | None = None,
+            start_upper: UpperLevel | None = None, show: Any = False,
+            ) -> tuple[WithEffects, UpperLevel | None]:
+        # The one calibration entry, with the loop's settings; ``start`` (and the law
+        # ``start_upper``) joins the first population.
+        initial = None
+        if start is not None:
+            up = start_upper or UPPER_PLACEHOLDER
+            initial = [np.concatenate([start.to_array(), *([up.to_array()] if upper_free
+                                                             else [])])]  # fmt: skip
+        # One progress stage per fit, over the GA's generations.
+        bar = Progress(max_generations, "fit " + "+".join([bname, *names]), unit="gen",
+                       mode=show)  # fmt: skip
+        done = False
+        try:
+            res = calibrate(bname, rs, effects=names, initial=initial, seed=seed,
+                            starts=starts, threads=threads, max_generations=max_generations,
+                            progress=(lambda i: bar.advance_to(float(i["iteration"])))
+                            if bar.mode != "none" else False, **fit_kw)  # fmt: skip
+            done = not res.interrupted
+        finally:
+            bar.close(complete=done)
+        if not done:
+            # A fit of the loop stopped by Ctrl-C is not a result to go on with: the
+            # loop stops (nothing is written).
+            raise KeyboardInterrupt
+        m = res.with_effects or WithEffects(res.model, ())
+        return m, UpperLevel(**res.upper) if upper_free else None
+
     def with_upper(rs: RunSet | tuple[()], up: UpperLevel | None) -> Any:
         # The calibrated upper-level law replaces the unknown one (on every run: the
         # same vehicle's law), as free gains of the simulated row.
@@ -359,10 +383,15 @@ def effect_loop(
                                                            init=init), strict=True)]
 
     def mse(m: WithEffects, rs: Any, up: UpperLevel | None) -> dict[str, float]:
-        return per_run_mse(m, with_upper(rs, up), closed=closed, init=init) if rs else {}
+        # {run_id: mean((a - simulate_run(model, run))**2)}, inf when not finite
+        if not rs:
+            return {}
+        c = run_mse(m, with_upper(rs, up), closed_loop=closed, init=init)
+        return {i: float(x) if np.isfinite(x) else math.inf
+                for i, x in zip(rs.run_ids, c, strict=True)}  # fmt: skip
 
     if baseline is None:
-        current, upper = fit_full(bname, (), cal_set, seed=seed, progress=progress, **fit_kw)
+        current, upper = fit((), cal_set, seed, show=progress)
     else:
         if upper_free:
             raise ValueError("baseline: give runs with their upper-level law in closed loop")
@@ -387,8 +416,7 @@ def effect_loop(
             break
         for f, (train, _) in enumerate(fold_views):
             if fold_models[f] is None:
-                fold_models[f] = fit_full(bname, current.effect_names, train,
-                                          seed=_sub(seed, it, f, 0), **fit_kw)  # fmt: skip
+                fold_models[f] = fit(current.effect_names, train, _sub(seed, it, f, 0))
         passed = []
         for ci, c in enumerate(ranked):
             names = [*current.effect_names, c.effect]
@@ -399,8 +427,7 @@ def effect_loop(
                 m0, u0 = fold_models[f]  # type: ignore[misc]
                 hint = _fold_hint(m0, with_upper(train, u0), c.effect, closed, init)
                 start = WithEffects(m0.base, (*m0.effects, EFFECTS[c.effect](**hint)))
-                m1, u1 = fit_full(bname, names, train, start=start, start_upper=u0,
-                                  seed=_sub(seed, it, f, ci + 1), **fit_kw)  # fmt: skip
+                m1, u1 = fit(names, train, _sub(seed, it, f, ci + 1), start, u0)
                 r0, r1 = residuals(m0, held, u0), residuals(m1, held, u1)
                 e0s += r0
                 e1s += r1
@@ -445,9 +472,8 @@ def effect_loop(
         accepted = False
         for _, ci, c, rec, new_fold_models in sorted(passed, key=lambda x: (-x[0], x[1])):
             start = WithEffects(current.base, (*current.effects, EFFECTS[c.effect](**c.hint)))
-            new, up1 = fit_full(bname, [*current.effect_names, c.effect], cal_set, start=start,
-                                start_upper=upper, seed=_sub(seed, it, 1000, ci),
-                                progress=progress, **fit_kw)  # fmt: skip
+            new, up1 = fit([*current.effect_names, c.effect], cal_set, _sub(seed, it, 1000, ci),
+                           start, upper, show=progress)
             cal0, cal1 = mse(current, cal_set, upper), mse(new, cal_set, up1)
             if not _mean(cal1) < _mean(cal0):
                 reason = "refitted on all calibration runs it does not lower their error"
