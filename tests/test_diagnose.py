@@ -46,7 +46,7 @@ def _check_step(res, effect, tol, fall=0.8):
     assert res.steps and res.steps[0].effect == first[0].effect
     d = res.steps[0].to_dict()
     assert d["fold_selection"] > 0.5
-    assert d["p_value"] < 0.01 and d["cv"]["gain"] >= res.settings["min_gain"]
+    assert d["p_value"] < 0.01 and d["cv"]["gain"] >= res.settings.min_gain
     assert d["val_mse_after"] < fall * d["val_mse_before"]
     assert d["cal_mse_after"] < d["cal_mse_before"]
     for name, (want, atol) in tol.items():

@@ -8,6 +8,7 @@ itself. Each takes an :class:`avll.RunSet` (a list of runs is packed once)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -24,6 +25,7 @@ from ..models import UpperLevel
 from ..runs import RunSet, as_runset
 
 __all__ = [
+    "AtBound",
     "BASE_BOUNDS",
     "UPPER_BOUNDS",
     "CLOSED_LOOP_WEIGHTS",
@@ -165,17 +167,29 @@ def default_weights(closed: bool, speed: bool = False) -> tuple[float, float, fl
     return (1.0, 0.0, 0.0)
 
 
+@dataclass(frozen=True)
+class AtBound:
+    """A fitted parameter at a bound of its search box: its name (``upper.kg`` for a
+    calibrated upper-level gain), value, which bound (``"lower"`` or ``"upper"``) and
+    the box."""
+
+    param: str
+    value: float
+    bound: str
+    lower: float
+    upper: float
+
+
 def at_bound(
     model: WithEffects,
     upper: UpperLevel | None = None,
     kind: str = "acceleration",
     tol: float = AT_BOUND_TOL,
     upper_bounds: Mapping[str, tuple[float, float]] | None = None,
-) -> list[dict[str, Any]]:
+) -> tuple[AtBound, ...]:
     """The parameters of ``model`` (and of a calibrated ``upper`` law) that sit within
-    ``tol`` of a bound of the box :func:`avll.calibrate` searched (share of the box, in its
-    own linear or logarithmic scale; fixed parameters are left out). Each entry:
-    ``{"param", "value", "bound": "lower"|"upper", "lower", "upper"}``. Such a value
+    ``tol`` of a bound of the box :func:`avll.calibrate` searched (share of the box, in
+    its own linear or logarithmic scale; fixed parameters are left out). Such a value
     is the edge of the search, not an estimate: widen the bound or doubt the effect.
     ``upper_bounds`` are the upper-law boxes the fit was given (default
     :data:`UPPER_BOUNDS`)."""
@@ -200,6 +214,5 @@ def at_bound(
         else:
             u = (v - a) / (b - a)
         if u <= tol or u >= 1.0 - tol:
-            out.append({"param": n, "value": float(v), "bound": "lower" if u <= tol else "upper",
-                        "lower": float(a), "upper": float(b)})  # fmt: skip
-    return out
+            out.append(AtBound(n, float(v), "lower" if u <= tol else "upper", float(a), float(b)))
+    return tuple(out)
