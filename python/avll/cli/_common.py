@@ -323,8 +323,10 @@ def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
     p = Path(path)
     out.append((f"{label} (its sidecar)", p.with_name(p.name + ".meta.json")))
     if p.is_dir():
+        from ..io._common import walk_files
+
         try:
-            below = [f for f in p.rglob("*") if f.is_file()]
+            below = walk_files(p)
         except OSError:  # an unreadable subfolder: the loader reports it
             below = []
         out += [(f"{label} (a file it holds)", f) for f in below[:100_000]]
