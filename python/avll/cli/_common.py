@@ -44,7 +44,6 @@ __all__ = [
     "check_io",
     "add_dpi",
     "check_figure_path",
-    "fmt_value",
     "check_informative",
     "FIGURE_FORMATS",
     "parse_list",
@@ -298,20 +297,6 @@ def check_figure_path(label: str, path: str | os.PathLike[str]) -> None:
     if suffix not in FIGURE_FORMATS:
         raise ValueError(f"{label}: {path}: the suffix picks the figure format; use "
                          f"{', '.join('.' + f for f in FIGURE_FORMATS)}")
-
-
-def fmt_value(x: Any, spec: str = ".4g", none: str = "none") -> str:
-    """``x`` formatted with ``spec``; ``none`` (the word) for None or NaN, so that a
-    missing value never prints as ``nan``."""
-    if x is None:
-        return none
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return str(x)
-    if v != v:
-        return none
-    return format(v, spec)
 
 
 def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
