@@ -106,6 +106,21 @@ def test_diagnosis_ranks_the_true_effect_without_calibration() -> None:
     assert diagnose(SECOND, clean[:2], clean[2:]).ranked == []
 
 
+def test_the_batched_signatures_do_not_depend_on_the_batch_size(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The diagnosis simulates its signatures and sensitivities in batched calls of at
+    most ``fitting.BATCH`` row-samples: one row per call gives the same diagnosis."""
+    from avll.diagnose import fitting, signatures
+
+    runs = paper_experiment_effects(SECOND, {"saturation": None}, seed=3, runs=(1, 3, 8))
+    big = diagnose(SECOND, runs[:2], runs[2:])
+    monkeypatch.setattr(fitting, "BATCH", 1)
+    monkeypatch.setattr(signatures, "BATCH", 1)
+    small = diagnose(SECOND, runs[:2], runs[2:])
+    assert [c.effect for c in big.candidates] == [c.effect for c in small.candidates]
+    assert big.candidates and big.candidates == small.candidates
+
+
 def test_table_and_report(tmp_path) -> None:
     res = _loop(FIRST, {"delay": None}, "first", min_gain=0.02, max_generations=FAST)
     s = res.steps[0]

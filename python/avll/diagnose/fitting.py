@@ -87,10 +87,16 @@ def calibrate_kw(runs: Sequence[Run], closed_loop: bool | None = None,
             "weights": default_weights(closed, speed)}  # fmt: skip
 
 
+#: Parameter rows x samples of one batched simulation (its three outputs take 24 bytes
+#: per row and sample): more rows are simulated in several calls.
+BATCH = 4_000_000
+
+
 def _simulate(model: WithEffects, rows: np.ndarray, rs: RunSet, closed: bool, init: str,
               upper: UpperLevel | None = None, threads: int = 0) -> np.ndarray:
     """The simulated acceleration (P, samples of every run) of the parameter rows
-    ``[base | effects]`` of ``model``'s structure on ``rs``, in one batched call.
+    ``[base | effects]`` of ``model``'s structure on ``rs``, in batched calls of at most
+    :data:`BATCH` row-samples.
     ``upper`` (default: the run set's, :meth:`avll.RunSet.with_upper`) replaces the
     runs' upper-level law: its gains enter every row as free gains."""
     up = upper if upper is not None else rs.upper
@@ -100,10 +106,11 @@ def _simulate(model: WithEffects, rows: np.ndarray, rs: RunSet, closed: bool, in
     free = [0, 1, 2, 3] if up is not None else []
     kw = rs.cost_kw(init=init, closed_loop=closed, upper_free=free,
                     exo=exo_needs(model.effect_names))  # fmt: skip
-    d = _core.simulate_batch(model.base.name, np.ascontiguousarray(rows),
-                             effects=list(model.effect_names), threads=check_threads(threads),
-                             **kw)  # fmt: skip
-    return np.asarray(d["a"])
+    per_call = max(1, BATCH // max(rs.total, 1))
+    return np.vstack([np.asarray(_core.simulate_batch(
+        model.base.name, np.ascontiguousarray(rows[i : i + per_call]),
+        effects=list(model.effect_names), threads=check_threads(threads), **kw)["a"])
+        for i in range(0, rows.shape[0], per_call)])  # fmt: skip
 
 
 def _split(a: np.ndarray, rs: RunSet) -> list[np.ndarray]:

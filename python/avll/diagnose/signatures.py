@@ -26,7 +26,7 @@ which effects to cross-validate; it does not accept anything by itself.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,7 +37,7 @@ from ..data import Run
 from ..effects import CANONICAL_ORDER, EFFECTS, WithEffects
 from ..models import LowerLevelModel
 from ..runs import RunSet, as_runset
-from .fitting import _fixed, _setup, _simulate, _split
+from .fitting import BATCH, _fixed, _setup, _simulate, _split
 from .stats import SignalDependence, _binned, _ess, _lag1, _lstsq
 
 __all__ = ["Candidate", "Diagnosis", "diagnose", "offered", "residual_structure"]
@@ -202,38 +202,40 @@ def _generic_setting(name: str, step: float, kind: str) -> dict[str, float]:
 def _signatures(
     model: WithEffects, name: str, grid: Sequence[dict[str, float]], rs: RunSet,
     base: np.ndarray, closed: bool, init: str,
-) -> list[list[np.ndarray] | None]:
-    """The signature columns of effect ``name`` at every setting of ``grid`` (one per
-    parameter of a linear-in-parameter effect, one per threshold setting otherwise),
-    concatenated over runs, all simulated in one batched call; ``None`` for a setting
-    the effect refuses. ``base`` is the model's own simulation (concatenated)."""
+) -> Iterator[list[np.ndarray] | None]:
+    """The signature columns of effect ``name`` at each setting of ``grid`` in turn (one
+    per parameter of a linear-in-parameter effect, one per threshold setting
+    otherwise), concatenated over runs, the settings simulated together in batched
+    calls of at most :data:`avll.diagnose.fitting.BATCH` row-samples; ``None`` for a
+    setting the effect refuses. ``base`` is the model's own simulation (concatenated)."""
     cls = EFFECTS[name]
     neutral = dict(zip(cls.param_names(), cls.neutral, strict=True))
-    kind = rs.command_kind
     models: list[list[WithEffects] | None] = []
     for setting in grid:
         if cls.signature in ("linear", "each"):  # one parameter moved at a time
             moved = [{**neutral, p: setting[p]} for p in cls.param_names()
-                     if cls.signature == "each" or _fixed(name, p, kind) is None]
+                     if cls.signature == "each" or _fixed(name, p, rs.command_kind) is None]
         else:
             moved = [dict(setting)]
         try:
             models.append([WithEffects(model.base, (*model.effects, cls(**d))) for d in moved])
         except ValueError:
             models.append(None)
-    every = [m for ms in models if ms for m in ms]
-    sims = _simulate(every[0], np.vstack([m.to_array() for m in every]), rs, closed,
-                     init) if every else None  # fmt: skip
-    out: list[list[np.ndarray] | None] = []
-    k = 0
-    for ms in models:
-        if ms is not None:
-            assert sims is not None or not ms
-            out.append([sims[k + j] - base for j in range(len(ms))])  # type: ignore[index]
-            k += len(ms)
-        else:
-            out.append(None)
-    return out
+    per_call = max(1, BATCH // max(base.size, 1))
+    i = 0
+    while i < len(models):
+        chunk = [models[i]]
+        while i + len(chunk) < len(models) and sum(len(ms or ()) for ms in chunk) + len(
+                models[i + len(chunk)] or ()) <= per_call:
+            chunk.append(models[i + len(chunk)])
+        every = [m for ms in chunk if ms for m in ms]
+        sims = _simulate(every[0], np.vstack([m.to_array() for m in every]), rs, closed,
+                         init) if every else base[None, :0]  # fmt: skip
+        k = 0
+        for ms in chunk:
+            yield None if ms is None else [sims[k + j] - base for j in range(len(ms))]
+            k += len(ms or ())
+        i += len(chunk)
 
 
 def _sensitivities(
@@ -400,7 +402,7 @@ def diagnose(
         p = min(p, 1.0)
         val_explained = float("nan")
         if val_runs:
-            vcols = _signatures(model, name, [setting], val_runs, vbase, closed, init)[0]
+            vcols = next(_signatures(model, name, [setting], val_runs, vbase, closed, init))
             if vcols is not None and Jv.shape[1] == J.shape[1]:
                 # Held-out: the base part re-fitted there, the effect's coefficient
                 # carried over from the calibration runs.
