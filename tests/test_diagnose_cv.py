@@ -463,9 +463,7 @@ def test_diagnose_runs_shorter_than_the_autocorrelation_window() -> None:
     # autocorrelation is taken up to the shortest run's length (it used to ask one lag
     # more and fail with a broadcasting error).
     runs = paper_experiment_effects(FIRST, {}, seed=0, duration=20.0, runs=(1, 3))
-    from avll.diagnose.loop import _block
-
-    short = [_block(r, 0, k) for r, k in zip(runs, (150, 180), strict=True)]
+    short = [r.cut(0, k, f"[0:{k}]") for r, k in zip(runs, (150, 180), strict=True)]
     d = diagnose(WithEffects(FIRST, ()), short)
     assert d.autocorr.size == 150 and d.autocorr[0] == pytest.approx(1.0)
     assert np.all(np.isfinite(d.xcorr))

@@ -359,11 +359,9 @@ def closed_pair(r: avll.Run, seed: int, threads: int) -> dict[str, Any]:
     """Steady-state spacing regression and a closed-loop calibration of one pair (from
     the first sample above 1 m/s)."""
     from avll.defaults import UPPER_NAMES, UPPER_PLACEHOLDER
-    from avll.studies.fielddata import _cut
-
     i0 = int(np.flatnonzero(r.v > 1.0)[0])
-    r = replace(_cut(r, i0, len(r), "moving", f"from row {i0}, the first above 1 m/s"),
-                run_id=r.run_id, upper=UPPER_PLACEHOLDER)
+    r = replace(r.cut(i0, len(r), "", f"from row {i0}, the first above 1 m/s"),
+                upper=UPPER_PLACEHOLDER)
     lx, lv, am, x, v = r.lead_x, r.lead_v, r.a, r.x, r.v
     gap = lx - x
     calm = (np.abs(am) < 0.05) & (np.abs(r.lead_a) < 0.05) & (np.abs(v - lv) < 0.2) & (v > 5)

@@ -328,16 +328,6 @@ class LoopResult:
 # ---------------------------------------------------------------------------
 
 
-def _block(run: Run, i0: int, i1: int) -> Run:
-    def cut(x: np.ndarray | None) -> np.ndarray | None:
-        return None if x is None else x[i0:i1]
-
-    return replace(run, run_id=f"{run.run_id}[{i0}:{i1}]", t=run.t[i0:i1], a=run.a[i0:i1],
-                   command=cut(run.command), v=cut(run.v), x=cut(run.x),
-                   lead_x=cut(run.lead_x), lead_v=cut(run.lead_v), lead_a=cut(run.lead_a),
-                   exo={k: v[i0:i1] for k, v in run.exo.items()})  # fmt: skip
-
-
 def make_folds(
     runs: Sequence[Run], folds: int | None = None, seed: int = 0
 ) -> tuple[list[tuple[list[Run], list[Run]]], str]:
@@ -357,7 +347,8 @@ def make_folds(
                 f"blocks gives blocks shorter than {MIN_BLOCK} samples; give more "
                 "calibration runs or fewer folds")
         edges = np.linspace(0, n, k + 1).round().astype(int)
-        blocks = [_block(r, int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+        blocks = [r.cut(int(a), int(b), f"[{a}:{b}]") for a, b in zip(edges[:-1], edges[1:],
+                                                                  strict=True)]
         return [([b for j, b in enumerate(blocks) if j != i], [blocks[i]])
                 for i in range(k)], "blocks"  # fmt: skip
     k = min(DEFAULT_FOLDS if folds is None else check_int(folds, "folds", min=2), len(runs))

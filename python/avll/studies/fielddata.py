@@ -164,21 +164,6 @@ def _num(stem: str) -> int:
     return int(m.group(1)) if m else -1
 
 
-def _cut(run: Run, lo: int, hi: int, suffix: str, note: str) -> Run:
-    sl = slice(lo, hi)
-
-    def s(x: np.ndarray | None) -> np.ndarray | None:
-        return None if x is None else x[sl]
-
-    meta = dict(run.meta)
-    meta["cleaning"] = list(meta.get("cleaning", [])) + [note]
-    return replace(
-        run, run_id=f"{run.run_id}/{suffix}", t=run.t[sl], a=run.a[sl], command=s(run.command),
-        v=s(run.v), x=s(run.x), lead_x=s(run.lead_x), lead_v=s(run.lead_v),
-        lead_a=s(run.lead_a), exo={k: v[sl] for k, v in run.exo.items()}, meta=meta,
-    )  # fmt: skip
-
-
 def split_launch_cruise(
     runs: Sequence[Run], *, handover: float = HANDOVER_SPEED, min_duration: float = 10.0
 ) -> tuple[list[Run], list[Run]]:
@@ -206,8 +191,8 @@ def split_launch_cruise(
         note = (f"split at t={r.t[k]:.1f} s (row {k}), the first command >= {handover} m/s: "
                 "launch before, cruise from there")  # fmt: skip
         if k * r.dt >= 2.0:
-            launch.append(_cut(r, 0, k, "launch", note))
-        cruise.append(_cut(r, k, len(r), "cruise", note))
+            launch.append(r.cut(0, k, "/launch", note))
+        cruise.append(r.cut(k, len(r), "/cruise", note))
     return launch, cruise
 
 
