@@ -507,6 +507,8 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("docs/gen/amplification.py", "python/avll/spectral.py",
               "python/avll/synth_platoon.py", "python/avll/studies/openacc.py",
               *_LOOP), cheap=False,
+             rerender=lambda: _own("amplification").render(
+                 json.loads((GEN / "amplification.json").read_text(encoding="utf-8"))),
              note="the two amplification estimators against a known truth on synthetic "
                   "platoons (minutes)"),
     # ---- benchmarks (timings: never compared; their tables re-rendered from their JSON)
