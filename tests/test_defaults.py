@@ -56,9 +56,8 @@ def test_numpy_values_are_accepted() -> None:
 def test_signatures_take_none_for_the_ga_budget() -> None:
     from avll.calibration import calibrate_effects
     from avll.diagnose import effect_loop
-    from avll.diagnose.fitting import fit, fit_full
 
-    for fn in (calibrate_effects, fit, fit_full, effect_loop):
+    for fn in (calibrate_effects, effect_loop):
         params = inspect.signature(fn).parameters
         for name in ("max_generations", "pop_size"):
             if name in params:
@@ -114,7 +113,6 @@ def test_section_iv_grid_is_defined_once() -> None:
 
 def test_search_boxes_come_from_one_place() -> None:
     from avll.calibration import DEFAULT_BOUNDS, UPPER_BOUNDS, default_bounds
-    from avll.diagnose.fitting import _space
     from avll.effects import EFFECTS
 
     box = default_bounds("proposed", ("kg", "Gmin"), ("asymmetric", "delay"), "speed")
@@ -123,17 +121,6 @@ def test_search_boxes_come_from_one_place() -> None:
     assert box["asymmetric.kb"] == (1.0, 1.0, "linear")  # a speed command fixes it
     assert box["delay.tau"] == (*EFFECTS["delay"].bounds[0], "linear")
     assert box["Gmin"] == UPPER_BOUNDS["Gmin"]
-    # the diagnosis searches the same box (its upper-law entries overridable)
-    sp = _space("proposed", ("asymmetric", "delay"), "speed", upper_free=True,
-                upper_bounds={"Gmin": (0.0, 50.0)})
-    full = default_bounds("proposed", ("kg", "kv", "Tg", "Gmin"), ("asymmetric", "delay"),
-                          "speed")
-    assert sp.names == tuple(full)
-    assert list(sp.lo) == [b[0] for b in full.values()]
-    assert list(sp.hi[:-1]) == [b[1] for b in full.values()][:-1] and sp.hi[-1] == 50.0
-    assert list(sp.log) == [b[2] == "log" for b in full.values()]
-    with pytest.raises(ValueError, match="upper_bounds: unknown gain 'G0'"):
-        _space("second", (), upper_free=True, upper_bounds={"G0": (0, 1)})
 
 
 def test_the_diagnosis_settings_come_from_the_effect_registry() -> None:

@@ -46,7 +46,7 @@ def _check_step(res, effect, tol, fall=0.8):
     assert res.steps and res.steps[0].effect == first[0].effect
     d = res.steps[0].to_dict()
     assert d["fold_selection"] > 0.5
-    assert d["p_value"] < 0.01 and d["cv"]["gain"] >= res.settings["min_gain"]
+    assert d["p_value"] < 0.01 and d["cv"]["gain"] >= res.settings.min_gain
     assert d["val_mse_after"] < fall * d["val_mse_before"]
     assert d["cal_mse_after"] < d["cal_mse_before"]
     for name, (want, atol) in tol.items():
@@ -104,6 +104,21 @@ def test_diagnosis_ranks_the_true_effect_without_calibration() -> None:
                       + rng.normal(0, 0.05, r.t.size), command=r.command, v=r.v, x=r.x)
              for r in runs]  # fmt: skip
     assert diagnose(SECOND, clean[:2], clean[2:]).ranked == []
+
+
+def test_the_batched_signatures_do_not_depend_on_the_batch_size(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The diagnosis simulates its signatures and sensitivities in batched calls of at
+    most ``fitting.BATCH`` row-samples: one row per call gives the same diagnosis."""
+    from avll.diagnose import fitting, signatures
+
+    runs = paper_experiment_effects(SECOND, {"saturation": None}, seed=3, runs=(1, 3, 8))
+    big = diagnose(SECOND, runs[:2], runs[2:])
+    monkeypatch.setattr(fitting, "BATCH", 1)
+    monkeypatch.setattr(signatures, "BATCH", 1)
+    small = diagnose(SECOND, runs[:2], runs[2:])
+    assert [c.effect for c in big.candidates] == [c.effect for c in small.candidates]
+    assert big.candidates and big.candidates == small.candidates
 
 
 def test_table_and_report(tmp_path) -> None:
@@ -238,15 +253,18 @@ def test_a_ctrl_c_during_a_fit_stops_the_loop(monkeypatch: pytest.MonkeyPatch) -
     """The GA hands back its best point after a Ctrl-C (``interrupted``, see
     ``test_ctrl_c_returns_best_so_far``); the loop's fit must not carry on with it as
     if it were a result."""
-    from avll.diagnose import fitting
+    from dataclasses import replace
+
+    from avll.diagnose import loop
 
     runs = paper_experiment_effects(SECOND, {"saturation": None}, seed=SEED, runs=(1, 3))
-    real = fitting.calibrate_effects
+    real = loop.calibrate
 
     def interrupted(*a, **k):
-        return {**real(*a, **k), "interrupted": True}
+        return replace(real(*a, **k), interrupted=True)
 
-    fitting.fit_full(SECOND, ["saturation"], runs, max_generations=5)  # a result
-    monkeypatch.setattr(fitting, "calibrate_effects", interrupted)
+    kw = dict(max_effects=0, max_generations=5, starts=1)
+    loop.effect_loop(SECOND, runs, **kw)  # a result
+    monkeypatch.setattr(loop, "calibrate", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        fitting.fit_full(SECOND, ["saturation"], runs, max_generations=5)
+        loop.effect_loop(SECOND, runs, **kw)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
@@ -66,17 +66,17 @@ def test_cv_accepts_the_known_effect(rate_result) -> None:
     assert [s.effect for s in res.steps][:1] == ["rate_limit"]
     s = res.steps[0]
     assert s.fold_selection >= 0.5
-    assert s.cv["folds"] == 3 and s.cv["fold_kind"] == "runs"  # leave-one-run-out
-    assert s.cv["gain"] >= res.settings["min_gain"] and s.p_value < res.settings["cv_alpha"]
-    lo, hi = s.cv["bootstrap_ci"]
-    assert 0 < lo <= s.cv["gain"] <= hi
+    assert s.cv.folds == 3 and s.cv.fold_kind == "runs"  # leave-one-run-out
+    assert s.cv.gain >= res.settings.min_gain and s.p_value < res.settings.cv_alpha
+    lo, hi = s.cv.boot.ci
+    assert 0 < lo <= s.cv.gain <= hi
     d = s.to_dict()
     # Validation and test runs are reported, and the gain holds on both.
     assert d["val_mse_after"] < d["val_mse_before"]
     assert d["test_mse_after"] < d["test_mse_before"]
     assert "test_gain_not_held" not in s.flags
     # fold_selection is reported for every cross-validated candidate.
-    assert all(0 <= t["fold_selection"] <= 1 and len(t["fold_gains"]) == 3 for t in res.trials)
+    assert all(0 <= t.fold_selection <= 1 and len(t.fold_gains) == 3 for t in res.trials)
 
 
 def test_coloured_noise_only_accepts_nothing() -> None:
@@ -96,7 +96,7 @@ def test_coloured_noise_only_accepts_nothing() -> None:
     assert res.steps == []
     assert res.unexplained["structure_found"] is False
     assert res.unexplained["lag1_autocorrelation"] > 0.8  # the noise is coloured
-    assert not any(f["kind"] == "structure_unexplained" for f in res.flags)
+    assert not any(f.kind == "structure_unexplained" for f in res.flags)
 
 
 def test_min_gain_rejects_a_significant_small_gain() -> None:
@@ -106,13 +106,13 @@ def test_min_gain_rejects_a_significant_small_gain() -> None:
     low = effect_loop("first", runs[:3], runs[3:], seed=1, min_gain=0.02, max_effects=1,
                       max_generations=MAXITER)  # fmt: skip
     assert [s.effect for s in low.steps] == ["delay"]
-    gain = low.steps[0].cv["gain"]
+    gain = low.steps[0].cv.gain
     assert 0.02 <= gain < 0.5 and low.steps[0].p_value < 0.01
     high = effect_loop("first", runs[:3], runs[3:], seed=1, min_gain=0.5, max_effects=1,
                        max_generations=MAXITER)  # fmt: skip
     assert high.steps == []
-    rej = [r for r in high.rejected if r["effect"] == "delay"]
-    assert rej and any("minimum" in why for why in rej[0]["reasons"])
+    rej = [r for r in high.rejected if r.effect == "delay"]
+    assert rej and any("minimum" in why for why in rej[0].reasons)
 
 
 # --- the split ------------------------------------------------------------------
@@ -171,7 +171,7 @@ def test_folds_are_deterministic() -> None:
 def test_single_calibration_run_uses_blocks(rate_runs) -> None:
     res = effect_loop("first", rate_runs[:1], rate_runs[1:2], seed=1, max_generations=MAXITER,
                       max_effects=1)  # fmt: skip
-    assert res.splits["fold_kind"] == "blocks" and len(res.splits["folds"]) == 3
+    assert res.splits.fold_kind == "blocks" and len(res.splits.folds) == 3
     assert [s.effect for s in res.steps] == ["rate_limit"]
     assert res.steps[0].fold_selection > 0.5
 
@@ -181,25 +181,25 @@ def test_single_calibration_run_uses_blocks(rate_runs) -> None:
 
 def test_at_bound_flags() -> None:
     m = WithEffects(avll.FirstOrderLag(Td=3.0), (Asymmetric(kb=3.0, rb=1.0),))
-    got = {a["param"]: a["bound"] for a in at_bound(m)}
+    got = {a.param: a.bound for a in at_bound(m)}
     assert got == {"Td": "upper", "asymmetric.kb": "upper"}
     # Within the relative tolerance (0.1 % of the box) but not exactly at it.
     m = WithEffects(avll.FirstOrderLag(Td=0.01 + 1e-4), (Asymmetric(kb=1.0, rb=0.3 + 1e-3),))
-    assert {a["param"] for a in at_bound(m)} == {"Td", "asymmetric.rb"}
+    assert {a.param for a in at_bound(m)} == {"Td", "asymmetric.rb"}
     # A speed command fixes kb = 1: never "at bound".
     m = WithEffects(avll.SecondOrder(K0=1.0, m2=1.0, m3=1.0, Td=0.3), (Asymmetric(1.0, 1.0),))
-    assert at_bound(m, kind="speed") == []
+    assert at_bound(m, kind="speed") == ()
 
 
 def test_bound_flags_reach_json_and_report(rate_result, tmp_path) -> None:
     res = rate_result
     d = _strict(json.dumps(avll._atomic.json_safe(res.to_dict()), allow_nan=False))
     flagged = [(f["step"], p) for f in d["flags"] if f["kind"] == "at_bound" for p in f["params"]]
-    expect = [(0, a["param"]) for a in res.baseline_at_bound] + [
-        (k, a["param"]) for k, s in enumerate(res.steps, 1) for a in s.at_bound]
+    expect = [(0, a.param) for a in res.baseline_at_bound] + [
+        (k, a.param) for k, s in enumerate(res.steps, 1) for a in s.at_bound]
     assert sorted(flagged) == sorted(expect)
     for k, s in enumerate(d["steps"], 1):
-        assert s["at_bound"] == res.steps[k - 1].at_bound
+        assert s["at_bound"] == [asdict(a) for a in res.steps[k - 1].at_bound]
     text = write_report(res, tmp_path / "rep").read_text()
     assert "recovered" not in text.lower()
     if expect:
@@ -223,7 +223,7 @@ def test_none_of_these_with_evidence(tmp_path) -> None:
     assert kept and un["unexplained_share"] == pytest.approx(max(s["explained"] for s in kept))
     for s in un["signals"]:
         assert len(s["centers"]) == len(s["means"]) == len(s["half_width"]) > 2
-    assert any(f["kind"] == "structure_unexplained" for f in res.flags)
+    assert any(f.kind == "structure_unexplained" for f in res.flags)
     text = write_report(res, tmp_path / "rep").read_text()
     assert "none of these" in text and (tmp_path / "rep" / "unexplained.png").exists()
 
@@ -258,17 +258,17 @@ def test_bootstrap_and_ess_tests_respect_autocorrelation() -> None:
     for _ in range(40):
         b = [_ar1(rng, 1500) for _ in range(2)]
         a = [_ar1(rng, 1500) for _ in range(2)]
-        pb.append(block_bootstrap_gain(b, a, n_boot=400, seed=1)["p_value"])
-        pt.append(loss_difference_test(b, a)["p_value"])
+        pb.append(block_bootstrap_gain(b, a, n_boot=400, seed=1).p_value)
+        pt.append(loss_difference_test(b, a).p_value)
     assert np.mean(np.array(pb) < 0.05) <= 0.15
     assert np.mean(np.array(pt) < 0.05) <= 0.15
     # A real 30 % reduction is found.
     b = [_ar1(rng, 1500) for _ in range(2)]
     a = [x * math.sqrt(0.7) for x in b]
     r = block_bootstrap_gain(b, a, n_boot=400, seed=1)
-    assert r["gain"] == pytest.approx(0.3) and r["p_value"] < 0.01
-    assert r["ci"][0] <= 0.3 <= r["ci"][1] and r["block_length"] > 1
-    assert loss_difference_test(b, a)["p_value"] < 0.01
+    assert r.gain == pytest.approx(0.3) and r.p_value < 0.01
+    assert r.ci[0] <= 0.3 <= r.ci[1] and r.block_length > 1
+    assert loss_difference_test(b, a).p_value < 0.01
 
 
 def test_every_registered_effect_has_signature_settings() -> None:
@@ -333,7 +333,7 @@ def test_import_avll_stays_light() -> None:
 
     code = ("import sys, avll; print(','.join(m for m in ('pandas', 'scipy') "
             "if m in sys.modules)); avll.model_from_dict; avll.simulate_run; "
-            "print('scipy' in sys.modules)")  # fmt: skip
+            "print('avll.diagnose.contract' in sys.modules)")  # fmt: skip
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split("\n")  # fmt: skip
     assert out[0] == ""
@@ -453,9 +453,9 @@ def test_at_bound_uses_the_upper_box_the_fit_searched() -> None:
     m = WithEffects(avll.PAPER_TABLE_II["second"], ())
     up = UpperLevel(0.2, 0.3, 1.5, 4.0)
     assert UPPER_BOUNDS["Gmin"][1] > 4.0
-    assert at_bound(m, up) == []
+    assert at_bound(m, up) == ()
     hit = at_bound(m, up, upper_bounds={"Gmin": (0.0, 4.0)})
-    assert [(e["param"], e["bound"]) for e in hit] == [("upper.Gmin", "upper")]
+    assert [(e.param, e.bound) for e in hit] == [("upper.Gmin", "upper")]
 
 
 def test_diagnose_runs_shorter_than_the_autocorrelation_window() -> None:
@@ -463,9 +463,7 @@ def test_diagnose_runs_shorter_than_the_autocorrelation_window() -> None:
     # autocorrelation is taken up to the shortest run's length (it used to ask one lag
     # more and fail with a broadcasting error).
     runs = paper_experiment_effects(FIRST, {}, seed=0, duration=20.0, runs=(1, 3))
-    from avll.diagnose.loop import _block
-
-    short = [_block(r, 0, k) for r, k in zip(runs, (150, 180), strict=True)]
+    short = [r.cut(0, k, f"[0:{k}]") for r, k in zip(runs, (150, 180), strict=True)]
     d = diagnose(WithEffects(FIRST, ()), short)
     assert d.autocorr.size == 150 and d.autocorr[0] == pytest.approx(1.0)
     assert np.all(np.isfinite(d.xcorr))

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from avll import Run, SecondOrder, UpperLevel, calibrate_many
+from avll import Run, SecondOrder, UpperLevel, calibrate, calibrate_many
 from avll.effects import Saturation, WithEffects, closed_loop_effects
 from avll.studies import openacc as st
 from avll.studies.openacc_effects import _gap_cars, effect_gaps
@@ -98,10 +98,8 @@ def test_effect_gaps_rejects_bad_arguments(saturated_car):
         effect_gaps(s, effects=("nope",))
 
 
-def test_fit_full_upper_bounds_name_a_known_gain(saturated_car):
-    from avll.diagnose.fitting import fit_full
-
+def test_the_upper_bounds_name_a_known_gain(saturated_car):
     run = saturated_car[0]
-    with pytest.raises(ValueError, match="upper_bounds: unknown gain 'G0'"):
-        fit_full("second", [], [run], closed_loop=True, upper_free=True, max_generations=2,
-                 upper_bounds={"G0": (0.0, 1.0)})
+    with pytest.raises(ValueError, match="bounds: unknown parameter 'G0'"):
+        calibrate("second", [run], closed_loop=True, upper_free=("kg", "kv", "Tg", "Gmin"),
+                  max_generations=2, bounds={"G0": (0.0, 1.0)})

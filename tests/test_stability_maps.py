@@ -108,6 +108,14 @@ def test_stability_probability_eager_and_chunked() -> None:
     assert d.attrs["q05"] <= d.attrs["q50"] <= d.attrs["q95"]
 
 
+def test_local_client_refuses_unknown_keywords() -> None:
+    pytest.importorskip("distributed")
+    with pytest.raises(ValueError, match="unknown keyword.s. memory_limt"):
+        M.local_client(memory_limt="1GB")
+    with pytest.raises(ValueError, match="n_workers"):
+        M.local_client(n_workers=0)
+
+
 @pytest.fixture(scope="module")
 def client():  # type: ignore[no-untyped-def]
     pytest.importorskip("distributed")

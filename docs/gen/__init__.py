@@ -19,10 +19,11 @@ numbers, writes them beside it as strict JSON (``<name>.json``).
 Cheap fragments take seconds; the expensive ones (minutes to hours) are generated only
 when named with ``--only`` (or ``--all``). Generators are functions that return the
 body (and numbers): the docs' own tables in this package (``fragments.py``,
-``stability_*.py``, ``effect_stability.py``) and the studies in :mod:`avll.studies`
-(``blind``, ``loops``, ``grade_freeflow``). The scripts still in ``benches/`` (the
-field-data findings, the OpenACC findings page, the benchmarks) write their fragments
-themselves, through their own functions, and the writer then re-stamps what they wrote.
+``stability_*.py``, ``effect_stability.py``, ``amplification.py``, the field-data
+findings ``fielddata.py``, the OpenACC findings page ``openacc_findings.py``) and the
+studies in :mod:`avll.studies` (``blind``, ``loops``, ``grade_freeflow``). The
+benchmarks in ``benches/`` write their tables themselves, and the writer then
+re-stamps what they wrote.
 ``--check`` compares the bodies of cheap fragments (not the stamp line) and, for every
 fragment, reports a stale stamp: a commit since the stamp's commit that touches one of
 the fragment's inputs (``git log STAMP..HEAD -- INPUTS``).
@@ -143,24 +144,16 @@ def _run_main(name: str, argv: Sequence[str]) -> None:
 _RAN: set[tuple[str, ...]] = set()
 
 
-def _in_place(name: str, argv: Sequence[str] = (), data: str | None = None
-              ) -> Callable[[argparse.Namespace], None]:
-    """An expensive script that writes its fragments itself: run it (once per process
-    when several fragments come from one run); the writer then re-stamps its outputs.
-    ``data``: the script takes ``--data ROOT/data``."""
+def _in_place(name: str, argv: Sequence[str] = ()) -> Callable[[argparse.Namespace], None]:
+    """A benchmark that writes its fragments itself: run it (once per process when
+    several fragments come from one run); the writer then re-stamps its outputs."""
 
-    def run(a: argparse.Namespace) -> None:
-        full = [*argv, *(_data_argv(a, data) if data is not None else [])]
-        if (name, *full) not in _RAN:
-            _run_main(name, full)
-            _RAN.add((name, *full))
+    def run(_: argparse.Namespace) -> None:
+        if (name, *argv) not in _RAN:
+            _run_main(name, argv)
+            _RAN.add((name, *argv))
 
     return run
-
-
-def _data_argv(a: argparse.Namespace, sub: str = "") -> list[str]:
-    root = Path(a.data_root) / sub if sub else Path(a.data_root)
-    return ["--data", str(root)]
 
 
 # --------------------------------------------------------------------------- stamps
@@ -408,18 +401,21 @@ _MODELS = ("python/avll/models.py", "rust/model", "rust/sim")
 _STAB = ("python/avll/stability.py", "python/avll/maps.py", "rust/stability")
 _LOOP = ("python/avll/diagnose", "python/avll/effects.py", "rust/effects", *_CAL, *_MODELS)
 _FIELD = ("python/avll/io", "python/avll/data.py", "python/avll/studies/fielddata.py")
-_FINDINGS = ("benches/findings_fielddata.py", "python/avll/studies/fielddata.py", *_FIELD,
-             *_CAL, *_MODELS)
+_FINDINGS = ("docs/gen/fielddata.py", "python/avll/report.py", *_FIELD, *_CAL, *_MODELS)
 _GEN_SELF = ("docs/gen/__init__.py", "docs/gen/fragments.py")
 
 
 def _findings(part: str) -> Fragment:
+    def rerender() -> str:
+        d = json.loads((GEN / f"fielddata_{part}.json").read_text(encoding="utf-8"))
+        return str(_own("fielddata").RENDER[part](d))
+
     return Fragment(
         f"fielddata-{part}", f"docs/_generated/fielddata_{part}.md",
-        _in_place("findings_fielddata", data=""), _FINDINGS, cheap=False, data=True,
-        sidecars=("docs/_generated/fielddata.json",),
-        note="written with every other fielddata_* fragment by one run of "
-             "benches/findings_fielddata.py (hours with the full budget)")
+        lambda a: _own("fielddata").generate(part, Path(a.data_root)), _FINDINGS,
+        cheap=False, data=True, rerender=rerender if part not in ("budget", "summary") else None,
+        note="docs/gen/fielddata.py: seconds (loaders, grade) to hours (budget); each part "
+             "kept in out/findings_fielddata")
 
 
 def _perf_frag(name: str, script: str) -> Fragment:
@@ -507,12 +503,14 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
     *[_findings(p) for p in ("loaders", "grade", "firstlook", "closed", "carma", "astazero",
                              "budget", "summary")],
     Fragment("amplification", "docs/_generated/amplification.md",
-             _in_place("amplification_validation", ["--write"]),
-             ("benches/amplification_validation.py", "python/avll/spectral.py",
+             lambda _: _own("amplification").generate(),
+             ("docs/gen/amplification.py", "python/avll/spectral.py",
               "python/avll/synth_platoon.py", "python/avll/studies/openacc.py",
               *_LOOP), cheap=False,
+             rerender=lambda: _own("amplification").render(
+                 json.loads((GEN / "amplification.json").read_text(encoding="utf-8"))),
              note="the two amplification estimators against a known truth on synthetic "
-                  "platoons (benches/amplification_validation.py; minutes)"),
+                  "platoons (minutes)"),
     # ---- benchmarks (timings: never compared; their tables re-rendered from their JSON)
     Fragment("calibrate-bench", "docs/_generated/calibrate_bench.md",
              _in_place("bench_calibrate", ["--json", "docs/_generated/calibrate_bench.json",
@@ -541,8 +539,8 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
     _perf_frag("reproduce", "python/avll/reproduce.py"),
     # ---- a whole generated page (not in docs/_generated)
     Fragment("findings-openacc", "docs/findings-openacc.md",
-             _in_place("openacc_findings", data="openacc-zalazone"),
-             ("benches/openacc_findings.py", "python/avll/studies/openacc.py",
+             lambda a: _own("openacc_findings").generate(Path(a.data_root) / "openacc-zalazone"),
+             ("docs/gen/openacc_findings.py", "python/avll/studies/openacc.py",
               "python/avll/studies/openacc_effects.py", *_FIELD, *_LOOP), cheap=False,
              data=True, note="a page; hours (the full GA budget on every car)"),
 ]}

@@ -11,10 +11,7 @@ from typing import Any
 import avll
 from avll.effect_stability import EffectStability, effect_stability
 from avll.effects import Asymmetric, Saturation, WithEffects
-
-
-def _f(x: Any, fmt: str = ".4g") -> str:
-    return "—" if x is None else format(x, fmt)
+from avll.report import num as _f
 
 
 def linear_table(r: EffectStability) -> list[str]:
@@ -25,7 +22,7 @@ def linear_table(r: EffectStability) -> list[str]:
            "|---|---|---|---|---|---|---|"]  # fmt: skip
     for e in r.linear:
         out.append(
-            f"| {e.label} | {_f(e.code, 'd')} | {_f(e.gain_at_omega)} | "
+            f"| {e.label} | {_f(e.code, 'd')} | {_f(e.gain_at_omega, '.4g')} | "
             f"{_f(e.peak_gain, '.6g')} ({_f(e.peak_omega, '.3g')} rad/s) | "
             f"{_f(e.tg_min_at_gains, '.3f')} | {_f(e.min_stable_tg, '.3f')} | "
             f"{_f(e.kv_threshold, '.4f')} |"
@@ -41,10 +38,10 @@ def amp_table(r: EffectStability) -> list[str]:
            "|---" * (n + 4) + "|"]  # fmt: skip
     gm = r.mean_amplification()
     for k, a in enumerate(r.amplitudes):
-        cells = [_f(float(x)) if x == x else "—" for x in r.amplification[k]]
+        cells = [_f(float(x), '.4g') if x == x else "—" for x in r.amplification[k]]
         last = r.half_range[k, -1] / r.half_range[k, 0]
-        out.append(f"| {a:g} | " + " | ".join(cells) + f" | {_f(float(gm[k]))} | "
-                   f"{_f(float(last))} | {_f(float(min(r.min_speed[k])), '.3g')} |")
+        out.append(f"| {a:g} | " + " | ".join(cells) + f" | {_f(float(gm[k]), '.4g')} | "
+                   f"{_f(float(last), '.4g')} | {_f(float(min(r.min_speed[k])), '.3g')} |")
     return out
 
 
@@ -67,7 +64,7 @@ def example(title: str, model: WithEffects, upper: avll.UpperLevel, **kw: Any) -
         *linear_table(r),
         "",
         f"Amplification per car (speed fundamental, car i / car i−1); a linear model gives "
-        f"\\|H(jω)\\| = {_f(r.linear_gain)} of the with-effects linearisation at every "
+        f"\\|H(jω)\\| = {_f(r.linear_gain, '.4g')} of the with-effects linearisation at every "
         "amplitude:",
         "",
         *amp_table(r),

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import subprocess
 import sys
@@ -20,13 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from avll.report import num as _f
+
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _f(x: Any, fmt: str = ".4g", none: str = "—") -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return none
-    return format(x, fmt)
 
 
 # --------------------------------------------------------------------------- README blocks
@@ -257,9 +252,9 @@ def reproduce_table(summary: dict[str, Any]) -> str:
          _f(p["capacity_first_vs_proposed_pct"], ".2f"),
          _f(ratios["capacity_first_vs_proposed_pct"], ".2f"), "yes"),
         ("average calibration MSE proposed / second / first ((m/s²)²)",
-         three(pap, "cal_mse", ".4g"), three(cal, "cal_mse", ".3g"), "no (synthetic data)"),
+         three(pap, "cal_mse", '.4g'), three(cal, "cal_mse", ".3g"), "no (synthetic data)"),
         ("average validation MSE proposed / second / first ((m/s²)²)",
-         three(pap, "val_mse", ".4g"), three(cal, "val_mse", ".3g"), "no"),
+         three(pap, "val_mse", '.4g'), three(cal, "val_mse", ".3g"), "no"),
         ("ranking, calibration / validation", " < ".join(summary["ranking"]["paper"]),
          " < ".join(summary["ranking"]["cal"]) + " / " + " < ".join(summary["ranking"]["val"]),
          "yes" if summary["ranking"]["cal"] == summary["ranking"]["val"]

@@ -10,7 +10,7 @@ diagnosis code consume them.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -126,6 +126,20 @@ class Run:
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
+
+    def cut(self, start: int, stop: int, suffix: str, note: str | None = None) -> Run:
+        """Samples ``start:stop`` of every series as the run ``<run_id><suffix>`` (the
+        cut recorded in ``meta["cleaning"]`` when ``note`` is given)."""
+        sl = slice(start, stop)
+        series: dict[str, Any] = {
+            k: None if getattr(self, k) is None else getattr(self, k)[sl]
+            for k in ("command", "v", "x", "lead_x", "lead_v", "lead_a")}  # fmt: skip
+        meta = dict(self.meta)
+        if note is not None:
+            meta["cleaning"] = [*meta.get("cleaning", []), note]
+        return replace(self, run_id=f"{self.run_id}{suffix}", t=self.t[sl], a=self.a[sl],
+                       exo={k: v[sl] for k, v in self.exo.items()}, meta=meta,
+                       **series)  # fmt: skip
 
 
 def check_runs(runs: Any) -> list[Run]:

@@ -398,12 +398,25 @@ def open_map(path: str | os.PathLike[str], format: str | None = None) -> Any:
 
 def local_client(n_workers: int = 2, threads_per_worker: int = 1, **kwargs: Any) -> Any:
     """A ``dask.distributed.Client`` on a new local cluster of ``n_workers`` worker
-    processes (close it with ``client.close(); client.cluster.close()``)."""
-    from distributed import Client, LocalCluster
+    processes (close it with ``client.close(); client.cluster.close()``). ``kwargs`` go
+    to ``LocalCluster``: its own options or its workers' (``memory_limit``, ...); a
+    keyword neither knows is a ``ValueError`` naming it (dask would hand it to every
+    worker, which fails at start-up far from the call)."""
+    import inspect
 
+    from distributed import Client, LocalCluster, Nanny, Worker
+
+    known = {n for c in (LocalCluster, Nanny, Worker)
+             for n, p in inspect.signature(c.__init__).parameters.items()
+             if n != "self" and p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}  # fmt: skip
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise ValueError(f"local_client: unknown keyword(s) {', '.join(unknown)} (not an option "
+                         "of dask.distributed.LocalCluster or of its workers)")  # fmt: skip
     cluster = LocalCluster(
-        n_workers=int(n_workers), threads_per_worker=int(threads_per_worker),
-        processes=True, dashboard_address=None, **kwargs,
+        n_workers=check_int(n_workers, "n_workers", min=1),
+        threads_per_worker=check_int(threads_per_worker, "threads_per_worker", min=1),
+        **({"processes": True, "dashboard_address": None} | kwargs),
     )
     return Client(cluster)
 

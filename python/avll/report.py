@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import html
 import math
+import numbers
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Report", "fmt", "diff"]
+__all__ = ["Report", "fmt", "diff", "num", "md_table"]
 
 
 def fmt(x: Any, digits: int = 4) -> str:
@@ -48,6 +49,28 @@ def fmt(x: Any, digits: int = 4) -> str:
         dec = max(1, digits - 1 - int(math.floor(math.log10(a))))
         return f"{v:.{dec}f}"
     return f"{v:.{digits - 1}e}"
+
+
+def num(x: Any, spec: str = ".3g", none: str = "—") -> str:
+    """A number in a generated table or sentence: ``none`` for None or a non-finite
+    value, an integer in full (with a ``g`` spec), a string as it is, otherwise
+    ``format(x, spec)``."""
+    if x is None:
+        return none
+    if isinstance(x, str):
+        return x
+    if isinstance(x, numbers.Integral) and not isinstance(x, bool) and spec.endswith("g"):
+        return str(int(x))
+    if isinstance(x, numbers.Real) and not math.isfinite(x):
+        return none
+    return format(x, spec)
+
+
+def md_table(head: Sequence[str], rows: Sequence[Sequence[Any]], spec: str = ".3g") -> str:
+    """A Markdown table of ``rows`` under ``head`` (cells by :func:`num` with ``spec``)."""
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    out += ["| " + " | ".join(num(c, spec) for c in r) + " |" for r in rows]
+    return "\n".join(out)
 
 
 def diff(ours: Any, paper: Any, digits: int = 3) -> str:

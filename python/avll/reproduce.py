@@ -1007,9 +1007,3 @@ def _p4(x: Any) -> str:
     if x is None or not math.isfinite(float(x)):
         return fmt(x)
     return f"{float(x):.4f}" if abs(float(x)) >= 1e-3 else f"{float(x):.3g}"
-
-
-def _mean(x: Any) -> Any:
-    if isinstance(x, dict) and x:
-        return float(np.mean(list(x.values())))
-    return x

@@ -44,7 +44,6 @@ __all__ = [
     "check_io",
     "add_dpi",
     "check_figure_path",
-    "fmt_value",
     "check_informative",
     "FIGURE_FORMATS",
     "parse_list",
@@ -300,20 +299,6 @@ def check_figure_path(label: str, path: str | os.PathLike[str]) -> None:
                          f"{', '.join('.' + f for f in FIGURE_FORMATS)}")
 
 
-def fmt_value(x: Any, spec: str = ".4g", none: str = "none") -> str:
-    """``x`` formatted with ``spec``; ``none`` (the word) for None or NaN, so that a
-    missing value never prints as ``nan``."""
-    if x is None:
-        return none
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return str(x)
-    if v != v:
-        return none
-    return format(v, spec)
-
-
 def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
     """Every file an input names: the path itself, its canonical sidecar
     (``X.meta.json``) and, for a folder, every file below it (the loaders read them)."""
@@ -323,8 +308,10 @@ def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
     p = Path(path)
     out.append((f"{label} (its sidecar)", p.with_name(p.name + ".meta.json")))
     if p.is_dir():
+        from ..io._common import walk_files
+
         try:
-            below = [f for f in p.rglob("*") if f.is_file()]
+            below = walk_files(p)
         except OSError:  # an unreadable subfolder: the loader reports it
             below = []
         out += [(f"{label} (a file it holds)", f) for f in below[:100_000]]

@@ -117,7 +117,7 @@ def _cmd(args: argparse.Namespace) -> int:
                 raise ValueError(f"{b}: run(s) {', '.join(both)} are also in {a}; the "
                                  "selections must be disjoint")
     res = effect_loop(args.model, cal, val, test_runs=test, seed=args.seed, init=args.init,
-                      optimizer=args.optimizer, folds=args.folds, min_gain=args.min_gain,
+                      folds=args.folds, min_gain=args.min_gain,
                       max_effects=args.max_effects, max_generations=args.max_generations,
                       starts=args.starts,
                       candidates=cands, threads=args.threads,
@@ -167,9 +167,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--init", choices=("auto", "rest", "steady"), default="auto",
                    help="initial state of the rollouts: steady for a speed command, rest "
                    "otherwise when auto (default: auto)")
-    p.add_argument("--optimizer", choices=("ga", "de"), default="ga",
-                   help="calibration: the Rust GA or scipy's differential evolution "
-                   "(default: ga)")
     add_progress(p)
     add_astazero_options(p)
     declare_io(p, inputs=("data",), files=("json",), folders=("report",))

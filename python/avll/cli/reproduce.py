@@ -6,7 +6,8 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from ._common import add_json, add_progress, add_seed, add_threads, declare_io, fmt_value
+from ..report import num
+from ._common import add_json, add_progress, add_seed, add_threads, declare_io
 
 #: The default output folder (each command has its own).
 DEFAULT_OUT = "avll-out/reproduce"
@@ -26,10 +27,11 @@ def _cmd(args: argparse.Namespace) -> int:
           f"{s['files']['summary_json']} ({s['timing_s']['total']:.0f} s)")
     for m in ("proposed", "second", "first"):
         c, st = s["calibration"][m], s["stability"][m]
-        print(f"  {m:9s} cal {fmt_value(c['cal_mse'])} val {fmt_value(c['val_mse'])} | "
-              f"Table II: kv* {fmt_value(st['kv_threshold'])} 1/s, min Tg "
-              f"{fmt_value(st['min_tg'], '.1f')} s, capacity "
-              f"{fmt_value(st['capacity'], '.1f')} veh/h")
+        print(f"  {m:9s} cal {num(c['cal_mse'], '.4g', 'none')} "
+              f"val {num(c['val_mse'], '.4g', 'none')} | "
+              f"Table II: kv* {num(st['kv_threshold'], '.4g', 'none')} 1/s, min Tg "
+              f"{num(st['min_tg'], '.1f', 'none')} s, capacity "
+              f"{num(st['capacity'], '.1f', 'none')} veh/h")
     print("  (kv* none: no kv threshold within the grid)")
     return 0
 

@@ -13,13 +13,13 @@ from typing import Any
 import numpy as np
 
 from ..paper import SECTION_IV_GRID
+from ..report import num
 from ._common import (
     add_json,
     add_models,
     add_progress,
     add_threads,
     declare_io,
-    fmt_value,
     models_of,
 )
 
@@ -131,9 +131,9 @@ def _cmd(args: argparse.Namespace) -> int:
           f"{'capacity (veh/h)':>17}")
     for m, th in zip(models, ths, strict=True):
         cap = capacity(th.tg_min_overall, args.length, args.speed)
-        print(f"{m.name:<10} {fmt_value(th.kv_last_stable, '.6g'):>15} "
-              f"{fmt_value(th.kv_first_empty, '.6g'):>15} "
-              f"{fmt_value(th.tg_min_overall, '.4g'):>10} {fmt_value(cap, '.1f'):>17}")
+        print(f"{m.name:<10} {num(th.kv_last_stable, '.6g', 'none'):>15} "
+              f"{num(th.kv_first_empty, '.6g', 'none'):>15} "
+              f"{num(th.tg_min_overall, '.4g', 'none'):>10} {num(cap, '.1f', 'none'):>17}")
     if any(math.isnan(th.kv_first_empty) for th in ths):
         print(f"(kv first empty: none means stable points remain up to the grid's last kv, "
               f"{kv[-1]:g}: no kv threshold in the given range)")
@@ -160,7 +160,7 @@ def _cmd(args: argparse.Namespace) -> int:
     for j in rows:
         cells = []
         for th in ths:
-            kgc, tgc = fmt_value(th.kg_max[j], ".6g"), fmt_value(th.tg_min[j], ".6g")
+            kgc, tgc = num(th.kg_max[j], ".6g", "none"), num(th.tg_min[j], ".6g", "none")
             if th.kg_max[j] == th.kg_edge:
                 kgc, edges = f">= {kgc}", True
             if th.tg_min[j] == th.tg_edge:

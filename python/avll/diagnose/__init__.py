@@ -1,4 +1,4 @@
-"""Residual diagnosis and the add-effect / recalibrate loop (issues 6, 13).
+"""Residual diagnosis and the add-effect / recalibrate loop.
 
 Given a calibrated model and runs, :func:`diagnose` looks at the residual
 ``e = a_measured - a_simulated``: its spectrum, autocorrelation, cross-correlation
@@ -16,8 +16,8 @@ One module per job:
   loss-difference test, the moving-block bootstrap;
 * :mod:`avll.diagnose.signatures` — effect signatures, the score test, ranking,
   residual structure;
-* :mod:`avll.diagnose.fitting` — simulation, per-run errors and the one fitting
-  driver (:func:`fit_full`);
+* :mod:`avll.diagnose.fitting` — simulation, per-run errors, the objective weights and
+  the parameters at a bound (the fits are :func:`avll.calibrate` itself);
 * :mod:`avll.diagnose.loop` — folds and the cross-validated loop;
 * :mod:`avll.diagnose.contract` — ``final_model`` as a dict, :func:`model_from_dict`,
   :func:`simulate_run`;
@@ -36,16 +36,29 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
         CLOSED_LOOP_WEIGHTS,
         SPEED_COMMAND_WEIGHTS,
         UPPER_BOUNDS,
+        AtBound,
         at_bound,
-        fit,
-        fit_full,
+        calibrate_kw,
+        default_weights,
         run_mse,
         simulate_runs,
     )
-    from .loop import MIN_GAIN, LoopResult, Step, effect_loop, make_folds
+    from .loop import (
+        MIN_GAIN,
+        Flag,
+        LoopResult,
+        Selection,
+        Splits,
+        Step,
+        Trial,
+        effect_loop,
+        make_folds,
+    )
     from .report import mse_table, plot_diagnosis, plot_unexplained, write_report
     from .signatures import Candidate, Diagnosis, diagnose, offered, residual_structure
     from .stats import (
+        BootstrapGain,
+        LossTest,
         SignalDependence,
         binned_dependence,
         block_bootstrap_gain,
@@ -60,52 +73,24 @@ _WHERE = {
     "model_from_dict": "contract", "model_to_dict": "contract", "simulate_run": "contract",
     "BASE_BOUNDS": "fitting", "CLOSED_LOOP_WEIGHTS": "fitting",
     "SPEED_COMMAND_WEIGHTS": "fitting", "UPPER_BOUNDS": "fitting", "at_bound": "fitting",
-    "fit": "fitting", "fit_full": "fitting", "run_mse": "fitting", "simulate_runs": "fitting",
+    "AtBound": "fitting",
+    "calibrate_kw": "fitting", "default_weights": "fitting", "run_mse": "fitting",
+    "simulate_runs": "fitting",
     "MIN_GAIN": "defaults",
-    "LoopResult": "loop", "Step": "loop", "effect_loop": "loop", "make_folds": "loop",
+    **dict.fromkeys(("LoopResult", "Step", "Trial", "Flag", "Splits", "Selection",
+                     "effect_loop", "make_folds"), "loop"),
     "mse_table": "report", "plot_diagnosis": "report", "plot_unexplained": "report",
     "write_report": "report",
     "Candidate": "signatures", "Diagnosis": "signatures", "diagnose": "signatures",
     "offered": "signatures", "residual_structure": "signatures",
-    "SignalDependence": "stats", "binned_dependence": "stats",
+    "SignalDependence": "stats", "LossTest": "stats", "BootstrapGain": "stats",
+    "binned_dependence": "stats",
     "block_bootstrap_gain": "stats", "effective_sample_size": "stats",
     "loss_difference_test": "stats",
 }  # fmt: skip
 
 
-__all__ = [
-    "BASE_BOUNDS",
-    "UPPER_BOUNDS",
-    "CLOSED_LOOP_WEIGHTS",
-    "SPEED_COMMAND_WEIGHTS",
-    "MIN_GAIN",
-    "Candidate",
-    "SignalDependence",
-    "Diagnosis",
-    "Step",
-    "LoopResult",
-    "fit",
-    "fit_full",
-    "simulate_runs",
-    "run_mse",
-    "at_bound",
-    "diagnose",
-    "offered",
-    "residual_structure",
-    "effect_loop",
-    "make_folds",
-    "mse_table",
-    "plot_diagnosis",
-    "plot_unexplained",
-    "write_report",
-    "model_to_dict",
-    "model_from_dict",
-    "simulate_run",
-    "effective_sample_size",
-    "binned_dependence",
-    "loss_difference_test",
-    "block_bootstrap_gain",
-]
+__all__ = [*_WHERE]
 
 
 def __getattr__(name: str) -> Any:

@@ -26,8 +26,7 @@ import numpy as np
 from ..data import Run
 from ..effects import WithEffects, effect_class
 from ..models import LowerLevelModel, UpperLevel, model_class
-from ..runs import as_runset
-from .fitting import _closed, _init, run_mse, simulate_runs
+from .fitting import _closed, _init, simulate_runs
 
 __all__ = ["model_to_dict", "model_from_dict", "simulate_run"]
 
@@ -119,15 +118,3 @@ def simulate_run(
         run = replace(run, upper=upper)
     closed = _closed([run], closed_loop)
     return simulate_runs(model, [run], closed_loop=closed, init=_init([run], init))[0]
-
-
-def per_run_mse(
-    model: WithEffects, runs: Any, *, closed: bool, init: str
-) -> dict[str, float]:
-    """``{run_id: mean((a - simulate_run(model, run))**2)}`` (``inf`` when the
-    simulation is not finite): the Rust batched cost on the run set
-    (:func:`avll.diagnose.fitting.run_mse`; a list of runs is packed once)."""
-    rs = as_runset(runs)
-    c = run_mse(model, rs, closed_loop=closed, init=init)
-    return {rid: float(m) if np.isfinite(m) else float("inf")
-            for rid, m in zip(rs.run_ids, c, strict=True)}  # fmt: skip

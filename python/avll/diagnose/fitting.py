@@ -1,39 +1,39 @@
-"""Simulation and calibration for the residual loop: the runs' simulated
-acceleration, per-run errors, and the loop's fit (:func:`fit_full`: the one
-calibration, :func:`avll.calibrate` through :func:`avll.calibration.calibrate_effects`,
-in the box of :func:`avll.calibration.default_bounds`). Each takes an
-:class:`avll.RunSet` (a list of runs is packed once)."""
+"""Simulation and per-run errors for the residual loop: the runs' simulated
+acceleration (:func:`simulate_runs`), per-run errors (:func:`run_mse`), the loop's
+objective weights (:func:`default_weights`) and which fitted parameters sit at a bound
+of the search box (:func:`at_bound`, in the box of
+:func:`avll.calibration.default_bounds`). The loop's fits are :func:`avll.calibrate`
+itself. Each takes an :class:`avll.RunSet` (a list of runs is packed once)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import optimize
 
 from .. import _core
-from .._limits import check_seed, check_threads
-from ..calibration import calibrate_effects, default_bounds
+from .._limits import check_threads
+from ..calibration import default_bounds
 from ..data import Run
-from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS
+from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS
 from ..defaults import UPPER_BOUNDS as _UB
 from ..defaults import UPPER_NAMES as _UPPER_NAMES
-from ..effects import EFFECTS, WithEffects, batch_cost_effects, canonical, exo_needs
-from ..models import LowerLevelModel, UpperLevel, model_class
+from ..effects import EFFECTS, WithEffects, batch_cost_effects, exo_needs
+from ..models import UpperLevel
 from ..runs import RunSet, as_runset
 
 __all__ = [
+    "AtBound",
     "BASE_BOUNDS",
     "UPPER_BOUNDS",
     "CLOSED_LOOP_WEIGHTS",
-    "DE_POP_SIZE",
     "SPEED_COMMAND_WEIGHTS",
+    "default_weights",
+    "calibrate_kw",
     "simulate_runs",
     "run_mse",
-    "fit_full",
-    "fit",
     "at_bound",
 ]
 
@@ -46,6 +46,7 @@ BASE_BOUNDS: dict[str, dict[str, tuple[float, float, str]]] = DEFAULT_BOUNDS
 #: logarithmic for log-scaled parameters) of a bound is reported "at bound": the
 #: rule of :attr:`avll.calibration.CalibrationResult.at_bound`.
 AT_BOUND_TOL: float = 1e-3
+
 
 def _init(runs: Any, init: str) -> str:
     """``"auto"``: a speed command starts at its steady state (a run that begins
@@ -65,13 +66,57 @@ def _closed(runs: Any, closed_loop: bool | None) -> bool:
     return any(r.command is None for r in runs)
 
 
-def _row(model: WithEffects, upper: UpperLevel | None) -> tuple[np.ndarray, list[int]]:
-    """The parameter row of ``model`` (and of an upper-level law that replaces the
-    runs' own: every gain free) and the free gains."""
-    row = np.asarray(model.to_array(), dtype=np.float64)
-    if upper is None:
-        return row[None, :], []
-    return np.concatenate([row, upper.to_array()])[None, :], [0, 1, 2, 3]
+def _setup(runs: RunSet | Sequence[Run], closed_loop: bool | None,
+           init: str) -> tuple[RunSet, bool, str]:
+    """The run set (packed once if a list) and the resolved ``closed_loop`` and ``init``."""
+    rs = as_runset(runs)
+    return rs, _closed(rs, closed_loop), _init(rs, init)
+
+
+def calibrate_kw(runs: Sequence[Run], closed_loop: bool | None = None,
+                 init: str = "auto") -> dict[str, Any]:
+    """The keywords :func:`avll.calibrate` fits the loop's models with on ``runs``:
+    ``closed_loop`` (default: when a run has no command), ``init`` (``"auto"``: see
+    :func:`simulate_runs`), ``upper_free`` (in closed loop, all four gains when a run
+    has no upper-level law) and ``weights`` (:func:`default_weights`)."""
+    runs = list(runs.runs if isinstance(runs, RunSet) else runs)
+    closed = _closed(runs, closed_loop)
+    speed = runs[0].command_kind == "speed" and all(r.v is not None for r in runs)
+    return {"closed_loop": closed, "init": _init(runs, init),
+            "upper_free": _UPPER_NAMES if closed and any(r.upper is None for r in runs) else (),
+            "weights": default_weights(closed, speed)}  # fmt: skip
+
+
+#: Parameter rows x samples of one batched simulation (its three outputs take 24 bytes
+#: per row and sample): more rows are simulated in several calls.
+BATCH = 4_000_000
+
+
+def _simulate(model: WithEffects, rows: np.ndarray, rs: RunSet, closed: bool, init: str,
+              upper: UpperLevel | None = None, threads: int = 0) -> np.ndarray:
+    """The simulated acceleration (P, samples of every run) of the parameter rows
+    ``[base | effects]`` of ``model``'s structure on ``rs``, in batched calls of at most
+    :data:`BATCH` row-samples.
+    ``upper`` (default: the run set's, :meth:`avll.RunSet.with_upper`) replaces the
+    runs' upper-level law: its gains enter every row as free gains."""
+    up = upper if upper is not None else rs.upper
+    rows = np.atleast_2d(np.asarray(rows, dtype=np.float64))
+    if up is not None:
+        rows = np.hstack([rows, np.tile(up.to_array(), (rows.shape[0], 1))])
+    free = [0, 1, 2, 3] if up is not None else []
+    kw = rs.cost_kw(init=init, closed_loop=closed, upper_free=free,
+                    exo=exo_needs(model.effect_names))  # fmt: skip
+    per_call = max(1, BATCH // max(rs.total, 1))
+    return np.vstack([np.asarray(_core.simulate_batch(
+        model.base.name, np.ascontiguousarray(rows[i : i + per_call]),
+        effects=list(model.effect_names), threads=check_threads(threads), **kw)["a"])
+        for i in range(0, rows.shape[0], per_call)])  # fmt: skip
+
+
+def _split(a: np.ndarray, rs: RunSet) -> list[np.ndarray]:
+    """A row of samples of every run, cut into the runs."""
+    off = rs.offsets
+    return [a[off[j] : off[j + 1]] for j in range(len(rs))]
 
 
 def simulate_runs(
@@ -80,17 +125,12 @@ def simulate_runs(
 ) -> list[np.ndarray]:
     """The simulated acceleration of every run (open loop from the recorded command,
     or closed loop behind the recorded leader), as in the calibration cost: one
-    batched call on the run set (``runs`` packed once if a list). ``upper`` replaces
-    the runs' upper-level law (default: the run set's, :meth:`avll.RunSet.with_upper`)."""
-    rs = as_runset(runs)
-    closed = _closed(rs, closed_loop)
-    row, free = _row(model, upper if upper is not None else rs.upper)
-    kw = rs.cost_kw(init=_init(rs, init), closed_loop=closed, upper_free=free,
-                    exo=exo_needs(model.effect_names))  # fmt: skip
-    d = _core.simulate_batch(model.base.name, row, effects=list(model.effect_names),
-                             threads=check_threads(threads), **kw)  # fmt: skip
-    off = rs.offsets
-    return [np.asarray(d["a"][0, off[j] : off[j + 1]]) for j in range(len(rs))]
+    batched call on the run set (``runs`` packed once if a list). ``init="auto"``: a
+    speed command starts at its steady state (a run that begins while driving), an
+    acceleration command at rest (the paper's experiment). ``upper`` replaces the
+    runs' upper-level law (default: the run set's, :meth:`avll.RunSet.with_upper`)."""
+    rs, closed, init = _setup(runs, closed_loop, init)
+    return _split(_simulate(model, model.to_array(), rs, closed, init, upper, threads)[0], rs)
 
 
 def run_mse(
@@ -99,37 +139,12 @@ def run_mse(
 ) -> np.ndarray:
     """Per-run MSE of the acceleration (paper Eq. 6 per run); ``inf`` if unstable. The
     one per-run error of the diagnosis: the Rust batched cost on the run set."""
-    rs = as_runset(runs)
-    row, free = _row(model, upper if upper is not None else rs.upper)
-    c = batch_cost_effects(
-        model.base.name, model.effect_names, row, rs, closed_loop=_closed(rs, closed_loop),
-        init=_init(rs, init), threads=threads, upper_free=free,
-    )  # fmt: skip
-    return c[0]
-
-
-@dataclass(frozen=True)
-class _Space:
-    names: tuple[str, ...]
-    lo: np.ndarray
-    hi: np.ndarray
-    log: np.ndarray
-
-    def to_z(self, p: np.ndarray) -> np.ndarray:
-        p = np.clip(np.asarray(p, dtype=np.float64), self.lo, self.hi)
-        z = np.where(self.log, np.log(np.where(self.log, np.maximum(p, 1e-300), 1.0)), p)
-        zl, zh = self.zbounds()
-        return (z - zl) / np.where(zh > zl, zh - zl, 1.0)
-
-    def zbounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.where(self.log, np.log(np.where(self.log, self.lo, 1.0)), self.lo)
-        hi = np.where(self.log, np.log(np.where(self.log, self.hi, 1.0)), self.hi)
-        return lo, hi
-
-    def from_z(self, z: np.ndarray) -> np.ndarray:
-        zl, zh = self.zbounds()
-        w = zl + np.asarray(z) * (zh - zl)
-        return np.where(self.log, np.exp(w), w)
+    rs, closed, init = _setup(runs, closed_loop, init)
+    up = upper if upper is not None else rs.upper
+    row = model.to_array() if up is None else np.r_[model.to_array(), up.to_array()]
+    return batch_cost_effects(model.base.name, model.effect_names, row[None, :], rs,
+                              closed_loop=closed, init=init, threads=threads,
+                              upper_free=[0, 1, 2, 3] if up is not None else [])[0]  # fmt: skip
 
 
 def _fixed(effect: str, param: str, kind: str) -> float | None:
@@ -138,216 +153,38 @@ def _fixed(effect: str, param: str, kind: str) -> float | None:
     return EFFECTS[effect].fixed.get(kind, {}).get(param)
 
 
-def _space(base: str, effects: Sequence[str], kind: str = "acceleration",
-           upper_free: bool = False,
-           upper_bounds: Mapping[str, tuple[float, float]] | None = None) -> _Space:
-    """The search box of :func:`avll.calibration.default_bounds` (the free upper gains'
-    entries replaced by ``upper_bounds``)."""
-    box = default_bounds(base, _UPPER_NAMES if upper_free else (), effects, kind)
-    for k, b in (upper_bounds or {}).items():
-        if k not in _UB:
-            raise ValueError(f"upper_bounds: unknown gain {k!r}; known: {', '.join(_UB)}")
-        box[k] = (float(b[0]), float(b[1]), "linear")
-    lo, hi, sc = zip(*box.values(), strict=True)
-    return _Space(tuple(box), np.array(lo, dtype=float), np.array(hi, dtype=float),
-                  np.array([s == "log" for s in sc]))
-
-
-def _polish(f: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, max_iter: int) -> np.ndarray:
-    h = 1e-5
-    k = z0.size
-
-    def fg(z: np.ndarray) -> tuple[float, np.ndarray]:
-        pts = [z]
-        for j in range(k):
-            e = np.zeros(k)
-            e[j] = h
-            pts.append(np.clip(z + e, 0, 1))
-            pts.append(np.clip(z - e, 0, 1))
-        v = f(np.vstack(pts))
-        g = np.empty(k)
-        for j in range(k):
-            zp, zm = pts[1 + 2 * j][j], pts[2 + 2 * j][j]
-            g[j] = (v[1 + 2 * j] - v[2 + 2 * j]) / max(zp - zm, 1e-12)
-        return float(v[0]), g
-
-    res = optimize.minimize(fg, z0, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * k,
-                            options={"maxiter": max_iter})  # fmt: skip
-    return np.asarray(res.x)
-
-
 #: Search box of the upper-level law when it is calibrated (closed loop, no known
 #: law): the same as :func:`avll.calibrate`'s.
 UPPER_BOUNDS: dict[str, tuple[float, float]] = {k: (lo, hi) for k, (lo, hi, _) in _UB.items()}
 
-
-#: Population size multiplier of the ``"de"`` optimizer (scipy's ``popsize``).
-DE_POP_SIZE: int = 12
-#: ... and of a speed command, whose response is the speed (the acceleration alone
-#: leaves the static gain free).
+#: Objective weights of a speed command, whose response is the speed (the acceleration
+#: alone leaves the static gain free).
 SPEED_COMMAND_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.0)
 
 
-def fit_full(
-    base: str | type[LowerLevelModel] | LowerLevelModel,
-    effects: Sequence[str],
-    runs: RunSet | Sequence[Run],
-    *,
-    start: WithEffects | None = None,
-    start_upper: UpperLevel | None = None,
-    seed: int = 0,
-    closed_loop: bool | None = None,
-    upper_free: bool | None = None,
-    weights: tuple[float, float, float] | None = None,
-    pop_size: int | None = None,
-    max_generations: int | None = None,
-    init: str = "auto",
-    threads: int = 0,
-    progress: Any = False,
-    optimizer: str = "ga",
-    starts: int = DEFAULT_STARTS,
-    upper_bounds: Mapping[str, tuple[float, float]] | None = None,
-) -> tuple[WithEffects, UpperLevel | None]:
-    """As :func:`fit`, and in closed loop with ``upper_free`` (default: when a run
-    has no known upper-level law) also the shared upper-level law ``kg, kv, Tg,
-    Gmin`` (returned; ``None`` otherwise). ``weights`` of the acceleration, speed and
-    position MSE default to ``(1, 0, 0)`` in open loop (paper Eq. 6), to
-    :data:`SPEED_COMMAND_WEIGHTS` for a speed command and to
-    :data:`avll.defaults.CLOSED_LOOP_WEIGHTS` in closed loop, where the acceleration
-    alone leaves the upper law's spacing unidentified. The loop reports acceleration
-    MSEs. ``optimizer``: ``"ga"`` (the project's Rust GA,
-    :func:`avll.calibration.calibrate_effects`, with ``starts`` independent starts as
-    :func:`avll.calibrate`) or ``"de"`` (``scipy.optimize.differential_evolution`` on
-    the batched cost). ``pop_size`` and ``max_generations`` are the GA's (``None``:
-    :data:`avll.defaults.GA_OPTIONS`); with ``"de"``, scipy's ``popsize`` (``None``:
-    :data:`DE_POP_SIZE`) and its iterations.
-    ``upper_bounds`` (name -> ``(lo, hi)``) replaces entries of
-    :data:`avll.calibration.UPPER_BOUNDS` for the free upper-level gains."""
-    if optimizer not in ("ga", "de"):
-        raise ValueError(f"optimizer: must be 'ga' or 'de', got {optimizer!r}")
-    seed = check_seed(seed)
-    threads = check_threads(threads)
-    if not isinstance(runs, RunSet) and not runs:
-        raise ValueError("runs: no runs given")
-    rs = as_runset(runs)
-    bname = model_class(base).name
-    names = canonical(list(effects))
-    closed = _closed(rs, closed_loop)
-    if upper_free is None:
-        upper_free = closed and any(r.upper is None for r in rs.runs)
-    sp = _space(bname, names, rs.command_kind, bool(upper_free),
-                upper_bounds if upper_free else None)
-    ini = _init(rs, init)
-    if weights is None:
-        if closed:
-            weights = CLOSED_LOOP_WEIGHTS
-        elif rs.command_kind == "speed" and rs.has("v"):
-            weights = SPEED_COMMAND_WEIGHTS
-        else:
-            weights = (1.0, 0.0, 0.0)
-    rows_of = sp.from_z
-    free_idx = [0, 1, 2, 3] if upper_free else []
-
-    def f(z: np.ndarray) -> np.ndarray:
-        rows = np.vstack([rows_of(zz) for zz in np.atleast_2d(z)])
-        c = batch_cost_effects(bname, names, rows, rs, closed_loop=closed, init=ini,
-                               upper_free=free_idx, weights=weights,
-                               threads=threads)  # fmt: skip
-        m = c.mean(axis=1)
-        return np.where(np.isfinite(m), m, 1e6)
-
-    rng = np.random.default_rng(seed)
-    x0 = None
-    if start is not None:
-        parts = [start.base.to_array()]
-        for n in names:
-            if n in start.effect_names:
-                parts.append(dict((e.name, e) for e in start.effects)[n].to_array())
-            else:
-                parts.append(np.array(EFFECTS[n].neutral))
-        if upper_free:
-            parts.append(start_upper.to_array() if start_upper is not None
-                         else np.array([0.5, 0.5, 1.5, 5.0]))  # fmt: skip
-        x0 = sp.to_z(np.concatenate(parts))
-    from ..progress import Progress
-
-    # One stage per fit, over GA generations (DE: iterations); it ends at 100 % when
-    # the search converges before its budget and stops where it was when interrupted.
-    gens = GA_OPTIONS["max_generations"] if max_generations is None else max_generations
-    bar = Progress(gens, "fit " + "+".join([bname, *names]), unit="gen",
-                   mode=progress)
-    done = False
-    try:
-        if optimizer == "ga":
-            x0p = None if x0 is None else sp.from_z(x0)[None, :]
-
-            def gcb(info: dict[str, Any]) -> None:
-                bar.advance_to(float(info["iteration"]))
-
-            out = calibrate_effects(
-                bname, names, rs, list(sp.lo), list(sp.hi),
-                ["log" if lg else "linear" for lg in sp.log], weights=weights, init=ini,
-                closed_loop=closed, upper_free=free_idx, initial=x0p, seed=seed,
-                max_generations=max_generations, pop_size=pop_size,
-                progress=gcb if bar.mode != "none" else None, threads=threads, starts=starts,
-            )  # fmt: skip
-            if out.get("interrupted"):
-                # The GA returned its best point after a Ctrl-C: a fit of the loop is
-                # not a result to go on with, the loop stops (nothing is written).
-                raise KeyboardInterrupt
-            p = np.asarray(out["x"], dtype=np.float64)
-        else:
-
-            def cb(intermediate_result: Any) -> None:
-                bar.update(1)
-
-            res = optimize.differential_evolution(
-                lambda zz: f(zz.T), [(0.0, 1.0)] * len(sp.names), seed=rng, vectorized=True,
-                popsize=DE_POP_SIZE if pop_size is None else pop_size, maxiter=gens, tol=1e-7,
-                polish=False,
-                updating="deferred",
-                x0=x0, init="sobol", callback=cb,
-            )  # fmt: skip
-            p = sp.from_z(_polish(f, np.asarray(res.x), 200))
-        done = True
-    finally:
-        bar.close(complete=done)
-
-    n_model = len(p) - (4 if upper_free else 0)
-    model = WithEffects.from_array(bname, names, p[:n_model])
-    up = UpperLevel(*[float(x) for x in p[n_model:]]) if upper_free else None
-    return model, up
+def default_weights(closed: bool, speed: bool = False) -> tuple[float, float, float]:
+    """The loop's objective weights ``(wa, wv, wx)``: :data:`avll.defaults.CLOSED_LOOP_WEIGHTS`
+    in closed loop (the acceleration alone leaves the upper law's spacing unidentified),
+    :data:`SPEED_COMMAND_WEIGHTS` for a ``speed`` command with a measured speed,
+    otherwise the paper's Eq. 6 ``(1, 0, 0)``. The loop reports acceleration MSEs."""
+    if closed:
+        return CLOSED_LOOP_WEIGHTS
+    if speed:
+        return SPEED_COMMAND_WEIGHTS
+    return (1.0, 0.0, 0.0)
 
 
-def fit(
-    base: str | type[LowerLevelModel] | LowerLevelModel,
-    effects: Sequence[str],
-    runs: Sequence[Run],
-    *,
-    start: WithEffects | None = None,
-    seed: int = 0,
-    closed_loop: bool | None = None,
-    pop_size: int | None = None,
-    max_generations: int | None = None,
-    init: str = "auto",
-    threads: int = 0,
-    optimizer: str = "ga",
-) -> WithEffects:
-    """Calibrates base + effects on ``runs`` (mean of the per-run acceleration MSE,
-    paper Eq. 6; closed loop runs need their upper-level law, see :func:`fit_full`).
+@dataclass(frozen=True)
+class AtBound:
+    """A fitted parameter at a bound of its search box: its name (``upper.kg`` for a
+    calibrated upper-level gain), value, which bound (``"lower"`` or ``"upper"``) and
+    the box."""
 
-    A global search (``scipy.optimize.differential_evolution`` on the Rust batched
-    cost, vectorised, seeded; ``start`` — e.g. the previous model with the new
-    effect at its diagnosed guess — joins the initial population) in a box scaled
-    to [0, 1] (log scale for positive time coefficients), then a bounded
-    quasi-Newton polish (L-BFGS-B on batched central differences).
-    """
-    model, _ = fit_full(base, effects, runs, start=start, seed=seed, closed_loop=closed_loop,
-                        upper_free=False, pop_size=pop_size, max_generations=max_generations,
-                        init=init, threads=threads, optimizer=optimizer)  # fmt: skip
-    return model
-
-
+    param: str
+    value: float
+    bound: str
+    lower: float
+    upper: float
 
 
 def at_bound(
@@ -356,17 +193,22 @@ def at_bound(
     kind: str = "acceleration",
     tol: float = AT_BOUND_TOL,
     upper_bounds: Mapping[str, tuple[float, float]] | None = None,
-) -> list[dict[str, Any]]:
+) -> tuple[AtBound, ...]:
     """The parameters of ``model`` (and of a calibrated ``upper`` law) that sit within
-    ``tol`` of a bound of the box :func:`fit_full` searched (share of the box, in its
-    own linear or logarithmic scale; fixed parameters are left out). Each entry:
-    ``{"param", "value", "bound": "lower"|"upper", "lower", "upper"}``. Such a value
+    ``tol`` of a bound of the box :func:`avll.calibrate` searched (share of the box, in
+    its own linear or logarithmic scale; fixed parameters are left out). Such a value
     is the edge of the search, not an estimate: widen the bound or doubt the effect.
-    ``upper_bounds`` are the upper-law boxes :func:`fit_full` was given (default
+    ``upper_bounds`` are the upper-law boxes the fit was given (default
     :data:`UPPER_BOUNDS`)."""
-    sp = _space(model.base.name, model.effect_names, kind, upper is not None, upper_bounds)
-    names = [f"upper.{n}" if n in _UB else n for n in sp.names]
-    lo, hi, lg = list(sp.lo), list(sp.hi), list(sp.log)
+    box = default_bounds(model.base.name, _UPPER_NAMES if upper is not None else (),
+                         model.effect_names, kind)
+    for k, (lo_k, hi_k) in (upper_bounds or {}).items():
+        if k not in _UB:
+            raise ValueError(f"upper_bounds: unknown gain {k!r}; known: {', '.join(_UB)}")
+        box[k] = (float(lo_k), float(hi_k), "linear")
+    names = [f"upper.{n}" if n in _UB else n for n in box]
+    lo, hi, lg = ([x[0] for x in box.values()], [x[1] for x in box.values()],
+                  [x[2] == "log" for x in box.values()])
     values = list(model.to_array())
     if upper is not None:
         values.extend(float(x) for x in upper.to_array())
@@ -379,6 +221,5 @@ def at_bound(
         else:
             u = (v - a) / (b - a)
         if u <= tol or u >= 1.0 - tol:
-            out.append({"param": n, "value": float(v), "bound": "lower" if u <= tol else "upper",
-                        "lower": float(a), "upper": float(b)})  # fmt: skip
-    return out
+            out.append(AtBound(n, float(v), "lower" if u <= tol else "upper", float(a), float(b)))
+    return tuple(out)

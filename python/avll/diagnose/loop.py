@@ -19,8 +19,8 @@ weaker evidence than folds of separate runs (the JSON says which were used).
 One iteration: diagnose the current model on all calibration runs (the score test
 of :mod:`avll.diagnose.signatures` only *ranks* effects); for each of the ``tries``
 best-ranked effects and each fold, fit the current model and the model with the
-effect on the fold's training runs (the one fitting driver,
-:func:`avll.diagnose.fitting.fit_full`, seeded per fold; the effect's starting guess
+effect on the fold's training runs (the one calibration entry, :func:`avll.calibrate`,
+seeded per fold; the effect's starting guess
 comes from a diagnosis on the training runs only) and compare their squared errors
 on the held-out fold. An effect is **accepted** only if all of:
 
@@ -45,26 +45,28 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from .. import _core
 from .._limits import check_int, check_number, check_seed, check_threads
+from ..calibration import calibrate
 from ..data import Run
-from ..defaults import DEFAULT_STARTS, GA_OPTIONS
+from ..defaults import DEFAULT_STARTS, GA_OPTIONS, UPPER_PLACEHOLDER
 from ..effects import EFFECTS, WithEffects
 from ..models import LowerLevelModel, UpperLevel, model_class
-from ..progress import messages
+from ..progress import Progress, messages
 from ..runs import RunSet
-from .contract import model_to_dict, per_run_mse
+from .contract import model_to_dict
 from .defaults import DEFAULT_BLOCKS, DEFAULT_FOLDS, FAR_SMALLER, MIN_BLOCK, MIN_GAIN
-from .fitting import _closed, _init, at_bound, fit_full, simulate_runs
+from .fitting import AtBound, at_bound, calibrate_kw, run_mse, simulate_runs
 from .signatures import Diagnosis, diagnose, residual_structure
-from .stats import block_bootstrap_gain, loss_difference_test
+from .stats import BootstrapGain, LossTest, block_bootstrap_gain, loss_difference_test
 
-__all__ = ["MIN_GAIN", "Step", "LoopResult", "effect_loop", "make_folds"]
+__all__ = ["MIN_GAIN", "Trial", "Flag", "Splits", "Selection", "Step", "LoopResult",
+           "effect_loop", "make_folds"]
 
 def _mean(d: dict[str, float] | None) -> float:
     return float(np.mean(list(d.values()))) if d else float("nan")
@@ -73,6 +75,128 @@ def _mean(d: dict[str, float] | None) -> float:
 def _gain(before: dict[str, float] | None, after: dict[str, float] | None) -> float:
     b, a = _mean(before), _mean(after)
     return 1.0 - a / b if b > 0 and math.isfinite(b) else float("nan")
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One effect cross-validated in one iteration: the share of folds in which it
+    lowers the held-out error by ``min_gain`` (``fold_selection``), the gain per fold,
+    the pooled out-of-fold loss test (``test``) and block bootstrap (``boot``), the
+    folds (how many, of which kind) and why it was rejected (``reasons``; none: it
+    passed)."""
+
+    iteration: int
+    effect: str
+    fold_selection: float
+    fold_gains: tuple[float, ...]
+    test: LossTest
+    boot: BootstrapGain
+    folds: int
+    fold_kind: str
+    reasons: tuple[str, ...] = ()
+
+    @property
+    def passed(self) -> bool:
+        """Whether every rule of the module doc held."""
+        return not self.reasons
+
+    @property
+    def gain(self) -> float:
+        """The pooled out-of-fold relative MSE reduction."""
+        return self.boot.gain
+
+    @property
+    def p_value(self) -> float:
+        """The block-bootstrap p-value of "no reduction"."""
+        return self.boot.p_value
+
+    def cv_dict(self) -> dict[str, Any]:
+        """The cross-validation record (``cv`` of a step in the JSON)."""
+        t, b = self.test, self.boot
+        d: dict[str, Any] = {
+            "fold_gains": list(self.fold_gains), "gain": b.gain, "mse_before": t.mse_before,
+            "mse_after": t.mse_after, "p_value": b.p_value, "bootstrap_ci": list(b.ci),
+            "block_length": b.block_length, "n_boot": b.n_boot, "ess_t": t.t,
+            "ess_t_p_value": t.p_value, "n": t.n, "n_eff": t.n_eff}  # fmt: skip
+        if not all(math.isfinite(g) for g in self.fold_gains):
+            d["fold_gains_note"] = "null: a model's simulation is not finite on that held-out fold"
+        if not all(math.isfinite(x) for x in b.ci):
+            d["bootstrap_ci_note"] = "null: no finite bootstrap of the loss difference"
+        return d
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (an entry of ``trials`` in the ``avll diagnose`` JSON)."""
+        return {"iteration": self.iteration, "effect": self.effect,
+                "fold_selection": self.fold_selection, **self.cv_dict(), "passed": self.passed,
+                "reasons": list(self.reasons)}  # fmt: skip
+
+    def rejection(self) -> dict[str, Any]:
+        """A JSON-able dict (an entry of ``rejected``)."""
+        return {"iteration": self.iteration, "effect": self.effect,
+                "fold_selection": self.fold_selection, "gain": self.gain,
+                "p_value": self.p_value, "reasons": list(self.reasons)}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Flag:
+    """A warning on the result: its ``kind`` (``at_bound``, ``validation_gain_not_held``,
+    ``validation_gain_far_smaller``, ``test_gain_not_held``, ``test_gain_far_smaller``,
+    ``structure_unexplained``), the step it concerns (0 the baseline, ``None`` the whole
+    loop), the effect, the parameters at a bound (``at_bound``) and a message."""
+
+    kind: str
+    step: int | None
+    effect: str | None
+    message: str
+    params: tuple[str, ...] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (an entry of ``flags``)."""
+        d: dict[str, Any] = {"kind": self.kind, "step": self.step, "effect": self.effect}
+        if self.params is not None:
+            d["params"] = list(self.params)
+        return d | {"message": self.message}
+
+
+@dataclass(frozen=True)
+class Splits:
+    """The runs of each split (ids) and the held-out runs of each fold."""
+
+    cal_runs: tuple[str, ...]
+    val_runs: tuple[str, ...]
+    test_runs: tuple[str, ...]
+    folds: tuple[tuple[str, ...], ...]
+    fold_kind: str
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The settings of the selection rule (``selection`` in the JSON)."""
+
+    min_gain: float
+    alpha: float
+    cv_alpha: float
+    n_boot: int
+    folds: int
+    fold_kind: str
+    tries: int
+    max_effects: int
+    max_generations: int
+    starts: int
+    seed: int
+    candidates: tuple[str, ...] | None
+    structure_alpha: float
+    min_structure: float
+    far_smaller: float = FAR_SMALLER
+    rule: str = "cross-validation over calibration folds"
+    majority: str = "fold_selection > 0.5"
+
+
+def _plain(x: Any) -> Any:
+    """Dataclasses as dicts, tuples as lists (JSON-able)."""
+    if is_dataclass(x) and not isinstance(x, type):
+        return {k: _plain(v) for k, v in vars(x).items()}
+    return [_plain(v) for v in x] if isinstance(x, (list, tuple)) else x
 
 
 @dataclass(frozen=True)
@@ -88,18 +212,22 @@ class Step:
     cal_after: dict[str, float]
     val_before: dict[str, float]
     val_after: dict[str, float]
-    fold_selection: float = float("nan")
-    cv: dict[str, Any] = field(default_factory=dict)
-    at_bound: list[dict[str, Any]] = field(default_factory=list)
+    cv: Trial
+    at_bound: tuple[AtBound, ...] = ()
     test_before: dict[str, float] = field(default_factory=dict)
     test_after: dict[str, float] = field(default_factory=dict)
     upper: UpperLevel | None = None
-    flags: list[str] = field(default_factory=list)
+    flags: tuple[str, ...] = ()
+
+    @property
+    def fold_selection(self) -> float:
+        """The share of folds in which the effect lowered the held-out error enough."""
+        return self.cv.fold_selection
 
     @property
     def p_value(self) -> float:
         """The one-sided p-value of the pooled out-of-fold loss difference."""
-        return float(self.cv.get("p_value", float("nan")))
+        return self.cv.p_value
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict (the ``avll diagnose`` JSON contract)."""
@@ -124,34 +252,35 @@ class Step:
                      test_mse_after=_mean(self.test_after),
                      test_mse_before_per_run=self.test_before,
                      test_mse_after_per_run=self.test_after)  # fmt: skip
-        d.update(fold_selection=self.fold_selection, p_value=self.p_value, cv=self.cv,
-                 at_bound=self.at_bound, flags=list(self.flags))  # fmt: skip
+        cv = self.cv.cv_dict() | {"folds": self.cv.folds, "fold_kind": self.cv.fold_kind}
+        d.update(fold_selection=self.fold_selection, p_value=self.p_value, cv=cv,
+                 at_bound=_plain(self.at_bound), flags=list(self.flags))  # fmt: skip
         if self.upper is not None:
-            d["upper"] = {"kg": self.upper.kg, "kv": self.upper.kv, "Tg": self.upper.Tg,
-                          "Gmin": self.upper.Gmin}  # fmt: skip
+            d["upper"] = asdict(self.upper)
         return d
 
 
 @dataclass(frozen=True)
 class LoopResult:
     """The baseline, the accepted steps, every diagnosis, every cross-validated
-    candidate (``trials``), the splits, the flags and what the residual keeps
-    (``unexplained``)."""
+    candidate (``trials``; ``rejected`` those that failed), the splits, the rule's
+    settings, the flags and what the residual keeps (``unexplained``, the report of
+    :func:`avll.diagnose.signatures.residual_structure`)."""
 
     baseline: WithEffects
     final: WithEffects
     steps: list[Step]
     diagnoses: list[Diagnosis]
-    rejected: list[dict[str, Any]] = field(default_factory=list)
-    upper: UpperLevel | None = None
-    trials: list[dict[str, Any]] = field(default_factory=list)
-    splits: dict[str, Any] = field(default_factory=dict)
-    settings: dict[str, Any] = field(default_factory=dict)
+    rejected: list[Trial]
+    upper: UpperLevel | None
+    trials: list[Trial]
+    splits: Splits
+    settings: Selection
     baseline_mse: dict[str, dict[str, float]] = field(default_factory=dict)
-    baseline_at_bound: list[dict[str, Any]] = field(default_factory=list)
+    baseline_at_bound: tuple[AtBound, ...] = ()
     baseline_upper: UpperLevel | None = None
     unexplained: dict[str, Any] = field(default_factory=dict)
-    flags: list[dict[str, Any]] = field(default_factory=list)
+    flags: list[Flag] = field(default_factory=list)
     init: str = "rest"
     closed_loop: bool = False
 
@@ -172,26 +301,24 @@ class LoopResult:
         """A JSON-able dict (the ``avll diagnose`` JSON contract; non-finite numbers
         are left to :func:`avll._atomic.json_safe`, which writes ``null`` with a note)."""
         return {
-            "upper": None if self.upper is None else {
-                "kg": self.upper.kg, "kv": self.upper.kv, "Tg": self.upper.Tg,
-                "Gmin": self.upper.Gmin},
+            "upper": None if self.upper is None else asdict(self.upper),
             "base_model": self.baseline.base.name,
             "baseline_params": self.baseline.base.to_dict(),
             "baseline_mse": {k: {"mean": _mean(v), "per_run": v} if v else
                              {"mean": None, "mean_note": "no runs in this split", "per_run": {}}
                              for k, v in self.baseline_mse.items()},
-            "baseline_at_bound": self.baseline_at_bound,
+            "baseline_at_bound": _plain(self.baseline_at_bound),
             "steps": [s.to_dict() for s in self.steps],
             "effects": [s.effect for s in self.steps],
             "final_params": {e.name: e.to_dict() for e in self.final.effects}
             | {"base": self.final.base.to_dict()},
             "final_model": self.final_model,
-            "splits": self.splits,
-            "selection": self.settings,
-            "trials": self.trials,
-            "rejected": self.rejected,
+            "splits": _plain(self.splits),
+            "selection": _plain(self.settings),
+            "trials": [t.to_dict() for t in self.trials],
+            "rejected": [t.rejection() for t in self.rejected],
             "unexplained": self.unexplained,
-            "flags": self.flags,
+            "flags": [f.to_dict() for f in self.flags],
             "diagnoses": [d.to_dict() for d in self.diagnoses],
         }  # fmt: skip
 
@@ -199,16 +326,6 @@ class LoopResult:
 # ---------------------------------------------------------------------------
 # Folds
 # ---------------------------------------------------------------------------
-
-
-def _block(run: Run, i0: int, i1: int) -> Run:
-    def cut(x: np.ndarray | None) -> np.ndarray | None:
-        return None if x is None else x[i0:i1]
-
-    return replace(run, run_id=f"{run.run_id}[{i0}:{i1}]", t=run.t[i0:i1], a=run.a[i0:i1],
-                   command=cut(run.command), v=cut(run.v), x=cut(run.x),
-                   lead_x=cut(run.lead_x), lead_v=cut(run.lead_v), lead_a=cut(run.lead_a),
-                   exo={k: v[i0:i1] for k, v in run.exo.items()})  # fmt: skip
 
 
 def make_folds(
@@ -230,7 +347,8 @@ def make_folds(
                 f"blocks gives blocks shorter than {MIN_BLOCK} samples; give more "
                 "calibration runs or fewer folds")
         edges = np.linspace(0, n, k + 1).round().astype(int)
-        blocks = [_block(r, int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+        blocks = [r.cut(int(a), int(b), f"[{a}:{b}]") for a, b in zip(edges[:-1], edges[1:],
+                                                                  strict=True)]
         return [([b for j, b in enumerate(blocks) if j != i], [blocks[i]])
                 for i in range(k)], "blocks"  # fmt: skip
     k = min(DEFAULT_FOLDS if folds is None else check_int(folds, "folds", min=2), len(runs))
@@ -274,7 +392,6 @@ def effect_loop(
     baseline: LowerLevelModel | None = None,
     candidates: Sequence[str] | None = None,
     init: str = "auto",
-    optimizer: str = "ga",
     max_generations: int | None = None,
     starts: int = DEFAULT_STARTS,
     structure_alpha: float = 1e-3,
@@ -323,18 +440,13 @@ def effect_loop(
                 raise ValueError(f"{name}: run {i!r} is also in {seen[i]}; the splits must be "
                                  "disjoint")  # fmt: skip
             seen[i] = name
-    every = [*cal_runs, *val_runs, *test_runs]
-    closed = _closed(every, closed_loop)
-    init = _init(cal_runs, init)
+    # The loop's settings of every fit (avll.calibrate's keywords) and simulation.
+    fit_kw = calibrate_kw([*cal_runs, *val_runs, *test_runs], closed_loop, init)
+    closed, init, upper_free = fit_kw["closed_loop"], fit_kw["init"], bool(fit_kw["upper_free"])
     bname = model_class(base).name
     kind = cal_runs[0].command_kind
     fold_sets, fold_kind = make_folds(cal_runs, folds, seed)
     say = messages("avll: diagnose", progress)
-    upper_free = closed and any(r.upper is None for r in every)
-    fit_kw: dict[str, Any] = dict(closed_loop=closed, init=init, upper_free=upper_free,
-                                  optimizer=optimizer, max_generations=max_generations,
-                                  starts=starts, threads=threads)  # fmt: skip
-
     # Every run of the loop packed once: the calibration runs (and the blocks of a
     # single one), the validation and the test runs; each split and each fold's
     # training and held-out runs are views on it (index subsets, nothing copied).
@@ -348,6 +460,35 @@ def effect_loop(
     cal_set, val_set, test_set = view(cal_runs), view(val_runs), view(test_runs)
     fold_views = [(view(train), view(held)) for train, held in fold_sets]
 
+    def fit(names: Sequence[str], rs: Any, seed: int, start: WithEffects | None = None,
+            start_upper: UpperLevel | None = None, show: Any = False,
+            ) -> tuple[WithEffects, UpperLevel | None]:
+        # The one calibration entry, with the loop's settings; ``start`` (and the law
+        # ``start_upper``) joins the first population.
+        initial = None
+        if start is not None:
+            up = start_upper or UPPER_PLACEHOLDER
+            initial = [np.concatenate([start.to_array(), *([up.to_array()] if upper_free
+                                                             else [])])]  # fmt: skip
+        # One progress stage per fit, over the GA's generations.
+        bar = Progress(max_generations, "fit " + "+".join([bname, *names]), unit="gen",
+                       mode=show)  # fmt: skip
+        done = False
+        try:
+            res = calibrate(bname, rs, effects=names, initial=initial, seed=seed,
+                            starts=starts, threads=threads, max_generations=max_generations,
+                            progress=(lambda i: bar.advance_to(float(i["iteration"])))
+                            if bar.mode != "none" else False, **fit_kw)  # fmt: skip
+            done = not res.interrupted
+        finally:
+            bar.close(complete=done)
+        if not done:
+            # A fit of the loop stopped by Ctrl-C is not a result to go on with: the
+            # loop stops (nothing is written).
+            raise KeyboardInterrupt
+        m = res.with_effects or WithEffects(res.model, ())
+        return m, UpperLevel(**res.upper) if upper_free else None
+
     def with_upper(rs: RunSet | tuple[()], up: UpperLevel | None) -> Any:
         # The calibrated upper-level law replaces the unknown one (on every run: the
         # same vehicle's law), as free gains of the simulated row.
@@ -359,10 +500,15 @@ def effect_loop(
                                                            init=init), strict=True)]
 
     def mse(m: WithEffects, rs: Any, up: UpperLevel | None) -> dict[str, float]:
-        return per_run_mse(m, with_upper(rs, up), closed=closed, init=init) if rs else {}
+        # {run_id: mean((a - simulate_run(model, run))**2)}, inf when not finite
+        if not rs:
+            return {}
+        c = run_mse(m, with_upper(rs, up), closed_loop=closed, init=init)
+        return {i: float(x) if np.isfinite(x) else math.inf
+                for i, x in zip(rs.run_ids, c, strict=True)}  # fmt: skip
 
     if baseline is None:
-        current, upper = fit_full(bname, (), cal_set, seed=seed, progress=progress, **fit_kw)
+        current, upper = fit((), cal_set, seed, show=progress)
     else:
         if upper_free:
             raise ValueError("baseline: give runs with their upper-level law in closed loop")
@@ -373,8 +519,8 @@ def effect_loop(
     fold_models: list[tuple[WithEffects, UpperLevel | None] | None] = [None] * len(fold_sets)
     steps: list[Step] = []
     diags: list[Diagnosis] = []
-    rejected: list[dict[str, Any]] = []
-    trials: list[dict[str, Any]] = []
+    rejected: list[Trial] = []
+    trials: list[Trial] = []
     for it in range(max_effects):
         cal_u = with_upper(cal_set, upper)
         d = diagnose(current, cal_u, closed_loop=closed, alpha=alpha, init=init,
@@ -387,11 +533,10 @@ def effect_loop(
             break
         for f, (train, _) in enumerate(fold_views):
             if fold_models[f] is None:
-                fold_models[f] = fit_full(bname, current.effect_names, train,
-                                          seed=_sub(seed, it, f, 0), **fit_kw)  # fmt: skip
+                fold_models[f] = fit(current.effect_names, train, _sub(seed, it, f, 0))
         passed = []
         for ci, c in enumerate(ranked):
-            names = [*current.effect_names, c.effect]
+            effs = [*current.effect_names, c.effect]
             e0s: list[np.ndarray] = []
             e1s: list[np.ndarray] = []
             fold_gains, new_fold_models = [], []
@@ -399,8 +544,7 @@ def effect_loop(
                 m0, u0 = fold_models[f]  # type: ignore[misc]
                 hint = _fold_hint(m0, with_upper(train, u0), c.effect, closed, init)
                 start = WithEffects(m0.base, (*m0.effects, EFFECTS[c.effect](**hint)))
-                m1, u1 = fit_full(bname, names, train, start=start, start_upper=u0,
-                                  seed=_sub(seed, it, f, ci + 1), **fit_kw)  # fmt: skip
+                m1, u1 = fit(effs, train, _sub(seed, it, f, ci + 1), start, u0)
                 r0, r1 = residuals(m0, held, u0), residuals(m1, held, u1)
                 e0s += r0
                 e1s += r1
@@ -410,63 +554,42 @@ def effect_loop(
                 fold_gains.append(g)
                 new_fold_models.append((m1, u1))
             sel = float(np.mean([g >= min_gain for g in fold_gains]))
-            ttest = loss_difference_test(e0s, e1s)
             boot = block_bootstrap_gain(e0s, e1s, n_boot=n_boot, seed=_sub(seed, it, 999, ci))
-            gain, p = boot["gain"], boot["p_value"]
             reasons = []
             if not sel > 0.5:
                 reasons.append(f"lowers the held-out error by >= {min_gain:.0%} in "
                                f"{sel:.0%} of the folds (needs more than half)")
-            if not gain >= min_gain:
-                reasons.append(f"pooled out-of-fold gain {gain:.1%} < minimum {min_gain:.0%}")
-            if not p < cv_alpha:
-                reasons.append(f"block-bootstrap p = {p:.2g} >= {cv_alpha:g}")
-            rec: dict[str, Any] = {
-                "iteration": it + 1, "effect": c.effect, "fold_selection": sel,
-                "fold_gains": fold_gains, "gain": gain, "mse_before": ttest["mse_before"],
-                "mse_after": ttest["mse_after"], "p_value": p, "bootstrap_ci": boot["ci"],
-                "block_length": boot["block_length"], "n_boot": boot["n_boot"],
-                "ess_t": ttest["t"], "ess_t_p_value": ttest["p_value"], "n": ttest["n"],
-                "n_eff": ttest["n_eff"], "passed": not reasons, "reasons": reasons}  # fmt: skip
-            if not all(math.isfinite(g) for g in fold_gains):
-                rec["fold_gains_note"] = ("null: a model's simulation is not finite on that "
-                                          "held-out fold")  # fmt: skip
-            if not all(math.isfinite(x) for x in boot["ci"]):
-                rec["bootstrap_ci_note"] = "null: no finite bootstrap of the loss difference"
-            trials.append(rec)
+            if not boot.gain >= min_gain:
+                reasons.append(f"pooled out-of-fold gain {boot.gain:.1%} < minimum "
+                               f"{min_gain:.0%}")
+            if not boot.p_value < cv_alpha:
+                reasons.append(f"block-bootstrap p = {boot.p_value:.2g} >= {cv_alpha:g}")
+            trial = Trial(it + 1, c.effect, sel, tuple(fold_gains), loss_difference_test(e0s, e1s),
+                          boot, len(fold_sets), fold_kind, tuple(reasons))  # fmt: skip
+            trials.append(trial)
             say(f"cv {c.effect}: folds {['%.1f%%' % (100 * g) for g in fold_gains]}, "
-                f"selected in {sel:.0%}, pooled {gain:.1%} (p={p:.2g}): "
-                f"{'passes' if not reasons else 'rejected'}")  # fmt: skip
-            if reasons:
-                rejected.append({"iteration": it + 1, "effect": c.effect, "fold_selection": sel,
-                                 "gain": gain, "p_value": p, "reasons": reasons})  # fmt: skip
+                f"selected in {sel:.0%}, pooled {boot.gain:.1%} (p={boot.p_value:.2g}): "
+                f"{'passes' if trial.passed else 'rejected'}")  # fmt: skip
+            if trial.passed:
+                passed.append((len(trials) - 1, ci, c, new_fold_models))
             else:
-                passed.append((gain, ci, c, rec, new_fold_models))
+                rejected.append(trial)
         accepted = False
-        for _, ci, c, rec, new_fold_models in sorted(passed, key=lambda x: (-x[0], x[1])):
+        for ti, ci, c, new_fold_models in sorted(passed, key=lambda x: (-trials[x[0]].gain,
+                                                                         x[1])):
             start = WithEffects(current.base, (*current.effects, EFFECTS[c.effect](**c.hint)))
-            new, up1 = fit_full(bname, [*current.effect_names, c.effect], cal_set, start=start,
-                                start_upper=upper, seed=_sub(seed, it, 1000, ci),
-                                progress=progress, **fit_kw)  # fmt: skip
+            new, up1 = fit([*current.effect_names, c.effect], cal_set, _sub(seed, it, 1000, ci),
+                           start, upper, show=progress)
             cal0, cal1 = mse(current, cal_set, upper), mse(new, cal_set, up1)
             if not _mean(cal1) < _mean(cal0):
-                reason = "refitted on all calibration runs it does not lower their error"
-                rec["passed"] = False
-                rec["reasons"].append(reason)
-                rejected.append({"iteration": it + 1, "effect": c.effect,
-                                 "fold_selection": rec["fold_selection"], "gain": rec["gain"],
-                                 "p_value": rec["p_value"], "reasons": [reason]})  # fmt: skip
+                trials[ti] = replace(trials[ti], reasons=(
+                    "refitted on all calibration runs it does not lower their error",))
+                rejected.append(trials[ti])
                 continue
             val0, val1 = mse(current, val_set, upper), mse(new, val_set, up1)
             eff = dict((e.name, e) for e in new.effects)[c.effect]
-            cv = {k: rec[k] for k in ("fold_gains", "gain", "mse_before", "mse_after", "p_value",
-                                      "bootstrap_ci", "block_length", "n_boot", "ess_t",
-                                      "ess_t_p_value", "n", "n_eff")}
-            cv.update({k: rec[k] for k in ("fold_gains_note", "bootstrap_ci_note") if k in rec})
-            cv.update(folds=len(fold_sets), fold_kind=fold_kind)
-            steps.append(Step(c.effect, eff.to_dict(), new, cal0, cal1, val0, val1,
-                              fold_selection=rec["fold_selection"], cv=cv,
-                              at_bound=at_bound(new, up1 if upper_free else None, kind),
+            steps.append(Step(c.effect, eff.to_dict(), new, cal0, cal1, val0, val1, trials[ti],
+                              at_bound(new, up1 if upper_free else None, kind),
                               upper=up1))  # fmt: skip
             say(f"accepted {c.effect}: cal {_mean(cal0):.4g} -> {_mean(cal1):.4g}")
             current, upper = new, up1
@@ -481,45 +604,40 @@ def effect_loop(
                 "test": mse(out_base, test_set, base_upper)}  # fmt: skip
     prev, prev_up = out_base, base_upper
     done: list[Step] = []
-    flags: list[dict[str, Any]] = []
+    flags: list[Flag] = []
     b_at = at_bound(out_base, base_upper if upper_free else None, kind)
     if b_at:
-        flags.append({"kind": "at_bound", "step": 0, "effect": None,
-                      "params": [a["param"] for a in b_at],
-                      "message": "baseline parameters at a bound of the search box: "
-                                 + ", ".join(a["param"] for a in b_at)})  # fmt: skip
+        names = tuple(a.param for a in b_at)
+        flags.append(Flag("at_bound", 0, None, "baseline parameters at a bound of the search "
+                          "box: " + ", ".join(names), names))  # fmt: skip
     for k, s in enumerate(steps, 1):
         t0, t1 = mse(prev, test_set, prev_up), mse(s.model, test_set, s.upper)
-        sflags = []
-        vg, tg, cg = _gain(s.val_before, s.val_after), _gain(t0, t1), s.cv["gain"]
+        new_flags = []
+        vg, tg, cg = _gain(s.val_before, s.val_after), _gain(t0, t1), s.cv.gain
         if s.val_before and not vg > 0:
-            sflags.append("validation_gain_not_held")
-            flags.append({"kind": "validation_gain_not_held", "step": k, "effect": s.effect,
-                          "message": f"validation MSE not lower ({vg:+.1%})"})  # fmt: skip
+            new_flags.append(Flag("validation_gain_not_held", k, s.effect,
+                                  f"validation MSE not lower ({vg:+.1%})"))  # fmt: skip
         elif s.val_before and cg > 0 and vg < FAR_SMALLER * cg:
-            sflags.append("validation_gain_far_smaller")
-            flags.append({"kind": "validation_gain_far_smaller", "step": k, "effect": s.effect,
-                          "message": f"validation gain {vg:.1%} is less than {FAR_SMALLER:.0%} "
-                                     f"of the cross-validated gain {cg:.1%}"})  # fmt: skip
+            new_flags.append(Flag("validation_gain_far_smaller", k, s.effect,
+                                  f"validation gain {vg:.1%} is less than {FAR_SMALLER:.0%} "
+                                  f"of the cross-validated gain {cg:.1%}"))  # fmt: skip
         if t0:
             ref, refname = (vg, "validation") if s.val_before else (cg, "cross-validated")
             if not tg > 0:
-                sflags.append("test_gain_not_held")
-                flags.append({"kind": "test_gain_not_held", "step": k, "effect": s.effect,
-                              "message": f"test MSE not lower ({tg:+.1%}; {refname} gain "
-                                         f"{ref:+.1%})"})  # fmt: skip
+                new_flags.append(Flag("test_gain_not_held", k, s.effect,
+                                      f"test MSE not lower ({tg:+.1%}; {refname} gain "
+                                      f"{ref:+.1%})"))  # fmt: skip
             elif ref > 0 and tg < FAR_SMALLER * ref:
-                sflags.append("test_gain_far_smaller")
-                flags.append({"kind": "test_gain_far_smaller", "step": k, "effect": s.effect,
-                              "message": f"test gain {tg:.1%} is less than {FAR_SMALLER:.0%} "
-                                         f"of the {refname} gain {ref:.1%}"})  # fmt: skip
+                new_flags.append(Flag("test_gain_far_smaller", k, s.effect,
+                                      f"test gain {tg:.1%} is less than {FAR_SMALLER:.0%} of "
+                                      f"the {refname} gain {ref:.1%}"))  # fmt: skip
         if s.at_bound:
-            sflags.append("at_bound")
-            flags.append({"kind": "at_bound", "step": k, "effect": s.effect,
-                          "params": [a["param"] for a in s.at_bound],
-                          "message": "at a bound of the search box (not an estimate): "
-                                     + ", ".join(a["param"] for a in s.at_bound)})  # fmt: skip
-        done.append(replace(s, test_before=t0, test_after=t1, flags=sflags))
+            names = tuple(a.param for a in s.at_bound)
+            new_flags.append(Flag("at_bound", k, s.effect, "at a bound of the search box (not "
+                                  "an estimate): " + ", ".join(names), names))  # fmt: skip
+        flags += new_flags
+        done.append(replace(s, test_before=t0, test_after=t1,
+                            flags=tuple(f.kind for f in new_flags)))  # fmt: skip
         prev, prev_up = s.model, s.upper
     # What the residual still depends on.
     try:
@@ -537,24 +655,18 @@ def effect_loop(
                f"none of these: no offered effect passed the selection, yet the residual "
                f"keeps structure: {ev}")  # fmt: skip
         unexplained["message"] = msg
-        flags.append({"kind": "structure_unexplained", "step": None, "effect": None,
-                      "message": msg})  # fmt: skip
+        flags.append(Flag("structure_unexplained", None, None, msg))
     elif unexplained.get("structure_found") is False:
         unexplained["message"] = ("no significant dependence of the residual on speed, time "
                                   "or command remains")  # fmt: skip
-    splits = {**ids, "folds": [[r.run_id for r in held] for _, held in fold_sets],
-              "fold_kind": fold_kind}  # fmt: skip
-    settings = {"rule": "cross-validation over calibration folds", "min_gain": min_gain,
-                "alpha": alpha, "cv_alpha": cv_alpha, "n_boot": n_boot,
-                "majority": "fold_selection > 0.5", "folds": len(fold_sets),
-                "fold_kind": fold_kind, "tries": tries, "max_effects": max_effects,
-                "max_generations": max_generations, "starts": starts, "seed": seed,
-                "candidates": None if candidates is None else list(candidates),
-                "structure_alpha": structure_alpha, "min_structure": min_structure,
-                "far_smaller": FAR_SMALLER}  # fmt: skip
-    return LoopResult(out_base, current, done, diags, rejected, upper, trials=trials,
-                      splits=splits, settings=settings, baseline_mse=base_mse,
-                      baseline_at_bound=b_at, baseline_upper=base_upper,
+    splits = Splits(tuple(ids["cal_runs"]), tuple(ids["val_runs"]), tuple(ids["test_runs"]),
+                    tuple(tuple(r.run_id for r in held) for _, held in fold_sets), fold_kind)
+    settings = Selection(min_gain, alpha, cv_alpha, n_boot, len(fold_sets), fold_kind, tries,
+                         max_effects, max_generations, starts, seed,
+                         None if candidates is None else tuple(candidates), structure_alpha,
+                         min_structure)  # fmt: skip
+    return LoopResult(out_base, current, done, diags, rejected, upper, trials, splits, settings,
+                      baseline_mse=base_mse, baseline_at_bound=b_at, baseline_upper=base_upper,
                       unexplained=unexplained, flags=flags, init=init,
                       closed_loop=closed)  # fmt: skip
 

@@ -174,22 +174,19 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
     sp, st = result.splits, result.settings
     rep.heading("Splits and rule")
     rep.table(["set", "runs", "role"], [
-        ["calibration", ", ".join(sp.get("cal_runs", [])),
+        ["calibration", ", ".join(sp.cal_runs),
          "fits every model; its folds decide what is accepted"],
-        ["validation", ", ".join(sp.get("val_runs", [])) or "—", "reported only"],
-        ["test", ", ".join(sp.get("test_runs", [])) or "—",
-         "simulated only after the loop finished"],
+        ["validation", ", ".join(sp.val_runs) or "—", "reported only"],
+        ["test", ", ".join(sp.test_runs) or "—", "simulated only after the loop finished"],
     ])  # fmt: skip
-    if st:
-        kind = ("contiguous blocks of the single calibration run" if st["fold_kind"] == "blocks"
-                else "groups of calibration runs")  # fmt: skip
-        rep.para(f"Selection: {st['folds']} cross-validation folds ({kind}). An effect is "
-                 f"accepted only if it lowers the held-out MSE by at least "
-                 f"{100 * st['min_gain']:.0f} % in more than half of the folds, the pooled "
-                 f"out-of-fold gain is at least that, a moving-block bootstrap of the "
-                 f"per-sample loss difference gives p < {st['cv_alpha']:g}, and the refit on "
-                 "all calibration runs lowers their error. Validation and test runs decide "
-                 "nothing.")
+    kind = ("contiguous blocks of the single calibration run" if st.fold_kind == "blocks"
+            else "groups of calibration runs")  # fmt: skip
+    rep.para(f"Selection: {st.folds} cross-validation folds ({kind}). An effect is accepted "
+             f"only if it lowers the held-out MSE by at least {100 * st.min_gain:.0f} % in "
+             "more than half of the folds, the pooled out-of-fold gain is at least that, a "
+             "moving-block bootstrap of the per-sample loss difference gives p < "
+             f"{st.cv_alpha:g}, and the refit on all calibration runs lowers their error. "
+             "Validation and test runs decide nothing.")
     rep.heading("Baseline")
     rep.para(f"Baseline: `{model_text(result.baseline.base)}`"
              + (f", upper law {result.baseline_upper}" if result.baseline_upper else ""))
@@ -198,30 +195,30 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
                                         for k, v in bm.items()])  # fmt: skip
     if result.baseline_at_bound:
         rep.para("At bound (the edge of the search box, not an estimate): "
-                 + ", ".join(f"`{a['param']}` = {_num(a['value'])} ({a['bound']} bound)"
+                 + ", ".join(f"`{a.param}` = {_num(a.value)} ({a.bound} bound)"
                              for a in result.baseline_at_bound))  # fmt: skip
     rep.heading("Accepted effects")
     if not result.steps:
         rep.para("No effect was accepted: none passed the cross-validated selection.")
     for k, s in enumerate(result.steps, 1):
         rep.heading(f"Step {k}: add `{s.effect}`", level=3)
-        ab = {a["param"].split(".", 1)[-1]: a for a in s.at_bound
-              if a["param"].startswith(s.effect + ".")}  # fmt: skip
+        ab = {a.param.split(".", 1)[-1]: a for a in s.at_bound
+              if a.param.startswith(s.effect + ".")}  # fmt: skip
         rep.table(["parameter", "value", "note"],
-                  [[p, _num(v), f"at {ab[p]['bound']} bound" if p in ab else ""]
+                  [[p, _num(v), f"at {ab[p].bound} bound" if p in ab else ""]
                    for p, v in s.params.items()])  # fmt: skip
-        others = [a for a in s.at_bound if not a["param"].startswith(s.effect + ".")]
+        others = [a for a in s.at_bound if not a.param.startswith(s.effect + ".")]
         if others:
             rep.para("Also at a bound of the search box (not estimates): "
-                     + ", ".join(f"`{a['param']}` = {_num(a['value'])}" for a in others))
+                     + ", ".join(f"`{a.param}` = {_num(a.value)}" for a in others))
         cv = s.cv
-        lo, hi = cv.get("bootstrap_ci", [None, None])
-        rep.para(f"Selected in {100 * s.fold_selection:.0f} % of {cv.get('folds')} folds "
-                 f"(held-out gains " + ", ".join(_pct(g) for g in cv.get("fold_gains", []))
-                 + f"); pooled out-of-fold gain {_pct(cv.get('gain'))} "
+        lo, hi = cv.boot.ci
+        rep.para(f"Selected in {100 * s.fold_selection:.0f} % of {cv.folds} folds "
+                 f"(held-out gains " + ", ".join(_pct(g) for g in cv.fold_gains)
+                 + f"); pooled out-of-fold gain {_pct(cv.gain)} "
                  f"(block-bootstrap 95 % interval {_pct(lo)} to {_pct(hi)}, p = "
-                 f"{s.p_value:.2g}; t-test with {cv.get('n_eff', 0):.0f} effective of "
-                 f"{cv.get('n', 0):.0f} samples: p = {cv.get('ess_t_p_value', 1.0):.2g}).")
+                 f"{s.p_value:.2g}; t-test with {cv.test.n_eff:.0f} effective of "
+                 f"{cv.test.n:.0f} samples: p = {cv.test.p_value:.2g}).")
         rows = [["calibration", _num(_mean(s.cal_before)), _num(_mean(s.cal_after)),
                  _pct(_gain(s.cal_before, s.cal_after))]]
         if s.val_before:
@@ -251,15 +248,14 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
     if result.trials:
         rep.heading("Every cross-validated candidate")
         rep.table(["iteration", "effect", "fold selection", "pooled gain", "p", "decision"],
-                  [[t["iteration"], t["effect"], f"{100 * t['fold_selection']:.0f} %",
-                    _pct(t["gain"]), f"{t['p_value']:.2g}",
-                    "accepted" if t["passed"] and any(
-                        s.effect == t["effect"] for s in result.steps) else
-                    "; ".join(t["reasons"]) or "passed, not the best"]
+                  [[t.iteration, t.effect, f"{100 * t.fold_selection:.0f} %", _pct(t.gain),
+                    f"{t.p_value:.2g}",
+                    "accepted" if t.passed and any(s.effect == t.effect for s in result.steps)
+                    else "; ".join(t.reasons) or "passed, not the best"]
                    for t in result.trials])  # fmt: skip
     if result.flags:
         rep.heading("Flags")
-        rep.bullets([f["message"] for f in result.flags])
+        rep.bullets([f.message for f in result.flags])
     sec = None
     if stability and result.steps:
         sec = stability_section(result, v0=15.0 if v0 is None else float(v0))

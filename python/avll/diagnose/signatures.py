@@ -26,7 +26,7 @@ which effects to cross-validate; it does not accept anything by itself.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,8 +36,8 @@ from scipy import signal, stats
 from ..data import Run
 from ..effects import CANONICAL_ORDER, EFFECTS, WithEffects
 from ..models import LowerLevelModel
-from ..runs import as_runset
-from .fitting import _closed, _fixed, _init, simulate_runs
+from ..runs import RunSet, as_runset
+from .fitting import BATCH, _fixed, _setup, _simulate, _split
 from .stats import SignalDependence, _binned, _ess, _lag1, _lstsq
 
 __all__ = ["Candidate", "Diagnosis", "diagnose", "offered", "residual_structure"]
@@ -199,61 +199,66 @@ def _generic_setting(name: str, step: float, kind: str) -> dict[str, float]:
     return out
 
 
-def _columns(
-    model: WithEffects, name: str, setting: dict[str, float], runs: Sequence[Run],
-    base_sims: list[np.ndarray], closed: bool, init: str = "auto",
-) -> list[np.ndarray]:
-    """Signature columns (one per parameter of a linear-in-parameter effect; one per
-    threshold for threshold effects), concatenated over runs."""
+def _signatures(
+    model: WithEffects, name: str, grid: Sequence[dict[str, float]], rs: RunSet,
+    base: np.ndarray, closed: bool, init: str,
+) -> Iterator[list[np.ndarray] | None]:
+    """The signature columns of effect ``name`` at each setting of ``grid`` in turn (one
+    per parameter of a linear-in-parameter effect, one per threshold setting
+    otherwise), concatenated over runs, the settings simulated together in batched
+    calls of at most :data:`avll.diagnose.fitting.BATCH` row-samples; ``None`` for a
+    setting the effect refuses. ``base`` is the model's own simulation (concatenated)."""
     cls = EFFECTS[name]
     neutral = dict(zip(cls.param_names(), cls.neutral, strict=True))
-    cols = []
-    if cls.signature == "linear":
-        # One column per parameter: perturb one at a time.
-        for p in cls.param_names():
-            if _fixed(name, p, runs[0].command_kind) is not None:
-                continue
-            eff = cls(**{**neutral, p: setting[p]})
-            sims = simulate_runs(WithEffects(model.base, (*model.effects, eff)), runs,
-                                 closed_loop=closed, init=init)  # fmt: skip
-            cols.append(np.concatenate([s - b for s, b in zip(sims, base_sims, strict=True)]))
-    elif cls.signature == "each":
-        for p in cls.param_names():
-            eff = cls(**{**neutral, p: setting[p]})
-            sims = simulate_runs(WithEffects(model.base, (*model.effects, eff)), runs,
-                                 closed_loop=closed, init=init)  # fmt: skip
-            cols.append(np.concatenate([s - b for s, b in zip(sims, base_sims, strict=True)]))
-    else:
-        eff = cls(**setting)
-        sims = simulate_runs(WithEffects(model.base, (*model.effects, eff)), runs,
-                             closed_loop=closed, init=init)  # fmt: skip
-        cols.append(np.concatenate([s - b for s, b in zip(sims, base_sims, strict=True)]))
-    return cols
+    models: list[list[WithEffects] | None] = []
+    for setting in grid:
+        if cls.signature in ("linear", "each"):  # one parameter moved at a time
+            moved = [{**neutral, p: setting[p]} for p in cls.param_names()
+                     if cls.signature == "each" or _fixed(name, p, rs.command_kind) is None]
+        else:
+            moved = [dict(setting)]
+        try:
+            models.append([WithEffects(model.base, (*model.effects, cls(**d))) for d in moved])
+        except ValueError:
+            models.append(None)
+    per_call = max(1, BATCH // max(base.size, 1))
+    i = 0
+    while i < len(models):
+        chunk = [models[i]]
+        while i + len(chunk) < len(models) and sum(len(ms or ()) for ms in chunk) + len(
+                models[i + len(chunk)] or ()) <= per_call:
+            chunk.append(models[i + len(chunk)])
+        every = [m for ms in chunk if ms for m in ms]
+        sims = _simulate(every[0], np.vstack([m.to_array() for m in every]), rs, closed,
+                         init) if every else base[None, :0]  # fmt: skip
+        k = 0
+        for ms in chunk:
+            yield None if ms is None else [sims[k + j] - base for j in range(len(ms))]
+            k += len(ms or ())
+        i += len(chunk)
 
 
 def _sensitivities(
-    model: WithEffects, runs: Sequence[Run], base_sims: list[np.ndarray], closed: bool,
-    init: str = "auto",
+    model: WithEffects, rs: RunSet, base: np.ndarray, closed: bool, init: str,
 ) -> np.ndarray:
     """Finite-difference sensitivities of the simulated acceleration to the model's
-    own parameters, concatenated over runs: (n, p)."""
+    own parameters, concatenated over runs (one batched call): (n, p)."""
     p0 = model.to_array()
-    cols = []
+    rows, steps = [], []
     for j in range(p0.size):
         h = 1e-4 * max(abs(p0[j]), 1e-2)
         p = p0.copy()
         p[j] += h
         try:
-            m = WithEffects.from_array(model.base.name, model.effect_names, p)
-            sims = simulate_runs(m, runs, closed_loop=closed, init=init)
+            WithEffects.from_array(model.base.name, model.effect_names, p)
         except ValueError:
             continue
-        col = np.concatenate([(s - b) / h for s, b in zip(sims, base_sims, strict=True)])
-        if np.all(np.isfinite(col)):
-            cols.append(col)
-    n = sum(len(r) for r in runs)
-    return np.column_stack(cols) if cols else np.zeros((n, 0))
-
+        rows.append(p)
+        steps.append(h)
+    cols = [] if not rows else list(
+        (_simulate(model, np.vstack(rows), rs, closed, init) - base) / np.array(steps)[:, None])
+    cols = [c for c in cols if np.all(np.isfinite(c))]
+    return np.column_stack(cols) if cols else np.zeros((base.size, 0))
 
 
 def offered(
@@ -299,12 +304,11 @@ def diagnose(
         model = WithEffects(model, ())
     if not runs:
         raise ValueError("runs: no runs given")
-    # packed once for the many simulations below (a RunSet is used as it is)
-    runs = as_runset(runs)
+    # packed once for the batched simulations below (a RunSet is used as it is)
+    runs, closed, init = _setup(runs, closed_loop, init)
     val_runs = as_runset(val_runs) if val_runs else ()
-    closed = _closed(runs, closed_loop)
-    init = _init(runs, init)
-    sims = simulate_runs(model, runs, closed_loop=closed, init=init)
+    base = _simulate(model, model.to_array(), runs, closed, init)[0]
+    sims = _split(base, runs)
     res = [r.a - s for r, s in zip(runs, sims, strict=True)]
     if not all(np.all(np.isfinite(x)) for x in res):
         raise ValueError("model: the simulation diverges on the runs")
@@ -363,24 +367,21 @@ def diagnose(
     # Candidate effects: the score test by simulation.
     kind = runs[0].command_kind
     allowed = offered(model, [*runs, *val_runs], candidates)
-    J = _sensitivities(model, runs, sims, closed, init)
+    J = _sensitivities(model, runs, base, closed, init)
     _, rss0 = _lstsq(J, e)
     sse = float(e @ e)
     if val_runs:
-        vsims = simulate_runs(model, val_runs, closed_loop=closed, init=init)
-        ev = np.concatenate([r.a - s for r, s in zip(val_runs, vsims, strict=True)])
-        Jv = _sensitivities(model, val_runs, vsims, closed, init)
+        vbase = _simulate(model, model.to_array(), val_runs, closed, init)[0]
+        ev = np.concatenate([r.a for r in val_runs]) - vbase
+        Jv = _sensitivities(model, val_runs, vbase, closed, init)
     cands = []
     n_tests = max(len(allowed), 1)
     for name in allowed:
         grid = _effect_grid(name, runs, sims)
         best: tuple[float, dict[str, float], np.ndarray, list[np.ndarray]] | None = None
-        for setting in grid:
-            try:
-                cols = _columns(model, name, setting, runs, sims, closed, init)
-            except ValueError:
-                continue
-            if not all(np.all(np.isfinite(c)) for c in cols):
+        for setting, cols in zip(grid, _signatures(model, name, grid, runs, base, closed, init),
+                                 strict=True):  # fmt: skip
+            if cols is None or not all(np.all(np.isfinite(c)) for c in cols):
                 continue
             X = np.column_stack([J, *cols])
             beta, rss1 = _lstsq(X, e)
@@ -401,19 +402,17 @@ def diagnose(
         p = min(p, 1.0)
         val_explained = float("nan")
         if val_runs:
-            try:
-                vcols = _columns(model, name, setting, val_runs, vsims, closed, init)
-                Xv0 = Jv if Jv.shape[1] == J.shape[1] else None
-                if Xv0 is not None:
-                    # Held-out: the base part re-fitted there, the effect's coefficient
-                    # carried over from the calibration runs.
-                    gamma = beta[J.shape[1]:]
-                    ev_eff = ev - np.column_stack(vcols) @ gamma
+            vcols = next(_signatures(model, name, [setting], val_runs, vbase, closed, init))
+            if vcols is not None and Jv.shape[1] == J.shape[1]:
+                # Held-out: the base part re-fitted there, the effect's coefficient
+                # carried over from the calibration runs.
+                try:
+                    ev_eff = ev - np.column_stack(vcols) @ beta[J.shape[1]:]
                     _, r_before = _lstsq(Jv, ev)
                     _, r_after = _lstsq(Jv, ev_eff)
                     val_explained = (r_before - r_after) / float(ev @ ev)
-            except ValueError:
-                val_explained = float("nan")
+                except ValueError:  # a non-finite held-out signature
+                    val_explained = float("nan")
         hint = _hint(name, setting, beta[J.shape[1]:], kind)
         significant = bool(p < alpha and explained >= min_explained
                            and (not val_runs or val_explained > 0))  # fmt: skip
@@ -479,10 +478,8 @@ def residual_structure(
 
     if isinstance(model, LowerLevelModel):
         model = WithEffects(model, ())
-    runs = as_runset(runs)
-    closed = _closed(runs, closed_loop)
-    init = _init(runs, init)
-    sims = simulate_runs(model, runs, closed_loop=closed, init=init)
+    runs, closed, init = _setup(runs, closed_loop, init)
+    sims = _split(_simulate(model, model.to_array(), runs, closed, init)[0], runs)
     res = [r.a - s for r, s in zip(runs, sims, strict=True)]
     if not all(np.all(np.isfinite(x)) for x in res):
         raise ValueError("model: the simulation diverges on the runs")

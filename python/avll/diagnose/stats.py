@@ -20,11 +20,41 @@ from scipy import stats
 
 __all__ = [
     "SignalDependence",
+    "LossTest",
+    "BootstrapGain",
     "effective_sample_size",
     "binned_dependence",
     "loss_difference_test",
     "block_bootstrap_gain",
 ]
+
+
+@dataclass(frozen=True)
+class LossTest:
+    """The one-sided test of :func:`loss_difference_test`: the pooled ``gain = 1 -
+    mse_after / mse_before``, the t statistic with the effective sample size ``n_eff``
+    of the loss difference (``n`` samples) and its p-value."""
+
+    gain: float
+    mse_before: float
+    mse_after: float
+    t: float
+    n: float
+    n_eff: float
+    p_value: float
+
+
+@dataclass(frozen=True)
+class BootstrapGain:
+    """The moving-block bootstrap of :func:`block_bootstrap_gain`: the pooled gain, its
+    interval ``ci`` (low, high), the one-sided p-value of "no reduction", the block
+    length and the number of replicates."""
+
+    gain: float
+    ci: tuple[float, float]
+    p_value: float
+    block_length: int
+    n_boot: int
 
 
 @dataclass(frozen=True)
@@ -149,14 +179,13 @@ def binned_dependence(
 
 def loss_difference_test(
     before: Sequence[np.ndarray], after: Sequence[np.ndarray]
-) -> dict[str, float]:
+) -> LossTest:
     """One-sided test that the squared error falls from ``before`` to ``after``
     (residual series, one array per held-out run or block): the per-sample loss
     difference ``d = e_before² - e_after²`` has mean ``> 0``. The t statistic uses
     the effective sample size of ``d`` (its own autocorrelation), not ``n``.
 
-    Returns ``{"gain", "mse_before", "mse_after", "t", "n", "n_eff", "p_value"}``
-    with ``gain = 1 - mse_after/mse_before`` (pooled over samples)."""
+    ``gain = 1 - mse_after/mse_before`` is pooled over samples."""
     b = [np.asarray(x, dtype=np.float64) for x in before]
     a = [np.asarray(x, dtype=np.float64) for x in after]
     d = [x * x - y * y for x, y in zip(b, a, strict=True)]
@@ -166,9 +195,8 @@ def loss_difference_test(
     m1 = float(np.mean(np.concatenate(a) ** 2))
     gain = 1.0 - m1 / m0 if m0 > 0 else 0.0
     if not (np.all(np.isfinite(dd)) and n > 2):
-        return {"gain": gain if math.isfinite(gain) else -math.inf, "mse_before": m0,
-                "mse_after": m1, "t": -math.inf, "n": float(n), "n_eff": float(n),
-                "p_value": 1.0}  # fmt: skip
+        return LossTest(gain if math.isfinite(gain) else -math.inf, m0, m1, -math.inf,
+                        float(n), float(n), 1.0)  # fmt: skip
     n_eff = _ess(d)
     sd = float(np.std(dd, ddof=1))
     mean = float(np.mean(dd))
@@ -177,8 +205,7 @@ def loss_difference_test(
     else:
         t = mean / (sd / math.sqrt(n_eff))
     p = float(stats.t.sf(t, df=max(n_eff - 1.0, 1.0)))
-    return {"gain": gain, "mse_before": m0, "mse_after": m1, "t": t, "n": float(n),
-            "n_eff": n_eff, "p_value": p}  # fmt: skip
+    return LossTest(gain, m0, m1, t, float(n), n_eff, p)
 
 
 def block_bootstrap_gain(
@@ -188,7 +215,7 @@ def block_bootstrap_gain(
     n_boot: int = 2000,
     seed: int = 0,
     level: float = 0.95,
-) -> dict[str, Any]:
+) -> BootstrapGain:
     """A moving-block bootstrap of the pooled relative MSE reduction
     ``gain = 1 - sum e_after² / sum e_before²`` (residual series, one array per
     held-out run or block). Each series is rebuilt from blocks of ``L`` consecutive
@@ -196,17 +223,17 @@ def block_bootstrap_gain(
     errors), ``L = 2 n / n_eff`` — twice the integrated autocorrelation time of the
     loss difference, at least 1, at most a quarter of the shortest series.
 
-    Returns ``{"gain", "ci": [low, high] (level), "p_value", "block_length", "n_boot"}``
-    where ``p_value = (1 + #{replicates with gain <= 0}) / (n_boot + 1)`` is the
-    one-sided bootstrap p-value of "no reduction". Deterministic from ``seed``."""
+    ``ci`` is the interval at ``level``; ``p_value = (1 + #{replicates with gain <= 0})
+    / (n_boot + 1)`` the one-sided bootstrap p-value of "no reduction". Deterministic
+    from ``seed``."""
     b = [np.asarray(x, dtype=np.float64) ** 2 for x in before]
     a = [np.asarray(x, dtype=np.float64) ** 2 for x in after]
     d = [x - y for x, y in zip(b, a, strict=True)]
     shortest = min(x.size for x in d)
     s0 = float(sum(x.sum() for x in b))
     gain = float(sum(x.sum() for x in d)) / s0 if s0 > 0 else 0.0
-    bad = {"gain": gain if math.isfinite(gain) else -math.inf, "ci": [-math.inf, math.inf],
-           "p_value": 1.0, "block_length": 1, "n_boot": int(n_boot)}  # fmt: skip
+    bad = BootstrapGain(gain if math.isfinite(gain) else -math.inf, (-math.inf, math.inf), 1.0,
+                        1, int(n_boot))  # fmt: skip
     if not all(np.all(np.isfinite(x)) for x in d) or shortest < 4 or s0 <= 0:
         return bad
     n = sum(x.size for x in d)
@@ -230,8 +257,8 @@ def block_bootstrap_gain(
     g = np.where(np.isfinite(g), g, -np.inf)
     q = (1.0 - level) / 2.0
     p = (1.0 + float(np.sum(g <= 0))) / (n_boot + 1.0)
-    return {"gain": gain, "ci": [float(np.quantile(g, q)), float(np.quantile(g, 1.0 - q))],
-            "p_value": p, "block_length": L, "n_boot": int(n_boot)}  # fmt: skip
+    return BootstrapGain(gain, (float(np.quantile(g, q)), float(np.quantile(g, 1.0 - q))), p,
+                         L, int(n_boot))  # fmt: skip
 
 
 def _lstsq(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:

@@ -17,7 +17,6 @@ stretch of each follower, with car model, ACC state, gap setting and its rank in
 
 from __future__ import annotations
 
-import re
 import stat
 from collections.abc import Callable
 from pathlib import Path
@@ -27,6 +26,7 @@ from ..data import DataError, Run
 from ._common import (
     check_regular_file,
     check_runs_for_delay,
+    natural_key,
     stat_path,
     strict_warnings,
     summarize,
@@ -108,7 +108,7 @@ def _read_runs(path: str | Path, command_kind: str | None, format: str,
     if stat.S_ISDIR(st.st_mode) and format in _PER_FILE:
         files = sorted(
             (f for f in p.iterdir() if f.suffix.lower() in (".csv", ".parquet", ".pq")),
-            key=_natural,
+            key=natural_key,
         )
         if not files:
             raise DataError(f"{p}: no CSV or Parquet files in this folder")
@@ -125,8 +125,3 @@ def _read_runs(path: str | Path, command_kind: str | None, format: str,
 
 #: Formats whose loader reads one file; ``read_runs`` reads a folder of them.
 _PER_FILE = ("canonical", "carma", "generic")
-
-
-def _natural(f: Path) -> tuple[Any, ...]:
-    """Sort key: names with their digit runs compared as numbers."""
-    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", f.name))

@@ -33,6 +33,7 @@ import errno
 import functools
 import math
 import os
+import re
 import stat
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -631,6 +632,22 @@ def check_runs_for_delay(runs: Sequence[Run], td: float, *, min_extra_samples: i
                 f"{src + ', ' if src else ''}run {r.run_id!r}: {len(r)} samples "
                 f"({(len(r) - 1) * r.dt:.3g} s) is too short for a delay of {td:g} s at "
                 f"dt={r.dt:g} s: needs at least {need} samples")
+
+
+def natural_key(p: Path) -> tuple[Any, ...]:
+    """Sort key of a path: its digit runs compared as numbers (data5 before data10)."""
+    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p)))
+
+
+def walk_files(path: Path) -> list[Path]:
+    """Every regular file below ``path`` in natural order (symbolic links to folders are
+    not followed, so a link loop cannot hang the walk; FIFOs and devices are not
+    regular files)."""
+    out = []
+    for d, dirs, names in os.walk(path, followlinks=False):
+        dirs.sort()
+        out += [p for p in (Path(d) / nm for nm in names) if p.is_file()]
+    return sorted(out, key=natural_key)
 
 
 def contiguous(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -155,7 +155,6 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 import math
-import os
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -165,7 +164,14 @@ from typing import Any
 import numpy as np
 
 from ..data import DataError, Run
-from ._common import check_speed_units, check_time, contiguous, plausibility_warning, where
+from ._common import (
+    check_speed_units,
+    check_time,
+    contiguous,
+    plausibility_warning,
+    walk_files,
+    where,
+)
 
 __all__ = [
     "NativeFile",
@@ -1444,23 +1450,6 @@ def _solo_run(nf: NativeFile, rid_stem: str, i: int, sig: dict[int, dict[str, np
                 a=derive_acceleration(v, dt, accel_cutoff), v=v, x=x, exo=exo, meta=meta)]
 
 
-def _natural(p: Path) -> tuple[Any, ...]:
-    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p)))
-
-
-def _walk(path: Path) -> list[Path]:
-    """Every regular file below ``path`` (symbolic links to folders are not followed,
-    so a link loop cannot hang the walk; FIFOs and devices are not regular files)."""
-    out = []
-    for d, dirs, names in os.walk(path, followlinks=False):
-        dirs.sort()
-        for nm in names:
-            p = Path(d) / nm
-            if p.is_file():
-                out.append(p)
-    return sorted(out, key=_natural)
-
-
 def load_openacc_native(path: str | Path, command_kind: str | None = None,
                         **options: Any) -> list[Run]:
     """Runs of native OpenACC files: one closed-loop run per usable stretch of each
@@ -1554,7 +1543,7 @@ def openacc_native_report(
     non_data: list[dict[str, str]] = []
     if path.is_dir():
         files = []
-        for f in _walk(path):
+        for f in walk_files(path):
             kind = _side_kind(f)
             if kind is None:
                 files.append(f)

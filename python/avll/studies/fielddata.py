@@ -164,21 +164,6 @@ def _num(stem: str) -> int:
     return int(m.group(1)) if m else -1
 
 
-def _cut(run: Run, lo: int, hi: int, suffix: str, note: str) -> Run:
-    sl = slice(lo, hi)
-
-    def s(x: np.ndarray | None) -> np.ndarray | None:
-        return None if x is None else x[sl]
-
-    meta = dict(run.meta)
-    meta["cleaning"] = list(meta.get("cleaning", [])) + [note]
-    return replace(
-        run, run_id=f"{run.run_id}/{suffix}", t=run.t[sl], a=run.a[sl], command=s(run.command),
-        v=s(run.v), x=s(run.x), lead_x=s(run.lead_x), lead_v=s(run.lead_v),
-        lead_a=s(run.lead_a), exo={k: v[sl] for k, v in run.exo.items()}, meta=meta,
-    )  # fmt: skip
-
-
 def split_launch_cruise(
     runs: Sequence[Run], *, handover: float = HANDOVER_SPEED, min_duration: float = 10.0
 ) -> tuple[list[Run], list[Run]]:
@@ -206,8 +191,8 @@ def split_launch_cruise(
         note = (f"split at t={r.t[k]:.1f} s (row {k}), the first command >= {handover} m/s: "
                 "launch before, cruise from there")  # fmt: skip
         if k * r.dt >= 2.0:
-            launch.append(_cut(r, 0, k, "launch", note))
-        cruise.append(_cut(r, k, len(r), "cruise", note))
+            launch.append(r.cut(0, k, "/launch", note))
+        cruise.append(r.cut(k, len(r), "/cruise", note))
     return launch, cruise
 
 
@@ -399,6 +384,42 @@ def _fmt(df: Any) -> str:
         return str(df.to_string(float_format=lambda v: f"{v:.4f}", na_rep="-"))
 
 
+_UNIT = {"a": "acceleration MSE (m/s^2)^2", "v": "speed MSE (m/s)^2",
+         "x": "position (= gap) MSE m^2"}
+
+
+def _fit_models(models: Sequence[str], groups: Mapping[str, tuple[list[Run], list[Run]]],
+                seed: int, bounds: Mapping[str, Any] | None = None,
+                **kw: Any) -> tuple[dict[str, dict[str, _Fit]], bool]:
+    """:func:`_fit_groups` of each model (seeds ``seed + 1000 k``, the model's box of
+    ``bounds``), stopping after an interrupted one; and whether one was."""
+    fits: dict[str, dict[str, _Fit]] = {}
+    for k, m in enumerate(models):
+        fits[m] = _fit_groups(m, groups, seed=seed + 1000 * k,
+                              bounds=(bounds or {}).get(m), **kw)  # fmt: skip
+        if any(f.interrupted for f in fits[m].values()):
+            return fits, True
+    return fits, False
+
+
+def _tables(key: str, title: str, what: str, fits: Mapping[str, Mapping[str, _Fit]],
+            base: Mapping[str, Mapping[str, _Fit]], metrics: Sequence[str],
+            tables: dict[str, Any], text: list[str]) -> None:
+    """One objective's tables into ``tables`` and ``text``: the fitted parameters per
+    ``what`` (Table II style), the MSEs of the fitted models and of the baselines
+    ``base`` (Tables III/IV style)."""
+    tables[f"params_{key}"] = _params_table(fits)
+    labelled = {_LABEL[m]: f for m, f in fits.items()} | dict(base)
+    text += [title, f"Calibrated parameters per {what} (cf. Table II)",
+             _fmt(tables[f"params_{key}"])]  # fmt: skip
+    for metric in metrics:
+        for which, nm in (("cal", "Calibration"), ("val", "Validation")):
+            t = tables[f"{which}_{key}_{metric}"] = _mse_tables(labelled, metric, which)
+            text += ["", f"{nm} {_UNIT[metric]} per {what} (cf. Table "
+                     f"{'III' if which == 'cal' else 'IV'})", _fmt(t)]  # fmt: skip
+    text.append("")
+
+
 # ---------------------------------------------------------------------------
 # CARMA
 # ---------------------------------------------------------------------------
@@ -485,30 +506,19 @@ def carma_study(
             continue
         studies[rg] = {}
         for obj in objectives:
-            w = CARMA_OBJECTIVES[obj]
-            fits: dict[str, dict[str, _Fit]] = {}
             if interrupted:
                 break
-            for k, m in enumerate(models):
-                if interrupted:
-                    break
-                fits[m] = _fit_groups(m, groups, weights=w, init="steady", closed=False,
-                                      metrics=("a", "v"), seed=seed + 1000 * k, threads=threads,
-                                      progress=progress, bounds=CARMA_BOUNDS.get(m),
-                                      **ga)  # fmt: skip
-                interrupted = any(f.interrupted for f in fits[m].values())
-            base = {
-                f"Table II {m}": _fit_groups(m, groups, weights=w, init="steady", closed=False,
-                                             metrics=("a", "v"), seed=seed, threads=threads,
-                                             progress=False, fixed=PAPER_TABLE_II[m], fit=False)
-                for m in models
-            }  # fmt: skip
+            w = CARMA_OBJECTIVES[obj]
+            kw: dict[str, Any] = dict(weights=w, init="steady", closed=False, metrics=("a", "v"),
+                                      threads=threads)  # fmt: skip
+            fits, interrupted = _fit_models(models, groups, seed, CARMA_BOUNDS,
+                                            progress=progress, **kw, **ga)  # fmt: skip
+            base = {f"Table II {m}": _fit_groups(m, groups, seed=seed, progress=False,
+                                                 fixed=PAPER_TABLE_II[m], fit=False, **kw)
+                    for m in models}  # fmt: skip
             key = f"{rg}_{obj}"
-            tables[f"params_{key}"] = _params_table(fits)
-            labelled = {_LABEL[m]: f for m, f in fits.items()} | base
-            for metric in ("a", "v"):
-                for which in ("cal", "val"):
-                    tables[f"{which}_{key}_{metric}"] = _mse_tables(labelled, metric, which)
+            _tables(key, f"== CARMA {rg}, objective {obj} (wa, wv, wx) = {w} ==", "vehicle",
+                    fits, base, ("a", "v"), tables, text)
             studies[rg][obj] = {
                 "weights": list(w),
                 "models": {m: _contract(f) for m, f in fits.items()},
@@ -516,16 +526,6 @@ def carma_study(
                 "cal_runs": {g: [r.run_id for r in c] for g, (c, _) in groups.items()},
                 "val_runs": {g: [r.run_id for r in v] for g, (_, v) in groups.items()},
             }
-            unit = {"a": "acceleration MSE (m/s^2)^2", "v": "speed MSE (m/s)^2"}
-            text += [f"== CARMA {rg}, objective {obj} (wa, wv, wx) = {w} ==",
-                     "Calibrated parameters per vehicle (cf. Table II)",
-                     _fmt(tables[f"params_{key}"])]  # fmt: skip
-            for metric in ("a", "v"):
-                for which, nm in (("cal", "Calibration"), ("val", "Validation")):
-                    text += ["", f"{nm} {unit[metric]} per vehicle (cf. Table "
-                             f"{'III' if which == 'cal' else 'IV'})",
-                             _fmt(tables[f"{which}_{key}_{metric}"])]  # fmt: skip
-            text.append("")
             if figures:
                 figs[key] = _carma_figure(fits, groups, rg, obj)
     main = studies.get("cruise", studies.get(next(iter(studies), ""), {}))
@@ -671,30 +671,21 @@ def astazero_study(
     text: list[str] = []
     interrupted = False
     for obj in objectives:
-        w = ASTAZERO_OBJECTIVES[obj]
-        fits: dict[str, dict[str, _Fit]] = {}
         if interrupted:
             break
-        for k, m in enumerate(models):
-            if interrupted:
-                break
-            fits[m] = _fit_groups(m, groups, weights=w, init="rest", closed=True,
-                                  metrics=("a", "v", "x"), seed=seed + 1000 * k, threads=threads,
-                                  progress=progress, **ga)  # fmt: skip
-            interrupted = any(f.interrupted for f in fits[m].values())
+        w = ASTAZERO_OBJECTIVES[obj]
+        kw: dict[str, Any] = dict(weights=w, init="rest", closed=True, metrics=("a", "v", "x"),
+                                  threads=threads, **ga)  # fmt: skip
+        fits, interrupted = _fit_models(models, groups, seed, progress=progress, **kw)
         base: dict[str, dict[str, _Fit]] = {}
         if baseline and not interrupted:
             for k, m in enumerate(models):
                 base[f"Table II {m} (upper refitted)"] = _fit_groups(
-                    m, groups, weights=w, init="rest", closed=True, metrics=("a", "v", "x"),
-                    seed=seed + 1000 * k + 500, threads=threads, progress=False,
-                    fixed=PAPER_TABLE_II[m], **ga)  # fmt: skip
+                    m, groups, seed=seed + 1000 * k + 500, progress=False,
+                    fixed=PAPER_TABLE_II[m], **kw)  # fmt: skip
         key = obj
-        tables[f"params_{key}"] = _params_table(fits)
-        labelled = {_LABEL[m]: f for m, f in fits.items()} | base
-        for metric in ("a", "v", "x"):
-            for which in ("cal", "val"):
-                tables[f"{which}_{key}_{metric}"] = _mse_tables(labelled, metric, which)
+        _tables(key, f"== AstaZero closed loop, objective {obj} (wa, wv, wx) = {w} ==", "pair",
+                fits, base, ("a", "v", "x"), tables, text)
         studies[obj] = {
             "weights": list(w),
             "models": {m: _contract(f) for m, f in fits.items()},
@@ -704,17 +695,6 @@ def astazero_study(
                 if f"Table II {m} (upper refitted)" in base
             },
         }
-        unit = {"a": "acceleration MSE (m/s^2)^2", "v": "speed MSE (m/s)^2",
-                "x": "position (= gap) MSE m^2"}  # fmt: skip
-        text += [f"== AstaZero closed loop, objective {obj} (wa, wv, wx) = {w} ==",
-                 "Calibrated parameters per pair (cf. Table II)",
-                 _fmt(tables[f"params_{key}"])]  # fmt: skip
-        for metric in ("a", "v", "x"):
-            for which, nm in (("cal", "Calibration"), ("val", "Validation")):
-                text += ["", f"{nm} {unit[metric]} per pair (cf. Table "
-                         f"{'III' if which == 'cal' else 'IV'})",
-                         _fmt(tables[f"{which}_{key}_{metric}"])]  # fmt: skip
-        text.append("")
         if figures:
             figs[key] = _astazero_figure(fits, groups, obj)
     main = studies.get("mixed", next(iter(studies.values()), {}))

@@ -25,8 +25,10 @@ from typing import Any
 
 import numpy as np
 
+from avll.calibration import calibrate
 from avll.data import Run
-from avll.diagnose import effect_loop, effective_sample_size, fit_full, simulate_runs
+from avll.diagnose import calibrate_kw, effect_loop, effective_sample_size, simulate_runs
+from avll.effects import WithEffects
 from avll.io import read_runs
 
 BASE = "second"
@@ -44,14 +46,15 @@ def split(data: Path) -> tuple[list[Run], list[Run], list[Run]]:
 
 def grade_fit(cal: list[Run], max_generations: int) -> dict[str, Any]:
     """The base model's residual against the grade, and base + grade fitted."""
-    base, _ = fit_full(BASE, (), cal, seed=0, max_generations=max_generations)
-    res = [r.a - s for r, s in zip(cal, simulate_runs(base, cal), strict=True)]
+    kw = dict(seed=0, max_generations=max_generations, **calibrate_kw(cal))
+    base = calibrate(BASE, cal, **kw).model
+    res = [r.a - s for r, s in zip(cal, simulate_runs(WithEffects(base), cal), strict=True)]
     e = np.concatenate(res)
     g = np.concatenate([r.exo["grade"] for r in cal])
     corr = float(np.corrcoef(e, g)[0, 1])
     # the correlation's standard error from the effective sample size of the residual
     n_eff = float(effective_sample_size(res))
-    with_grade, _ = fit_full(BASE, ("grade",), cal, seed=0, max_generations=max_generations)
+    with_grade = calibrate(BASE, cal, effects=("grade",), **kw).with_effects
     g_eff = float(with_grade.effects[0].to_dict()["g_eff"])
     return {"corr_residual_grade": corr, "n_eff": n_eff,
             "corr_se": float(1.0 / np.sqrt(max(n_eff - 3.0, 1.0))),

@@ -33,14 +33,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from ..data import Run
-from ..defaults import GA_OPTIONS
-from ..effects import EFFECTS, WithEffects, batch_cost_effects, closed_loop_effects
+from ..defaults import GA_OPTIONS, UPPER_NAMES
+from ..effects import EFFECTS, WithEffects, closed_loop_effects
 from ..models import UpperLevel
 from .openacc import WEIGHTS, OpenACCStudy, _model_of, _upper_of, amplification
 
@@ -78,23 +77,23 @@ def _gap_cars(study: OpenACCStudy, tol: float) -> list[tuple[int, str]]:
 def _fit_effect(run: Run, base: str, params: Mapping[str, float], effect: str, *,
                 gmin_max: float, seed: int, max_generations: int, starts: int,
                 threads: int) -> tuple[WithEffects, UpperLevel, float]:
-    """The residual loop's fit (:func:`avll.diagnose.fitting.fit_full`) of base +
-    ``effect`` + the upper law in the study's box and objective, started from the
-    car's linear calibration (the effect at its neutral value); returns the model, the
-    law and its cost (the study's Eq. 6 with :data:`WEIGHTS`)."""
-    from ..diagnose.fitting import fit_full
+    """The calibration (:func:`avll.calibrate`) of base + ``effect`` + the upper law in
+    the study's box and objective, started from the car's linear calibration (the
+    effect at its neutral value); returns the model, the law and its cost (the study's
+    Eq. 6 with :data:`WEIGHTS`)."""
+    from ..calibration import calibrate
 
-    model, up = fit_full(
-        base, [effect], [run], start=WithEffects(_model_of(base, params), ()),
-        start_upper=_upper_of(params), seed=seed, closed_loop=True, upper_free=True,
-        weights=WEIGHTS, max_generations=max_generations, init="rest", threads=threads,
-        starts=starts, upper_bounds={"Gmin": (0.0, gmin_max)},
+    neutral = EFFECTS[effect].from_array(np.array(EFFECTS[effect].neutral))
+    start = WithEffects(_model_of(base, params), (neutral,)).to_array()
+    res = calibrate(
+        base, [run], effects=[effect], initial=[np.r_[start, _upper_of(params).to_array()]],
+        seed=seed, closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,
+        max_generations=max_generations, init="rest", threads=threads, starts=starts,
+        bounds={"Gmin": (0.0, gmin_max)},
     )  # fmt: skip
-    assert up is not None
-    cost = batch_cost_effects(base, [effect], model.to_array()[None, :],
-                              [replace(run, upper=up)], weights=WEIGHTS, init="rest",
-                              closed_loop=True, threads=threads)  # fmt: skip
-    return model, up, float(cost[0, 0])
+    if res.interrupted:
+        raise KeyboardInterrupt
+    return res.with_effects, UpperLevel(**res.upper), float(res.cost)
 
 
 def effect_gaps(

@@ -53,8 +53,8 @@ def table() -> list[str]:
             gen = effs.get(s.effect) or {}
             if s.effect in effs:
                 exp = expected_params(s.effect, gen)
-            bound = {a["param"].split(".", 1)[1] for a in s.at_bound
-                     if a["param"].startswith(s.effect + ".")}  # fmt: skip
+            bound = {a.param.split(".", 1)[1] for a in s.at_bound
+                     if a.param.startswith(s.effect + ".")}  # fmt: skip
             rec.append(", ".join(
                 f"{k} {v:.4g}" + (" at bound" if k in bound else "")
                 + (f" ({exp[k]:.4g})" if k in exp else "")
@@ -66,9 +66,9 @@ def table() -> list[str]:
             test = f"{d0['test_mse_before']:.4f} → {d1['test_mse_after']:.4f}"
         else:
             cal = val = test = "—"
-        cv = "; ".join(f"{t['effect']} {t['fold_selection']:.2f}, {100 * t['gain']:+.1f} %"
+        cv = "; ".join(f"{t.effect} {t.fold_selection:.2f}, {100 * t.gain:+.1f} %"
                        for t in res.trials) or "—"  # fmt: skip
-        flags = ", ".join(sorted({f["kind"] for f in res.flags})) or "—"
+        flags = ", ".join(sorted({f.kind for f in res.flags})) or "—"
         added = ", ".join(s.effect for s in res.steps) or "none"
         lines.append(f"| {label} | {base} | {first} | {cv} | {added} | "
                      f"{'; '.join(rec) or '—'} | {cal} | {val} | {test} | {flags} | "

@@ -23,6 +23,7 @@ import numpy as np
 import avll
 from avll.diagnose import effect_loop
 from avll.effect_stability import EffectStability, effect_stability
+from avll.report import num as _f
 from avll.synth_blind import DEFAULTS, SCENARIOS, blind_experiment, simulate_platoon
 
 UPPER = avll.UpperLevel(kg=0.2, kv=0.3, Tg=1.5)
@@ -54,10 +55,6 @@ def truth_amplification(scenario: str, r: EffectStability) -> np.ndarray:
         amp = [_fund(t[meas], lv[meas], om)] + [_fund(t[meas], v[meas], om) for v in pl["v"]]
         out[k] = np.array(amp[1:]) / np.array(amp[:-1])
     return out
-
-
-def _f(x: Any, fmt: str = ".4g") -> str:
-    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
 def _params(d: dict[str, float]) -> str:
@@ -93,7 +90,7 @@ def case(scenario: str) -> list[str]:
                 label = "base part only"
             else:
                 label = e.label
-            lines.append(f"| {who} | {label} | {_f(e.code, 'd')} | {_f(e.gain_at_omega)} | "
+            lines.append(f"| {who} | {label} | {_f(e.code, 'd')} | {_f(e.gain_at_omega, '.4g')} | "
                          f"{_f(e.tg_min_at_gains, '.3f')} | {_f(e.min_stable_tg, '.3f')} | "
                          f"{_f(e.kv_threshold, '.4f')} |")  # fmt: skip
     lines += [
@@ -107,7 +104,8 @@ def case(scenario: str) -> list[str]:
     gb, gf, gt = _gm(rb.amplification), _gm(rf.amplification), _gm(tr)
     for k, a in enumerate(AMPS):
         lines.append(
-            f"| {a:g} | {_f(float(gb[k]))} | {_f(float(gf[k]))} | {_f(float(gt[k]))} | "
+            f"| {a:g} | {_f(float(gb[k]), '.4g')} | {_f(float(gf[k]), '.4g')} | "
+            f"{_f(float(gt[k]), '.4g')} | "
             f"{', '.join(_f(float(x), '.3f') for x in rf.amplification[k])} | "
             f"{', '.join(_f(float(x), '.3f') for x in tr[k])} |"
         )

@@ -37,7 +37,6 @@ from typing import Any
 from avll import _atomic
 from avll.data import Run
 from avll.diagnose import effect_loop
-from avll.diagnose.loop import _block
 from avll.io import read_runs
 
 from .table import HEADER, LEGEND, row, summary
@@ -50,7 +49,7 @@ ZALA_TEST = "handling_part1"
 
 def _halves(r: Run) -> tuple[Run, Run]:
     h = len(r) // 2
-    return _block(r, 0, h), _block(r, h, len(r))
+    return r.cut(0, h, f"[0:{h}]"), r.cut(h, len(r), f"[{h}:{len(r)}]")
 
 
 def astazero_cases(data: Path) -> dict[str, tuple[list[Run], list[Run], list[Run]]]:

@@ -1,31 +1,28 @@
-"""Every number of ``docs/findings.md`` and ``docs/guide/field-data.md`` (issue 11,
-item 7), recomputed from the CARMA and OpenACC AstaZero files in ``../shared/data``
-(read, never copied). Parts, each written as strict JSON ``<part>.json`` into
-``--out`` (a part whose JSON exists is not recomputed, so an interrupted run resumes):
+"""The numbers of ``docs/findings.md`` and ``docs/guide/field-data.md``, recomputed from
+the CARMA and OpenACC AstaZero files in ``../shared/data`` (read, never copied). Parts,
+each kept as strict JSON ``out/findings_fielddata/<part>.json`` (a part whose JSON
+exists is not recomputed, so an interrupted run resumes) and rendered as the fragment
+``docs/_generated/fielddata_<part>.md`` by :mod:`docs.gen` (``python -m docs.gen
+--only fielddata-<part>``), its numbers beside it:
 
 * ``loaders``: what the loaders report (CARMA stretches, cleaning, units, quantised
   acceleration, launch/cruise; AstaZero pairs and free-flow runs) — seconds;
 * ``grade``: how the road grade maps onto the AstaZero lap (offset and lap scans) —
   seconds;
-* ``firstlook``: quick bounded least-squares fits of the CARMA speed loop (scipy
-  driving avll's rollouts), the command/speed lag table and an asymmetric-lag grid —
-  about a minute;
-* ``closed``: AstaZero steady-state spacing and a quick closed-loop fit per pair;
+* ``firstlook``: the paper's Table II models driven by the CARMA speed command, a
+  calibration per vehicle on all stretches (:func:`avll.calibrate`), the command/speed
+  lag table and an asymmetric-lag grid — about a minute;
+* ``closed``: AstaZero steady-state spacing and a closed-loop calibration per pair;
 * ``carma``: :func:`avll.studies.fielddata.carma_study` (GA, cruise and launch, two
   objectives) — minutes;
 * ``astazero``: :func:`avll.studies.fielddata.astazero_study` (GA, closed loop, two
   objectives, Table II baselines) and the oscillation amplification per car —
-  minutes.
+  minutes;
+* ``budget``: the studies' main combinations with the GA's full budget — hours;
+* ``summary``: headline sentences of the parts above.
 
-Then (and with ``--render-only`` from the JSON alone) it writes the Markdown
-fragments ``docs/_generated/fielddata_<part>.md`` — a part without JSON renders as
-"not run" — and ``docs/_generated/fielddata.json`` (the cheap parts' numbers, which
-``tests/test_findings_docs.py`` recomputes). Every fragment states the avll version,
-the git commit and the settings; nothing machine-specific (no timings) is written.
-
-    MPLBACKEND=Agg nice -n 10 python benches/findings_fielddata.py [--data ../shared/data]
-        [--out out/findings_fielddata] [--threads 1] [--seed 0] [--parts a,b,...]
-        [--render-only]
+``tests/test_findings_docs.py`` recomputes the cheap parts and compares them with the
+committed numbers and fragments.
 """
 
 from __future__ import annotations
@@ -34,10 +31,9 @@ import argparse
 import json
 import math
 import re
-import subprocess
 import sys
-import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -45,14 +41,14 @@ import numpy as np
 
 import avll
 from avll import _atomic
+from avll.defaults import DEFAULT_STARTS, GA_OPTIONS
+from avll.report import md_table as _md
+from avll.report import num as _f
 
-ROOT = Path(__file__).resolve().parents[1]
-GEN = ROOT / "docs" / "_generated"
-DATA = ROOT.parent / "shared" / "data"
-CMD = "python benches/findings_fielddata.py"
+from . import DATA, ROOT, Generated
+
+OUT = ROOT / "out" / "findings_fielddata"
 PARTS = ("loaders", "grade", "firstlook", "closed", "carma", "astazero", "budget")
-#: Parts whose numbers go into docs/_generated/fielddata.json for the docs test.
-CHEAP = ("loaders", "grade")
 VEHICLES = ("leader", "follower1", "follower2", "follower3", "follower4")
 MODELS = ("first", "second", "proposed")
 CARMA_FILES = ("data5", "data6", "data9", "data10")
@@ -66,17 +62,13 @@ STUDY_GA: dict[str, dict[str, Any]] = {
 }
 #: The GA's full default budget (``avll.calibrate``), for the ``budget`` part.
 FULL_GA: dict[str, Any] = dict(max_generations=300, stall_generations=20, starts=2)
+#: Objective weights ``(wa, wv, wx)`` of the first look's closed-loop calibrations: the
+#: acceleration and the gap (the position, the leader being measured) error, 1 m of gap
+#: weighing as 0.1 m/s² of acceleration.
+CLOSED_WEIGHTS = (1.0, 0.0, 0.01)
 
 
 # ---------------------------------------------------------------------------- helpers
-def _f(x: Any, fmt: str = ".3g") -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "—"
-    if isinstance(x, (int, np.integer)) and not isinstance(x, bool) and fmt == ".3g":
-        return str(int(x))
-    return format(x, fmt)
-
-
 def _rng(xs: Sequence[float | None], fmt: str = ".3g", sep: str = "–") -> str:
     v = [float(x) for x in xs if x is not None and math.isfinite(x)]
     if not v:
@@ -85,13 +77,6 @@ def _rng(xs: Sequence[float | None], fmt: str = ".3g", sep: str = "–") -> str:
     if min(v) < 0 and sep == "–":
         sep = " … "
     return lo if lo == hi else f"{lo}{sep}{hi}"
-
-
-def _md(head: Sequence[str], rows: Sequence[Sequence[Any]], fmt: str = ".3g") -> str:
-    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in rows:
-        out.append("| " + " | ".join(x if isinstance(x, str) else _f(x, fmt) for x in r) + " |")
-    return "\n".join(out)
 
 
 def _df(df: Any) -> dict[str, Any]:
@@ -111,15 +96,19 @@ def _table_md(t: dict[str, Any], fmt: str = ".4f", first: str = "") -> str:
     return _md([first, *t["columns"]], rows, fmt)
 
 
-def _stamp(settings: str) -> str:
-    try:
-        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-                                capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
-    return (f"<!-- generated by `{CMD}`; do not edit by hand -->\n"
-            f"*Generated by `{CMD}` with avll {avll.__version__} (git {commit}); "
-            f"{settings}.*\n")
+def _settings(d: dict[str, Any], ga: dict[str, Any] | None = None) -> str:
+    """The line that states a part's settings."""
+    if ga is None:
+        return "*Deterministic (no random numbers).*\n"
+    return (f"*Seed {d['seed']}, GA {ga['max_generations']} generations (stall "
+            f"{ga['stall_generations']}), {ga['starts']} start(s), threads "
+            f"{d['threads'] or 'all'}.*\n")
+
+
+#: The GA budget of the first look's calibrations (avll.calibrate's defaults).
+_DEFAULT_GA: dict[str, Any] = {"max_generations": GA_OPTIONS["max_generations"],
+                               "stall_generations": GA_OPTIONS["stall_generations"],
+                               "starts": DEFAULT_STARTS}
 
 
 def _hp(x: np.ndarray, n: int) -> np.ndarray:
@@ -284,95 +273,40 @@ def part_grade(data: Path, **_: Any) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- first look
-def sim_speed(model: avll.LowerLevelModel, r: avll.Run) -> tuple[np.ndarray, np.ndarray]:
-    """Speed-command rollout from the run's initial steady state: the deviation of the
-    command from its first value drives the model from rest; v = v[0] + response."""
-    tr = avll.simulate_full(model, r.command - r.command[0], r.dt, command_kind="speed")
-    return r.v[0] + tr.v, tr.a
-
-
-LS_BOUNDS = {  # practical bounds of the paper's parameters for a speed controller
-    "first": ([0.05], [10.0]),
-    "second": ([0.2, 0.0, 0.05, 0.0], [2.0, 10.0, 10.0, 3.0]),
-    "proposed": ([0.0, 0.0, 0.05, 0.05, 0.0, -2.0], [10.0, 10.0, 20.0, 3.0, 3.0, 0.95]),
-}
-LS_START = {"first": [1.0], "second": [1.0, 0.5, 1.5, 0.5],
-            "proposed": [0.5, 0.5, 1.5, 1.0, 0.5, 0.0]}
-
-
-def ls_fit(name: str, runs: list[avll.Run], warm: np.ndarray | None) -> avll.LowerLevelModel:
-    """Bounded least squares (scipy) of the acceleration error on the Rust rollouts,
-    from a default start and from ``warm``, keeping the better."""
-    from scipy.optimize import least_squares
-
-    cls = avll.model_class(name)
-
-    def res(p: np.ndarray) -> np.ndarray:
-        m = cls.from_array(p)
-        out = []
-        for r in runs:
-            _, a = sim_speed(m, r)
-            e = a - r.a
-            out.append(np.where(np.isfinite(e), e, 1e3) / np.sqrt(len(r) * len(runs)))
-        return np.concatenate(out)
-
-    lo, hi = LS_BOUNDS[name]
-    best = None
-    for x0 in (LS_START[name], warm):
-        if x0 is None:
-            continue
-        x0 = np.clip(x0, np.array(lo) + 1e-9, np.array(hi) - 1e-9)
-        sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=300)
-        if best is None or sol.cost < best.cost:
-            best = sol
-    assert best is not None
-    return cls.from_array(best.x)
-
-
-def warm_start(name: str, prev: avll.LowerLevelModel | None) -> np.ndarray | None:
-    """The simpler model's optimum in the richer model's parameters."""
-    if prev is None:
-        return None
-    p = prev.to_array()
-    if name == "second":  # first-order lag T -> K0=1, m2=0, m3=T, Td=0
-        return np.array([1.0, 0.0, p[0], 0.0])
-    if name == "proposed":  # second (K0, m2, m3, Td) -> m1=0, K=0
-        return np.array([0.0, p[1], p[2], p[0], p[3], 0.0])
-    return None
-
-
-def mse(model: avll.LowerLevelModel, runs: list[avll.Run]) -> tuple[float, float]:
-    ea, ev = [], []
-    for r in runs:
-        v, a = sim_speed(model, r)
-        ea.append(np.mean((a - r.a) ** 2))
-        ev.append(np.mean((v - r.v) ** 2))
-    return float(np.mean(ea)), float(np.mean(ev))
+def _costs(model: avll.LowerLevelModel, runs: list[avll.Run],
+           weights: tuple[float, float, float]) -> float:
+    """Mean over ``runs`` of the per-run cost (one batched call): the speed loop driven
+    by the recorded command from the equilibrium of its first value."""
+    c = avll.batch_cost(model.name, model.to_array()[None, :], runs, weights=weights,
+                        init="steady")  # fmt: skip
+    return float(np.mean(c[0]))
 
 
 def table_ii_transfer(runs: list[avll.Run]) -> dict[str, Any]:
     """The paper's Table II models driven by the CARMA speed command (all stretches)."""
-    out = {}
-    for name, m in avll.PAPER_TABLE_II.items():
-        ma, mv = mse(m, runs)
-        out[name] = {"dc_gain": float(m.dc_gain), "mse_a": ma, "mse_v": mv}
-    return out
+    return {name: {"dc_gain": float(m.dc_gain), "mse_a": _costs(m, runs, (1.0, 0.0, 0.0)),
+                   "mse_v": _costs(m, runs, (0.0, 1.0, 0.0))}
+            for name, m in avll.PAPER_TABLE_II.items()}  # fmt: skip
 
 
-def part_firstlook(data: Path, **_: Any) -> dict[str, Any]:
+def part_firstlook(data: Path, *, seed: int, threads: int, **_: Any) -> dict[str, Any]:
+    """Table II transferred, a calibration per vehicle and model on all stretches
+    (acceleration objective, the CARMA study's box), the command/speed lags and the
+    asymmetric-lag grid of the cruises."""
+    from avll.studies.fielddata import CARMA_BOUNDS
+
     runs = carma_runs(data)
     fits = []
     for veh in VEHICLES:
         vr = [r for r in runs if r.meta["vehicle"] == veh]
         cal = [r for r in vr if r.run_id.split("/")[0] in CAL_FILES]
         val = [r for r in vr if r.run_id.split("/")[0] not in CAL_FILES]
-        prev = None
-        for name in MODELS:
-            m = ls_fit(name, cal, warm_start(name, prev))
-            prev = m
-            ca = mse(m, cal)[0]
-            va = mse(m, val)[0]
-            fits.append({"vehicle": veh, "model": name, "cal_a": ca, "val_a": va,
+        for k, name in enumerate(MODELS):
+            m = avll.calibrate(name, cal, init="steady", bounds=CARMA_BOUNDS.get(name),
+                               seed=seed + k, threads=threads).model  # fmt: skip
+            fits.append({"vehicle": veh, "model": name,
+                         "cal_a": _costs(m, cal, (1.0, 0.0, 0.0)),
+                         "val_a": _costs(m, val, (1.0, 0.0, 0.0)),
                          "params": {k: float(v) for k, v in m.to_dict().items()}})
         print(f"  first look: fitted {veh}", file=sys.stderr, flush=True)
     regimes = {"launch": [r for r in runs if r.v[0] < 1.0],
@@ -399,7 +333,7 @@ def part_firstlook(data: Path, **_: Any) -> dict[str, Any]:
                 u = np.r_[np.full(d, r.command[0]), r.command[: len(r) - d]]
                 v = np.full(tu.size, r.v[0])
                 sse = np.zeros(tu.size)
-                for n in range(len(r)):
+                for n in range(len(r)):  # every (T_up, T_down) of the grid at once
                     e = u[n] - v
                     acc = e / np.where(e > 0, tu, td_)
                     sse += (acc - r.a[n]) ** 2
@@ -416,53 +350,37 @@ def part_firstlook(data: Path, **_: Any) -> dict[str, Any]:
                      "sym_T": best_s[2], "sym_mse": best_s[0], "asym_d": best_a[1],
                      "T_up": best_a[2], "T_down": best_a[3], "asym_mse": best_a[0]})
         print(f"  first look: asymmetric lag {veh}", file=sys.stderr, flush=True)
-    return {"table_ii": table_ii_transfer(runs), "fits": fits, "lags": lags,
-            "asymmetric_cruise": asym}
+    return {"seed": seed, "threads": threads, "table_ii": table_ii_transfer(runs),
+            "fits": fits, "lags": lags, "asymmetric_cruise": asym}
 
 
 # ---------------------------------------------------------------------------- closed
-def closed_pair(r: avll.Run) -> dict[str, Any]:
-    """Steady-state spacing regression and a quick closed-loop fit of one pair."""
-    from scipy.optimize import least_squares
-
+def closed_pair(r: avll.Run, seed: int, threads: int) -> dict[str, Any]:
+    """Steady-state spacing regression and a closed-loop calibration of one pair (from
+    the first sample above 1 m/s)."""
+    from avll.defaults import UPPER_NAMES, UPPER_PLACEHOLDER
     i0 = int(np.flatnonzero(r.v > 1.0)[0])
-    t = slice(i0, len(r))
-    lx, lv, am, x, v = r.lead_x[t], r.lead_v[t], r.a[t], r.x[t], r.v[t]
+    r = replace(r.cut(i0, len(r), "", f"from row {i0}, the first above 1 m/s"),
+                upper=UPPER_PLACEHOLDER)
+    lx, lv, am, x, v = r.lead_x, r.lead_v, r.a, r.x, r.v
     gap = lx - x
-    la = r.lead_a[t]
-    calm = (np.abs(am) < 0.05) & (np.abs(la) < 0.05) & (np.abs(v - lv) < 0.2) & (v > 5)
+    calm = (np.abs(am) < 0.05) & (np.abs(r.lead_a) < 0.05) & (np.abs(v - lv) < 0.2) & (v > 5)
     calm = np.convolve(calm.astype(float), np.ones(31) / 31, mode="same") > 0.999
     tg_ss, gmin_ss = (np.polyfit(v[calm], gap[calm], 1) if calm.sum() > 50
                       else (math.nan, math.nan))  # fmt: skip
-    gr = r.exo["grade"][t]
-
-    def sim(p: np.ndarray) -> avll.Trajectory:
-        up = avll.UpperLevel(kg=p[0], kv=p[1], Tg=p[2], Gmin=p[3])
-        return avll.closed_loop(avll.FirstOrderLag(Td=p[4]), lx, lv, r.dt, up,
-                                v0=float(v[0]), x0=float(x[0]))  # fmt: skip
-
-    def res(p: np.ndarray) -> np.ndarray:
-        tr = sim(p)
-        ea = np.where(np.isfinite(tr.a), tr.a - am, 10.0)
-        eg = np.where(np.isfinite(tr.x), (lx - tr.x) - gap, 100.0)
-        return np.r_[ea, 0.1 * eg] / np.sqrt(am.size)
-
-    best = None
-    for x0 in ([0.1, 0.5, 1.0, 3.0, 0.5], [0.05, 0.3, 1.5, 5.0, 1.0], [0.2, 0.8, 0.8, 2.0, 0.3]):
-        sol = least_squares(res, x0, bounds=([0, 0, 0, 0, 0.05], [2, 3, 5, 20, 5]),
-                            x_scale="jac", max_nfev=200)  # fmt: skip
-        if best is None or sol.cost < best.cost:
-            best = sol
-    assert best is not None
-    tr = sim(best.x)
+    res = avll.calibrate("first", [r], closed_loop=True, upper_free=UPPER_NAMES,
+                         weights=CLOSED_WEIGHTS, seed=seed, threads=threads)  # fmt: skip
+    p = res.params
+    tr = avll.closed_loop(res.model, lx, lv, r.dt, avll.UpperLevel(**res.upper),
+                          v0=float(v[0]), x0=float(x[0]))  # fmt: skip
     e = am - tr.a
     ok = np.isfinite(e)
-    gg = -G * gr[ok]
+    gg = -G * r.exo["grade"][ok]
     X = np.c_[np.maximum(tr.a, 0), np.minimum(tr.a, 0)][ok]
     gp, gn = np.linalg.lstsq(X, am[ok], rcond=None)[0]
     return {"pair": r.run_id, "steady_samples": int(calm.sum()), "Tg_steady": float(tg_ss),
             "Gmin_steady": float(gmin_ss),
-            "fit": dict(zip(("kg", "kv", "Tg", "Gmin", "Td"), map(float, best.x), strict=True)),
+            "fit": {k: float(p[k]) for k in ("kg", "kv", "Tg", "Gmin", "Td")},
             "mse_a": float(np.mean(e[ok] ** 2)),
             "mse_gap": float(np.mean(((lx - tr.x) - gap)[ok] ** 2)),
             "grade_coef": float(np.dot(e[ok], gg) / np.dot(gg, gg)),
@@ -470,14 +388,16 @@ def closed_pair(r: avll.Run) -> dict[str, Any]:
             "gain_pos": float(gp), "gain_neg": float(gn)}  # fmt: skip
 
 
-def part_closed(data: Path, **_: Any) -> dict[str, Any]:
+def part_closed(data: Path, *, seed: int, threads: int, **_: Any) -> dict[str, Any]:
+    """:func:`closed_pair` of every AstaZero pair and the maximum speed along each
+    platoon."""
     from avll.io import load_openacc_astazero
 
     runs = load_openacc_astazero(data / "openacc-astazero" / "platoon",
                                  command_kind="acceleration")  # fmt: skip
     rows = []
     for r in runs:
-        rows.append(closed_pair(r))
+        rows.append(closed_pair(r, seed, threads))
         print(f"  closed loop: fitted {r.run_id}", file=sys.stderr, flush=True)
     vmax: dict[str, list[float]] = {}
     for r in runs:
@@ -486,7 +406,7 @@ def part_closed(data: Path, **_: Any) -> dict[str, Any]:
             vmax.setdefault(stem, []).append(float(r.lead_v.max()))
     for r in runs:
         vmax[r.run_id.split("/")[0]].append(float(r.v.max()))
-    return {"pairs": rows, "max_speed": vmax}
+    return {"seed": seed, "threads": threads, "pairs": rows, "max_speed": vmax}
 
 
 # ---------------------------------------------------------------------------- studies
@@ -577,11 +497,11 @@ COMPUTE: dict[str, Callable[..., dict[str, Any]]] = {
 
 # ---------------------------------------------------------------------------- render
 def _not_run(part: str) -> str:
-    return (f"<!-- generated by `{CMD}`; do not edit by hand -->\n"
-            f"*Part `{part}` of `{CMD}` has not been run; no numbers.*\n")
+    return f"*Part `{part}` has not been run; no numbers.*\n"
 
 
-def render_loaders(d: dict[str, Any], settings: str) -> str:
+def render_loaders(d: dict[str, Any]) -> str:
+    """The loaders' numbers (the field-data guide)."""
     c, a = d["carma"], d["astazero"]
     files: dict[str, list[dict[str, Any]]] = {}
     for row in c["report"]:
@@ -595,7 +515,7 @@ def render_loaders(d: dict[str, Any], settings: str) -> str:
     lo, hi = c["cruise_start_speed_minus_command"]
     ooo = ", ".join(f"{f}: {n}" for f, n in c["out_of_order_rows"].items())
     lines = [
-        _stamp(settings),
+        _settings(d),
         "**CARMA** (`avll.io.load_carma`, `min_duration` 10 s, `max_hole` 0.2 s):",
         "",
         f"* rows out of order, sorted by `Time`: {ooo};",
@@ -641,7 +561,8 @@ def render_loaders(d: dict[str, Any], settings: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def render_grade(d: dict[str, Any], settings: str) -> str:
+def render_grade(d: dict[str, Any]) -> str:
+    """The grade offset and lap scans."""
     rows = [[f"{x['set_kmh']} km/h ({x['files']} files, {x['seconds']:.0f} s)",
              f"{x['best_offset_m']:+.0f} m ({x['best_offset_s']:.2f} s)", _f(x["corr_best"], ".2f"),
              _f(x["slope_best"], ".2f"), _f(x["corr_0"], ".2f"), _f(x["slope_0"], ".2f"),
@@ -649,7 +570,7 @@ def render_grade(d: dict[str, Any], settings: str) -> str:
              f"{x['corr_m60']:.2f} / {x['corr_p60']:.2f}"] for x in d["offset_scan"]]
     lap = [[f"{x['delta_m']:+.0f}", _f(x["corr"], ".3f")] for x in d["lap_scan"]]
     lines = [
-        _stamp(settings),
+        _settings(d),
         "Free flow: fast part of the measured acceleration (minus a 4 s moving average) "
         "against that of −g·grade((x + offset) mod lap):",
         "",
@@ -669,7 +590,9 @@ def render_grade(d: dict[str, Any], settings: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def render_firstlook(d: dict[str, Any], settings: str) -> str:
+def render_firstlook(d: dict[str, Any]) -> str:
+    """Table II transferred, the calibrations on all stretches, the lags and the
+    asymmetric-lag grid."""
     t2 = d["table_ii"]
     rows = [[m, _f(e["dc_gain"], ".3g"), _f(e["mse_v"], ".3g"), _f(e["mse_a"], ".3g")]
             for m, e in t2.items()]
@@ -696,14 +619,15 @@ def render_firstlook(d: dict[str, Any], settings: str) -> str:
             for x in d["asymmetric_cruise"]]
     ratio = [x["T_down"] / x["T_up"] for x in d["asymmetric_cruise"]]
     lines = [
-        _stamp(settings),
-        "The paper's Table II models driven by the CARMA speed command (all stretches, "
-        "launch and cruise):",
+        _settings(d, _DEFAULT_GA),
+        "The paper's Table II models driven by the CARMA speed command from the equilibrium "
+        "of its first value (all stretches, launch and cruise):",
         "",
         _md(["Table II model", "DC gain", "speed MSE (m/s)²", "acceleration MSE (m/s²)²"], rows),
         "",
-        "Refitted per vehicle by bounded least squares on the acceleration MSE (Eq. 6), "
-        "calibration on data5 + data9, validation on data6 + data10 (all stretches; "
+        "Calibrated per vehicle (`avll.calibrate`, acceleration MSE, Eq. 6; the CARMA "
+        "study's box), calibration on data5 + data9, validation on data6 + data10 (all "
+        "stretches; "
         "cal / val acceleration MSE (m/s²)², first-order T in brackets):",
         "",
         _md(["vehicle", "first", "second", "proposed"], frows),
@@ -727,7 +651,8 @@ def render_firstlook(d: dict[str, Any], settings: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def render_closed(d: dict[str, Any], settings: str) -> str:
+def render_closed(d: dict[str, Any]) -> str:
+    """The steady-state spacing and the closed-loop calibration per pair."""
     rows = [[x["pair"].split("_")[-1], x["steady_samples"], _f(x["Tg_steady"], ".2f"),
              _f(x["Gmin_steady"], ".1f"),
              " / ".join(_f(x["fit"][k], ".3g") for k in ("kg", "kv", "Tg", "Gmin", "Td")),
@@ -738,13 +663,13 @@ def render_closed(d: dict[str, Any], settings: str) -> str:
     vmax = "; ".join(f"{f}: " + " → ".join(f"{v:.1f}" for v in vs)
                      for f, vs in d["max_speed"].items())  # fmt: skip
     lines = [
-        _stamp(settings),
+        _settings(d, _DEFAULT_GA),
         "Steady state: |a| < 0.05 and |a_lead| < 0.05 m/s², |v − v_lead| < 0.2 m/s over 3 s, "
-        "v > 5 m/s; spacing = Gmin + Tg·v by least squares. Quick closed-loop fit: the "
-        "Eq. 3 upper law + a first-order lower level driven by the measured predecessor "
-        "(`avll.closed_loop`), bounded least squares on the acceleration + 0.1 × gap error, "
-        "best of 3 starts. Then the measured acceleration regressed on the simulated one "
-        "split by sign (gain a > 0, gain a < 0), and the residual regressed on −g·grade.",
+        "v > 5 m/s; spacing = Gmin + Tg·v by least squares. Closed-loop calibration "
+        "(`avll.calibrate`): the Eq. 3 upper law's four gains with a first-order lower level "
+        "driven by the measured predecessor, on the acceleration MSE + 0.01 × the gap MSE. "
+        "Then the measured acceleration regressed on the simulated one split by sign (gain "
+        "a > 0, gain a < 0), and the residual regressed on −g·grade.",
         "",
         _md(["pair", "steady samples", "Tg steady (s)", "Gmin steady (m)",
              "fit kg / kv / Tg / Gmin / Td", "MSE a", "MSE gap", "resid. on −g·grade", "corr",
@@ -762,10 +687,11 @@ def _avg(t: dict[str, Any], row: str) -> float:
     return math.nan if x is None else float(x)
 
 
-def render_carma(d: dict[str, Any], settings: str) -> str:
+def render_carma(d: dict[str, Any]) -> str:
+    """The CARMA study's tables and parameter ranges."""
     T = d["tables"]
     P = d["params"]
-    out = [_stamp(settings)]
+    out = [_settings(d, d["ga"])]
     labels = [i for i in T["cal_cruise_acceleration_a"]["index"]]
     fo, so, po = labels[:3]
 
@@ -839,10 +765,11 @@ def render_carma(d: dict[str, Any], settings: str) -> str:
     return "\n".join(out) + "\n"
 
 
-def render_astazero(d: dict[str, Any], settings: str) -> str:
+def render_astazero(d: dict[str, Any]) -> str:
+    """The AstaZero study's tables, spacing and amplification."""
     T = d["tables"]
     P = d["params"]
-    out = [_stamp(settings)]
+    out = [_settings(d, d["ga"])]
     up = []
     for pair in PAIRS:
         up.append([pair, *[" / ".join(_f(P["mixed"][m][pair][k], ".3g") for m in MODELS)
@@ -936,7 +863,7 @@ def render_budget(d: dict[str, Any], parts: dict[str, dict[str, Any]]) -> str:
     if not rows:
         return _not_run("carma/astazero (needed to compare the budget)")
     return "\n".join([
-        _stamp(st),
+        f"*{st[:1].upper()}{st[1:]}.*\n",
         "Average MSE of each calibrated model, the studies' reduced GA budget → the full "
         "budget (CARMA cruise, each objective's own metric; AstaZero mixed objective; "
         "`cal`/`val`: calibration/validation; metric `a` acceleration, `v` speed, `x` gap):",
@@ -1022,75 +949,55 @@ def render_summary(parts: dict[str, dict[str, Any]]) -> str:
                  f"against −g·grade |corr| ≤ {max(corr):.2f}.")
     if not s:
         return _not_run("carma, astazero, firstlook, closed")
-    return _stamp("headline numbers of the parts run; settings in each part's fragment") + \
+    return "*Headline numbers of the parts run; settings in each part's fragment.*\n" + \
         "\n" + "\n".join(s) + "\n"
 
 
-def render(out: Path) -> list[Path]:
-    parts: dict[str, dict[str, Any]] = {}
-    for p in PARTS:
-        f = out / f"{p}.json"
-        if f.exists():
-            parts[p] = json.loads(f.read_text())
-    GEN.mkdir(parents=True, exist_ok=True)
-    written = []
-    renderers: dict[str, Callable[[dict[str, Any], str], str]] = {
-        "loaders": render_loaders, "grade": render_grade, "firstlook": render_firstlook,
-        "closed": render_closed, "carma": render_carma, "astazero": render_astazero}
-    written.append(_atomic.write_text(
-        GEN / "fielddata_budget.md",
-        render_budget(parts["budget"], parts) if "budget" in parts else _not_run("budget")))
-    for p, fn in renderers.items():
-        if p in parts:
-            d = parts[p]
-            if p in ("carma", "astazero"):
-                ga = d["ga"]
-                st = (f"seed {d['seed']}, GA {ga['max_generations']} generations (stall "
-                      f"{ga['stall_generations']}), {ga['starts']} start(s), threads "
-                      f"{d['threads'] or 'all'}")
-            else:
-                st = "deterministic (no random numbers)"
-            text = fn(d, st)
-        else:
-            text = _not_run(p)
-        written.append(_atomic.write_text(GEN / f"fielddata_{p}.md", text))
-    written.append(_atomic.write_text(GEN / "fielddata_summary.md", render_summary(parts)))
-    cheap = {p: parts[p] for p in CHEAP if p in parts}
-    written.append(_atomic.write_json(GEN / "fielddata.json", _atomic.json_safe(
-        {"generated_by": CMD, "avll": avll.__version__, **cheap})))
-    return written
+
+RENDER: dict[str, Callable[[dict[str, Any]], str]] = {
+    "loaders": render_loaders, "grade": render_grade, "firstlook": render_firstlook,
+    "closed": render_closed, "carma": render_carma, "astazero": render_astazero}
+#: Fragments: every part and the summary.
+FRAGMENTS = (*PARTS, "summary")
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def part(name: str, data: Path, *, seed: int = 0, threads: int = 1,
+         out: Path = OUT) -> dict[str, Any]:
+    """The numbers of part ``name`` as strict JSON: ``out/<name>.json`` when an earlier
+    run left it there, computed (and kept there) otherwise."""
+    f = Path(out) / f"{name}.json"
+    if not f.exists():
+        if not Path(data).is_dir():
+            raise ValueError(f"data: the field data are not at {data}")
+        _atomic.write_json(f, _atomic.json_safe(COMPUTE[name](Path(data), seed=seed,
+                                                              threads=threads)))
+    return dict(json.loads(f.read_text(encoding="utf-8")))
+
+
+def generate(name: str, data: Path = DATA) -> Generated:
+    """The fragment ``fielddata_<name>`` (its body and, for a part, its numbers)."""
+    if name == "summary":
+        return Generated(render_summary({p: part(p, data) for p in
+                                         ("carma", "firstlook", "astazero", "closed")}))
+    if name == "budget":
+        studies = {p: part(p, data) for p in ("carma", "astazero")}
+        d = part("budget", data)
+        return Generated(render_budget(d, studies), d)
+    d = part(name, data)
+    return Generated(RENDER[name](d), d)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Computes the parts (``--parts``) into ``--out`` and prints each fragment."""
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--data", default=str(DATA))
-    ap.add_argument("--out", default=str(ROOT / "out" / "findings_fielddata"))
+    ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--parts", default=",".join(PARTS))
-    ap.add_argument("--render-only", action="store_true")
-    a = ap.parse_args()
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    data = Path(a.data)
-    if not a.render_only:
-        if not data.is_dir():
-            sys.exit(f"measured data not found at {data}")
-        for p in [p for p in a.parts.split(",") if p]:
-            if p not in COMPUTE:
-                sys.exit(f"--parts: unknown {p!r}; known: {', '.join(PARTS)}")
-            dest = out / f"{p}.json"
-            if dest.exists():
-                print(f"{p}: {dest} exists, kept", flush=True)
-                continue
-            t0 = time.perf_counter()
-            d = COMPUTE[p](data, seed=a.seed, threads=a.threads)
-            _atomic.write_json(dest, _atomic.json_safe(d))
-            print(f"{p}: done in {time.perf_counter() - t0:.0f} s", flush=True)
-    for f in render(out):
-        print(f"wrote {f.relative_to(ROOT)}")
+    a = ap.parse_args(argv)
+    for p in [p for p in a.parts.split(",") if p]:
+        if p not in COMPUTE:
+            raise SystemExit(f"--parts: unknown {p!r}; known: {', '.join(PARTS)}")
+        part(p, Path(a.data), seed=a.seed, threads=a.threads, out=Path(a.out))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
