@@ -42,6 +42,7 @@ _LAZY_NAMES: dict[str, str] = {
                      "exact_delay_codes", "kv_supremum", "kv_threshold", "min_stable_tg",
                      "pade_error_map", "pade_report", "stability_map", "stability_points",
                      "stable_intervals", "thresholds"), "stability"),
+    **dict.fromkeys(("Intervals", "Uncertainty"), "uncertainty"),
 }
 
 __all__ = [
@@ -87,6 +88,8 @@ __all__ = [
     "calibrate",
     "calibrate_many",
     "paper_workflow",
+    "Intervals",
+    "Uncertainty",
     "PadeReport",
     "Thresholds",
     "capacity",
@@ -164,6 +167,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
         write_map,
     )
     from .paper import TABLE_II as PAPER_TABLE_II
+    from .uncertainty import Intervals, Uncertainty
     from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
     from .stability import (
         Extremum,

@@ -435,6 +435,10 @@ class _ClientScope:
 def _members(models: Any) -> tuple[list[str], list[LowerLevelModel]]:
     if isinstance(models, LowerLevelModel):
         models = [models]
+    # a calibration with intervals (or its uncertainty): its resampled models
+    unc = getattr(models, "uncertainty", None)
+    if unc is not None or hasattr(models, "samples") and hasattr(models, "models"):
+        models = (unc if unc is not None else models).models()
     if isinstance(models, Mapping):
         names, ms = [str(k) for k in models], list(models.values())
     else:
@@ -553,7 +557,9 @@ def stability_probability(
     chunks: Mapping[str, int] | None = None,
 ) -> Any:
     """Probability of (local and string) stability over parameter samples: the share
-    of ``models`` (e.g. :func:`models_from_bootstrap`) whose map is stable at each
+    of ``models`` (a list or mapping of models, e.g. :func:`models_from_bootstrap`; or
+    a calibration with intervals, ``avll.calibrate(..., intervals=True)``, or its
+    :class:`avll.Uncertainty`: its resampled models) whose map is stable at each
     point, as an ``xarray.DataArray`` (dims kg, Tg, kv) of float64.
 
     With ``chunks`` every sample's map is Dask-backed (:func:`map_dataset`) and the
@@ -635,7 +641,13 @@ def min_stable_tg_samples(
 
 
 def models_from_bootstrap(bs: Any) -> list[LowerLevelModel]:
-    """The calibrated models of an :func:`avll.bootstrap` result (one per resample)."""
+    """The calibrated models of an :func:`avll.bootstrap` result (one per resample), of
+    an :class:`avll.Uncertainty` or of a calibration with intervals."""
+    unc = getattr(bs, "uncertainty", None)
+    if unc is None and hasattr(bs, "samples") and hasattr(bs, "models"):
+        unc = bs
+    if unc is not None:
+        return list(unc.models())
     results = getattr(bs, "results", None)
     if results is None:
         raise ValueError(f"bs: expected an avll.Bootstrap, got {type(bs).__name__}")

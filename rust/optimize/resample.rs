@@ -204,7 +204,11 @@ pub fn refit_resamples(
         ));
     }
     crate::error::check_nonneg("ftol", opts.ftol)?;
-    let budget = if opts.budget == 0 { 40 * d } else { opts.budget };
+    let budget = if opts.budget == 0 {
+        40 * d
+    } else {
+        opts.budget
+    };
     let stop = AtomicBool::new(false);
     let mut out = Vec::with_capacity(problems.len());
     for (k, p) in problems.iter().enumerate() {
@@ -232,7 +236,10 @@ pub fn refit_resamples(
             let run = runs.get(j).ok_or_else(|| {
                 AvllError::new(
                     name("runs"),
-                    format!("run index {j} is out of range (there are {} runs)", runs.len()),
+                    format!(
+                        "run index {j} is out of range (there are {} runs)",
+                        runs.len()
+                    ),
                 )
             })?;
             if !(m.is_finite() && m > 0.0) {
@@ -257,7 +264,10 @@ pub fn refit_resamples(
         if p.weights.is_empty() || p.weights.len() % a != 0 {
             return Err(AvllError::new(
                 name("weights"),
-                format!("must be B x {a} (the runs' atoms), got {} values", p.weights.len()),
+                format!(
+                    "must be B x {a} (the runs' atoms), got {} values",
+                    p.weights.len()
+                ),
             ));
         }
         if p.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
@@ -450,7 +460,13 @@ mod tests {
         }
         // An unstable row: no sums.
         let mut out = vec![0.0; n_atoms(runs[0].len(), 10)];
-        assert!(!run_atom_sums(&sp, &[1.0, 1.0, -1.0, 0.0], &runs[0], 10, &mut out));
+        assert!(!run_atom_sums(
+            &sp,
+            &[1.0, 1.0, -1.0, 0.0],
+            &runs[0],
+            10,
+            &mut out
+        ));
     }
 
     #[test]
@@ -500,7 +516,11 @@ mod tests {
             assert!(f.done && f.f <= f.f_x0, "{f:?}");
         }
         // The all-ones refit moves towards the truth.
-        let e0: f64 = x0.iter().zip([1.0, 0.3, 0.8, 0.2]).map(|(a, t)| (a - t).abs()).sum();
+        let e0: f64 = x0
+            .iter()
+            .zip([1.0, 0.3, 0.8, 0.2])
+            .map(|(a, t)| (a - t).abs())
+            .sum();
         let e1: f64 = r.refits[0]
             .x
             .iter()
@@ -510,8 +530,8 @@ mod tests {
         assert!(e1 < e0, "{e1} vs {e0}");
         assert!(r.cache_hits > 0);
         // A stop after the first refit skips the rest.
-        let stopped = refit_resamples(&sp, &runs, std::slice::from_ref(&p), &b, &o, |_, _| false)
-            .unwrap();
+        let stopped =
+            refit_resamples(&sp, &runs, std::slice::from_ref(&p), &b, &o, |_, _| false).unwrap();
         assert!(stopped[0].refits.iter().any(|f| !f.done));
     }
 }

@@ -1101,7 +1101,13 @@ pub fn n_atoms(len: usize, atom: usize) -> usize {
 /// the run's length is [`run_cost`] up to the summation order. Returns `false` (and
 /// leaves `out` unspecified) for an invalid or unstable row or a diverged response,
 /// where the cost is `inf`. Assumes `spec.validate(runs)` passed.
-pub fn run_atom_sums(spec: &CostSpec, row: &[f64], run: &RunRef, atom: usize, out: &mut [f64]) -> bool {
+pub fn run_atom_sums(
+    spec: &CostSpec,
+    row: &[f64],
+    run: &RunRef,
+    atom: usize,
+    out: &mut [f64],
+) -> bool {
     let atom = atom.max(1);
     if out.len() != n_atoms(run.len(), atom) {
         return false;

@@ -1,0 +1,220 @@
+"""The uncertainty stage of a calibration (avll.uncertainty): block bootstrap over time
+refit from the full-data optimum, intervals, identifiability, combinations; validated
+on synthetic platoons with a known truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import avll
+from avll import _core
+from avll.calibration import _problem
+from avll.defaults import UPPER_NAMES
+from avll.studies.openacc import WEIGHTS, predicted_amplification
+from avll.synth_platoon import synth_platoon
+from avll.uncertainty import Intervals, Uncertainty, block_length, to_dataset
+
+CL = dict(closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,
+          bounds={"Gmin": (0.0, 10.0)})
+
+
+def _coverage(seeds: list[int], cars: int, n: int, duration: float = 300.0
+              ) -> dict[str, list[float]]:
+    """Per car of synthetic platoons (one platoon per seed): whether the 95 %
+    intervals of the band amplification and of Tg + Gmin / v̄ hold the truth, the
+    predictions' relative errors and the intervals' relative widths."""
+    out: dict[str, list[float]] = {k: [] for k in (
+        "amp_in", "tge_in", "amp_err", "tge_err", "amp_width", "tge_width")}
+    for seed in seeds:
+        sp = synth_platoon(cars, seed=seed, duration=duration, models=("proposed",))
+        res = avll.calibrate_many("proposed", sp.runs, "per_run", seed=seed, starts=2,
+                                  intervals=Intervals(n=n), **CL)
+        for r, run, tr in zip(res, sp.runs, sp.truth, strict=True):
+            u = r.uncertainty
+            amp, amps = u.band_amplification(run.lead_v, run.dt)
+            a_lo, a_hi = np.nanquantile(amps, [0.025, 0.975])
+            tg, tgs = u.time_gap_effective(float(np.mean(run.v)))
+            t_lo, t_hi = np.quantile(tgs, [0.025, 0.975])
+            ta, tt = tr["band_gain"], tr["time_gap_effective"]
+            out["amp_in"].append(float(a_lo <= ta <= a_hi))
+            out["tge_in"].append(float(t_lo <= tt <= t_hi))
+            out["amp_err"].append(amp / ta - 1.0)
+            out["tge_err"].append(tg / tt - 1.0)
+            out["amp_width"].append((a_hi - a_lo) / ta)
+            out["tge_width"].append((t_hi - t_lo) / tt)
+    return out
+
+
+def test_block_length_follows_the_correlation_and_has_a_floor() -> None:
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal(6000)
+    ar = np.zeros(6000)
+    for k in range(1, 6000):
+        ar[k] = 0.98 * ar[k - 1] + white[k]
+    assert block_length([white], 0.1) == 5.0  # the floor
+    b = block_length([ar], 0.1)
+    assert b > 10.0  # a correlation time of 5 s asks for blocks of tens of seconds
+    assert block_length([ar], 0.1, cap=12.0) == 12.0
+    assert block_length([white, ar], 0.1) == b  # the largest
+
+
+def test_interval_options_are_checked() -> None:
+    with pytest.raises(ValueError, match="level"):
+        Intervals(level=1.5)
+    with pytest.raises(ValueError, match="method"):
+        Intervals(method="iid")
+    with pytest.raises(ValueError, match="block"):
+        Intervals(block=-1.0)
+    with pytest.raises(ValueError, match="n"):
+        Intervals(n=3)
+    with pytest.raises(TypeError, match="intervals"):
+        Intervals.of("yes")
+    assert Intervals.of(True) == Intervals()
+    assert Intervals.of({"n": 20}).n == 20
+    assert Intervals.of(None) is None
+
+
+@pytest.fixture(scope="module")
+def platoon() -> object:
+    return synth_platoon(2, seed=101, duration=300.0, models=("proposed",))
+
+
+@pytest.fixture(scope="module")
+def fitted(platoon) -> list:  # type: ignore[no-untyped-def]
+    return avll.calibrate_many("proposed", platoon.runs, "per_run", seed=5, starts=1,
+                               max_generations=120, intervals=Intervals(n=40), **CL)
+
+
+def test_refits_are_exact_at_unit_weights_and_do_not_depend_on_threads(platoon, fitted
+                                                                       ) -> None:  # type: ignore[no-untyped-def]
+    prob = _problem("proposed", platoon.runs, bounds={"Gmin": (0.0, 10.0)},
+                    closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS, init="rest")
+    x0 = np.ascontiguousarray(fitted[0].x[None, :])
+    n_atoms = -(-len(platoon.runs[0]) // 25)
+    w = np.ones((3, n_atoms))
+    w[1, ::2] = 2.0
+    w[2, :10] = 0.0
+
+    def go(threads: int) -> dict:
+        return _core.refit_resamples(
+            prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
+            scale=prob.scale, problems=[[0]], x0=x0, atoms=[[25]], resample_weights=[w],
+            budget=150, threads=threads, **prob.kw)[0]
+
+    a, b = go(1), go(2)
+    np.testing.assert_array_equal(a["x"], b["x"])
+    np.testing.assert_array_equal(a["f"], b["f"])
+    # all-ones weights: the Eq. 6 cost of the GA at its optimum (up to summation order)
+    assert a["f_full"] == pytest.approx(fitted[0].cost, rel=1e-9)
+    assert a["f_x0"][0] == pytest.approx(fitted[0].cost, rel=1e-9)
+    assert np.all(a["f"] <= a["f_x0"])  # a refit never ends above its start
+    assert a["done"].all() and not a["interrupted"]
+
+
+def test_uncertainty_result(platoon, fitted) -> None:  # type: ignore[no-untyped-def]
+    r = fitted[0]
+    u = r.uncertainty
+    assert isinstance(u, Uncertainty)
+    assert u.samples.shape == (40, 10) and u.names == tuple(r.bounds)
+    assert set(r.intervals) >= set(u.names) | {"time_gap_effective", "dc_gain",
+                                                "low_frequency_delay"}
+    assert u.block_s >= 5.0
+    for n, (lo, hi) in r.intervals.items():
+        assert lo <= hi, n
+    ver = u.verdicts()
+    assert set(ver) == set(u.names) | set(u.combinations)
+    assert set(ver.values()) <= {"identified", "at bound", "reaches bound", "wide", "fixed",
+                                 "undetermined"}
+    # a parameter at its bound is never a finding
+    for n in r.at_bound:
+        assert ver[n] != "identified"
+    assert "time_gap_effective" in u.identified()
+    text = u.report()
+    for part in ("[[Parameters]]", "[[Combinations]]", "[[Correlations]]", "P(string stable)"):
+        assert part in text
+    c = u.correlations
+    assert c.shape == (10, 10)
+    p = u.string_stable_probability
+    assert p is not None and 0.0 <= p <= 1.0
+    # the band amplification of the estimate is the study's prediction
+    run = platoon.runs[0]
+    amp, amps = u.band_amplification(run.lead_v, run.dt)
+    mod, up = r.model, avll.UpperLevel(**{k: r.upper[k] for k in UPPER_NAMES})
+    assert amp == pytest.approx(predicted_amplification(mod, up, run.lead_v, run.dt), rel=1e-12)
+    assert amps.shape == (40,)
+    ds = to_dataset([f.uncertainty for f in fitted], car=["a", "b"], file=["f1", "f2"])
+    assert dict(ds.sizes) == {"car": 2, "parameter": 10, "parameter2": 10}
+    assert ds["time_gap_effective_low"].shape == (2,)
+    assert list(ds["file"].values) == ["f1", "f2"]
+    assert ds["identified"].dtype == bool
+    # maps: the resampled models of a calibration directly
+    prob = avll.stability_probability(r, np.array([0.1]), np.array([2.0]), np.array([0.4]),
+                                      pade_order=2)
+    assert prob.shape == (1, 1, 1) and prob.attrs["samples"] == len(u.models())
+
+
+def test_intervals_are_seeded(platoon) -> None:  # type: ignore[no-untyped-def]
+    kw = dict(seed=7, starts=1, max_generations=60, **CL)
+    a = avll.calibrate("proposed", platoon.runs[:1], intervals=Intervals(n=12), threads=1, **kw)
+    b = avll.calibrate("proposed", platoon.runs[:1], intervals=Intervals(n=12), threads=2, **kw)
+    np.testing.assert_array_equal(a.uncertainty.samples, b.uncertainty.samples)
+    c = avll.calibrate("proposed", platoon.runs[:1], intervals=Intervals(n=12, seed=99), **kw)
+    assert not np.array_equal(a.uncertainty.samples, c.uncertainty.samples)
+
+
+def test_ctrl_c_returns_the_resamples_so_far(platoon) -> None:  # type: ignore[no-untyped-def]
+    calls = []
+
+    def progress(info: dict) -> None:
+        if info.get("phase") == "resample":
+            calls.append(info)
+            if len(calls) >= 2:
+                raise KeyboardInterrupt
+
+    from avll.calibration import _with_uncertainty
+
+    base = avll.calibrate("proposed", platoon.runs[:1], seed=1, starts=1, max_generations=40,
+                          **CL)
+    prob = _problem("proposed", platoon.runs[:1], bounds={"Gmin": (0.0, 10.0)},
+                    closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS, init="rest")
+    r = _with_uncertainty(prob, [[0]], [base], Intervals(n=200, budget=400), 1, 1,
+                          progress)[0]
+    assert r.uncertainty.interrupted
+    assert 0 < len(r.uncertainty.samples) < 200
+
+
+def test_run_resampling_is_an_option_of_the_same_entry() -> None:
+    sp = synth_platoon(3, seed=5, duration=150.0, models=("proposed",))
+    r = avll.calibrate("proposed", sp.runs, seed=1, starts=1, max_generations=40,
+                       intervals=Intervals(n=12, method="runs"), **CL)
+    assert r.uncertainty.method == "runs" and r.uncertainty.samples.shape[0] == 12
+    with pytest.raises(ValueError, match="method='runs'"):
+        avll.calibrate("proposed", sp.runs[:1], seed=1, starts=1, max_generations=5,
+                       intervals=Intervals(n=12, method="runs"), **CL)
+
+
+def test_intervals_cover_the_truth_on_synthetic_platoons_quick() -> None:
+    # fresh seeds, a few cars: the full check is the slow test below
+    cov = _coverage([20261128], cars=4, n=60)
+    assert np.mean(cov["amp_in"]) >= 0.5
+    assert np.mean(cov["tge_in"]) >= 0.5
+    assert np.mean(np.abs(cov["amp_err"]) <= 0.10) >= 0.75
+
+
+@pytest.mark.slow
+def test_intervals_cover_the_truth_on_synthetic_platoons() -> None:
+    cov = _coverage([7301, 7302, 7303, 7304, 7305, 7306, 7307, 7308], cars=6, n=100)
+    n = len(cov["amp_in"])
+    assert n >= 40
+    summary = {k: float(np.mean(v)) for k, v in cov.items() if k.endswith("_in")}
+    summary.update({f"median_{k}": float(np.median(v)) for k, v in cov.items()
+                    if k.endswith("_width")})
+    print(summary)
+    assert summary["amp_in"] >= 0.85, summary
+    assert summary["tge_in"] >= 0.85, summary
+    assert np.mean(np.abs(cov["amp_err"]) <= 0.10) >= 0.90
+    assert np.mean(np.abs(cov["tge_err"]) <= 0.10) >= 0.90
+    assert math.isfinite(summary["median_amp_width"])
