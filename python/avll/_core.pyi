@@ -167,7 +167,7 @@ def refit_resamples(
     closed_loop: bool = False,
     budget: int = 0,
     step: float = 0.02,
-    ftol: float = 1e-7,
+    ftol: float = 1e-9,
     progress: Callable[[dict[str, Any]], Any] | None = None,
     threads: int = 0,
 ) -> list[dict[str, Any]]: ...

@@ -430,7 +430,7 @@ fn relay<T: Send>(
     model, runs, lower_bounds, upper_bounds, scale, problems, x0, atoms, resample_weights,
     effects=Vec::new(), upper_free=Vec::new(), command_kind="acceleration",
     weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, budget=0, step=0.02,
-    ftol=1e-7, progress=None, threads=0
+    ftol=1e-9, progress=None, threads=0
 ))]
 #[allow(clippy::too_many_arguments)]
 fn refit_resamples<'py>(

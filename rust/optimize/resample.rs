@@ -50,7 +50,7 @@ pub struct RefitOptions {
     /// Initial simplex step in unit coordinates (every coordinate).
     pub step: f64,
     /// A refit stops when its best value improved by at most `ftol * |best|` over the
-    /// last `2 d + 2` iterations.
+    /// last `10 d` iterations.
     pub ftol: f64,
     /// Largest number of cached atom-sum rows per problem.
     pub cache_rows: usize,
@@ -61,7 +61,7 @@ impl Default for RefitOptions {
         Self {
             budget: 0,
             step: 0.02,
-            ftol: 1e-7,
+            ftol: 1e-9,
             cache_rows: 4096,
         }
     }
@@ -297,7 +297,7 @@ pub fn refit_resamples(
         .eval(&x0);
         let done_count = std::sync::atomic::AtomicUsize::new(0);
         let steps = vec![opts.step; d];
-        let window = 2 * d + 2;
+        let window = 10 * d;
         let refits: Vec<Refit> = (0..b)
             .into_par_iter()
             .map(|i| {
