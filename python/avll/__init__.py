@@ -167,7 +167,6 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
         write_map,
     )
     from .paper import TABLE_II as PAPER_TABLE_II
-    from .uncertainty import Intervals, Uncertainty
     from .rollout import Trajectory, batch_cost, closed_loop, platoon, simulate, simulate_full
     from .stability import (
         Extremum,
@@ -186,6 +185,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
         stable_intervals,
         thresholds,
     )
+    from .uncertainty import Intervals, Uncertainty
 
 #: Submodules imported on first use: ``avll.io`` brings pandas (the loaders), which
 #: ``import avll`` alone does not need; ``avll.plotting`` the figures (matplotlib on
