@@ -44,6 +44,10 @@ from .paper import MODEL_TITLES as _LABELS
 from .paper import PAPER_CAL_RUNS
 from .rollout import closed_loop, simulate
 from .runs import RunSet, as_runset, positions
+from .uncertainty import Uncertainty
+
+#: The former name of the bootstrap's result: the one result type of intervals.
+Bootstrap = Uncertainty
 
 __all__ = [
     "DEFAULT_BOUNDS",
@@ -782,31 +786,6 @@ def calibrate_effects(
             "result": res}  # fmt: skip
 
 
-@dataclass(frozen=True)
-class Bootstrap:
-    """Bootstrap of a calibration over runs: ``samples`` is (n, parameters) with
-    columns ``names`` plus ``dc_gain``; ``ci`` the percentile intervals at ``level``."""
-
-    names: tuple[str, ...]
-    samples: np.ndarray
-    level: float
-    results: list[CalibrationResult]
-
-    def ci(self) -> Any:
-        """A DataFrame: rows parameters, columns median, low, high."""
-        import pandas as pd
-
-        q = (1.0 - self.level) / 2.0
-        return pd.DataFrame(
-            {
-                "median": np.median(self.samples, axis=0),
-                "low": np.quantile(self.samples, q, axis=0),
-                "high": np.quantile(self.samples, 1.0 - q, axis=0),
-            },
-            index=list(self.names),
-        )
-
-
 def bootstrap(
     model: Any,
     runs: RunSet | Sequence[Run],
@@ -816,13 +795,21 @@ def bootstrap(
     level: float = 0.95,
     threads: int = 0,
     progress: bool | str | Callable[[dict[str, Any]], Any] = False,
+    method: str = "runs",
+    block: float | None = None,
     **kwargs: Any,
-) -> Bootstrap:
-    """Percentile bootstrap over runs: ``n`` resamples of the runs with replacement
-    (drawn from ``seed``), each calibrated independently (in parallel, by
-    :func:`calibrate_many`). ``kwargs`` go to :func:`calibrate_many`. The samples
-    include the DC gain ``K0/(1 - K K0)``, which is identified even where the
-    individual parameters trade off."""
+) -> Any:
+    """The uncertainty of a calibration (:class:`avll.Uncertainty`): :func:`calibrate`
+    with ``intervals=avll.Intervals(n=n, level=level, method=method, block=block)``,
+    its ``uncertainty``. ``method="runs"`` (the default here) resamples whole runs
+    with replacement (the runs are the independent units: a problem of several runs);
+    ``"blocks"`` resamples blocks of time within each run (the default of
+    ``calibrate(intervals=True)``). Each resample is refit by a local search from the
+    full-data optimum (:mod:`avll.uncertainty`). ``kwargs`` go to :func:`calibrate`.
+    The combinations include the DC gain ``K0/(1 - K K0)``, which is identified even
+    where the individual parameters trade off."""
+    from .uncertainty import Intervals
+
     n = check_int(n, "n", min=2)
     if isinstance(level, bool) or not isinstance(level, (int, float, np.floating)) or not (
             0 < level < 1):
@@ -830,18 +817,14 @@ def bootstrap(
     seed = check_seed(seed)
     check_threads(threads)
     runs = as_runset(runs)
-    # the resample lists (Python ints) before the GA's own estimate
+    # the resample weights (a few atoms per run and resample) before the GA's own estimate
     check_memory(80.0 * n * len(runs), f"bootstrap: n={n} resamples x {len(runs)} runs",
                  "use fewer resamples per call and pool the samples", per=80.0 * len(runs),
                  unit="resamples")
-    rng = np.random.default_rng(seed)
-    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(int(n))]
-    res = calibrate_many(
-        model, runs, subsets, seed=seed, threads=threads, progress=progress, **kwargs
-    )
-    names = tuple(res[0].params) + ("dc_gain",)
-    samples = np.array([[*r.params.values(), r.model.dc_gain] for r in res])
-    return Bootstrap(names, samples, float(level), res)
+    opts = Intervals(n=n, level=float(level), method=method, block=block)
+    res = calibrate(model, runs, seed=seed, threads=threads, progress=progress,
+                    intervals=opts, **kwargs)
+    return res.uncertainty
 
 
 # ---------------------------------------------------------------------------

@@ -763,33 +763,48 @@ def bootstrap_distributed(
     seed: int = 0,
     level: float = 0.95,
     client: Any = None,
-    batch: int = 1,
+    batch: int = 10,
     threads: int = 1,
+    method: str = "runs",
+    block: float | None = None,
     **kwargs: Any,
 ) -> Any:
-    """:func:`avll.bootstrap` with the resamples calibrated on a ``dask.distributed``
-    client (:func:`calibrate_many_distributed`): the same resamples (drawn from
-    ``seed``) and the same seeds, so the same :class:`avll.Bootstrap`."""
+    """:func:`avll.bootstrap` with the resamples' refits spread over a
+    ``dask.distributed`` client (``batch`` resamples per task; the calibration itself
+    runs here): the same multiplicities (drawn from ``seed``) and the same refits, so
+    the same :class:`avll.Uncertainty`. ``kwargs`` are those of :func:`avll.calibrate`
+    (bounds, closed_loop, upper_free, weights, init, initial, target, starts and GA
+    options; no progress bar)."""
     from ._limits import check_number, check_seed
-    from .calibration import Bootstrap
+    from .calibration import _calibrate, _problem
+    from .uncertainty import Intervals, estimate
 
     n = check_int(n, "n", min=2)
     level = check_number(level, "level")
     if not 0 < level < 1:
         raise ValueError(f"level: must be in (0, 1), got {level}")
     seed = check_seed(seed)
+    threads = check_threads(threads)
+    batch = check_int(batch, "batch", min=1)
+    if kwargs.pop("progress", False):
+        raise ValueError("progress: not supported by bootstrap_distributed")
     runs = list(runs)
     if not runs:
         raise ValueError("runs: no runs given")
-    # the resample lists (Python ints), as avll.bootstrap estimates them; the GA's own
-    # estimate follows in calibrate_many_distributed
+    # the resample weights, as avll.bootstrap estimates them; the GA's own estimate
+    # follows in the calibration
     check_memory(80.0 * n * len(runs), f"bootstrap_distributed: n={n} resamples x "
                  f"{len(runs)} runs", "use fewer resamples per call and pool the samples",
                  per=80.0 * len(runs), unit="resamples")
-    rng = np.random.default_rng(seed)
-    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(n)]
-    res = calibrate_many_distributed(model, runs, subsets, client=client, seed=seed,
-                                     batch=batch, threads=threads, **kwargs)
-    names = tuple(res[0].params) + ("dc_gain",)
-    samples = np.array([[*r.params.values(), r.model.dc_gain] for r in res])
-    return Bootstrap(names, samples, float(level), res)
+    opts = Intervals(n=n, level=float(level), method=method, block=block)
+    pkw = _problem_kw(kwargs)
+    ga = {k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW + ("starts",)}
+    from .defaults import DEFAULT_STARTS
+
+    res = _calibrate(model, runs, seed=seed, threads=threads, progress=False,
+                     initial=kwargs.get("initial"), target=kwargs.get("target"),
+                     starts=kwargs.get("starts", DEFAULT_STARTS), ga_options=ga, **pkw)
+    prob = _problem(model, runs, **pkw)
+    u = estimate(prob, [list(range(len(runs)))], [np.asarray(res.x)], opts, seed=seed,
+                 threads=threads, client=client, batch=batch, rebuild=(model, runs, pkw))
+    return u[0]

@@ -111,7 +111,7 @@ class Intervals:
     seed: int | None = None
 
     def __post_init__(self) -> None:
-        check_int(self.n, "n", min=10)
+        check_int(self.n, "n", min=2)
         lv = self.level
         if isinstance(lv, bool) or not isinstance(lv, (int, float)) or not 0 < lv < 1:
             raise ValueError(f"level: must be in (0, 1), got {lv!r}")
@@ -279,6 +279,26 @@ class Uncertainty:
         out = {n: self._q(self.samples[:, j]) for j, n in enumerate(self.names)}
         out.update({n: self._q(v) for n, v in self.combinations.items()})
         return out
+
+    def ci(self) -> Any:
+        """A DataFrame: rows the parameters and combinations, columns ``estimate``,
+        ``median``, ``low``, ``high`` (percentile interval at ``level``) and
+        ``verdict``."""
+        import pandas as pd
+
+        iv, ver = self.intervals, self.verdicts()
+        est = dict(zip(self.names, self.estimate, strict=True))
+        est.update(self.combination_estimates)
+        cols = {n: self.samples[:, j] for j, n in enumerate(self.names)}
+        cols.update(self.combinations)
+        med = {n: float(np.nanmedian(v)) if np.isfinite(v).any() else math.nan
+               for n, v in cols.items()}
+        names = list(cols)
+        return pd.DataFrame({"estimate": [float(est[n]) for n in names],
+                             "median": [med[n] for n in names],
+                             "low": [iv[n][0] for n in names],
+                             "high": [iv[n][1] for n in names],
+                             "verdict": [ver[n] for n in names]}, index=names)
 
     def unit_samples(self) -> np.ndarray:
         """The samples in the GA's unit coordinates of the box."""
@@ -612,6 +632,53 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
     return uniq, atoms, np.ascontiguousarray(w), float(block), atom_s
 
 
+def _refit_task(model: Any, runs: list[Any], pkw: dict[str, Any], sub: list[int],
+                x0: np.ndarray, atoms: list[int], weights: np.ndarray, budget: int,
+                step: float, threads: int) -> dict[str, Any]:
+    """One task of the distributed refits: the resamples ``weights`` of one problem."""
+    from .calibration import _problem
+
+    prob = _problem(model, runs, **pkw)
+    return dict(_core.refit_resamples(
+        prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper, scale=prob.scale,
+        problems=[sub], x0=np.ascontiguousarray(x0[None, :]), atoms=[atoms],
+        resample_weights=[np.ascontiguousarray(weights)], budget=budget, step=step,
+        threads=threads, **prob.kw)[0])
+
+
+def _distributed(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray,
+                 plans: Sequence[Any], opts: Intervals, threads: int, client: Any,
+                 batch: int, rebuild: tuple[Any, list[Any], dict[str, Any]] | None
+                 ) -> list[dict[str, Any]]:
+    """The refits as ``dask.distributed`` tasks of ``batch`` resamples, gathered in
+    order into the form :func:`avll._core.refit_resamples` returns."""
+    from .maps import _ClientScope
+
+    if rebuild is None:
+        raise ValueError("client: the distributed refits need the model and runs to "
+                         "rebuild the problem on the workers")
+    model, runs, pkw = rebuild
+    out: list[dict[str, Any]] = []
+    with _ClientScope(client) as c:
+        runs_f = c.scatter(runs, broadcast=True)
+        for k, sub in enumerate(subsets):
+            w = plans[k][2]
+            futs = [c.submit(_refit_task, model, runs_f, pkw, [int(i) for i in sub], x0[k],
+                             plans[k][1], w[i : i + batch], int(opts.budget),
+                             float(opts.step), int(threads), pure=False)
+                    for i in range(0, w.shape[0], batch)]
+            parts = c.gather(futs)
+            merged: dict[str, Any] = {}
+            for key in ("x", "f", "f_x0", "evaluations", "done"):
+                merged[key] = np.concatenate([np.asarray(p[key]) for p in parts])
+            merged["f_full"] = parts[0]["f_full"]
+            merged["rollouts"] = int(sum(int(p["rollouts"]) for p in parts))
+            merged["cache_hits"] = int(sum(int(p["cache_hits"]) for p in parts))
+            merged["interrupted"] = False
+            out.append(merged)
+    return out
+
+
 def _upper_columns(prob: Any, run: Any, x: np.ndarray) -> dict[str, np.ndarray]:
     """kg, kv, Tg, Gmin per row of ``x``: the free ones from the rows, the others the
     run's."""
@@ -643,11 +710,17 @@ def _exact_codes(model: str, cls: Any, x: np.ndarray, up: Mapping[str, np.ndarra
 
 def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarray],
              opts: Intervals, *, seed: int, threads: int = 0,
-             progress: bool | str | Callable[[dict[str, Any]], Any] = False
+             progress: bool | str | Callable[[dict[str, Any]], Any] = False,
+             client: Any = None, batch: int = 10,
+             rebuild: tuple[Any, list[Any], dict[str, Any]] | None = None
              ) -> list[Uncertainty]:
     """The uncertainty stage for the problems ``subsets`` (run positions, repeats
     count) of the calibration problem ``prob`` with full-data optima ``x0s``: one
-    :class:`Uncertainty` per problem. Used by :func:`avll.calibrate`."""
+    :class:`Uncertainty` per problem. Used by :func:`avll.calibrate`. With a
+    ``dask.distributed`` ``client`` the refits run as tasks of ``batch`` resamples
+    (the same multiplicities, drawn here, so the same result); ``rebuild`` = (model,
+    runs, problem keywords of :func:`avll.calibration._problem`) lets a worker rebuild
+    the problem."""
     threads = check_threads(threads)
     seed = check_seed(seed if opts.seed is None else opts.seed)
     x0 = np.ascontiguousarray(np.vstack([np.asarray(x, dtype=np.float64) for x in x0s]))
@@ -666,13 +739,16 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             bar.advance_to(sum(seen.values()))
     done = False
     try:
-        raws = _core.refit_resamples(
-            prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper, scale=prob.scale,
-            problems=[[int(i) for i in s] for s in subsets], x0=x0,
-            atoms=[p[1] for p in plans], resample_weights=[p[2] for p in plans],
-            budget=int(opts.budget), step=float(opts.step),
-            progress=cb if (callable(progress) or bar.mode != "none") else None,
-            threads=int(threads), **prob.kw)
+        if client is None:
+            raws = _core.refit_resamples(
+                prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
+                scale=prob.scale, problems=[[int(i) for i in s] for s in subsets], x0=x0,
+                atoms=[p[1] for p in plans], resample_weights=[p[2] for p in plans],
+                budget=int(opts.budget), step=float(opts.step),
+                progress=cb if (callable(progress) or bar.mode != "none") else None,
+                threads=int(threads), **prob.kw)
+        else:
+            raws = _distributed(prob, subsets, x0, plans, opts, threads, client, batch, rebuild)
         done = not any(bool(r["interrupted"]) for r in raws)
         if not done:
             _sigint.clear()
