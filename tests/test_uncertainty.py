@@ -12,13 +12,12 @@ from avll import _core
 from avll.calibration import _problem
 from avll.defaults import UPPER_NAMES
 from avll.studies.openacc import WEIGHTS, predicted_amplification
-from avll.synth_platoon import synth_platoon
+from avll.synth_platoon import synth_platoon, validate_intervals
 from avll.uncertainty import (
     Intervals,
     Uncertainty,
     block_length,
     to_dataset,
-    validate_intervals,
 )
 
 CL = dict(closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,

@@ -1,6 +1,6 @@
 """Generates the numbers of the intervals guide (docs/guide/intervals.md): the coverage
 of the 95 % intervals of the band amplification and of ``Tg + Gmin / v̄`` on synthetic
-platoons with a known truth (:func:`avll.uncertainty.validate_intervals`, the slow test's
+platoons with a known truth (:func:`avll.synth_platoon.validate_intervals`, the slow test's
 seeds), and the cost of intervals in the OpenACC study on the shared ZalaZone folder
 (from ``docs/_generated/intervals_bench.json``, written by ``benches/bench_intervals.py``).
 
@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from avll.uncertainty import validate_intervals
+from avll.synth_platoon import validate_intervals
 
 SEEDS = tuple(range(7301, 7309))
 CARS = 6

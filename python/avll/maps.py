@@ -805,6 +805,43 @@ def bootstrap_distributed(
                      initial=kwargs.get("initial"), target=kwargs.get("target"),
                      starts=kwargs.get("starts", DEFAULT_STARTS), ga_options=ga, **pkw)
     prob = _problem(model, runs, **pkw)
+
+    def refit(subsets: list[list[int]], x0: np.ndarray, atoms: list[list[int]],
+              weights: list[np.ndarray], o: Any, th: int) -> list[dict[str, Any]]:
+        out: list[dict[str, Any]] = []
+        with _ClientScope(client) as c:
+            runs_f = c.scatter(runs, broadcast=True)
+            for k, sub in enumerate(subsets):
+                w = weights[k]
+                futs = [c.submit(_refit_task, model, runs_f, pkw, sub, x0[k], atoms[k],
+                                 w[i : i + batch], int(o.budget), float(o.step), int(th),
+                                 pure=False)
+                        for i in range(0, w.shape[0], batch)]
+                parts = c.gather(futs)
+                merged: dict[str, Any] = {
+                    key: np.concatenate([np.asarray(p[key]) for p in parts])
+                    for key in ("x", "f", "f_x0", "evaluations", "done")}
+                merged["f_full"] = parts[0]["f_full"]
+                merged["rollouts"] = int(sum(int(p["rollouts"]) for p in parts))
+                merged["cache_hits"] = int(sum(int(p["cache_hits"]) for p in parts))
+                merged["interrupted"] = False
+                out.append(merged)
+        return out
+
     u = estimate(prob, [list(range(len(runs)))], [np.asarray(res.x)], opts, seed=seed,
-                 threads=threads, client=client, batch=batch, rebuild=(model, runs, pkw))
+                 threads=threads, refit=refit)
     return u[0]
+
+
+def _refit_task(model: Any, runs: list[Any], pkw: dict[str, Any], sub: list[int],
+                x0: np.ndarray, atoms: list[int], weights: np.ndarray, budget: int,
+                step: float, threads: int) -> dict[str, Any]:
+    """One task of the distributed refits: the resamples ``weights`` of one problem."""
+    from .calibration import _problem
+
+    prob = _problem(model, runs, **pkw)
+    return dict(_core.refit_resamples(
+        prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper, scale=prob.scale,
+        problems=[sub], x0=np.ascontiguousarray(x0[None, :]), atoms=[atoms],
+        resample_weights=[np.ascontiguousarray(weights)], budget=budget, step=step,
+        threads=threads, **prob.kw)[0])

@@ -71,7 +71,6 @@ __all__ = [
     "BOUND_TOL",
     "ATOMS_PER_BLOCK",
     "to_dataset",
-    "validate_intervals",
 ]
 
 #: Floor of the block length (s).
@@ -632,53 +631,6 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
     return uniq, atoms, np.ascontiguousarray(w), float(block), atom_s
 
 
-def _refit_task(model: Any, runs: list[Any], pkw: dict[str, Any], sub: list[int],
-                x0: np.ndarray, atoms: list[int], weights: np.ndarray, budget: int,
-                step: float, threads: int) -> dict[str, Any]:
-    """One task of the distributed refits: the resamples ``weights`` of one problem."""
-    from .calibration import _problem
-
-    prob = _problem(model, runs, **pkw)
-    return dict(_core.refit_resamples(
-        prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper, scale=prob.scale,
-        problems=[sub], x0=np.ascontiguousarray(x0[None, :]), atoms=[atoms],
-        resample_weights=[np.ascontiguousarray(weights)], budget=budget, step=step,
-        threads=threads, **prob.kw)[0])
-
-
-def _distributed(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray,
-                 plans: Sequence[Any], opts: Intervals, threads: int, client: Any,
-                 batch: int, rebuild: tuple[Any, list[Any], dict[str, Any]] | None
-                 ) -> list[dict[str, Any]]:
-    """The refits as ``dask.distributed`` tasks of ``batch`` resamples, gathered in
-    order into the form :func:`avll._core.refit_resamples` returns."""
-    from .maps import _ClientScope
-
-    if rebuild is None:
-        raise ValueError("client: the distributed refits need the model and runs to "
-                         "rebuild the problem on the workers")
-    model, runs, pkw = rebuild
-    out: list[dict[str, Any]] = []
-    with _ClientScope(client) as c:
-        runs_f = c.scatter(runs, broadcast=True)
-        for k, sub in enumerate(subsets):
-            w = plans[k][2]
-            futs = [c.submit(_refit_task, model, runs_f, pkw, [int(i) for i in sub], x0[k],
-                             plans[k][1], w[i : i + batch], int(opts.budget),
-                             float(opts.step), int(threads), pure=False)
-                    for i in range(0, w.shape[0], batch)]
-            parts = c.gather(futs)
-            merged: dict[str, Any] = {}
-            for key in ("x", "f", "f_x0", "evaluations", "done"):
-                merged[key] = np.concatenate([np.asarray(p[key]) for p in parts])
-            merged["f_full"] = parts[0]["f_full"]
-            merged["rollouts"] = int(sum(int(p["rollouts"]) for p in parts))
-            merged["cache_hits"] = int(sum(int(p["cache_hits"]) for p in parts))
-            merged["interrupted"] = False
-            out.append(merged)
-    return out
-
-
 def _upper_columns(prob: Any, run: Any, x: np.ndarray) -> dict[str, np.ndarray]:
     """kg, kv, Tg, Gmin per row of ``x``: the free ones from the rows, the others the
     run's."""
@@ -711,16 +663,15 @@ def _exact_codes(model: str, cls: Any, x: np.ndarray, up: Mapping[str, np.ndarra
 def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarray],
              opts: Intervals, *, seed: int, threads: int = 0,
              progress: bool | str | Callable[[dict[str, Any]], Any] = False,
-             client: Any = None, batch: int = 10,
-             rebuild: tuple[Any, list[Any], dict[str, Any]] | None = None
+             refit: Callable[..., list[dict[str, Any]]] | None = None
              ) -> list[Uncertainty]:
     """The uncertainty stage for the problems ``subsets`` (run positions, repeats
     count) of the calibration problem ``prob`` with full-data optima ``x0s``: one
-    :class:`Uncertainty` per problem. Used by :func:`avll.calibrate`. With a
-    ``dask.distributed`` ``client`` the refits run as tasks of ``batch`` resamples
-    (the same multiplicities, drawn here, so the same result); ``rebuild`` = (model,
-    runs, problem keywords of :func:`avll.calibration._problem`) lets a worker rebuild
-    the problem."""
+    :class:`Uncertainty` per problem. Used by :func:`avll.calibrate`. ``refit``
+    replaces the refits in this process: ``refit(subsets, x0, atoms, weights, opts,
+    threads)`` returns what :func:`avll._core.refit_resamples` returns for the same
+    multiplicities (drawn here), e.g. as ``dask.distributed`` tasks
+    (:func:`avll.maps.bootstrap_distributed`)."""
     threads = check_threads(threads)
     seed = check_seed(seed if opts.seed is None else opts.seed)
     x0 = np.ascontiguousarray(np.vstack([np.asarray(x, dtype=np.float64) for x in x0s]))
@@ -739,7 +690,7 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             bar.advance_to(sum(seen.values()))
     done = False
     try:
-        if client is None:
+        if refit is None:
             raws = _core.refit_resamples(
                 prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
                 scale=prob.scale, problems=[[int(i) for i in s] for s in subsets], x0=x0,
@@ -748,7 +699,8 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
                 progress=cb if (callable(progress) or bar.mode != "none") else None,
                 threads=int(threads), **prob.kw)
         else:
-            raws = _distributed(prob, subsets, x0, plans, opts, threads, client, batch, rebuild)
+            raws = refit([[int(i) for i in s] for s in subsets], x0, [p[1] for p in plans],
+                         [p[2] for p in plans], opts, threads)
         done = not any(bool(r["interrupted"]) for r in raws)
         if not done:
             _sigint.clear()
@@ -798,65 +750,3 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         out.append(u)
     return out
 
-
-def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
-                       duration: float = 300.0, starts: int = 2, threads: int = 0,
-                       **platoon: Any) -> dict[str, Any]:
-    """Coverage on a known truth: for each seed a synthetic platoon
-    (:func:`avll.synth_platoon.synth_platoon`, proposed lower levels, ``cars``
-    followers, ``duration`` s, ``platoon`` further options), each follower calibrated
-    closed loop as the OpenACC study does (:data:`avll.studies.openacc.WEIGHTS`, every
-    upper gain free, ``Gmin`` in [0, 10] m) with ``n`` resamples. Per car: whether the
-    95 % intervals of the band amplification and of ``Tg + Gmin / v̄`` hold the truth,
-    the estimates' relative errors and the intervals' relative widths. Returns
-    ``rows`` and a ``summary`` (coverage, share of estimates within 10 %, median
-    relative width, mean error, per quantity)."""
-    from .calibration import calibrate_many
-    from .defaults import UPPER_NAMES
-    from .studies.openacc import GMIN_MAX, WEIGHTS
-    from .synth_platoon import synth_platoon
-
-    rows: list[dict[str, Any]] = []
-    opts = Intervals(n=n)
-    for seed in seeds:
-        sp = synth_platoon(cars, seed=int(seed), duration=duration,
-                           models=platoon.pop("models", ("proposed",)), **platoon)
-        res = calibrate_many("proposed", sp.runs, "per_run", seed=int(seed), starts=starts,
-                             closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,
-                             bounds={"Gmin": (0.0, GMIN_MAX)}, intervals=opts,
-                             threads=threads)
-        for r, run, tr in zip(res, sp.runs, sp.truth, strict=True):
-            u = r.uncertainty
-            assert run.lead_v is not None and run.v is not None
-            row: dict[str, Any] = {"seed": int(seed), "car": run.run_id,
-                                   "block_s": u.block_s}
-            amp, amps = u.band_amplification(run.lead_v, run.dt)
-            tge, tges = u.time_gap_effective(float(np.mean(run.v)))
-            for key, est, smp, truth in (
-                    ("amplification", amp, amps, tr["band_gain"]),
-                    ("time_gap_effective", tge, tges, tr["time_gap_effective"])):
-                lo, hi = u._q(smp)
-                row[key] = {"truth": float(truth), "estimate": float(est),
-                            "low": lo, "high": hi,
-                            "inside": bool(lo <= truth <= hi),
-                            "error": float(est / truth - 1.0),
-                            "rel_width": float((hi - lo) / truth)}
-            rows.append(row)
-    summary: dict[str, Any] = {"cars": len(rows), "seeds": [int(s) for s in seeds],
-                               "resamples": int(n), "level": opts.level}
-    for key in ("amplification", "time_gap_effective"):
-        d = [r[key] for r in rows]
-        err = np.array([x["error"] for x in d])
-        summary[key] = {
-            "coverage": float(np.mean([x["inside"] for x in d])) if d else None,
-            "within_10pct": float(np.mean(np.abs(err) <= 0.10)) if d else None,
-            "mean_error": float(np.mean(err)) if d else None,
-            "median_abs_error": float(np.median(np.abs(err))) if d else None,
-            "median_rel_width": float(np.median([x["rel_width"] for x in d])) if d else None,
-            # how far the truth lies outside, in interval widths (0 inside)
-            "median_miss_in_widths": float(np.median([
-                max(x["low"] - x["truth"], x["truth"] - x["high"], 0.0)
-                / max(x["high"] - x["low"], 1e-300) for x in d if not x["inside"]]))
-            if any(not x["inside"] for x in d) else 0.0,
-        }
-    return {"rows": rows, "summary": summary}
