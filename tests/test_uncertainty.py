@@ -45,7 +45,7 @@ def test_interval_options_are_checked() -> None:
     with pytest.raises(ValueError, match="block"):
         Intervals(block=-1.0)
     with pytest.raises(ValueError, match="n"):
-        Intervals(n=3)
+        Intervals(n=1)
     with pytest.raises(TypeError, match="intervals"):
         Intervals.of("yes")
     assert Intervals.of(True) == Intervals()
@@ -174,11 +174,11 @@ def test_run_resampling_is_an_option_of_the_same_entry() -> None:
 
 def test_intervals_cover_the_truth_on_synthetic_platoons_quick() -> None:
     # fresh seeds, a few cars: the full check is the slow test below
-    s = validate_intervals([20261128], cars=4, n=60)["summary"]
-    assert s["cars"] == 4
+    s = validate_intervals([20261128], cars=3, n=50)["summary"]
+    assert s["cars"] == 3
     assert s["amplification"]["coverage"] >= 0.5, s
     assert s["time_gap_effective"]["coverage"] >= 0.5, s
-    assert s["amplification"]["within_10pct"] >= 0.75, s
+    assert s["amplification"]["within_10pct"] >= 2 / 3, s
 
 
 @pytest.mark.slow
