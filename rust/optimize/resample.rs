@@ -88,6 +88,9 @@ pub struct Resampled {
     pub rollouts: usize,
 }
 
+/// Atom sums per parameter row (its bits); `None` for a row whose cost is `inf`.
+type Cache = Mutex<HashMap<Vec<u64>, Option<Arc<Vec<f64>>>>>;
+
 /// Atom sums of a problem's runs, cached per parameter row.
 struct Atoms<'a> {
     spec: &'a CostSpec,
@@ -97,7 +100,7 @@ struct Atoms<'a> {
     offsets: Vec<usize>,
     counts: Vec<f64>,
     lens: Vec<f64>,
-    cache: Mutex<HashMap<Vec<u64>, Option<Arc<Vec<f64>>>>>,
+    cache: Cache,
     cache_rows: usize,
     hits: std::sync::atomic::AtomicUsize,
     rollouts: std::sync::atomic::AtomicUsize,
@@ -321,8 +324,9 @@ pub fn refit_resamples(
                     local_search(&f, bounds, &x0, f0, &steps, budget, |_, fb| {
                         hist.push(fb);
                         let n = hist.len();
-                        !(n > window && hist[n - 1 - window] - fb <= opts.ftol * fb.abs())
-                            && !stop.load(Ordering::Relaxed)
+                        let stalled =
+                            n > window && hist[n - 1 - window] - fb <= opts.ftol * fb.abs();
+                        !(stalled || stop.load(Ordering::Relaxed))
                     })
                 } else {
                     (x0.clone(), f0, 0)
@@ -355,7 +359,7 @@ pub fn refit_resamples(
                     .zip(&q.atom)
                     .map(|(&(j, _), &at)| runs.get(j).map_or(0, |r| n_atoms(r.len(), at.max(1))))
                     .sum();
-                let b = if a == 0 { 0 } else { q.weights.len() / a };
+                let b = q.weights.len().checked_div(a).unwrap_or(0);
                 out.push(Resampled {
                     refits: (0..b)
                         .map(|_| Refit {
