@@ -71,11 +71,26 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    ``amplification_replay_oos`` (replay vs the RMS ratio) and
    ``time_gap_effective_oos`` (``Tg + Gmin / v̄`` at the held-out run's mean
    speed, compared with the measured headway). Each is ``null`` with a
-   ``_reason`` when the car has no other file of its setting; their ``_ci`` are
-   ``null`` with a reason until the calibration returns parameter intervals. The
-   summary's ``out_of_sample`` gives, per group, the bias (mean error), the share
-   within 10 % and the share inside the measured 95 % interval, out of sample and
-   in-sample.
+   ``_reason`` when the car has no other file of its setting. The summary's
+   ``out_of_sample`` gives, per group, the bias (mean error), the share within 10 %,
+   the share inside the measured 95 % interval and the share of the measurements
+   inside the predicted 95 % interval, out of sample and in-sample.
+5. **Intervals** (``intervals=True``, the default). The main model's calibrations,
+   in-sample and out of sample, get their uncertainty (:mod:`avll.uncertainty`: a
+   moving-block bootstrap over time with the block length from the residuals, each
+   resample refit by a local search from the full-data optimum; for the
+   out-of-sample model the blocks are those of the car's other files). Per car, all
+   at 95 %: ``amplification_predicted_ci`` and ``amplification_predicted_oos_ci``
+   (``|H|`` of the resampled closed loops on the run's predecessor spectrum; locally
+   unstable resamples left out and counted in ``_note``), ``time_gap_effective_ci``
+   and ``time_gap_effective_oos_ci`` (at the run's mean speed),
+   ``string_stable_probability`` (and ``_oos``: the share of resamples string stable
+   by the exact test with the true delay; locally unstable ones count as not
+   stable), ``params_ci`` (name -> [low, high]) and ``identified`` (the parameters
+   and combinations the data determine, :meth:`avll.Uncertainty.verdicts`); each
+   ``null`` with a ``_reason`` where none can be computed. ``final_model_effects``
+   names the effects of the model the predictions come from (empty: the base
+   model).
 
 **ACC state** (the run meta's ``acc``): runs under ACC are the study's cars;
 human-driven runs (``acc`` False) are calibrated with the same closed-loop
