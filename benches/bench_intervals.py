@@ -6,7 +6,8 @@ one process, without intervals (``intervals=False``) and with them (the default
 calibrations, in-sample and out of sample, refit by a local search from the full-data
 optimum), same seed and GA budget, and reports both wall times, their ratio and the
 machine's load (1-minute load average before and after each run, and the cores),
-since the machine is shared.
+since the machine is shared; and both CPU times of this process (every thread), whose
+ratio the other users of a shared machine do not change.
 
     python benches/bench_intervals.py [--data /work/shared/data/openacc-zalazone]
         [--threads 0] [--n 200] [--json OUT]
@@ -31,10 +32,11 @@ def run(data: str, threads: int, n: int) -> dict[str, object]:
                               "avll": avll.__version__}
     for name, iv in (("without", False), ("with", avll.Intervals(n=n))):
         load0 = os.getloadavg()[0]
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         st = openacc_study(data, intervals=iv, threads=threads, figures=False)
-        dt = time.perf_counter() - t0
-        out[name] = {"seconds": round(dt, 1), "load_before": round(load0, 2),
+        dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+        out[name] = {"seconds": round(dt, 1), "cpu_seconds": round(cpu, 1),
+                     "load_before": round(load0, 2),
                      "load_after": round(os.getloadavg()[0], 2),
                      "cars": len(st.summary["cars"])}
         print(f"{name} intervals: {dt:.1f} s (load {load0:.2f} -> "
@@ -42,6 +44,7 @@ def run(data: str, threads: int, n: int) -> dict[str, object]:
     w, wo = out["with"], out["without"]
     assert isinstance(w, dict) and isinstance(wo, dict)
     out["ratio"] = round(w["seconds"] / wo["seconds"], 3)
+    out["cpu_ratio"] = round(w["cpu_seconds"] / wo["cpu_seconds"], 3)
     out["target"] = 2.0
     return out
 
