@@ -53,9 +53,11 @@ def render(numbers: dict[str, Any]) -> str:
         lines += ["", f"OpenACC study on the ZalaZone folder ({b['without']['cars']} cars, "
                   f"{b['cores']} cores, threads {b['threads']}): {b['without']['seconds']} s "
                   f"without intervals, {b['with']['seconds']} s with them: ratio "
-                  f"{b['ratio']:.2f} (target ≤ {b['target']:g}); CPU time "
-                  f"{b['without']['cpu_seconds']} s and {b['with']['cpu_seconds']} s: ratio "
-                  f"{b['cpu_ratio']:.2f}; 1-minute load "
+                  f"{b['ratio']:.2f} (target ≤ {b['target']:g}); "
+                  + (f"CPU time {b['without']['cpu_seconds']} s and "
+                     f"{b['with']['cpu_seconds']} s: ratio {b['cpu_ratio']:.2f}; "
+                     if "cpu_ratio" in b else "")
+                  + "1-minute load "
                   f"{b['without']['load_before']}–{b['without']['load_after']} and "
                   f"{b['with']['load_before']}–{b['with']['load_after']} (a shared machine)."]
     else:
