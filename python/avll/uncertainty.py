@@ -497,9 +497,10 @@ class Uncertainty:
         return to_dataset([self], **{k: [v] for k, v in coords.items()})
 
 
-def to_dataset(items: Sequence[Uncertainty], car: Sequence[Any] | None = None,
+def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
                **coords: Sequence[Any]) -> Any:
-    """Many calibrations' uncertainty as one ``xarray.Dataset`` with dims ``car`` x
+    """Many calibrations' uncertainty (:class:`Uncertainty` objects, or calibration
+    results with intervals) as one ``xarray.Dataset`` with dims ``car`` x
     ``parameter`` (the model's and effects' parameters and free gains, the union over
     ``items``): ``value``, ``low``, ``high`` and ``identified`` (bool), plus one
     variable per combination (``<name>``, ``<name>_low``, ``<name>_high``) over
@@ -509,9 +510,13 @@ def to_dataset(items: Sequence[Uncertainty], car: Sequence[Any] | None = None,
     follows xarray's ``curvefit`` output (``*_coefficients`` over ``param``)."""
     import xarray as xr
 
-    items = list(items)
+    items = [getattr(u, "uncertainty", u) for u in items]
     if not items:
         raise ValueError("items: no calibrations given")
+    for q, u in enumerate(items):
+        if not isinstance(u, Uncertainty):
+            raise TypeError(f"items[{q}]: expected an avll.Uncertainty or a calibration "
+                            f"with intervals, got {type(u).__name__}")
     names = list(dict.fromkeys(n for u in items for n in u.names))
     comb = list(dict.fromkeys(n for u in items for n in u.combinations))
     nc, npar = len(items), len(names)
@@ -553,11 +558,11 @@ def to_dataset(items: Sequence[Uncertainty], car: Sequence[Any] | None = None,
         data[f"{n}_identified"] = (("car",), cid[n])
     cds: dict[str, Any] = {"car": car_c, "parameter": names, "parameter2": names,
                            "model": ("car", [u.model for u in items])}
-    for k, v in coords.items():
-        v = list(v)
-        if len(v) != nc:
-            raise ValueError(f"{k}: {len(v)} values for {nc} calibrations")
-        cds[k] = ("car", v)
+    for name, vals in coords.items():
+        vals = list(vals)
+        if len(vals) != nc:
+            raise ValueError(f"{name}: {len(vals)} values for {nc} calibrations")
+        cds[name] = ("car", vals)
     lv = {u.level for u in items}
     return xr.Dataset(data, coords=cds, attrs={
         "level": lv.pop() if len(lv) == 1 else "mixed",
