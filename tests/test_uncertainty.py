@@ -191,3 +191,22 @@ def test_intervals_cover_the_truth_on_synthetic_platoons() -> None:
     assert s["time_gap_effective"]["within_10pct"] >= 0.90, s
     assert s["amplification"]["coverage"] >= 0.85, s
     assert s["time_gap_effective"]["coverage"] >= 0.85, s
+
+
+def test_combinations_match_their_definitions() -> None:
+    """The DC gain and the low-frequency delay of the proposed lower level, vectorised
+    over rows, against G_fb(jω) = G / (1 - K G) evaluated near ω = 0."""
+    from avll.uncertainty import _linear_columns, dc_gain, low_frequency_delay
+
+    x = np.array([[0.3, 0.05, 0.6, 0.9, 0.2, -0.3], [0.0, 0.2, 1.1, 1.2, 0.0, 0.4]])
+    lin = _linear_columns(avll.Proposed, x)
+    w = 1e-5
+    for i, row in enumerate(x):
+        m = avll.Proposed.from_array(row)
+        c = m.linear()
+        s = 1j * w
+        g = (c["b1"] * s + c["b0"]) * np.exp(-s * c["Td"]) / (c["a2"] * s * s + c["a1"] * s + 1)
+        gfb = g / (1 - c["K"] * g)
+        assert dc_gain(lin)[i] == pytest.approx(m.dc_gain, rel=1e-12)
+        assert dc_gain(lin)[i] == pytest.approx(abs(gfb), rel=1e-6)
+        assert low_frequency_delay(lin)[i] == pytest.approx(-np.angle(gfb) / w, rel=1e-4)
