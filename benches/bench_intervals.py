@@ -10,7 +10,11 @@ since the machine is shared; and both CPU times of this process (every thread), 
 ratio the other users of a shared machine do not change.
 
     python benches/bench_intervals.py [--data /work/shared/data/openacc-zalazone]
-        [--threads 0] [--n 200] [--json OUT]
+        [--threads 0] [--n 200] [--json OUT] [--out DIR]
+
+``--out DIR`` also saves the study with intervals (its summary, tables and report:
+the out-of-sample predictions with their intervals, the bias and the shares inside
+the intervals on the ZalaZone cars).
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ import avll
 from avll.studies.openacc import openacc_study
 
 
-def run(data: str, threads: int, n: int) -> dict[str, object]:
+def run(data: str, threads: int, n: int, out_dir: str | None = None) -> dict[str, object]:
     """Both timings, their ratio and the load around each."""
     out: dict[str, object] = {"data": data, "threads": threads, "cores": os.cpu_count(),
                               "avll": avll.__version__}
@@ -41,6 +45,8 @@ def run(data: str, threads: int, n: int) -> dict[str, object]:
                      "cars": len(st.summary["cars"])}
         print(f"{name} intervals: {dt:.1f} s (load {load0:.2f} -> "
               f"{os.getloadavg()[0]:.2f})", file=sys.stderr)
+        if name == "with" and out_dir:
+            st.save(out_dir)
     w, wo = out["with"], out["without"]
     assert isinstance(w, dict) and isinstance(wo, dict)
     out["ratio"] = round(w["seconds"] / wo["seconds"], 3)
@@ -56,8 +62,9 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--n", type=int, default=avll.Intervals().n)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--out", default=None)
     a = ap.parse_args()
-    res = run(a.data, a.threads, a.n)
+    res = run(a.data, a.threads, a.n, a.out)
     print(json.dumps(res, indent=1))
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=1, allow_nan=False) + "\n")
