@@ -38,7 +38,8 @@ nor the interval reaches a bound (within :data:`BOUND_TOL` of the box in unit
 coordinates). A parameter whose interval reaches a bound is determined on one side
 only (the box, not the data, closes it); one spanning a large share of the box trades
 off with others. Neither is printed as a finding. The identified combinations,
-computed from every resample: the effective time gap ``Tg + Gmin / v̄`` (closed loop),
+computed from every resample (of the base model's linear part when the model carries
+effects): the effective time gap ``Tg + Gmin / v̄`` (closed loop),
 the lower level's DC gain ``K0 / (1 - K K0)``, its low-frequency delay (the group delay
 of ``G / (1 - K G)`` at ``ω -> 0``: ``(a1 - b1 / b0 + Td) / (1 - K b0)``), and, given a
 predecessor's speed, the band amplification (``|H|`` of the calibrated closed loop with
@@ -403,7 +404,8 @@ class Uncertainty:
         """``|H|`` of the calibrated closed loop (true delay) as an RMS gain on the
         band-passed spectrum of the predecessor's speed ``lead_v``
         (:func:`avll.spectral.band_gain_rows`): the full-data value and the
-        resamples' (NaN where the closed loop is locally unstable, when known)."""
+        resamples' (NaN where the closed loop is locally unstable, when known). With
+        effects, the base model's linear loop (the effects are left out of ``|H|``)."""
         from .models import model_class
         from .spectral import DEFAULT_BAND, band_gain_rows
 
