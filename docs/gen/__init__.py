@@ -489,6 +489,7 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("docs/gen/intervals.py", "python/avll/uncertainty.py",
               "python/avll/synth_platoon.py", "python/avll/spectral.py",
               "benches/bench_intervals.py", *_CAL, *_MODELS), cheap=False,
+             sidecars=("docs/_generated/intervals_bench.json",),
              note="48 closed-loop calibrations with 200 resamples each (~10 min); the "
                   "study's cost from docs/_generated/intervals_bench.json"),
     Fragment("effect-stability", "docs/_generated/effect_stability.md",

@@ -842,7 +842,8 @@ def _refit_task(model: Any, runs: list[Any], pkw: dict[str, Any], sub: list[int]
     prob = _problem(model, runs, **pkw)
     return dict(_core.refit_resamples(
         prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper, scale=prob.scale,
-        problems=[sub], x0=np.ascontiguousarray(np.asarray(x0, dtype=np.float64)[None, :]),
+        problems=[sub], x0=np.array([[float(v) for v in np.ravel(x0)]], dtype=np.float64),
         atoms=[atoms],
-        resample_weights=[np.ascontiguousarray(weights)], budget=budget, step=step,
+        resample_weights=[np.array(weights, dtype=np.float64, order="C", copy=True)],
+        budget=budget, step=step,
         threads=threads, **prob.kw)[0])
