@@ -198,9 +198,10 @@ def test_workflow_packs_the_runs_once(
 def test_bootstrap_intervals() -> None:
     runs = paper_experiment(TRUE["first"], seed=5, runs=(1, 2, 3, 4, 5, 6), duration=60.0)
     b = bootstrap("first", runs, n=8, seed=0, max_generations=40)
+    assert isinstance(b, avll.Uncertainty) and b.method == "runs"
     ci = b.ci()
-    assert list(ci.index) == ["Td", "dc_gain"]
-    assert b.samples.shape == (8, 2)
+    assert list(ci.index) == ["Td", "dc_gain", "low_frequency_delay"]
+    assert b.samples.shape == (8, 1)
     assert (ci["low"] <= ci["median"]).all() and (ci["median"] <= ci["high"]).all()
     assert ci.loc["Td", "median"] == pytest.approx(1.0758, rel=0.02)
     assert b.samples[:, 0].std() > 0  # resamples differ

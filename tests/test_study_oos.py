@@ -14,12 +14,15 @@ import numpy as np
 import pytest
 
 from avll.data import Run
-from avll.studies.openacc import OOS_CI_REASON, openacc_study
+from avll.studies.openacc import INTERVALS_OFF, openacc_study
 from avll.synth_platoon import random_car, synth_platoon
+from avll.uncertainty import Intervals
 
 OOS_KEYS = ("amplification_predicted_oos", "amplification_predicted_oos_ci",
             "amplification_replay_oos", "time_gap_effective_oos", "time_gap_effective_oos_ci")
 H1_KEYS = ("amplification_measured_h1", "amplification_measured_h1_ci", "coherence")
+CI_KEYS = ("amplification_predicted_ci", "time_gap_effective_ci", "string_stable_probability",
+           "params_ci", "identified")
 
 
 def _campaign(seed: int, n_files: int, n_cars: int, duration: float,
@@ -51,7 +54,7 @@ def test_keys_present_or_null_with_reason() -> None:
     # car2 drives setting M in f0 and L in f1: no other file of its setting either way
     runs, _truth = _campaign(8111, 2, 2, 200.0, {(1, "car2"): "L"})
     st = openacc_study(runs, models=("proposed",), max_generations=3, starts=1, n_boot=100,
-                       figures=False, seed=3)
+                       figures=False, seed=3, intervals=Intervals(n=12))
     s = st.summary
     json.dumps(s, allow_nan=False)
     by = {(c["file"], c["car"]): c for c in s["cars"]}
@@ -62,19 +65,26 @@ def test_keys_present_or_null_with_reason() -> None:
         lo, hi = c["amplification_measured_h1_ci"]
         assert lo < c["amplification_measured_h1"] < hi
         assert 0.0 < c["coherence"] <= 1.0
-        # no interval is invented for the out-of-sample prediction
-        assert c["amplification_predicted_oos_ci"] is None
-        assert c["amplification_predicted_oos_ci_reason"]
-        assert c["time_gap_effective_oos_ci"] is None
+        _check_null_with_reason(c, CI_KEYS)
+        assert c["final_model_effects"] == []
+        assert set(c["params_ci"]) == set(c["params"])
+        lo, hi = c["time_gap_effective_ci"]
+        assert lo <= hi
     for f, other in (("f0.csv", "f1.csv"), ("f1.csv", "f0.csv")):
         c = by[(f, "car1")]
         assert c["oos_files"] == [other]
         assert c["time_gap_effective_oos"] is not None
-        assert c["amplification_predicted_oos_ci_reason"] == OOS_CI_REASON
+        # the out-of-sample model's own resamples (blocks of the other file)
+        lo, hi = c["time_gap_effective_oos_ci"]
+        assert lo <= hi
+        if c["amplification_predicted_oos"] is not None:
+            assert c["amplification_predicted_oos_ci"] is not None
         c2 = by[(f, "car2")]
         assert c2["oos_files"] == [] and c2["amplification_predicted_oos"] is None
         assert "no other file of the same setting" in c2["amplification_predicted_oos_reason"]
         assert c2["time_gap_effective_oos"] is None
+        assert c2["time_gap_effective_oos_ci"] is None
+        assert "no other file" in c2["time_gap_effective_oos_ci_reason"]
     oos = s["out_of_sample"]
     assert oos["cars_with_prediction"] + oos["cars_without_other_file"] == 4
     assert oos["cars_without_other_file"] == 2
@@ -87,12 +97,14 @@ def test_keys_present_or_null_with_reason() -> None:
 def test_out_of_sample_off_says_why() -> None:
     runs, _truth = _campaign(8121, 2, 1, 150.0)
     s = openacc_study(runs, models=("proposed",), max_generations=2, starts=1, n_boot=100,
-                      figures=False, out_of_sample=False).summary
+                      figures=False, out_of_sample=False, intervals=False).summary
     json.dumps(s, allow_nan=False)
     assert s["out_of_sample"]["enabled"] is False
     for c in s["cars"]:
         assert c["amplification_predicted_oos"] is None
         assert "not run" in c["amplification_predicted_oos_reason"]
+        for k in CI_KEYS:  # no interval is invented
+            assert c[k] is None and c[f"{k}_reason"] == INTERVALS_OFF
 
 
 @pytest.mark.parametrize("seed,n_cars,gens", [
@@ -105,7 +117,7 @@ def test_oos_prediction_matches_the_truth(seed: int, n_cars: int, gens: int) -> 
     within 10 % of that file's truth for most cars (small GA budget in the quick case)."""
     runs, truth = _campaign(seed, 3, n_cars, 300.0)
     s = openacc_study(runs, models=("proposed",), max_generations=gens, starts=1,
-                      n_boot=200, figures=False, seed=5).summary
+                      n_boot=200, figures=False, seed=5, intervals=False).summary
     err_a, err_tg = [], []
     for c in s["cars"]:
         tr = truth[c["run_id"]]

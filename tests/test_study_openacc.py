@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from loader_helpers import NO_DATA, ZALA, native_platoon, write_native
 
+import avll
 from avll import FirstOrderLag, Proposed, SecondOrder, UpperLevel, _atomic, closed_loop
 from avll.cli import main
 from avll.reference.stability import closed_loop_polys
@@ -179,7 +180,8 @@ def test_real_file_quick(tmp_path):
     if not f.exists():
         pytest.skip(NO_DATA)
     res = st.openacc_study(f, model="first", models=("first",), max_generations=3,
-                           pop_size=8, starts=1, n_boot=100, figures=False)
+                           pop_size=8, starts=1, n_boot=100, figures=False,
+                           intervals=avll.Intervals(n=10))
     cars = res.summary["cars"]
     assert len(cars) == 9
     first = cars[0]
@@ -188,4 +190,13 @@ def test_real_file_quick(tmp_path):
     assert "does not excite" in first["amplification_measured_reason"]
     assert first["amplification_measured_ci"] == [None, None]
     assert sum(c["amplification_measured"] is not None for c in cars) >= 6
+    # the contract's interval keys: a value, or null with a reason
+    for c in cars:
+        assert c["final_model_effects"] == []
+        for k in ("amplification_predicted_ci", "time_gap_effective_ci",
+                  "string_stable_probability", "params_ci", "identified"):
+            assert c[k] is not None or c[f"{k}_reason"], k
+        if c["time_gap_effective_ci"] is not None:
+            lo, hi = c["time_gap_effective_ci"]
+            assert lo <= hi and set(c["params_ci"]) == set(c["params"])
     json.dumps(_atomic.json_safe(res.summary), allow_nan=False)

@@ -19,7 +19,7 @@ from avll.data import Run
 from avll.studies import openacc as st
 
 FAST = {"model": "first", "models": ("first",), "max_generations": 3, "pop_size": 8,
-        "starts": 1, "n_boot": 100}
+        "starts": 1, "n_boot": 100, "intervals": False}
 
 
 def platoon_runs(stem, *, n=1200, tg=1.5, seed=0, meta=None, vehicles=4, dt=0.1):

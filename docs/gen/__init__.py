@@ -377,6 +377,12 @@ def _numbers(mod: ModuleType, *args: Any) -> Generated:
     return Generated(body(mod.render(d)), d)
 
 
+def _numbers_of(mod: ModuleType) -> Generated:
+    """A fragment module with ``collect()`` (its numbers) and ``render(numbers)``."""
+    d = mod.collect()
+    return Generated(body(mod.render(d)), d)
+
+
 def _text(fn: Callable[[], str]) -> Callable[[argparse.Namespace], Generated]:
     return lambda _: Generated(body(fn()))
 
@@ -474,6 +480,14 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              _text(lambda: _own("stability_uncertainty").render()),
              ("docs/gen/stability_uncertainty.py", "python/avll/synth.py", *_CAL, *_MODELS,
               *_STAB), cheap=False, note="20 bootstrap calibrations"),
+    Fragment("intervals", "docs/_generated/intervals.md",
+             lambda _: _numbers_of(_own("intervals")),
+             ("docs/gen/intervals.py", "python/avll/uncertainty.py",
+              "python/avll/synth_platoon.py", "python/avll/spectral.py",
+              "benches/bench_intervals.py", *_CAL, *_MODELS), cheap=False,
+             sidecars=("docs/_generated/intervals_bench.json",),
+             note="48 closed-loop calibrations with 200 resamples each (~10 min); the "
+                  "study's cost from docs/_generated/intervals_bench.json"),
     Fragment("effect-stability", "docs/_generated/effect_stability.md",
              _text(lambda: _own("effect_stability").render()),
              ("docs/gen/effect_stability.py", "python/avll/effect_stability.py",

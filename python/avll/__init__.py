@@ -42,6 +42,7 @@ _LAZY_NAMES: dict[str, str] = {
                      "exact_delay_codes", "kv_supremum", "kv_threshold", "min_stable_tg",
                      "pade_error_map", "pade_report", "stability_map", "stability_points",
                      "stable_intervals", "thresholds"), "stability"),
+    **dict.fromkeys(("Intervals", "Uncertainty"), "uncertainty"),
 }
 
 __all__ = ["io", "synth", "datasets", "__version__", "DataError", "DataWarning",
@@ -111,6 +112,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
         stable_intervals,
         thresholds,
     )
+    from .uncertainty import Intervals, Uncertainty
 
 #: Submodules imported on first use: ``avll.io`` brings pandas (the loaders), which
 #: ``import avll`` alone does not need; ``avll.plotting`` the figures (matplotlib on

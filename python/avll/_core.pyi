@@ -149,6 +149,37 @@ def calibrate(
 def derive_seed(seed: int, k: int) -> int: ...
 def ga_defaults() -> dict[str, int | float | bool]: ...
 def ga_check(options: dict[str, Any] | None = None) -> dict[str, int | float | bool]: ...
+def refit_resamples(
+    model: str,
+    runs: RunSet,
+    lower_bounds: list[float],
+    upper_bounds: list[float],
+    scale: list[str],
+    problems: list[list[int]],
+    x0: npt.NDArray[np.float64],
+    atoms: list[list[int]],
+    resample_weights: list[npt.NDArray[np.float64]],
+    effects: list[str] = ...,
+    upper_free: list[int] = ...,
+    command_kind: str = "acceleration",
+    weights: tuple[float, float, float] = ...,
+    init: str = "rest",
+    closed_loop: bool = False,
+    budget: int = 0,
+    step: float = 0.02,
+    ftol: float = 1e-9,
+    progress: Callable[[dict[str, Any]], Any] | None = None,
+    threads: int = 0,
+) -> list[dict[str, Any]]: ...
+def delay_codes_rows(
+    model: str,
+    params: npt.NDArray[np.float64],
+    kg: list[float],
+    tg: list[float],
+    kv: list[float],
+    budget: int = 20000,
+    threads: int = 0,
+) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.bool_]]: ...
 
 # --- stability (rust/bindings/stability.rs) ---
 PADE_MAX_ORDER: int

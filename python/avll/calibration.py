@@ -44,6 +44,10 @@ from .paper import MODEL_TITLES as _LABELS
 from .paper import PAPER_CAL_RUNS
 from .rollout import closed_loop, simulate
 from .runs import RunSet, as_runset, positions
+from .uncertainty import Uncertainty
+
+#: The former name of the bootstrap's result: the one result type of intervals.
+Bootstrap = Uncertainty
 
 __all__ = [
     "DEFAULT_BOUNDS",
@@ -151,8 +155,9 @@ class CalibrationResult:
     stopped the search, the result then being the best so far. With effects,
     ``model`` is the base model and ``with_effects`` the base with its calibrated
     effects; ``x`` is the calibrated row ``[model | effects | free upper gains]``
-    (the order of ``bounds``). ``intervals`` (name -> (low, high)) is ``None`` until a
-    method that estimates them fills it.
+    (the order of ``bounds``). ``intervals`` (name -> (low, high): parameters, then the
+    identified combinations) and ``uncertainty`` (an :class:`avll.Uncertainty`) are
+    filled when :func:`calibrate` is asked for intervals, ``None`` otherwise.
     """
 
     model: LowerLevelModel
@@ -174,6 +179,9 @@ class CalibrationResult:
     with_effects: Any = None
     x: np.ndarray | None = None
     intervals: dict[str, tuple[float, float]] | None = None
+    #: The uncertainty of the calibration (:class:`avll.Uncertainty`) when asked for
+    #: with ``intervals=``; ``None`` otherwise.
+    uncertainty: Any = None
 
     @property
     def params(self) -> dict[str, float]:
@@ -486,6 +494,7 @@ def calibrate(
     starts: int = DEFAULT_STARTS,
     threads: int = 0,
     progress: bool | str | Callable[[dict[str, Any]], Any] = False,
+    intervals: Any = None,
     **ga_options: Any,
 ) -> Any:
     """Calibrates ``model`` on ``runs`` by minimising Eq. 6 with the GA.
@@ -520,6 +529,13 @@ def calibrate(
     see :data:`GA_OPTIONS` (``pop_size``, ``max_generations``, ``stall_generations``,
     ``ftol``, ``polish``, ...).
 
+    ``intervals`` (``True``, an :class:`avll.Intervals` or a dict of its fields) adds
+    a second stage after the GA: a block bootstrap over time refit by a local search
+    from the optimum (:mod:`avll.uncertainty`), filling ``uncertainty`` and
+    ``intervals`` of the result (with ``subsets``: of each problem, each with its own
+    resamples). A Ctrl-C during that stage returns the calibration with the intervals
+    of the resamples refit so far (``uncertainty.interrupted``).
+
     A calibration in which every parameter set tried costs ``inf`` (the model diverges
     on every candidate, or the data are out of range) raises a ``ValueError``: there is
     no fit to return.
@@ -529,12 +545,13 @@ def calibrate(
             model, runs, subsets, effects=effects, seed=seed, threads=threads,
             progress=progress, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
             weights=weights, init=init, initial=initial, target=target, starts=starts,
-            **ga_options,
+            intervals=intervals, **ga_options,
         )  # fmt: skip
     return _calibrate(
         model, runs, bounds=bounds, seed=seed, closed_loop=closed_loop, upper_free=upper_free,
         weights=weights, init=init, initial=initial, target=target, starts=starts,
         threads=threads, progress=progress, ga_options=ga_options, effects=effects,
+        intervals=intervals,
     )  # fmt: skip
 
 
@@ -556,8 +573,12 @@ def _calibrate(
     ga_options: Mapping[str, Any],
     packs: _Packs | None = None,
     effects: Sequence[str] = (),
+    intervals: Any = None,
 ) -> CalibrationResult:
     """:func:`calibrate` with the run sets of ``packs`` (packed on first use)."""
+    from .uncertainty import Intervals
+
+    iopts = Intervals.of(intervals)
     check_seed(seed)
     check_threads(threads)
     n = check_int(starts, "starts", min=1)
@@ -581,7 +602,22 @@ def _calibrate(
     raw["interrupted"] = any(bool(r["interrupted"]) for r in raws)
     start_seed = int(seed) if n == 1 else _core.derive_seed(int(seed), best)
     res = _result(prob, raw, prob.rs.runs, start_seed, _per_run(raw, len(prob.rs)))
-    return replace(res, start_costs=tuple(float(r["f"]) for r in raws))
+    res = replace(res, start_costs=tuple(float(r["f"]) for r in raws))
+    if iopts is None or res.interrupted:
+        return res
+    return _with_uncertainty(prob, [all_runs], [res], iopts, seed, threads, progress)[0]
+
+
+def _with_uncertainty(prob: _Problem, subsets: Sequence[Sequence[int]],
+                      results: Sequence[CalibrationResult], opts: Any, seed: int,
+                      threads: int, progress: Any) -> list[CalibrationResult]:
+    """``results`` with their uncertainty (:func:`avll.uncertainty.estimate`)."""
+    from .uncertainty import estimate
+
+    xs = [np.asarray(r.x, dtype=np.float64) for r in results]
+    us = estimate(prob, subsets, xs, opts, seed=seed, threads=threads, progress=progress)
+    return [replace(r, uncertainty=u, intervals=u.intervals)
+            for r, u in zip(results, us, strict=True)]
 
 
 def _per_run(raw: Mapping[str, Any], n_runs: int) -> np.ndarray:
@@ -635,6 +671,7 @@ def calibrate_many(
     initial: Sequence[Any] | None = None,
     target: float | None = None,
     starts: int = 1,
+    intervals: Any = None,
     **ga_options: Any,
 ) -> list[CalibrationResult]:
     """Solves many independent calibration problems in one parallel call.
@@ -646,8 +683,12 @@ def calibrate_many(
     With ``starts > 1`` each problem gets that many independent GA runs (problem
     ``k``, start ``j`` uses ``_core.derive_seed(seed, k * starts + j)``) and keeps
     the best. Each result's ``per_run_mse`` covers the runs of its problem (once
-    each).
+    each). ``intervals``: as :func:`calibrate`, each problem with its own resamples
+    (drawn from ``numpy.random.default_rng([seed, k])`` for problem ``k``).
     """
+    from .uncertainty import Intervals
+
+    iopts = Intervals.of(intervals)
     check_seed(seed)
     check_threads(threads)
     n_st = check_int(starts, "starts", min=1)
@@ -683,7 +724,9 @@ def calibrate_many(
         per_run = _per_run(raw, len(prob.rs))[uniq]
         res = _result(prob, raw, rs, _core.derive_seed(int(seed), k * n_st + j), per_run)
         out.append(replace(res, start_costs=tuple(float(r["f"]) for r in group)))
-    return out
+    if iopts is None or any(r.interrupted for r in out):
+        return out
+    return _with_uncertainty(prob, idx, out, iopts, seed, threads, progress)
 
 
 def calibrate_effects(
@@ -743,31 +786,6 @@ def calibrate_effects(
             "result": res}  # fmt: skip
 
 
-@dataclass(frozen=True)
-class Bootstrap:
-    """Bootstrap of a calibration over runs: ``samples`` is (n, parameters) with
-    columns ``names`` plus ``dc_gain``; ``ci`` the percentile intervals at ``level``."""
-
-    names: tuple[str, ...]
-    samples: np.ndarray
-    level: float
-    results: list[CalibrationResult]
-
-    def ci(self) -> Any:
-        """A DataFrame: rows parameters, columns median, low, high."""
-        import pandas as pd
-
-        q = (1.0 - self.level) / 2.0
-        return pd.DataFrame(
-            {
-                "median": np.median(self.samples, axis=0),
-                "low": np.quantile(self.samples, q, axis=0),
-                "high": np.quantile(self.samples, 1.0 - q, axis=0),
-            },
-            index=list(self.names),
-        )
-
-
 def bootstrap(
     model: Any,
     runs: RunSet | Sequence[Run],
@@ -777,13 +795,21 @@ def bootstrap(
     level: float = 0.95,
     threads: int = 0,
     progress: bool | str | Callable[[dict[str, Any]], Any] = False,
+    method: str = "runs",
+    block: float | None = None,
     **kwargs: Any,
-) -> Bootstrap:
-    """Percentile bootstrap over runs: ``n`` resamples of the runs with replacement
-    (drawn from ``seed``), each calibrated independently (in parallel, by
-    :func:`calibrate_many`). ``kwargs`` go to :func:`calibrate_many`. The samples
-    include the DC gain ``K0/(1 - K K0)``, which is identified even where the
-    individual parameters trade off."""
+) -> Any:
+    """The uncertainty of a calibration (:class:`avll.Uncertainty`): :func:`calibrate`
+    with ``intervals=avll.Intervals(n=n, level=level, method=method, block=block)``,
+    its ``uncertainty``. ``method="runs"`` (the default here) resamples whole runs
+    with replacement (the runs are the independent units: a problem of several runs);
+    ``"blocks"`` resamples blocks of time within each run (the default of
+    ``calibrate(intervals=True)``). Each resample is refit by a local search from the
+    full-data optimum (:mod:`avll.uncertainty`). ``kwargs`` go to :func:`calibrate`.
+    The combinations include the DC gain ``K0/(1 - K K0)``, which is identified even
+    where the individual parameters trade off."""
+    from .uncertainty import Intervals
+
     n = check_int(n, "n", min=2)
     if isinstance(level, bool) or not isinstance(level, (int, float, np.floating)) or not (
             0 < level < 1):
@@ -791,18 +817,14 @@ def bootstrap(
     seed = check_seed(seed)
     check_threads(threads)
     runs = as_runset(runs)
-    # the resample lists (Python ints) before the GA's own estimate
+    # the resample weights (a few atoms per run and resample) before the GA's own estimate
     check_memory(80.0 * n * len(runs), f"bootstrap: n={n} resamples x {len(runs)} runs",
                  "use fewer resamples per call and pool the samples", per=80.0 * len(runs),
                  unit="resamples")
-    rng = np.random.default_rng(seed)
-    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(int(n))]
-    res = calibrate_many(
-        model, runs, subsets, seed=seed, threads=threads, progress=progress, **kwargs
-    )
-    names = tuple(res[0].params) + ("dc_gain",)
-    samples = np.array([[*r.params.values(), r.model.dc_gain] for r in res])
-    return Bootstrap(names, samples, float(level), res)
+    opts = Intervals(n=n, level=float(level), method=method, block=block)
+    res = calibrate(model, runs, seed=seed, threads=threads, progress=progress,
+                    intervals=opts, **kwargs)
+    return res.uncertainty
 
 
 # ---------------------------------------------------------------------------

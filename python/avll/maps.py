@@ -448,6 +448,10 @@ class _ClientScope:
 def _members(models: Any) -> tuple[list[str], list[LowerLevelModel]]:
     if isinstance(models, LowerLevelModel):
         models = [models]
+    # a calibration with intervals (or its uncertainty): its resampled models
+    unc = getattr(models, "uncertainty", None)
+    if unc is not None or hasattr(models, "samples") and hasattr(models, "models"):
+        models = (unc if unc is not None else models).models()
     if isinstance(models, Mapping):
         names, ms = [str(k) for k in models], list(models.values())
     else:
@@ -566,7 +570,9 @@ def stability_probability(
     chunks: Mapping[str, int] | None = None,
 ) -> Any:
     """Probability of (local and string) stability over parameter samples: the share
-    of ``models`` (e.g. :func:`models_from_bootstrap`) whose map is stable at each
+    of ``models`` (a list or mapping of models, e.g. :func:`models_from_bootstrap`; or
+    a calibration with intervals, ``avll.calibrate(..., intervals=True)``, or its
+    :class:`avll.Uncertainty`: its resampled models) whose map is stable at each
     point, as an ``xarray.DataArray`` (dims kg, Tg, kv) of float64.
 
     With ``chunks`` every sample's map is Dask-backed (:func:`map_dataset`) and the
@@ -648,7 +654,13 @@ def min_stable_tg_samples(
 
 
 def models_from_bootstrap(bs: Any) -> list[LowerLevelModel]:
-    """The calibrated models of an :func:`avll.bootstrap` result (one per resample)."""
+    """The calibrated models of an :func:`avll.bootstrap` result (one per resample), of
+    an :class:`avll.Uncertainty` or of a calibration with intervals."""
+    unc = getattr(bs, "uncertainty", None)
+    if unc is None and hasattr(bs, "samples") and hasattr(bs, "models"):
+        unc = bs
+    if unc is not None:
+        return list(unc.models())
     results = getattr(bs, "results", None)
     if results is None:
         raise ValueError(f"bs: expected an avll.Bootstrap, got {type(bs).__name__}")
@@ -764,33 +776,87 @@ def bootstrap_distributed(
     seed: int = 0,
     level: float = 0.95,
     client: Any = None,
-    batch: int = 1,
+    batch: int = 10,
     threads: int = 1,
+    method: str = "runs",
+    block: float | None = None,
     **kwargs: Any,
 ) -> Any:
-    """:func:`avll.bootstrap` with the resamples calibrated on a ``dask.distributed``
-    client (:func:`calibrate_many_distributed`): the same resamples (drawn from
-    ``seed``) and the same seeds, so the same :class:`avll.Bootstrap`."""
+    """:func:`avll.bootstrap` with the resamples' refits spread over a
+    ``dask.distributed`` client (``batch`` resamples per task; the calibration itself
+    runs here): the same multiplicities (drawn from ``seed``) and the same refits, so
+    the same :class:`avll.Uncertainty`. ``kwargs`` are those of :func:`avll.calibrate`
+    (bounds, closed_loop, upper_free, weights, init, initial, target, starts and GA
+    options; no progress bar)."""
     from ._limits import check_number, check_seed
-    from .calibration import Bootstrap
+    from .calibration import _calibrate, _problem
+    from .uncertainty import Intervals, estimate
 
     n = check_int(n, "n", min=2)
     level = check_number(level, "level")
     if not 0 < level < 1:
         raise ValueError(f"level: must be in (0, 1), got {level}")
     seed = check_seed(seed)
+    threads = check_threads(threads)
+    batch = check_int(batch, "batch", min=1)
+    if kwargs.pop("progress", False):
+        raise ValueError("progress: not supported by bootstrap_distributed")
     runs = list(runs)
     if not runs:
         raise ValueError("runs: no runs given")
-    # the resample lists (Python ints), as avll.bootstrap estimates them; the GA's own
-    # estimate follows in calibrate_many_distributed
+    # the resample weights, as avll.bootstrap estimates them; the GA's own estimate
+    # follows in the calibration
     check_memory(80.0 * n * len(runs), f"bootstrap_distributed: n={n} resamples x "
                  f"{len(runs)} runs", "use fewer resamples per call and pool the samples",
                  per=80.0 * len(runs), unit="resamples")
-    rng = np.random.default_rng(seed)
-    subsets = [list(map(int, rng.integers(0, len(runs), len(runs)))) for _ in range(n)]
-    res = calibrate_many_distributed(model, runs, subsets, client=client, seed=seed,
-                                     batch=batch, threads=threads, **kwargs)
-    names = tuple(res[0].params) + ("dc_gain",)
-    samples = np.array([[*r.params.values(), r.model.dc_gain] for r in res])
-    return Bootstrap(names, samples, float(level), res)
+    opts = Intervals(n=n, level=float(level), method=method, block=block)
+    pkw = _problem_kw(kwargs)
+    ga = {k: v for k, v in kwargs.items() if k not in _PROBLEM_KW + _RUN_KW + ("starts",)}
+    from .defaults import DEFAULT_STARTS
+
+    res = _calibrate(model, runs, seed=seed, threads=threads, progress=False,
+                     initial=kwargs.get("initial"), target=kwargs.get("target"),
+                     starts=kwargs.get("starts", DEFAULT_STARTS), ga_options=ga, **pkw)
+    prob = _problem(model, runs, **pkw)
+
+    def refit(subsets: list[list[int]], x0: np.ndarray, atoms: list[list[int]],
+              weights: list[np.ndarray], o: Any, th: int) -> list[dict[str, Any]]:
+        out: list[dict[str, Any]] = []
+        with _ClientScope(client) as c:
+            runs_f = c.scatter(runs, broadcast=True)
+            for k, sub in enumerate(subsets):
+                w = weights[k]
+                futs = [c.submit(_refit_task, model, runs_f, pkw, sub, x0[k], atoms[k],
+                                 w[i : i + batch], int(o.budget), float(o.step), int(th),
+                                 pure=False)
+                        for i in range(0, w.shape[0], batch)]
+                parts = c.gather(futs)
+                merged: dict[str, Any] = {
+                    key: np.concatenate([np.asarray(p[key]) for p in parts])
+                    for key in ("x", "f", "f_x0", "evaluations", "done")}
+                merged["f_full"] = parts[0]["f_full"]
+                merged["rollouts"] = int(sum(int(p["rollouts"]) for p in parts))
+                merged["cache_hits"] = int(sum(int(p["cache_hits"]) for p in parts))
+                merged["interrupted"] = False
+                out.append(merged)
+        return out
+
+    u = estimate(prob, [list(range(len(runs)))], [np.asarray(res.x)], opts, seed=seed,
+                 threads=threads, refit=refit)
+    return u[0]
+
+
+def _refit_task(model: Any, runs: list[Any], pkw: dict[str, Any], sub: list[int],
+                x0: np.ndarray, atoms: list[int], weights: np.ndarray, budget: int,
+                step: float, threads: int) -> dict[str, Any]:
+    """One task of the distributed refits: the resamples ``weights`` of one problem."""
+    from .calibration import _problem
+
+    prob = _problem(model, runs, **pkw)
+    return dict(_core.refit_resamples(
+        prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper, scale=prob.scale,
+        problems=[sub], x0=np.array([[float(v) for v in np.ravel(x0)]], dtype=np.float64),
+        atoms=[atoms],
+        resample_weights=[np.array(weights, dtype=np.float64, order="C", copy=True)],
+        budget=budget, step=step,
+        threads=threads, **prob.kw)[0])

@@ -30,7 +30,48 @@ enum Msg {
         evaluations: usize,
         best: f64,
     },
+    /// A resample refit finished: `done` of the problem's `total`.
+    Resample {
+        problem: usize,
+        done: usize,
+        total: usize,
+    },
     Done,
+}
+
+impl Msg {
+    /// The dict the Python progress callable receives.
+    fn info<'py>(&self, py: Python<'py>, n_problems: usize) -> PyResult<Bound<'py, PyDict>> {
+        let info = PyDict::new(py);
+        match *self {
+            Msg::Progress {
+                problem,
+                phase,
+                iteration,
+                evaluations,
+                best,
+            } => {
+                info.set_item("problem", problem)?;
+                info.set_item("phase", if phase == Phase::Ga { "ga" } else { "polish" })?;
+                info.set_item("iteration", iteration)?;
+                info.set_item("evaluations", evaluations)?;
+                info.set_item("best", best)?;
+            }
+            Msg::Resample {
+                problem,
+                done,
+                total,
+            } => {
+                info.set_item("problem", problem)?;
+                info.set_item("phase", "resample")?;
+                info.set_item("done", done)?;
+                info.set_item("total", total)?;
+            }
+            Msg::Done => {}
+        }
+        info.set_item("problems", n_problems)?;
+        Ok(info)
+    }
 }
 
 fn result_dict<'py>(
@@ -258,6 +299,45 @@ fn calibrate<'py>(
     let problems = problems.unwrap_or_else(|| vec![(0..runs.len()).collect()]);
     let n_problems = problems.len();
 
+    let (outcome, by_user) = relay(py, threads, progress.as_ref(), n_problems, |send, stop| {
+        crate::optimize::calibrate::calibrate_many(
+            &spec,
+            &runs,
+            &problems,
+            &bounds,
+            &opts,
+            derive_seeds,
+            in_turn,
+            move |k, p| {
+                send(Msg::Progress {
+                    problem: k,
+                    phase: p.phase,
+                    iteration: p.iteration,
+                    evaluations: p.evaluations,
+                    best: p.best_f,
+                });
+                Some(!stop.load(Ordering::Relaxed))
+            },
+        )
+    })?;
+    outcome
+        .into_iter()
+        .map(|r| result_dict(py, r, by_user))
+        .collect()
+}
+
+/// Runs `work` on a worker of the requested pool with the GIL released, relaying its
+/// progress messages (sent through `send`) to the Python callable `progress` and
+/// watching for Ctrl-C on the calling thread: Ctrl-C (or a `KeyboardInterrupt` from
+/// the callable) sets `stop`, which `work` polls; any other error of the callable
+/// sets it too and is raised. Returns `work`'s value and whether the user stopped it.
+fn relay<T: Send>(
+    py: Python<'_>,
+    threads: usize,
+    progress: Option<&Py<PyAny>>,
+    n_problems: usize,
+    work: impl FnOnce(&(dyn Fn(Msg) + Sync), &AtomicBool) -> crate::error::Result<T> + Send,
+) -> PyResult<(T, bool)> {
     let stop = AtomicBool::new(false);
     let (tx, rx) = mpsc::channel::<Msg>();
     let mut interrupted_by_user = false;
@@ -265,41 +345,16 @@ fn calibrate<'py>(
     let outcome = py.detach(|| {
         let rx = rx;
         std::thread::scope(|s| {
-            let (spec, runs, problems, bounds, opts, stop) =
-                (&spec, &runs, &problems, &bounds, &opts, &stop);
+            let stop = &stop;
             let worker = s.spawn(move || {
                 let tx = std::sync::Mutex::new(tx);
-                let res = guard(|| {
-                    crate::parallel::on_worker(threads, || {
-                        crate::optimize::calibrate::calibrate_many(
-                            spec,
-                            runs,
-                            problems,
-                            bounds,
-                            opts,
-                            derive_seeds,
-                            in_turn,
-                            {
-                                let tx = &tx;
-                                move |k, p| {
-                                    if let Ok(t) = tx.lock() {
-                                        let _ = t.send(Msg::Progress {
-                                            problem: k,
-                                            phase: p.phase,
-                                            iteration: p.iteration,
-                                            evaluations: p.evaluations,
-                                            best: p.best_f,
-                                        });
-                                    }
-                                    Some(!stop.load(Ordering::Relaxed))
-                                }
-                            },
-                        )
-                    })?
-                });
-                if let Ok(t) = tx.lock() {
-                    let _ = t.send(Msg::Done);
-                }
+                let send = |m: Msg| {
+                    if let Ok(t) = tx.lock() {
+                        let _ = t.send(m);
+                    }
+                };
+                let res = guard(|| crate::parallel::on_worker(threads, || work(&send, stop))?);
+                send(Msg::Done);
                 res
             });
             let mut last: Option<Msg> = None;
@@ -334,28 +389,9 @@ fn calibrate<'py>(
                         stop.store(true, Ordering::Relaxed);
                         return;
                     }
-                    if let (
-                        Some(cb),
-                        Some(Msg::Progress {
-                            problem,
-                            phase,
-                            iteration,
-                            evaluations,
-                            best,
-                        }),
-                    ) = (&progress, last.take())
-                    {
-                        let info = PyDict::new(py);
+                    if let (Some(cb), Some(m)) = (progress, last.take()) {
                         let r = (|| -> PyResult<()> {
-                            info.set_item("problem", problem)?;
-                            info.set_item(
-                                "phase",
-                                if phase == Phase::Ga { "ga" } else { "polish" },
-                            )?;
-                            info.set_item("iteration", iteration)?;
-                            info.set_item("evaluations", evaluations)?;
-                            info.set_item("best", best)?;
-                            info.set_item("problems", n_problems)?;
+                            let info = m.info(py, n_problems)?;
                             cb.bind(py).call1((info,))?;
                             Ok(())
                         })();
@@ -378,11 +414,197 @@ fn calibrate<'py>(
     if let Some(e) = py_error {
         return Err(e);
     }
-    let results = outcome?;
-    results
-        .into_iter()
-        .map(|r| result_dict(py, r, interrupted_by_user))
+    Ok((outcome?, interrupted_by_user))
+}
+
+/// Refits of resampled Eq. 6 costs warm-started from each problem's full-data
+/// optimum (`crate::optimize::resample`): `problems` are run-index lists (repeats
+/// count), `x0` their optima (P x d), `atoms` the atom length (samples) of each
+/// problem's distinct runs in increasing index order, `resample_weights` one B x A
+/// array per problem (A: those runs' atoms in that order). Returns one dict per
+/// problem: `x` (B x d), `f`, `f_x0` (the resampled cost at the optimum),
+/// `evaluations`, `done` (False: skipped after a stop), `f_full`, `cache_hits`,
+/// `rollouts`, `interrupted`.
+#[pyfunction]
+#[pyo3(signature = (
+    model, runs, lower_bounds, upper_bounds, scale, problems, x0, atoms, resample_weights,
+    effects=Vec::new(), upper_free=Vec::new(), command_kind="acceleration",
+    weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, budget=0, step=0.02,
+    ftol=1e-9, progress=None, threads=0
+))]
+#[allow(clippy::too_many_arguments)]
+fn refit_resamples<'py>(
+    py: Python<'py>,
+    model: &str,
+    runs: &Bound<'py, RunSet>,
+    lower_bounds: Vec<f64>,
+    upper_bounds: Vec<f64>,
+    scale: Vec<String>,
+    problems: Vec<Vec<usize>>,
+    x0: PyReadonlyArray2<'py, f64>,
+    atoms: Vec<Vec<usize>>,
+    resample_weights: Vec<PyReadonlyArray2<'py, f64>>,
+    effects: Vec<String>,
+    upper_free: Vec<usize>,
+    command_kind: &str,
+    weights: (f64, f64, f64),
+    init: &str,
+    closed_loop: bool,
+    budget: usize,
+    step: f64,
+    ftol: f64,
+    progress: Option<Py<PyAny>>,
+    threads: usize,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    use crate::optimize::resample::{refit_resamples as refit, RefitOptions, ResampleProblem};
+    let spec = cost_spec(
+        model,
+        &effects,
+        upper_free,
+        command_kind,
+        weights,
+        init,
+        closed_loop,
+    )?;
+    let scales = guard(|| scale.iter().map(|s| Scale::from_name(s)).collect())?;
+    let bounds = guard(|| Bounds::new(lower_bounds, upper_bounds, scales))?;
+    let (np, d, xs) = slice2("x0", &x0)?;
+    let n = problems.len();
+    if np != n || atoms.len() != n || resample_weights.len() != n {
+        return Err(PyValueError::new_err(format!(
+            "problems: {n} problems need as many x0 rows, atom lists and weight arrays, got \
+             {np}, {}, {}",
+            atoms.len(),
+            resample_weights.len()
+        )));
+    }
+    let mut probs = Vec::with_capacity(n);
+    let mut sizes = Vec::with_capacity(n);
+    for (k, sub) in problems.iter().enumerate() {
+        let mut uniq: Vec<usize> = sub.clone();
+        uniq.sort_unstable();
+        uniq.dedup();
+        let runs_m: Vec<(usize, f64)> = uniq
+            .iter()
+            .map(|&j| (j, sub.iter().filter(|&&q| q == j).count() as f64))
+            .collect();
+        let (b, _, w) = slice2(&format!("resample_weights[{k}]"), &resample_weights[k])?;
+        sizes.push(b);
+        probs.push(ResampleProblem {
+            runs: runs_m,
+            atom: atoms[k].clone(),
+            x0: xs[k * d..(k + 1) * d].to_vec(),
+            weights: w.to_vec(),
+        });
+    }
+    let opts = RefitOptions {
+        budget,
+        step,
+        ftol,
+        ..Default::default()
+    };
+    let rs = runs.get();
+    let refs = rs.refs();
+    let (out, by_user) = relay(py, threads, progress.as_ref(), n, |send, stop| {
+        refit(&spec, &refs, &probs, &bounds, &opts, |k, done| {
+            send(Msg::Resample {
+                problem: k,
+                done,
+                total: sizes[k],
+            });
+            !stop.load(Ordering::Relaxed)
+        })
+    })?;
+    out.into_iter()
+        .map(|r| {
+            let dct = PyDict::new(py);
+            let b = r.refits.len();
+            let x: Vec<f64> = r.refits.iter().flat_map(|f| f.x.iter().copied()).collect();
+            let arr = numpy::ndarray::Array2::from_shape_vec((b, d), x)
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            dct.set_item("x", arr.into_pyarray(py))?;
+            let col = |g: &dyn Fn(&crate::optimize::resample::Refit) -> f64| -> Vec<f64> {
+                r.refits.iter().map(g).collect()
+            };
+            dct.set_item("f", col(&|f| f.f).into_pyarray(py))?;
+            dct.set_item("f_x0", col(&|f| f.f_x0).into_pyarray(py))?;
+            dct.set_item(
+                "evaluations",
+                col(&|f| f.evaluations as f64).into_pyarray(py),
+            )?;
+            let done: Vec<bool> = r.refits.iter().map(|f| f.done).collect();
+            let interrupted = by_user && done.iter().any(|d| !d);
+            dct.set_item("done", done.into_pyarray(py))?;
+            dct.set_item("f_full", r.f_full)?;
+            dct.set_item("cache_hits", r.cache_hits)?;
+            dct.set_item("rollouts", r.rollouts)?;
+            dct.set_item("interrupted", interrupted || (by_user && b == 0))?;
+            Ok(dct)
+        })
         .collect()
+}
+
+/// Exact-delay stability codes (0 locally unstable, 1 string unstable, 2 string
+/// stable) of many closed loops, one per row: the lower level `params[i]` of
+/// `model` with the upper gains `kg[i]`, `tg[i]`, `kv[i]` (the true delay), and
+/// whether each verdict is certified. Rows whose parameters the model refuses get
+/// code 0, uncertified. In parallel over rows.
+#[pyfunction]
+#[pyo3(signature = (model, params, kg, tg, kv, budget=20000, threads=0))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn delay_codes_rows<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: PyReadonlyArray2<'py, f64>,
+    kg: Vec<f64>,
+    tg: Vec<f64>,
+    kv: Vec<f64>,
+    budget: usize,
+    threads: usize,
+) -> PyResult<(
+    Bound<'py, numpy::PyArray1<u8>>,
+    Bound<'py, numpy::PyArray1<bool>>,
+)> {
+    use crate::stability::delay::{classify_points, DelayLoop};
+    use rayon::prelude::*;
+    let kind = guard(|| crate::model::ModelKind::from_name(model))?;
+    let (n, p, rows) = slice2("params", &params)?;
+    if kg.len() != n || tg.len() != n || kv.len() != n {
+        return Err(PyValueError::new_err(format!(
+            "kg: params ({n} rows), kg, tg and kv must have one length, got {}, {}, {}",
+            kg.len(),
+            tg.len(),
+            kv.len()
+        )));
+    }
+    guard(|| {
+        crate::error::check_series("kg", &kg)?;
+        crate::error::check_series("tg", &tg)?;
+        crate::error::check_series("kv", &kv)
+    })?;
+    let out: Vec<(u8, bool)> = py.detach(|| {
+        guard(|| {
+            crate::parallel::with_threads(threads, || {
+                (0..n)
+                    .into_par_iter()
+                    .map(|i| {
+                        let Ok(lin) = kind.linear(&rows[i * p..(i + 1) * p]) else {
+                            return (0u8, false);
+                        };
+                        let Ok(mut dl) = DelayLoop::new(&lin) else {
+                            return (0u8, false);
+                        };
+                        dl.budget = budget.max(1);
+                        let (mut c, mut o) = ([0u8], [false]);
+                        classify_points(&dl, &kg[i..=i], &tg[i..=i], &kv[i..=i], &mut c, &mut o);
+                        (c[0], o[0])
+                    })
+                    .collect()
+            })
+        })
+    })?;
+    let (codes, ok): (Vec<u8>, Vec<bool>) = out.into_iter().unzip();
+    Ok((codes.into_pyarray(py), ok.into_pyarray(py)))
 }
 
 /// Default seed of problem `k` when `derive_seeds` is true.
@@ -394,6 +616,8 @@ fn derive_seed(seed: u64, k: u64) -> u64 {
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(derive_seed, m)?)?;
+    m.add_function(wrap_pyfunction!(refit_resamples, m)?)?;
+    m.add_function(wrap_pyfunction!(delay_codes_rows, m)?)?;
     m.add_function(wrap_pyfunction!(ga_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(ga_check, m)?)?;
     Ok(())

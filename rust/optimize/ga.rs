@@ -998,6 +998,35 @@ where
     })
 }
 
+/// The GA's bounded Nelder–Mead alone, from the point `x0` (parameter coordinates)
+/// whose value `f0` is known: initial steps `step` in unit coordinates (one per
+/// coordinate), at most `budget` evaluations. `callback(evaluations, best)` runs
+/// after every iteration; `false` stops. Returns the best point (parameter
+/// coordinates), its value and the evaluations used. A second stage after the GA
+/// (e.g. refits of resampled costs warm-started from the full-data optimum).
+pub fn local_search<F: Objective + ?Sized>(
+    f: &F,
+    bounds: &Bounds,
+    x0: &[f64],
+    f0: f64,
+    step: &[f64],
+    budget: usize,
+    mut callback: impl FnMut(usize, f64) -> bool,
+) -> (Vec<f64>, f64, usize) {
+    let mut ev = Evaluator {
+        f,
+        bounds,
+        evaluations: 0,
+    };
+    let z0 = bounds.to_unit(x0);
+    let (z, fz) = nelder_mead(&mut ev, &z0, clean(f0), step, budget, |e, _, fb| {
+        callback(e, fb)
+    });
+    let mut x = vec![0.0; z.len()];
+    bounds.to_user(&z, &mut x);
+    (x, fz, ev.evaluations)
+}
+
 /// Bounded Nelder–Mead in unit coordinates with the adaptive coefficients of Gao
 /// and Han (2012); trial points are projected onto `[0, 1]^d`. Stops on the budget,
 /// a collapsed simplex (size `< 1e-10`, values within `1e-12` relative) or the

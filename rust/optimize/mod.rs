@@ -3,3 +3,4 @@
 
 pub mod calibrate;
 pub mod ga;
+pub mod resample;

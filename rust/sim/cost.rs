@@ -1037,3 +1037,172 @@ fn lane_sse<const L: usize, const F: bool, const SAME: bool, const ONE: bool, co
         })
         .collect()
 }
+
+/// Sums of the weighted squared errors (`wa ea² + wv ev² + wx ex²`, the Eq. 6 run
+/// term before its division by the length) per *atom*: consecutive stretches of
+/// `atom` samples (the last one shorter). A block bootstrap over time reweights these
+/// sums (a resample is a vector of atom multiplicities), so one rollout of a
+/// parameter row serves every resample.
+struct AtomSse<'a, const FULL: bool> {
+    a: &'a [f64],
+    v: &'a [f64],
+    x: &'a [f64],
+    w: [f64; 3],
+    out: &'a mut [f64],
+    atom: usize,
+    /// The current atom and the first sample of the next one.
+    cur: usize,
+    next: usize,
+    peak: f64,
+}
+
+impl<const FULL: bool> kernel::Sink for AtomSse<'_, FULL> {
+    #[inline(always)]
+    fn put(&mut self, n: usize, a: f64, v: f64, p: f64, _u: f64, y_lin: f64) {
+        if n == self.next {
+            self.cur += 1;
+            self.next += self.atom;
+        }
+        let e = a - self.a[n];
+        let mut s = self.w[0] * e * e;
+        if FULL {
+            let ev = v - self.v[n];
+            let ex = p - self.x[n];
+            s += self.w[1] * ev * ev + self.w[2] * ex * ex;
+            self.peak = self.peak.max(v.abs());
+        }
+        self.out[self.cur] += s;
+        self.peak = self.peak.max(a.abs()).max(y_lin.abs());
+    }
+
+    #[inline(always)]
+    fn proceed(&mut self, _: usize, _: usize) -> bool {
+        // NaN makes `peak < DIVERGED` false only through the sums: check them too.
+        self.peak < kernel::DIVERGED && self.out[self.cur].is_finite()
+    }
+
+    #[inline(always)]
+    fn capacity(&self) -> usize {
+        if FULL {
+            self.a.len().min(self.v.len()).min(self.x.len())
+        } else {
+            self.a.len()
+        }
+    }
+}
+
+/// The number of atoms of `atom` samples in a run of `len` samples.
+pub fn n_atoms(len: usize, atom: usize) -> usize {
+    len.div_ceil(atom.max(1))
+}
+
+/// The weighted squared-error sums of `row` on `run` per atom of `atom` samples
+/// (see [`n_atoms`]) into `out` (zeroed first); their total over the atoms divided by
+/// the run's length is [`run_cost`] up to the summation order. Returns `false` (and
+/// leaves `out` unspecified) for an invalid or unstable row or a diverged response,
+/// where the cost is `inf`. Assumes `spec.validate(runs)` passed.
+pub fn run_atom_sums(
+    spec: &CostSpec,
+    row: &[f64],
+    run: &RunRef,
+    atom: usize,
+    out: &mut [f64],
+) -> bool {
+    let atom = atom.max(1);
+    if out.len() != n_atoms(run.len(), atom) {
+        return false;
+    }
+    out.iter_mut().for_each(|o| *o = 0.0);
+    let Some((lin, effs, up)) = spec.prepare(row, run) else {
+        return false;
+    };
+    let modal = modal_ok(&effs);
+    let ints = spec.integrators();
+    let r: Result<bool> = (|| {
+        with_plant!(
+            &lin,
+            ints,
+            run.dt,
+            modal,
+            atoms_n(&lin, &effs, &up, spec, run, atom, &mut *out)
+        )
+    })();
+    r.unwrap_or(false) && out.iter().all(|s| s.is_finite())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn atoms_n<const M: usize, const N: usize, const D: bool, const F: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    effs: &[AnyEffect],
+    up: &Upper,
+    spec: &CostSpec,
+    run: &RunRef,
+    atom: usize,
+    out: &mut [f64],
+) -> Result<bool> {
+    if !loop_stable(lin, &plant) {
+        return Ok(false);
+    }
+    if effs.is_empty() {
+        atoms_chain::<M, N, D, F, _>(plant, lin, NoEffects, up, spec, run, atom, out)
+    } else {
+        let ch = Effects {
+            effects: effs.to_vec(),
+            exo: resolve_exo(effs, &run.exo, run.len())?,
+        };
+        atoms_chain::<M, N, D, F, _>(plant, lin, ch, up, spec, run, atom, out)
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    chain: C,
+    up: &Upper,
+    spec: &CostSpec,
+    run: &RunRef,
+    atom: usize,
+    out: &mut [f64],
+) -> Result<bool> {
+    let len = run.len();
+    let mut st = start_stepper::<M, N, D, F, C>(plant, lin, chain, spec, run)?;
+    let (u, lx, lv, up) = (
+        run.command.unwrap_or(&[]),
+        run.lead_x.unwrap_or(&[]),
+        run.lead_v.unwrap_or(&[]),
+        *up,
+    );
+    macro_rules! go {
+        ($full:literal, $v:expr, $x:expr) => {{
+            let mut sink = AtomSse::<$full> {
+                a: run.a,
+                v: $v,
+                x: $x,
+                w: spec.weights,
+                out,
+                atom,
+                cur: 0,
+                next: atom,
+                peak: 0.0,
+            };
+            let done = if spec.closed_loop {
+                kernel::run(
+                    &mut st,
+                    len,
+                    |n, o| up.command(lx[n], lv[n], o.p, o.v),
+                    &mut sink,
+                )
+            } else {
+                kernel::run(&mut st, len, |n, _| u[n], &mut sink)
+            };
+            Ok(done && sink.peak < kernel::DIVERGED)
+        }};
+    }
+    if N == M {
+        go!(false, run.a, run.a)
+    } else {
+        go!(true, run.v.unwrap_or(run.a), run.x.unwrap_or(run.a))
+    }
+}

@@ -53,7 +53,8 @@ def _openacc(args: argparse.Namespace) -> int:
                        max_generations=args.max_generations, pop_size=args.pop_size,
                        starts=args.starts, band=band, n_boot=args.bootstrap,
                        gmin_max=args.gmin_max, acc_unknown=args.acc_unknown,
-                       out_of_sample=not args.no_out_of_sample, **load)  # fmt: skip
+                       out_of_sample=not args.no_out_of_sample,
+                       intervals=_intervals(args.resamples), **load)  # fmt: skip
     log(f"writing {args.out}" + (f" and {args.json}" if args.json else ""))
     st.save(args.out, args.json)
     s = st.summary
@@ -74,6 +75,17 @@ def _openacc(args: argparse.Namespace) -> int:
               "measured 95 % interval "
               + ("n/a" if inside is None else f"{inside:.2f} of {oos['n_with_interval']}"))
     return 0
+
+
+def _intervals(n: int | None) -> Any:
+    """The study's ``intervals`` from ``--resamples``."""
+    from ..uncertainty import Intervals
+
+    if n is None:
+        return True
+    if n < 0:
+        raise ValueError(f"--resamples: must be >= 0, got {n}")
+    return False if n == 0 else Intervals(n=n)
 
 
 def register_openacc(sub: argparse._SubParsersAction) -> None:
@@ -121,6 +133,10 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
                    help="keep these car models, comma-separated (default: all)")
     p.add_argument("--track", default=None,
                    help="keep these tracks, e.g. dynamic,handling (default: all)")
+    p.add_argument("--resamples", type=int, default=None, metavar="N",
+                   help="resamples of the intervals of the main model's calibrations "
+                   "(block bootstrap over time refit from the optimum; 0: no intervals; "
+                   "default: avll.Intervals().n)")
     p.add_argument("--no-out-of-sample", action="store_true",
                    help="skip the out-of-sample step (one model per car and setting "
                    "calibrated on the car's other files, predicting the held-out file; "

@@ -71,11 +71,26 @@ For every follower of every native OpenACC file (:mod:`avll.io.openacc_native`):
    ``amplification_replay_oos`` (replay vs the RMS ratio) and
    ``time_gap_effective_oos`` (``Tg + Gmin / v̄`` at the held-out run's mean
    speed, compared with the measured headway). Each is ``null`` with a
-   ``_reason`` when the car has no other file of its setting; their ``_ci`` are
-   ``null`` with a reason until the calibration returns parameter intervals. The
-   summary's ``out_of_sample`` gives, per group, the bias (mean error), the share
-   within 10 % and the share inside the measured 95 % interval, out of sample and
-   in-sample.
+   ``_reason`` when the car has no other file of its setting. The summary's
+   ``out_of_sample`` gives, per group, the bias (mean error), the share within 10 %,
+   the share inside the measured 95 % interval and the share of the measurements
+   inside the predicted 95 % interval, out of sample and in-sample.
+5. **Intervals** (``intervals=True``, the default). The main model's calibrations,
+   in-sample and out of sample, get their uncertainty (:mod:`avll.uncertainty`: a
+   moving-block bootstrap over time with the block length from the residuals, each
+   resample refit by a local search from the full-data optimum; for the
+   out-of-sample model the blocks are those of the car's other files). Per car, all
+   at 95 %: ``amplification_predicted_ci`` and ``amplification_predicted_oos_ci``
+   (``|H|`` of the resampled closed loops on the run's predecessor spectrum; locally
+   unstable resamples left out and counted in ``_note``), ``time_gap_effective_ci``
+   and ``time_gap_effective_oos_ci`` (at the run's mean speed),
+   ``string_stable_probability`` (and ``_oos``: the share of resamples string stable
+   by the exact test with the true delay; locally unstable ones count as not
+   stable), ``params_ci`` (name -> [low, high]) and ``identified`` (the parameters
+   and combinations the data determine, :meth:`avll.Uncertainty.verdicts`); each
+   ``null`` with a ``_reason`` where none can be computed. ``final_model_effects``
+   names the effects of the model the predictions come from (empty: the base
+   model).
 
 **ACC state** (the run meta's ``acc``): runs under ACC are the study's cars;
 human-driven runs (``acc`` False) are calibrated with the same closed-loop
@@ -108,7 +123,14 @@ from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODELS as _MODELS
 from ..rollout import closed_loop
-from ..spectral import DEFAULT_BAND, TRIM, _check_band, bandpass
+from ..spectral import (
+    DEFAULT_BAND,
+    TRIM,
+    _check_band,
+    band_gain_rows,
+    bandpass,
+    closed_loop_gain,
+)
 from ..stability import exact_delay_codes
 
 __all__ = [
@@ -196,16 +218,9 @@ def bootstrap_ci(bf: np.ndarray, bp: np.ndarray, dt: float, *, block: float = BL
 
 
 def transfer_gain(model: LowerLevelModel, upper: UpperLevel, f_hz: Any) -> np.ndarray:
-    """``|H(j 2π f)|`` of the closed loop (paper Eq. 8) with the true delay:
-    ``H = G (kv s + kg) / ((A − K G) s² + G ((kv + Tg kg) s + kg))``,
-    ``G = (b1 s + b0) e^{−Td s}``, ``A = a2 s² + a1 s + 1``."""
-    c = model.linear()
-    s = 2j * np.pi * np.asarray(f_hz, dtype=np.float64)
-    g = (c["b1"] * s + c["b0"]) * np.exp(-s * c["Td"])
-    a = c["a2"] * s * s + c["a1"] * s + 1.0
-    mu = upper.kv + upper.Tg * upper.kg
-    h = g * (upper.kv * s + upper.kg) / ((a - c["K"] * g) * s * s + g * (mu * s + upper.kg))
-    return np.asarray(np.abs(h))
+    """``|H(j 2π f)|`` of the closed loop (paper Eq. 8) with the true delay
+    (:func:`avll.spectral.closed_loop_gain` of the model's linear form)."""
+    return closed_loop_gain(model.linear(), upper.kg, upper.kv, upper.Tg, f_hz)
 
 
 def predicted_amplification(model: LowerLevelModel, upper: UpperLevel, lead_v: np.ndarray,
@@ -213,17 +228,9 @@ def predicted_amplification(model: LowerLevelModel, upper: UpperLevel, lead_v: n
                             trim: float = TRIM) -> float:
     """RMS gain of ``|H|`` on the predecessor's band-passed speed spectrum:
     ``sqrt(Σ |H|² P / Σ P)`` over the periodogram bins (Hann window) within the
-    band."""
-    from scipy import signal
-
-    lo, hi = _check_band(band, dt)
-    bp = bandpass(lead_v, dt, band, trim)
-    f, p = signal.periodogram(bp, fs=1.0 / dt, window="hann", detrend=False)
-    m = (f >= lo) & (f <= hi)
-    if not m.any() or p[m].sum() <= 0:
-        return math.nan
-    h = transfer_gain(model, upper, f[m])
-    return float(np.sqrt(np.sum(h * h * p[m]) / np.sum(p[m])))
+    band (:func:`avll.spectral.band_gain_rows` of one closed loop)."""
+    return float(band_gain_rows(model.linear(), upper.kg, upper.kv, upper.Tg, lead_v, dt,
+                                band, trim))
 
 
 def replay_amplification(model: LowerLevelModel, upper: UpperLevel, run: Run,
@@ -527,6 +534,7 @@ def openacc_study(
     acc_unknown: str = "exclude",
     figures: bool = True,
     out_of_sample: bool = True,
+    intervals: Any = True,
     **load_options: Any,
 ) -> OpenACCStudy:
     """Runs the study (see the module doc) on native OpenACC data at ``path`` (a
@@ -545,9 +553,16 @@ def openacc_study(
     setting-order check); runs of unknown state (None) are left out and counted
     with ``acc_unknown="exclude"`` (default) or treated as ACC with
     ``"include"``. Ctrl-C raises ``KeyboardInterrupt`` (no partial result).
-    ``log`` receives progress lines."""
+    ``log`` receives progress lines. ``intervals`` (``True``, ``False`` or an
+    :class:`avll.Intervals`) gives the main model's calibrations (in-sample and out
+    of sample) their block-bootstrap uncertainty (:mod:`avll.uncertainty`): the
+    ``*_ci``, ``params_ci``, ``identified`` and ``string_stable_probability`` keys
+    (``null`` with a ``_reason`` without)."""
+    from ..uncertainty import Intervals
+
     say = log or (lambda s: None)
     t0 = time.perf_counter()
+    iopts = Intervals.of(intervals)
     max_generations = GA_OPTIONS["max_generations"] if max_generations is None else max_generations
     pop_size = GA_OPTIONS["pop_size"] if pop_size is None else pop_size
     starts = DEFAULT_STARTS if starts is None else starts
@@ -617,8 +632,9 @@ def openacc_study(
             m, runs, "per_run", seed=int(seed) + 1000 * k, threads=threads, progress=progress,
             bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True, upper_free=_UPPER,
             weights=WEIGHTS, init="rest", starts=starts, max_generations=max_generations,
-            pop_size=pop_size)  # fmt: skip
-        if any(r.interrupted for r in res):
+            pop_size=pop_size, intervals=iopts if m == model else None)  # fmt: skip
+        if any(r.interrupted or (r.uncertainty is not None and r.uncertainty.interrupted)
+               for r in res):
             raise KeyboardInterrupt
         results[m] = res
     say("measuring and predicting the amplification")
@@ -634,8 +650,9 @@ def openacc_study(
             model, runs, oos_plan["subsets"], seed=int(seed) + 7919, threads=threads,
             progress=progress, bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True,
             upper_free=_UPPER, weights=WEIGHTS, init="rest", starts=starts,
-            max_generations=max_generations, pop_size=pop_size)  # fmt: skip
-        if any(r.interrupted for r in oos_res):
+            max_generations=max_generations, pop_size=pop_size, intervals=iopts)  # fmt: skip
+        if any(r.interrupted or (r.uncertainty is not None and r.uncertainty.interrupted)
+               for r in oos_res):
             raise KeyboardInterrupt
     for i, (r, c) in enumerate(zip(runs, cars, strict=True)):
         c.update(_oos_entry(i, r, c, model, oos_plan, oos_res, runs, band))
@@ -920,8 +937,7 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
     for m in models:
         res = results[m][i]
         params = dict(res.params)
-        mod = _model_of(m, params)
-        up = _upper_of(params)
+        mod, up, _effects = _closed_loop_of(m, res)
         codes, _settled = exact_delay_codes(mod, up.kg, up.Tg, up.kv)
         code = int(codes[0])
         a_h = (predicted_amplification(mod, up, r.lead_v, r.dt, band)
@@ -968,15 +984,20 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
         reasons["amplification_replay"] = mm.get("amplification_replay_reason", "not finite")
     e["time_gap_effective"] = mm["time_gap_effective"]
     e["at_bound"] = mm["at_bound"]
+    e["final_model_effects"] = list(_closed_loop_of(main, results[main][i])[2])
+    e.update(_interval_entry(results[main][i], r, band, short, ""))
     e["models"] = per
     for k, v in reasons.items():
         e[f"{k}_reason"] = v
     return e
 
 
-#: Why the out-of-sample prediction has no interval yet.
-OOS_CI_REASON = ("no parameter intervals yet: the calibration returns point estimates only "
-                 "(no bootstrap over the calibration yet); no interval is invented")
+#: Why a prediction has no interval when the study runs without intervals.
+INTERVALS_OFF = "intervals not estimated (the study ran with intervals=False)"
+#: The method of the predictions' intervals.
+OOS_CI_REASON = ("95 % percentile intervals of a moving-block bootstrap over time of the "
+                 "calibration (blocks from the residuals' autocorrelation), each resample "
+                 "refit by a local search from the full-data optimum (avll.uncertainty)")
 
 
 def _oos_key(meta: Mapping[str, Any]) -> tuple[Any, ...] | None:
@@ -1051,8 +1072,7 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
     k = plan["problem"][i]
     fit = res[k]
     params = dict(fit.params)
-    mod = _model_of(main, params)
-    up = _upper_of(params)
+    mod, up, _effects = _closed_loop_of(main, fit)
     e["oos_files"] = sorted({str(runs[j].meta.get("file") or runs[j].run_id)
                              for j in plan["subsets"][k]})
     e["oos_params"] = params
@@ -1088,17 +1108,98 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
         e["amplification_predicted_oos_error"] = e["amplification_predicted_oos"] / h1 - 1.0
     if e["amplification_replay_oos"] is not None and ratio:
         e["amplification_replay_oos_error"] = e["amplification_replay_oos"] / ratio - 1.0
-    e["amplification_predicted_oos_ci_reason"] = OOS_CI_REASON
-    e["time_gap_effective_oos_ci_reason"] = OOS_CI_REASON
+    iv = _interval_entry(fit, r, band, short, "_oos")
+    for key in ("amplification_predicted_oos_ci", "time_gap_effective_oos_ci"):
+        e[key] = iv[key]
+        if f"{key}_reason" in iv:
+            e[f"{key}_reason"] = iv[f"{key}_reason"]
+    if e["amplification_predicted_oos"] is None and e["amplification_predicted_oos_ci"]:
+        e["amplification_predicted_oos_ci"] = None
+        e["amplification_predicted_oos_ci_reason"] = e.get(
+            "amplification_predicted_oos_reason", "no prediction")
+    e["string_stable_probability_oos"] = iv["string_stable_probability_oos"]
     return e
 
 
+def _closed_loop_of(name: str, fit: Any) -> tuple[LowerLevelModel, UpperLevel, tuple[str, ...]]:
+    """The closed loop a calibration describes: the lower level, the upper law and the
+    names of the effects the model carries (empty for the base model). The one place
+    the study turns a calibration into the model it predicts with."""
+    params = dict(fit.params)
+    effects: tuple[str, ...] = ()
+    if getattr(fit, "with_effects", None) is not None:
+        effects = tuple(fit.with_effects.effect_names)
+    return _model_of(name, params), _upper_of(params), effects
+
+
+def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
+                    sfx: str) -> dict[str, Any]:
+    """The 95 % intervals of a calibration's predictions for run ``r`` from its
+    uncertainty (:attr:`avll.CalibrationResult.uncertainty`): the band amplification
+    on ``r``'s predecessor spectrum, the effective time gap at ``r``'s mean speed, the
+    probability of string stability, and (in-sample, ``sfx == ""``) ``params_ci`` and
+    ``identified``; each None with a ``_reason`` where none can be computed."""
+    keys = [f"amplification_predicted{sfx}_ci", f"time_gap_effective{sfx}_ci",
+            "string_stable_probability" + sfx]
+    if not sfx:
+        keys += ["params_ci", "identified"]
+    e: dict[str, Any] = dict.fromkeys(keys)
+    u = getattr(fit, "uncertainty", None)
+    if u is None:
+        for k in keys:
+            e[f"{k}_reason"] = INTERVALS_OFF
+        return e
+    assert r.v is not None and r.lead_v is not None
+    ok = np.isfinite(u.samples).all(axis=1)
+    if not ok.any():
+        for k in keys:
+            e[f"{k}_reason"] = "no resample could be refit"
+        return e
+    _, tge = u.time_gap_effective(float(np.mean(r.v)))
+    e[f"time_gap_effective{sfx}_ci"] = _ci(tge, u.level)
+    if e[f"time_gap_effective{sfx}_ci"] is None:
+        e[f"time_gap_effective{sfx}_ci_reason"] = "not finite"
+    key = f"amplification_predicted{sfx}_ci"
+    if short is not None:
+        e[f"{key}_reason"] = short
+    else:
+        _, amp = u.band_amplification(r.lead_v, r.dt, band)
+        e[key] = _ci(amp, u.level)
+        if e[key] is None:
+            e[f"{key}_reason"] = "every resampled closed loop is locally unstable"
+        elif np.isnan(amp).any():
+            e[f"{key}_note"] = (f"{int(np.isnan(amp).sum())} of {amp.size} resampled closed "
+                                "loops are locally unstable and left out")
+    p = u.string_stable_probability
+    e["string_stable_probability" + sfx] = _fin(p) if p is not None else None
+    if p is None:
+        e[f"string_stable_probability{sfx}_reason"] = "not computed (effects or open loop)"
+    if not sfx:
+        e["params_ci"] = {n: (None if v is None else v)
+                          for n, v in u.to_dict()["params_ci"].items()}
+        e["identified"] = u.identified()
+    return e
+
+
+def _ci(samples: np.ndarray, level: float) -> list[float] | None:
+    """Percentile interval of the finite samples, or None."""
+    v = np.asarray(samples, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size < 2:
+        return None
+    a = (1.0 - level) / 2.0
+    lo, hi = np.quantile(v, [a, 1.0 - a])
+    return [float(lo), float(hi)]
+
+
 def _vs(cars: Sequence[Mapping[str, Any]], pred: str, meas: str, ci: str | None,
-        group: str) -> dict[str, Any]:
+        group: str, pred_ci: str | None = None) -> dict[str, Any]:
     """A prediction ``pred`` against a measurement ``meas`` (its interval ``ci``) over
     the cars of ``group`` with both: ``n``, ``mean_error`` (bias of
     ``pred / meas - 1``), ``median_abs_error``, ``within_10pct`` and
-    ``inside_measured_ci`` (shares; None when n is 0), ``underestimated`` (count)."""
+    ``inside_measured_ci`` (shares; None when n is 0), ``underestimated`` (count);
+    with ``pred_ci`` (the prediction's interval) ``measured_inside_predicted_ci``, the
+    share of the measurements inside it."""
     cs = [c for c in cars if c["group"] == group and c.get(pred) is not None
           and c.get(meas)]
     err = np.asarray([c[pred] / c[meas] - 1.0 for c in cs], dtype=float)
@@ -1114,18 +1215,36 @@ def _vs(cars: Sequence[Mapping[str, Any]], pred: str, meas: str, ci: str | None,
             "underestimated": int(np.sum(err < 0)),
             "n_with_interval": len(with_ci),
             "inside_measured_ci": _fin(np.mean(inside)) if inside else None,
-            "inside_measured_ci_count": int(np.sum(inside)) if inside else 0}
+            "inside_measured_ci_count": int(np.sum(inside)) if inside else 0,
+            **_inside_predicted(cs, pred_ci, meas)}
 
 
-def _rel(cars: Sequence[Mapping[str, Any]], a: str, b: str, group: str) -> dict[str, Any]:
+def _inside_predicted(cs: Sequence[Mapping[str, Any]], pred_ci: str | None, meas: str
+                      ) -> dict[str, Any]:
+    """The share (and count) of measurements ``meas`` inside the prediction's interval
+    ``pred_ci`` over the cars ``cs`` that have one; the intervals' median relative width."""
+    if pred_ci is None:
+        return {}
+    w = [c for c in cs if c.get(pred_ci) is not None]
+    inside = [c[pred_ci][0] <= c[meas] <= c[pred_ci][1] for c in w]
+    width = [(c[pred_ci][1] - c[pred_ci][0]) / c[meas] for c in w]
+    return {"prediction_interval": pred_ci, "n_with_prediction_interval": len(w),
+            "measured_inside_predicted_ci": _fin(np.mean(inside)) if inside else None,
+            "measured_inside_predicted_ci_count": int(np.sum(inside)),
+            "prediction_interval_median_rel_width": _fin(np.median(width)) if width else None}
+
+
+def _rel(cars: Sequence[Mapping[str, Any]], a: str, b: str, group: str,
+         a_ci: str | None = None) -> dict[str, Any]:
     """``a / b - 1`` over the cars of ``group`` with both finite: ``n``, ``mean`` and
-    ``median_abs``."""
-    d = np.asarray([c[a] / c[b] - 1.0 for c in cars if c["group"] == group
-                    and c.get(a) is not None and c.get(b) is not None
-                    and math.isfinite(c[b]) and c[b] > 0], dtype=float)
+    ``median_abs``; with ``a_ci`` (``a``'s interval) the share of ``b`` inside it."""
+    cs = [c for c in cars if c["group"] == group and c.get(a) is not None
+          and c.get(b) is not None and math.isfinite(c[b]) and c[b] > 0]
+    d = np.asarray([c[a] / c[b] - 1.0 for c in cs], dtype=float)
     return {"a": a, "b": b, "n": int(d.size), "mean_rel_diff": _fin(np.mean(d)) if d.size
             else None, "median_abs_rel_diff": _fin(np.median(np.abs(d))) if d.size else None,
-            "within_10pct_count": int(np.sum(np.abs(d) <= 0.10))}
+            "within_10pct_count": int(np.sum(np.abs(d) <= 0.10)),
+            **_inside_predicted(cs, a_ci, b)}
 
 
 def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, Any]:
@@ -1141,16 +1260,17 @@ def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, 
                                     for c in cars),
         "cars_with_time_gap_oos": sum(c["time_gap_effective_oos"] is not None for c in cars),
         "cars_without_other_file": sum(not c["oos_files"] for c in cars),
-        "interval_reason": OOS_CI_REASON,
+        "interval_method": OOS_CI_REASON,
     }
     for grp in ("acc", "human"):
         out[grp] = {
             "oos_H_vs_h1": _vs(cars, "amplification_predicted_oos",
                                "amplification_measured_h1", "amplification_measured_h1_ci",
-                               grp),
+                               grp, "amplification_predicted_oos_ci"),
             "in_sample_H_vs_h1": _vs(cars, "amplification_predicted",
                                      "amplification_measured_h1",
-                                     "amplification_measured_h1_ci", grp),
+                                     "amplification_measured_h1_ci", grp,
+                                     "amplification_predicted_ci"),
             "oos_replay_vs_ratio": _vs(cars, "amplification_replay_oos",
                                        "amplification_measured",
                                        "amplification_measured_ci", grp),
@@ -1162,9 +1282,10 @@ def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, 
             cars, "time_gap_effective_oos", "time_gap_effective", grp)
         # the model-free counterpart: the median measured time headway (gap / speed)
         out[grp]["time_gap_effective_oos_vs_headway_measured"] = _rel(
-            cars, "time_gap_effective_oos", "headway_measured", grp)
+            cars, "time_gap_effective_oos", "headway_measured", grp,
+            "time_gap_effective_oos_ci")
         out[grp]["time_gap_effective_in_sample_vs_headway_measured"] = _rel(
-            cars, "time_gap_effective", "headway_measured", grp)
+            cars, "time_gap_effective", "headway_measured", grp, "time_gap_effective_ci")
     return out
 
 
@@ -1181,11 +1302,12 @@ def _oos_lines(s: Mapping[str, Any]) -> list[str]:
         f"{o['cars_without_other_file']}. Like with like: abs H(jω) of a model on the "
         "held-out run's predecessor spectrum is compared with the H1 cross-spectral band "
         "gain (95 % analytic interval); a model's replay with the band RMS ratio (95 % "
-        f"block-bootstrap interval). The prediction has no interval yet: {o['interval_reason']}.",
+        f"block-bootstrap interval). The predictions' intervals: {o['interval_method']}.",
         "",
         "| cars | comparison | n | mean error (bias) | median abs error | within 10 % | "
-        "inside the measured 95 % interval | under-estimated |",
-        "|---|---|---|---|---|---|---|---|"]
+        "inside the measured 95 % interval | measured inside the predicted 95 % interval | "
+        "under-estimated |",
+        "|---|---|---|---|---|---|---|---|---|"]
     labels = (("oos_H_vs_h1", "out of sample: abs H vs H1"),
               ("in_sample_H_vs_h1", "in-sample: abs H vs H1"),
               ("oos_replay_vs_ratio", "out of sample: replay vs RMS ratio"),
@@ -1197,9 +1319,12 @@ def _oos_lines(s: Mapping[str, Any]) -> list[str]:
                 continue
             share = (f"{d['inside_measured_ci_count']} of {d['n_with_interval']}"
                      if d["n_with_interval"] else "–")
+            pshare = (f"{d['measured_inside_predicted_ci_count']} of "
+                      f"{d['n_with_prediction_interval']}"
+                      if d.get("n_with_prediction_interval") else "–")
             lines.append(f"| {grp} | {lab} | {d['n']} | {_f(d['mean_error'], 3)} | "
                          f"{_f(d['median_abs_error'], 3)} | {d['within_10pct_count']} | "
-                         f"{share} | {d['underestimated']} |")
+                         f"{share} | {pshare} | {d['underestimated']} |")
     tl = (("time_gap_effective_oos_vs_headway_measured", "out of sample vs the measured "
            "headway (median gap / speed, no model)"),
           ("time_gap_effective_in_sample_vs_headway_measured", "in-sample vs the measured "
@@ -1207,11 +1332,15 @@ def _oos_lines(s: Mapping[str, Any]) -> list[str]:
           ("time_gap_effective_oos_vs_in_sample", "out of sample vs in-sample"))
     parts = [f"{lab}: n {t['n']}, mean relative difference {_f(t['mean_rel_diff'], 3)}, "
              f"median absolute {_f(t['median_abs_rel_diff'], 3)}, within 10 % "
-             f"{t['within_10pct_count']}" for key, lab in tl
+             f"{t['within_10pct_count']}"
+             + (f", measured inside the predicted 95 % interval "
+                f"{t['measured_inside_predicted_ci_count']} of "
+                f"{t['n_with_prediction_interval']}" if t.get("n_with_prediction_interval")
+                else "") for key, lab in tl
              for t in (o["acc"][key],) if t["n"]]
     if parts:
         lines += ["", "Effective time gap Tg + Gmin/v̄ at the held-out run's mean speed (ACC "
-                  "cars; no interval yet): " + "; ".join(parts) + "."]
+                  "cars): " + "; ".join(parts) + "."]
     return lines + [""]
 
 

@@ -1,0 +1,759 @@
+"""How sure a calibration is: intervals, correlations and identifiability from a
+block bootstrap over time, refit by a local search from the full-data optimum.
+
+:func:`avll.calibrate` with ``intervals=True`` (or an :class:`Intervals`) runs this
+second stage after the GA and fills :attr:`avll.CalibrationResult.uncertainty` (an
+:class:`Uncertainty`) and :attr:`avll.CalibrationResult.intervals`.
+
+**Resampling (serial correlation).** Residuals at 10 Hz are strongly correlated, so
+i.i.d. covariances (or resampling samples) give intervals far too narrow. Each run is
+cut into *atoms* of a quarter block; a resample is a moving-block bootstrap within
+each run (``ceil(atoms / 4)`` blocks of four consecutive atoms, starting at uniformly
+drawn atoms, circularly), i.e. a vector of atom multiplicities. One rollout of a
+candidate parameter set gives the squared-error sum of every atom, so a resample's
+Eq. 6 cost is a weighted sum of those (no data copied; see
+``rust/optimize/resample.rs``). ``method="runs"`` resamples whole runs instead (each
+atom gets its run's multiplicity): the former run bootstrap, useful when the
+problem has many runs and the runs, not the seconds, are the independent units.
+
+**Block length from the data.** The Politis-White (2004) automatic block length for
+the circular bootstrap of the mean (flat-top lag window, with the Patton, Politis and
+White 2009 correction), computed on the full-data fit's residual series of each
+weighted channel (acceleration, speed, position) of each run; the largest is used,
+not below :data:`MIN_BLOCK` seconds (a floor: below a few seconds the lower level's
+own response correlates the errors) and not above a third of the shortest run (at
+least three blocks per run).
+
+**Refits.** Each resample is refit by the GA's bounded Nelder-Mead in the GA's unit
+coordinates (log scale for the positive coefficients), warm-started from the full-data
+optimum; all resamples in parallel in Rust, one after the other problem, seeded (the
+multiplicities are drawn from ``numpy.random.default_rng([seed, problem])``: the same
+result for any thread count), with progress and Ctrl-C.
+
+**What the data determine.** Percentile intervals at ``level``; correlations of the
+resampled parameters in the unit coordinates; a verdict per parameter
+(:meth:`Uncertainty.identified`): *identified* when the interval covers at most
+:data:`MAX_BOX_SHARE` of the search box in unit coordinates and neither the estimate
+nor the interval reaches a bound (within :data:`BOUND_TOL` of the box in unit
+coordinates). A parameter whose interval reaches a bound is determined on one side
+only (the box, not the data, closes it); one spanning a large share of the box trades
+off with others. Neither is printed as a finding. The identified combinations,
+computed from every resample (of the base model's linear part when the model carries
+effects): the effective time gap ``Tg + Gmin / v̄`` (closed loop),
+the lower level's DC gain ``K0 / (1 - K K0)``, its low-frequency delay (the group delay
+of ``G / (1 - K G)`` at ``ω -> 0``: ``(a1 - b1 / b0 + Td) / (1 - K b0)``), and, given a
+predecessor's speed, the band amplification (``|H|`` of the calibrated closed loop with
+the true delay on the predecessor's band-passed spectrum) and the probability of string
+stability (the share of resamples whose closed loop is string stable by the exact
+test with the true delay; a locally unstable resample counts as not string stable and
+is counted apart). A combination is identified by the same width rule relative to
+its estimate (:data:`MAX_REL_WIDTH`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import _core, _sigint
+from ._limits import check_int, check_seed, check_threads
+
+__all__ = [
+    "Intervals",
+    "Uncertainty",
+    "block_length",
+    "MIN_BLOCK",
+    "MAX_BOX_SHARE",
+    "MAX_REL_WIDTH",
+    "BOUND_TOL",
+    "ATOMS_PER_BLOCK",
+    "to_dataset",
+]
+
+#: Floor of the block length (s).
+MIN_BLOCK = 5.0
+#: Atoms per block (a block starts on an atom boundary).
+ATOMS_PER_BLOCK = 4
+#: A parameter whose interval spans more than this share of its search box (unit
+#: coordinates) is not identified.
+MAX_BOX_SHARE = 0.25
+#: A combination whose interval is wider than this share of its estimate is not
+#: identified.
+MAX_REL_WIDTH = 0.5
+#: Distance (unit coordinates) within which a value counts as at its bound.
+BOUND_TOL = 1e-3
+#: Correlations at least this large (absolute) are listed in the report.
+MIN_CORREL = 0.5
+_METHODS = ("blocks", "runs")
+
+
+@dataclass(frozen=True)
+class Intervals:
+    """Options of the uncertainty stage of :func:`avll.calibrate`.
+
+    ``n`` resamples; ``level`` of the percentile intervals; ``block`` the block length
+    in seconds (``None``: from the residuals, :func:`block_length`); ``method``
+    ``"blocks"`` (moving blocks over time within each run) or ``"runs"`` (whole runs);
+    ``budget`` evaluations per refit (0: ``40 d``); ``step`` the initial simplex step
+    in unit coordinates; ``seed`` of the multiplicities (``None``: the calibration's).
+    """
+
+    n: int = 200
+    level: float = 0.95
+    block: float | None = None
+    method: str = "blocks"
+    budget: int = 0
+    step: float = 0.05
+    seed: int | None = None
+
+    def __post_init__(self) -> None:
+        check_int(self.n, "n", min=2)
+        lv = self.level
+        if isinstance(lv, bool) or not isinstance(lv, (int, float)) or not 0 < lv < 1:
+            raise ValueError(f"level: must be in (0, 1), got {lv!r}")
+        if self.block is not None and not (isinstance(self.block, (int, float))
+                                           and math.isfinite(self.block) and self.block > 0):
+            raise ValueError(f"block: must be a number of seconds > 0 or None, got "
+                             f"{self.block!r}")
+        if self.method not in _METHODS:
+            raise ValueError(f"method: must be one of {', '.join(_METHODS)}, got "
+                             f"{self.method!r}")
+        check_int(self.budget, "budget", min=0)
+        if not (isinstance(self.step, (int, float)) and 0 < self.step <= 0.5):
+            raise ValueError(f"step: must be in (0, 0.5], got {self.step!r}")
+        if self.seed is not None:
+            check_seed(self.seed)
+
+    @classmethod
+    def of(cls, value: Any) -> Intervals | None:
+        """``value`` as options: ``None``/``False`` (no intervals), ``True`` (the
+        defaults), an :class:`Intervals`, or a dict of its fields."""
+        if value is None or value is False:
+            return None
+        if value is True:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, Mapping):
+            return cls(**value)
+        raise TypeError(f"intervals: expected True, False, None, avll.Intervals or a dict, "
+                        f"got {value!r:.60}")
+
+
+def block_length(residuals: Sequence[np.ndarray], dt: float, floor: float = MIN_BLOCK,
+                 cap: float | None = None) -> float:
+    """The block length (s) of a block bootstrap for serially correlated
+    ``residuals`` (one or more series sampled every ``dt``): the largest Politis-White
+    (2004) automatic block length of the circular bootstrap over the series (with
+    the Patton-Politis-White 2009 correction), at least ``floor``, at most ``cap``."""
+    best = 0.0
+    for e in residuals:
+        e = np.asarray(e, dtype=np.float64)
+        e = e[np.isfinite(e)]
+        if e.size < 16 or not np.any(e != e[0]):
+            continue
+        best = max(best, _politis_white(e))
+    b = max(best * dt, float(floor))
+    if cap is not None:
+        b = min(b, max(float(cap), dt))
+    return float(b)
+
+
+def _politis_white(x: np.ndarray) -> float:
+    """Politis-White optimal block length (samples) of the circular bootstrap."""
+    n = x.size
+    x = x - x.mean()
+    kn = max(5, int(math.ceil(math.sqrt(math.log10(n)))))
+    mmax = int(math.ceil(math.sqrt(n))) + kn
+    mmax = min(mmax, n - 1)
+    # the autocovariances up to mmax by FFT
+    f = np.fft.rfft(x, 2 * n)
+    acov = np.fft.irfft(f * np.conj(f))[: mmax + 1] / n
+    rho = acov / acov[0]
+    c = 2.0 * math.sqrt(math.log10(n) / n)
+    mhat = mmax
+    for m in range(1, mmax - kn + 1):
+        if np.all(np.abs(rho[m : m + kn]) < c):
+            mhat = m
+            break
+    big_m = min(2 * mhat, mmax)
+    k = np.arange(-big_m, big_m + 1)
+    lam = np.clip(2.0 - 2.0 * np.abs(k) / big_m, 0.0, 1.0) if big_m > 0 else np.ones(1)
+    r = acov[np.abs(k)]
+    g = float(np.sum(lam * np.abs(k) * r))
+    s0 = float(np.sum(lam * r))
+    d_cb = (4.0 / 3.0) * s0 * s0
+    if d_cb <= 0 or g == 0:
+        return 1.0
+    return float((2.0 * g * g / d_cb) ** (1.0 / 3.0) * n ** (1.0 / 3.0))
+
+
+def _unit(x: np.ndarray, lo: float, hi: float, scale: str) -> np.ndarray:
+    """Values in the GA's unit coordinates of the box ``[lo, hi]``."""
+    if hi == lo:
+        return np.zeros_like(x)
+    if scale == "log":
+        return np.log(np.clip(x, lo, hi) / lo) / math.log(hi / lo)
+    return (np.clip(x, lo, hi) - lo) / (hi - lo)
+
+
+def _linear_columns(cls: Any, x: np.ndarray) -> dict[str, np.ndarray]:
+    """The common linear form's coefficients (``b1, b0, a2, a1, Td, K``) of every row
+    of ``x`` (the model's parameters), vectorised: the model's own ``linear()`` on an
+    instance whose fields are the parameter columns (built without the scalar checks)."""
+    m = object.__new__(cls)
+    for j, name in enumerate(cls.param_names()):
+        object.__setattr__(m, name, x[:, j])
+    return {k: np.broadcast_to(np.asarray(v, dtype=np.float64), (x.shape[0],)).copy()
+            for k, v in m.linear().items()}
+
+
+def dc_gain(lin: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Static gain ``b0 / (1 - K b0)`` of the lower level."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.asarray(lin["b0"] / (1.0 - lin["K"] * lin["b0"]))
+
+
+def low_frequency_delay(lin: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Group delay (s) at ``ω -> 0`` of ``G / (1 - K G)``:
+    ``(a1 - b1 / b0 + Td) / (1 - K b0)``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.asarray((lin["a1"] - lin["b1"] / lin["b0"] + lin["Td"])
+                          / (1.0 - lin["K"] * lin["b0"]))
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """The uncertainty of one calibration (see the module doc).
+
+    ``names`` of the parameter row ``[model | effects | free upper gains]``;
+    ``estimate`` the full-data optimum; ``samples`` (n, d) the refit parameters of the
+    resamples (rows that did not run after a Ctrl-C are dropped); ``costs`` their
+    resampled costs; ``bounds`` the search box (name -> (lo, hi, scale)); ``upper``
+    the upper-level gains of the problem's (first) run, the free ones replaced per
+    sample; ``mean_speed`` the problem's mean speed (m/s) or None; ``block_s`` and
+    ``atom_s`` the block and atom lengths (s); ``combinations`` name -> samples and
+    ``combination_estimates`` name -> full-data value; ``string_codes`` the
+    exact-delay codes (0 locally unstable, 1 string unstable, 2 string stable) of the
+    samples when computed (closed loop)."""
+
+    model: str
+    effects: tuple[str, ...]
+    names: tuple[str, ...]
+    estimate: np.ndarray
+    samples: np.ndarray
+    costs: np.ndarray
+    level: float
+    method: str
+    block_s: float
+    atom_s: float
+    bounds: dict[str, tuple[float, float, str]]
+    upper: dict[str, np.ndarray]
+    upper_estimate: dict[str, float]
+    mean_speed: float | None
+    combinations: dict[str, np.ndarray] = field(default_factory=dict)
+    combination_estimates: dict[str, float] = field(default_factory=dict)
+    string_codes: np.ndarray | None = None
+    string_code_estimate: int | None = None
+    interrupted: bool = False
+    evaluations: int = 0
+    rollouts: int = 0
+
+    # -- intervals --------------------------------------------------------------
+    def _q(self, v: np.ndarray) -> tuple[float, float]:
+        v = np.asarray(v, dtype=np.float64)
+        v = v[np.isfinite(v)]
+        if v.size == 0:
+            return (math.nan, math.nan)
+        a = (1.0 - self.level) / 2.0
+        lo, hi = np.quantile(v, [a, 1.0 - a])
+        return (float(lo), float(hi))
+
+    @property
+    def intervals(self) -> dict[str, tuple[float, float]]:
+        """Percentile intervals at ``level``: parameters, then combinations."""
+        out = {n: self._q(self.samples[:, j]) for j, n in enumerate(self.names)}
+        out.update({n: self._q(v) for n, v in self.combinations.items()})
+        return out
+
+    def ci(self) -> Any:
+        """A DataFrame: rows the parameters and combinations, columns ``estimate``,
+        ``median``, ``low``, ``high`` (percentile interval at ``level``) and
+        ``verdict``."""
+        import pandas as pd
+
+        iv, ver = self.intervals, self.verdicts()
+        est = dict(zip(self.names, self.estimate, strict=True))
+        est.update(self.combination_estimates)
+        cols = {n: self.samples[:, j] for j, n in enumerate(self.names)}
+        cols.update(self.combinations)
+        med = {n: float(np.nanmedian(v)) if np.isfinite(v).any() else math.nan
+               for n, v in cols.items()}
+        names = list(cols)
+        return pd.DataFrame({"estimate": [float(est[n]) for n in names],
+                             "median": [med[n] for n in names],
+                             "low": [iv[n][0] for n in names],
+                             "high": [iv[n][1] for n in names],
+                             "verdict": [ver[n] for n in names]}, index=names)
+
+    def unit_samples(self) -> np.ndarray:
+        """The samples in the GA's unit coordinates of the box."""
+        cols = [_unit(self.samples[:, j], *self.bounds[n]) for j, n in enumerate(self.names)]
+        return np.column_stack(cols) if cols else np.zeros((len(self.samples), 0))
+
+    @property
+    def correlations(self) -> np.ndarray:
+        """Correlation matrix (d, d) of the resampled parameters in unit coordinates
+        (NaN for a parameter that does not vary)."""
+        z = self.unit_samples()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = np.corrcoef(z, rowvar=False) if z.shape[0] > 1 else np.full((z.shape[1],) * 2,
+                                                                              np.nan)
+        return np.atleast_2d(np.asarray(c, dtype=np.float64))
+
+    def verdicts(self) -> dict[str, str]:
+        """Per parameter and combination: ``"identified"``, ``"at bound"`` (the
+        estimate is at a bound of the box), ``"reaches bound"`` (the interval does:
+        the data close it on one side only), ``"wide"`` (the interval covers more
+        than :data:`MAX_BOX_SHARE` of the box, or for a combination is wider than
+        :data:`MAX_REL_WIDTH` of its estimate), ``"fixed"`` (lo == hi) or
+        ``"undetermined"`` (no finite samples)."""
+        out: dict[str, str] = {}
+        for j, n in enumerate(self.names):
+            lo, hi, sc = self.bounds[n]
+            if lo == hi:
+                out[n] = "fixed"
+                continue
+            ql, qh = self._q(self.samples[:, j])
+            if not (math.isfinite(ql) and math.isfinite(qh)):
+                out[n] = "undetermined"
+                continue
+            e = float(_unit(np.array([self.estimate[j]]), lo, hi, sc)[0])
+            zl, zh = (float(_unit(np.array([v]), lo, hi, sc)[0]) for v in (ql, qh))
+            if min(e, 1.0 - e) <= BOUND_TOL:
+                out[n] = "at bound"
+            elif zl <= BOUND_TOL or zh >= 1.0 - BOUND_TOL:
+                out[n] = "reaches bound"
+            elif zh - zl > MAX_BOX_SHARE:
+                out[n] = "wide"
+            else:
+                out[n] = "identified"
+        for n, v in self.combinations.items():
+            ql, qh = self._q(v)
+            est = self.combination_estimates.get(n, math.nan)
+            if not (math.isfinite(ql) and math.isfinite(qh) and math.isfinite(est)):
+                out[n] = "undetermined"
+            elif qh - ql > MAX_REL_WIDTH * abs(est):
+                out[n] = "wide"
+            else:
+                out[n] = "identified"
+        return out
+
+    def identified(self) -> list[str]:
+        """Names of the parameters and combinations the data determine."""
+        return [n for n, v in self.verdicts().items() if v == "identified"]
+
+    @property
+    def string_stable_probability(self) -> float | None:
+        """Share of the resamples whose closed loop is string stable (exact test with
+        the true delay; locally unstable resamples count as not string stable), or
+        None when not computed."""
+        if self.string_codes is None or self.string_codes.size == 0:
+            return None
+        return float(np.mean(self.string_codes == 2))
+
+    @property
+    def locally_unstable_share(self) -> float | None:
+        """Share of the resamples whose closed loop is locally unstable."""
+        if self.string_codes is None or self.string_codes.size == 0:
+            return None
+        return float(np.mean(self.string_codes == 0))
+
+    # -- derived ------------------------------------------------------------------
+    def models(self) -> list[Any]:
+        """The resampled lower-level models (one per resample; for
+        :func:`avll.maps.stability_probability` and the other sample-based maps)."""
+        from .models import model_class
+
+        cls = model_class(self.model)
+        k = len(cls.param_names())
+        out = []
+        for row in self.samples:
+            try:
+                out.append(cls.from_array(row[:k]))
+            except ValueError:
+                continue
+        return out
+
+    def time_gap_effective(self, v_mean: float | None = None) -> tuple[float, np.ndarray]:
+        """``Tg + Gmin / v̄`` at ``v_mean`` (default the problem's mean speed): the
+        full-data value and the resamples'."""
+        v = self.mean_speed if v_mean is None else float(v_mean)
+        if v is None or not math.isfinite(v):
+            raise ValueError("v_mean: the calibration has no mean speed; give v_mean")
+        v = max(v, 0.1)
+        est = self.upper_estimate["Tg"] + self.upper_estimate["Gmin"] / v
+        return float(est), np.asarray(self.upper["Tg"] + self.upper["Gmin"] / v)
+
+    def band_amplification(self, lead_v: np.ndarray, dt: float,
+                           band: Sequence[float] | None = None) -> tuple[float, np.ndarray]:
+        """``|H|`` of the calibrated closed loop (true delay) as an RMS gain on the
+        band-passed spectrum of the predecessor's speed ``lead_v``
+        (:func:`avll.spectral.band_gain_rows`): the full-data value and the
+        resamples' (NaN where the closed loop is locally unstable, when known). With
+        effects, the base model's linear loop (the effects are left out of ``|H|``)."""
+        from .models import model_class
+        from .spectral import DEFAULT_BAND, band_gain_rows
+
+        cls = model_class(self.model)
+        k = len(cls.param_names())
+        rows = np.vstack([self.estimate[None, :k], self.samples[:, :k]])
+        lin = _linear_columns(cls, rows)
+        up = {n: np.concatenate([[self.upper_estimate[n]], self.upper[n]])
+              for n in ("kg", "kv", "Tg")}
+        g = band_gain_rows(lin, up["kg"], up["kv"], up["Tg"], lead_v, dt,
+                           DEFAULT_BAND if band is None else band)
+        if self.string_codes is not None:
+            g[1:][self.string_codes == 0] = math.nan
+        if self.string_code_estimate == 0:
+            g[0] = math.nan
+        return float(g[0]), g[1:]
+
+    def with_combinations(self, **more: tuple[float, np.ndarray]) -> Uncertainty:
+        """A copy with more combinations (name -> (estimate, samples))."""
+        from dataclasses import replace
+
+        comb = dict(self.combinations)
+        est = dict(self.combination_estimates)
+        for n, (e, v) in more.items():
+            comb[n] = np.asarray(v, dtype=np.float64)
+            est[n] = float(e)
+        return replace(self, combinations=comb, combination_estimates=est)
+
+    # -- output ---------------------------------------------------------------------
+    def report(self, min_correl: float = MIN_CORREL) -> str:
+        """A text report in the style of lmfit's ``fit_report``: values with their
+        intervals and verdicts, identified combinations, correlations of at least
+        ``min_correl`` (absolute), the resampling."""
+        pct = f"{100 * self.level:g} %"
+        ver = self.verdicts()
+        iv = self.intervals
+        lines = [f"[[Uncertainty]] {self.model}"
+                 + (f" + {', '.join(self.effects)}" if self.effects else ""),
+                 f"    resamples: {len(self.samples)} ({self.method}, block {self.block_s:.3g} s"
+                 f", atoms {self.atom_s:.3g} s){' INTERRUPTED' if self.interrupted else ''}",
+                 f"[[Parameters]] (estimate, {pct} interval, verdict)"]
+        w = max((len(n) for n in (*self.names, *self.combinations)), default=4) + 1
+        for j, n in enumerate(self.names):
+            lo, hi = iv[n]
+            mark = "" if ver[n] == "identified" else "   (not a finding)"
+            lines.append(f"    {n + ':':<{w}} {self.estimate[j]: .5g}  [{lo: .5g}, {hi: .5g}]  "
+                         f"{ver[n]}{mark}")
+        if self.combinations:
+            lines.append(f"[[Combinations]] (estimate, {pct} interval, verdict)")
+            for n in self.combinations:
+                lo, hi = iv[n]
+                est = self.combination_estimates.get(n, math.nan)
+                lines.append(f"    {n + ':':<{w}} {est: .5g}  [{lo: .5g}, {hi: .5g}]  "
+                             f"{ver[n]}")
+        p = self.string_stable_probability
+        if p is not None:
+            lines.append(f"    P(string stable): {p:.3f} (locally unstable: "
+                         f"{self.locally_unstable_share:.3f}; exact test, true delay)")
+        c = self.correlations
+        pairs = [(abs(c[i, j]), self.names[i], self.names[j], c[i, j])
+                 for i in range(len(self.names)) for j in range(i + 1, len(self.names))
+                 if np.isfinite(c[i, j]) and abs(c[i, j]) >= min_correl]
+        lines.append(f"[[Correlations]] (unreported correlations are < {min_correl:.3f})")
+        for _, a, b, v in sorted(pairs, reverse=True):
+            lines.append(f"    C({a}, {b}) = {v:+.3f}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Strict-JSON-ready summary: ``params_ci`` (name -> [low, high] or None),
+        ``combinations_ci``, ``verdicts``, ``identified``, ``string_stable_probability``,
+        the resampling settings."""
+        def pair(t: tuple[float, float]) -> list[float] | None:
+            return [t[0], t[1]] if all(math.isfinite(v) for v in t) else None
+
+        iv = self.intervals
+        return {
+            "params_ci": {n: pair(iv[n]) for n in self.names},
+            "combinations_ci": {n: pair(iv[n]) for n in self.combinations},
+            "verdicts": self.verdicts(),
+            "identified": self.identified(),
+            "string_stable_probability": self.string_stable_probability,
+            "resamples": int(len(self.samples)),
+            "method": self.method,
+            "block_s": float(self.block_s),
+            "level": float(self.level),
+        }
+
+    def to_dataset(self, **coords: Any) -> Any:
+        """This calibration as an ``xarray.Dataset`` with one ``car`` (see
+        :func:`to_dataset`)."""
+        return to_dataset([self], **{k: [v] for k, v in coords.items()})
+
+
+def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
+               **coords: Sequence[Any]) -> Any:
+    """Many calibrations' uncertainty (:class:`Uncertainty` objects, or calibration
+    results with intervals) as one ``xarray.Dataset`` with dims ``car`` x
+    ``parameter`` (the model's and effects' parameters and free gains, the union over
+    ``items``): ``value``, ``low``, ``high`` and ``identified`` (bool), plus one
+    variable per combination (``<name>``, ``<name>_low``, ``<name>_high``) over
+    ``car``, ``string_stable_probability`` over ``car`` and the correlation matrix
+    ``correlation`` (car x parameter x parameter2). ``coords`` add coordinates along
+    ``car`` (e.g. ``file=``, ``setting=``); ``model`` is one automatically. The layout
+    follows xarray's ``curvefit`` output (``*_coefficients`` over ``param``)."""
+    import xarray as xr
+
+    items = [getattr(u, "uncertainty", u) for u in items]
+    if not items:
+        raise ValueError("items: no calibrations given")
+    for q, u in enumerate(items):
+        if not isinstance(u, Uncertainty):
+            raise TypeError(f"items[{q}]: expected an avll.Uncertainty or a calibration "
+                            f"with intervals, got {type(u).__name__}")
+    names = list(dict.fromkeys(n for u in items for n in u.names))
+    comb = list(dict.fromkeys(n for u in items for n in u.combinations))
+    nc, npar = len(items), len(names)
+    val = np.full((nc, npar), np.nan)
+    lo = np.full((nc, npar), np.nan)
+    hi = np.full((nc, npar), np.nan)
+    ok = np.zeros((nc, npar), dtype=bool)
+    cor = np.full((nc, npar, npar), np.nan)
+    cv = {n: np.full((nc, 3), np.nan) for n in comb}
+    cid = {n: np.zeros(nc, dtype=bool) for n in comb}
+    pstab = np.full(nc, np.nan)
+    for i, u in enumerate(items):
+        iv, ver, c = u.intervals, u.verdicts(), u.correlations
+        pos = [names.index(n) for n in u.names]
+        for j, n in enumerate(u.names):
+            val[i, pos[j]] = u.estimate[j]
+            lo[i, pos[j]], hi[i, pos[j]] = iv[n]
+            ok[i, pos[j]] = ver[n] == "identified"
+            for k2 in range(len(u.names)):
+                cor[i, pos[j], pos[k2]] = c[j, k2] if c.size else np.nan
+        for n in u.combinations:
+            cv[n][i] = (u.combination_estimates.get(n, np.nan), *iv[n])
+            cid[n][i] = ver[n] == "identified"
+        p = u.string_stable_probability
+        pstab[i] = np.nan if p is None else p
+    car_c = list(range(nc)) if car is None else list(car)
+    data: dict[str, Any] = {
+        "value": (("car", "parameter"), val),
+        "low": (("car", "parameter"), lo),
+        "high": (("car", "parameter"), hi),
+        "identified": (("car", "parameter"), ok),
+        "correlation": (("car", "parameter", "parameter2"), cor),
+        "string_stable_probability": (("car",), pstab),
+    }
+    for n in comb:
+        data[n] = (("car",), cv[n][:, 0])
+        data[f"{n}_low"] = (("car",), cv[n][:, 1])
+        data[f"{n}_high"] = (("car",), cv[n][:, 2])
+        data[f"{n}_identified"] = (("car",), cid[n])
+    cds: dict[str, Any] = {"car": car_c, "parameter": names, "parameter2": names,
+                           "model": ("car", [u.model for u in items])}
+    for name, vals in coords.items():
+        vals = list(vals)
+        if len(vals) != nc:
+            raise ValueError(f"{name}: {len(vals)} values for {nc} calibrations")
+        cds[name] = ("car", vals)
+    lv = {u.level for u in items}
+    return xr.Dataset(data, coords=cds, attrs={
+        "level": lv.pop() if len(lv) == 1 else "mixed",
+        "intervals": "percentile intervals of a block bootstrap over time refit from the "
+                     "full-data optimum (avll.uncertainty)",
+        "identified": f"interval within {MAX_BOX_SHARE} of the search box (unit "
+                      f"coordinates) and off the bounds; combinations: width within "
+                      f"{MAX_REL_WIDTH} of the estimate"})
+
+
+# ---------------------------------------------------------------------------
+# The stage itself (called by avll.calibrate / calibrate_many)
+# ---------------------------------------------------------------------------
+
+
+def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: int,
+          k: int, threads: int) -> tuple[list[int], list[int], np.ndarray, float, float]:
+    """The distinct runs of problem ``k``, their atom lengths (samples), the resample
+    weights (n x atoms), the block and atom lengths (s)."""
+    uniq = sorted(set(int(i) for i in sub))
+    runs = [prob.rs.runs[i] for i in uniq]
+    dts = {float(r.dt) for r in runs}
+    dt = max(dts)
+    if opts.method == "runs" and len(uniq) < 2:
+        raise ValueError("intervals: method='runs' needs a problem with at least two "
+                         "distinct runs; use method='blocks'")
+    shortest = min(len(r) for r in runs) * dt
+    if opts.block is not None:
+        block = float(opts.block)
+    elif opts.method == "runs":
+        block = shortest
+    else:
+        kw = {k2: v for k2, v in prob.kw.items() if k2 != "runs"}
+        sim = _core.simulate_batch(prob.cls.name, np.ascontiguousarray(x0[None, :]),
+                                   prob.rs._handle.take(uniq), threads=int(threads), **kw)
+        off = np.concatenate([[0], np.cumsum([len(r) for r in runs])])
+        res = []
+        w = prob.kw["weights"]
+        for j, r in enumerate(runs):
+            sl = slice(int(off[j]), int(off[j + 1]))
+            for ch, meas in (("a", r.a), ("v", r.v), ("x", r.x)):
+                if w["avx".index(ch)] > 0 and meas is not None:
+                    res.append(np.asarray(sim[ch])[0, sl] - meas)
+        block = block_length(res, dt, MIN_BLOCK, shortest / 3.0)
+    rng = np.random.default_rng([int(seed), int(k)])
+    atoms, counts = [], []
+    for r in runs:
+        a = max(1, int(round(block / ATOMS_PER_BLOCK / float(r.dt))))
+        atoms.append(a)
+        counts.append(-(-len(r) // a))
+    total = int(sum(counts))
+    n = int(opts.n)
+    w = np.zeros((n, total))
+    if opts.method == "runs":
+        draws = rng.integers(0, len(uniq), size=(n, len(uniq)))
+        mult = np.stack([np.bincount(d, minlength=len(uniq)) for d in draws]).astype(float)
+        start = 0
+        for j, c in enumerate(counts):
+            w[:, start : start + c] = mult[:, j : j + 1]
+            start += c
+    else:
+        start = 0
+        for c in counts:
+            nb = -(-c // ATOMS_PER_BLOCK)
+            s = rng.integers(0, c, size=(n, nb))
+            idx = (s[:, :, None] + np.arange(ATOMS_PER_BLOCK)[None, None, :]) % c
+            rows = np.repeat(np.arange(n), nb * ATOMS_PER_BLOCK)
+            np.add.at(w, (rows, start + idx.ravel()), 1.0)
+            start += c
+    atom_s = float(np.mean([a * float(r.dt) for a, r in zip(atoms, runs, strict=True)]))
+    return uniq, atoms, np.ascontiguousarray(w), float(block), atom_s
+
+
+def _upper_columns(prob: Any, run: Any, x: np.ndarray) -> dict[str, np.ndarray]:
+    """kg, kv, Tg, Gmin per row of ``x``: the free ones from the rows, the others the
+    run's."""
+    from .defaults import UPPER_NAMES
+
+    base = run.upper.to_array() if run.upper is not None else np.full(4, np.nan)
+    nfree = len(prob.free)
+    out = {n: np.full(x.shape[0], float(base[i])) for i, n in enumerate(UPPER_NAMES)}
+    for j, i in enumerate(prob.free):
+        out[UPPER_NAMES[i]] = x[:, x.shape[1] - nfree + j].copy()
+    return out
+
+
+def _exact_codes(model: str, cls: Any, x: np.ndarray, up: Mapping[str, np.ndarray],
+                 threads: int) -> np.ndarray:
+    """Exact-delay codes of each row's closed loop."""
+    k = len(cls.param_names())
+    ok = np.all(np.isfinite(x), axis=1) & np.isfinite(up["kg"]) & np.isfinite(up["Tg"]) & \
+        np.isfinite(up["kv"])
+    codes = np.zeros(x.shape[0], dtype=np.int64)
+    if ok.any():
+        c, _ = _core.delay_codes_rows(model, np.ascontiguousarray(x[ok, :k]),
+                                      [float(v) for v in up["kg"][ok]],
+                                      [float(v) for v in up["Tg"][ok]],
+                                      [float(v) for v in up["kv"][ok]], threads=int(threads))
+        codes[ok] = np.asarray(c, dtype=np.int64)
+    return codes
+
+
+def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarray],
+             opts: Intervals, *, seed: int, threads: int = 0,
+             progress: bool | str | Callable[[dict[str, Any]], Any] = False,
+             refit: Callable[..., list[dict[str, Any]]] | None = None
+             ) -> list[Uncertainty]:
+    """The uncertainty stage for the problems ``subsets`` (run positions, repeats
+    count) of the calibration problem ``prob`` with full-data optima ``x0s``: one
+    :class:`Uncertainty` per problem. Used by :func:`avll.calibrate`. ``refit``
+    replaces the refits in this process: ``refit(subsets, x0, atoms, weights, opts,
+    threads)`` returns what :func:`avll._core.refit_resamples` returns for the same
+    multiplicities (drawn here), e.g. as ``dask.distributed`` tasks
+    (:func:`avll.maps.bootstrap_distributed`)."""
+    threads = check_threads(threads)
+    seed = check_seed(seed if opts.seed is None else opts.seed)
+    x0 = np.ascontiguousarray(np.vstack([np.asarray(x, dtype=np.float64) for x in x0s]))
+    plans = [_plan(prob, s, x0[k], opts, seed, k, threads) for k, s in enumerate(subsets)]
+    bar: Any = None
+    if callable(progress):
+        cb: Any = progress
+    else:
+        from .progress import Progress
+
+        bar = Progress(len(subsets) * int(opts.n), "intervals", unit="refit", mode=progress)
+        seen: dict[int, int] = {}
+
+        def cb(info: dict[str, Any]) -> None:
+            seen[int(info["problem"])] = int(info["done"])
+            bar.advance_to(sum(seen.values()))
+    done = False
+    try:
+        if refit is None:
+            raws = _core.refit_resamples(
+                prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
+                scale=prob.scale, problems=[[int(i) for i in s] for s in subsets], x0=x0,
+                atoms=[p[1] for p in plans], resample_weights=[p[2] for p in plans],
+                budget=int(opts.budget), step=float(opts.step),
+                progress=cb if (callable(progress) or bar.mode != "none") else None,
+                threads=int(threads), **prob.kw)
+        else:
+            raws = refit([[int(i) for i in s] for s in subsets], x0, [p[1] for p in plans],
+                         [p[2] for p in plans], opts, threads)
+        done = not any(bool(r["interrupted"]) for r in raws)
+        if not done:
+            _sigint.clear()
+    finally:
+        if bar is not None:
+            bar.close(complete=done)
+    from .models import model_class
+
+    cls = model_class(prob.cls.name)
+    out = []
+    for k, (raw, plan) in enumerate(zip(raws, plans, strict=True)):
+        ran = np.asarray(raw["done"], dtype=bool)
+        xs = np.asarray(raw["x"], dtype=np.float64)[ran]
+        costs = np.asarray(raw["f"], dtype=np.float64)[ran]
+        keep = np.isfinite(costs)
+        xs, costs = xs[keep], costs[keep]
+        runs = [prob.rs.runs[i] for i in plan[0]]
+        run0 = runs[0]
+        up = _upper_columns(prob, run0, xs)
+        up0 = {n: float(v[0]) for n, v in _upper_columns(prob, run0, x0[k][None, :]).items()}
+        vs = [r.v for r in runs if r.v is not None]
+        vbar = float(np.mean(np.concatenate(vs))) if vs else None
+        bounds = {n: (lo, hi, sc) for n, lo, hi, sc in
+                  zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)}
+        nm = len(cls.param_names())
+        lin = _linear_columns(cls, np.vstack([x0[k][None, :nm], xs[:, :nm]]))
+        comb = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
+        u = Uncertainty(
+            model=prob.cls.name, effects=tuple(prob.effects), names=tuple(prob.names),
+            estimate=x0[k].copy(), samples=xs, costs=costs, level=float(opts.level),
+            method=opts.method, block_s=plan[3], atom_s=plan[4], bounds=bounds, upper=up,
+            upper_estimate=up0, mean_speed=vbar,
+            combinations={n: v[1:] for n, v in comb.items()},
+            combination_estimates={n: float(v[0]) for n, v in comb.items()},
+            interrupted=not bool(ran.all()),
+            evaluations=int(np.sum(np.asarray(raw["evaluations"])[ran])),
+            rollouts=int(raw["rollouts"]))
+        if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
+            u = u.with_combinations(time_gap_effective=u.time_gap_effective())
+        if prob.closed_loop and not prob.effects:
+            codes = _exact_codes(prob.cls.name, cls, xs, up, threads)
+            c0 = _exact_codes(prob.cls.name, cls, x0[k][None, :],
+                              {n: np.array([v]) for n, v in up0.items()}, threads)
+            from dataclasses import replace
+
+            u = replace(u, string_codes=codes, string_code_estimate=int(c0[0]))
+        out.append(u)
+    return out
+

@@ -1,0 +1,541 @@
+//! Refits of resampled Eq. 6 costs, warm-started from the full-data optimum: the
+//! second stage of a calibration that estimates its uncertainty (a block bootstrap
+//! over time, or over whole runs, expressed as weights).
+//!
+//! A problem's runs are cut into *atoms* (consecutive stretches of a few seconds);
+//! one rollout of a parameter row gives the weighted squared-error sum of every atom
+//! ([`crate::sim::cost::run_atom_sums`]). A resample is a vector of atom
+//! multiplicities (a moving-block bootstrap whose blocks start on atom boundaries
+//! gives each atom the number of drawn blocks covering it; resampling whole runs
+//! gives every atom its run's multiplicity), so its cost is a weighted sum of the
+//! atom sums: no data is copied. Resample `b`'s Eq. 6 cost is the mean over runs of
+//! the weighted MSE, each run counted with its effective multiplicity
+//! `r_j = Σ_a w_a n_a / n_j`:
+//!
+//! `cost_b = Σ_j (Σ_{a∈j} w_a s_a) / n_j  /  Σ_j r_j`
+//!
+//! (with all weights 1 this is Eq. 6 over the problem's runs). Each resample is refit
+//! by the GA's bounded Nelder–Mead ([`super::ga::local_search`]) in the GA's unit
+//! coordinates from the full-data optimum; the resamples of a problem run in
+//! parallel and share a cache of atom sums keyed by the parameter row (the first
+//! simplex and the first moves are common to many resamples), which changes no value.
+//! Nothing is random here (the weights are given), so the result is the same for any
+//! number of threads.
+
+use super::ga::{local_search, Bounds, Objective};
+use crate::error::{AvllError, Result};
+use crate::sim::cost::{n_atoms, run_atom_sums};
+use crate::sim::{CostSpec, RunRef};
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+
+/// One problem to resample: its runs (index, multiplicity), the atom length of each
+/// (samples), the full-data optimum `x0` and the `B x A` row-major resample weights
+/// (`A` the total number of atoms of the runs, in their order).
+#[derive(Debug, Clone)]
+pub struct ResampleProblem {
+    pub runs: Vec<(usize, f64)>,
+    pub atom: Vec<usize>,
+    pub x0: Vec<f64>,
+    pub weights: Vec<f64>,
+}
+
+/// Settings of the refits.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RefitOptions {
+    /// Evaluation budget of each refit.
+    pub budget: usize,
+    /// Initial simplex step in unit coordinates (every coordinate).
+    pub step: f64,
+    /// A refit stops when its best value improved by at most `ftol * |best|` over the
+    /// last `10 d` iterations.
+    pub ftol: f64,
+    /// Largest number of cached atom-sum rows per problem.
+    pub cache_rows: usize,
+}
+
+impl Default for RefitOptions {
+    fn default() -> Self {
+        Self {
+            budget: 0,
+            step: 0.02,
+            ftol: 1e-9,
+            cache_rows: 4096,
+        }
+    }
+}
+
+/// The refit of one resample: parameters, resampled cost there and at `x0`,
+/// evaluations, and whether it ran (`false`: skipped after a stop).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refit {
+    pub x: Vec<f64>,
+    pub f: f64,
+    pub f_x0: f64,
+    pub evaluations: usize,
+    pub done: bool,
+}
+
+/// A problem's refits, its full-data cost at `x0` (from the atom sums) and how many
+/// rollouts the cache saved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Resampled {
+    pub refits: Vec<Refit>,
+    pub f_full: f64,
+    pub cache_hits: usize,
+    pub rollouts: usize,
+}
+
+/// Atom sums per parameter row (its bits); `None` for a row whose cost is `inf`.
+type Cache = Mutex<HashMap<Vec<u64>, Option<Arc<Vec<f64>>>>>;
+
+/// Atom sums of a problem's runs, cached per parameter row.
+struct Atoms<'a> {
+    spec: &'a CostSpec,
+    runs: Vec<&'a RunRef<'a>>,
+    atom: Vec<usize>,
+    /// Offsets of each run's atoms in a row of atom sums, and their sample counts.
+    offsets: Vec<usize>,
+    counts: Vec<f64>,
+    lens: Vec<f64>,
+    cache: Cache,
+    cache_rows: usize,
+    hits: std::sync::atomic::AtomicUsize,
+    rollouts: std::sync::atomic::AtomicUsize,
+}
+
+impl Atoms<'_> {
+    fn sums(&self, row: &[f64]) -> Option<Arc<Vec<f64>>> {
+        let key: Vec<u64> = row.iter().map(|v| v.to_bits()).collect();
+        if let Some(v) = self
+            .cache
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&key)
+        {
+            self.hits.fetch_add(1, Ordering::Relaxed);
+            return v.clone();
+        }
+        self.rollouts.fetch_add(1, Ordering::Relaxed);
+        let total = *self.offsets.last().unwrap_or(&0);
+        let mut out = vec![0.0; total];
+        let mut ok = true;
+        for (j, run) in self.runs.iter().enumerate() {
+            let part = &mut out[self.offsets[j]..self.offsets[j + 1]];
+            if !run_atom_sums(self.spec, row, run, self.atom[j], part) {
+                ok = false;
+                break;
+            }
+        }
+        let v = ok.then(|| Arc::new(out));
+        let mut c = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        if c.len() < self.cache_rows {
+            c.insert(key, v.clone());
+        }
+        v
+    }
+
+    /// Resample cost of atom sums `s` under weights `w` (see the module doc).
+    fn cost(&self, s: &[f64], w: &[f64]) -> f64 {
+        let (mut num, mut den) = (0.0, 0.0);
+        for j in 0..self.runs.len() {
+            let (a, b) = (self.offsets[j], self.offsets[j + 1]);
+            let mut sw = 0.0;
+            let mut nw = 0.0;
+            for q in a..b {
+                sw += w[q] * s[q];
+                nw += w[q] * self.counts[q];
+            }
+            num += sw / self.lens[j];
+            den += nw / self.lens[j];
+        }
+        let c = num / den;
+        if c.is_finite() {
+            c
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// The objective of one resample.
+struct OneResample<'a, 'b> {
+    atoms: &'b Atoms<'a>,
+    w: &'b [f64],
+}
+
+impl Objective for OneResample<'_, '_> {
+    fn eval(&self, x: &[f64]) -> f64 {
+        match self.atoms.sums(x) {
+            Some(s) => self.atoms.cost(&s, self.w),
+            None => f64::INFINITY,
+        }
+    }
+
+    /// The points of a simplex one after the other: the resamples already occupy
+    /// the threads.
+    fn eval_many(&self, xs: &[Vec<f64>], _bound: f64) -> Vec<f64> {
+        xs.iter().map(|x| self.eval(x)).collect()
+    }
+}
+
+/// Refits every resample of every problem (problems in turn, each one's resamples in
+/// parallel). `callback(problem, resamples_done)` runs after each refit; `false`
+/// stops: the refits not started are returned with `done = false` (NaN values).
+pub fn refit_resamples(
+    spec: &CostSpec,
+    runs: &[RunRef],
+    problems: &[ResampleProblem],
+    bounds: &Bounds,
+    opts: &RefitOptions,
+    callback: impl Fn(usize, usize) -> bool + Sync,
+) -> Result<Vec<Resampled>> {
+    spec.validate(runs)?;
+    let d = bounds.dim();
+    if d != spec.n_params() {
+        return Err(AvllError::new(
+            "bounds",
+            format!("has {d} parameters, the cost needs {}", spec.n_params()),
+        ));
+    }
+    if !(opts.step > 0.0 && opts.step <= 0.5) {
+        return Err(AvllError::new(
+            "step",
+            format!("must be in (0, 0.5], got {}", opts.step),
+        ));
+    }
+    crate::error::check_nonneg("ftol", opts.ftol)?;
+    let budget = if opts.budget == 0 {
+        40 * d
+    } else {
+        opts.budget
+    };
+    let stop = AtomicBool::new(false);
+    let mut out = Vec::with_capacity(problems.len());
+    for (k, p) in problems.iter().enumerate() {
+        let name = |s: &str| format!("problems[{k}].{s}");
+        if p.runs.is_empty() {
+            return Err(AvllError::new(name("runs"), "has no runs"));
+        }
+        if p.atom.len() != p.runs.len() {
+            return Err(AvllError::new(
+                name("atom"),
+                format!("has {} lengths for {} runs", p.atom.len(), p.runs.len()),
+            ));
+        }
+        if p.x0.len() != d || p.x0.iter().any(|v| !v.is_finite()) {
+            return Err(AvllError::new(
+                name("x0"),
+                format!("must hold {d} finite values"),
+            ));
+        }
+        let mut offsets = vec![0usize];
+        let mut counts = Vec::new();
+        let mut lens = Vec::new();
+        let mut refs = Vec::with_capacity(p.runs.len());
+        for (&(j, m), &atom) in p.runs.iter().zip(&p.atom) {
+            let run = runs.get(j).ok_or_else(|| {
+                AvllError::new(
+                    name("runs"),
+                    format!(
+                        "run index {j} is out of range (there are {} runs)",
+                        runs.len()
+                    ),
+                )
+            })?;
+            if !(m.is_finite() && m > 0.0) {
+                return Err(AvllError::new(
+                    name("runs"),
+                    format!("multiplicity {m} of run {j} must be > 0"),
+                ));
+            }
+            if atom == 0 {
+                return Err(AvllError::new(name("atom"), "lengths must be >= 1"));
+            }
+            let na = n_atoms(run.len(), atom);
+            for q in 0..na {
+                counts.push(((q + 1) * atom).min(run.len()) as f64 - (q * atom) as f64);
+            }
+            // The problem's multiplicity m divides the run's length: the run counts m times.
+            lens.push(run.len() as f64 / m);
+            offsets.push(offsets.last().unwrap() + na);
+            refs.push(run);
+        }
+        let a = *offsets.last().unwrap();
+        if p.weights.is_empty() || p.weights.len() % a != 0 {
+            return Err(AvllError::new(
+                name("weights"),
+                format!(
+                    "must be B x {a} (the runs' atoms), got {} values",
+                    p.weights.len()
+                ),
+            ));
+        }
+        if p.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+            return Err(AvllError::new(name("weights"), "must be finite and >= 0"));
+        }
+        let b = p.weights.len() / a;
+        let atoms = Atoms {
+            spec,
+            runs: refs,
+            atom: p.atom.clone(),
+            offsets,
+            counts,
+            lens,
+            cache: Mutex::new(HashMap::new()),
+            cache_rows: opts.cache_rows,
+            hits: 0.into(),
+            rollouts: 0.into(),
+        };
+        // The optimum as the unit coordinates give it back (log scales round).
+        let mut x0 = vec![0.0; d];
+        bounds.to_user(&bounds.to_unit(&p.x0), &mut x0);
+        let ones = vec![1.0; a];
+        let f_full = OneResample {
+            atoms: &atoms,
+            w: &ones,
+        }
+        .eval(&x0);
+        let done_count = std::sync::atomic::AtomicUsize::new(0);
+        let steps = vec![opts.step; d];
+        let window = 10 * d;
+        let refits: Vec<Refit> = (0..b)
+            .into_par_iter()
+            .map(|i| {
+                let skipped = || Refit {
+                    x: vec![f64::NAN; d],
+                    f: f64::NAN,
+                    f_x0: f64::NAN,
+                    evaluations: 0,
+                    done: false,
+                };
+                if stop.load(Ordering::Relaxed) {
+                    return skipped();
+                }
+                let f = OneResample {
+                    atoms: &atoms,
+                    w: &p.weights[i * a..(i + 1) * a],
+                };
+                let f0 = f.eval(&x0);
+                let mut hist: Vec<f64> = Vec::new();
+                let (x, fx, evals) = if f0.is_finite() {
+                    local_search(&f, bounds, &x0, f0, &steps, budget, |_, fb| {
+                        hist.push(fb);
+                        let n = hist.len();
+                        let stalled =
+                            n > window && hist[n - 1 - window] - fb <= opts.ftol * fb.abs();
+                        !(stalled || stop.load(Ordering::Relaxed))
+                    })
+                } else {
+                    (x0.clone(), f0, 0)
+                };
+                let n = done_count.fetch_add(1, Ordering::Relaxed) + 1;
+                if !callback(k, n) {
+                    stop.store(true, Ordering::Relaxed);
+                }
+                Refit {
+                    x,
+                    f: fx,
+                    f_x0: f0,
+                    evaluations: evals + 1,
+                    done: true,
+                }
+            })
+            .collect();
+        out.push(Resampled {
+            refits,
+            f_full,
+            cache_hits: atoms.hits.load(Ordering::Relaxed),
+            rollouts: atoms.rollouts.load(Ordering::Relaxed),
+        });
+        if stop.load(Ordering::Relaxed) {
+            // The problems not started: every refit skipped.
+            for q in problems.iter().skip(k + 1) {
+                let a: usize = q
+                    .runs
+                    .iter()
+                    .zip(&q.atom)
+                    .map(|(&(j, _), &at)| runs.get(j).map_or(0, |r| n_atoms(r.len(), at.max(1))))
+                    .sum();
+                let b = q.weights.len().checked_div(a).unwrap_or(0);
+                out.push(Resampled {
+                    refits: (0..b)
+                        .map(|_| Refit {
+                            x: vec![f64::NAN; d],
+                            f: f64::NAN,
+                            f_x0: f64::NAN,
+                            evaluations: 0,
+                            done: false,
+                        })
+                        .collect(),
+                    f_full: f64::NAN,
+                    cache_hits: 0,
+                    rollouts: 0,
+                });
+            }
+            break;
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optimize::ga::Scale;
+    use crate::sim::cost::run_cost;
+    use crate::sim::{Init, Upper};
+
+    fn data() -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+        let lin = crate::model::ModelKind::SecondOrder
+            .linear(&[1.0, 0.3, 0.8, 0.2])
+            .unwrap();
+        let (mut us, mut ys) = (Vec::new(), Vec::new());
+        for r in 0..2 {
+            let u: Vec<f64> = (0..1200)
+                .map(|k| ((0.02 * k as f64) + r as f64).sin() + 0.3 * (0.11 * k as f64).cos())
+                .collect();
+            let mut y = crate::sim::simulate(&lin, &u, 0.1, Init::Rest).unwrap();
+            for (k, v) in y.iter_mut().enumerate() {
+                *v += 0.05 * ((k * 7919 + r * 104729) as f64).sin();
+            }
+            us.push(u);
+            ys.push(y);
+        }
+        (us, ys)
+    }
+
+    fn refs<'a>(us: &'a [Vec<f64>], ys: &'a [Vec<f64>]) -> Vec<RunRef<'a>> {
+        us.iter()
+            .zip(ys)
+            .map(|(u, y)| RunRef {
+                dt: 0.1,
+                command: Some(u),
+                lead_x: None,
+                lead_v: None,
+                a: y,
+                v: None,
+                x: None,
+                upper: Upper {
+                    kg: 0.5,
+                    kv: 0.0,
+                    tg: 2.0,
+                    gmin: 9.5,
+                },
+                exo: vec![],
+            })
+            .collect()
+    }
+
+    fn spec() -> CostSpec {
+        CostSpec::linear(
+            crate::model::ModelKind::SecondOrder,
+            crate::model::CommandKind::Acceleration,
+            [1.0, 0.0, 0.0],
+            Init::Rest,
+            false,
+            vec![],
+        )
+    }
+
+    fn bounds() -> Bounds {
+        Bounds::new(
+            vec![0.1, 1e-3, 1e-3, 0.0],
+            vec![10.0, 10.0, 10.0, 2.0],
+            vec![Scale::Log, Scale::Log, Scale::Log, Scale::Linear],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn atom_sums_add_up_to_the_run_cost() {
+        let (us, ys) = data();
+        let runs = refs(&us, &ys);
+        let sp = spec();
+        for atom in [1, 7, 50, 5000] {
+            let row = [1.1, 0.25, 0.9, 0.15];
+            let mut out = vec![0.0; n_atoms(runs[0].len(), atom)];
+            assert!(run_atom_sums(&sp, &row, &runs[0], atom, &mut out));
+            let total: f64 = out.iter().sum::<f64>() / runs[0].len() as f64;
+            let c = run_cost(&sp, &row, &runs[0], f64::INFINITY);
+            assert!((total - c).abs() <= 1e-12 * c, "{total} vs {c}");
+        }
+        // An unstable row: no sums.
+        let mut out = vec![0.0; n_atoms(runs[0].len(), 10)];
+        assert!(!run_atom_sums(
+            &sp,
+            &[1.0, 1.0, -1.0, 0.0],
+            &runs[0],
+            10,
+            &mut out
+        ));
+    }
+
+    #[test]
+    fn unit_weights_give_the_full_cost_and_refits_do_not_depend_on_threads() {
+        let (us, ys) = data();
+        let runs = refs(&us, &ys);
+        let sp = spec();
+        let b = bounds();
+        let atom = 40;
+        let a: usize = runs.iter().map(|r| n_atoms(r.len(), atom)).sum();
+        // Resample 0: all ones; the others: pseudo-random multiplicities.
+        let mut w = vec![1.0; a];
+        for i in 1..6 {
+            w.extend((0..a).map(|q| ((q * 31 + i * 17) % 3) as f64));
+        }
+        let x0 = vec![1.05, 0.28, 0.85, 0.18];
+        let p = ResampleProblem {
+            runs: vec![(0, 1.0), (1, 1.0)],
+            atom: vec![atom, atom],
+            x0: x0.clone(),
+            weights: w,
+        };
+        let o = RefitOptions {
+            budget: 300,
+            ..Default::default()
+        };
+        let go = |t: usize| {
+            crate::parallel::with_threads(t, || {
+                refit_resamples(&sp, &runs, std::slice::from_ref(&p), &b, &o, |_, _| true)
+            })
+            .unwrap()
+            .unwrap()
+        };
+        let (r1, r2) = (go(1), go(2));
+        // The values; the cache's counts depend on the threads' timing.
+        assert_eq!(r1[0].refits, r2[0].refits);
+        assert_eq!(r1[0].f_full.to_bits(), r2[0].f_full.to_bits());
+        let r = &r1[0];
+        let mut xr = vec![0.0; 4];
+        b.to_user(&b.to_unit(&x0), &mut xr);
+        let full = (run_cost(&sp, &xr, &runs[0], f64::INFINITY)
+            + run_cost(&sp, &xr, &runs[1], f64::INFINITY))
+            / 2.0;
+        assert!((r.f_full - full).abs() <= 1e-12 * full);
+        assert!((r.refits[0].f_x0 - full).abs() <= 1e-12 * full);
+        for f in &r.refits {
+            assert!(f.done && f.f <= f.f_x0, "{f:?}");
+        }
+        // The all-ones refit moves towards the truth.
+        let e0: f64 = x0
+            .iter()
+            .zip([1.0, 0.3, 0.8, 0.2])
+            .map(|(a, t)| (a - t).abs())
+            .sum();
+        let e1: f64 = r.refits[0]
+            .x
+            .iter()
+            .zip([1.0, 0.3, 0.8, 0.2])
+            .map(|(a, t)| (a - t).abs())
+            .sum();
+        assert!(e1 < e0, "{e1} vs {e0}");
+        assert!(r.cache_hits > 0);
+        // A stop after the first refit skips the rest.
+        let stopped =
+            refit_resamples(&sp, &runs, std::slice::from_ref(&p), &b, &o, |_, _| false).unwrap();
+        assert!(stopped[0].refits.iter().any(|f| !f.done));
+    }
+}

@@ -1,0 +1,234 @@
+"""The uncertainty stage of a calibration (avll.uncertainty): block bootstrap over time
+refit from the full-data optimum, intervals, identifiability, combinations; validated
+on synthetic platoons with a known truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import avll
+from avll import _core
+from avll.calibration import _problem
+from avll.defaults import UPPER_NAMES
+from avll.studies.openacc import WEIGHTS, predicted_amplification
+from avll.synth_platoon import synth_platoon, validate_intervals
+from avll.uncertainty import (
+    Intervals,
+    Uncertainty,
+    block_length,
+    to_dataset,
+)
+
+CL = dict(closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,
+          bounds={"Gmin": (0.0, 10.0)})
+
+
+def test_block_length_follows_the_correlation_and_has_a_floor() -> None:
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal(6000)
+    ar = np.zeros(6000)
+    for k in range(1, 6000):
+        ar[k] = 0.98 * ar[k - 1] + white[k]
+    assert block_length([white], 0.1) == 5.0  # the floor
+    b = block_length([ar], 0.1)
+    assert b > 10.0  # a correlation time of 5 s asks for blocks of tens of seconds
+    assert block_length([ar], 0.1, cap=12.0) == 12.0
+    assert block_length([white, ar], 0.1) == b  # the largest
+
+
+def test_interval_options_are_checked() -> None:
+    with pytest.raises(ValueError, match="level"):
+        Intervals(level=1.5)
+    with pytest.raises(ValueError, match="method"):
+        Intervals(method="iid")
+    with pytest.raises(ValueError, match="block"):
+        Intervals(block=-1.0)
+    with pytest.raises(ValueError, match="n"):
+        Intervals(n=1)
+    with pytest.raises(TypeError, match="intervals"):
+        Intervals.of("yes")
+    assert Intervals.of(True) == Intervals()
+    assert Intervals.of({"n": 20}).n == 20
+    assert Intervals.of(None) is None
+
+
+@pytest.fixture(scope="module")
+def platoon() -> object:
+    return synth_platoon(2, seed=101, duration=300.0, models=("proposed",))
+
+
+@pytest.fixture(scope="module")
+def fitted(platoon) -> list:  # type: ignore[no-untyped-def]
+    return avll.calibrate_many("proposed", platoon.runs, "per_run", seed=5, starts=1,
+                               max_generations=120, intervals=Intervals(n=40), **CL)
+
+
+def test_refits_are_exact_at_unit_weights_and_do_not_depend_on_threads(platoon, fitted
+                                                                       ) -> None:  # type: ignore[no-untyped-def]
+    prob = _problem("proposed", platoon.runs, bounds={"Gmin": (0.0, 10.0)},
+                    closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS, init="rest")
+    x0 = np.ascontiguousarray(fitted[0].x[None, :])
+    n_atoms = -(-len(platoon.runs[0]) // 25)
+    w = np.ones((3, n_atoms))
+    w[1, ::2] = 2.0
+    w[2, :10] = 0.0
+
+    def go(threads: int) -> dict:
+        return _core.refit_resamples(
+            prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
+            scale=prob.scale, problems=[[0]], x0=x0, atoms=[[25]], resample_weights=[w],
+            budget=150, threads=threads, **prob.kw)[0]
+
+    a, b = go(1), go(2)
+    np.testing.assert_array_equal(a["x"], b["x"])
+    np.testing.assert_array_equal(a["f"], b["f"])
+    # all-ones weights: the Eq. 6 cost of the GA at its optimum (up to summation order)
+    assert a["f_full"] == pytest.approx(fitted[0].cost, rel=1e-9)
+    assert a["f_x0"][0] == pytest.approx(fitted[0].cost, rel=1e-9)
+    assert np.all(a["f"] <= a["f_x0"])  # a refit never ends above its start
+    assert a["done"].all() and not a["interrupted"]
+
+
+def test_uncertainty_result(platoon, fitted) -> None:  # type: ignore[no-untyped-def]
+    r = fitted[0]
+    u = r.uncertainty
+    assert isinstance(u, Uncertainty)
+    assert u.samples.shape == (40, 10) and u.names == tuple(r.bounds)
+    assert set(r.intervals) >= set(u.names) | {"time_gap_effective", "dc_gain",
+                                                "low_frequency_delay"}
+    assert u.block_s >= 5.0
+    for n, (lo, hi) in r.intervals.items():
+        assert lo <= hi, n
+    ver = u.verdicts()
+    assert set(ver) == set(u.names) | set(u.combinations)
+    assert set(ver.values()) <= {"identified", "at bound", "reaches bound", "wide", "fixed",
+                                 "undetermined"}
+    # a parameter at its bound is never a finding
+    for n in r.at_bound:
+        assert ver[n] != "identified"
+    assert "time_gap_effective" in u.identified()
+    text = u.report()
+    for part in ("[[Parameters]]", "[[Combinations]]", "[[Correlations]]", "P(string stable)"):
+        assert part in text
+    c = u.correlations
+    assert c.shape == (10, 10)
+    p = u.string_stable_probability
+    assert p is not None and 0.0 <= p <= 1.0
+    # the band amplification of the estimate is the study's prediction
+    run = platoon.runs[0]
+    amp, amps = u.band_amplification(run.lead_v, run.dt)
+    mod, up = r.model, avll.UpperLevel(**{k: r.upper[k] for k in UPPER_NAMES})
+    assert amp == pytest.approx(predicted_amplification(mod, up, run.lead_v, run.dt), rel=1e-12)
+    assert amps.shape == (40,)
+    ds = to_dataset([f.uncertainty for f in fitted], car=["a", "b"], file=["f1", "f2"])
+    assert dict(ds.sizes) == {"car": 2, "parameter": 10, "parameter2": 10}
+    assert ds["time_gap_effective_low"].shape == (2,)
+    assert list(ds["file"].values) == ["f1", "f2"]
+    assert ds["identified"].dtype == bool
+    # maps: the resampled models of a calibration directly
+    prob = avll.stability_probability(r, np.array([0.1]), np.array([2.0]), np.array([0.4]),
+                                      pade_order=2)
+    assert prob.shape == (1, 1, 1) and prob.attrs["samples"] == len(u.models())
+
+
+def test_intervals_are_seeded(platoon) -> None:  # type: ignore[no-untyped-def]
+    kw = dict(seed=7, starts=1, max_generations=60, **CL)
+    a = avll.calibrate("proposed", platoon.runs[:1], intervals=Intervals(n=12), threads=1, **kw)
+    b = avll.calibrate("proposed", platoon.runs[:1], intervals=Intervals(n=12), threads=2, **kw)
+    np.testing.assert_array_equal(a.uncertainty.samples, b.uncertainty.samples)
+    c = avll.calibrate("proposed", platoon.runs[:1], intervals=Intervals(n=12, seed=99), **kw)
+    assert not np.array_equal(a.uncertainty.samples, c.uncertainty.samples)
+
+
+def test_ctrl_c_returns_the_resamples_so_far(platoon) -> None:  # type: ignore[no-untyped-def]
+    calls = []
+
+    def progress(info: dict) -> None:
+        if info.get("phase") == "resample":
+            calls.append(info)
+            if len(calls) >= 2:
+                raise KeyboardInterrupt
+
+    from avll.calibration import _with_uncertainty
+
+    base = avll.calibrate("proposed", platoon.runs[:1], seed=1, starts=1, max_generations=40,
+                          **CL)
+    prob = _problem("proposed", platoon.runs[:1], bounds={"Gmin": (0.0, 10.0)},
+                    closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS, init="rest")
+    r = _with_uncertainty(prob, [[0]], [base], Intervals(n=200, budget=400), 1, 1,
+                          progress)[0]
+    assert r.uncertainty.interrupted
+    assert 0 < len(r.uncertainty.samples) < 200
+
+
+def test_run_resampling_is_an_option_of_the_same_entry() -> None:
+    sp = synth_platoon(3, seed=5, duration=150.0, models=("proposed",))
+    r = avll.calibrate("proposed", sp.runs, seed=1, starts=1, max_generations=40,
+                       intervals=Intervals(n=12, method="runs"), **CL)
+    assert r.uncertainty.method == "runs" and r.uncertainty.samples.shape[0] == 12
+    with pytest.raises(ValueError, match="method='runs'"):
+        avll.calibrate("proposed", sp.runs[:1], seed=1, starts=1, max_generations=5,
+                       intervals=Intervals(n=12, method="runs"), **CL)
+
+
+def test_validation_on_synthetic_platoons_quick() -> None:
+    # fresh seeds, a few cars: the plumbing of the validation and the estimates' accuracy;
+    # the intervals' coverage needs many cars (the slow tests below)
+    v = validate_intervals([20261128], cars=3, n=40)
+    s = v["summary"]
+    assert s["cars"] == 3 and len(v["rows"]) == 3
+    assert s["amplification"]["within_10pct"] >= 2 / 3, s
+    assert s["time_gap_effective"]["within_10pct"] >= 2 / 3, s
+    for r in v["rows"]:
+        for key in ("amplification", "time_gap_effective"):
+            d = r[key]
+            assert d["low"] < d["high"] and d["rel_width"] > 0, r
+            assert d["inside"] == (d["low"] <= d["truth"] <= d["high"])
+
+
+@pytest.fixture(scope="module")
+def validation() -> dict:
+    # 8 fresh platoons of 6 cars: 48 cars, enough for a coverage of 85 % to mean something
+    # (the same seeds as the docs' fragment, docs/gen/intervals.py)
+    return validate_intervals(list(range(7301, 7309)), cars=6, n=200)["summary"]
+
+
+@pytest.mark.slow
+def test_predictions_are_within_10_percent_on_synthetic_platoons(validation) -> None:  # type: ignore[no-untyped-def]
+    s = validation
+    print(s)
+    assert s["cars"] >= 40
+    assert s["amplification"]["within_10pct"] >= 0.90, s
+    assert s["time_gap_effective"]["within_10pct"] >= 0.90, s
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason=(
+    "measured below the 85 % target (see docs/guide/intervals.md and the generated "
+    "numbers): the bootstrap resamples the fitted residuals, which the 10-parameter "
+    "closed-loop fit makes smaller than the true errors on a record of ~20 effective "
+    "blocks; neither longer blocks nor a 3x longer local search close the gap"))
+def test_intervals_cover_the_truth_on_synthetic_platoons(validation) -> None:  # type: ignore[no-untyped-def]
+    s = validation
+    assert s["amplification"]["coverage"] >= 0.85, s
+    assert s["time_gap_effective"]["coverage"] >= 0.85, s
+
+
+def test_combinations_match_their_definitions() -> None:
+    """The DC gain and the low-frequency delay of the proposed lower level, vectorised
+    over rows, against G_fb(jω) = G / (1 - K G) evaluated near ω = 0."""
+    from avll.uncertainty import _linear_columns, dc_gain, low_frequency_delay
+
+    x = np.array([[0.3, 0.05, 0.6, 0.9, 0.2, -0.3], [0.0, 0.2, 1.1, 1.2, 0.0, 0.4]])
+    lin = _linear_columns(avll.Proposed, x)
+    w = 1e-5
+    for i, row in enumerate(x):
+        m = avll.Proposed.from_array(row)
+        c = m.linear()
+        s = 1j * w
+        g = (c["b1"] * s + c["b0"]) * np.exp(-s * c["Td"]) / (c["a2"] * s * s + c["a1"] * s + 1)
+        gfb = g / (1 - c["K"] * g)
+        assert dc_gain(lin)[i] == pytest.approx(m.dc_gain, rel=1e-12)
+        assert dc_gain(lin)[i] == pytest.approx(abs(gfb), rel=1e-6)
+        assert low_frequency_delay(lin)[i] == pytest.approx(-np.angle(gfb) / w, rel=1e-4)
