@@ -11,7 +11,7 @@ OpenACC study and the estimators consume them unchanged; ``meta["truth"]`` and
 :attr:`SynthPlatoon.truth` hold what the estimators should find.
 
 **The plant (near-continuous).**
-Every car is simulated by the library's closed loop (:func:`avll.closed_loop_effects`)
+Every car is simulated by the library's closed loop (:func:`avll.closed_loop`)
 at ``fine_dt`` (0.01 s by default: the upper law evaluated and the lower level stepped
 at 100 Hz), behind the previous car's *true* position and speed (the radar sees the
 true spacing), then sampled every ``dt`` (0.1 s). A follower-side disturbance -- the
@@ -81,9 +81,10 @@ import numpy as np
 
 from ._limits import check_int, check_number, check_seed
 from .data import Run
-from .effects import Effect, Grade, WithEffects, closed_loop_effects
+from .effects import Effect, Grade, WithEffects
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import TABLE_II_PARAMS
+from .rollout import closed_loop
 
 __all__ = [
     "Equipment",
@@ -290,22 +291,13 @@ def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt:
     from .studies.openacc import amplification, predicted_amplification, transfer_gain
 
     v_mean = float(np.mean(v_true))
-    lin_model: Any = car.model
-    if car.effects:
-        lin = WithEffects(car.model, car.effects).linear(v=v_mean)
-
-        class _Lin:  # the small-signal equivalent, in the form transfer_gain reads
-            @staticmethod
-            def linear() -> dict[str, float]:
-                return lin
-
-        lin_model = _Lin()
+    lin_model = WithEffects(car.model, car.effects)
     n = lead_v_true.size
     f = np.fft.rfftfreq(n, dt)
     lo, hi = (float(b) for b in band)
     fb = f[(f >= lo) & (f <= hi)]
-    h = transfer_gain(lin_model, car.upper, fb)
-    gain = predicted_amplification(lin_model, car.upper, lead_v_true, dt, band)
+    h = transfer_gain(lin_model, car.upper, fb, v=v_mean)
+    gain = predicted_amplification(lin_model, car.upper, lead_v_true, dt, band, v=v_mean)
     ratio = amplification(v_true, lead_v_true, dt, band)[0]
     return {
         "model": car.model.name,
@@ -414,8 +406,8 @@ def synth_platoon(
                  car.disturbance_tau)
         mod = WithEffects(car.model, (*car.effects, Grade(g_eff=1.0)))
         gap0 = car.upper.Gmin + car.upper.Tg * float(vs[-1][0])
-        tr = closed_loop_effects(mod, xs[-1], vs[-1], fine_dt, car.upper, v0=float(vs[-1][0]),
-                                 x0=float(xs[-1][0] - gap0), exo={"grade": -d})
+        tr = closed_loop(mod, xs[-1], vs[-1], fine_dt, car.upper, v0=float(vs[-1][0]),
+                         x0=float(xs[-1][0] - gap0), exo={"grade": -d})
         if not (np.all(np.isfinite(tr.v)) and np.all(np.isfinite(tr.x))):
             raise ValueError(f"cars: follower {i} ({car.model!r}, {car.upper!r}) diverges")
         vs.append(np.asarray(tr.v))

@@ -20,8 +20,9 @@ from ..data import Run
 from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS
 from ..defaults import UPPER_BOUNDS as _UB
 from ..defaults import UPPER_NAMES as _UPPER_NAMES
-from ..effects import EFFECTS, WithEffects, batch_cost_effects, canonical, exo_needs
+from ..effects import EFFECTS, WithEffects, canonical, exo_needs
 from ..models import LowerLevelModel, UpperLevel, model_class
+from ..rollout import batch_cost
 from ..runs import RunSet, as_runset
 
 __all__ = [
@@ -90,7 +91,7 @@ def simulate_runs(
     d = _core.simulate_batch(model.base.name, row, effects=list(model.effect_names),
                              threads=check_threads(threads), **kw)  # fmt: skip
     off = rs.offsets
-    return [np.asarray(d["a"][0, off[j] : off[j + 1]]) for j in range(len(rs))]
+    return [np.asarray(d[0, 0, off[j] : off[j + 1]]) for j in range(len(rs))]
 
 
 def run_mse(
@@ -101,10 +102,8 @@ def run_mse(
     one per-run error of the diagnosis: the Rust batched cost on the run set."""
     rs = as_runset(runs)
     row, free = _row(model, upper if upper is not None else rs.upper)
-    c = batch_cost_effects(
-        model.base.name, model.effect_names, row, rs, closed_loop=_closed(rs, closed_loop),
-        init=_init(rs, init), threads=threads, upper_free=free,
-    )  # fmt: skip
+    c = batch_cost(model, row, rs, closed_loop=_closed(rs, closed_loop), init=_init(rs, init),
+                   threads=threads, upper_free=free)
     return c[0]
 
 
@@ -250,9 +249,8 @@ def fit_full(
 
     def f(z: np.ndarray) -> np.ndarray:
         rows = np.vstack([rows_of(zz) for zz in np.atleast_2d(z)])
-        c = batch_cost_effects(bname, names, rows, rs, closed_loop=closed, init=ini,
-                               upper_free=free_idx, weights=weights,
-                               threads=threads)  # fmt: skip
+        c = batch_cost(bname, rows, rs, effects=names, closed_loop=closed, init=ini,
+                       upper_free=free_idx, weights=weights, threads=threads)
         m = c.mean(axis=1)
         return np.where(np.isfinite(m), m, 1e6)
 

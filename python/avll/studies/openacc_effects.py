@@ -15,7 +15,7 @@ three lower-level models, gets there:
    the first population with the effect at its neutral parameters, so the fit can
    only improve on it);
 2. the calibrated model with its effect is replayed behind the measured
-   predecessor (:func:`avll.effects.closed_loop_effects`) and its amplification
+   predecessor (:func:`avll.closed_loop`) and its amplification
    measured with the same band-pass as the data
    (:func:`~avll.studies.openacc.amplification`).
 
@@ -40,8 +40,9 @@ import numpy as np
 
 from ..data import Run
 from ..defaults import GA_OPTIONS
-from ..effects import EFFECTS, WithEffects, batch_cost_effects, closed_loop_effects
+from ..effects import EFFECTS, WithEffects
 from ..models import UpperLevel
+from ..rollout import batch_cost, closed_loop
 from .openacc import WEIGHTS, OpenACCStudy, _model_of, _upper_of, amplification
 
 __all__ = ["EFFECT_CANDIDATES", "effect_gaps"]
@@ -91,9 +92,8 @@ def _fit_effect(run: Run, base: str, params: Mapping[str, float], effect: str, *
         starts=starts, upper_bounds={"Gmin": (0.0, gmin_max)},
     )  # fmt: skip
     assert up is not None
-    cost = batch_cost_effects(base, [effect], model.to_array()[None, :],
-                              [replace(run, upper=up)], weights=WEIGHTS, init="rest",
-                              closed_loop=True, threads=threads)  # fmt: skip
+    cost = batch_cost(model, model.to_array()[None, :], [replace(run, upper=up)],
+                      weights=WEIGHTS, init="rest", closed_loop=True, threads=threads)
     return model, up, float(cost[0, 0])
 
 
@@ -170,10 +170,8 @@ def effect_gaps(
                 continue
             why = None
             try:
-                tr = closed_loop_effects(model, r.lead_x, r.lead_v, r.dt, up,
-                                         v0=float(r.v[0]),
-                                         x0=float(r.x[0]) if r.x is not None else 0.0,
-                                         exo=r.exo)  # fmt: skip
+                tr = closed_loop(model, r.lead_x, r.lead_v, r.dt, up, v0=float(r.v[0]),
+                                 x0=float(r.x[0]) if r.x is not None else 0.0, exo=r.exo)
                 a_r = (amplification(tr.v, r.lead_v, r.dt, band)[0]
                        if np.all(np.isfinite(tr.v)) else math.nan)  # fmt: skip
             except ValueError as err:  # a calibrated model the trajectory functions refuse
