@@ -114,3 +114,5 @@ pub(crate) use with_plant;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_upper;
