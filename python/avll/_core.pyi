@@ -101,6 +101,23 @@ def platoon(
     exo: dict[str, npt.NDArray[np.float64]] = ...,
     out: Any = None,
 ) -> _Arrays4: ...
+def synth_closed_loop(
+    model: str,
+    params: list[float],
+    lead_x: npt.NDArray[np.float64],
+    lead_v: npt.NDArray[np.float64],
+    dt: float,
+    kg: float,
+    kv: float,
+    tg: float,
+    gmin: float,
+    v0: float,
+    x0: float,
+    hidden: list[float],
+    effects: list[str] = ...,
+    effect_params: list[float] = ...,
+    exo: dict[str, npt.NDArray[np.float64]] = ...,
+) -> _Arrays4: ...
 def batch_cost(
     model: str,
     params: npt.NDArray[np.float64],

@@ -75,6 +75,7 @@ __all__ = [
     "MIN_EXCITATION",
     "MAX_LAG",
     "BandGain",
+    "band_weights",
     "h1_band_gain",
     "welch_effective_averages",
 ]
@@ -157,6 +158,24 @@ def bandpass(x: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
     sos = signal.butter(2, [lo * 2 * dt, hi * 2 * dt], btype="bandpass", output="sos")
     y = signal.sosfiltfilt(sos, signal.detrend(x))
     return y[k:x.shape[0] - k] if k else y
+
+
+def band_weights(lead_v: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
+                 trim: float = TRIM) -> tuple[np.ndarray, np.ndarray]:
+    """The periodogram bins ``f`` (Hz) in ``band`` of the predecessor's speed band-passed
+    as the study does (:func:`bandpass`, Hann window) and their power as weights
+    summing to 1: a model's band amplification is ``sqrt(sum w |H(f)|^2)``
+    (:func:`avll.studies.openacc.predicted_amplification`). Empty arrays when the band
+    holds no bin or no power."""
+    from scipy import signal
+
+    lo, hi = _check_band(band, dt)
+    f, p = signal.periodogram(bandpass(lead_v, dt, band, trim), fs=1.0 / dt, window="hann",
+                              detrend=False)  # fmt: skip
+    m = (f >= lo) & (f <= hi)
+    if not m.any() or p[m].sum() <= 0:
+        return np.zeros(0), np.zeros(0)
+    return f[m], p[m] / p[m].sum()
 
 
 def welch_effective_averages(k: int, n: int = 0, step: int = 0) -> float:

@@ -369,6 +369,62 @@ fn closed_loop<'py>(
     Ok(arrs.into())
 }
 
+/// Closed-loop car following under the synthetic generator's law with hidden
+/// structures (`crate::sim::synth::Hidden`; `hidden` in `HiddenParams::NAMES` order)
+/// and lower-level effects: a tuple of arrays a, v, x, command.
+#[pyfunction]
+#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, v0, x0, hidden, effects = Vec::new(), effect_params = Vec::new(), exo = Exo::new()))]
+#[allow(clippy::too_many_arguments)]
+fn synth_closed_loop<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: Vec<f64>,
+    lead_x: PyReadonlyArray1<'py, f64>,
+    lead_v: PyReadonlyArray1<'py, f64>,
+    dt: f64,
+    kg: f64,
+    kv: f64,
+    tg: f64,
+    gmin: f64,
+    v0: f64,
+    x0: f64,
+    hidden: Vec<f64>,
+    effects: Vec<String>,
+    effect_params: Vec<f64>,
+    exo: Exo<'py>,
+) -> PyResult<Arrays4<'py, Ix1>> {
+    let lin = linear(model, &params)?;
+    let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
+    let up = Upper { kg, kv, tg, gmin };
+    guard(|| up.validate())?;
+    let hp = guard(|| crate::sim::synth::HiddenParams::from_slice(&hidden))?;
+    let lx = slice1("lead_x", &lead_x)?;
+    let lv = slice1("lead_v", &lead_v)?;
+    let ex = exo_slices(&exo)?;
+    let arrs = four(py, None, lx.len())?;
+    {
+        let mut ws = borrow_out("out", &arrs)?;
+        let [wa, wv, wx, wu] = &mut ws[..] else {
+            unreachable!()
+        };
+        let o = Out {
+            a: wa.as_slice_mut()?,
+            v: wv.as_slice_mut()?,
+            x: wx.as_slice_mut()?,
+            u: Some(wu.as_slice_mut()?),
+        };
+        let eff = EffectsRef {
+            effects: &effs,
+            exo: &ex,
+        };
+        let mut law = crate::sim::synth::Hidden::new(up, hp);
+        py.detach(|| {
+            guard(|| rollout::closed_loop_law_into(&lin, &eff, &mut law, lx, lv, dt, v0, x0, o))
+        })?;
+    }
+    Ok(arrs.into())
+}
+
 /// Platoon of `followers` identical vehicles (time-major stepping): dict of
 /// (followers, T) arrays a, v, x, command — transposed views of sample-major (T,
 /// followers) arrays, the layout the stepping writes contiguously. `out`: four
@@ -544,6 +600,7 @@ pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate_full, m)?)?;
     m.add_function(wrap_pyfunction!(closed_loop, m)?)?;
     m.add_function(wrap_pyfunction!(platoon, m)?)?;
+    m.add_function(wrap_pyfunction!(synth_closed_loop, m)?)?;
     m.add_function(wrap_pyfunction!(batch_cost, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_batch, m)?)?;
     Ok(())

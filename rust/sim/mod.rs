@@ -25,6 +25,7 @@ pub mod discretize;
 pub mod kernel;
 pub mod plant;
 pub mod rollout;
+pub mod synth;
 
 pub use cost::{batch_cost, run_cost, CostSpec, RunRef};
 pub use kernel::DIVERGED;

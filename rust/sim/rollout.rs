@@ -10,7 +10,7 @@ use super::discretize::Integrators;
 use super::kernel::{blocks_apply, response_blocks, run, Record, Response, Stepper, DIVERGED};
 use super::plant::{start, Init, Plant, Start};
 use super::with_plant;
-use crate::effects::AnyEffect;
+use crate::effects::{AnyEffect, Level};
 use crate::error::{check_finite, check_series, AvllError, Result};
 use crate::model::{CommandKind, Linear};
 
@@ -485,6 +485,76 @@ pub fn closed_loop_into(
             }
         )
     )
+}
+
+/// Closed-loop car following behind a recorded leader with a given upper law (any
+/// [`Law`], e.g. the synthetic generator's [`super::synth::Hidden`], reset here for
+/// `dt`) and the lower-level effects of `eff`, into `out` (as [`closed_loop_into`]:
+/// the lower level at rest, NaN after a divergence).
+#[allow(clippy::too_many_arguments)]
+pub fn closed_loop_law_into(
+    lin: &Linear,
+    eff: &EffectsRef,
+    law: &mut dyn Law,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    dt: f64,
+    v0: f64,
+    p0: f64,
+    out: Out,
+) -> Result<()> {
+    check_leader(lead_x, lead_v)?;
+    check_finite("v0", v0)?;
+    check_finite("x0", p0)?;
+    check_kind(eff.effects, CommandKind::Acceleration)?;
+    if eff.effects.iter().any(|e| e.kind().level() == Level::Upper) {
+        return Err(AvllError::new(
+            "effects",
+            "the law is given: upper-level effects would be a second law",
+        ));
+    }
+    for s in [&out.a, &out.v, &out.x] {
+        check_len("out", s, lead_x.len())?;
+    }
+    law.reset(dt);
+    with_plant!(
+        lin,
+        Integrators::SpeedPosition,
+        dt,
+        eff.modal(),
+        closed_law_n(lin, eff, law, lead_x, lead_v, [v0, p0], out)
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn closed_law_n<const M: usize, const N: usize, const D: bool, const F: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    eff: &EffectsRef,
+    law: &mut dyn Law,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    int0: [f64; 2],
+    out: Out,
+) -> Result<()> {
+    let s = start(lin, Init::Rest, 0.0)?;
+    let ch = eff.chain(lead_x.len())?;
+    let mut st =
+        stepper::<M, N, D, F, _>(plant, lin, Integrators::SpeedPosition, ch, true, &s, int0)?;
+    let drive = |n: usize, o: &super::kernel::Obs| law.command(lead_x[n], lead_v[n], o.p, o.v);
+    match out.u {
+        Some(u) => {
+            let mut rec = Record::<true, true>::with_command(out.a, out.v, out.x, u);
+            run(&mut st, lead_x.len(), drive, &mut rec);
+            rec.blank_rest();
+        }
+        None => {
+            let mut rec = Record::<true, false>::new(out.a, out.v, out.x);
+            run(&mut st, lead_x.len(), drive, &mut rec);
+            rec.blank_rest();
+        }
+    }
+    Ok(())
 }
 
 /// Closed-loop car following as a new [`Trajectory`] (see [`closed_loop_into`]).

@@ -108,7 +108,7 @@ from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODELS as _MODELS
 from ..rollout import closed_loop
-from ..spectral import DEFAULT_BAND, TRIM, _check_band, bandpass
+from ..spectral import DEFAULT_BAND, TRIM, _check_band, band_weights, bandpass
 from ..stability import exact_delay_codes
 
 __all__ = [
@@ -213,17 +213,13 @@ def predicted_amplification(model: Any, upper: UpperLevel, lead_v: np.ndarray,
     """RMS gain of ``|H|`` (:func:`transfer_gain`; a base model or an
     :class:`avll.WithEffects`, linearised at ``v``, by default the predecessor's mean
     speed) on the predecessor's band-passed speed spectrum: ``sqrt(Σ |H|² P / Σ P)``
-    over the periodogram bins (Hann window) within the band."""
-    from scipy import signal
-
-    lo, hi = _check_band(band, dt)
-    bp = bandpass(lead_v, dt, band, trim)
-    f, p = signal.periodogram(bp, fs=1.0 / dt, window="hann", detrend=False)
-    m = (f >= lo) & (f <= hi)
-    if not m.any() or p[m].sum() <= 0:
+    over the periodogram bins (Hann window) within the band
+    (:func:`avll.spectral.band_weights`)."""
+    f, w = band_weights(lead_v, dt, band, trim)
+    if not f.size:
         return math.nan
-    h = transfer_gain(model, upper, f[m], v=float(np.mean(lead_v)) if v is None else v)
-    return float(np.sqrt(np.sum(h * h * p[m]) / np.sum(p[m])))
+    h = transfer_gain(model, upper, f, v=float(np.mean(lead_v)) if v is None else v)
+    return float(np.sqrt(np.sum(h * h * w)))
 
 
 def replay_amplification(model: LowerLevelModel, upper: UpperLevel, run: Run,
