@@ -417,9 +417,9 @@ class Closing(Effect):
     gap: ``rg, rv > 1``.
 
     Calibration bounds: ``rg``, ``rv`` in [0.25, 4]. Small signal: the average slopes
-    ``kg (1 + rg)/2``, ``kv (1 + rv)/2`` (the describing function of an oscillation
-    symmetric about the equilibrium; under an oscillation the mean gap error also
-    moves away from 0)."""
+    ``kg (1 + rg)/2``, ``kv (1 + rv)/2`` (the odd part; the even part shifts the mean
+    gap error under an oscillation and returns through the closed loop as harmonics:
+    an error of the order ``((r - 1)/(r + 1))^2``)."""
 
     rg: float = 1.0
     rv: float = 1.0

@@ -79,8 +79,10 @@ on the perceived predecessor speed differenced over a window; a smooth
 between 1 and ``ratio``). The truth's ``|H|`` then comes from this law's own
 small-signal form (:meth:`HiddenUpper.response`: the radar as a latency times the
 zero-order hold of its period, the window's difference, the blend's average slope
-``(1 + ratio)/2``, which is the asymmetry's describing function for any amplitude),
-and ``truth["hidden"]`` lists the structures.
+``(1 + ratio)/2``, the describing function of the asymmetry's odd part; its even part
+shifts the mean gap and makes even harmonics, which in the closed loop return into the
+fundamental: an approximation of the order ``((ratio - 1)/(ratio + 1))^2``, 3 % at
+``ratio = 1.8`` and 0.1 Hz in the tests), and ``truth["hidden"]`` lists the structures.
 
 Seeded: one random stream per ``(seed, purpose, car)``.
 """

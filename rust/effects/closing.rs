@@ -14,12 +14,15 @@
 //! Calibration bounds: `rg`, `rv` in [0.25, 4] (up to four times softer or harder on
 //! the closing side). Neutral: 1, 1.
 //!
-//! Small signal: each term is piecewise linear, positively homogeneous; for an
-//! oscillation symmetric about the equilibrium its fundamental (the describing
-//! function) is the average slope, `kg (1 + rg)/2` and `kv (1 + rv)/2`, which is the
-//! small-signal form given (the closing and opening slopes themselves are exact on
-//! either side). The asymmetry also shifts the mean: under an oscillation the mean
-//! gap error moves away from 0, which a symmetric law reads as another `Gmin + Tg v`.
+//! Small signal: each term is piecewise linear, positively homogeneous: its odd part is
+//! the average slope, `kg (1 + rg)/2` and `kv (1 + rv)/2` (the small-signal form
+//! given: the describing function of a sinusoid, of any amplitude), its even part
+//! `|z| (r - 1)/2` a rectifier. Under an oscillation the even part shifts the mean
+//! gap error away from 0 (which a symmetric law reads as another `Gmin + Tg v`) and
+//! makes even harmonics, which in the closed loop return through the law into the
+//! fundamental: the average slope's error is of the order `((r - 1)/(r + 1))^2`
+//! (about 1 % in the tests at r = 1.6-2.2; the closing and opening slopes themselves
+//! are exact on either side).
 
 use super::{check_range, Effect, Level, Operating, UpperLin};
 use crate::error::Result;
