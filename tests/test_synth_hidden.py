@@ -100,30 +100,35 @@ def test_platoon_with_a_hidden_structure() -> None:
 
 @pytest.mark.slow
 def test_blind_upper_structures_on_hidden_platoons() -> None:
-    """The blind test (fresh seeds): a hidden radar latency, windowed feedforward and
-    smooth closing asymmetry make the base model misread Tg + Gmin/v̄ (every car
-    read too long) and underestimate the amplification; base + the candidate
+    """The blind test (fresh seeds, the default GA budget): a hidden radar latency,
+    windowed feedforward and smooth closing asymmetry bias the base model as on real
+    platoons -- its predicted amplification low (most cars, and on average) and its
+    Tg + Gmin/v̄ long (the asymmetry shifts the mean gap); base + the candidate
     structures (perception, closing, feedforward) reads Tg + Gmin/v̄ within the
-    target and predicts the held-out data better. The amplification targets of the
-    study's final model (mean error within 1.5 %, 90 % of cars within 5 %) are checked
-    and reported, not asserted: see the docs (``docs/guide/effects.md``)."""
+    study's target (5 % for the median car, and closer than the base) and predicts the
+    held-out third of each run better. Measured, not asserted (the study's targets
+    for the final model's amplification, mean error within 1.5 % and 90 % of cars
+    within 5 %, are not met by this fit): the structures leave the amplification
+    bias about where the base has it (see ``docs/guide/blind-tests.md``)."""
     hid = HiddenUpper(radar_period=0.1, radar_latency=0.3, ff_gain=0.5, ff_window=1.5,
                       ratio=1.5)
     r = validate_structure([201, 202], hidden=hid, candidates=["perception", "closing",
                                                                 "feedforward"],
-                           cars=5, max_generations=150, seed=1)  # fmt: skip
-    assert r.base.time_gap_median_error > 0  # the mean gap is read as a longer headway
+                           cars=5, seed=1)  # fmt: skip
+    assert r.base.mean_error < 0 and r.base.underestimated > 0.5
+    assert r.base.time_gap_median_error > 0
     assert abs(r.candidates.time_gap_median_error) < abs(r.base.time_gap_median_error)
     assert r.candidates.time_gap_median_abs_error < 0.05
-    assert r.candidates.heldout_change < 0  # the structure predicts unseen data better
-    assert r.base.underestimated >= 0.7
+    assert r.candidates.heldout_change < 0
 
 
 @pytest.mark.slow
 def test_blind_null_structures_add_nothing() -> None:
-    """Nothing hidden: the candidate structures do not predict held-out data better
-    than the base model (their extra parameters fit noise)."""
+    """Nothing hidden (fresh seeds): the candidate structures do not predict the
+    held-out data better than the base model (within 1 % for the median car). Measured,
+    not asserted: their parameters do not come out neutral (``perception`` trades with
+    the lower level's dead time, ``closing.rg`` is weakly identified)."""
     r = validate_structure([203, 204], hidden=None, candidates=["perception", "closing",
                                                                  "feedforward"],
-                           cars=5, max_generations=150, seed=1)  # fmt: skip
+                           cars=5, seed=1)  # fmt: skip
     assert r.candidates.heldout_change > -0.01

@@ -163,8 +163,13 @@ def _small_signal(model: WithEffects, upper: UpperLevel, v0: float, side: int) -
     """The small-signal form; ``ValueError`` with the reason when there is none."""
     d = dict(model.linear(v=v0, side=side, terms=True))
     obs = bool(d.get("obs_tau", 0.0) or d.get("obs_bias", 0.0))
-    return _SmallSignal({k: float(d[k]) for k in _KEYS}, float(d["speed_feedback"]),
-                        float(d["command_delay"]), obs, model.upper_linear(upper, v=v0))
+    coeffs = {k: float(d[k]) for k in _KEYS}
+    tau = float(d["command_delay"])
+    if coeffs["K"] == 0.0:  # without inner feedback an outer delay is part of Td
+        coeffs["Td"] += tau
+        tau = 0.0
+    return _SmallSignal(coeffs, float(d["speed_feedback"]), tau, obs,
+                        model.upper_linear(upper, v=v0))
 
 
 def _none(x: float) -> float | None:

@@ -740,7 +740,7 @@ def _structure_summary(amp: np.ndarray, truth: np.ndarray, tg: np.ndarray, tg_tr
 
 
 def _split(run: Run, k: int) -> tuple[Run, Run]:
-    """The run's first ``k`` samples and the rest (each a closed-loop run of its own)."""
+    """The run's first ``k`` samples and the rest (each a run of its own)."""
     from dataclasses import replace
 
     def part(sl: slice, tag: str) -> Run:
@@ -766,6 +766,11 @@ def validate_structure(
     **platoon: Any,
 ) -> StructureCheck:
     """The blind test of the upper-level structures: on the platoons of ``seeds``
+    (see below; the held-out cost is the study's objective over the last ``heldout`` of
+    each run, the fit simulated over the whole run so that the held-out part continues
+    the calibrated part instead of restarting it).
+
+    On the platoons of ``seeds``
     (``cars`` random ``model`` followers, the structures ``hidden`` in their upper
     level -- or none -- and ``platoon`` options to :func:`synth_platoon`), each car is
     calibrated in closed loop (the OpenACC study's weights and ``Gmin`` box, every
@@ -778,7 +783,7 @@ def validate_structure(
     against the true law's, and the cost on the held-out part. Deterministic in
     ``seeds`` and ``seed``."""
     from .calibration import calibrate
-    from .rollout import batch_cost
+    from .rollout import simulate_batch
     from .studies.openacc import GMIN_MAX, WEIGHTS, predicted_amplification
 
     names = list(candidates)
@@ -798,23 +803,27 @@ def validate_structure(
     for s in seeds:
         pl = synth_platoon(cars, seed=int(s), models=(model,), hidden=hidden, **platoon)
         k = int(round(len(pl.runs[0]) * (1.0 - heldout)))
-        parts = [_split(r, k) for r in pl.runs]
-        cal, held = [p[0] for p in parts], [p[1] for p in parts]
+        cal = [_split(r, k)[0] for r in pl.runs]
         fits = {}
         for key, effs in (("base", []), ("candidates", names)):
             res = calibrate(model, cal, effects=effs, subsets="per_run", closed_loop=True,
                             upper_free=free, weights=WEIGHTS, seed=seed, starts=starts,
                             threads=threads, bounds={"Gmin": (0.0, GMIN_MAX)}, **opts)
             out = []
-            for j, (r, c) in enumerate(zip(pl.runs, res, strict=True)):
+            for r, c in zip(pl.runs, res, strict=True):
                 up = UpperLevel(**c.upper)
                 m = c.with_effects if c.with_effects is not None else WithEffects(c.model, ())
                 assert r.lead_v is not None and r.v is not None
                 vbar = float(np.mean(r.v))
                 row = np.concatenate([m.to_array(), up.to_array()])[None, :]
-                h = float(batch_cost(model, row, [held[j]], effects=list(m.effect_names),
+                # the whole run simulated (no restart), its error on the held-out part
+                sim = simulate_batch(model, row, [r], effects=list(m.effect_names),
                                      closed_loop=True, upper_free=[0, 1, 2, 3],
-                                     weights=WEIGHTS, threads=threads)[0, 0])  # fmt: skip
+                                     threads=threads)  # fmt: skip
+                assert r.x is not None
+                h = float(sum(w * np.mean((got[0][k:] - want[k:]) ** 2) for w, got, want in
+                              zip(WEIGHTS, (sim.a[0], sim.v[0], sim.x[0]), (r.a, r.v, r.x),
+                                  strict=True)))  # fmt: skip
                 out.append((predicted_amplification(m, up, r.lead_v, r.dt),
                             m.upper_linear(up, v=vbar)["Tg_eq"] + up.Gmin / vbar, c.cost, h,
                             {k2: v for k2, v in c.params.items() if "." in k2}))
