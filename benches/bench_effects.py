@@ -17,8 +17,6 @@ from avll.effects import (
     Saturation,
     SpeedDrag,
     WithEffects,
-    batch_cost_effects,
-    simulate_effects,
 )
 from avll.reference.effects import rollout_effects
 
@@ -42,8 +40,8 @@ def main() -> None:
                Saturation(1.5, 2.0), SpeedDrag(0.05, 0.001), Grade(9.0))  # fmt: skip
     allfx = WithEffects(base, effects)
     t_lin = _best(lambda: avll.simulate_full(base, u, dt))
-    t_none = _best(lambda: simulate_effects(base, u, dt))
-    t_all = _best(lambda: simulate_effects(allfx, u, dt, exo={"grade": g}))
+    t_none = _best(lambda: avll.simulate_full(WithEffects(base, ()), u, dt))
+    t_all = _best(lambda: avll.simulate_full(allfx, u, dt, exo={"grade": g}))
     m = 3000
     t_ref = _best(lambda: rollout_effects(allfx, dt, command=u[:m], exo={"grade": g[:m]}), 1)
     print(f"linear simulate_full     {n / t_lin / 1e6:8.1f} M steps/s")
@@ -56,13 +54,14 @@ def main() -> None:
     steps = 256 * 3 * 3600
     base_rows = np.repeat(base.to_array()[None, :], 256, axis=0)
     t_lb = _best(lambda: avll.batch_cost("proposed", base_rows, runs, threads=1), 3)
-    t_eb = _best(lambda: batch_cost_effects("proposed", [], base_rows, runs, threads=1), 3)
+    t_eb = _best(lambda: avll.batch_cost("proposed", base_rows, runs, effects=[], threads=1), 3)
     print(f"batched cost, linear      {steps / t_lb / 1e6:8.1f} M steps/s (1 thread)")
     print(f"batched cost, no effect   {steps / t_eb / 1e6:8.1f} M steps/s ({t_eb / t_lb:.2f}x)")
     rows = np.repeat(allfx.to_array()[None, :], 256, axis=0)
     names = list(allfx.effect_names)
     for th in (1, 2):
-        tb = _best(lambda th=th: batch_cost_effects("proposed", names, rows, runs, threads=th), 3)
+        tb = _best(lambda th=th: avll.batch_cost("proposed", rows, runs, effects=names,
+                                                 threads=th), 3)
         print(f"batched cost, all 7, {th} thread(s) {steps / tb / 1e6:8.1f} M steps/s")
 
 

@@ -17,8 +17,9 @@ import pytest
 import avll
 from avll.cli import main
 from avll.diagnose import diagnose, effect_loop, mse_table, write_report
-from avll.effects import Saturation, WithEffects, simulate_effects
+from avll.effects import Saturation, WithEffects
 from avll.io import write_runs
+from avll.rollout import simulate_full
 from avll.synth_effects import expected_params, paper_experiment_effects
 
 SECOND = avll.PAPER_TABLE_II["second"]
@@ -87,7 +88,7 @@ def test_diagnosis_ranks_the_true_effect_without_calibration() -> None:
     data = []
     rng = np.random.default_rng(0)
     for r in runs:
-        tr = simulate_effects(truth, r.command, r.dt, v0=r.v[0], x0=r.x[0])
+        tr = simulate_full(truth, r.command, r.dt, v0=r.v[0], x0=r.x[0])
         data.append(avll.Run(run_id=r.run_id, t=r.t, a=tr.a + rng.normal(0, 0.05, r.t.size),
                              command=r.command, v=r.v, x=r.x))  # fmt: skip
     d = diagnose(SECOND, data[:2], data[2:])
@@ -100,7 +101,7 @@ def test_diagnosis_ranks_the_true_effect_without_calibration() -> None:
     assert set(dep) >= {"command", "|command|", "command rate", "command jerk", "speed",
                         "sign of command", "sign of acceleration"}  # fmt: skip
     # The clean model on the same runs: nothing.
-    clean = [avll.Run(run_id=r.run_id, t=r.t, a=simulate_effects(SECOND, r.command, r.dt).a
+    clean = [avll.Run(run_id=r.run_id, t=r.t, a=simulate_full(SECOND, r.command, r.dt).a
                       + rng.normal(0, 0.05, r.t.size), command=r.command, v=r.v, x=r.x)
              for r in runs]  # fmt: skip
     assert diagnose(SECOND, clean[:2], clean[2:]).ranked == []
@@ -231,7 +232,7 @@ def test_speed_command_asymmetry_is_found() -> None:
         u = 20 + np.cumsum(rng.normal(0, 0.08, t.size))
         u = np.convolve(u, np.ones(20) / 20, mode="same")
         u[:20], u[-20:] = u[20], u[-21]
-        tr = simulate_effects(true, u, 0.1, command_kind="speed", init="steady")
+        tr = simulate_full(true, u, 0.1, command_kind="speed", init="steady")
         runs.append(avll.Run(run_id=str(k), t=t, a=tr.a + rng.normal(0, 0.03, t.size),
                              command_kind="speed", command=u,
                              v=tr.v + rng.normal(0, 0.01, t.size)))  # fmt: skip

@@ -33,10 +33,10 @@ def test_frequency_response_matches_the_engine_polynomials() -> None:
     g = np.polyval(num, s) / np.polyval(den, s)
     mu = UP.kv + UP.Tg * UP.kg
     want = (UP.kv * s + UP.kg) * g / (s * s + g * (mu * s + UP.kg))
-    got = frequency_response(m.linear(), UP, w)
+    got = frequency_response(m, UP, w)
     np.testing.assert_allclose(got, want, rtol=1e-12)
     with pytest.raises(ValueError, match="omega"):
-        frequency_response(m.linear(), UP, [0.0])
+        frequency_response(m, UP, [0.0])
 
 
 @pytest.mark.parametrize("model", [SECOND, PROPOSED], ids=["second", "proposed"])
@@ -205,24 +205,23 @@ def test_bad_arguments() -> None:
     assert "saturation" in AMPLITUDE_DEPENDENT
 
 
-def test_speed_feedback_from_a_library_linear_with_terms(monkeypatch) -> None:
-    """Where ``WithEffects.linear`` offers ``terms=True`` (road_load's speed feedback),
-    that feedback is used as the drag of the small-signal form."""
+def test_speed_feedback_and_outer_delay_enter_the_small_signal() -> None:
+    """road_load's speed feedback (``WithEffects.linear(terms=True)``) is the drag of
+    the small-signal form and a delay with K != 0 its outer delay; both enter |H|,
+    which equals the numpy oracle written from the closed-loop equations."""
     from avll import effect_stability as es
+    from avll.effects import Delay, RoadLoad
+    from avll.reference.effects import frequency_response as oracle
 
-    base_lin = SECOND.linear()
-
-    def linear(self, *, v=0.0, side=0, terms=False):
-        if not terms:
-            raise ValueError("road_load: speed feedback")
-        return {**base_lin, "speed_feedback": 0.09, "obs_tau": 0.0, "obs_bias": 0.0}
-
-    monkeypatch.setattr(WithEffects, "linear", linear)
-    ss = es._small_signal(WithEffects(SECOND, (Saturation(1.0, 1.0),)), 15.0, 0)
-    assert ss.drag == 0.09 and ss.tau == 0.0 and not ss.observation
-    want = np.abs(frequency_response(base_lin, UP, [0.3], drag=0.09))
-    got = np.abs(frequency_response(ss.coeffs, UP, [0.3], drag=ss.drag))
-    np.testing.assert_allclose(got, want)
+    m = WithEffects(PROPOSED, (Delay(0.3), RoadLoad(0.1, 0.01, 0.0004)))
+    ss = es._small_signal(m, UP, 15.0, 0)
+    assert ss.drag == pytest.approx(0.01 + 2 * 0.0004 * 15.0) and ss.tau == 0.3
+    assert not ss.observation and not ss.engine
+    w = np.array([0.05, 0.3, 1.2])
+    np.testing.assert_allclose(frequency_response(m, UP, w, v=15.0),
+                               oracle(m, UP, w, v=15.0), rtol=1e-12)
+    base = np.abs(frequency_response(PROPOSED, UP, w))
+    assert np.all(np.abs(np.abs(frequency_response(m, UP, w, v=15.0)) - base) > 1e-3)
 
 
 def _needs(*names: str) -> None:

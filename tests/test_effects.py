@@ -22,11 +22,9 @@ from avll.effects import (
     Sensor,
     SpeedDrag,
     WithEffects,
-    batch_cost_effects,
-    closed_loop_effects,
-    simulate_effects,
 )
 from avll.reference.effects import rollout_effects
+from avll.rollout import batch_cost, closed_loop, simulate_full
 
 DT = 0.05
 BASES = [
@@ -74,6 +72,8 @@ def test_registry_matches_rust() -> None:
         assert info[name]["exo"] == cls.exo
         assert info[name]["accel_only"] == cls.accel_only
         assert info[name]["needs_speed"] == cls.needs_speed
+        assert info[name]["level"] == cls.level in ("lower", "upper")
+        assert info[name]["excludes"] == cls.excludes
         assert cls() == cls(*cls.neutral), "the defaults are the neutral parameters"
         lo, hi = zip(*cls.bounds, strict=True)
         assert all(a <= n <= b for a, n, b in zip(lo, cls.neutral, hi, strict=True))
@@ -85,7 +85,7 @@ def test_registry_matches_rust() -> None:
 def test_no_effect_equals_linear_rollout(base, init, kind) -> None:
     _, u, _ = _signals()
     want = avll.simulate_full(base, u, DT, command_kind=kind, init=init, v0=4.0, x0=2.0)
-    got = simulate_effects(base, u, DT, command_kind=kind, init=init, v0=4.0, x0=2.0)
+    got = simulate_full(base, u, DT, command_kind=kind, init=init, v0=4.0, x0=2.0)
     for k in ("a", "v", "x"):
         # same arithmetic in another order: equal to rounding (positions reach ~1e3 m)
         np.testing.assert_allclose(getattr(got, k), getattr(want, k), rtol=1e-12, atol=1e-12)
@@ -102,7 +102,7 @@ def test_neutral_effects_equal_linear_closed_loop(base) -> None:
         base, tuple(EFFECTS[n](*EFFECTS[n].neutral) for n in ("delay", "deadband", "asymmetric",
                                                                 "speed_drag", "grade"))
     )
-    got = closed_loop_effects(
+    got = closed_loop(
         neutral, lx, lv, DT, up, v0=11.0, x0=lx[0] - 30.0, exo={"grade": np.full(lx.size, 0.02)}
     )
     for k in ("a", "v", "x", "command"):
@@ -110,13 +110,13 @@ def test_neutral_effects_equal_linear_closed_loop(base) -> None:
         np.testing.assert_allclose(getattr(got, k), getattr(want, k), rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("name", CANONICAL_ORDER)
+@pytest.mark.parametrize("name", [n for n in CANONICAL_ORDER if EFFECTS[n].level == "lower"])
 @pytest.mark.parametrize("base", BASES, ids=lambda b: f"{b.name}-{b.to_array()[0]:.2f}")
 def test_each_effect_matches_reference_open_loop(name, base) -> None:
     _, u, grade = _signals()
     m = WithEffects(base, (ACTIVE[name],))
     exo = {"grade": grade}
-    got = simulate_effects(m, u, DT, v0=8.0, x0=1.0, exo=exo)
+    got = simulate_full(m, u, DT, v0=8.0, x0=1.0, exo=exo)
     ref = rollout_effects(m, DT, command=u, v0=8.0, x0=1.0, exo=exo)
     lin = avll.simulate_full(base, u, DT, v0=8.0, x0=1.0)
     assert np.max(np.abs(got.a - lin.a)) > 1e-3, "the effect must act on this signal"
@@ -132,7 +132,7 @@ def test_speed_command_effects_match_reference(name, init) -> None:
     u = 10 + 3 * np.sin(0.2 * t) + np.sin(0.9 * t)
     eff = ACTIVE[name] if name != "asymmetric" else Asymmetric(kb=1.0, rb=1.7)
     m = WithEffects(base, (eff,))
-    got = simulate_effects(m, u, DT, command_kind="speed", init=init, x0=3.0)
+    got = simulate_full(m, u, DT, command_kind="speed", init=init, x0=3.0)
     ref = rollout_effects(m, DT, command=u, command_kind="speed", init=init, x0=3.0)
     assert np.max(np.abs(got.v - avll.simulate(base, u, DT, init=init))) > 1e-3
     for k in ("a", "v", "x"):
@@ -147,7 +147,7 @@ def test_all_effects_together_match_reference_closed_loop(drop) -> None:
     # speed_drag and road_load are one family and are refused together.
     effs = tuple(e for n, e in ACTIVE.items() if n != drop)
     m = WithEffects(avll.PAPER_TABLE_II["proposed"], effs)
-    got = closed_loop_effects(m, lx, lv, DT, up, v0=11.0, x0=lx[0] - 31.5, exo={"grade": grade})
+    got = closed_loop(m, lx, lv, DT, up, v0=11.0, x0=lx[0] - 31.5, exo={"grade": grade})
     ref = rollout_effects(
         m, DT, lead_x=lx, lead_v=lv, upper=up, v0=11.0, x0=lx[0] - 31.5, exo={"grade": grade}
     )
@@ -164,7 +164,7 @@ def test_asymmetric_linearisation_is_exact_on_the_braking_side() -> None:
     assert lb["b0"] == pytest.approx(0.54) and lb["a2"] == pytest.approx(0.4 * 2.25)
     eq = avll.SecondOrder(K0=lb["b0"], m2=lb["a2"], m3=lb["a1"], Td=lb["Td"])
     np.testing.assert_allclose(
-        simulate_effects(m, u, DT).a, avll.simulate(eq, u, DT), rtol=0, atol=1e-10
+        simulate_full(m, u, DT).a, avll.simulate(eq, u, DT), rtol=0, atol=1e-10
     )
     assert m.linear(side=1) == pytest.approx(base.linear())
 
@@ -185,7 +185,7 @@ def _runs(model: WithEffects, n_runs: int = 3) -> list[avll.Run]:
     for j in range(n_runs):
         t, u, grade = _signals(800 + 100 * j)
         u = u * (1 + 0.2 * j)
-        tr = simulate_effects(model, u, DT, v0=9.0, x0=0.0, exo={"grade": grade})
+        tr = simulate_full(model, u, DT, v0=9.0, x0=0.0, exo={"grade": grade})
         out.append(
             avll.Run(run_id=str(j), t=t, a=tr.a + 0.01 * np.sin(7 * t), command=u, v=tr.v,
                      x=tr.x, exo={"grade": grade})
@@ -202,25 +202,25 @@ def test_batch_cost_matches_simulation_and_flags_invalid_rows() -> None:
     bad[6] = -1.0  # a_max < 0
     unstable = row.copy()
     unstable[2] = -5.0  # m3 < 0: G itself unstable
-    c = batch_cost_effects("proposed", ["saturation", "grade"], np.vstack([row, bad, unstable]),
-                           runs, weights=(1.0, 0.5, 0.0), threads=1)  # fmt: skip
+    c = batch_cost("proposed", np.vstack([row, bad, unstable]), runs,
+                   effects=["saturation", "grade"], weights=(1.0, 0.5, 0.0), threads=1)
     for j, r in enumerate(runs):
-        tr = simulate_effects(m, r.command, DT, v0=r.v[0], x0=r.x[0], exo=r.exo)
+        tr = simulate_full(m, r.command, DT, v0=r.v[0], x0=r.x[0], exo=r.exo)
         want = np.mean((tr.a - r.a) ** 2) + 0.5 * np.mean((tr.v - r.v) ** 2)
         assert c[0, j] == pytest.approx(want, rel=1e-12)
     assert np.all(np.isinf(c[1:]))
     # Same answer with another thread count.
-    c2 = batch_cost_effects("proposed", ["saturation", "grade"], row[None, :], runs, threads=2)
-    c1 = batch_cost_effects("proposed", ["saturation", "grade"], row[None, :], runs, threads=1)
+    c2 = batch_cost("proposed", row[None, :], runs, effects=["saturation", "grade"], threads=2)
+    c1 = batch_cost("proposed", row[None, :], runs, effects=["saturation", "grade"], threads=1)
     np.testing.assert_array_equal(c1, c2)
     # The acceleration-only fast path (no integrators) gives the same costs.
     for j, r in enumerate(runs):
-        tr = simulate_effects(m, r.command, DT, v0=r.v[0], x0=r.x[0], exo=r.exo)
+        tr = simulate_full(m, r.command, DT, v0=r.v[0], x0=r.x[0], exo=r.exo)
         assert c1[0, j] == pytest.approx(np.mean((tr.a - r.a) ** 2), rel=1e-12)
     drag = WithEffects(base, (SpeedDrag(0.05, 0.002),))
-    cd = batch_cost_effects("proposed", ["speed_drag"], drag.to_array()[None, :], runs)
+    cd = batch_cost("proposed", drag.to_array()[None, :], runs, effects=["speed_drag"])
     for j, r in enumerate(runs):
-        tr = simulate_effects(drag, r.command, DT, v0=r.v[0], x0=r.x[0])
+        tr = simulate_full(drag, r.command, DT, v0=r.v[0], x0=r.x[0])
         assert cd[0, j] == pytest.approx(np.mean((tr.a - r.a) ** 2), rel=1e-12)
 
 
@@ -228,15 +228,15 @@ def test_bad_input_names_the_argument() -> None:
     base = avll.PAPER_TABLE_II["second"]
     _, u, _ = _signals(100)
     with pytest.raises(ValueError, match="exo_grade"):
-        simulate_effects(WithEffects(base, (Grade(9.8),)), u, DT)
+        simulate_full(WithEffects(base, (Grade(9.8),)), u, DT)
     with pytest.raises(ValueError, match="duplicate"):
         WithEffects(base, (Delay(0.1), Delay(0.2)))
     with pytest.raises(ValueError, match="unknown effect"):
-        batch_cost_effects("second", ["wind"], np.zeros((1, 5)), _runs(WithEffects(base)))
+        batch_cost("second", np.zeros((1, 5)), _runs(WithEffects(base)), effects=["wind"])
     with pytest.raises(ValueError, match="saturation.a_max"):
         Saturation(a_max=-1.0, d_max=1.0)
     with pytest.raises(ValueError, match="kb must be 1"):
-        simulate_effects(WithEffects(base, (Asymmetric(0.5, 1.0),)), u + 5, DT,
+        simulate_full(WithEffects(base, (Asymmetric(0.5, 1.0),)), u + 5, DT,
                          command_kind="speed")  # fmt: skip
 
 
@@ -295,7 +295,7 @@ def test_braking_side_unstable_costs_inf_like_the_trajectory_refuses():
     the run is long enough to show the divergence (found as a GA optimum of a
     closed-loop OpenACC fit before the cost checked the braking side)."""
     from avll import Proposed, Run
-    from avll.effects import Asymmetric, WithEffects, batch_cost_effects, simulate_effects
+    from avll.effects import Asymmetric, WithEffects
 
     base = Proposed(8.1645, 0.0017358, 99.356, 1.0202, 1.33e-5, 0.98015)
     dt = 0.1
@@ -304,12 +304,12 @@ def test_braking_side_unstable_costs_inf_like_the_trajectory_refuses():
     run = Run(run_id="o", t=t, a=np.zeros_like(t), command=cmd)
     grid = [(kb, rb) for kb in (0.5, 1.0, 1.5, 2.0, 2.5) for rb in (0.4, 0.6, 1.0, 2.0)]
     models = [WithEffects(base, (Asymmetric(kb, rb),)) for kb, rb in grid]
-    cost = batch_cost_effects("proposed", ["asymmetric"],
-                              np.array([m.to_array() for m in models]), [run])[:, 0]
+    cost = batch_cost("proposed", np.array([m.to_array() for m in models]), [run],
+                      effects=["asymmetric"])[:, 0]
     refused = []
     for m in models:
         try:
-            simulate_effects(m, cmd, dt)
+            simulate_full(m, cmd, dt)
             refused.append(False)
         except ValueError as e:
             assert "braking side" in str(e)

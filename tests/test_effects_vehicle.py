@@ -21,11 +21,9 @@ from avll.effects import (
     Sensor,
     SpeedDrag,
     WithEffects,
-    batch_cost_effects,
-    closed_loop_effects,
-    simulate_effects,
 )
 from avll.reference.effects import rollout_effects
+from avll.rollout import batch_cost, closed_loop, simulate_full
 
 DT = 0.05
 #: Effects acting on the acceleration that integrates into the speed (item 5).
@@ -79,7 +77,7 @@ def test_speed_command_accel_effects_match_reference(name, base, init) -> None:
     u, grade = _speed_command()
     m = WithEffects(base, (SPEED_ACTIVE[name],))
     exo = {"grade": grade}
-    got = simulate_effects(m, u, DT, command_kind="speed", init=init, x0=3.0, exo=exo)
+    got = simulate_full(m, u, DT, command_kind="speed", init=init, x0=3.0, exo=exo)
     ref = rollout_effects(m, DT, command=u, command_kind="speed", init=init, x0=3.0, exo=exo)
     lin = avll.simulate_full(base, u, DT, command_kind="speed", init=init, x0=3.0)
     changed = "a" if name == "sensor" else "v"
@@ -101,7 +99,7 @@ def test_speed_command_effects_together_match_reference(base) -> None:
             *(e for n, e in SPEED_ACTIVE.items() if n != "speed_drag"))  # fmt: skip
     m = WithEffects(base, effs)
     exo = {"grade": grade}
-    got = simulate_effects(m, u, DT, command_kind="speed", init="steady", x0=3.0, exo=exo)
+    got = simulate_full(m, u, DT, command_kind="speed", init="steady", x0=3.0, exo=exo)
     ref = rollout_effects(m, DT, command=u, command_kind="speed", init="steady", x0=3.0, exo=exo)
     for k in ("a", "v", "x"):
         np.testing.assert_allclose(getattr(got, k), ref[k], rtol=0, atol=1e-9)
@@ -118,7 +116,7 @@ def test_speed_command_neutral_effects_equal_base(base, init) -> None:
     neutral = tuple(EFFECTS[n](*EFFECTS[n].neutral) for n in [*ACCEL_LEVEL, "sensor"]
                     if n != "speed_drag")  # fmt: skip
     want = avll.simulate_full(base, u, DT, command_kind="speed", init=init, x0=3.0)
-    got = simulate_effects(WithEffects(base, neutral), u, DT, command_kind="speed", init=init,
+    got = simulate_full(WithEffects(base, neutral), u, DT, command_kind="speed", init=init,
                            x0=3.0, exo={"grade": grade})  # fmt: skip
     for k in ("a", "v", "x"):
         np.testing.assert_allclose(getattr(got, k), getattr(want, k), rtol=1e-12, atol=1e-12)
@@ -132,7 +130,7 @@ def test_neutral_vehicle_effects_equal_base_closed_loop(base) -> None:
     want = avll.closed_loop(base, lx, lv, DT, up, v0=11.0, x0=lx[0] - 30.0)
     neutral = tuple(EFFECTS[n](*EFFECTS[n].neutral)
                     for n in ("saturation", "road_load", "power_limit", "grade", "sensor"))
-    got = closed_loop_effects(WithEffects(base, neutral), lx, lv, DT, up, v0=11.0,
+    got = closed_loop(WithEffects(base, neutral), lx, lv, DT, up, v0=11.0,
                               x0=lx[0] - 30.0, exo={"grade": np.full(lx.size, 0.02)})
     for k in ("a", "v", "x", "command"):
         np.testing.assert_allclose(getattr(got, k), getattr(want, k), rtol=1e-12, atol=1e-12)
@@ -146,7 +144,7 @@ def test_speed_command_saturation_caps_the_speed_slope() -> None:
     acceleration minus the slope is the base's)."""
     base = avll.SecondOrder(K0=1.0, m2=0.8, m3=1.9, Td=0.23)
     u, _ = _speed_command()
-    tr = simulate_effects(WithEffects(base, (Saturation(0.35, 0.45),)), u, DT,
+    tr = simulate_full(WithEffects(base, (Saturation(0.35, 0.45),)), u, DT,
                           command_kind="speed")  # fmt: skip
     lin = avll.simulate_full(base, u, DT, command_kind="speed")
     slope = np.diff(tr.v) / DT
@@ -166,15 +164,15 @@ def test_speed_command_grade_in_batch_cost() -> None:
     for j in range(2):
         u, grade = _speed_command(900 + 100 * j)
         t = np.arange(u.size) * DT
-        tr = simulate_effects(m, u, DT, command_kind="speed", x0=0.0, exo={"grade": grade})
+        tr = simulate_full(m, u, DT, command_kind="speed", x0=0.0, exo={"grade": grade})
         runs.append(avll.Run(run_id=str(j), t=t, a=tr.a + 0.01 * np.sin(5 * t), command=u,
                              v=tr.v, x=tr.x, exo={"grade": grade},
                              command_kind="speed"))  # fmt: skip
     rows = np.vstack([m.to_array(), WithEffects(base, (Grade(0.0),)).to_array()])
-    c = batch_cost_effects("second", ["grade"], rows, runs, weights=(1.0, 1.0, 0.0), threads=1)
+    c = batch_cost("second", rows, runs, effects=["grade"], weights=(1.0, 1.0, 0.0), threads=1)
     for j, r in enumerate(runs):
         for i, g in enumerate((4.0, 0.0)):
-            tr = simulate_effects(WithEffects(base, (Grade(g),)), r.command, DT,
+            tr = simulate_full(WithEffects(base, (Grade(g),)), r.command, DT,
                                   command_kind="speed", x0=r.x[0], exo=r.exo)  # fmt: skip
             want = np.mean((tr.a - r.a) ** 2) + np.mean((tr.v - r.v) ** 2)
             assert c[i, j] == pytest.approx(want, rel=1e-12)
@@ -187,11 +185,11 @@ def test_speed_command_grade_in_batch_cost() -> None:
 def test_road_load_without_linear_term_is_speed_drag_and_differs_with_it() -> None:
     base = avll.PAPER_TABLE_II["proposed"]
     u, _ = _accel_command()
-    rl = simulate_effects(WithEffects(base, (RoadLoad(0.08, 0.0, 0.001),)), u, DT, v0=8.0)
-    sd = simulate_effects(WithEffects(base, (SpeedDrag(0.08, 0.001),)), u, DT, v0=8.0)
+    rl = simulate_full(WithEffects(base, (RoadLoad(0.08, 0.0, 0.001),)), u, DT, v0=8.0)
+    sd = simulate_full(WithEffects(base, (SpeedDrag(0.08, 0.001),)), u, DT, v0=8.0)
     for k in ("a", "v", "x"):
         np.testing.assert_allclose(getattr(rl, k), getattr(sd, k), rtol=0, atol=1e-12)
-    rl1 = simulate_effects(WithEffects(base, (RoadLoad(0.08, 0.02, 0.001),)), u, DT, v0=8.0)
+    rl1 = simulate_full(WithEffects(base, (RoadLoad(0.08, 0.02, 0.001),)), u, DT, v0=8.0)
     assert np.max(np.abs(rl1.v - sd.v)) > 0.5
     with pytest.raises(ValueError, match="not identifiable"):
         WithEffects(base, (RoadLoad(), SpeedDrag()))
@@ -207,7 +205,7 @@ def test_road_load_is_the_polynomial_on_the_actual_acceleration() -> None:
     base = avll.FirstOrderLag(Td=0.5)
     u = np.zeros(400)
     e = RoadLoad(c0=0.1, c1=0.02, c2=0.0015)
-    tr = simulate_effects(WithEffects(base, (e,)), u, DT, v0=20.0)
+    tr = simulate_full(WithEffects(base, (e,)), u, DT, v0=20.0)
     v = tr.v
     want = -(e.c0 * np.clip(v / 0.1, -1, 1) + e.c1 * v + e.c2 * v * np.abs(v))
     np.testing.assert_allclose(tr.a, want, rtol=0, atol=1e-12)
@@ -224,7 +222,7 @@ def test_power_limit_caps_positive_acceleration_by_speed() -> None:
     u, _ = _accel_command()
     u = 1.5 * u + 1.0
     e = PowerLimit(p=6.0, v_b=3.0)
-    tr = simulate_effects(WithEffects(base, (e,)), u, DT, v0=0.0)
+    tr = simulate_full(WithEffects(base, (e,)), u, DT, v0=0.0)
     lin = avll.simulate_full(base, u, DT, v0=0.0)
     cap = e.p / np.maximum(np.abs(tr.v), e.v_b)
     np.testing.assert_allclose(tr.a, np.minimum(lin.a, cap), rtol=0, atol=1e-12)
@@ -259,7 +257,7 @@ def test_sensor_changes_only_the_observation_open_loop(tau) -> None:
     base = avll.PAPER_TABLE_II["proposed"]
     u, _ = _accel_command()
     lin = avll.simulate_full(base, u, DT, v0=8.0, x0=1.0)
-    tr = simulate_effects(WithEffects(base, (Sensor(tau=tau, bias=0.07),)), u, DT, v0=8.0, x0=1.0)
+    tr = simulate_full(WithEffects(base, (Sensor(tau=tau, bias=0.07),)), u, DT, v0=8.0, x0=1.0)
     np.testing.assert_array_equal(tr.v, lin.v)
     np.testing.assert_array_equal(tr.x, lin.x)
     np.testing.assert_allclose(tr.a, _filtered(lin.a, tau, 0.07, DT), rtol=0, atol=1e-12)
@@ -273,7 +271,7 @@ def test_sensor_does_not_enter_the_feedback_closed_loop() -> None:
     lx, lv = _leader()
     up = avll.UpperLevel(kg=0.5, kv=0.2, Tg=1.8, Gmin=9.5)
     want = avll.closed_loop(base, lx, lv, DT, up, v0=11.0, x0=lx[0] - 30.0)
-    got = closed_loop_effects(WithEffects(base, (Sensor(0.25, -0.1),)), lx, lv, DT, up,
+    got = closed_loop(WithEffects(base, (Sensor(0.25, -0.1),)), lx, lv, DT, up,
                               v0=11.0, x0=lx[0] - 30.0)  # fmt: skip
     for k in ("v", "x", "command"):
         np.testing.assert_array_equal(getattr(got, k), getattr(want, k))
@@ -287,11 +285,11 @@ def test_sensor_cost_compares_the_observation() -> None:
     for j in range(2):
         u, _ = _accel_command(700 + 50 * j)
         t = np.arange(u.size) * DT
-        tr = simulate_effects(truth, u, DT, v0=5.0)
+        tr = simulate_full(truth, u, DT, v0=5.0)
         runs.append(avll.Run(run_id=str(j), t=t, a=tr.a, command=u, v=tr.v, x=tr.x))
     rows = np.vstack([truth.to_array(), WithEffects(base, (Sensor(),)).to_array()])
     for w in ((1.0, 0.0, 0.0), (1.0, 0.3, 0.1)):
-        c = batch_cost_effects("second", ["sensor"], rows, runs, weights=w, threads=1)
+        c = batch_cost("second", rows, runs, effects=["sensor"], weights=w, threads=1)
         assert np.all(c[0] < 1e-24), "the true observation model fits exactly"
         plain = avll.simulate_full(base, runs[0].command, DT, v0=5.0).a
         assert c[1, 0] == pytest.approx(w[0] * np.mean((plain - runs[0].a) ** 2), rel=1e-10)
@@ -330,7 +328,7 @@ def test_road_load_speed_feedback_is_its_small_signal() -> None:
     n = 2000
     t = np.arange(n) * DT
     du = 0.02 * np.sin(0.4 * t)
-    tr = simulate_effects(WithEffects(base, (e,)), a_hold + du, DT, init="steady", v0=vstar)
+    tr = simulate_full(WithEffects(base, (e,)), a_hold + du, DT, init="steady", v0=vstar)
     beta = WithEffects(base, (e,)).linear(v=vstar, terms=True)["speed_feedback"]
     # The linearised loop: a = lag(u) - a_hold - beta (v - v*), the lag stepped
     # exactly (no dead time), the speed deviation by the held acceleration.
@@ -394,5 +392,5 @@ def test_invalid_rows_cost_inf() -> None:
     good = np.concatenate([base.to_array(), [0.1, 0.01, 0.001]])
     bad = good.copy()
     bad[-2] = -0.01
-    c = batch_cost_effects("second", ["road_load"], np.vstack([good, bad]), runs)
+    c = batch_cost("second", np.vstack([good, bad]), runs, effects=["road_load"])
     assert np.isfinite(c[0, 0]) and np.isinf(c[1, 0])

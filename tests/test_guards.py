@@ -43,8 +43,8 @@ def _thread_calls(runs: list[avll.Run]) -> dict[str, object]:
         "stability_points": lambda t: avll.stability_points(M, 0.1, 2.0, 0.1, threads=t),
         "kv_threshold": lambda t: avll.kv_threshold(M, [0.1], [3.0], 0.1, 2.0, threads=t),
         "batch_cost": lambda t: avll.batch_cost("first", [[1.0]], runs, threads=t),
-        "batch_cost_effects": lambda t: avll.batch_cost_effects(
-            "first", ["delay"], [[1.0, 0.1]], runs, threads=t),
+        "batch_cost with effects": lambda t: avll.batch_cost("first", [[1.0, 0.1]], runs,
+                                                        effects=["delay"], threads=t),
         "calibrate": lambda t: avll.calibrate("first", runs, threads=t, max_generations=2),
         "calibrate_many": lambda t: avll.calibrate_many("first", runs, threads=t,
                                                         max_generations=2),
@@ -57,7 +57,7 @@ def _thread_calls(runs: list[avll.Run]) -> dict[str, object]:
 
 
 CALLS = ["stability_map", "stability_points", "kv_threshold", "batch_cost",
-         "batch_cost_effects", "calibrate", "calibrate_many", "bootstrap", "paper_workflow",
+         "batch_cost with effects", "calibrate", "calibrate_many", "bootstrap", "paper_workflow",
          "reproduce"]
 
 
@@ -103,7 +103,7 @@ def test_rust_side_refuses_too_many_threads_itself(runs: list[avll.Run]) -> None
     with pytest.raises(ValueError, match="threads"):
         _core.stability_map("second", [0.7, 0.04, 0.13, 0.78], np.array([0.1]),
                             np.array([2.0]), np.array([0.1]), 2, too_many)
-    kw = avll.rollout.pack_runs(runs)
+    kw = avll.RunSet(runs).cost_kw()
     with pytest.raises(ValueError, match="threads"):
         _core.batch_cost("first", np.ones((1, 1)), threads=too_many, **kw)
 

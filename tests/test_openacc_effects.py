@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from avll import Run, SecondOrder, UpperLevel, calibrate, calibrate_many
-from avll.effects import Saturation, WithEffects, closed_loop_effects
+from avll.effects import Saturation, WithEffects
+from avll.rollout import closed_loop
 from avll.studies import openacc as st
 from avll.studies.openacc_effects import _gap_cars, effect_gaps
 
@@ -41,7 +42,7 @@ def saturated_car():
     lx = np.cumsum(lv) * dt + 300
     up = UpperLevel(kg=0.2, kv=0.6, Tg=1.5, Gmin=4.0)
     truth = WithEffects(SecondOrder(1.0, 0.2, 0.6, 0.3), (Saturation(0.35, 0.35),))
-    tr = closed_loop_effects(truth, lx, lv, dt, up, v0=float(lv[0]),
+    tr = closed_loop(truth, lx, lv, dt, up, v0=float(lv[0]),
                              x0=float(lx[0] - up.Gmin - up.Tg * lv[0]))
     v = tr.v + 0.01 * np.random.default_rng(0).standard_normal(t.size)
     run = Run(run_id="f/car", t=t, a=np.gradient(v, dt), v=v, x=tr.x, lead_x=lx, lead_v=lv,

@@ -168,9 +168,9 @@ def test_simulate_batch_out(closed: bool) -> None:
                                       out=out)
     for k, f in enumerate(("a", "v", "x")):
         for j in range(len(runs)):
-            same_bits(got[f][j], want[f][j])
-            assert np.shares_memory(got[f][j], out[k])
-        same_bits(np.concatenate(want[f], axis=1), out[k])
+            same_bits(getattr(got, f)[j], getattr(want, f)[j])
+            assert np.shares_memory(getattr(got, f)[j], out[k])
+        same_bits(np.concatenate(getattr(want, f), axis=1), out[k])
     assert np.isnan(out[:, 0]).all()
 
 

@@ -177,6 +177,9 @@ def make_run(
     [
         ("acceleration", (1.0, 0.0, 0.0), False),
         ("acceleration", (1.0, 0.5, 0.01), False),
+        # position weighted, speed not: the measured v[0] still starts the speed (every
+        # column a run carries is packed), as in the reference
+        ("acceleration", (1.0, 0.0, 0.05), False),
         ("speed", (1.0, 0.0, 0.0), False),
         ("speed", (0.3, 1.0, 0.02), False),
         ("acceleration", (1.0, 0.0, 0.0), True),
@@ -571,9 +574,9 @@ def test_unstable_lower_level_is_a_value_error_everywhere() -> None:
         lambda: avll.simulate_full(m, np.ones(100), DT),
         lambda: avll.closed_loop(m, lx, lv, DT, up, v0=12.0, x0=0.0),
         lambda: avll.platoon(m, lx, lv, DT, up, 2),
-        lambda: avll.simulate_effects(m, np.ones(100), DT),
-        lambda: avll.closed_loop_effects(m, lx, lv, DT, up, v0=12.0, x0=0.0),
-        lambda: avll.simulate_effects(avll.WithEffects(m, (avll.Saturation(2.0, 2.0),)),
+        lambda: avll.simulate_full(m, np.ones(100), DT),
+        lambda: avll.closed_loop(m, lx, lv, DT, up, v0=12.0, x0=0.0),
+        lambda: avll.simulate_full(avll.WithEffects(m, (avll.Saturation(2.0, 2.0),)),
                                       np.ones(100), DT),
     ]
     for call in calls:
@@ -585,7 +588,7 @@ def test_unstable_lower_level_is_a_value_error_everywhere() -> None:
     # the braking side of an asymmetric lower level is checked too
     base = avll.SecondOrder(K0=1.0, m2=0.5, m3=0.1, Td=0.0)
     assert ref.lower_level_stable(base, DT)
-    avll.simulate_effects(avll.WithEffects(base, (avll.Asymmetric(1.0, 1.0),)), np.ones(50), DT)
+    avll.simulate_full(avll.WithEffects(base, (avll.Asymmetric(1.0, 1.0),)), np.ones(50), DT)
 
 
 def test_binding_agrees_with_the_reference_stability_test() -> None:

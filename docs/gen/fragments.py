@@ -172,12 +172,13 @@ def effects() -> str:
 
     import avll
 
-    lines = ["| effect | class | parameters (calibration bounds) |", "|---|---|---|"]
+    lines = ["| effect | level | class | parameters (calibration bounds) |",
+             "|---|---|---|---|"]
     for name, cls in avll.EFFECTS.items():
         params = [f.name for f in dataclasses.fields(cls)]
         cells = ", ".join(f"`{p}` ({lo:g} to {hi:g})" for p, (lo, hi) in zip(params, cls.bounds,
                                                                              strict=True))
-        lines.append(f"| `{name}` | `avll.{cls.__name__}` | {cells} |")
+        lines.append(f"| `{name}` | {cls.level} | `avll.{cls.__name__}` | {cells} |")
     return "\n".join(lines)
 
 

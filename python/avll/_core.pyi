@@ -38,6 +38,12 @@ class RunSet:
     def shares(self, other: RunSet) -> bool: ...
 
 # --- rollouts, costs (rust/bindings/rollout.rs) ---
+#: A trajectory's four arrays (a, v, x, command); a platoon's are (T, followers).
+_Arrays4 = tuple[
+    npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+]
+
 def model_names() -> list[str]: ...
 def model_params(model: str) -> list[str]: ...
 def simulate(
@@ -61,7 +67,7 @@ def simulate_full(
     effect_params: list[float] = ...,
     exo: dict[str, npt.NDArray[np.float64]] = ...,
     out: Any = None,
-) -> dict[str, npt.NDArray[np.float64]]: ...
+) -> _Arrays4: ...
 def closed_loop(
     model: str,
     params: list[float],
@@ -78,7 +84,7 @@ def closed_loop(
     effect_params: list[float] = ...,
     exo: dict[str, npt.NDArray[np.float64]] = ...,
     out: Any = None,
-) -> dict[str, npt.NDArray[np.float64]]: ...
+) -> _Arrays4: ...
 def platoon(
     model: str,
     params: list[float],
@@ -90,8 +96,28 @@ def platoon(
     tg: float,
     gmin: float,
     followers: int,
+    effects: list[str] = ...,
+    effect_params: list[float] = ...,
+    exo: dict[str, npt.NDArray[np.float64]] = ...,
     out: Any = None,
-) -> dict[str, npt.NDArray[np.float64]]: ...
+) -> _Arrays4: ...
+def synth_closed_loop(
+    model: str,
+    params: list[float],
+    lead_x: npt.NDArray[np.float64],
+    lead_v: npt.NDArray[np.float64],
+    dt: float,
+    kg: float,
+    kv: float,
+    tg: float,
+    gmin: float,
+    v0: float,
+    x0: float,
+    hidden: list[float],
+    effects: list[str] = ...,
+    effect_params: list[float] = ...,
+    exo: dict[str, npt.NDArray[np.float64]] = ...,
+) -> _Arrays4: ...
 def batch_cost(
     model: str,
     params: npt.NDArray[np.float64],
@@ -117,7 +143,7 @@ def simulate_batch(
     closed_loop: bool = False,
     threads: int = 0,
     out: npt.NDArray[np.float64] | None = None,
-) -> dict[str, npt.NDArray[np.float64]]: ...
+) -> npt.NDArray[np.float64]: ...
 
 # --- output arrays (rust/bindings/outbuf.rs) ---
 @final
@@ -326,3 +352,25 @@ def linearize_effects(
     command_kind: str = "acceleration",
     terms: bool = False,
 ) -> dict[str, float]: ...
+def linearize_upper(
+    effects: list[str],
+    effect_params: list[float],
+    kg: float,
+    kv: float,
+    tg: float,
+    gmin: float,
+    v: float = 0.0,
+) -> dict[str, float]: ...
+def follower_response(
+    model: str,
+    params: list[float],
+    effects: list[str],
+    effect_params: list[float],
+    kg: float,
+    kv: float,
+    tg: float,
+    gmin: float,
+    omega: npt.NDArray[np.float64],
+    v: float = 0.0,
+    side: int = 0,
+) -> npt.NDArray[np.complex128]: ...

@@ -16,26 +16,28 @@
    * the paper's thresholds as true extrema: the minimum stable ``Tg`` over the
      ``kg, kv`` box (:func:`avll.stability.min_stable_tg`) and the kv threshold
      (:func:`avll.stability.kv_supremum`);
-   * ``|H(jw)|`` of Eq. 8 with the exact delay ``e^{-jw Td}`` at the disturbance
-     frequency and its peak over a frequency grid (``OMEGA_GRID``; a sampled
-     maximum, not a certificate).
+   * ``|H(jw)|``, the follower's exact frequency response (:func:`frequency_response`:
+     Eq. 8 with the true delays and every effect's small-signal form, both levels) at
+     the disturbance frequency and its peak over a frequency grid (``OMEGA_GRID``; a
+     sampled maximum, not a certificate).
 
-   ``speed_drag`` at ``v0 > 0`` adds ``c = 2 c2 v0`` to the speed feedback of the
-   plant (``a = G (u + K a) - c v``; for ``road_load`` the ``speed_feedback`` of
-   ``WithEffects.linear(terms=True)``, where the library has it): no second-order
-   form holds it, so only ``|H(jw)|`` is given (``G_fb = G / (1 - K G + c/s)``), not
-   the engine's thresholds; a ``delay`` with ``K != 0`` is a factor ``e^{-tau s}``
-   outside the inner loop, handled the same way. An effect that has no linearisation
-   at all is reported with the reason.
+   ``speed_drag``/``road_load`` at ``v0`` add a speed feedback ``beta`` to the plant
+   (``a = G (u + K a) - beta v``, the ``speed_feedback`` of
+   ``WithEffects.linear(terms=True)``), a ``delay`` with ``K != 0`` a factor
+   ``e^{-tau s}`` outside the inner loop, ``perception`` a delay on the radar terms,
+   ``feedforward`` a term on the predecessor speed: no second-order form under Eq. 3
+   holds them, so only ``|H(jw)|`` is given, not the engine's verdicts; ``closing``
+   and ``speed_gains`` change the law's small-signal gains, at which the engine's
+   code is then given (:meth:`avll.WithEffects.upper_linear`).
 
 2. **In the time domain** (amplitude-dependent effects: ``saturation``,
    ``power_limit``, ``rate_limit``, ``asymmetric``, ``deadband``, but computed for
    any model): a platoon of ``n_cars`` followers behind a leader whose speed is
    ``v0 + A w(t) sin(w t)`` (``w(t)`` a raised-cosine ramp over the first period),
-   simulated car by car with the nonlinear effects
-   (:func:`avll.effects.closed_loop_effects`; follower ``i`` follows follower
-   ``i-1``'s simulated position and speed, starting at ``v0`` and the equilibrium gap
-   ``Gmin + Tg v0``). After ``warm_periods`` periods, the speed of every car over the
+   simulated with the nonlinear effects by the Rust platoon (:func:`avll.platoon`,
+   time-major: follower ``i`` follows follower ``i-1``'s simulated position and speed,
+   starting at ``v0`` and the equilibrium gap ``Gmin + Tg v0``, with ``speed_gains``
+   ``Gmin + Tg(v0) v0``). After ``warm_periods`` periods, the speed of every car over the
    next ``measure_periods`` periods is fitted by least squares with
    ``c0 + c1 t + s sin(w t) + c cos(w t)``; the **amplification of car i** is the
    ratio of its fundamental amplitude ``sqrt(s² + c²)`` to car ``i-1``'s (car 0 the
@@ -59,7 +61,6 @@ The result (:class:`EffectStability`) has :meth:`~EffectStability.to_dict`
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -68,8 +69,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ._limits import check_int, check_number
-from .effects import EFFECTS, WithEffects, closed_loop_effects, equivalent_model
+from .effects import EFFECTS, WithEffects, equivalent_model
 from .models import LowerLevelModel, UpperLevel
+from .rollout import platoon
 from .stability import kv_supremum, min_stable_tg, stability_points, stable_intervals
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -96,74 +98,78 @@ DRIFT_TOL = 0.05
 OMEGA_GRID: np.ndarray = np.logspace(-3, math.log10(30.0), 2000)
 
 
-@dataclass(frozen=True)
-class _SmallSignal:
-    """``G = (b1 s + b0) e^{-Td s} / (a2 s² + a1 s + 1)``, inner loop
-    ``G_fb = G / (1 - K G + c/s)``, then an outer command delay ``e^{-tau s}``."""
-
-    coeffs: dict[str, float]
-    drag: float = 0.0
-    tau: float = 0.0
-    observation: bool = False
-
-
 def frequency_response(
-    lin: Mapping[str, float], upper: UpperLevel, omega: Any, *, drag: float = 0.0,
-    tau: float = 0.0,
+    model: LowerLevelModel | WithEffects, upper: UpperLevel, omega: Any, *, v: float = 0.0,
+    side: int = 0,
 ) -> np.ndarray:
-    """``H(jw)`` of paper Eq. 8 with the exact delay, for the linear coefficients
-    ``lin`` (``b1, b0, a2, a1, Td, K`` as :meth:`avll.LowerLevelModel.linear`), an
-    optional speed feedback ``drag`` (``a = G (u + K a) - drag v``) and an outer command
-    delay ``tau``; complex array over ``omega`` (rad/s, > 0)."""
-    w = np.asarray(omega, dtype=np.float64)
-    if np.any(~np.isfinite(w)) or np.any(w <= 0):
+    """The follower's exact frequency response ``H(jw)`` (predecessor speed to
+    follower speed; paper Eq. 8 with the true delays), complex, over ``omega`` (rad/s,
+    finite and > 0): the one frequency response of the library
+    (:func:`avll.studies.openacc.transfer_gain` is its modulus).
+
+    ``model``: a base model or an :class:`avll.WithEffects`, linearised at the speed
+    ``v`` (m/s; for ``asymmetric``, on ``side``: 1 accelerating, -1 braking, 0 their
+    average): the lower level ``G_fb = G e^{-command_delay s} / (1 - K G + beta/s)``
+    (:meth:`avll.WithEffects.linear` with ``terms=True``: a ``delay`` outside the
+    inner loop, the speed feedback ``beta`` of ``speed_drag``/``road_load``), and the
+    upper level with its structures (:meth:`avll.WithEffects.upper_linear`: the
+    radar terms' perception delay ``e^{-delay s}``, the feedforward ``ka s/(tau s +
+    1)`` on the perceived predecessor speed, the gains of ``closing`` (averaged) and
+    ``speed_gains`` (at ``v``)). Computed in Rust (``rust/effects/mod.rs``,
+    ``response``); :func:`avll.reference.effects.frequency_response` is its numpy
+    oracle."""
+    from . import _core
+
+    if isinstance(model, LowerLevelModel):
+        model = WithEffects(model, ())
+    if not isinstance(model, WithEffects):
+        raise TypeError(f"model: expected a model or WithEffects, got {type(model).__name__}")
+    if not isinstance(upper, UpperLevel):
+        raise TypeError(f"upper: expected an avll.UpperLevel, got {upper!r:.60}")
+    w = np.ascontiguousarray(np.atleast_1d(np.asarray(omega, dtype=np.float64)))
+    if w.ndim != 1 or np.any(~np.isfinite(w)) or np.any(w <= 0):
         raise ValueError("omega: frequencies must be finite and > 0")
-    s = 1j * w
-    g = (lin["b1"] * s + lin["b0"]) * np.exp(-lin["Td"] * s) / (lin["a2"] * s * s
-                                                                + lin["a1"] * s + 1.0)
-    gfb = g / (1.0 - lin["K"] * g + drag / s) * np.exp(-tau * s)
-    mu = upper.kv + upper.Tg * upper.kg
-    return (upper.kv * s + upper.kg) * gfb / (s * s + gfb * (mu * s + upper.kg))
+    return np.asarray(_core.follower_response(
+        model.base.name, model.base.values(), list(model.effect_names),
+        [float(x) for e in model.effects for x in e.to_array()], float(upper.kg),
+        float(upper.kv), float(upper.Tg), float(upper.Gmin), w, float(v), int(side)))
 
 
 _KEYS = ("b1", "b0", "a2", "a1", "Td", "K")
 
 
-def _lin(model: WithEffects, v0: float, side: int) -> tuple[dict[str, float], float, bool]:
-    """``(coeffs, speed_feedback, observation_only)`` of :meth:`WithEffects.linear`,
-    asking for the speed feedback of the resistances (``terms=True``) where this
-    version of the library offers it."""
-    if "terms" in inspect.signature(model.linear).parameters:
-        d = dict(model.linear(v=v0, side=side, terms=True))  # type: ignore[call-arg]
-        obs = bool(d.get("obs_tau", 0.0) or d.get("obs_bias", 0.0))
-        return {k: float(d[k]) for k in _KEYS}, float(d.get("speed_feedback", 0.0)), obs
-    d = dict(model.linear(v=v0, side=side))
-    return {k: float(d[k]) for k in _KEYS}, 0.0, False
+@dataclass(frozen=True)
+class _SmallSignal:
+    """The small-signal parts the report shows: the lower level's coefficients, its
+    speed feedback (``drag``) and outer command delay (``tau``), whether an
+    observation-only effect is present, and the upper level's small-signal form."""
+
+    coeffs: dict[str, float]
+    drag: float
+    tau: float
+    observation: bool
+    upper: dict[str, float]
+
+    @property
+    def engine(self) -> bool:
+        """Whether the stability engine's form (a second-order ``Linear`` under Eq. 3)
+        holds it: no speed feedback, no outer delay, no perception delay, no
+        feedforward."""
+        u = self.upper
+        return not (self.drag or self.tau or u["delay"] or u["ff_gain"])
 
 
-def _small_signal(model: WithEffects, v0: float, side: int) -> _SmallSignal:
+def _small_signal(model: WithEffects, upper: UpperLevel, v0: float, side: int) -> _SmallSignal:
     """The small-signal form; ``ValueError`` with the reason when there is none."""
-    try:
-        coeffs, beta, obs = _lin(model, v0, side)
-        return _SmallSignal(coeffs, beta, 0.0, obs)
-    except ValueError as first:
-        drag, tau, rest = 0.0, 0.0, []
-        for e in model.effects:
-            if e.name == "speed_drag":
-                # d/dv (c0 s(v) + c2 v|v|) away from the fade zone of s(v).
-                c0, c2 = float(e.to_dict()["c0"]), float(e.to_dict()["c2"])
-                drag += 2.0 * c2 * abs(v0) + (c0 / 0.1 if abs(v0) < 0.1 else 0.0)
-            elif e.name == "delay":
-                tau += float(e.to_dict()["tau"])
-            else:
-                rest.append(e)
-        if drag == 0.0 and tau == 0.0:
-            raise ValueError(str(first)) from None
-        try:
-            coeffs, beta, obs = _lin(WithEffects(model.base, tuple(rest)), v0, side)
-        except ValueError as e:
-            raise ValueError(str(e)) from None
-        return _SmallSignal(coeffs, drag + beta, tau, obs)
+    d = dict(model.linear(v=v0, side=side, terms=True))
+    obs = bool(d.get("obs_tau", 0.0) or d.get("obs_bias", 0.0))
+    coeffs = {k: float(d[k]) for k in _KEYS}
+    tau = float(d["command_delay"])
+    if coeffs["K"] == 0.0:  # without inner feedback an outer delay is part of Td
+        coeffs["Td"] += tau
+        tau = 0.0
+    return _SmallSignal(coeffs, float(d["speed_feedback"]), tau, obs,
+                        model.upper_linear(upper, v=v0))
 
 
 def _none(x: float) -> float | None:
@@ -212,21 +218,27 @@ def _linear_entry(
 ) -> LinearStability:
     notes: list[str] = []
     try:
-        ss = _small_signal(model, v0, side)
+        ss = _small_signal(model, upper, v0, side)
     except ValueError as e:
         return LinearStability(label, side, None, 0.0, 0.0, None, None, None, None, None, None,
                                None, (f"no small-signal form: {e}",))  # fmt: skip
-    h = np.abs(frequency_response(ss.coeffs, upper, OMEGA_GRID, drag=ss.drag, tau=ss.tau))
-    h_w = float(np.abs(frequency_response(ss.coeffs, upper, [omega], drag=ss.drag,
-                                          tau=ss.tau))[0])  # fmt: skip
+    h = np.abs(frequency_response(model, upper, OMEGA_GRID, v=v0, side=side))
+    h_w = float(np.abs(frequency_response(model, upper, [omega], v=v0, side=side))[0])
     j = int(np.argmax(h))
     code = tg_at = tg_min = kv_thr = None
     if ss.observation:
         notes.append("sensor lag/bias act on the observed acceleration only: no effect on "
                      "stability")
-    if ss.drag or ss.tau:
-        notes.append("speed feedback or outer command delay: the stability engine's "
-                     "second-order form does not hold it; |H(jw)| only")
+    # The law as the small signal sees it (upper-level structures: closing's average
+    # gains, speed_gains' gains and time-gap slope at v0).
+    u = ss.upper
+    if model.upper and ss.engine:
+        notes.append(f"upper-level structures: the engine's verdicts are at the small-signal "
+                     f"gains kg={u['kg']:.4g}, kv={u['kv']:.4g}, Tg={u['Tg']:.4g} s")
+    if not ss.engine:
+        notes.append("speed feedback, outer command delay, perception delay or feedforward: "
+                     "the stability engine's form (a second-order lower level under Eq. 3) "
+                     "does not hold it; |H(jw)| only")
     else:
         try:
             eq = equivalent_model(model, v=v0, side=side)
@@ -234,13 +246,13 @@ def _linear_entry(
             eq = None
             notes.append(f"no engine model: {e}")
         if eq is not None:
-            code = int(stability_points(eq, upper.kg, upper.Tg, upper.kv, pade_order))
-            ivs = stable_intervals(eq, "tg", kg=upper.kg, kv=upper.kv, pade_order=pade_order,
+            code = int(stability_points(eq, u["kg"], u["Tg"], u["kv"], pade_order))
+            ivs = stable_intervals(eq, "tg", kg=u["kg"], kv=u["kv"], pade_order=pade_order,
                                    search_range=boxes["tg"])  # fmt: skip
             tg_at = float(ivs[0][0]) if ivs else None
             if not ivs:
-                notes.append(f"no string-stable Tg in {list(boxes['tg'])} at kg={upper.kg:g}, "
-                             f"kv={upper.kv:g}")
+                notes.append(f"no string-stable Tg in {list(boxes['tg'])} at kg={u['kg']:g}, "
+                             f"kv={u['kv']:g}")
             if thresholds:
                 e1 = min_stable_tg(eq, boxes["kg"], boxes["kv"], pade_order,
                                    tg_range=boxes["tg"])  # fmt: skip
@@ -409,7 +421,7 @@ def effect_stability(
     ``measure_periods`` whose fundamental amplitude is fitted. ``thresholds=False``
     skips the (slower, ~1 s each) extrema searches; ``kg_range``, ``kv_range`` and
     ``tg_range`` are their boxes (the paper's: Tg in [0, 15] s). ``progress=True``
-    shows a tqdm bar over the simulated cars; Ctrl-C stops between two cars."""
+    shows a tqdm bar over the amplitudes (one platoon each)."""
     if isinstance(model, LowerLevelModel):
         model = WithEffects(model, ())
     if not isinstance(model, WithEffects):
@@ -442,10 +454,9 @@ def effect_stability(
         lin = None
         for m in (model, base):
             try:
-                ss = _small_signal(m, v0, 0)
+                lin = np.abs(frequency_response(m, upper, grid, v=v0))
             except ValueError:
                 continue
-            lin = np.abs(frequency_response(ss.coeffs, upper, grid, drag=ss.drag, tau=ss.tau))
             break
         if lin is None:
             raise ValueError("period: 'peak' needs a linearisable model; give a period in s")
@@ -486,27 +497,24 @@ def effect_stability(
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=n_amp * n_cars, desc="platoon", unit="car", leave=False)
+        bar = tqdm(total=n_amp, desc="platoon", unit="amplitude", leave=False)
     try:
         for k, a in enumerate(amps):
             lv = v0 + a * ramp * np.sin(omega * t)
             lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
-            speed_amp[k, 0], drift[k, 0] = fit(lv)
-            half[k, 0] = 0.5 * float(np.ptp(lv[meas]))
-            vmin[k, 0] = float(lv[meas].min())
-            for i in range(1, n_cars + 1):
-                gap = upper.Gmin + upper.Tg * v0
-                tr = closed_loop_effects(model, lx, lv, dt, upper, v0=v0, x0=float(lx[0] - gap),
-                                         exo=exo)  # fmt: skip
-                if not (np.all(np.isfinite(tr.v)) and np.all(np.isfinite(tr.x))):
-                    notes.append(f"A={a:g} m/s: car {i} diverged")
-                    break
-                speed_amp[k, i], drift[k, i] = fit(tr.v)
-                half[k, i] = 0.5 * float(np.ptp(tr.v[meas]))
-                vmin[k, i] = float(tr.v[meas].min())
-                lx, lv = tr.x, tr.v
-                if bar is not None:
-                    bar.update(1)
+            # every follower at once, time-major in the Rust platoon
+            tr = platoon(model, lx, lv, dt, upper, n_cars, exo=exo)
+            vs = np.vstack([lv, tr.v])
+            alive = np.all(np.isfinite(tr.v), axis=1) & np.all(np.isfinite(tr.x), axis=1)
+            n_ok = int(np.argmin(alive)) if not alive.all() else n_cars
+            if n_ok < n_cars:
+                notes.append(f"A={a:g} m/s: car {n_ok + 1} diverged")
+            for i in range(n_ok + 1):
+                speed_amp[k, i], drift[k, i] = fit(vs[i])
+                half[k, i] = 0.5 * float(np.ptp(vs[i][meas]))
+                vmin[k, i] = float(vs[i][meas].min())
+            if bar is not None:
+                bar.update(1)
     finally:
         if bar is not None:
             bar.close()

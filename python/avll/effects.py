@@ -1,15 +1,21 @@
 """Effects: self-contained extensions of any base model.
 
 Each effect is a small frozen dataclass with its own bounded parameters, and the
-registry name that scripts depend on: ``asymmetric``, ``saturation``, ``rate_limit``,
-``deadband``, ``speed_drag``, ``grade``, ``delay``, ``road_load``, ``power_limit``,
-``sensor``. The registry (names, parameter order, calibration bounds, neutral values,
-exogenous signals, canonical order) is read from the Rust core
-(``_core.effect_info()``); the classes add the physical validation. A base model with effects is a
-:class:`WithEffects`; the rollouts (:func:`simulate_effects`,
-:func:`closed_loop_effects`) and the batched cost (:func:`batch_cost_effects`) run
-in the Rust engine (``rust/effects/``), which equals the linear rollouts exactly
-when no effect is given.
+registry name that scripts depend on. Two levels (the class attribute ``level``):
+the *lower level* -- ``asymmetric``, ``saturation``, ``rate_limit``, ``deadband``,
+``speed_drag``, ``grade``, ``delay``, ``road_load``, ``power_limit``, ``sensor`` --
+between the command and the vehicle, and the *upper level* -- ``perception``,
+``speed_gains``, ``closing``, ``feedforward``, ``comfort`` -- the structures of the
+car-following law that the constant-time-gap law (paper Eq. 3) lacks, which act only
+in a closed loop (behind a recorded leader, in a platoon). The registry (names,
+parameter order, calibration bounds, neutral values, exogenous signals, level,
+exclusions, canonical order) is read from the Rust core (``_core.effect_info()``); the
+classes add the physical validation. A base model with effects is a
+:class:`WithEffects`, which every rollout and batched call takes in place of a base
+model (:func:`avll.simulate`, :func:`avll.simulate_full`, :func:`avll.closed_loop`,
+:func:`avll.platoon`, :func:`avll.batch_cost`, :func:`avll.calibrate`); they run in the
+Rust engine (``rust/effects/``), which equals the linear rollouts exactly when no
+effect is given.
 
 Definitions (``u`` command, ``u_ref = u' + K a`` the inner loop's reference input,
 ``a`` the actual acceleration, ``v`` the actual speed):
@@ -33,6 +39,24 @@ Definitions (``u`` command, ``u_ref = u' + K a`` the inner loop's reference inpu
 * ``sensor(tau, bias)``: the *observed* acceleration is ``1/(tau s + 1) a + bias``
   (exact ZOH of the lag); the dynamics, the speed and every feedback use the true ``a``.
 
+Upper level (``gap = x_p - x`` and ``dv = v_p - v`` the radar's signals, ``v`` the own
+speed; the law ``u = kg (gap - Tg v - Gmin) + kv dv`` evaluated in the stages
+perceive, gains, shape, feedforward, limit; see ``rust/effects/mod.rs``):
+
+* ``perception(tau)``: ``gap`` and ``dv`` seen ``tau`` late (fractional delay); the own
+  speed is not delayed;
+* ``speed_gains(ch, cs)``: ``Tg(v) = Tg + ch v`` (desired gap ``Gmin + Tg v + ch v²``),
+  ``kg, kv`` divided by ``max(1 + cs v, 0.1)``;
+* ``closing(rg, rv)``: the gap term ``kg e`` times ``rg`` when ``e < 0`` (closer than
+  desired), the speed term ``kv dv`` times ``rv`` when ``dv < 0`` (closing in);
+* ``feedforward(ka, tau)``: ``u += ka s/(tau s + 1) (v + dv)``, a gain on the filtered
+  derivative of the perceived predecessor speed;
+* ``comfort(a_max, d_max, j_max)``: the command clipped to ``[-d_max, a_max]`` and
+  slew-limited to ``j_max`` (refused together with ``rate_limit``, the same slew limit).
+
+Their small-signal forms (:meth:`WithEffects.upper_linear`) enter the follower's exact
+frequency response (:func:`avll.effect_stability.frequency_response`).
+
 Command hooks apply in the canonical order (:data:`CANONICAL_ORDER`); see
 ``rust/effects/mod.rs``. The acceleration-level effects (``saturation``,
 ``power_limit``, ``speed_drag``, ``road_load``, ``grade``) also apply to a speed-command
@@ -44,17 +68,14 @@ speed.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import astuple, dataclass, fields
 from typing import Any, ClassVar
 
 import numpy as np
 
 from . import _core
-from ._limits import check_memory, check_number, check_threads
-from .models import LowerLevelModel, UpperLevel, model_class
-from .rollout import Trajectory, _f64, _upper, check_lower_level
-from .rollout import params_2d as _params_2d
+from .models import LowerLevelModel, model_class
 
 __all__ = [
     "Effect",
@@ -68,14 +89,17 @@ __all__ = [
     "RoadLoad",
     "PowerLimit",
     "Sensor",
+    "Perception",
+    "SpeedGains",
+    "Closing",
+    "Feedforward",
+    "Comfort",
     "EFFECTS",
     "CANONICAL_ORDER",
     "WithEffects",
     "effect_class",
     "equivalent_model",
-    "simulate_effects",
-    "closed_loop_effects",
-    "batch_cost_effects",
+    "exo_needs",
 ]
 
 
@@ -95,13 +119,15 @@ class Effect:
     """Base class of the effects. ``bounds`` are the calibration search bounds;
     ``neutral`` the parameters at which the effect is (or tends to) the identity;
     ``exo`` the exogenous signal it reads; ``needs_speed`` whether it reads the actual
-    speed. All are taken from the Rust registry when a subclass names itself.
+    speed; ``level`` ``"lower"`` or ``"upper"`` (an upper-level structure of the
+    car-following law, which acts only in a closed loop); ``excludes`` an effect the
+    library refuses together with this one (not identifiable together). All are taken
+    from the Rust registry when a subclass names itself.
 
     How a calibration and the diagnosis (:mod:`avll.diagnose`) treat the effect is
     declared here too, so that a new effect is one class: ``fixed`` (command kind ->
     parameter -> value) pins parameters a command kind cannot identify (a speed
-    command has no braking gain); ``excludes`` names an effect the library refuses
-    together with this one (not identifiable together); ``signature`` is how the
+    command has no braking gain); ``signature`` is how the
     diagnosis probes it: ``"linear"`` (one signature column per free parameter, the
     rule for any effect that declares nothing), ``"setting"`` (one column per trial
     setting, profiled: threshold effects), ``"each"`` (one column per parameter of a
@@ -115,6 +141,7 @@ class Effect:
     exo: ClassVar[str | None] = None
     accel_only: ClassVar[bool] = False
     needs_speed: ClassVar[bool] = False
+    level: ClassVar[str] = "lower"
     fixed: ClassVar[dict[str, dict[str, float]]] = {}
     excludes: ClassVar[str | None] = None
     signature: ClassVar[str] = "linear"
@@ -133,6 +160,8 @@ class Effect:
         cls.exo = None if info["exo"] is None else str(info["exo"])
         cls.accel_only = bool(info["accel_only"])
         cls.needs_speed = bool(info["needs_speed"])
+        cls.level = str(info["level"])
+        cls.excludes = None if info["excludes"] is None else str(info["excludes"])
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -251,7 +280,6 @@ class SpeedDrag(Effect):
     c0: float = 0.0
     c2: float = 0.0
     name: ClassVar[str] = "speed_drag"
-    excludes: ClassVar[str | None] = "road_load"
     trials: ClassVar[tuple[dict[str, float], ...]] = ({"c0": 0.05, "c2": 0.001},)
 
 
@@ -286,7 +314,6 @@ class RoadLoad(Effect):
     c1: float = 0.0
     c2: float = 0.0
     name: ClassVar[str] = "road_load"
-    excludes: ClassVar[str | None] = "speed_drag"  # road_load with c1 = 0 is speed_drag
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -344,6 +371,114 @@ class Sensor(Effect):
         _nonneg("sensor.tau", self.tau)
 
 
+@dataclass(frozen=True)
+class Perception(Effect):
+    """Upper level: the radar's gap and relative speed reach the law ``tau`` (s) late
+    (a fractional delay); the own speed is not delayed.
+
+    Calibration bounds: ``tau`` in [0, 1.5] s (radar cycles of 50-100 ms plus tracking
+    and filtering; identified ACC reaction delays are 0.3-1 s, part of which the lower
+    level's ``Td`` holds). Small signal: ``e^{-tau s}`` on the radar terms
+    ``(kg + kv s)(X_p - X)``; the own speed's ``kg Tg v`` is not delayed."""
+
+    tau: float = 0.0
+    name: ClassVar[str] = "perception"
+    signature: ClassVar[str] = "setting"
+    trials: ClassVar[tuple[dict[str, float], ...]] = tuple(
+        {"tau": t} for t in (0.1, 0.2, 0.35, 0.5, 0.8))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _nonneg("perception.tau", self.tau)
+
+
+@dataclass(frozen=True)
+class SpeedGains(Effect):
+    """Upper level: a time gap and gains that depend on the own speed ``v``:
+    ``Tg(v) = Tg + ch v`` (``ch`` in s²/m; desired gap ``Gmin + Tg v + ch v²``, the
+    variable-time-headway policy) and ``kg, kv`` divided by ``max(1 + cs v, 0.1)``
+    (``cs`` in s/m: softer gains at speed for ``cs > 0``).
+
+    Calibration bounds: ``ch`` in [-0.03, 0.06] s²/m (at 25 m/s the time gap moves
+    by -0.75 to +1.5 s), ``cs`` in [-0.01, 0.05] s/m. Small signal at the operating
+    speed ``v``: ``kg(v)``, ``kv(v)`` and the time gap ``Tg + 2 ch v`` (the slope of
+    the desired gap; the equilibrium headway is ``Tg + ch v + Gmin/v``)."""
+
+    ch: float = 0.0
+    cs: float = 0.0
+    name: ClassVar[str] = "speed_gains"
+
+
+@dataclass(frozen=True)
+class Closing(Effect):
+    """Upper level: other gains while closing in. The law's gap term ``kg e`` is
+    multiplied by ``rg`` when ``e < 0`` (closer than desired), its speed term ``kv dv``
+    by ``rv`` when ``dv < 0`` (the predecessor slower). ACCs react harder to a closing
+    gap: ``rg, rv > 1``.
+
+    Calibration bounds: ``rg``, ``rv`` in [0.25, 4]. Small signal: the average slopes
+    ``kg (1 + rg)/2``, ``kv (1 + rv)/2`` (the odd part; the even part shifts the mean
+    gap error under an oscillation and returns through the closed loop as harmonics:
+    an error of the order ``((r - 1)/(r + 1))^2``)."""
+
+    rg: float = 1.0
+    rv: float = 1.0
+    name: ClassVar[str] = "closing"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _nonneg("closing.rg", self.rg)
+        _nonneg("closing.rv", self.rv)
+
+
+@dataclass(frozen=True)
+class Feedforward(Effect):
+    """Upper level: ``u += ka â`` with ``â = s/(tau s + 1) vp`` the filtered derivative
+    of the perceived predecessor speed ``vp = v + dv`` (``ka`` in s, ``tau`` in s),
+    discretized exactly for ``vp`` held over each interval, ``â = 0`` at the start.
+
+    Calibration bounds: ``ka`` in [0, 1.5] s, ``tau`` in [0.2, 3] s. At ``ka = 0`` the
+    filter has no effect (its neutral ``tau = 1`` s is a placeholder). Small signal:
+    ``ka s/(tau s + 1)`` on ``V + e^{-delay s}(V_p - V)``."""
+
+    ka: float = 0.0
+    tau: float = 1.0
+    name: ClassVar[str] = "feedforward"
+    # At ka = 0 a change of tau alone changes nothing: one signature column from a
+    # trial setting of both.
+    signature: ClassVar[str] = "scaled"
+    trials: ClassVar[tuple[dict[str, float], ...]] = ({"ka": 0.5, "tau": 0.8},)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive("feedforward.tau", self.tau)
+
+
+@dataclass(frozen=True)
+class Comfort(Effect):
+    """Upper level: the law's command clipped to ``[-d_max, a_max]`` (m/s²) and
+    slew-limited to ``j_max`` (m/s³), starting from 0 (the lower level at rest).
+
+    Calibration bounds: ``a_max`` in [0.3, 4], ``d_max`` in [0.5, 8], ``j_max`` in
+    [0.5, 30] (ISO 15622 caps ACC decelerations at 3.5-5 m/s², accelerations at 2-4
+    m/s², and recommends jerks of 2.5-5 m/s³). Small signal: the identity inside the
+    limits. Refused together with ``rate_limit`` (the same slew limit)."""
+
+    a_max: float = 4.0
+    d_max: float = 8.0
+    j_max: float = 30.0
+    name: ClassVar[str] = "comfort"
+    signature: ClassVar[str] = "each"
+    trials: ClassVar[tuple[dict[str, float], ...]] = (
+        {"a_max": 1.0, "d_max": 1.5, "j_max": 2.5},)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive("comfort.a_max", self.a_max)
+        _positive("comfort.d_max", self.d_max)
+        _positive("comfort.j_max", self.j_max)
+
+
 def _registry() -> dict[str, type[Effect]]:
     classes = {c.name: c for c in Effect.__subclasses__() if "name" in c.__dict__}
     missing = [n for n in _INFO if n not in classes]
@@ -384,11 +519,11 @@ def canonical(names: Sequence[str]) -> tuple[str, ...]:
         effect_class(n)
     if len(set(names)) != len(names):
         raise ValueError(f"effects: duplicate effect in {list(names)}")
-    if "speed_drag" in names and "road_load" in names:
-        raise ValueError(
-            "effects: 'speed_drag' and 'road_load' together: road_load with c1 = 0 is "
-            "speed_drag, so their parameters are not identifiable; use one"
-        )
+    for n in names:
+        x = EFFECTS[n].excludes
+        if x is not None and x in names:
+            raise ValueError(f"effects: {n!r} and {x!r} together: one contains the other, so "
+                             "their parameters are not identifiable together; use one")
     return tuple(sorted(names, key=CANONICAL_ORDER.index))
 
 
@@ -421,6 +556,34 @@ class WithEffects:
     @property
     def effect_names(self) -> tuple[str, ...]:
         return tuple(e.name for e in self.effects)
+
+    @property
+    def lower(self) -> tuple[Effect, ...]:
+        """The lower-level effects (between the command and the vehicle)."""
+        return tuple(e for e in self.effects if e.level == "lower")
+
+    @property
+    def upper(self) -> tuple[Effect, ...]:
+        """The upper-level structures (of the car-following law; closed loop only)."""
+        return tuple(e for e in self.effects if e.level == "upper")
+
+    def upper_linear(self, upper: Any, *, v: float = 0.0) -> dict[str, float]:
+        """The small-signal form of the law ``upper`` (an :class:`avll.UpperLevel`) with
+        this model's upper-level structures at speed ``v``: ``kg``, ``kv``, ``Tg`` (the
+        small-signal time gap, the slope of the desired gap), ``Tg_eq`` (the
+        equilibrium's: the desired gap at ``v`` is ``Gmin + Tg_eq v``), ``Gmin``,
+        ``delay`` (the radar terms' perception delay, s), ``ff_gain`` and ``ff_tau``
+        (the feedforward ``ff_gain s/(ff_tau s + 1)`` on the perceived predecessor
+        speed); see ``rust/effects/mod.rs`` (``UpperLin``). Without structures:
+        ``upper``'s gains, no delay, no feedforward."""
+        from .models import UpperLevel
+
+        if not isinstance(upper, UpperLevel):
+            raise TypeError(f"upper: expected an avll.UpperLevel, got {upper!r:.60}")
+        up = self.upper
+        return dict(_core.linearize_upper(
+            [e.name for e in up], [float(x) for e in up for x in e.to_array()],
+            float(upper.kg), float(upper.kv), float(upper.Tg), float(upper.Gmin), float(v)))
 
     def param_names(self) -> tuple[str, ...]:
         """Base parameter names then ``effect.param`` names."""
@@ -457,13 +620,16 @@ class WithEffects:
         engine. Raises ``ValueError`` when an effect has no such equivalent
         (``speed_drag``/``road_load`` with a speed feedback ``beta != 0`` at ``v``,
         ``delay`` with ``K != 0``). ``saturation``, ``power_limit``, ``rate_limit``,
-        ``deadband``, ``grade`` and ``sensor`` are the identity in the small signal.
+        ``deadband``, ``grade`` and ``sensor`` are the identity in the small signal, and
+        so is every upper-level structure (see :meth:`upper_linear`).
 
         With ``terms=True`` the speed-dependent resistances do not fail: the result
         is the lower level's own equivalent plus ``speed_feedback`` (``beta``, 1/s: the
         actual acceleration gets ``-beta dv``), ``obs_tau`` (s) and ``obs_bias`` (m/s²),
         the filter ``1/(obs_tau s + 1)`` and offset of the *observed* acceleration
-        (``sensor``; not a dynamic of the vehicle)."""
+        (``sensor``; not a dynamic of the vehicle), and ``command_delay`` (s), the
+        ``delay`` effect's factor ``e^{-tau s}`` outside the inner loop (with ``K = 0``
+        the non-``terms`` form adds it to ``Td`` instead)."""
         return dict(
             _core.linearize_effects(
                 self.base.name,
@@ -497,126 +663,6 @@ def equivalent_model(
     )
 
 
-def _split(model: WithEffects | LowerLevelModel) -> tuple[str, list[float], list[str], list[float]]:
-    if isinstance(model, LowerLevelModel):
-        model = WithEffects(model, ())
-    if not isinstance(model, WithEffects):
-        raise ValueError(f"model: expected a model or WithEffects, got {type(model).__name__}")
-    return (
-        model.base.name,
-        [float(x) for x in model.base.to_array()],
-        list(model.effect_names),
-        [float(x) for e in model.effects for x in e.to_array()],
-    )
-
-
-def _check_lower(model: WithEffects | LowerLevelModel, dt: float) -> None:
-    """The policy of the trajectory functions (see :mod:`avll.rollout`): a
-    ``ValueError`` unless the base lower level -- and, with an ``asymmetric`` effect, its
-    braking variant ``kb G(rb s)`` -- is asymptotically stable at ``dt``."""
-    if isinstance(model, LowerLevelModel):
-        check_lower_level(model, dt)
-        return
-    check_lower_level(model.base, dt)
-    asym = [e for e in model.effects if isinstance(e, Asymmetric)]
-    if asym:
-        c = WithEffects(model.base, tuple(asym)).linear(side=-1)
-        if not _core.lower_level_stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"],
-                                        dt):
-            raise ValueError(
-                f"model: the braking side of {model!r} (kb G(rb s): {c}) is not "
-                f"asymptotically stable at dt={dt:g} s; its response diverges when braking, so "
-                "no trajectory is returned")
-
-
-def _exo(exo: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
-    return {str(k): _f64(f"exo[{k!r}]", v) for k, v in (exo or {}).items()}
-
-
-def simulate_effects(
-    model: WithEffects | LowerLevelModel,
-    command: Any,
-    dt: float,
-    *,
-    command_kind: str = "acceleration",
-    init: str = "rest",
-    v0: float = 0.0,
-    x0: float = 0.0,
-    exo: Mapping[str, Any] | None = None,
-) -> Trajectory:
-    """Open-loop rollout of a base model with effects (as :func:`avll.simulate_full`;
-    ``exo`` maps exogenous signal names, e.g. ``"grade"``, to arrays). An unstable
-    lower level is a ``ValueError`` (the policy of :mod:`avll.rollout`)."""
-    b, p, en, ep = _split(model)
-    dt = check_number(dt, "dt", positive=True)
-    u = _f64("command", command)
-    v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
-    _check_lower(model, dt)
-    d = _core.simulate_full(
-        b, p, u, dt, command_kind, init, v0, x0, effects=en, effect_params=ep, exo=_exo(exo),
-    )  # fmt: skip
-    return Trajectory(**d)
-
-
-def closed_loop_effects(
-    model: WithEffects | LowerLevelModel,
-    lead_x: Any,
-    lead_v: Any,
-    dt: float,
-    upper: UpperLevel,
-    *,
-    v0: float,
-    x0: float,
-    exo: Mapping[str, Any] | None = None,
-) -> Trajectory:
-    """Closed-loop car following of a base model with effects behind a recorded
-    leader (as :func:`avll.closed_loop`: an unstable lower level is a ``ValueError``,
-    a car-following loop that diverges is NaN from the divergence on)."""
-    b, p, en, ep = _split(model)
-    up = _upper(upper)
-    dt = check_number(dt, "dt", positive=True)
-    lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
-    v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
-    _check_lower(model, dt)
-    d = _core.closed_loop(
-        b, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0,
-        effects=en, effect_params=ep, exo=_exo(exo),
-    )  # fmt: skip
-    return Trajectory(**d)
-
-
 def exo_needs(effects: Sequence[str]) -> dict[str, str]:
     """The exogenous signal each of ``effects`` reads (effect name -> signal name)."""
     return {n: s for n in effects if (s := EFFECTS[n].exo) is not None}
-
-
-def batch_cost_effects(
-    base: str | type[LowerLevelModel],
-    effects: Sequence[str],
-    params: Any,
-    runs: Any,
-    *,
-    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
-    init: str = "rest",
-    closed_loop: bool = False,
-    upper_free: Sequence[int] = (),
-    threads: int = 0,
-) -> np.ndarray:
-    """Per-run costs (P, R) of parameter rows ``[base | effects | free upper]`` (effects
-    in the canonical order, see :data:`CANONICAL_ORDER`), as :func:`avll.batch_cost`,
-    on an :class:`avll.RunSet` or a list of runs (packed once). Invalid or unstable
-    rows cost ``inf``."""
-    from .runs import as_runset
-
-    threads = check_threads(threads)
-    cls = model_class(base)
-    names = canonical(list(effects))
-    rs = as_runset(runs)
-    kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
-                    upper_free=upper_free, exo=exo_needs(names))  # fmt: skip
-    p = _params_2d(params)
-    nr = max(len(rs), 1)
-    check_memory(8.0 * p.shape[0] * nr,
-                 f"batch_cost_effects: {p.shape[0]} parameter rows x {nr} runs x 8 bytes",
-                 "evaluate the parameter rows in slices", per=8.0 * nr, unit="rows")
-    return _core.batch_cost(cls.name, p, effects=list(names), threads=threads, **kw)

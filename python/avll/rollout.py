@@ -12,13 +12,20 @@ Discretization convention (shared with :mod:`avll.reference` and the tests):
   (``y[0] = dc_gain * u[0]``), for runs that do not start at rest;
 * speed and position integrate the response exactly under the same hold.
 
-An unstable lower level. Every trajectory function (:func:`simulate`,
-:func:`simulate_full`, :func:`closed_loop`, :func:`platoon` and
-:func:`avll.simulate_effects` / :func:`avll.closed_loop_effects`) raises a
-``ValueError`` naming the model and its parameters when the lower level itself is not
-asymptotically stable at the sample time ``dt`` -- the same test (the inner loop
-``G/(1 - K G)`` with its dead time, discretized at ``dt``) that makes the costs
-(:func:`batch_cost`, the calibration) return ``inf``. So no trajectory function returns
+One family for base models and models with effects. Every rollout
+(:func:`simulate`, :func:`simulate_full`, :func:`closed_loop`, :func:`platoon`) and
+batched call (:func:`batch_cost`, :func:`simulate_batch`) takes a base model or an
+:class:`avll.WithEffects` (lower-level effects, and upper-level structures in the closed
+loop and the platoon); the same Rust kernel runs both, and a model with no effect is its
+base exactly. ``exo`` maps the exogenous signals the effects read (e.g. ``"grade"``) to
+arrays of the run's length (a platoon's followers read the same series).
+
+An unstable lower level. Every trajectory function raises a ``ValueError`` naming the
+model and its parameters when the lower level itself (with an ``asymmetric`` effect,
+its braking side ``kb G(rb s)`` too) is not asymptotically stable at the sample time
+``dt`` -- the same test (the inner loop ``G/(1 - K G)`` with its dead time,
+discretized at ``dt``) that makes the costs (:func:`batch_cost`, the calibration)
+return ``inf``. So no trajectory function returns
 an array of NaN for such a model. A closed loop whose lower level is stable but whose
 car-following loop diverges (unstable upper-level gains) is a legitimate result: its
 trajectory is NaN from the divergence on.
@@ -54,26 +61,32 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from . import _core
-from ._limits import check_int, check_memory, check_number, check_threads, check_weights
-from .data import Run, check_runs
+from ._limits import check_int, check_memory, check_number, check_threads
+from .data import Run
+from .effects import Asymmetric, WithEffects, canonical, exo_needs
 from .models import LowerLevelModel, UpperLevel, model_class
 
 __all__ = [
     "Trajectory",
+    "BatchSimulation",
     "output_cache",
     "simulate",
     "simulate_full",
     "closed_loop",
     "platoon",
     "batch_cost",
+    "simulate_batch",
 ]
+
+#: What every rollout takes as its model: a base model or a base with effects.
+Model = LowerLevelModel | WithEffects
 
 
 @dataclass(frozen=True)
@@ -178,9 +191,10 @@ def _f64(name: str, x: Any) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
-def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
+def _model(model: Any) -> tuple[str, list[float]]:
     if not isinstance(model, LowerLevelModel):
-        raise ValueError(f"model: expected an avll model object, got {type(model).__name__}")
+        raise ValueError(f"model: expected an avll model or avll.WithEffects, got "
+                         f"{type(model).__name__}")
     return model.name, model.values()
 
 
@@ -200,6 +214,37 @@ def _model_at(model: LowerLevelModel, dt: float) -> tuple[str, list[float]]:
     check_lower_level(model, dt)
     _last = (model, dt, name, p)
     return name, list(p)
+
+
+def _base(model: Any) -> LowerLevelModel | None:
+    """The base model when ``model`` carries no effect (the linear path), else None."""
+    if isinstance(model, LowerLevelModel):
+        return model
+    if isinstance(model, WithEffects):
+        return model.base if not model.effects else None
+    _model(model)  # the error naming it
+    return None  # pragma: no cover - _model raised
+
+
+def _with_effects(model: WithEffects, dt: float) -> tuple[str, list[float], list[str],
+                                                           list[float]]:
+    """Base name and values, effect names and values of a model with effects, after
+    the stability policy (the base, and the braking side of an ``asymmetric``)."""
+    check_lower_level(model.base, dt)
+    asym = [e for e in model.effects if isinstance(e, Asymmetric)]
+    if asym:
+        c = WithEffects(model.base, tuple(asym)).linear(side=-1)
+        if not _stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"], dt):
+            raise ValueError(
+                f"model: the braking side of {model!r} (kb G(rb s): {c}) is not "
+                f"asymptotically stable at dt={dt:g} s; its response diverges when braking, so "
+                "no trajectory is returned")
+    return (model.base.name, model.base.values(), list(model.effect_names),
+            [float(x) for e in model.effects for x in e.to_array()])
+
+
+def _exo(exo: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
+    return {str(k): _f64(f"exo[{k!r}]", v) for k, v in (exo or {}).items()}
 
 
 def _upper(upper: Any) -> UpperLevel:
@@ -238,7 +283,7 @@ def check_lower_level(model: LowerLevelModel, dt: float, *, what: str = "") -> N
             "(such parameters cost inf in batch_cost and the calibration)")
 
 
-def _finite_or_raise(model: LowerLevelModel, dt: float, *arrays: np.ndarray) -> None:
+def _finite_or_raise(model: Any, dt: float, *arrays: np.ndarray) -> None:
     # a diverged rollout is NaN from the divergence to the end: the last sample tells
     for a in arrays:
         if a.size and not math.isfinite(float(a[-1])):
@@ -248,28 +293,45 @@ def _finite_or_raise(model: LowerLevelModel, dt: float, *arrays: np.ndarray) -> 
 
 
 def simulate(
-    model: LowerLevelModel, command: Any, dt: float, *, init: str = "rest",
+    model: Model, command: Any, dt: float, *, init: str = "rest",
+    command_kind: str = "acceleration", exo: Mapping[str, Any] | None = None,
     out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Open-loop response of ``model`` to ``command`` sampled every ``dt`` seconds.
+    """Open-loop response of ``model`` (a base model or an :class:`avll.WithEffects`) to
+    ``command`` sampled every ``dt`` seconds.
 
-    For an acceleration command the response is the acceleration; for a speed
-    command, the speed. ``init`` is ``"rest"`` or ``"steady"`` (see the module doc).
-    ``out``: a float64 array of the command's length to write the response into
-    (returned; see the module doc). An unstable lower level is a ``ValueError`` (see
-    the module doc).
+    For an acceleration command the response is the acceleration (with effects: as
+    observed, after a ``sensor``); for a speed command, the speed. ``init`` is
+    ``"rest"`` or ``"steady"`` (see the module doc). ``command_kind`` and ``exo`` matter
+    only with effects (a base model's response is the same for both kinds). ``out``: a
+    float64 array of the command's length to write the response into (returned; see
+    the module doc). An unstable lower level is a ``ValueError`` (see the module doc).
     """
     dt = _dt(dt)
     u = _f64("command", command)
-    name, p = _model_at(model, dt)
-    # `out` is checked by the binding (dtype, shape, layout, writeable, shared memory)
-    y = _core.simulate(name, p, u, dt, init, out)
+    base = _base(model)
+    if base is not None:
+        name, p = _model_at(base, dt)
+        # `out` is checked by the binding (dtype, shape, layout, writeable, shared memory)
+        y = _core.simulate(name, p, u, dt, init, out)
+        _finite_or_raise(model, dt, y)
+        return y
+    assert isinstance(model, WithEffects)
+    speed = command_kind == "speed"
+    arrs = None
+    if out is not None:
+        spare = [np.empty(u.size) for _ in range(3)]
+        arrs = [*spare[:1], out, *spare[1:]] if speed else [out, *spare]
+    b, p, en, ep = _with_effects(model, dt)
+    a, v, _, _ = _core.simulate_full(b, p, u, dt, command_kind, init, 0.0, 0.0, effects=en,
+                                     effect_params=ep, exo=_exo(exo), out=arrs)  # fmt: skip
+    y = v if speed else a
     _finite_or_raise(model, dt, y)
     return y
 
 
 def simulate_full(
-    model: LowerLevelModel,
+    model: Model,
     command: Any,
     dt: float,
     *,
@@ -277,26 +339,36 @@ def simulate_full(
     init: str = "rest",
     v0: float = 0.0,
     x0: float = 0.0,
+    exo: Mapping[str, Any] | None = None,
     out: Trajectory | Sequence[np.ndarray] | None = None,
 ) -> Trajectory:
-    """Open-loop rollout with speed and position. For a speed command, ``a`` is the
-    time derivative of the simulated speed at each sample (right limit). ``out``: a
-    :class:`Trajectory` or four arrays (a, v, x, command) of the command's length to
-    write into (see the module doc). An unstable lower level is a ``ValueError``
-    (see the module doc)."""
-    name, p = _model(model)
+    """Open-loop rollout with speed and position of a base model or an
+    :class:`avll.WithEffects` (lower-level effects only: the upper-level structures act
+    in the closed loop). For a speed command, ``a`` is the time derivative of the
+    simulated speed at each sample (right limit). ``out``: a :class:`Trajectory` or four
+    arrays (a, v, x, command) of the command's length to write into (see the module
+    doc). An unstable lower level is a ``ValueError`` (see the module doc)."""
     dt = check_number(dt, "dt", positive=True)
     u = _f64("command", command)
     v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
     arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
-    check_lower_level(model, dt)
-    d = _core.simulate_full(name, p, u, dt, command_kind, init, v0, x0, out=arrs)
-    _finite_or_raise(model, dt, d["a"], d["v"])
-    return Trajectory(**d) if arrs is None else _traj_out(out, arrs)
+    base = _base(model)
+    if base is not None:
+        name, p = _model(base)
+        check_lower_level(base, dt)
+        en: list[str] = []
+        ep: list[float] = []
+    else:
+        assert isinstance(model, WithEffects)
+        name, p, en, ep = _with_effects(model, dt)
+    d = _core.simulate_full(name, p, u, dt, command_kind, init, v0, x0, effects=en,
+                            effect_params=ep, exo=_exo(exo), out=arrs)  # fmt: skip
+    _finite_or_raise(model, dt, d[0], d[1])
+    return Trajectory(*d) if arrs is None else _traj_out(out, arrs)
 
 
 def closed_loop(
-    model: LowerLevelModel,
+    model: Model,
     lead_x: Any,
     lead_v: Any,
     dt: float,
@@ -304,17 +376,17 @@ def closed_loop(
     *,
     v0: float,
     x0: float,
+    exo: Mapping[str, Any] | None = None,
     out: Trajectory | Sequence[np.ndarray] | None = None,
 ) -> Trajectory:
-    """Car following behind a recorded leader: the upper law (Eq. 3) evaluated at the
-    samples commands the lower level; the follower starts at speed ``v0`` and position
-    ``x0`` with the lower level at rest. ``out``: a :class:`Trajectory` or four arrays
-    (a, v, x, command) of the leader's length to write into (see the module doc). An
-    unstable lower level is a ``ValueError``; a follower that diverges with a stable
-    lower level (unstable upper-level gains) has a trajectory that is NaN from the
-    divergence on."""
-    if not isinstance(model, LowerLevelModel):
-        _model(model)  # the error naming it
+    """Car following behind a recorded leader: the upper law (Eq. 3, with the model's
+    upper-level structures) evaluated at the samples commands the lower level (with its
+    effects); the follower starts at speed ``v0`` and position ``x0`` with the lower
+    level at rest. ``out``: a :class:`Trajectory` or four arrays (a, v, x, command) of the
+    leader's length to write into (see the module doc). An unstable lower level is a
+    ``ValueError``; a follower that diverges with a stable lower level (unstable
+    upper-level gains) has a trajectory that is NaN from the divergence on."""
+    base = _base(model)
     up = _upper(upper)
     dt = _dt(dt)
     lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
@@ -322,34 +394,45 @@ def closed_loop(
     if lv.size != lx.size:
         raise ValueError(f"lead_v: length {lv.size} differs from lead_x's {lx.size}")
     arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
-    name, p = _model_at(model, dt)
-    d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0, out=arrs)
-    return Trajectory(**d) if arrs is None else _traj_out(out, arrs)
+    if base is not None:
+        name, p = _model_at(base, dt)
+        d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0,
+                              out=arrs)  # fmt: skip
+    else:
+        assert isinstance(model, WithEffects)
+        b, p, en, ep = _with_effects(model, dt)
+        d = _core.closed_loop(b, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0,
+                              effects=en, effect_params=ep, exo=_exo(exo), out=arrs)
+    return Trajectory(*d) if arrs is None else _traj_out(out, arrs)
 
 
 def platoon(
-    model: LowerLevelModel,
+    model: Model,
     lead_x: Any,
     lead_v: Any,
     dt: float,
     upper: UpperLevel,
     followers: int,
     *,
+    exo: Mapping[str, Any] | None = None,
     out: Trajectory | Sequence[np.ndarray] | None = None,
 ) -> Trajectory:
-    """``followers`` identical vehicles behind a recorded leader, each starting at the
-    leader's initial speed and the equilibrium gap ``Gmin + Tg v``. Arrays are
-    (follower, sample), laid out sample-major (Fortran order: each is the transpose
-    of a C-contiguous (sample, follower) array, the layout the stepping writes).
-    ``out``: a :class:`Trajectory` or four such (followers, samples) arrays to write
-    into, e.g. a platoon's earlier result or ``np.empty((samples, followers)).T``
+    """``followers`` identical vehicles (a base model or an :class:`avll.WithEffects`,
+    upper-level structures included) behind a recorded leader, stepped time-major, each
+    starting at the leader's initial speed and the equilibrium gap (``Gmin + Tg v``, the
+    desired gap of the model's upper level at that speed) with the lower level at rest;
+    each follower's upper law sees its predecessor's simulated position and speed.
+    Arrays are (follower, sample), laid out sample-major (Fortran order: each is the
+    transpose of a C-contiguous (sample, follower) array, the layout the stepping
+    writes). ``out``: a :class:`Trajectory` or four such (followers, samples) arrays to
+    write into, e.g. a platoon's earlier result or ``np.empty((samples, followers)).T``
     (see the module doc). ``followers`` must be an integer >= 1; a platoon whose arrays
     cannot fit in memory is refused with a ``ValueError`` (simulate it in slices of
     followers: the last follower of a slice is the leader of the next). An unstable
     lower level is a ``ValueError``; a diverging follower (and every one behind it) is
     NaN from the divergence on."""
     nf = check_int(followers, "followers", min=1)
-    name, p = _model(model)
+    base = _base(model)
     up = _upper(upper)
     dt = _dt(dt)
     lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
@@ -363,29 +446,39 @@ def platoon(
             "simulate fewer followers per call (the last follower's x and v lead the next "
             "slice)",
             per=per, unit="followers")
-    check_lower_level(model, dt)
-    d = _core.platoon(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, nf,
-                      out=None if arrs is None else [a.T for a in arrs])
-    return Trajectory(**d) if arrs is None else _traj_out(out, arrs)
+    if base is not None:
+        name, p = _model(base)
+        check_lower_level(base, dt)
+        en: list[str] = []
+        ep: list[float] = []
+    else:
+        assert isinstance(model, WithEffects)
+        name, p, en, ep = _with_effects(model, dt)
+    d = _core.platoon(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, nf, effects=en,
+                      effect_params=ep, exo=_exo(exo),
+                      out=None if arrs is None else [a.T for a in arrs])  # fmt: skip
+    return Trajectory(*(a.T for a in d)) if arrs is None else _traj_out(out, arrs)
 
 
-def _concat(runs: Sequence[Run], attr: str, needed: bool) -> np.ndarray | None:
-    parts = [getattr(r, attr) for r in runs]
-    if all(p is None for p in parts):
-        if needed:
-            raise ValueError(f"runs: column {attr!r} is needed here but no run has it")
-        return None
-    for r, p in zip(runs, parts, strict=True):
-        if p is None:
-            raise ValueError(f"run {r.run_id!r}: column {attr!r} is missing")
-    return np.ascontiguousarray(np.concatenate(parts))
+def _structure(
+    model: Any, effects: Sequence[str]
+) -> tuple[type[LowerLevelModel], tuple[str, ...]]:
+    """The base class and the effects (canonical order) of a batched call: ``model`` a
+    name, a class, a model, or an :class:`avll.WithEffects` (its effects; not also
+    ``effects``)."""
+    if isinstance(model, WithEffects):
+        if effects:
+            raise ValueError("effects: give them either in the model or as effects=, not both")
+        return type(model.base), tuple(model.effect_names)
+    return model_class(model), canonical(list(effects)) if effects else ()
 
 
 def batch_cost(
-    model: str | type[LowerLevelModel],
+    model: str | type[LowerLevelModel] | Model,
     params: Any,
-    runs: Sequence[Run],
+    runs: Any,
     *,
+    effects: Sequence[str] = (),
     weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
     init: str = "rest",
     closed_loop: bool = False,
@@ -396,6 +489,13 @@ def batch_cost(
     """Per-run costs of many parameter sets: a (P, R) array (``out``, a float64 (P, R)
     array to write into, when given; see the module doc).
 
+    ``model`` names the structure of the parameter rows: a base model (name, class or
+    instance) with ``effects`` (names, any order), or an :class:`avll.WithEffects`
+    (its effects; its values are not used). Rows are ``[model | effects (canonical
+    order) | free upper gains]``. ``runs``: an :class:`avll.RunSet` or a list of runs
+    (packed once, :class:`avll.RunSet`: every column the runs have, so the measured
+    speed and position start the integrators whenever the runs carry them).
+
     Each cost is ``wa MSE(a) + wv MSE(v) + wx MSE(x)`` over the run's samples (paper
     Eq. 6 with the default weights); Eq. 6 itself is the mean over runs. Open loop
     drives the model with each run's recorded command; closed loop drives it with the
@@ -405,8 +505,10 @@ def batch_cost(
     cores) is bounded by the machine; a ``(P, R)`` result that cannot fit in memory is
     refused (evaluate the parameter rows in slices).
     """
+    from .runs import as_runset
+
     nt = check_threads(threads)
-    cls = model_class(model)
+    cls, names = _structure(model, effects)
     p = params_2d(params)
     if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__len__"):
         raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
@@ -417,10 +519,9 @@ def batch_cost(
     check_memory(8.0 * p.shape[0] * nr,
                  f"batch_cost: {p.shape[0]} parameter rows x {len(runs)} runs x 8 bytes",
                  "evaluate the parameter rows in slices", per=8.0 * nr, unit="rows")
-    kw = pack_runs(
-        runs, weights=weights, init=init, closed_loop=closed_loop, upper_free=upper_free
-    )
-    return _core.batch_cost(cls.name, p, threads=nt, out=out, **kw)
+    kw = as_runset(runs).cost_kw(weights=weights, init=init, closed_loop=closed_loop,
+                                 upper_free=upper_free, exo=exo_needs(names))  # fmt: skip
+    return _core.batch_cost(cls.name, p, effects=list(names), threads=nt, out=out, **kw)
 
 
 def params_2d(params: Any, name: str = "params") -> np.ndarray:
@@ -437,73 +538,22 @@ def params_2d(params: Any, name: str = "params") -> np.ndarray:
     return np.ascontiguousarray(np.atleast_2d(p))
 
 
-def pack_runs(
-    runs: Sequence[Run],
-    *,
-    weights: Sequence[float] = (1.0, 0.0, 0.0),
-    init: str = "rest",
-    closed_loop: bool = False,
-    upper_free: Sequence[int] = (),
-) -> dict[str, Any]:
-    """The runs packed once into a Rust run set (``runs``, an ``avll._core.RunSet``:
-    run ``r`` is ``offsets[r]:offsets[r+1]`` of every series) with the cost options of
-    the batched functions. Every series present in all runs is packed, and every
-    exogenous series (``exo``) that all runs have; those the objective needs must be
-    present (the command in open loop, the leader in closed loop, ``v``/``x`` when
-    weighted or in closed loop). An :class:`avll.RunSet` is not packed
-    again: its own packed arrays are used (:meth:`avll.RunSet.cost_kw` checks what the
-    objective needs)."""
-    from .runs import RunSet
+@dataclass(frozen=True)
+class BatchSimulation:
+    """The result of :func:`simulate_batch`: per run, (P, len(run)) arrays of the
+    simulated acceleration ``a``, speed ``v`` and position ``x`` and the ``residual``
+    (simulated minus measured acceleration); row ``p`` is parameter row ``p``."""
 
-    if isinstance(runs, RunSet):
-        return runs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
-                            upper_free=upper_free)
-    runs = check_runs(runs)
-    wa, wv, wx = check_weights(weights)
-    offsets = np.concatenate([[0], np.cumsum([len(r) for r in runs])]).astype(np.int64)
-    upper = None
-    if closed_loop or any(r.upper is not None for r in runs):
-        rows = []
-        for r in runs:
-            if r.upper is None:
-                if closed_loop:
-                    raise ValueError(f"run {r.run_id!r}: closed loop needs its upper-level law")
-                rows.append(np.zeros(4))
-            else:
-                rows.append(r.upper.to_array())
-        upper = np.ascontiguousarray(np.vstack(rows))
-    exo: dict[str, np.ndarray] = {}
-    for name in sorted(set.intersection(*(set(r.exo) for r in runs))):
-        exo[name] = np.ascontiguousarray(np.concatenate([r.exo[name] for r in runs]))
-    a = _concat(runs, "a", True)
-    if a is None:  # pragma: no cover - _concat raises when a needed column is absent
-        raise ValueError("runs: column 'a' is needed")
-    packed = _core.RunSet(
-        [int(o) for o in offsets],
-        np.array([r.dt for r in runs], dtype=np.float64),
-        a,
-        command=None if closed_loop else _concat(runs, "command", True),
-        lead_x=_concat(runs, "lead_x", True) if closed_loop else None,
-        lead_v=_concat(runs, "lead_v", True) if closed_loop else None,
-        v=_concat(runs, "v", closed_loop or wv > 0),
-        x=_concat(runs, "x", closed_loop or wx > 0),
-        upper=upper,
-        exo=exo,
-    )
-    return dict(
-        runs=packed,
-        upper_free=[int(i) for i in upper_free],
-        command_kind=runs[0].command_kind,
-        weights=(wa, wv, wx),
-        init=init,
-        closed_loop=closed_loop,
-    )
+    a: list[np.ndarray]
+    v: list[np.ndarray]
+    x: list[np.ndarray]
+    residual: list[np.ndarray]
 
 
 def simulate_batch(
-    model: str | type[LowerLevelModel],
+    model: str | type[LowerLevelModel] | Model,
     params: Any,
-    runs: Sequence[Run],
+    runs: Any,
     *,
     effects: Sequence[str] = (),
     weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
@@ -512,39 +562,30 @@ def simulate_batch(
     upper_free: Sequence[int] = (),
     threads: int = 0,
     out: np.ndarray | None = None,
-) -> dict[str, Any]:
+) -> BatchSimulation:
     """Simulates P parameter rows on R runs in one parallel call, exactly as the cost
     sees them (same drive, initial state, effects and free upper-level gains).
 
-    Rows are ``[model | effects (canonical order) | free upper]``. Returns a dict with
-    ``a``, ``v``, ``x`` (each a list over runs of (P, len(run)) arrays) and
-    ``residual`` (simulated minus measured acceleration, same shapes). Rows the cost
-    calls invalid or unstable are NaN; a closed loop that diverges is NaN after the
-    divergence. ``out``: a float64 C-contiguous (3, P, T) array (``T`` the runs' total
-    length) to write a, v, x into, run after run; the lists then hold views of it
-    (``residual`` is new; see the module doc).
+    ``model``, ``effects`` and the rows as in :func:`batch_cost`. Returns a
+    :class:`BatchSimulation`. Rows the cost calls invalid or unstable are NaN; a closed
+    loop that diverges is NaN after the divergence. ``out``: a float64 C-contiguous (3,
+    P, T) array (``T`` the runs' total length) to write a, v, x into, run after run; the
+    lists then hold views of it (``residual`` is new; see the module doc).
     """
-    cls = model_class(model)
-    p = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
-    given = runs  # an avll.RunSet is used as packed
-    runs = list(runs)
-    if not runs:
+    from .runs import as_runset
+
+    cls, names = _structure(model, effects)
+    p = params_2d(params)
+    if isinstance(runs, (str, bytes, Run)) or not hasattr(runs, "__len__") or not len(runs):
         raise ValueError("runs: no runs given")
-    # Pack the measured speed and position whenever every run has them: they start
-    # the integrators (and the effects that read the speed), as in the cost.
-    has = [float(all(getattr(r, c) is not None for r in runs)) for c in ("v", "x")]
-    kw = pack_runs(
-        given, weights=(1.0, *has), init=init, closed_loop=closed_loop, upper_free=upper_free
-    )
-    kw["weights"] = tuple(float(w) for w in weights)
+    rs = as_runset(runs)
+    kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
+                    upper_free=upper_free, exo=exo_needs(names))  # fmt: skip
     if out is not None:
-        _out_array("out", out, (3, p.shape[0], int(kw["runs"].total)))
+        _out_array("out", out, (3, p.shape[0], rs.total))
         _no_overlap([("out", out)], [p])
-    d = _core.simulate_batch(cls.name, p, effects=list(effects), threads=int(threads), out=out,
-                             **kw)
-    off = kw["runs"].offsets
-    res: dict[str, Any] = {}
-    for k in ("a", "v", "x"):
-        res[k] = [d[k][:, off[j] : off[j + 1]] for j in range(len(runs))]
-    res["residual"] = [res["a"][j] - runs[j].a[None, :] for j in range(len(runs))]
-    return res
+    arr = _core.simulate_batch(cls.name, p, effects=list(names), threads=check_threads(threads),
+                               out=out, **kw)  # fmt: skip
+    off = rs.offsets
+    a, v, x = ([arr[k][:, off[j] : off[j + 1]] for j in range(len(rs))] for k in range(3))
+    return BatchSimulation(a, v, x, [a[j] - rs[j].a[None, :] for j in range(len(rs))])

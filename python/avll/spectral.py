@@ -75,10 +75,10 @@ __all__ = [
     "MIN_EXCITATION",
     "MAX_LAG",
     "BandGain",
+    "band_weights",
     "h1_band_gain",
     "welch_effective_averages",
     "closed_loop_gain",
-    "predecessor_spectrum",
     "band_gain_rows",
 ]
 
@@ -162,6 +162,24 @@ def bandpass(x: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
     return y[k:x.shape[0] - k] if k else y
 
 
+def band_weights(lead_v: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
+                 trim: float = TRIM) -> tuple[np.ndarray, np.ndarray]:
+    """The periodogram bins ``f`` (Hz) in ``band`` of the predecessor's speed band-passed
+    as the study does (:func:`bandpass`, Hann window) and their power as weights
+    summing to 1: a model's band amplification is ``sqrt(sum w |H(f)|^2)``
+    (:func:`avll.studies.openacc.predicted_amplification`). Empty arrays when the band
+    holds no bin or no power."""
+    from scipy import signal
+
+    lo, hi = _check_band(band, dt)
+    f, p = signal.periodogram(bandpass(lead_v, dt, band, trim), fs=1.0 / dt, window="hann",
+                              detrend=False)  # fmt: skip
+    m = (f >= lo) & (f <= hi)
+    if not m.any() or p[m].sum() <= 0:
+        return np.zeros(0), np.zeros(0)
+    return f[m], p[m] / p[m].sum()
+
+
 def closed_loop_gain(lin: Mapping[str, Any], kg: Any, kv: Any, tg: Any, f_hz: Any
                      ) -> np.ndarray:
     """``|H(j 2π f)|`` of the closed loop (paper Eq. 8) with the true delay:
@@ -187,32 +205,19 @@ def closed_loop_gain(lin: Mapping[str, Any], kg: Any, kv: Any, tg: Any, f_hz: An
     return np.asarray(np.abs(h))
 
 
-def predecessor_spectrum(lead_v: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
-                         trim: float = TRIM) -> tuple[np.ndarray, np.ndarray]:
-    """The periodogram (Hann window) of the predecessor's band-passed speed on the
-    bins within the band: frequencies (Hz) and powers."""
-    from scipy import signal
-
-    lo, hi = _check_band(band, dt)
-    bp = bandpass(lead_v, dt, band, trim)
-    f, p = signal.periodogram(bp, fs=1.0 / dt, window="hann", detrend=False)
-    m = (f >= lo) & (f <= hi)
-    return f[m], p[m]
-
-
 def band_gain_rows(lin: Mapping[str, Any], kg: Any, kv: Any, tg: Any, lead_v: np.ndarray,
                    dt: float, band: Sequence[float] = DEFAULT_BAND, trim: float = TRIM
                    ) -> np.ndarray:
     """``|H|`` of many closed loops (:func:`closed_loop_gain`, coefficient arrays) as
     RMS gains on the predecessor's band-passed spectrum,
     ``sqrt(Σ |H|² P / Σ P)`` over the band's periodogram bins
-    (:func:`predecessor_spectrum`): one value per row (NaN without a bin)."""
-    f, p = predecessor_spectrum(lead_v, dt, band, trim)
+    (:func:`band_weights`): one value per row (NaN without a bin)."""
+    f, w = band_weights(lead_v, dt, band, trim)
     n = np.broadcast(*(np.asarray(v) for v in (*lin.values(), kg, kv, tg))).shape
-    if f.size == 0 or p.sum() <= 0:
+    if f.size == 0:
         return np.full(n, np.nan)
     h = closed_loop_gain(lin, kg, kv, tg, f)
-    return np.asarray(np.sqrt(np.sum(h * h * p, axis=-1) / np.sum(p)))
+    return np.asarray(np.sqrt(np.sum(h * h * w, axis=-1)))
 
 
 def welch_effective_averages(k: int, n: int = 0, step: int = 0) -> float:

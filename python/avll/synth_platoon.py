@@ -11,7 +11,7 @@ OpenACC study and the estimators consume them unchanged; ``meta["truth"]`` and
 :attr:`SynthPlatoon.truth` hold what the estimators should find.
 
 **The plant (near-continuous).**
-Every car is simulated by the library's closed loop (:func:`avll.closed_loop_effects`)
+Every car is simulated by the library's closed loop (:func:`avll.closed_loop`)
 at ``fine_dt`` (0.01 s by default: the upper law evaluated and the lower level stepped
 at 100 Hz), behind the previous car's *true* position and speed (the radar sees the
 true spacing), then sampled every ``dt`` (0.1 s). A follower-side disturbance -- the
@@ -67,6 +67,23 @@ combination, ``v_mean`` the car's true mean speed over the record). The band RMS
 ratio of the *true* speeds (``rms_ratio_true``) is kept as well: it differs from the
 band gain by the follower's disturbance alone.
 
+**Hidden upper-level structure** (:class:`HiddenUpper`, the ``hidden`` argument).
+Real ACCs are more than Eq. 3, and a generator that only knows Eq. 3 cannot test
+whether the library finds what they have. A follower can carry structures in its
+upper level that the generator implements with its own law (``rust/sim/synth.rs``,
+written independently of the library's upper-level effects, with other mechanisms):
+a **radar** that measures the gap and relative speed at its own update period (a random
+phase per car) and delivers them a latency later, held in between; a **feedforward**
+on the perceived predecessor speed differenced over a window; a smooth
+**closing/opening asymmetry** (the gap and speed terms scaled by a logistic blend
+between 1 and ``ratio``). The truth's ``|H|`` then comes from this law's own
+small-signal form (:meth:`HiddenUpper.response`: the radar as a latency times the
+zero-order hold of its period, the window's difference, the blend's average slope
+``(1 + ratio)/2``, the describing function of the asymmetry's odd part; its even part
+shifts the mean gap and makes even harmonics, which in the closed loop return into the
+fundamental: an approximation of the order ``((ratio - 1)/(ratio + 1))^2``, 3 % at
+``ratio = 1.8`` and 0.1 Hz in the tests), and ``truth["hidden"]`` lists the structures.
+
 Seeded: one random stream per ``(seed, purpose, car)``.
 """
 
@@ -79,15 +96,18 @@ from typing import Any
 
 import numpy as np
 
+from . import _core
 from ._limits import check_int, check_number, check_seed
 from .data import Run
-from .effects import Effect, Grade, WithEffects, closed_loop_effects
+from .effects import Effect, Grade, WithEffects
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import TABLE_II_PARAMS
+from .rollout import Trajectory, closed_loop
 
 __all__ = [
     "Equipment",
     "EQUIPMENT",
+    "HiddenUpper",
     "CarTruth",
     "SynthPlatoon",
     "leader_speed",
@@ -95,6 +115,10 @@ __all__ = [
     "synth_platoon",
     "validate_amplification",
     "validate_intervals",
+    "StructureRow",
+    "StructureSummary",
+    "StructureCheck",
+    "validate_structure",
 ]
 
 DEFAULT_BAND: tuple[float, float] = (0.02, 0.2)
@@ -137,16 +161,85 @@ EQUIPMENT: dict[str, Equipment] = {
 
 
 @dataclass(frozen=True)
+class HiddenUpper:
+    """Structures hidden in a follower's upper level (the generator's own law, see the
+    module doc; neutral by default): a radar of update period ``radar_period`` (s, 0:
+    every sample; each car a random phase) and latency ``radar_latency`` (s); a
+    feedforward ``ff_gain (vp(t) - vp(t - ff_window)) / ff_window`` on the perceived
+    predecessor speed (``ff_gain`` in s); the gap and speed terms scaled by ``1 +
+    (ratio - 1) / (1 + exp(z / width))`` of the gap error (``width_gap``, m) and the
+    relative speed (``width_speed``, m/s): ``ratio`` on the closing side, 1 on the
+    opening side."""
+
+    radar_period: float = 0.0
+    radar_latency: float = 0.0
+    ff_gain: float = 0.0
+    ff_window: float = 1.0
+    ratio: float = 1.0
+    width_gap: float = 1.0
+    width_speed: float = 0.2
+
+    def __post_init__(self) -> None:
+        for k in ("radar_period", "radar_latency", "ff_gain"):
+            check_number(getattr(self, k), k, nonneg=True)
+        for k in ("ff_window", "ratio", "width_gap", "width_speed"):
+            check_number(getattr(self, k), k, positive=True)
+
+    @property
+    def neutral(self) -> bool:
+        """Whether the law is Eq. 3 itself."""
+        return (self.radar_period == 0 and self.radar_latency == 0 and self.ff_gain == 0
+                and self.ratio == 1)
+
+    def row(self, phase: float) -> list[float]:
+        """The law's parameters in the order of the Rust generator (``HiddenParams``)."""
+        return [self.radar_period, phase, self.radar_latency, self.ff_gain, self.ff_window,
+                self.ratio, self.width_gap, self.width_speed]
+
+    def response(self, model: Any, upper: UpperLevel, omega: Any, *, v: float,
+                 fine_dt: float) -> np.ndarray:
+        """The follower's ``H(jw)`` with this law (small signal about the speed ``v``;
+        ``model`` a base model or an :class:`avll.WithEffects` with lower-level effects
+        only; ``fine_dt`` the rate the law runs at, which rounds the window):
+        ``G_fb P / (s² + G_fb Q)`` with ``G_fb`` the lower level
+        (``G e^{-tau_c s} / (1 - K G + beta/s)``), ``P = (kg' + kv' s) D + F s D``,
+        ``Q = (kg' + kv' s) D + kg' Tg s - F s (1 - D)``, ``D = e^{-latency s} (1 -
+        e^{-period s}) / (period s)`` (the radar's latency and hold; 1 for a period of
+        0), ``F = ff_gain (1 - e^{-W s}) / W`` (``W`` the window in whole samples), and
+        ``kg', kv' = kg, kv (1 + ratio)/2``."""
+        m = model if isinstance(model, WithEffects) else WithEffects(model, ())
+        if m.upper:
+            raise ValueError("model: the hidden law replaces the upper-level effects")
+        c = m.linear(v=v, terms=True)
+        s = 1j * np.asarray(omega, dtype=np.float64)
+        g = (c["b1"] * s + c["b0"]) * np.exp(-c["Td"] * s) / (c["a2"] * s * s
+                                                              + c["a1"] * s + 1.0)
+        gfb = g * np.exp(-c["command_delay"] * s) / (1.0 - c["K"] * g
+                                                     + c["speed_feedback"] / s)
+        d = np.exp(-self.radar_latency * s)
+        if self.radar_period > 0:
+            d = d * (1.0 - np.exp(-self.radar_period * s)) / (self.radar_period * s)
+        w = max(round(self.ff_window / fine_dt), 1) * fine_dt
+        f = self.ff_gain * (1.0 - np.exp(-w * s)) / w
+        kg, kv = upper.kg * 0.5 * (1 + self.ratio), upper.kv * 0.5 * (1 + self.ratio)
+        p = (kg + kv * s) * d + f * s * d
+        q = (kg + kv * s) * d + kg * upper.Tg * s - f * s * (1.0 - d)
+        return np.asarray(gfb * p / (s * s + gfb * q))
+
+
+@dataclass(frozen=True)
 class CarTruth:
     """One follower: lower level ``model``, upper level ``upper``, optional ``effects``
-    (not ``grade``: the disturbance uses it) and its own acceleration disturbance
-    (``disturbance_std`` m/s², ``disturbance_tau`` s)."""
+    (of either level; not ``grade``: the disturbance uses it), its own acceleration
+    disturbance (``disturbance_std`` m/s², ``disturbance_tau`` s) and structures
+    ``hidden`` in its upper level (:class:`HiddenUpper`; then no upper-level effect)."""
 
     model: LowerLevelModel
     upper: UpperLevel
     effects: tuple[Effect, ...] = ()
     disturbance_std: float = 0.05
     disturbance_tau: float = 3.0
+    hidden: HiddenUpper | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.model, LowerLevelModel):
@@ -161,6 +254,13 @@ class CarTruth:
                                  "give the disturbance by disturbance_std/disturbance_tau")
         check_number(self.disturbance_std, "disturbance_std", nonneg=True)
         check_number(self.disturbance_tau, "disturbance_tau", positive=True)
+        if self.hidden is not None:
+            if not isinstance(self.hidden, HiddenUpper):
+                raise ValueError(f"hidden: expected an avll.synth_platoon.HiddenUpper, got "
+                                 f"{self.hidden!r:.60}")
+            if any(e.level == "upper" for e in self.effects):
+                raise ValueError("hidden: the hidden law replaces the upper-level effects; "
+                                 "give one or the other")
 
 
 @dataclass
@@ -258,13 +358,35 @@ def leader_speed(
 _UPPER_RANGE = {"kg": (0.08, 0.25), "kv": (0.2, 0.6), "Tg": (1.0, 2.0), "Gmin": (2.0, 5.0)}
 
 
+def _settles(car: CarTruth, fine_dt: float, v: float = 20.0) -> bool:
+    """Whether a car with a hidden law returns to its equilibrium behind a leader at a
+    constant speed ``v`` after starting 3 m too close (300 s, no disturbance): the
+    local stability test for laws whose small-signal form has no engine (radar hold,
+    window difference)."""
+    assert car.hidden is not None
+    n = int(round(300.0 / fine_dt))
+    lv = np.full(n, v)
+    lx = 1000.0 + v * fine_dt * np.arange(n, dtype=np.float64)
+    gap = car.upper.Gmin + car.upper.Tg * v - 3.0
+    a, vv, _, _ = _core.synth_closed_loop(
+        car.model.name, car.model.values(), lx, lv, fine_dt, car.upper.kg, car.upper.kv,
+        car.upper.Tg, car.upper.Gmin, v, float(lx[0] - gap), car.hidden.row(0.0))
+    dev = np.abs(vv - v)
+    if not np.all(np.isfinite(dev)):
+        return False
+    return bool(dev[-int(60.0 / fine_dt):].max() < 0.02 * max(dev.max(), 1e-12))
+
+
 def random_car(rng: np.random.Generator, model: str = "proposed", *,
                disturbance_std: float = 0.05, disturbance_tau: float = 3.0,
-               effects: Sequence[Effect] = ()) -> CarTruth:
+               effects: Sequence[Effect] = (), hidden: HiddenUpper | None = None,
+               fine_dt: float = 0.01) -> CarTruth:
     """A locally stable car drawn at random: the model's Table II parameters each
     scaled by a factor in [0.7, 1.3] (``Td`` drawn in [0.2, 0.9] s), the upper law
     uniformly in kg [0.08, 0.25] 1/s², kv [0.2, 0.6] 1/s, Tg [1, 2] s, Gmin [2, 5] m;
-    redrawn until the closed loop with the true delay is locally stable."""
+    redrawn until the closed loop with the true delay is locally stable (with a
+    ``hidden`` law, also until it settles in the time domain at ``fine_dt``,
+    :func:`_settles`)."""
     from .stability import exact_delay_codes
 
     cls = model_class(model)
@@ -282,31 +404,34 @@ def random_car(rng: np.random.Generator, model: str = "proposed", *,
         except ValueError:
             continue
         if int(codes[0]) > 0:
-            return CarTruth(m, u, tuple(effects), disturbance_std, disturbance_tau)
+            car = CarTruth(m, u, tuple(effects), disturbance_std, disturbance_tau, hidden)
+            if hidden is None or hidden.neutral or _settles(car, fine_dt):
+                return car
     raise ValueError(f"model: no locally stable {cls.name} car found in 100 draws")
 
 
 def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt: float,
-                 band: Sequence[float]) -> dict[str, Any]:
-    from .studies.openacc import amplification, predicted_amplification, transfer_gain
+                 band: Sequence[float], fine_dt: float) -> dict[str, Any]:
+    from .spectral import band_weights
+    from .studies.openacc import amplification, transfer_gain
 
     v_mean = float(np.mean(v_true))
-    lin_model: Any = car.model
-    if car.effects:
-        lin = WithEffects(car.model, car.effects).linear(v=v_mean)
-
-        class _Lin:  # the small-signal equivalent, in the form transfer_gain reads
-            @staticmethod
-            def linear() -> dict[str, float]:
-                return lin
-
-        lin_model = _Lin()
+    lin_model = WithEffects(car.model, car.effects)
     n = lead_v_true.size
     f = np.fft.rfftfreq(n, dt)
     lo, hi = (float(b) for b in band)
     fb = f[(f >= lo) & (f <= hi)]
-    h = transfer_gain(lin_model, car.upper, fb)
-    gain = predicted_amplification(lin_model, car.upper, lead_v_true, dt, band)
+    hid = car.hidden
+
+    def gain_of(fh: np.ndarray) -> np.ndarray:
+        if hid is None or hid.neutral:
+            return transfer_gain(lin_model, car.upper, fh, v=v_mean)
+        return np.abs(hid.response(lin_model, car.upper, 2 * np.pi * fh, v=v_mean,
+                                   fine_dt=fine_dt))
+
+    h = gain_of(fb)
+    fw, w = band_weights(lead_v_true, dt, band)
+    gain = float(np.sqrt(np.sum(gain_of(fw) ** 2 * w))) if fw.size else math.nan
     ratio = amplification(v_true, lead_v_true, dt, band)[0]
     return {
         "model": car.model.name,
@@ -316,6 +441,9 @@ def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt:
         "effects": [{"name": e.name, **{k: float(v) for k, v in
                                         zip(e.param_names(), e.to_array(), strict=True)}}
                     for e in car.effects],
+        "hidden": None if hid is None else {k: float(getattr(hid, k)) for k in (
+            "radar_period", "radar_latency", "ff_gain", "ff_window", "ratio", "width_gap",
+            "width_speed")},
         "disturbance_std": car.disturbance_std,
         "disturbance_tau": car.disturbance_tau,
         "band": [lo, hi],
@@ -323,7 +451,9 @@ def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt:
         "freqs": fb.tolist(),
         "H_abs": np.asarray(h, dtype=float).tolist(),
         "v_mean": v_mean,
-        "time_gap_effective": car.upper.Tg + car.upper.Gmin / v_mean,
+        # the law's equilibrium headway at the mean speed (speed_gains: Tg + ch v)
+        "time_gap_effective": (lin_model.upper_linear(car.upper, v=v_mean)["Tg_eq"]
+                               + car.upper.Gmin / v_mean),
         "rms_ratio_true": float(ratio),
     }
 
@@ -344,15 +474,16 @@ def synth_platoon(
     models: Sequence[str] = ("first", "second", "proposed"),
     disturbance_std: float = 0.05,
     disturbance_tau: float = 3.0,
+    hidden: HiddenUpper | None = None,
     setting: str = "M",
     file_name: str | None = None,
 ) -> SynthPlatoon:
     """A platoon of the module doc: ``cars`` followers (given as :class:`CarTruth`, or
     a number of random ones from :func:`random_car`, cycling through ``models``, with
-    ``disturbance_std``/``_tau``), recorded for ``duration`` s at ``dt`` after
-    ``warmup`` s, with ``equipment`` noise (a name of :data:`EQUIPMENT` or an
-    :class:`Equipment`). Deterministic in ``seed``. A follower that diverges is a
-    ``ValueError`` naming it."""
+    ``disturbance_std``/``_tau`` and the structures ``hidden`` in their upper level),
+    recorded for ``duration`` s at ``dt`` after ``warmup`` s, with ``equipment`` noise
+    (a name of :data:`EQUIPMENT` or an :class:`Equipment`). Deterministic in ``seed``.
+    A follower that diverges is a ``ValueError`` naming it."""
     seed = check_seed(seed)
     dt = check_number(dt, "dt", positive=True)
     fine_dt = check_number(fine_dt, "fine_dt", positive=True)
@@ -387,8 +518,11 @@ def synth_platoon(
         if not models:
             raise ValueError("models: no model given")
         rng_c = np.random.default_rng([seed, 11])
+        if hidden is not None and not isinstance(hidden, HiddenUpper):
+            raise ValueError(f"hidden: expected a HiddenUpper, got {hidden!r:.60}")
         truths = [random_car(rng_c, models[i % len(models)], disturbance_std=disturbance_std,
-                             disturbance_tau=disturbance_tau) for i in range(nc)]
+                             disturbance_tau=disturbance_tau, hidden=hidden, fine_dt=fine_dt)
+                  for i in range(nc)]  # fmt: skip
     else:
         if isinstance(cars, (bool, str, bytes)) or not hasattr(cars, "__iter__"):
             raise ValueError(f"cars: expected CarTruth objects or a number, got {cars!r:.60}")
@@ -414,9 +548,21 @@ def synth_platoon(
         d = _ar1(np.random.default_rng([seed, 2, i]), n_fine, fine_dt, car.disturbance_std,
                  car.disturbance_tau)
         mod = WithEffects(car.model, (*car.effects, Grade(g_eff=1.0)))
-        gap0 = car.upper.Gmin + car.upper.Tg * float(vs[-1][0])
-        tr = closed_loop_effects(mod, xs[-1], vs[-1], fine_dt, car.upper, v0=float(vs[-1][0]),
-                                 x0=float(xs[-1][0] - gap0), exo={"grade": -d})
+        v_start = float(vs[-1][0])
+        gap0 = car.upper.Gmin + mod.upper_linear(car.upper, v=v_start)["Tg_eq"] * v_start
+        up = car.upper
+        if car.hidden is not None and not car.hidden.neutral:
+            phase = float(np.random.default_rng([seed, 5, i]).uniform(
+                0.0, car.hidden.radar_period)) if car.hidden.radar_period > 0 else 0.0
+            tr = Trajectory(*_core.synth_closed_loop(
+                mod.base.name, mod.base.values(), xs[-1], vs[-1], fine_dt, up.kg, up.kv, up.Tg,
+                up.Gmin, v_start, float(xs[-1][0] - gap0), car.hidden.row(phase),
+                effects=list(mod.effect_names),
+                effect_params=[float(x) for e in mod.effects for x in e.to_array()],
+                exo={"grade": np.ascontiguousarray(-d)}))
+        else:
+            tr = closed_loop(mod, xs[-1], vs[-1], fine_dt, up, v0=v_start,
+                             x0=float(xs[-1][0] - gap0), exo={"grade": -d})
         if not (np.all(np.isfinite(tr.v)) and np.all(np.isfinite(tr.x))):
             raise ValueError(f"cars: follower {i} ({car.model!r}, {car.upper!r}) diverges")
         vs.append(np.asarray(tr.v))
@@ -442,7 +588,7 @@ def synth_platoon(
         rng = np.random.default_rng([seed, 4, i])
         gap = (x_true[i - 1] - x_true[i]) + _noise(rng, n_rec, dt, eq.spacing_white,
                                                    eq.spacing_coloured, eq.spacing_tau)
-        te = _truth_entry(truths[i - 1], v_true[i - 1], v_true[i], dt, (lo, hi))
+        te = _truth_entry(truths[i - 1], v_true[i - 1], v_true[i], dt, (lo, hi), fine_dt)
         truth.append(te)
         meta = {
             "format": "openacc", "synthetic": True, "generator": "avll.synth_platoon",
@@ -592,3 +738,176 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
             if any(not x["inside"] for x in d) else 0.0,
         }
     return {"rows": rows, "summary": summary}
+
+
+@dataclass(frozen=True)
+class StructureRow:
+    """One synthetic car of :func:`validate_structure`: the truth (``band_gain``,
+    ``time_gap``: ``Tg + Gmin/v̄`` of the true law), and per fit (``base``: the base
+    model and Eq. 3; ``candidates``: with the candidate structures) the predicted band
+    amplification (``|H|`` on the predecessor's measured spectrum), the calibrated
+    ``Tg + Gmin/v̄``, the calibration cost and the held-out cost (the last part of the
+    run, not used by the calibration), and the candidates' fitted parameters."""
+
+    seed: int
+    car: str
+    band_gain: float
+    time_gap: float
+    base_amplification: float
+    base_time_gap: float
+    base_cost: float
+    base_heldout: float
+    amplification: float
+    time_gap_fit: float
+    cost: float
+    heldout: float
+    params: dict[str, float]
+
+
+@dataclass(frozen=True)
+class StructureSummary:
+    """Errors ``predicted / truth - 1`` over the cars of one fit: the amplification's
+    mean, median and shares within 5 % and below the truth, ``Tg + Gmin/v̄``'s median
+    (signed and absolute) error, and the median relative change of the held-out cost
+    against the base fit (negative: the fit predicts the held-out data better)."""
+
+    n: int
+    mean_error: float
+    median_error: float
+    within_5pct: float
+    underestimated: float
+    time_gap_median_error: float
+    time_gap_median_abs_error: float
+    heldout_change: float
+
+
+@dataclass(frozen=True)
+class StructureCheck:
+    """Result of :func:`validate_structure`: ``rows`` per car, ``base`` and
+    ``candidates`` their summaries, and the settings."""
+
+    rows: tuple[StructureRow, ...]
+    base: StructureSummary
+    candidates: StructureSummary
+    settings: dict[str, Any]
+
+
+def _structure_summary(amp: np.ndarray, truth: np.ndarray, tg: np.ndarray, tg_true: np.ndarray,
+                       held: np.ndarray, held_base: np.ndarray) -> StructureSummary:
+    e, g = amp / truth - 1.0, tg / tg_true - 1.0
+    return StructureSummary(
+        n=int(e.size), mean_error=float(np.mean(e)), median_error=float(np.median(e)),
+        within_5pct=float(np.mean(np.abs(e) <= 0.05)), underestimated=float(np.mean(e < 0)),
+        time_gap_median_error=float(np.median(g)),
+        time_gap_median_abs_error=float(np.median(np.abs(g))),
+        heldout_change=float(np.median(held / held_base - 1.0)))
+
+
+def _split(run: Run, k: int) -> tuple[Run, Run]:
+    """The run's first ``k`` samples and the rest (each a run of its own)."""
+    from dataclasses import replace
+
+    def part(sl: slice, tag: str) -> Run:
+        cut = {f: getattr(run, f)[sl] for f in ("t", "a", "v", "x", "lead_x", "lead_v",
+                                                  "lead_a") if getattr(run, f) is not None}
+        return replace(run, run_id=f"{run.run_id}/{tag}", **cut)
+
+    return part(slice(0, k), "cal"), part(slice(k, None), "heldout")
+
+
+def validate_structure(
+    seeds: Sequence[int],
+    *,
+    hidden: HiddenUpper | None,
+    candidates: Sequence[str],
+    cars: int = 5,
+    model: str = "proposed",
+    heldout: float = 1.0 / 3.0,
+    max_generations: int | None = None,
+    starts: int = 1,
+    seed: int = 0,
+    threads: int = 0,
+    **platoon: Any,
+) -> StructureCheck:
+    """The blind test of the upper-level structures: on the platoons of ``seeds``
+    (see below; the held-out cost is the study's objective over the last ``heldout`` of
+    each run, the fit simulated over the whole run so that the held-out part continues
+    the calibrated part instead of restarting it).
+
+    On the platoons of ``seeds``
+    (``cars`` random ``model`` followers, the structures ``hidden`` in their upper
+    level -- or none -- and ``platoon`` options to :func:`synth_platoon`), each car is
+    calibrated in closed loop (the OpenACC study's weights and ``Gmin`` box, every
+    upper-level gain free) on the first ``1 - heldout`` of its run, once as the base
+    model (Eq. 3) and once with the upper-level ``candidates`` (one
+    :func:`avll.calibrate` with ``subsets`` per fit and platoon), and both fits are
+    compared with the truth: the band amplification predicted by ``|H|`` (the fit's
+    small-signal form, :func:`avll.studies.openacc.predicted_amplification`, on the
+    whole run's measured predecessor) against the true band gain, ``Tg + Gmin/v̄``
+    against the true law's, and the cost on the held-out part. Deterministic in
+    ``seeds`` and ``seed``."""
+    from .calibration import calibrate
+    from .rollout import simulate_batch
+    from .studies.openacc import GMIN_MAX, WEIGHTS, predicted_amplification
+
+    names = list(candidates)
+    if not names:
+        raise ValueError("candidates: give at least one upper-level structure")
+    for n in names:
+        from .effects import effect_class
+
+        if effect_class(n).level != "upper":
+            raise ValueError(f"candidates: {n!r} is not an upper-level structure")
+    heldout = check_number(heldout, "heldout", positive=True)
+    if heldout >= 0.9:
+        raise ValueError(f"heldout: must be < 0.9, got {heldout:g}")
+    free = ["kg", "kv", "Tg", "Gmin"]
+    opts: dict[str, Any] = {} if max_generations is None else {"max_generations": max_generations}
+    rows: list[StructureRow] = []
+    for s in seeds:
+        pl = synth_platoon(cars, seed=int(s), models=(model,), hidden=hidden, **platoon)
+        k = int(round(len(pl.runs[0]) * (1.0 - heldout)))
+        cal = [_split(r, k)[0] for r in pl.runs]
+        fits = {}
+        for key, effs in (("base", []), ("candidates", names)):
+            res = calibrate(model, cal, effects=effs, subsets="per_run", closed_loop=True,
+                            upper_free=free, weights=WEIGHTS, seed=seed, starts=starts,
+                            threads=threads, bounds={"Gmin": (0.0, GMIN_MAX)}, **opts)
+            out = []
+            for r, c in zip(pl.runs, res, strict=True):
+                up = UpperLevel(**c.upper)
+                m = c.with_effects if c.with_effects is not None else WithEffects(c.model, ())
+                assert r.lead_v is not None and r.v is not None
+                vbar = float(np.mean(r.v))
+                row = np.concatenate([m.to_array(), up.to_array()])[None, :]
+                # the whole run simulated (no restart), its error on the held-out part
+                sim = simulate_batch(model, row, [r], effects=list(m.effect_names),
+                                     closed_loop=True, upper_free=[0, 1, 2, 3],
+                                     threads=threads)  # fmt: skip
+                assert r.x is not None
+                h = float(sum(w * np.mean((got[0][k:] - want[k:]) ** 2) for w, got, want in
+                              zip(WEIGHTS, (sim.a[0], sim.v[0], sim.x[0]), (r.a, r.v, r.x),
+                                  strict=True)))  # fmt: skip
+                out.append((predicted_amplification(m, up, r.lead_v, r.dt),
+                            m.upper_linear(up, v=vbar)["Tg_eq"] + up.Gmin / vbar, c.cost, h,
+                            {k2: v for k2, v in c.params.items() if "." in k2}))
+            fits[key] = out
+        for j, (r, tr) in enumerate(zip(pl.runs, pl.truth, strict=True)):
+            b, c = fits["base"][j], fits["candidates"][j]
+            rows.append(StructureRow(int(s), str(r.meta["car"]), float(tr["band_gain"]),
+                                     float(tr["time_gap_effective"]), b[0], b[1], b[2], b[3],
+                                     c[0], c[1], c[2], c[3], c[4]))  # fmt: skip
+
+    def col(name: str) -> np.ndarray:
+        return np.array([getattr(r, name) for r in rows], dtype=float)
+
+    truth, tg = col("band_gain"), col("time_gap")
+    base = _structure_summary(col("base_amplification"), truth, col("base_time_gap"), tg,
+                              col("base_heldout"), col("base_heldout"))
+    cand = _structure_summary(col("amplification"), truth, col("time_gap_fit"), tg,
+                              col("heldout"), col("base_heldout"))
+    settings = {"seeds": [int(s) for s in seeds], "cars": cars, "model": model,
+                "hidden": None if hidden is None else hidden.__dict__.copy(),
+                "candidates": names, "heldout": heldout, "max_generations": max_generations,
+                "starts": starts, "seed": seed, **platoon}
+    return StructureCheck(tuple(rows), base, cand, settings)

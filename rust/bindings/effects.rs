@@ -4,7 +4,8 @@
 use super::guard;
 use crate::effects::{AnyEffect, EffectKind, EffectList, Operating};
 use crate::model::{CommandKind, ModelKind};
-use numpy::PyReadonlyArray1;
+use crate::sim::Upper;
+use numpy::{Complex64, IntoPyArray, PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::collections::BTreeMap;
@@ -52,7 +53,7 @@ pub(super) fn effects_of(
 }
 
 /// The registered effects in the canonical order: name, params, bounds, neutral
-/// values, exo, accel_only, needs_speed.
+/// values, exo, accel_only, needs_speed, level (`"lower"`/`"upper"`), excludes.
 #[pyfunction]
 fn effect_info<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
     EffectKind::ALL
@@ -66,6 +67,8 @@ fn effect_info<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
             d.set_item("exo", k.exo())?;
             d.set_item("accel_only", k.accel_only())?;
             d.set_item("needs_speed", k.needs_speed())?;
+            d.set_item("level", k.level().name())?;
+            d.set_item("excludes", k.excludes())?;
             Ok(d)
         })
         .collect()
@@ -115,12 +118,94 @@ fn linearize_effects<'py>(
         d.set_item("speed_feedback", t.speed_feedback)?;
         d.set_item("obs_tau", t.obs_tau)?;
         d.set_item("obs_bias", t.obs_bias)?;
+        d.set_item("command_delay", t.command_delay)?;
     }
     Ok(d)
+}
+
+/// The small-signal form of the upper level (kg, kv, Tg, Gmin) with the upper-level
+/// effects among `effects` at speed `v`: dict kg, kv, Tg (the small-signal time gap),
+/// Tg_eq (the equilibrium's), Gmin, delay, ff_gain, ff_tau
+/// (`crate::effects::UpperLin`).
+#[pyfunction]
+#[pyo3(signature = (effects, effect_params, kg, kv, tg, gmin, v = 0.0))]
+#[allow(clippy::too_many_arguments)]
+fn linearize_upper<'py>(
+    py: Python<'py>,
+    effects: Vec<String>,
+    effect_params: Vec<f64>,
+    kg: f64,
+    kv: f64,
+    tg: f64,
+    gmin: f64,
+    v: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
+    let up = Upper { kg, kv, tg, gmin };
+    guard(|| up.validate())?;
+    let op = Operating { v, side: 0 };
+    let u = guard(|| crate::effects::linearize_upper(&up, &effs, &op))?;
+    let d = PyDict::new(py);
+    for (k, x) in [
+        ("kg", u.kg),
+        ("kv", u.kv),
+        ("Tg", u.tg),
+        ("Tg_eq", u.tg_eq),
+        ("Gmin", u.gmin),
+        ("delay", u.delay),
+        ("ff_gain", u.ff_gain),
+        ("ff_tau", u.ff_tau),
+    ] {
+        d.set_item(k, x)?;
+    }
+    Ok(d)
+}
+
+/// The follower's exact frequency response `H(j omega)` (predecessor speed to
+/// follower speed; `crate::effects::response`) of base + effects (both levels) under
+/// the law (kg, kv, tg, gmin), linearised at speed `v` on `side`: a complex array.
+#[pyfunction]
+#[pyo3(signature = (model, params, effects, effect_params, kg, kv, tg, gmin, omega, v = 0.0, side = 0))]
+#[allow(clippy::too_many_arguments)]
+fn follower_response<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: Vec<f64>,
+    effects: Vec<String>,
+    effect_params: Vec<f64>,
+    kg: f64,
+    kv: f64,
+    tg: f64,
+    gmin: f64,
+    omega: PyReadonlyArray1<'py, f64>,
+    v: f64,
+    side: i8,
+) -> PyResult<Bound<'py, PyArray1<Complex64>>> {
+    let lin = guard(|| ModelKind::from_name(model)?.linear(&params))?;
+    let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
+    let up = Upper { kg, kv, tg, gmin };
+    guard(|| up.validate())?;
+    let w = super::slice1("omega", &omega)?;
+    if let Some(x) = w.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "omega: frequencies must be finite and > 0, got {x}"
+        )));
+    }
+    let op = Operating { v, side };
+    let (l, t) = guard(|| crate::effects::linearize_terms(&lin, &effs, &op))?;
+    let u = guard(|| crate::effects::linearize_upper(&up, &effs, &op))?;
+    let h: Vec<Complex64> = py.detach(|| {
+        w.iter()
+            .map(|&x| crate::effects::response(&l, &t, &u, x))
+            .collect()
+    });
+    Ok(h.into_pyarray(py))
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(effect_info, m)?)?;
     m.add_function(wrap_pyfunction!(linearize_effects, m)?)?;
+    m.add_function(wrap_pyfunction!(linearize_upper, m)?)?;
+    m.add_function(wrap_pyfunction!(follower_response, m)?)?;
     Ok(())
 }

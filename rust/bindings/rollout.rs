@@ -16,7 +16,6 @@ use numpy::{
 };
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 
 fn linear(model: &str, params: &[f64]) -> PyResult<Linear> {
     guard(|| ModelKind::from_name(model)?.linear(params))
@@ -252,21 +251,15 @@ fn four<'py>(
     }
 }
 
-fn dict_of<'py, D: numpy::ndarray::Dimension>(
-    py: Python<'py>,
-    arrs: [Bound<'py, PyArray<f64, D>>; 4],
-    transpose: bool,
-) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    for (k, a) in ["a", "v", "x", "command"].into_iter().zip(arrs) {
-        if transpose {
-            d.set_item(k, a.as_any().getattr("T")?)?;
-        } else {
-            d.set_item(k, a)?;
-        }
-    }
-    Ok(d)
-}
+/// The four arrays of a trajectory, `(a, v, x, command)` (typed by the stubs; a
+/// platoon's are the sample-major `(T, followers)` arrays, which the Python layer
+/// transposes).
+type Arrays4<'py, D> = (
+    Bound<'py, PyArray<f64, D>>,
+    Bound<'py, PyArray<f64, D>>,
+    Bound<'py, PyArray<f64, D>>,
+    Bound<'py, PyArray<f64, D>>,
+);
 
 fn exo_slices<'a>(exo: &'a Exo<'_>) -> PyResult<Vec<(&'a str, &'a [f64])>> {
     exo.iter()
@@ -293,7 +286,7 @@ fn simulate_full<'py>(
     effect_params: Vec<f64>,
     exo: Exo<'py>,
     out: Option<Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyDict>> {
+) -> PyResult<Arrays4<'py, Ix1>> {
     let kind = guard(|| CommandKind::from_name(command_kind))?;
     let init = guard(|| Init::from_name(init))?;
     let lin = linear(model, &params)?;
@@ -322,7 +315,7 @@ fn simulate_full<'py>(
         })?;
         cmd.copy_from_slice(u);
     }
-    dict_of(py, arrs, false)
+    Ok(arrs.into())
 }
 
 /// Closed-loop car following behind a recorded leader (upper law Eq. 3), optionally
@@ -348,7 +341,7 @@ fn closed_loop<'py>(
     effect_params: Vec<f64>,
     exo: Exo<'py>,
     out: Option<Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyDict>> {
+) -> PyResult<Arrays4<'py, Ix1>> {
     let lin = linear(model, &params)?;
     let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
     let up = Upper { kg, kv, tg, gmin };
@@ -373,7 +366,63 @@ fn closed_loop<'py>(
         };
         py.detach(|| guard(|| rollout::closed_loop_into(&lin, &eff, &up, lx, lv, dt, v0, x0, o)))?;
     }
-    dict_of(py, arrs, false)
+    Ok(arrs.into())
+}
+
+/// Closed-loop car following under the synthetic generator's law with hidden
+/// structures (`crate::sim::synth::Hidden`; `hidden` in `HiddenParams::NAMES` order)
+/// and lower-level effects: a tuple of arrays a, v, x, command.
+#[pyfunction]
+#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, v0, x0, hidden, effects = Vec::new(), effect_params = Vec::new(), exo = Exo::new()))]
+#[allow(clippy::too_many_arguments)]
+fn synth_closed_loop<'py>(
+    py: Python<'py>,
+    model: &str,
+    params: Vec<f64>,
+    lead_x: PyReadonlyArray1<'py, f64>,
+    lead_v: PyReadonlyArray1<'py, f64>,
+    dt: f64,
+    kg: f64,
+    kv: f64,
+    tg: f64,
+    gmin: f64,
+    v0: f64,
+    x0: f64,
+    hidden: Vec<f64>,
+    effects: Vec<String>,
+    effect_params: Vec<f64>,
+    exo: Exo<'py>,
+) -> PyResult<Arrays4<'py, Ix1>> {
+    let lin = linear(model, &params)?;
+    let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
+    let up = Upper { kg, kv, tg, gmin };
+    guard(|| up.validate())?;
+    let hp = guard(|| crate::sim::synth::HiddenParams::from_slice(&hidden))?;
+    let lx = slice1("lead_x", &lead_x)?;
+    let lv = slice1("lead_v", &lead_v)?;
+    let ex = exo_slices(&exo)?;
+    let arrs = four(py, None, lx.len())?;
+    {
+        let mut ws = borrow_out("out", &arrs)?;
+        let [wa, wv, wx, wu] = &mut ws[..] else {
+            unreachable!()
+        };
+        let o = Out {
+            a: wa.as_slice_mut()?,
+            v: wv.as_slice_mut()?,
+            x: wx.as_slice_mut()?,
+            u: Some(wu.as_slice_mut()?),
+        };
+        let eff = EffectsRef {
+            effects: &effs,
+            exo: &ex,
+        };
+        let mut law = crate::sim::synth::Hidden::new(up, hp);
+        py.detach(|| {
+            guard(|| rollout::closed_loop_law_into(&lin, &eff, &mut law, lx, lv, dt, v0, x0, o))
+        })?;
+    }
+    Ok(arrs.into())
 }
 
 /// Platoon of `followers` identical vehicles (time-major stepping): dict of
@@ -382,7 +431,7 @@ fn closed_loop<'py>(
 /// C-contiguous (T, followers) arrays to write into instead (the transposes of the
 /// arrays a platoon returns).
 #[pyfunction]
-#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, followers, out = None))]
+#[pyo3(signature = (model, params, lead_x, lead_v, dt, kg, kv, tg, gmin, followers, effects = Vec::new(), effect_params = Vec::new(), exo = Exo::new(), out = None))]
 #[allow(clippy::too_many_arguments)]
 fn platoon<'py>(
     py: Python<'py>,
@@ -396,12 +445,17 @@ fn platoon<'py>(
     tg: f64,
     gmin: f64,
     followers: usize,
+    effects: Vec<String>,
+    effect_params: Vec<f64>,
+    exo: Exo<'py>,
     out: Option<Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyDict>> {
+) -> PyResult<Arrays4<'py, Ix2>> {
     let lin = linear(model, &params)?;
+    let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
     let up = Upper { kg, kv, tg, gmin };
     let lx = slice1("lead_x", &lead_x)?;
     let lv = slice1("lead_v", &lead_v)?;
+    let ex = exo_slices(&exo)?;
     // The blocks of `outbuf` are page-aligned: the lane groups' 32-byte stores into
     // rows of `followers` doubles then never straddle two cache lines needlessly.
     let arrs: [Bound<'py, PyArray2<f64>>; 4] = match &out {
@@ -420,11 +474,13 @@ fn platoon<'py>(
             x: wx.as_slice_mut()?,
             u: wu.as_slice_mut()?,
         };
-        py.detach(|| {
-            guard(|| rollout::platoon_into(&lin, &EffectsRef::NONE, &up, lx, lv, dt, &mut tm))
-        })?;
+        let eff = EffectsRef {
+            effects: &effs,
+            exo: &ex,
+        };
+        py.detach(|| guard(|| rollout::platoon_into(&lin, &eff, &up, lx, lv, dt, &mut tm)))?;
     }
-    dict_of(py, arrs, true)
+    Ok(arrs.into())
 }
 
 /// Per-run costs (Eq. 6) of many parameter rows `[model | effects (canonical) | free
@@ -482,7 +538,7 @@ fn batch_cost<'py>(
 }
 
 /// Simulated acceleration, speed and position of every parameter row on every run
-/// of a run set, as the cost sees them: dict of (P, T) arrays a, v, x (run `r` at
+/// of a run set, as the cost sees them: one (3, P, T) array (a, v, x; run `r` at
 /// `runs.offsets[r]`); rows the cost calls invalid or unstable are NaN.
 #[pyfunction]
 #[pyo3(signature = (model, params, runs, effects=Vec::new(), upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, threads=0, out=None))]
@@ -500,7 +556,7 @@ fn simulate_batch<'py>(
     closed_loop: bool,
     threads: usize,
     out: Option<Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyDict>> {
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
     let spec = cost_spec(
         model,
         &effects,
@@ -533,12 +589,8 @@ fn simulate_batch<'py>(
             })
         })?;
     }
-    let d = PyDict::new(py);
     let [arr] = out;
-    for (i, k) in ["a", "v", "x"].into_iter().enumerate() {
-        d.set_item(k, arr.as_any().get_item(i)?)?;
-    }
-    Ok(d)
+    Ok(arr)
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -548,6 +600,7 @@ pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate_full, m)?)?;
     m.add_function(wrap_pyfunction!(closed_loop, m)?)?;
     m.add_function(wrap_pyfunction!(platoon, m)?)?;
+    m.add_function(wrap_pyfunction!(synth_closed_loop, m)?)?;
     m.add_function(wrap_pyfunction!(batch_cost, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_batch, m)?)?;
     Ok(())

@@ -5,9 +5,10 @@
 //! assumed before it (0 at rest, `u[0]` at steady state).
 //!
 //! Linearisation: `G_fb(s) e^{-tau s}`; a `Linear` holds it exactly only when `K = 0`
-//! (then `Td + tau`), otherwise none is given.
+//! (then `Td + tau`), otherwise none is given; [`super::linearize_terms`] returns it
+//! as the outer term `command_delay` for any `K`.
 
-use super::{check_range, Effect, Operating};
+use super::{check_range, Effect, Operating, Terms};
 use crate::discretize::split_delay;
 use crate::error::{AvllError, Result};
 use crate::model::{CommandKind, Linear};
@@ -77,5 +78,15 @@ impl Effect for Delay {
                 "a command delay outside the inner loop (K != 0) is not a Linear's Td",
             ))
         }
+    }
+
+    fn linearize_terms(&self, lin: &Linear, _op: &Operating) -> Result<(Linear, Terms)> {
+        Ok((
+            *lin,
+            Terms {
+                command_delay: self.tau,
+                ..Terms::default()
+            },
+        ))
     }
 }

@@ -28,8 +28,107 @@
 //!
 //! With no effect the kernel runs the linear fast path; with every effect at its
 //! neutral parameters it reproduces it (tested to 1e-11).
+//!
+//! **Two levels.** The effects above are *lower-level* ([`Level::Lower`]): they act
+//! between the command and the vehicle. The *upper-level* structures
+//! ([`Level::Upper`]: `perception`, `feedforward`, `closing`, `comfort`,
+//! `speed_gains`) act on the car-following law itself, so only in a closed loop (a
+//! recorded leader, or a platoon); the kernel's upper chain
+//! ([`crate::sim::chain::UpperChain`]) evaluates, at each sample, from the
+//! predecessor's position and speed and the follower's own:
+//! 1. [`Effect::perceive`] — the radar signals, gap `x_p - x` and relative speed
+//!    `v_p - v`, as the controller sees them (`perception`'s delay); the own speed is
+//!    not delayed;
+//! 2. [`Effect::gains`] — the law's `kg, kv, Tg` at the own speed (`speed_gains`);
+//! 3. the gap error `e = gap - Tg v - Gmin` and the law's two terms `kg e`, `kv dv`,
+//!    then [`Effect::shape`] — a static map of the two terms (`closing`: other gains
+//!    while closing in);
+//! 4. [`Effect::feedforward`] — an additive command from the perceived predecessor
+//!    speed `v + dv` (`feedforward`: a gain on its filtered derivative);
+//! 5. [`Effect::limit`] — the command's comfort limits (`comfort`).
+//!
+//! With no upper-level structure (or each at its neutral parameters) this is the
+//! paper's Eq. 3. Their small-signal forms ([`Effect::linearize_upper`], collected by
+//! [`linearize_upper`] into an [`UpperLin`]) enter the follower's exact frequency
+//! response [`response`] beside the lower level's [`Linear`] and [`Terms`].
 use crate::error::{check_finite, AvllError, Result};
 use crate::model::{CommandKind, Linear};
+use crate::sim::Upper;
+use nalgebra::Complex;
+
+/// Which part of the follower an effect belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Level {
+    /// Between the command and the vehicle (the lower level, its actuators, the
+    /// vehicle's resistances, the acceleration sensor).
+    Lower,
+    /// The car-following law (perception, gains, feedforward, command limits): acts
+    /// only in a closed loop.
+    Upper,
+}
+
+impl Level {
+    pub fn name(self) -> &'static str {
+        match self {
+            Level::Lower => "lower",
+            Level::Upper => "upper",
+        }
+    }
+}
+
+/// The constant-time-gap law's gains at a sample (what [`Effect::gains`] maps).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gains {
+    pub kg: f64,
+    pub kv: f64,
+    pub tg: f64,
+}
+
+/// Small-signal form of the upper level with its structures about a constant speed
+/// `v` (the predecessor at the same speed, the gap at its equilibrium): the command is
+///
+/// ```text
+///   U = R (X_p - X) - kg Tg s X + F (s X + D s (X_p - X)),
+///   R = (kg + kv s) D,   D = e^{-delay s},   F = ff_gain s / (ff_tau s + 1),
+/// ```
+///
+/// with `X_p`, `X` the predecessor's and the follower's positions: the radar terms
+/// (gap and relative speed) seen `delay` late, the own speed's term `kg Tg v`
+/// undelayed, and the feedforward `F` on the perceived predecessor speed
+/// `v + D (v_p - v)`. Without structures: `kg, kv, Tg` of Eq. 3, no delay, no
+/// feedforward.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UpperLin {
+    pub kg: f64,
+    pub kv: f64,
+    /// The small-signal time gap: the slope `d(desired gap)/dv` at the operating speed.
+    pub tg: f64,
+    /// The equilibrium time gap: the desired gap at the operating speed is
+    /// `gmin + tg_eq v`.
+    pub tg_eq: f64,
+    pub gmin: f64,
+    /// Perception delay (s) of the radar terms.
+    pub delay: f64,
+    /// Feedforward gain (s) and filter time constant (s).
+    pub ff_gain: f64,
+    pub ff_tau: f64,
+}
+
+impl UpperLin {
+    /// Eq. 3 without structures.
+    pub fn of(up: &Upper) -> Self {
+        Self {
+            kg: up.kg,
+            kv: up.kv,
+            tg: up.tg,
+            tg_eq: up.tg,
+            gmin: up.gmin,
+            delay: 0.0,
+            ff_gain: 0.0,
+            ff_tau: 0.0,
+        }
+    }
+}
 
 /// Operating point of a linearisation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -54,6 +153,9 @@ pub struct Terms {
     pub obs_tau: f64,
     /// Offset (m/s²) of the observed acceleration (`sensor`).
     pub obs_bias: f64,
+    /// Transport delay (s) of the command outside the inner loop (`delay`): the
+    /// factor `e^{-command_delay s}` before `G_fb`.
+    pub command_delay: f64,
 }
 
 /// One effect. Parameters are validated by [`Effect::new`] (physical validity);
@@ -76,6 +178,12 @@ pub trait Effect: Clone + Send + Sync + Sized {
     /// `true` if the effect reads the actual speed (the engine then integrates it
     /// even when the cost does not need it).
     const NEEDS_SPEED: bool = false;
+    /// The part of the follower it belongs to (upper-level effects act only in a
+    /// closed loop).
+    const LEVEL: Level = Level::Lower;
+    /// An effect refused together with this one (their parameters are not
+    /// identifiable together).
+    const EXCLUDES: Option<&'static str> = None;
 
     /// Builds the effect from validated parameters (`p.len() == PARAMS.len()`,
     /// finite).
@@ -118,6 +226,31 @@ pub trait Effect: Clone + Send + Sync + Sized {
     /// [`Terms`] outside it (speed feedback, observation filter).
     fn linearize_terms(&self, lin: &Linear, op: &Operating) -> Result<(Linear, Terms)> {
         Ok((self.linearize(lin, op)?, Terms::default()))
+    }
+    /// Upper level: the radar's gap and relative speed as the controller sees them.
+    fn perceive(&mut self, gap: f64, dv: f64) -> (f64, f64) {
+        (gap, dv)
+    }
+    /// Upper level: the law's gains at the own speed `v`.
+    fn gains(&self, g: Gains, _v: f64) -> Gains {
+        g
+    }
+    /// Upper level: a static map of the law's gap term `kg e` and speed term `kv dv`.
+    fn shape(&self, eg: f64, ev: f64) -> (f64, f64) {
+        (eg, ev)
+    }
+    /// Upper level: an additive command from the perceived predecessor speed `vp`
+    /// (sample by sample, in order).
+    fn feedforward(&mut self, _vp: f64) -> f64 {
+        0.0
+    }
+    /// Upper level: the command after its limits (sample by sample, in order).
+    fn limit(&mut self, u: f64) -> f64 {
+        u
+    }
+    /// Upper level: the small-signal form with this structure.
+    fn linearize_upper(&self, u: &UpperLin, _op: &Operating) -> Result<UpperLin> {
+        Ok(*u)
     }
 }
 
@@ -169,6 +302,12 @@ macro_rules! registry {
             pub fn needs_speed(self) -> bool {
                 match self { $(EffectKind::$variant => <$module::$ty as Effect>::NEEDS_SPEED),+ }
             }
+            pub fn level(self) -> Level {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::LEVEL),+ }
+            }
+            pub fn excludes(self) -> Option<&'static str> {
+                match self { $(EffectKind::$variant => <$module::$ty as Effect>::EXCLUDES),+ }
+            }
             fn build(self, p: &[f64], kind: CommandKind) -> Result<AnyEffect> {
                 match self {
                     $(EffectKind::$variant => Ok(AnyEffect::$variant(
@@ -215,6 +354,29 @@ macro_rules! registry {
             pub fn linearize_terms(&self, lin: &Linear, op: &Operating) -> Result<(Linear, Terms)> {
                 match self { $(AnyEffect::$variant(e) => e.linearize_terms(lin, op)),+ }
             }
+            #[inline(always)]
+            pub fn perceive(&mut self, gap: f64, dv: f64) -> (f64, f64) {
+                match self { $(AnyEffect::$variant(e) => e.perceive(gap, dv)),+ }
+            }
+            #[inline(always)]
+            pub fn gains(&self, g: Gains, v: f64) -> Gains {
+                match self { $(AnyEffect::$variant(e) => e.gains(g, v)),+ }
+            }
+            #[inline(always)]
+            pub fn shape(&self, eg: f64, ev: f64) -> (f64, f64) {
+                match self { $(AnyEffect::$variant(e) => e.shape(eg, ev)),+ }
+            }
+            #[inline(always)]
+            pub fn feedforward(&mut self, vp: f64) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.feedforward(vp)),+ }
+            }
+            #[inline(always)]
+            pub fn limit(&mut self, u: f64) -> f64 {
+                match self { $(AnyEffect::$variant(e) => e.limit(u)),+ }
+            }
+            pub fn linearize_upper(&self, u: &UpperLin, op: &Operating) -> Result<UpperLin> {
+                match self { $(AnyEffect::$variant(e) => e.linearize_upper(u, op)),+ }
+            }
         }
     };
 }
@@ -230,6 +392,12 @@ registry! {
     RoadLoad => road_load::RoadLoad,
     PowerLimit => power_limit::PowerLimit,
     Sensor => sensor::Sensor,
+    // The upper level (closed loop only).
+    Perception => perception::Perception,
+    SpeedGains => speed_gains::SpeedGains,
+    Closing => closing::Closing,
+    Feedforward => feedforward::Feedforward,
+    Comfort => comfort::Comfort,
 }
 
 impl EffectKind {
@@ -259,10 +427,10 @@ impl EffectKind {
 pub struct EffectList(pub Vec<EffectKind>);
 
 impl EffectList {
-    /// Parses names; rejects duplicates and accel-only effects with a speed command.
-    /// `speed_drag` and `road_load` are one model family (`road_load` with `c1 = 0`
-    /// is `speed_drag`) and are refused together: their parameters would not be
-    /// identifiable.
+    /// Parses names; rejects duplicates, accel-only effects with a speed command and
+    /// pairs an effect [`Effect::EXCLUDES`] (e.g. `speed_drag` and `road_load`: one
+    /// model family, `road_load` with `c1 = 0` is `speed_drag`, so their parameters
+    /// would not be identifiable together).
     pub fn from_names(names: &[&str], kind: CommandKind) -> Result<Self> {
         let mut v = Vec::with_capacity(names.len());
         for n in names {
@@ -283,15 +451,32 @@ impl EffectList {
             }
             v.push(k);
         }
-        if v.contains(&EffectKind::SpeedDrag) && v.contains(&EffectKind::RoadLoad) {
-            return Err(AvllError::new(
-                "effects",
-                "\"speed_drag\" and \"road_load\" together: road_load with c1 = 0 is \
-                 speed_drag, so their parameters are not identifiable; use one",
-            ));
+        for k in &v {
+            if let Some(x) = k.excludes() {
+                if v.iter().any(|o| o.name() == x) {
+                    return Err(AvllError::new(
+                        "effects",
+                        format!(
+                            "{:?} and {x:?} together: one contains the other, so their \
+                             parameters are not identifiable together; use one",
+                            k.name()
+                        ),
+                    ));
+                }
+            }
         }
         v.sort();
         Ok(EffectList(v))
+    }
+
+    /// Whether any effect acts on the upper level (the list then needs a closed loop).
+    pub fn has_upper(&self) -> bool {
+        self.0.iter().any(|k| k.level() == Level::Upper)
+    }
+
+    /// Fails when an upper-level effect is asked for outside a closed loop.
+    pub fn check_closed(&self, closed: bool) -> Result<()> {
+        check_closed(self.0.iter().map(|k| (k.name(), k.level())), closed)
     }
 
     /// Total number of effect parameters.
@@ -349,6 +534,70 @@ pub fn linearize_terms(
         t.speed_feedback += t2.speed_feedback;
         t.obs_tau += t2.obs_tau;
         t.obs_bias += t2.obs_bias;
+        t.command_delay += t2.command_delay;
     }
     Ok((l, t))
+}
+
+/// Fails when an upper-level effect of `effects` (name, level) is used outside a
+/// closed loop (its law is not evaluated in an open loop driven by a recorded command).
+pub fn check_closed<'a>(
+    effects: impl IntoIterator<Item = (&'a str, Level)>,
+    closed: bool,
+) -> Result<()> {
+    if closed {
+        return Ok(());
+    }
+    match effects.into_iter().find(|(_, l)| *l == Level::Upper) {
+        Some((n, _)) => Err(AvllError::new(
+            "effects",
+            format!(
+                "effect {n:?} acts on the upper level (the car-following law) and needs a \
+                 closed loop (a recorded leader, or a platoon)"
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// The small-signal form of the upper level `up` with the upper-level effects among
+/// `effects` at the operating point (each effect's [`Effect::linearize_upper`] in
+/// canonical order; lower-level effects are ignored).
+pub fn linearize_upper(up: &Upper, effects: &[AnyEffect], op: &Operating) -> Result<UpperLin> {
+    let mut u = UpperLin::of(up);
+    for e in effects {
+        if e.kind().level() == Level::Upper {
+            u = e.linearize_upper(&u, op)?;
+        }
+    }
+    Ok(u)
+}
+
+/// The follower's exact frequency response `H(jω) = V(jω) / V_p(jω)` (predecessor
+/// speed to follower speed, the paper's Eq. 8 with the true delays) at `omega`
+/// (rad/s, > 0), for the lower level `lin` with its outer [`Terms`] and the upper
+/// level [`UpperLin`]:
+///
+/// ```text
+///   G    = (b1 s + b0) e^{-Td s} / (a2 s² + a1 s + 1),
+///   G_fb = G e^{-command_delay s} / (1 - K G + speed_feedback / s),
+///   U    = P X_p - Q X   (see UpperLin),
+///   P    = R + F s D,    Q = R + kg Tg s - F s (1 - D),
+///   H    = G_fb P / (s² + G_fb Q).
+/// ```
+///
+/// The observation terms (`obs_tau`, `obs_bias`) do not enter: they change what is
+/// recorded, not the vehicle. Without terms and structures this is Eq. 8:
+/// `G_fb (kv s + kg) / (s² + G_fb ((kv + kg Tg) s + kg))`.
+pub fn response(lin: &Linear, t: &Terms, u: &UpperLin, omega: f64) -> Complex<f64> {
+    let s = Complex::new(0.0, omega);
+    let delay = |tau: f64| (-s * tau).exp();
+    let g = (s * lin.b1 + lin.b0) * delay(lin.td) / (s * s * lin.a2 + s * lin.a1 + 1.0);
+    let gfb = g * delay(t.command_delay) / (-g * lin.k + 1.0 + t.speed_feedback / s);
+    let d = delay(u.delay);
+    let r = (s * u.kv + u.kg) * d;
+    let f = s * u.ff_gain / (s * u.ff_tau + 1.0);
+    let p = r + f * s * d;
+    let q = r + s * (u.kg * u.tg) - f * s * (-d + 1.0);
+    gfb * p / (s * s + gfb * q)
 }

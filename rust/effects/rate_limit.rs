@@ -21,6 +21,8 @@ impl Effect for RateLimit {
     const PARAMS: &'static [&'static str] = &["j_max"];
     const BOUNDS: &'static [(f64, f64)] = &[(0.1, 30.0)];
     const NEUTRAL: &'static [f64] = &[30.0];
+    /// `comfort`'s jerk limit is the same slew limit of the command.
+    const EXCLUDES: Option<&'static str> = Some("comfort");
 
     fn new(p: &[f64], _kind: CommandKind) -> Result<Self> {
         check_range("rate_limit.j_max", p[0], 1e-6, 1e9)?;

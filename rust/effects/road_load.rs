@@ -40,10 +40,11 @@ pub struct RoadLoad {
 }
 
 impl RoadLoad {
-    /// `beta = d(-a_rl)/dv = c1 + 2 c2 |v|` at the operating speed (the fade-in of
-    /// `c0` below 0.1 m/s regularises standstill; it is not an operating point).
+    /// `beta = d(-a_rl)/dv = c1 + 2 c2 |v|` at the operating speed, plus the fade-in's
+    /// slope `c0 / 0.1` below 0.1 m/s (which regularises standstill).
     fn beta(&self, v: f64) -> f64 {
-        self.c1 + 2.0 * self.c2 * v.abs()
+        let fade = if v.abs() < V_FADE { self.c0 / V_FADE } else { 0.0 };
+        self.c1 + 2.0 * self.c2 * v.abs() + fade
     }
 }
 
@@ -53,6 +54,7 @@ impl Effect for RoadLoad {
     const BOUNDS: &'static [(f64, f64)] = &[(0.0, 0.6), (0.0, 0.03), (0.0, 0.002)];
     const NEUTRAL: &'static [f64] = &[0.0, 0.0, 0.0];
     const NEEDS_SPEED: bool = true;
+    const EXCLUDES: Option<&'static str> = Some("speed_drag");
 
     fn new(p: &[f64], _kind: CommandKind) -> Result<Self> {
         check_range("road_load.c0", p[0], 0.0, 10.0)?;

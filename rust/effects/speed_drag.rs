@@ -6,7 +6,8 @@
 //! Linearisation: about a speed `v*` it adds `-2 c2 v* dv` with `dv = da / s`, i.e. the
 //! factor `s / (s + 2 c2 v*)` on the acceleration: one more state than a `Linear`
 //! holds, so none is given (it is exact only for `c2 v* = 0`, where the base is
-//! returned); [`super::linearize_terms`] returns `beta = 2 c2 |v*|` separately.
+//! returned); [`super::linearize_terms`] returns `beta = 2 c2 |v*|` separately (plus
+//! the fade-in's slope `c0 / 0.1` when `|v*| < 0.1` m/s).
 //! `road_load` is the full road-load polynomial (with a linear term `c1 v`); at
 //! `c1 = 0` it is this effect, so the two are not offered together.
 
@@ -29,6 +30,7 @@ impl Effect for SpeedDrag {
     const BOUNDS: &'static [(f64, f64)] = &[(0.0, 0.6), (0.0, 0.006)];
     const NEUTRAL: &'static [f64] = &[0.0, 0.0];
     const NEEDS_SPEED: bool = true;
+    const EXCLUDES: Option<&'static str> = Some("road_load");
 
     fn new(p: &[f64], _kind: CommandKind) -> Result<Self> {
         check_range("speed_drag.c0", p[0], -10.0, 10.0)?;
@@ -57,7 +59,12 @@ impl Effect for SpeedDrag {
         Ok((
             *lin,
             Terms {
-                speed_feedback: 2.0 * self.c2 * op.v.abs(),
+                speed_feedback: 2.0 * self.c2 * op.v.abs()
+                    + if op.v.abs() < V_FADE {
+                        self.c0 / V_FADE
+                    } else {
+                        0.0
+                    },
                 ..Terms::default()
             },
         ))

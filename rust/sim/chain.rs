@@ -1,11 +1,14 @@
 //! The effect chain a rollout runs through: none (the linear fast path, every hook
-//! the identity at compile time) or a list of effects with their exogenous signals.
+//! the identity at compile time) or a list of effects with their exogenous signals;
+//! and the upper level of a closed loop ([`Law`]): the constant-time-gap law alone
+//! ([`Upper`]) or with its structures ([`UpperChain`]).
 //!
 //! The hooks and their order are those of [`crate::effects::Effect`]; the kernel
 //! ([`super::kernel`]) calls them through this trait so that one stepping loop serves
 //! both cases and the linear case pays nothing for the generality.
 
-use crate::effects::AnyEffect;
+use super::rollout::Upper;
+use crate::effects::{AnyEffect, Gains, Level};
 use crate::error::{check_series, AvllError, Result};
 use crate::model::CommandKind;
 
@@ -179,4 +182,114 @@ pub fn check_kind(effects: &[AnyEffect], kind: CommandKind) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The upper level of a closed loop: the command from the predecessor's and the
+/// follower's position and speed, sample by sample in order.
+pub trait Law: Send {
+    /// Resets internal states before a run (`dt`: the sample time).
+    fn reset(&mut self, dt: f64);
+    /// The command of this sample.
+    fn command(&mut self, lead_x: f64, lead_v: f64, x: f64, v: f64) -> f64;
+    /// The desired gap at a constant speed `v` (where a platoon's followers start).
+    fn gap(&self, v: f64) -> f64;
+}
+
+impl Law for Upper {
+    #[inline(always)]
+    fn reset(&mut self, _dt: f64) {}
+    #[inline(always)]
+    fn command(&mut self, lead_x: f64, lead_v: f64, x: f64, v: f64) -> f64 {
+        Upper::command(self, lead_x, lead_v, x, v)
+    }
+    fn gap(&self, v: f64) -> f64 {
+        self.gmin + self.tg * v
+    }
+}
+
+/// The constant-time-gap law with upper-level structures, applied in the stages of
+/// [`crate::effects`] (perceive, gains, shape, feedforward, limit). With no structure
+/// (or neutral ones) it is [`Upper::command`]: the same operations in the same order.
+#[derive(Debug, Clone)]
+pub struct UpperChain {
+    pub up: Upper,
+    /// Upper-level effects only, in canonical order.
+    pub effects: Vec<AnyEffect>,
+}
+
+impl UpperChain {
+    /// The law `up` with the upper-level effects among `effects`.
+    pub fn new(up: Upper, effects: &[AnyEffect]) -> Self {
+        Self {
+            up,
+            effects: upper_of(effects),
+        }
+    }
+
+    #[inline(always)]
+    fn gains(&self, v: f64) -> Gains {
+        let mut g = Gains {
+            kg: self.up.kg,
+            kv: self.up.kv,
+            tg: self.up.tg,
+        };
+        for e in &self.effects {
+            g = e.gains(g, v);
+        }
+        g
+    }
+}
+
+impl Law for UpperChain {
+    fn reset(&mut self, dt: f64) {
+        // The command before the run: 0 (the closed loops start the lower level at
+        // rest).
+        for e in self.effects.iter_mut() {
+            e.reset(0.0, dt);
+        }
+    }
+
+    #[inline(always)]
+    fn command(&mut self, lead_x: f64, lead_v: f64, x: f64, v: f64) -> f64 {
+        let (mut gap, mut dv) = (lead_x - x, lead_v - v);
+        for e in self.effects.iter_mut() {
+            (gap, dv) = e.perceive(gap, dv);
+        }
+        let g = self.gains(v);
+        let (mut eg, mut ev) = (g.kg * (gap - g.tg * v - self.up.gmin), g.kv * dv);
+        for e in &self.effects {
+            (eg, ev) = e.shape(eg, ev);
+        }
+        let mut u = eg + ev;
+        let vp = v + dv;
+        for e in self.effects.iter_mut() {
+            u += e.feedforward(vp);
+        }
+        for e in self.effects.iter_mut() {
+            u = e.limit(u);
+        }
+        u
+    }
+
+    fn gap(&self, v: f64) -> f64 {
+        self.up.gmin + self.gains(v).tg * v
+    }
+}
+
+/// The lower-level effects of `effects` (what [`Effects`] runs).
+pub fn lower_of(effects: &[AnyEffect]) -> Vec<AnyEffect> {
+    effects
+        .iter()
+        .filter(|e| e.kind().level() == Level::Lower)
+        .cloned()
+        .collect()
+}
+
+/// The upper-level effects of `effects` (what [`UpperChain`] runs).
+pub fn upper_of(effects: &[AnyEffect]) -> Vec<AnyEffect> {
+    effects
+        .iter()
+        .filter(|e| e.kind().level() == Level::Upper)
+        .cloned()
+        .collect()
 }

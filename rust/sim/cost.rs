@@ -9,7 +9,7 @@
 //! on the discretized loop, see [`crate::sim::discretize::inner_loop_stable`]) and
 //! runs whose response leaves `|.| < DIVERGED`.
 
-use super::chain::{modal_ok, resolve_exo, Chain, Effects, NoEffects};
+use super::chain::{lower_of, modal_ok, resolve_exo, Chain, Effects, Law, NoEffects, UpperChain};
 use super::discretize::{loop_stable, Integrators};
 use super::kernel::{self, Record, Sse};
 use super::plant::{start, Init, Plant};
@@ -114,6 +114,7 @@ impl CostSpec {
         if self.weights.iter().all(|w| *w == 0.0) {
             return Err(AvllError::new("weights", "all weights are zero"));
         }
+        self.effects.check_closed(self.closed_loop)?;
         if self.closed_loop && self.kind != CommandKind::Acceleration {
             return Err(AvllError::new(
                 "command_kind",
@@ -205,24 +206,19 @@ impl CostSpec {
     }
 }
 
-/// How a run is driven and started, from the spec and the run.
-struct Drive<'a> {
-    closed: bool,
-    up: Upper,
-    u: &'a [f64],
-    lx: &'a [f64],
-    lv: &'a [f64],
-}
-
-impl Drive<'_> {
-    #[inline(always)]
-    fn command(&self, n: usize, o: &super::kernel::Obs) -> f64 {
-        if self.closed {
-            self.up.command(self.lx[n], self.lv[n], o.p, o.v)
-        } else {
-            self.u[n]
-        }
-    }
+/// The lower-level chain and the upper law of a run with effects: the lower-level
+/// effects with their exogenous signals, and the run's law with the upper-level ones
+/// (reset for the run's `dt`).
+fn with_effects<'a>(
+    effs: &[AnyEffect],
+    up: &Upper,
+    run: &RunRef<'a>,
+) -> Result<(Effects<'a>, UpperChain)> {
+    let effects = lower_of(effs);
+    let exo = resolve_exo(&effects, &run.exo, run.len())?;
+    let mut law = UpperChain::new(*up, effs);
+    law.reset(run.dt);
+    Ok((Effects { effects, exo }, law))
 }
 
 /// The Eq. 6 cost of `row` on `run` (`sum(w s) / len`), `inf` for invalid or
@@ -261,44 +257,36 @@ fn cost_n<const M: usize, const N: usize, const D: bool, const F: bool>(
         return Ok(f64::INFINITY);
     }
     if effs.is_empty() {
-        cost_chain::<M, N, D, F, _>(plant, lin, NoEffects, up, spec, run, limit)
+        cost_chain::<M, N, D, F, _, _>(plant, lin, NoEffects, *up, spec, run, limit)
     } else {
-        let ch = Effects {
-            effects: effs.to_vec(),
-            exo: resolve_exo(effs, &run.exo, run.len())?,
-        };
-        cost_chain::<M, N, D, F, _>(plant, lin, ch, up, spec, run, limit)
+        let (ch, law) = with_effects(effs, up, run)?;
+        cost_chain::<M, N, D, F, _, _>(plant, lin, ch, law, spec, run, limit)
     }
 }
 
-fn cost_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
+#[allow(clippy::too_many_arguments)]
+fn cost_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain, L: Law>(
     plant: Plant<M, N>,
     lin: &Linear,
     chain: C,
-    up: &Upper,
+    mut law: L,
     spec: &CostSpec,
     run: &RunRef,
     limit: f64,
 ) -> Result<f64> {
     let len = run.len();
-    let drive = Drive {
-        closed: spec.closed_loop,
-        up: *up,
-        u: run.command.unwrap_or(&[]),
-        lx: run.lead_x.unwrap_or(&[]),
-        lv: run.lead_v.unwrap_or(&[]),
-    };
+    let u = run.command.unwrap_or(&[]);
+    let (lx, lv) = (run.lead_x.unwrap_or(&[]), run.lead_v.unwrap_or(&[]));
     let mut st = start_stepper::<M, N, D, F, C>(plant, lin, chain, spec, run)?;
     // The drive is chosen outside the loop (one monomorphization each).
-    let (u, lx, lv, up) = (drive.u, drive.lx, drive.lv, drive.up);
     macro_rules! go {
         ($sse:expr) => {{
             let mut sse = $sse;
-            let done = if drive.closed {
+            let done = if spec.closed_loop {
                 kernel::run(
                     &mut st,
                     len,
-                    |n, o| up.command(lx[n], lv[n], o.p, o.v),
+                    |n, o| law.command(lx[n], lv[n], o.p, o.v),
                     &mut sse,
                 )
             } else {
@@ -584,25 +572,32 @@ fn sim_n<const M: usize, const N: usize, const D: bool, const F: bool>(
         weights: [1.0, 1.0, 1.0],
         ..spec.clone()
     };
-    let drive = Drive {
-        closed: spec.closed_loop,
-        up: *up,
-        u: run.command.unwrap_or(&[]),
-        lx: run.lead_x.unwrap_or(&[]),
-        lv: run.lead_v.unwrap_or(&[]),
-    };
-    let f = |n: usize, o: &super::kernel::Obs| drive.command(n, o);
     let len = run.len();
+    let u = run.command.unwrap_or(&[]);
+    let (lx, lv) = (run.lead_x.unwrap_or(&[]), run.lead_v.unwrap_or(&[]));
+    let closed = spec.closed_loop;
     if effs.is_empty() {
         let mut st = start_stepper::<M, N, D, F, _>(plant, lin, NoEffects, &full, run)?;
-        record(&mut st, len, f, a, v, x, spec.closed_loop);
-    } else {
-        let ch = Effects {
-            effects: effs.to_vec(),
-            exo: resolve_exo(effs, &run.exo, len)?,
+        let law = *up;
+        let f = |n: usize, o: &super::kernel::Obs| {
+            if closed {
+                law.command(lx[n], lv[n], o.p, o.v)
+            } else {
+                u[n]
+            }
         };
+        record(&mut st, len, f, a, v, x, closed);
+    } else {
+        let (ch, mut law) = with_effects(effs, up, run)?;
         let mut st = start_stepper::<M, N, D, F, _>(plant, lin, ch, &full, run)?;
-        record(&mut st, len, f, a, v, x, spec.closed_loop);
+        let f = |n: usize, o: &super::kernel::Obs| {
+            if closed {
+                law.command(lx[n], lv[n], o.p, o.v)
+            } else {
+                u[n]
+            }
+        };
+        record(&mut st, len, f, a, v, x, closed);
     }
     Ok(true)
 }

@@ -25,6 +25,7 @@ pub mod discretize;
 pub mod kernel;
 pub mod plant;
 pub mod rollout;
+pub mod synth;
 
 pub use cost::{batch_cost, run_cost, CostSpec, RunRef};
 pub use kernel::DIVERGED;
@@ -114,3 +115,5 @@ pub(crate) use with_plant;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_upper;

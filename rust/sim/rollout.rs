@@ -5,12 +5,12 @@
 //! path) with its exogenous signals, and writes into caller-provided slices
 //! (`*_into`) or returns a [`Trajectory`].
 
-use super::chain::{check_kind, resolve_exo, Chain, Effects, NoEffects};
+use super::chain::{check_kind, lower_of, resolve_exo, Chain, Effects, Law, NoEffects, UpperChain};
 use super::discretize::Integrators;
 use super::kernel::{blocks_apply, response_blocks, run, Record, Response, Stepper, DIVERGED};
 use super::plant::{start, Init, Plant, Start};
 use super::with_plant;
-use crate::effects::AnyEffect;
+use crate::effects::{AnyEffect, Level};
 use crate::error::{check_finite, check_series, AvllError, Result};
 use crate::model::{CommandKind, Linear};
 
@@ -93,12 +93,29 @@ impl<'a> EffectsRef<'a> {
         exo: &[],
     };
 
-    /// The chain for a run of `len` samples (checks the exogenous signals).
+    /// The lower-level chain for a run of `len` samples (checks the exogenous
+    /// signals).
     fn chain(&self, len: usize) -> Result<Effects<'a>> {
-        Ok(Effects {
-            effects: self.effects.to_vec(),
-            exo: resolve_exo(self.effects, self.exo, len)?,
-        })
+        let effects = lower_of(self.effects);
+        let exo = resolve_exo(&effects, self.exo, len)?;
+        Ok(Effects { effects, exo })
+    }
+
+    /// The upper level `up` with the upper-level effects, reset for sample time `dt`.
+    fn law(&self, up: &Upper, dt: f64) -> UpperChain {
+        let mut law = UpperChain::new(*up, self.effects);
+        law.reset(dt);
+        law
+    }
+
+    /// Fails when an upper-level effect is given outside a closed loop.
+    fn check_closed(&self, closed: bool) -> Result<()> {
+        crate::effects::check_closed(
+            self.effects
+                .iter()
+                .map(|e| (e.kind().name(), e.kind().level())),
+            closed,
+        )
     }
 
     /// Whether the modal form may be used (no effect switches the dynamics).
@@ -304,6 +321,7 @@ pub fn simulate_full_into(
     check_finite("v0", v0)?;
     check_finite("x0", p0)?;
     check_kind(eff.effects, kind)?;
+    eff.check_closed(false)?;
     for s in [&out.a, &out.v, &out.x] {
         check_len("out", s, u.len())?;
     }
@@ -405,6 +423,8 @@ fn closed_rec<const M: usize, const N: usize, const D: bool, const F: bool, cons
         check_leader(lead_x, lead_v)?;
         let ch = eff.chain(lead_x.len())?;
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, ch, true, &s, int0)?;
+        let mut upper = eff.law(up, plant.dt);
+        let law = |n: usize, o: &super::kernel::Obs| upper.command(lead_x[n], lead_v[n], o.p, o.v);
         run(&mut st, lead_x.len(), law, &mut rec);
     }
     // NaN from the divergence on (nothing when the run completed).
@@ -465,6 +485,76 @@ pub fn closed_loop_into(
             }
         )
     )
+}
+
+/// Closed-loop car following behind a recorded leader with a given upper law (any
+/// [`Law`], e.g. the synthetic generator's [`super::synth::Hidden`], reset here for
+/// `dt`) and the lower-level effects of `eff`, into `out` (as [`closed_loop_into`]:
+/// the lower level at rest, NaN after a divergence).
+#[allow(clippy::too_many_arguments)]
+pub fn closed_loop_law_into(
+    lin: &Linear,
+    eff: &EffectsRef,
+    law: &mut dyn Law,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    dt: f64,
+    v0: f64,
+    p0: f64,
+    out: Out,
+) -> Result<()> {
+    check_leader(lead_x, lead_v)?;
+    check_finite("v0", v0)?;
+    check_finite("x0", p0)?;
+    check_kind(eff.effects, CommandKind::Acceleration)?;
+    if eff.effects.iter().any(|e| e.kind().level() == Level::Upper) {
+        return Err(AvllError::new(
+            "effects",
+            "the law is given: upper-level effects would be a second law",
+        ));
+    }
+    for s in [&out.a, &out.v, &out.x] {
+        check_len("out", s, lead_x.len())?;
+    }
+    law.reset(dt);
+    with_plant!(
+        lin,
+        Integrators::SpeedPosition,
+        dt,
+        eff.modal(),
+        closed_law_n(lin, eff, law, lead_x, lead_v, [v0, p0], out)
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn closed_law_n<const M: usize, const N: usize, const D: bool, const F: bool>(
+    plant: Plant<M, N>,
+    lin: &Linear,
+    eff: &EffectsRef,
+    law: &mut dyn Law,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    int0: [f64; 2],
+    out: Out,
+) -> Result<()> {
+    let s = start(lin, Init::Rest, 0.0)?;
+    let ch = eff.chain(lead_x.len())?;
+    let mut st =
+        stepper::<M, N, D, F, _>(plant, lin, Integrators::SpeedPosition, ch, true, &s, int0)?;
+    let drive = |n: usize, o: &super::kernel::Obs| law.command(lead_x[n], lead_v[n], o.p, o.v);
+    match out.u {
+        Some(u) => {
+            let mut rec = Record::<true, true>::with_command(out.a, out.v, out.x, u);
+            run(&mut st, lead_x.len(), drive, &mut rec);
+            rec.blank_rest();
+        }
+        None => {
+            let mut rec = Record::<true, false>::new(out.a, out.v, out.x);
+            run(&mut st, lead_x.len(), drive, &mut rec);
+            rec.blank_rest();
+        }
+    }
+    Ok(())
 }
 
 /// Closed-loop car following as a new [`Trajectory`] (see [`closed_loop_into`]).
@@ -677,26 +767,29 @@ fn platoon_n<const M: usize, const N: usize, const D: bool, const F: bool>(
         platoon_linear::<M, N, D, F, _>(plant, lin, up, lead_x, lead_v, outs, avx2)
     } else {
         let ch = eff.chain(lead_x.len())?;
-        platoon_chain::<M, N, D, F, _, _>(plant, lin, ch, up, lead_x, lead_v, outs)
+        let law = eff.law(up, plant.dt);
+        platoon_chain::<M, N, D, F, _, _, _>(plant, lin, ch, law, lead_x, lead_v, outs)
     }
 }
 
 /// Time-major platoon stepping: at each sample every follower observes its state,
-/// takes the upper law's command from its predecessor's observed position and speed
-/// and steps. The followers' steps within a sample are independent, so they overlap
-/// in the pipeline.
+/// takes its upper law's command (each follower its own copy of `law`, with its own
+/// state) from its predecessor's observed position and speed and steps. The
+/// followers' steps within a sample are independent, so they overlap in the
+/// pipeline.
 fn platoon_chain<
     const M: usize,
     const N: usize,
     const D: bool,
     const F: bool,
     C: Chain + Clone,
+    L: Law + Clone,
     P: PlatoonOut + ?Sized,
 >(
     plant: Plant<M, N>,
     lin: &Linear,
     chain: C,
-    up: &Upper,
+    law: L,
     lead_x: &[f64],
     lead_v: &[f64],
     outs: &mut P,
@@ -705,7 +798,8 @@ fn platoon_chain<
     let f = outs.followers();
     let v0 = lead_v[0];
     let s = start(lin, Init::Rest, 0.0)?;
-    let gap = up.gmin + up.tg * v0;
+    let gap = law.gap(v0);
+    let mut laws = vec![law; f];
     let mut cars = Vec::with_capacity(f);
     for j in 0..f {
         let p0 = lead_x[0] - (j + 1) as f64 * gap;
@@ -726,9 +820,9 @@ fn platoon_chain<
         let to = (from + super::kernel::CHUNK).min(len);
         for n in from..to {
             let (mut px, mut pv) = (lead_x[n], lead_v[n]);
-            for (j, car) in cars[..alive].iter_mut().enumerate() {
+            for (j, (car, law)) in cars[..alive].iter_mut().zip(&mut laws).enumerate() {
                 let ob = car.observe(n);
-                let u = up.command(px, pv, ob.p, ob.v);
+                let u = law.command(px, pv, ob.p, ob.v);
                 let a = car.step(n, &ob, u);
                 outs.put(j, n, a, ob.v, ob.p, u);
                 px = ob.p;

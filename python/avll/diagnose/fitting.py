@@ -20,8 +20,9 @@ from ..data import Run
 from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS
 from ..defaults import UPPER_BOUNDS as _UB
 from ..defaults import UPPER_NAMES as _UPPER_NAMES
-from ..effects import EFFECTS, WithEffects, batch_cost_effects, exo_needs
+from ..effects import EFFECTS, WithEffects, exo_needs
 from ..models import UpperLevel
+from ..rollout import batch_cost
 from ..runs import RunSet, as_runset
 
 __all__ = [
@@ -109,7 +110,7 @@ def _simulate(model: WithEffects, rows: np.ndarray, rs: RunSet, closed: bool, in
     per_call = max(1, BATCH // max(rs.total, 1))
     return np.vstack([np.asarray(_core.simulate_batch(
         model.base.name, np.ascontiguousarray(rows[i : i + per_call]),
-        effects=list(model.effect_names), threads=check_threads(threads), **kw)["a"])
+        effects=list(model.effect_names), threads=check_threads(threads), **kw))[0]
         for i in range(0, rows.shape[0], per_call)])  # fmt: skip
 
 
@@ -142,9 +143,8 @@ def run_mse(
     rs, closed, init = _setup(runs, closed_loop, init)
     up = upper if upper is not None else rs.upper
     row = model.to_array() if up is None else np.r_[model.to_array(), up.to_array()]
-    return batch_cost_effects(model.base.name, model.effect_names, row[None, :], rs,
-                              closed_loop=closed, init=init, threads=threads,
-                              upper_free=[0, 1, 2, 3] if up is not None else [])[0]  # fmt: skip
+    return batch_cost(model, row[None, :], rs, closed_loop=closed, init=init, threads=threads,
+                      upper_free=[0, 1, 2, 3] if up is not None else [])[0]
 
 
 def _fixed(effect: str, param: str, kind: str) -> float | None:

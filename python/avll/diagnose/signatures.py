@@ -262,13 +262,15 @@ def _sensitivities(
 
 
 def offered(
-    model: WithEffects, runs: Sequence[Run], candidates: Sequence[str] | None = None
+    model: WithEffects, runs: Sequence[Run], candidates: Sequence[str] | None = None,
+    *, closed: bool = False,
 ) -> list[str]:
     """The effects of the registry (or of ``candidates``) that can be tried on
     ``model`` with ``runs``: not already in the model, allowed for the runs' command
     kind (``accel_only`` effects not for a speed command), not refused together with
-    an effect of the model (``road_load`` / ``speed_drag``) and with their exogenous
-    signal (``exo_<name>``) in every run."""
+    an effect of the model (``road_load`` / ``speed_drag``), with their exogenous
+    signal (``exo_<name>``) in every run, and upper-level structures only in a closed
+    loop (``closed``: in an open loop the recorded command replaces the law)."""
     names = list(CANONICAL_ORDER if candidates is None else candidates)
     for n in names:
         if n not in EFFECTS:
@@ -278,6 +280,8 @@ def offered(
     for n in names:
         cls = EFFECTS[n]
         if n in model.effect_names or (getattr(cls, "accel_only", False) and kind == "speed"):
+            continue
+        if cls.level == "upper" and not closed:
             continue
         if cls.excludes in model.effect_names:  # not identifiable together
             continue
@@ -366,7 +370,7 @@ def diagnose(
                                      d.explained, d.p_value))  # fmt: skip
     # Candidate effects: the score test by simulation.
     kind = runs[0].command_kind
-    allowed = offered(model, [*runs, *val_runs], candidates)
+    allowed = offered(model, [*runs, *val_runs], candidates, closed=closed)
     J = _sensitivities(model, runs, base, closed, init)
     _, rss0 = _lstsq(J, e)
     sse = float(e @ e)

@@ -11,6 +11,16 @@ whole command history in a list; the ``sensor`` lag filters the finished true
 acceleration series with ``scipy.signal.lfilter`` (the engine filters sample by
 sample inside the run).
 
+The upper-level structures (``perception``, ``speed_gains``, ``closing``,
+``feedforward``, ``comfort``) are written out in :class:`Law`, one sample at a time
+from their definitions in :mod:`avll.effects`: the perception delay interpolates the
+signals' whole recorded history with ``numpy.interp`` (the engine keeps a ring
+buffer), the feedforward's filter state follows the exact exponential step. A platoon
+(:func:`platoon_effects`) is simulated car by car behind the previous car's simulated
+position and speed (the engine steps it time-major), and the follower's frequency
+response (:func:`frequency_response`) is evaluated from the closed-loop equations
+written in the positions (the engine composes small-signal terms effect by effect).
+
 The acceleration-level effects (saturation, power_limit, speed_drag, road_load,
 grade) act on the acceleration that integrates into the actual speed: the response
 itself for an acceleration command; for a speed command the derivative of the speed
@@ -23,6 +33,7 @@ feeding back the actual speed, and the recorded acceleration ``C (A x + B w) + e
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -33,7 +44,67 @@ from scipy.signal import lfilter
 from ..effects import WithEffects
 from ..models import LowerLevelModel, UpperLevel
 
-__all__ = ["rollout_effects"]
+__all__ = ["Law", "rollout_effects", "platoon_effects", "frequency_response"]
+
+
+class Law:
+    """The constant-time-gap law (paper Eq. 3) with the model's upper-level
+    structures, evaluated sample by sample (``dt`` the sample time)."""
+
+    def __init__(self, model: WithEffects, upper: UpperLevel, dt: float) -> None:
+        self.eff: dict[str, Any] = {e.name: e for e in model.effects}
+        self.up, self.dt = upper, dt
+        self.gaps: list[float] = []
+        self.dvs: list[float] = []
+        self.z: float | None = None
+        self.prev = 0.0  # the command before the run (lower level at rest)
+
+    def gains(self, v: float) -> tuple[float, float, float]:
+        """``kg, kv, Tg`` at the own speed ``v``."""
+        up, kg, kv, tg = self.up, self.up.kg, self.up.kv, self.up.Tg
+        if "speed_gains" in self.eff:
+            e = self.eff["speed_gains"]
+            r = max(1.0 + e.cs * max(v, 0.0), 0.1)
+            kg, kv, tg = up.kg / r, up.kv / r, up.Tg + e.ch * v
+        return kg, kv, tg
+
+    def gap(self, v: float) -> float:
+        """The desired gap at the constant speed ``v``."""
+        return self.up.Gmin + self.gains(v)[2] * v
+
+    def __call__(self, lead_x: float, lead_v: float, x: float, v: float) -> float:
+        gap, dv = lead_x - x, lead_v - v
+        n = len(self.gaps)
+        self.gaps.append(gap)
+        self.dvs.append(dv)
+        if "perception" in self.eff:
+            t = np.arange(n + 1) * self.dt
+            tq = n * self.dt - self.eff["perception"].tau
+            gap = float(np.interp(tq, t, self.gaps))  # before the run: the first sample
+            dv = float(np.interp(tq, t, self.dvs))
+        kg, kv, tg = self.gains(v)
+        e = gap - tg * v - self.up.Gmin
+        eg, ev = kg * e, kv * dv
+        if "closing" in self.eff:
+            c = self.eff["closing"]
+            eg = c.rg * eg if eg < 0 else eg
+            ev = c.rv * ev if ev < 0 else ev
+        u = eg + ev
+        if "feedforward" in self.eff:
+            f = self.eff["feedforward"]
+            vp = v + dv
+            if self.z is None:
+                self.z = vp
+            u += f.ka * (vp - self.z) / f.tau
+            alpha = math.exp(-self.dt / f.tau)
+            self.z = alpha * self.z + (1.0 - alpha) * vp
+        if "comfort" in self.eff:
+            c = self.eff["comfort"]
+            clipped = min(max(u, -c.d_max), c.a_max)
+            step = c.j_max * self.dt
+            self.prev += min(max(clipped - self.prev, -step), step)
+            u = self.prev
+        return u
 
 
 def _zoh(a: np.ndarray, b: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
@@ -91,6 +162,9 @@ def rollout_effects(
     eff: dict[str, Any] = {e.name: e for e in model.effects}
     c = model.base.linear()
     closed = command is None
+    if closed:
+        assert upper is not None, "closed loop needs upper"
+        law = Law(model, upper, dt)
     speed_cmd = command_kind == "speed"
     n_samples = len(lead_x) if closed else len(command)
     rb = eff["asymmetric"].rb if "asymmetric" in eff else 1.0
@@ -167,8 +241,7 @@ def rollout_effects(
             v, p = x[m] + dv, x[m + 1] + dp
             y_act = actual(y, v, n)
         if closed:
-            assert upper is not None, "closed loop needs upper"
-            u = upper.kg * (lead_x[n] - p - upper.Tg * v - upper.Gmin) + upper.kv * (lead_v[n] - v)
+            u = law(float(lead_x[n]), float(lead_v[n]), p, v)
         else:
             u = float(command[n])
         cmds.append(u)
@@ -225,3 +298,85 @@ def rollout_effects(
         f0 = np.array([alpha * a_true[0]])
         out["a"] = lfilter([1.0 - alpha], [1.0, -alpha], a_true, zi=f0)[0] + sen.bias
     return out
+
+
+def platoon_effects(
+    model: WithEffects | LowerLevelModel,
+    lead_x: Any,
+    lead_v: Any,
+    dt: float,
+    upper: UpperLevel,
+    followers: int,
+    *,
+    exo: Mapping[str, Any] | None = None,
+) -> dict[str, np.ndarray]:
+    """``followers`` identical vehicles behind a recorded leader, car by car: follower
+    ``k`` is a closed loop (:func:`rollout_effects`) behind follower ``k-1``'s simulated
+    position and speed, starting at the leader's initial speed ``v0`` and ``k`` times
+    the desired gap at ``v0`` behind the leader, lower level at rest. Dict of
+    (follower, sample) arrays a, v, x, command; a diverged follower and every one behind
+    it are NaN from its divergence on."""
+    if isinstance(model, LowerLevelModel):
+        model = WithEffects(model, ())
+    lx, lv = np.asarray(lead_x, dtype=float), np.asarray(lead_v, dtype=float)
+    gap = Law(model, upper, dt).gap(float(lv[0]))
+    out = {k: np.full((followers, lx.size), np.nan) for k in ("a", "v", "x", "command")}
+    px, pv = lx, lv
+    for k in range(followers):
+        tr = rollout_effects(model, dt, lead_x=px, lead_v=pv, upper=upper,
+                             v0=float(lv[0]), x0=float(lx[0]) - (k + 1) * gap, exo=exo)
+        for key in out:
+            out[key][k] = tr[key]
+        if not np.all(np.isfinite(tr["v"])):
+            break
+        px, pv = tr["x"], tr["v"]
+    return out
+
+
+def frequency_response(
+    model: WithEffects | LowerLevelModel, upper: UpperLevel, omega: Any, *, v: float = 0.0
+) -> np.ndarray:
+    """``V/V_p`` of the follower at ``s = j omega``, from the linearised closed loop
+    written in the positions: the lower level ``A = G_fb U`` (``A = s² X`` the
+    acceleration, ``G_fb = G e^{-tau_c s} / (1 - K G + beta/s)``, ``tau_c`` a
+    ``delay`` effect's, ``beta`` the speed feedback of ``speed_drag``/``road_load``
+    at ``v``), the law ``U = kg (D X_p - D X - Tg' s X) + kv D (s X_p - s X) + ka s/(tau
+    s + 1) (s X + D s (X_p - X))`` with ``D = e^{-tau_p s}`` (``perception``),
+    ``kg, kv`` at ``v`` (``speed_gains``) times ``(1 + r)/2`` (``closing``), ``Tg' =
+    Tg + 2 ch v`` (the slope of the desired gap ``Tg v + ch v²``); solved for ``X/X_p``
+    (= ``V/V_p``)."""
+    if isinstance(model, LowerLevelModel):
+        model = WithEffects(model, ())
+    eff: dict[str, Any] = {e.name: e for e in model.effects}
+    c = model.base.linear()
+    s = 1j * np.asarray(omega, dtype=float)
+    g = (c["b1"] * s + c["b0"]) * np.exp(-c["Td"] * s) / (c["a2"] * s**2 + c["a1"] * s + 1)
+    beta, tau_c = 0.0, 0.0
+    if "speed_drag" in eff:
+        beta += 2 * eff["speed_drag"].c2 * abs(v) + (eff["speed_drag"].c0 / 0.1
+                                                     if abs(v) < 0.1 else 0.0)
+    if "road_load" in eff:
+        e = eff["road_load"]
+        beta += e.c1 + 2 * e.c2 * abs(v) + (e.c0 / 0.1 if abs(v) < 0.1 else 0.0)
+    if "delay" in eff:
+        tau_c = eff["delay"].tau
+    if "asymmetric" in eff:  # the average of the two sides
+        e = eff["asymmetric"]
+        kb, rb = 0.5 * (1 + e.kb), 0.5 * (1 + e.rb)
+        g = (c["b1"] * rb * kb * s + kb * c["b0"]) * np.exp(-c["Td"] * s) / (
+            c["a2"] * rb**2 * s**2 + c["a1"] * rb * s + 1)
+    gfb = g * np.exp(-tau_c * s) / (1 - c["K"] * g + beta / s)
+    kg, kv, tg = Law(model, upper, 1.0).gains(v)
+    if "speed_gains" in eff:
+        tg = upper.Tg + 2 * eff["speed_gains"].ch * v
+    if "closing" in eff:
+        kg *= 0.5 * (1 + eff["closing"].rg)
+        kv *= 0.5 * (1 + eff["closing"].rv)
+    d = np.exp(-eff["perception"].tau * s) if "perception" in eff else np.ones_like(s)
+    f = (eff["feedforward"].ka * s / (eff["feedforward"].tau * s + 1)
+         if "feedforward" in eff else np.zeros_like(s))
+    # U = cp X_p - cx X
+    cp = kg * d + kv * d * s + f * d * s
+    cx = kg * d + kg * tg * s + kv * d * s - f * s + f * d * s
+    # s² X = gfb (cp X_p - cx X)  =>  X / X_p = gfb cp / (s² + gfb cx)
+    return np.asarray(gfb * cp / (s**2 + gfb * cx))

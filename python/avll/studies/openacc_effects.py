@@ -15,7 +15,7 @@ three lower-level models, gets there:
    the first population with the effect at its neutral parameters, so the fit can
    only improve on it);
 2. the calibrated model with its effect is replayed behind the measured
-   predecessor (:func:`avll.effects.closed_loop_effects`) and its amplification
+   predecessor (:func:`avll.closed_loop`) and its amplification
    measured with the same band-pass as the data
    (:func:`~avll.studies.openacc.amplification`).
 
@@ -39,8 +39,9 @@ import numpy as np
 
 from ..data import Run
 from ..defaults import GA_OPTIONS, UPPER_NAMES
-from ..effects import EFFECTS, WithEffects, closed_loop_effects
+from ..effects import EFFECTS, WithEffects
 from ..models import UpperLevel
+from ..rollout import closed_loop
 from .openacc import WEIGHTS, OpenACCStudy, _model_of, _upper_of, amplification
 
 __all__ = ["EFFECT_CANDIDATES", "effect_gaps"]
@@ -169,10 +170,8 @@ def effect_gaps(
                 continue
             why = None
             try:
-                tr = closed_loop_effects(model, r.lead_x, r.lead_v, r.dt, up,
-                                         v0=float(r.v[0]),
-                                         x0=float(r.x[0]) if r.x is not None else 0.0,
-                                         exo=r.exo)  # fmt: skip
+                tr = closed_loop(model, r.lead_x, r.lead_v, r.dt, up, v0=float(r.v[0]),
+                                 x0=float(r.x[0]) if r.x is not None else 0.0, exo=r.exo)
                 a_r = (amplification(tr.v, r.lead_v, r.dt, band)[0]
                        if np.all(np.isfinite(tr.v)) else math.nan)  # fmt: skip
             except ValueError as err:  # a calibrated model the trajectory functions refuse
