@@ -598,8 +598,9 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
         block = shortest
     else:
         kw = {k2: v for k2, v in prob.kw.items() if k2 != "runs"}
-        sim = _core.simulate_batch(prob.cls.name, np.ascontiguousarray(x0[None, :]),
-                                   prob.rs._handle.take(uniq), threads=int(threads), **kw)
+        sim = np.asarray(_core.simulate_batch(
+            prob.cls.name, np.ascontiguousarray(x0[None, :]), prob.rs._handle.take(uniq),
+            threads=int(threads), **kw))  # (a, v, x) x 1 row x samples
         off = np.concatenate([[0], np.cumsum([len(r) for r in runs])])
         res = []
         w = prob.kw["weights"]
@@ -607,7 +608,7 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
             sl = slice(int(off[j]), int(off[j + 1]))
             for ch, meas in (("a", r.a), ("v", r.v), ("x", r.x)):
                 if w["avx".index(ch)] > 0 and meas is not None:
-                    res.append(np.asarray(sim[ch])[0, sl] - meas)
+                    res.append(sim["avx".index(ch), 0, sl] - meas)
         block = block_length(res, dt, MIN_BLOCK, shortest / 3.0)
     rng = np.random.default_rng([int(seed), int(k)])
     atoms, counts = [], []
