@@ -164,6 +164,35 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
         a
     }
 
+    /// Copies the dead-time line's references before sample `n` (`u_ref[n-1]`, ...,
+    /// as many as the stepper keeps) into `line`, a power-of-two ring indexed by the
+    /// sample (`u_ref[m]` at `m & (line.len() - 1)`, at least as long as the
+    /// stepper's own): a block form's copy of the line.
+    pub(crate) fn line_out(&self, line: &mut [f64], n: usize) {
+        debug_assert!(line.len().is_power_of_two() && line.len() >= self.buf.len());
+        let (mask, smask) = (line.len() - 1, self.buf.len() - 1);
+        for q in 1..=self.buf.len() {
+            let m = n.wrapping_sub(q);
+            line[m & mask] = self.buf[m & smask];
+        }
+    }
+
+    /// The inverse of [`Stepper::line_out`]: takes the references before sample `n`
+    /// back from a block form's `line`, and with them the next sample's `w1`
+    /// (`u_ref[n-1-i]`), so that the stepper continues at sample `n`. Requires a
+    /// whole-sample dead time `i >= 1` (with `i == 0` the line's last output is not
+    /// yet in it).
+    pub(crate) fn line_in(&mut self, line: &[f64], n: usize) {
+        debug_assert!(line.len().is_power_of_two() && line.len() >= self.buf.len());
+        debug_assert!(self.plant.delay >= 1);
+        let (mask, smask) = (line.len() - 1, self.buf.len() - 1);
+        for q in 1..=self.buf.len() {
+            let m = n.wrapping_sub(q);
+            self.buf[m & smask] = line[m & mask];
+        }
+        self.wp = line[n.wrapping_sub(1 + self.plant.delay) & mask];
+    }
+
     /// The stepper's parts, borrowed separately (plant and braking maps shared, chain
     /// and dead-time line mutable).
     #[inline(always)]

@@ -7,6 +7,8 @@
 //! * [`chain`]: the effect chain (none: the linear fast path);
 //! * [`kernel`]: the one stepping loop and its sinks (trajectory, SSE);
 //! * [`rollout`]: open loop, closed loop, platoons;
+//! * [`closed_blocks`]: the linear closed loop four samples at a time (the kernel's
+//!   operations, bit for bit);
 //! * [`cost`]: run references, the cost specification, batched costs and batched
 //!   simulation.
 //!
@@ -20,6 +22,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod chain;
+pub mod closed_blocks;
 pub mod cost;
 pub mod discretize;
 pub mod kernel;

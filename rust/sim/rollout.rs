@@ -6,6 +6,7 @@
 //! (`*_into`) or returns a [`Trajectory`].
 
 use super::chain::{check_kind, resolve_exo, Chain, Effects, NoEffects};
+use super::closed_blocks::closed_blocks;
 use super::discretize::Integrators;
 use super::kernel::{blocks_apply, response_blocks, run, Record, Response, Stepper, DIVERGED};
 use super::plant::{start, Init, Plant, Start};
@@ -393,7 +394,8 @@ fn closed_rec<const M: usize, const N: usize, const D: bool, const F: bool, cons
     };
     if eff.effects.is_empty() {
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, true, &s, int0)?;
-        run(&mut st, lead_x.len(), law, &mut rec);
+        // The kernel's steps, four samples at a time where that applies.
+        closed_blocks(&mut st, up, lead_x, lead_v, &mut rec);
         // Linear: a run to the end with a finite stepper proves the leader finite
         // (see `Stepper::finite`); otherwise (divergence, or a bad sample to name)
         // the leader is checked now.
