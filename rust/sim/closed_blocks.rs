@@ -75,10 +75,10 @@ pub fn closed_blocks<
         let o = (st.plant.delay + 1).wrapping_neg() % BLOCK;
         return unsafe {
             match o {
-                0 => closed_avx2::<M, N, D, F, U, false, 0, false>(st, up, lead_x, lead_v, rec),
-                1 => closed_avx2::<M, N, D, F, U, false, 1, false>(st, up, lead_x, lead_v, rec),
-                2 => closed_avx2::<M, N, D, F, U, false, 2, false>(st, up, lead_x, lead_v, rec),
-                _ => closed_avx2::<M, N, D, F, U, false, 3, false>(st, up, lead_x, lead_v, rec),
+                0 => closed_avx2::<M, N, D, F, U, 0>(st, up, lead_x, lead_v, rec),
+                1 => closed_avx2::<M, N, D, F, U, 1>(st, up, lead_x, lead_v, rec),
+                2 => closed_avx2::<M, N, D, F, U, 2>(st, up, lead_x, lead_v, rec),
+                _ => closed_avx2::<M, N, D, F, U, 3>(st, up, lead_x, lead_v, rec),
             }
         };
     }
@@ -90,9 +90,12 @@ pub fn closed_blocks<
 /// `_mm256_fmadd_pd(a, b, c)` is the kernel's `a.mul_add(b, c)` (`madd::<true>`),
 /// and Rust contracts nothing else, so each lane rounds as the kernel does.
 ///
+/// `O` is the offset of a block's first `w1` in its block of references,
+/// `(-(i + 1)) mod 4`.
+///
 /// # Safety
 /// The CPU must support FMA and AVX2; `M == 2`, `N == 4`, a dead time of at least
-/// [`BLOCK`] samples.
+/// `2 BLOCK` samples.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn closed_avx2<
@@ -101,9 +104,7 @@ unsafe fn closed_avx2<
     const D: bool,
     const F: bool,
     const U: bool,
-    const S3: bool,
     const O: usize,
-    const SEQ: bool,
 >(
     st: &mut Stepper<M, N, D, F, NoEffects>,
     up: &Upper,
@@ -112,14 +113,15 @@ unsafe fn closed_avx2<
     rec: &mut Record<'_, true, U>,
 ) -> bool {
     use std::arch::x86_64::*;
-    debug_assert!(M == 2 && N == 4 && st.plant.delay >= BLOCK);
+    debug_assert!(M == 2 && N == 4 && st.plant.delay >= 2 * BLOCK);
     let len = lead_x.len().min(rec.capacity());
     let (lead_x, lead_v) = (&lead_x[..len], &lead_v[..len]);
     let p = st.plant;
     let i = p.delay;
-    // A local copy of the dead-time line, long enough for a block's five reads and
-    // four writes, with a mirror of its first slots so that the reads are one
-    // contiguous slice (blocks start at multiples of 4, so the writes never wrap).
+    debug_assert_eq!(O, (i + 1).wrapping_neg() % BLOCK);
+    // A local copy of the dead-time line in whole blocks of references (a power of
+    // two, so a block never wraps), long enough for the two blocks a block reads and
+    // the one it writes.
     let cap = (i + 2 * BLOCK).next_power_of_two();
     let mask = cap - 1;
     let mut line = vec![0.0; cap];
@@ -151,10 +153,18 @@ unsafe fn closed_avx2<
     );
     debug_assert!(len <= rec.a.len() && len <= rec.v.len() && len <= rec.x.len());
     debug_assert!(!U || len <= rec.u.len());
+    let step = |z: __m128d, t: __m128d| {
+        if D {
+            _mm_fmadd_pd(ldiag, z, t)
+        } else {
+            _mm_fmadd_pd(ldiag, z, _mm_fmadd_pd(loff, _mm_permute_pd::<1>(z), t))
+        }
+    };
     // Stage 1 of the block at `n0`: from the modes at `n0` (`zc`, advanced to the
     // block's end) and the line, the modes at the four samples, the responses, the
     // speed increments and the position increments' input terms.
-    // SAFETY (the line): `base + 5 <= cap + 2 BLOCK` (the line and its mirror).
+    // SAFETY (the line): `base` and `base + BLOCK` (masked) are multiples of BLOCK
+    // below `cap`, so each load reads four slots of the line.
     let stage1 = |n0: usize, zc: &mut __m128d| {
         // w1[j] = u_ref[n0+j-i-1], w0[j] = u_ref[n0+j-i]: written before the block,
         // read as the two whole blocks of references they lie in (each load then
@@ -168,24 +178,11 @@ unsafe fn closed_avx2<
         let tz1 = _mm256_fmadd_pd(g1[1], w1, _mm256_mul_pd(g0[1], w0));
         let a = _mm256_unpacklo_pd(tz0, tz1); // [t0 t1] of samples 0 and 2
         let b = _mm256_unpackhi_pd(tz0, tz1); // of samples 1 and 3
-        let tc = [
-            _mm256_castpd256_pd128(a),
-            _mm256_castpd256_pd128(b),
-            _mm256_extractf128_pd::<1>(a),
-            _mm256_extractf128_pd::<1>(b),
-        ];
-        let step = |z: __m128d, t: __m128d| {
-            if D {
-                _mm_fmadd_pd(ldiag, z, t)
-            } else {
-                _mm_fmadd_pd(ldiag, z, _mm_fmadd_pd(loff, _mm_permute_pd::<1>(z), t))
-            }
-        };
         let z0 = *zc;
-        let z1 = step(z0, tc[0]);
-        let z2 = step(z1, tc[1]);
-        let z3 = step(z2, tc[2]);
-        *zc = step(z3, tc[3]);
+        let z1 = step(z0, _mm256_castpd256_pd128(a));
+        let z2 = step(z1, _mm256_castpd256_pd128(b));
+        let z3 = step(z2, _mm256_extractf128_pd::<1>(a));
+        *zc = step(z3, _mm256_extractf128_pd::<1>(b));
         let e = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(z0), z2);
         let o = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(z1), z3);
         let m0 = _mm256_unpacklo_pd(e, o); // mode 0 at the four samples
@@ -199,16 +196,19 @@ unsafe fn closed_avx2<
     };
     // Stage 2 of the block at `n0`: the speed's chain, the position increments and
     // chain, the upper law, the references into the line, the outputs.
-    // SAFETY: `w + 4 <= cap`, `cap + w + 4 <= cap + 2 BLOCK` when `w < 2 BLOCK`, and
+    // SAFETY: `(n0 & mask) + 4 <= cap` (`n0` and `cap` are multiples of BLOCK), and
     // `n0 + 4 <= len`, the length of the leader slices and at most that of the
     // outputs (`len <= rec.capacity()`).
-    let stage2 = |n0: usize, [m0, m1, y, tv, tp]: [__m256d; 5], v: &mut f64, pos: &mut f64| {
-        let (vs, vn) = chain(*v, tv);
-        *v = vn;
-        let tp = _mm256_fmadd_pd(pxv, vs, tp);
-        let tp = _mm256_fmadd_pd(px1, m1, _mm256_fmadd_pd(px0, m0, tp));
-        let (ps, pn) = chain(*pos, tp);
-        *pos = pn;
+    let stage2 = |[m0, m1, y, tv, tp]: [__m256d; 5], v: &mut f64, pos: &mut f64| {
+        let (vs, v3) = chain(*v, tv);
+        *v = add(v3, lane3(tv));
+        let tpv = _mm256_fmadd_pd(pxv, vs, tp);
+        let tp = _mm256_fmadd_pd(px1, m1, _mm256_fmadd_pd(px0, m0, tpv));
+        let (ps, p3) = chain(*pos, tp);
+        *pos = add(p3, lane3(tp));
+        [vs, ps, y]
+    };
+    let law = |n0: usize, [vs, ps, y]: [__m256d; 3]| {
         // The upper law (Eq. 3): kg (lx - p - tg v - gmin) + kv (lv - v).
         let lx = _mm256_loadu_pd(plx.add(n0));
         let lv = _mm256_loadu_pd(plv.add(n0));
@@ -226,8 +226,7 @@ unsafe fn closed_avx2<
         } else {
             u
         };
-        let w = n0 & mask;
-        _mm256_storeu_pd(lp.add(w), r);
+        _mm256_storeu_pd(lp.add(n0 & mask), r);
         _mm256_storeu_pd(pa.add(n0), y);
         _mm256_storeu_pd(pv.add(n0), vs);
         _mm256_storeu_pd(px.add(n0), ps);
@@ -235,120 +234,49 @@ unsafe fn closed_avx2<
             _mm256_storeu_pd(pu.add(n0), u);
         }
     };
-    // Stage 2 split in two (the three-stage pipeline): the speed's chain and the
-    // position increments; then the position's chain, the law, the line, the outputs.
-    let stage2a = |[m0, m1, y, tv, tp]: [__m256d; 5], v: &mut f64| {
-        let (vs, vn) = chain(*v, tv);
-        *v = vn;
-        let tp = _mm256_fmadd_pd(pxv, vs, tp);
-        let tp = _mm256_fmadd_pd(px1, m1, _mm256_fmadd_pd(px0, m0, tp));
-        [vs, tp, y]
-    };
-    let stage2b = |n0: usize, [vs, tp, y]: [__m256d; 3], pos: &mut f64| {
-        let (ps, pn) = chain(*pos, tp);
-        *pos = pn;
-        let lx = _mm256_loadu_pd(plx.add(n0));
-        let lv = _mm256_loadu_pd(plv.add(n0));
-        let gap = _mm256_sub_pd(
-            _mm256_sub_pd(_mm256_sub_pd(lx, ps), _mm256_mul_pd(tg, vs)),
-            gmin,
-        );
-        let u = _mm256_add_pd(
-            _mm256_mul_pd(kg, gap),
-            _mm256_mul_pd(kv, _mm256_sub_pd(lv, vs)),
-        );
-        let r = if inner {
-            _mm256_add_pd(u, _mm256_mul_pd(k, y))
-        } else {
-            u
-        };
-        let w = n0 & mask;
-        _mm256_storeu_pd(lp.add(w), r);
-        _mm256_storeu_pd(pa.add(n0), y);
-        _mm256_storeu_pd(pv.add(n0), vs);
-        _mm256_storeu_pd(px.add(n0), ps);
-        if U {
-            _mm256_storeu_pd(pu.add(n0), u);
-        }
-    };
+    // Software-pipelined: stage 1 of the next block is issued before stage 2 of this
+    // one (it reads the line up to `u_ref[n0 + 7 - i]`, written before this block
+    // when `i >= 2 BLOCK`), so that the two overlap in the CPU.
     let end = len / BLOCK * BLOCK;
     let mut from = 0;
-    if S3 {
-        let gs = end / BLOCK;
-        if gs > 0 {
-            let mut a = stage1(0, &mut zc);
-            let mut b = stage2a(a, &mut v);
-            if gs > 1 {
-                a = stage1(BLOCK, &mut zc);
+    let mut n0 = 0;
+    let mut cur = stage1(0, &mut zc);
+    while n0 < end {
+        let next = if n0 + BLOCK < end {
+            stage1(n0 + BLOCK, &mut zc)
+        } else {
+            cur
+        };
+        let c = stage2(cur, &mut v, &mut pos);
+        law(n0, c);
+        cur = next;
+        n0 += BLOCK;
+        if n0 % CHUNK == 0 {
+            if !rec.proceed(from, n0) {
+                return false;
             }
-            for g in 0..gs {
-                let n0 = g * BLOCK;
-                let a2 = if g + 2 < gs {
-                    stage1(n0 + 2 * BLOCK, &mut zc)
-                } else {
-                    a
-                };
-                let b2 = if g + 1 < gs { stage2a(a, &mut v) } else { b };
-                stage2b(n0, b, &mut pos);
-                a = a2;
-                b = b2;
-                if (n0 + BLOCK) % CHUNK == 0 {
-                    if !rec.proceed(from, n0 + BLOCK) {
-                        return false;
-                    }
-                    from = n0 + BLOCK;
-                }
-            }
-        }
-    } else {
-        // Software-pipelined: stage 1 of the next block is issued before stage 2 of this
-        // one (it reads the line up to `u_ref[n0 + 7 - i]`, written before this block
-        // when `i >= 2 BLOCK`), so the two overlap in the CPU.
-        let mut cur = stage1(0, &mut zc);
-        let mut n0 = 0;
-        while SEQ && n0 < end {
-            let c = stage1(n0, &mut zc);
-            stage2(n0, c, &mut v, &mut pos);
-            n0 += BLOCK;
-            if n0 % CHUNK == 0 {
-                if !rec.proceed(from, n0) {
-                    return false;
-                }
-                from = n0;
-            }
-        }
-        while !SEQ && n0 < end {
-            let next = if n0 + BLOCK < end {
-                stage1(n0 + BLOCK, &mut zc)
-            } else {
-                cur
-            };
-            stage2(n0, cur, &mut v, &mut pos);
-            cur = next;
-            n0 += BLOCK;
-            if n0 % CHUNK == 0 {
-                if !rec.proceed(from, n0) {
-                    return false;
-                }
-                from = n0;
-            }
+            from = n0;
         }
     }
     st.x = state::<N>(zc, v, pos);
-    st.line_in(&line[..cap], end);
-    if end < len {
-        // The run's last few samples (fewer than a block): the kernel itself.
-        for n in end..len {
-            let o = st.observe(n);
-            let u = up.command(lead_x[n], lead_v[n], o.p, o.v);
-            let a = st.step(n, &o, u);
-            rec.put(n, a, o.v, o.p, u, o.y_lin);
-        }
+    st.line_in(&line, end);
+    // The run's last few samples (fewer than a block): the kernel itself.
+    for n in end..len {
+        let o = st.observe(n);
+        let u = up.command(lead_x[n], lead_v[n], o.p, o.v);
+        let a = st.step(n, &o, u);
+        rec.put(n, a, o.v, o.p, u, o.y_lin);
     }
-    if from < len {
-        return rec.proceed(from, len);
-    }
-    true
+    from >= len || rec.proceed(from, len)
+}
+
+/// Lane 3 of `t`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn lane3(t: std::arch::x86_64::__m256d) -> f64 {
+    use std::arch::x86_64::*;
+    let h = _mm256_extractf128_pd::<1>(t);
+    _mm_cvtsd_f64(_mm_unpackhi_pd(h, h))
 }
 
 /// `(w1, w0)`: lanes `O..O + 4` and `O + 1..O + 5` of the eight references `[a, b]`.
@@ -373,10 +301,9 @@ unsafe fn align<const O: usize>(
     }
 }
 
-/// `s` followed by its running sums with the four lanes of `t`, in order:
-/// `[s, s + t0, (s + t0) + t1, ((s + t0) + t1) + t2]`, and the sum of all four: an
-/// integrator's four steps, each the kernel's one addition (`vaddsd` is the IEEE
-/// addition of `+`).
+/// `[s, s + t0, (s + t0) + t1, ((s + t0) + t1) + t2]` (an integrator's running value
+/// over three steps, each the kernel's one addition: `vaddsd` is the IEEE addition
+/// of `+`) and its last element.
 ///
 /// Written in assembly so that the compiler cannot merge the speed's and the
 /// position's chains: left to itself, LLVM packs the two running values into one
@@ -386,7 +313,7 @@ unsafe fn align<const O: usize>(
 #[inline]
 #[target_feature(enable = "avx2")]
 unsafe fn chain(s: f64, t: std::arch::x86_64::__m256d) -> (std::arch::x86_64::__m256d, f64) {
-    let (out, s4): (std::arch::x86_64::__m256d, f64);
+    let (out, s3): (std::arch::x86_64::__m256d, f64);
     // SAFETY: register-only AVX instructions (the callers run with AVX2 enabled).
     std::arch::asm!(
         "vaddsd {s1}, {s}, {t:x}",
@@ -394,8 +321,6 @@ unsafe fn chain(s: f64, t: std::arch::x86_64::__m256d) -> (std::arch::x86_64::__
         "vaddsd {s2}, {s1}, {q}",
         "vextractf128 {h}, {t}, 1",
         "vaddsd {s3}, {s2}, {h}",
-        "vpermilpd {q}, {h}, 1",
-        "vaddsd {s4}, {s3}, {q}",
         "vunpcklpd {s1}, {s}, {s1}",
         "vunpcklpd {s2}, {s2}, {s3}",
         "vinsertf128 {out}, {s1:y}, {s2}, 1",
@@ -403,14 +328,31 @@ unsafe fn chain(s: f64, t: std::arch::x86_64::__m256d) -> (std::arch::x86_64::__
         t = in(ymm_reg) t,
         s1 = out(xmm_reg) _,
         s2 = out(xmm_reg) _,
-        s3 = out(xmm_reg) _,
         q = out(xmm_reg) _,
         h = out(xmm_reg) _,
-        s4 = out(xmm_reg) s4,
+        s3 = out(xmm_reg) s3,
         out = out(ymm_reg) out,
         options(pure, nomem, nostack, preserves_flags)
     );
-    (out, s4)
+    (out, s3)
+}
+
+/// `a + b` (one `vaddsd`) that the compiler cannot pair with another addition (see
+/// [`chain`]).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx")]
+unsafe fn add(a: f64, b: f64) -> f64 {
+    let r: f64;
+    // SAFETY: a register-only AVX instruction.
+    std::arch::asm!(
+        "vaddsd {r}, {a}, {b}",
+        r = lateout(xmm_reg) r,
+        a = in(xmm_reg) a,
+        b = in(xmm_reg) b,
+        options(pure, nomem, nostack, preserves_flags)
+    );
+    r
 }
 
 /// The kernel's state vector from the two modes, the speed and the position.
@@ -564,6 +506,11 @@ mod tests {
             (lin(0.0, 0.7292, 0.0445, 0.1305, 0.7796, 0.0), true),
             (lin(0.5, 1.0, 0.3, 1.4, 0.4, -0.2), true),
             (lin(0.5, 1.0, 0.3, 1.4, 2.03, 0.05), true),
+            // Whole-sample dead times 9, 10, 11 (with 8, 15, 40 above: every offset
+            // of a block's line outputs in the blocks of references).
+            (lin(0.5, 1.0, 0.3, 1.4, 0.47, 0.05), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.52, 0.05), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.57, 0.05), true),
             (lin(0.5, 1.0, 0.3, 1.4, 0.3, 0.1), false),
             (lin(0.5, 1.0, 0.3, 1.4, 0.12, 0.1), false),
         ];
@@ -623,8 +570,6 @@ pub fn closed_variant<const D: bool, const U: bool>(
             let law = |n: usize, o: &super::kernel::Obs| up.command(lead_x[n], lead_v[n], o.p, o.v);
             super::kernel::run(st, lead_x.len(), law, rec)
         }
-        1 => closed_blocks(st, up, lead_x, lead_v, rec),
-        2 => unsafe { closed_avx2::<2, 4, D, true, U, true, 0, false>(st, up, lead_x, lead_v, rec) },
-        _ => unsafe { closed_avx2::<2, 4, D, true, U, false, 0, true>(st, up, lead_x, lead_v, rec) },
+        _ => closed_blocks(st, up, lead_x, lead_v, rec),
     }
 }

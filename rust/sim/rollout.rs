@@ -217,6 +217,7 @@ pub fn simulate_into(lin: &Linear, u: &[f64], dt: f64, init: Init, y: &mut [f64]
     check_series("command", &u[..u.len().min(1)])?;
     check_len("out", y, u.len())?;
     with_plant!(
+        cached;
         lin,
         Integrators::None,
         dt,
@@ -310,6 +311,7 @@ pub fn simulate_full_into(
     }
     let ints = Integrators::for_kind(kind);
     with_plant!(
+        cached;
         lin,
         ints,
         dt,
@@ -447,6 +449,7 @@ pub fn closed_loop_into(
         check_len("out", s, n)?;
     }
     with_plant!(
+        cached;
         lin,
         Integrators::SpeedPosition,
         dt,
@@ -1208,6 +1211,7 @@ pub fn platoon_into<P: PlatoonOut + ?Sized>(
     }
     outs.check(lead_x.len())?;
     with_plant!(
+        cached;
         lin,
         Integrators::SpeedPosition,
         dt,
