@@ -585,79 +585,91 @@ pub fn response_blocks<const M: usize, const N: usize, const D: bool, const F: b
     // first slots, so that a block reads its five `g` as one contiguous slice and
     // writes its four references without wrapping (blocks start at multiples of 4).
     let cap = (i + 2 * BLOCK).next_power_of_two();
-    let mask = cap - 1;
-    let smask = st.buf.len() - 1;
     let mut line = vec![0.0; cap + 2 * BLOCK];
-    for q in 1..=st.buf.len() {
-        let m = 0usize.wrapping_sub(q);
-        line[m & mask] = st.buf[m & smask];
-    }
+    st.line_out(&mut line[..cap], 0);
     for q in 0..2 * BLOCK {
         line[cap + q] = line[q];
     }
     let mut x = [0.0; M];
     x.copy_from_slice(&st.x[..M]);
-    for (b, (bu, by)) in u[..len]
-        .chunks_exact(BLOCK)
-        .zip(y[..len].chunks_exact_mut(BLOCK))
-        .enumerate()
-    {
-        let n0 = b * BLOCK;
-        let base = n0.wrapping_sub(i + 1) & mask;
-        let (yv, nx) = {
-            let g = &line[base..base + BLOCK + 1];
-            let mut yv = [0.0; BLOCK];
-            for j in 0..BLOCK {
-                let mut t = bm.yg[0][j] * g[0];
-                for q in 1..BLOCK {
-                    t = madd::<F>(bm.yg[q][j], g[q], t);
-                }
-                for m in (0..M).rev() {
-                    t = madd::<F>(bm.yx[m][j], x[m], t);
-                }
-                yv[j] = t;
-            }
-            let mut nx = [0.0; M];
-            for m in 0..M {
-                let mut t = bm.s[0][m] * g[0];
-                for q in 1..=BLOCK {
-                    t = madd::<F>(bm.s[q][m], g[q], t);
-                }
-                nx[m] = if D || M == 1 {
-                    madd::<F>(bm.p4[m][m], x[m], t)
-                } else {
-                    madd::<F>(bm.p4[m][m], x[m], madd::<F>(bm.p4[m][1 - m], x[1 - m], t))
-                };
-            }
-            (yv, nx)
-        };
-        by.copy_from_slice(&yv);
-        let mut r = [0.0; BLOCK];
-        for j in 0..BLOCK {
-            // Without inner feedback the reference is the command itself (not
-            // `u + 0 y`, which a diverging response would turn into NaN).
-            r[j] = if k == 0.0 {
-                bu[j]
-            } else {
-                madd::<F>(k, yv[j], bu[j])
-            };
-        }
-        let w = n0 & mask;
-        line[w..w + BLOCK].copy_from_slice(&r);
-        if w < 2 * BLOCK {
-            line[cap + w..cap + w + BLOCK].copy_from_slice(&r);
-        }
-        x = nx;
-    }
+    // Without inner feedback the reference is the command itself (not `u + 0 y`,
+    // which a diverging response would turn into NaN): a choice made once, not per
+    // block.
+    x = if k == 0.0 {
+        blocks_loop::<M, D, F, true>(&bm, x, i, k, &u[..len], &mut y[..len], &mut line)
+    } else {
+        blocks_loop::<M, D, F, false>(&bm, x, i, k, &u[..len], &mut y[..len], &mut line)
+    };
     st.x[..M].copy_from_slice(&x);
     // The next sample's `w1` is this block's last `g` (`u_ref[len - 1 - i]`), and the
     // stepper's line holds the last references in its own layout.
-    st.wp = line[(len - 1).wrapping_sub(i) & mask];
-    for q in 1..=st.buf.len() {
-        let m = len.wrapping_sub(q);
-        st.buf[m & smask] = line[m & mask];
-    }
+    st.line_in(&line[..cap], len);
     len
+}
+
+/// The blocks of [`response_blocks`] over `u` (a whole number of blocks) into `y`,
+/// from the model state `x`, with the line copy `line` (`cap` slots, a power of two,
+/// then a mirror of the first `2 BLOCK`); returns the state after the last block.
+/// `KZ`: without inner feedback (`k == 0`).
+#[inline(always)]
+fn blocks_loop<const M: usize, const D: bool, const F: bool, const KZ: bool>(
+    bm: &BlockMaps<M>,
+    mut x: [f64; M],
+    i: usize,
+    k: f64,
+    u: &[f64],
+    y: &mut [f64],
+    line: &mut [f64],
+) -> [f64; M] {
+    let cap = line.len() - 2 * BLOCK;
+    debug_assert!(cap.is_power_of_two() && cap >= i + 2 * BLOCK);
+    debug_assert!(u.len() == y.len() && u.len() % BLOCK == 0);
+    let mask = cap - 1;
+    let lp = line.as_mut_ptr();
+    for (b, (bu, by)) in u.chunks_exact(BLOCK).zip(y.chunks_exact_mut(BLOCK)).enumerate() {
+        let n0 = b * BLOCK;
+        let base = n0.wrapping_sub(i + 1) & mask;
+        // SAFETY: `base < cap`, so `base + BLOCK + 1 <= cap + 2 BLOCK`, the line's
+        // length.
+        let g: [f64; BLOCK + 1] = std::array::from_fn(|q| unsafe { *lp.add(base + q) });
+        let mut yv = [0.0; BLOCK];
+        for j in 0..BLOCK {
+            let mut t = bm.yg[0][j] * g[0];
+            for q in 1..BLOCK {
+                t = madd::<F>(bm.yg[q][j], g[q], t);
+            }
+            for m in (0..M).rev() {
+                t = madd::<F>(bm.yx[m][j], x[m], t);
+            }
+            yv[j] = t;
+        }
+        let mut nx = [0.0; M];
+        for m in 0..M {
+            let mut t = bm.s[0][m] * g[0];
+            for q in 1..=BLOCK {
+                t = madd::<F>(bm.s[q][m], g[q], t);
+            }
+            nx[m] = if D || M == 1 {
+                madd::<F>(bm.p4[m][m], x[m], t)
+            } else {
+                madd::<F>(bm.p4[m][m], x[m], madd::<F>(bm.p4[m][1 - m], x[1 - m], t))
+            };
+        }
+        by.copy_from_slice(&yv);
+        let r: [f64; BLOCK] =
+            std::array::from_fn(|j| if KZ { bu[j] } else { madd::<F>(k, yv[j], bu[j]) });
+        let w = n0 & mask;
+        // SAFETY: `w + BLOCK <= cap` (`w` and `cap` are multiples of BLOCK), and the
+        // mirror's `cap + w + BLOCK <= cap + 2 BLOCK` when `w < 2 BLOCK`.
+        unsafe {
+            std::ptr::copy_nonoverlapping(r.as_ptr(), lp.add(w), BLOCK);
+            if w < 2 * BLOCK {
+                std::ptr::copy_nonoverlapping(r.as_ptr(), lp.add(cap + w), BLOCK);
+            }
+        }
+        x = nx;
+    }
+    x
 }
 
 /// Where the samples of a run go.
