@@ -34,7 +34,7 @@
 //! through the kernel's loop.
 
 use super::chain::NoEffects;
-use super::kernel::{Record, Sink, Stepper, BLOCK, CHUNK};
+use super::kernel::{Record, Sink, Stepper, BLOCK, CHUNK, DIVERGED};
 use super::rollout::Upper;
 
 /// Whether [`closed_blocks`] applies: FMA and AVX2 (`F`, and the CPU), a
@@ -241,6 +241,8 @@ unsafe fn closed_avx2<
     let mut from = 0;
     let mut n0 = 0;
     let mut cur = stage1(0, &mut zc);
+    let (sign, big, inf) = (c(-0.0), c(DIVERGED), c(f64::INFINITY));
+    let mut ok = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
     while n0 < end {
         let next = if n0 + BLOCK < end {
             stage1(n0 + BLOCK, &mut zc)
@@ -248,11 +250,21 @@ unsafe fn closed_avx2<
             cur
         };
         let c = stage2(cur, &mut v, &mut pos);
+        // The recorder's divergence test (`|a| < DIVERGED`, a finite speed), lane by
+        // lane in registers: the outputs are scanned only when a sample failed it.
+        let [vs, _, y] = c;
+        let good = _mm256_and_pd(
+            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), big),
+            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, vs), inf),
+        );
+        ok = _mm256_and_pd(ok, good);
         law(n0, c);
         cur = next;
         n0 += BLOCK;
         if n0 % CHUNK == 0 {
-            if !rec.proceed(from, n0) {
+            if _mm256_movemask_pd(ok) == 0b1111 {
+                rec.written = n0;
+            } else if !rec.proceed(from, n0) {
                 return false;
             }
             from = n0;
