@@ -3,9 +3,9 @@
 //! [`super::kernel::run`].
 //!
 //! A closed-loop step is a few dozen floating-point operations, all of them needed at
-//! every sample, and the kernel's loop issues them one sample after the other: two
-//! multiply-add units bound it, not its dependency chains. Only three operations sit
-//! on a chain from one sample to the next: each mode's `z' = phi z + t` (one
+//! every sample, and the kernel's loop issues them one sample after the other: the
+//! two multiply-add units bound it, not its dependency chains. Only three operations
+//! sit on a chain from one sample to the next: each mode's `z' = phi z + t` (one
 //! multiply-add), the speed's `v' = v + t` and the position's `p' = p + t` (one
 //! addition each). Everything else at sample `n` (the input terms of the dead-time
 //! line's outputs, the response `C z`, the speed and position increments, the upper
@@ -16,10 +16,10 @@
 //!
 //! 1. the modes' input terms of the four samples side by side (one four-wide
 //!    operation per term), then the two modes' chains together (both modes in one
-//!    two-wide register), one multiply-add per sample;
-//! 2. the four responses and speed increments side by side, then the speed's chain
-//!    (four additions); the four position increments side by side, then the
-//!    position's chain;
+//!    two-wide register), one multiply-add per sample; the four responses and speed
+//!    increments side by side;
+//! 2. the speed's chain (three additions give the block's speeds, a fourth the next
+//!    block's), the four position increments side by side, the position's chain;
 //! 3. the four commands and references side by side, into the outputs and the line.
 //!
 //! Each lane performs exactly the kernel's operations for its sample, in the same
@@ -30,8 +30,18 @@
 //! the rollout's). What changes is the work per sample: the operations off the
 //! chains take a quarter of the instructions.
 //!
-//! Applies to the second-order models on a CPU with FMA and AVX2; the others step
-//! through the kernel's loop.
+//! What bounds it then is latency: a block's stages form one long dependency path
+//! (line outputs, modes, speeds, positions, commands, references), and the dead-time
+//! line closes it into a loop (a block's references are the line outputs of the
+//! blocks a dead time later). So the blocks are software-pipelined (stage 1 of the
+//! next block is issued before stage 2 of this one, which needs a dead time of at
+//! least two blocks), each block reads the line as the two whole blocks of references
+//! its outputs lie in (loads that match earlier stores, which the CPU forwards), the
+//! divergence test runs lane by lane in registers, and the speed's and the position's
+//! chains are written in assembly so that the compiler cannot merge them.
+//!
+//! Applies to the second-order models with a dead time of at least eight samples on
+//! a CPU with FMA and AVX2; the others step through the kernel's loop.
 
 use super::chain::NoEffects;
 use super::kernel::{Record, Sink, Stepper, BLOCK, CHUNK, DIVERGED};
@@ -39,8 +49,9 @@ use super::rollout::Upper;
 
 /// Whether [`closed_blocks`] applies: FMA and AVX2 (`F`, and the CPU), a
 /// second-order model with speed and position (`M == 2`, `N == 4`), and a
-/// whole-sample dead time of at least [`BLOCK`] samples (else a block's line outputs
-/// would include its own references).
+/// whole-sample dead time of at least `2 BLOCK` samples (a block's line outputs are
+/// then written before the block ahead of it starts: the software pipeline's
+/// condition).
 pub fn closed_blocks_apply<const M: usize, const N: usize, const F: bool>(
     p: &super::plant::Plant<M, N>,
 ) -> bool {
@@ -120,8 +131,8 @@ unsafe fn closed_avx2<
     let i = p.delay;
     debug_assert_eq!(O, (i + 1).wrapping_neg() % BLOCK);
     // A local copy of the dead-time line in whole blocks of references (a power of
-    // two, so a block never wraps), long enough for the two blocks a block reads and
-    // the one it writes.
+    // two, so a block never wraps), long enough that the blocks written while a
+    // block's line outputs wait to be read never overwrite them.
     let cap = (i + 2 * BLOCK).next_power_of_two();
     let mask = cap - 1;
     let mut line = vec![0.0; cap];
@@ -249,16 +260,16 @@ unsafe fn closed_avx2<
         } else {
             cur
         };
-        let c = stage2(cur, &mut v, &mut pos);
+        let done = stage2(cur, &mut v, &mut pos);
         // The recorder's divergence test (`|a| < DIVERGED`, a finite speed), lane by
         // lane in registers: the outputs are scanned only when a sample failed it.
-        let [vs, _, y] = c;
+        let [vs, _, y] = done;
         let good = _mm256_and_pd(
             _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), big),
             _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, vs), inf),
         );
         ok = _mm256_and_pd(ok, good);
-        law(n0, c);
+        law(n0, done);
         cur = next;
         n0 += BLOCK;
         if n0 % CHUNK == 0 {
@@ -564,24 +575,5 @@ mod tests {
         let pl = Plant::<1, 3>::new(&fo, Integrators::SpeedPosition, 0.05, false).unwrap();
         assert!(!closed_blocks_apply::<1, 3, true>(&pl));
         compare!(1, 3, true, true, pl, &fo, &ups[0], 300, true);
-    }
-}
-
-/// Temporary: variants for A/B timing.
-#[doc(hidden)]
-pub fn closed_variant<const D: bool, const U: bool>(
-    v: u32,
-    st: &mut Stepper<2, 4, D, true, NoEffects>,
-    up: &Upper,
-    lead_x: &[f64],
-    lead_v: &[f64],
-    rec: &mut Record<'_, true, U>,
-) -> bool {
-    match v {
-        0 => {
-            let law = |n: usize, o: &super::kernel::Obs| up.command(lead_x[n], lead_v[n], o.p, o.v);
-            super::kernel::run(st, lead_x.len(), law, rec)
-        }
-        _ => closed_blocks(st, up, lead_x, lead_v, rec),
     }
 }
