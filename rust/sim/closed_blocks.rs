@@ -272,7 +272,7 @@ unsafe fn closed_avx2<
         law(n0, done);
         cur = next;
         n0 += BLOCK;
-        if n0 % CHUNK == 0 {
+        if n0.is_multiple_of(CHUNK) {
             if _mm256_movemask_pd(ok) == 0b1111 {
                 rec.written = n0;
             } else if !rec.proceed(from, n0) {

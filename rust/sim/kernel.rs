@@ -643,7 +643,7 @@ fn blocks_loop<const M: usize, const D: bool, const F: bool, const KZ: bool>(
 ) -> [f64; M] {
     let cap = line.len() - 2 * BLOCK;
     debug_assert!(cap.is_power_of_two() && cap >= i + 2 * BLOCK);
-    debug_assert!(u.len() == y.len() && u.len() % BLOCK == 0);
+    debug_assert!(u.len() == y.len() && u.len().is_multiple_of(BLOCK));
     let mask = cap - 1;
     let lp = line.as_mut_ptr();
     for (b, (bu, by)) in u
@@ -723,7 +723,7 @@ unsafe fn blocks_avx2<const M: usize, const D: bool, const KZ: bool>(
     debug_assert!(M == 2);
     let cap = line.len() - 2 * BLOCK;
     debug_assert!(cap.is_power_of_two() && cap >= i + 2 * BLOCK);
-    debug_assert!(u.len() == y.len() && u.len() % BLOCK == 0);
+    debug_assert!(u.len() == y.len() && u.len().is_multiple_of(BLOCK));
     let mask = cap - 1;
     let lp = line.as_mut_ptr();
     let ld = |a: &[f64; BLOCK]| _mm256_loadu_pd(a.as_ptr());
