@@ -1064,6 +1064,7 @@ mod tests {
     /// bit: real poles (modal) and complex poles (canonical), with and without inner
     /// feedback, dead times from 4 to 40 samples, from a nonzero state and line.
     #[test]
+    #[cfg(target_arch = "x86_64")]
     fn avx2_blocks_equal_the_plain_blocks() {
         if !crate::sim::fma() {
             return;
