@@ -44,7 +44,7 @@
 //! a CPU with FMA and AVX2; the others step through the kernel's loop.
 
 use super::chain::NoEffects;
-use super::kernel::{Record, Sink, Stepper, BLOCK, CHUNK, DIVERGED};
+use super::kernel::{Record, Stepper, BLOCK};
 use super::rollout::Upper;
 
 /// Whether [`closed_blocks`] applies: FMA and AVX2 (`F`, and the CPU), a
@@ -123,6 +123,7 @@ unsafe fn closed_avx2<
     lead_v: &[f64],
     rec: &mut Record<'_, true, U>,
 ) -> bool {
+    use super::kernel::{Sink, CHUNK, DIVERGED};
     use std::arch::x86_64::*;
     debug_assert!(M == 2 && N == 4 && st.plant.delay >= 2 * BLOCK);
     let len = lead_x.len().min(rec.capacity());
