@@ -164,6 +164,35 @@ impl<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>
         a
     }
 
+    /// Copies the dead-time line's references before sample `n` (`u_ref[n-1]`, ...,
+    /// as many as the stepper keeps) into `line`, a power-of-two ring indexed by the
+    /// sample (`u_ref[m]` at `m & (line.len() - 1)`, at least as long as the
+    /// stepper's own): a block form's copy of the line.
+    pub(crate) fn line_out(&self, line: &mut [f64], n: usize) {
+        debug_assert!(line.len().is_power_of_two() && line.len() >= self.buf.len());
+        let (mask, smask) = (line.len() - 1, self.buf.len() - 1);
+        for q in 1..=self.buf.len() {
+            let m = n.wrapping_sub(q);
+            line[m & mask] = self.buf[m & smask];
+        }
+    }
+
+    /// The inverse of [`Stepper::line_out`]: takes the references before sample `n`
+    /// back from a block form's `line`, and with them the next sample's `w1`
+    /// (`u_ref[n-1-i]`), so that the stepper continues at sample `n`. Requires a
+    /// whole-sample dead time `i >= 1` (with `i == 0` the line's last output is not
+    /// yet in it).
+    pub(crate) fn line_in(&mut self, line: &[f64], n: usize) {
+        debug_assert!(line.len().is_power_of_two() && line.len() >= self.buf.len());
+        debug_assert!(self.plant.delay >= 1);
+        let (mask, smask) = (line.len() - 1, self.buf.len() - 1);
+        for q in 1..=self.buf.len() {
+            let m = n.wrapping_sub(q);
+            self.buf[m & smask] = line[m & mask];
+        }
+        self.wp = line[n.wrapping_sub(1 + self.plant.delay) & mask];
+    }
+
     /// The stepper's parts, borrowed separately (plant and braking maps shared, chain
     /// and dead-time line mutable).
     #[inline(always)]
@@ -556,79 +585,194 @@ pub fn response_blocks<const M: usize, const N: usize, const D: bool, const F: b
     // first slots, so that a block reads its five `g` as one contiguous slice and
     // writes its four references without wrapping (blocks start at multiples of 4).
     let cap = (i + 2 * BLOCK).next_power_of_two();
-    let mask = cap - 1;
-    let smask = st.buf.len() - 1;
     let mut line = vec![0.0; cap + 2 * BLOCK];
-    for q in 1..=st.buf.len() {
-        let m = 0usize.wrapping_sub(q);
-        line[m & mask] = st.buf[m & smask];
-    }
+    st.line_out(&mut line[..cap], 0);
     for q in 0..2 * BLOCK {
         line[cap + q] = line[q];
     }
     let mut x = [0.0; M];
     x.copy_from_slice(&st.x[..M]);
-    for (b, (bu, by)) in u[..len]
+    // Without inner feedback the reference is the command itself (not `u + 0 y`,
+    // which a diverging response would turn into NaN): a choice made once, not per
+    // block.
+    let (u, y) = (&u[..len], &mut y[..len]);
+    #[cfg(target_arch = "x86_64")]
+    if M == 2 && F && super::fma() {
+        // The same operations in AVX2 intrinsics (compiled for FMA whatever the caller
+        // was, and laid out as written: the line's outputs broadcast from the line).
+        let x2 = [x[0], x[1 % M]];
+        // SAFETY: the CPU has FMA and AVX2 (checked just above).
+        let n = unsafe {
+            if k == 0.0 {
+                blocks_avx2::<M, D, true>(&bm, x2, i, k, u, y, &mut line)
+            } else {
+                blocks_avx2::<M, D, false>(&bm, x2, i, k, u, y, &mut line)
+            }
+        };
+        x[0] = n[0];
+        x[1 % M] = n[1];
+        st.x[..M].copy_from_slice(&x);
+        st.line_in(&line[..cap], len);
+        return len;
+    }
+    x = if k == 0.0 {
+        blocks_loop::<M, D, F, true>(&bm, x, i, k, u, y, &mut line)
+    } else {
+        blocks_loop::<M, D, F, false>(&bm, x, i, k, u, y, &mut line)
+    };
+    st.x[..M].copy_from_slice(&x);
+    // The next sample's `w1` is this block's last `g` (`u_ref[len - 1 - i]`), and the
+    // stepper's line holds the last references in its own layout.
+    st.line_in(&line[..cap], len);
+    len
+}
+
+/// The blocks of [`response_blocks`] over `u` (a whole number of blocks) into `y`,
+/// from the model state `x`, with the line copy `line` (`cap` slots, a power of two,
+/// then a mirror of the first `2 BLOCK`); returns the state after the last block.
+/// `KZ`: without inner feedback (`k == 0`).
+#[inline(always)]
+fn blocks_loop<const M: usize, const D: bool, const F: bool, const KZ: bool>(
+    bm: &BlockMaps<M>,
+    mut x: [f64; M],
+    i: usize,
+    k: f64,
+    u: &[f64],
+    y: &mut [f64],
+    line: &mut [f64],
+) -> [f64; M] {
+    let cap = line.len() - 2 * BLOCK;
+    debug_assert!(cap.is_power_of_two() && cap >= i + 2 * BLOCK);
+    debug_assert!(u.len() == y.len() && u.len().is_multiple_of(BLOCK));
+    let mask = cap - 1;
+    let lp = line.as_mut_ptr();
+    for (b, (bu, by)) in u
         .chunks_exact(BLOCK)
-        .zip(y[..len].chunks_exact_mut(BLOCK))
+        .zip(y.chunks_exact_mut(BLOCK))
         .enumerate()
     {
         let n0 = b * BLOCK;
         let base = n0.wrapping_sub(i + 1) & mask;
-        let (yv, nx) = {
-            let g = &line[base..base + BLOCK + 1];
-            let mut yv = [0.0; BLOCK];
-            for j in 0..BLOCK {
-                let mut t = bm.yg[0][j] * g[0];
-                for q in 1..BLOCK {
-                    t = madd::<F>(bm.yg[q][j], g[q], t);
-                }
-                for m in (0..M).rev() {
-                    t = madd::<F>(bm.yx[m][j], x[m], t);
-                }
-                yv[j] = t;
-            }
-            let mut nx = [0.0; M];
-            for m in 0..M {
-                let mut t = bm.s[0][m] * g[0];
-                for q in 1..=BLOCK {
-                    t = madd::<F>(bm.s[q][m], g[q], t);
-                }
-                nx[m] = if D || M == 1 {
-                    madd::<F>(bm.p4[m][m], x[m], t)
-                } else {
-                    madd::<F>(bm.p4[m][m], x[m], madd::<F>(bm.p4[m][1 - m], x[1 - m], t))
-                };
-            }
-            (yv, nx)
-        };
-        by.copy_from_slice(&yv);
-        let mut r = [0.0; BLOCK];
+        // SAFETY: `base < cap`, so `base + BLOCK + 1 <= cap + 2 BLOCK`, the line's
+        // length.
+        let g: [f64; BLOCK + 1] = std::array::from_fn(|q| unsafe { *lp.add(base + q) });
+        let mut yv = [0.0; BLOCK];
         for j in 0..BLOCK {
-            // Without inner feedback the reference is the command itself (not
-            // `u + 0 y`, which a diverging response would turn into NaN).
-            r[j] = if k == 0.0 {
+            let mut t = bm.yg[0][j] * g[0];
+            for q in 1..BLOCK {
+                t = madd::<F>(bm.yg[q][j], g[q], t);
+            }
+            for m in (0..M).rev() {
+                t = madd::<F>(bm.yx[m][j], x[m], t);
+            }
+            yv[j] = t;
+        }
+        let mut nx = [0.0; M];
+        for m in 0..M {
+            let mut t = bm.s[0][m] * g[0];
+            for q in 1..=BLOCK {
+                t = madd::<F>(bm.s[q][m], g[q], t);
+            }
+            nx[m] = if D || M == 1 {
+                madd::<F>(bm.p4[m][m], x[m], t)
+            } else {
+                madd::<F>(bm.p4[m][m], x[m], madd::<F>(bm.p4[m][1 - m], x[1 - m], t))
+            };
+        }
+        by.copy_from_slice(&yv);
+        let r: [f64; BLOCK] = std::array::from_fn(|j| {
+            if KZ {
                 bu[j]
             } else {
                 madd::<F>(k, yv[j], bu[j])
-            };
-        }
+            }
+        });
         let w = n0 & mask;
-        line[w..w + BLOCK].copy_from_slice(&r);
-        if w < 2 * BLOCK {
-            line[cap + w..cap + w + BLOCK].copy_from_slice(&r);
+        // SAFETY: `w + BLOCK <= cap` (`w` and `cap` are multiples of BLOCK), and the
+        // mirror's `cap + w + BLOCK <= cap + 2 BLOCK` when `w < 2 BLOCK`.
+        unsafe {
+            std::ptr::copy_nonoverlapping(r.as_ptr(), lp.add(w), BLOCK);
+            if w < 2 * BLOCK {
+                std::ptr::copy_nonoverlapping(r.as_ptr(), lp.add(cap + w), BLOCK);
+            }
         }
         x = nx;
     }
-    st.x[..M].copy_from_slice(&x);
-    // The next sample's `w1` is this block's last `g` (`u_ref[len - 1 - i]`), and the
-    // stepper's line holds the last references in its own layout.
-    st.wp = line[(len - 1).wrapping_sub(i) & mask];
-    for q in 1..=st.buf.len() {
-        let m = len.wrapping_sub(q);
-        st.buf[m & smask] = line[m & mask];
+    x
+}
+
+/// [`blocks_loop`] for a second-order model (`M == 2`) with FMA, in AVX2 intrinsics:
+/// the four responses of a block side by side (one lane each), the two modes' next
+/// states side by side, each lane the same operations in the same order
+/// (`_mm256_fmadd_pd(a, b, c)` is `madd::<true>(a, b, c)`), so the same bits.
+///
+/// # Safety
+/// The CPU must support FMA and AVX2; `M == 2`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn blocks_avx2<const M: usize, const D: bool, const KZ: bool>(
+    bm: &BlockMaps<M>,
+    x: [f64; 2],
+    i: usize,
+    k: f64,
+    u: &[f64],
+    y: &mut [f64],
+    line: &mut [f64],
+) -> [f64; 2] {
+    use std::arch::x86_64::*;
+    debug_assert!(M == 2);
+    let cap = line.len() - 2 * BLOCK;
+    debug_assert!(cap.is_power_of_two() && cap >= i + 2 * BLOCK);
+    debug_assert!(u.len() == y.len() && u.len().is_multiple_of(BLOCK));
+    let mask = cap - 1;
+    let lp = line.as_mut_ptr();
+    let ld = |a: &[f64; BLOCK]| _mm256_loadu_pd(a.as_ptr());
+    // yg[q] (lane j: H[j][q - 1]), yx[m] (lane j: (C Phi^j)[m]).
+    let yg: [__m256d; BLOCK] = std::array::from_fn(|q| ld(&bm.yg[q]));
+    let (yx0, yx1) = (ld(&bm.yx[0]), ld(&bm.yx[1 % M]));
+    // s[q] (lane m: S[q - 1][m]), the modes' own and cross terms of Phi^4.
+    let sq: [__m128d; BLOCK + 1] = std::array::from_fn(|q| _mm_set_pd(bm.s[q][1 % M], bm.s[q][0]));
+    let p4d = _mm_set_pd(bm.p4[1 % M][1 % M], bm.p4[0][0]);
+    let p4o = _mm_set_pd(bm.p4[1 % M][0], bm.p4[0][1 % M]);
+    let kk = _mm256_set1_pd(k);
+    let mut xs = _mm_set_pd(x[1], x[0]);
+    let (pu, py) = (u.as_ptr(), y.as_mut_ptr());
+    for n0 in (0..u.len()).step_by(BLOCK) {
+        let base = n0.wrapping_sub(i + 1) & mask;
+        // SAFETY: `base < cap`, so `base + BLOCK + 1 <= cap + 2 BLOCK`, the line's
+        // length; `n0 + BLOCK <= u.len() == y.len()`.
+        let g = lp.add(base);
+        // The responses: sum_q yg[q] g[q], then the modes (mode 1 first, as
+        // `blocks_loop`).
+        let mut t = _mm256_mul_pd(yg[0], _mm256_broadcast_sd(&*g));
+        for q in 1..BLOCK {
+            t = _mm256_fmadd_pd(yg[q], _mm256_broadcast_sd(&*g.add(q)), t);
+        }
+        let x1 = _mm256_broadcastsd_pd(_mm_unpackhi_pd(xs, xs));
+        t = _mm256_fmadd_pd(yx1, x1, t);
+        let yv = _mm256_fmadd_pd(yx0, _mm256_broadcastsd_pd(xs), t);
+        // The state after the block, both modes side by side.
+        let mut s = _mm_mul_pd(sq[0], _mm_loaddup_pd(g));
+        for q in 1..=BLOCK {
+            s = _mm_fmadd_pd(sq[q], _mm_loaddup_pd(g.add(q)), s);
+        }
+        xs = if D {
+            _mm_fmadd_pd(p4d, xs, s)
+        } else {
+            _mm_fmadd_pd(p4d, xs, _mm_fmadd_pd(p4o, _mm_permute_pd::<1>(xs), s))
+        };
+        _mm256_storeu_pd(py.add(n0), yv);
+        let uv = _mm256_loadu_pd(pu.add(n0));
+        let r = if KZ { uv } else { _mm256_fmadd_pd(kk, yv, uv) };
+        let w = n0 & mask;
+        // SAFETY: `w + BLOCK <= cap` (`w` and `cap` are multiples of BLOCK), and the
+        // mirror's `cap + w + BLOCK <= cap + 2 BLOCK` when `w < 2 BLOCK`.
+        _mm256_storeu_pd(lp.add(w), r);
+        if w < 2 * BLOCK {
+            _mm256_storeu_pd(lp.add(cap + w), r);
+        }
     }
-    len
+    [_mm_cvtsd_f64(xs), _mm_cvtsd_f64(_mm_unpackhi_pd(xs, xs))]
 }
 
 /// Where the samples of a run go.
@@ -907,5 +1051,93 @@ impl Sink for Response<'_> {
     #[inline(always)]
     fn capacity(&self) -> usize {
         self.0.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Linear;
+    use crate::sim::discretize::Integrators;
+
+    /// The open loop's block form in AVX2 intrinsics equals its plain form bit for
+    /// bit: real poles (modal) and complex poles (canonical), with and without inner
+    /// feedback, dead times from 4 to 40 samples, from a nonzero state and line.
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn avx2_blocks_equal_the_plain_blocks() {
+        if !crate::sim::fma() {
+            return;
+        }
+        let n = 4 * 301;
+        let u: Vec<f64> = (0..n)
+            .map(|j| (0.013 * j as f64).sin() + 0.4 * (0.31 * j as f64).cos())
+            .collect();
+        let lins = [
+            Linear {
+                b1: 6.7893,
+                b0: 0.3479,
+                a2: 1.2824,
+                a1: 8.8157,
+                td: 0.7903,
+                k: 0.1008,
+            },
+            Linear {
+                b1: 0.4,
+                b0: 1.0,
+                a2: 0.5,
+                a1: 0.3,
+                td: 0.31,
+                k: -0.2,
+            },
+        ];
+        let mut forms = 0;
+        for lin0 in lins {
+            for td in [0.2, 0.27, 0.79, 2.03] {
+                for k in [0.0, lin0.k] {
+                    let lin = Linear { td, k, ..lin0 };
+                    let p = Plant::<2, 2>::new(&lin, Integrators::None, 0.05, true).unwrap();
+                    let i = p.delay;
+                    let cap = (i + 2 * BLOCK).next_power_of_two();
+                    let mut line0 = vec![0.0; cap + 2 * BLOCK];
+                    for (q, v) in line0.iter_mut().enumerate().take(cap) {
+                        *v = 0.1 * (q as f64).cos();
+                    }
+                    for q in 0..2 * BLOCK {
+                        line0[cap + q] = line0[q];
+                    }
+                    let x0 = [0.3, -0.2];
+                    macro_rules! both {
+                        ($d:literal, $kz:literal) => {{
+                            let bm = BlockMaps::<2>::new::<2, $d>(&p);
+                            let (mut l1, mut l2) = (line0.clone(), line0.clone());
+                            let (mut y1, mut y2) = (vec![0.0; n], vec![0.0; n]);
+                            let a = blocks_loop::<2, $d, true, $kz>(
+                                &bm, x0, i, k, &u, &mut y1, &mut l1,
+                            );
+                            // SAFETY: the CPU has FMA and AVX2 (checked above).
+                            let b = unsafe {
+                                crate::sim::with_fma(|| {
+                                    blocks_avx2::<2, $d, $kz>(&bm, x0, i, k, &u, &mut y2, &mut l2)
+                                })
+                            };
+                            let bits =
+                                |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                            assert_eq!(bits(&y1), bits(&y2), "td {td}, k {k}");
+                            assert_eq!(bits(&l1), bits(&l2), "line, td {td}, k {k}");
+                            assert_eq!(bits(&a), bits(&b), "state, td {td}, k {k}");
+                            forms += 1;
+                        }};
+                    }
+                    match (p.diag, k == 0.0) {
+                        (true, true) => both!(true, true),
+                        (true, false) => both!(true, false),
+                        (false, true) => both!(false, true),
+                        (false, false) => both!(false, false),
+                    }
+                }
+            }
+        }
+        assert_eq!(forms, 16);
     }
 }

@@ -7,6 +7,8 @@
 //! * [`chain`]: the effect chain (none: the linear fast path);
 //! * [`kernel`]: the one stepping loop and its sinks (trajectory, SSE);
 //! * [`rollout`]: open loop, closed loop, platoons;
+//! * [`closed_blocks`]: the linear closed loop four samples at a time (the kernel's
+//!   operations, bit for bit);
 //! * [`cost`]: run references, the cost specification, batched costs and batched
 //!   simulation.
 //!
@@ -20,6 +22,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod chain;
+pub mod closed_blocks;
 pub mod cost;
 pub mod discretize;
 pub mod kernel;
@@ -83,29 +86,33 @@ macro_rules! call_fma {
 pub(crate) use call_fma;
 
 /// Dispatches on the model order and the integrators: builds the [`plant::Plant`]
-/// and calls `$f::<M, N, D, F>(plant, args...)` with `D` telling whether the model
+/// (`with_plant!(cached; ...)`: through [`plant::Plant::cached`]) and calls `$f::<M, N, D, F>(plant, args...)` with `D` telling whether the model
 /// block is diagonal (modal coordinates) and `F` whether the CPU has FMA.
 macro_rules! with_plant {
-    ($lin:expr, $ints:expr, $dt:expr, $modal:expr, $f:ident ( $($arg:expr),* )) => {{
+    ($lin:expr, $ints:expr, $dt:expr, $modal:expr, $f:ident ( $($arg:expr),* )) => {
+        $crate::sim::with_plant!(new; $lin, $ints, $dt, $modal, $f($($arg),*))
+    };
+    // `new` builds the plant; `cached` takes it from `Plant::cached` (the rollouts).
+    ($ctor:ident; $lin:expr, $ints:expr, $dt:expr, $modal:expr, $f:ident ( $($arg:expr),* )) => {{
         use $crate::sim::discretize::Integrators as I;
         use $crate::sim::plant::Plant;
         use $crate::sim::call_fma;
         match ($lin.order(), $ints) {
-            (1, I::None) => call_fma!($f, 1, 1, true, Plant::<1, 1>::new($lin, $ints, $dt, false)? $(, $arg)*),
-            (1, I::Position) => call_fma!($f, 1, 2, true, Plant::<1, 2>::new($lin, $ints, $dt, false)? $(, $arg)*),
+            (1, I::None) => call_fma!($f, 1, 1, true, Plant::<1, 1>::$ctor($lin, $ints, $dt, false)? $(, $arg)*),
+            (1, I::Position) => call_fma!($f, 1, 2, true, Plant::<1, 2>::$ctor($lin, $ints, $dt, false)? $(, $arg)*),
             (1, I::SpeedPosition) => {
-                call_fma!($f, 1, 3, true, Plant::<1, 3>::new($lin, $ints, $dt, false)? $(, $arg)*)
+                call_fma!($f, 1, 3, true, Plant::<1, 3>::$ctor($lin, $ints, $dt, false)? $(, $arg)*)
             }
             (_, I::None) => {
-                let p = Plant::<2, 2>::new($lin, $ints, $dt, $modal)?;
+                let p = Plant::<2, 2>::$ctor($lin, $ints, $dt, $modal)?;
                 if p.diag { call_fma!($f, 2, 2, true, p $(, $arg)*) } else { call_fma!($f, 2, 2, false, p $(, $arg)*) }
             }
             (_, I::Position) => {
-                let p = Plant::<2, 3>::new($lin, $ints, $dt, $modal)?;
+                let p = Plant::<2, 3>::$ctor($lin, $ints, $dt, $modal)?;
                 if p.diag { call_fma!($f, 2, 3, true, p $(, $arg)*) } else { call_fma!($f, 2, 3, false, p $(, $arg)*) }
             }
             (_, I::SpeedPosition) => {
-                let p = Plant::<2, 4>::new($lin, $ints, $dt, $modal)?;
+                let p = Plant::<2, 4>::$ctor($lin, $ints, $dt, $modal)?;
                 if p.diag { call_fma!($f, 2, 4, true, p $(, $arg)*) } else { call_fma!($f, 2, 4, false, p $(, $arg)*) }
             }
         }

@@ -229,6 +229,34 @@ impl<const M: usize, const N: usize> Plant<M, N> {
         Some(pl)
     }
 
+    /// [`Plant::new`] through a small cache, per thread, of the plants last built:
+    /// a loop of rollouts of one model (the same parameters, integrators, `dt` and
+    /// choice of basis, compared bit for bit) discretizes it once. With speed and
+    /// position the discretization takes two matrix exponentials, about 10 us, a few
+    /// percent of a closed loop of 1e5 samples. The plant returned is the one
+    /// `Plant::new` returns (a copy of it).
+    pub fn cached(lin: &Linear, ints: Integrators, dt: f64, modal: bool) -> Result<Self> {
+        let key = CacheKey::of::<M, N>(lin, ints, dt, modal);
+        let hit = PLANTS.with(|c| {
+            c.borrow()
+                .iter()
+                .find(|(k, _)| *k == key)
+                .and_then(|(_, p)| p.downcast_ref::<Self>().copied())
+        });
+        if let Some(p) = hit {
+            return Ok(p);
+        }
+        let p = Self::new(lin, ints, dt, modal)?;
+        PLANTS.with(|c| {
+            let mut c = c.borrow_mut();
+            if c.len() >= CACHED_PLANTS {
+                c.remove(0);
+            }
+            c.push((key, Box::new(p)));
+        });
+        Ok(p)
+    }
+
     fn from_discrete(d: &Discrete<N>, dt: f64) -> Self {
         Self {
             phi: d.phi,
@@ -300,6 +328,42 @@ impl<const M: usize, const N: usize> Plant<M, N> {
         x[M..N].copy_from_slice(&ints[..(N - M)]);
         x
     }
+}
+
+/// Plants kept per thread by [`Plant::cached`].
+const CACHED_PLANTS: usize = 4;
+
+/// What a plant is a function of, bit for bit, and its type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct CacheKey {
+    bits: [u64; 7],
+    ints: Integrators,
+    modal: bool,
+    plant: std::any::TypeId,
+}
+
+impl CacheKey {
+    fn of<const M: usize, const N: usize>(
+        lin: &Linear,
+        ints: Integrators,
+        dt: f64,
+        modal: bool,
+    ) -> Self {
+        let bits = [lin.b1, lin.b0, lin.a2, lin.a1, lin.td, lin.k, dt].map(f64::to_bits);
+        Self {
+            bits,
+            ints,
+            modal,
+            plant: std::any::TypeId::of::<Plant<M, N>>(),
+        }
+    }
+}
+
+type Cached = (CacheKey, Box<dyn std::any::Any>);
+
+thread_local! {
+    /// The last plants built by [`Plant::cached`] on this thread, oldest first.
+    static PLANTS: std::cell::RefCell<Vec<Cached>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 fn mul2(a: &[[f64; 2]; 2], b: &[[f64; 2]; 2]) -> [[f64; 2]; 2] {
@@ -446,6 +510,60 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn cached_plants_are_the_plants() {
+        let lin = Linear {
+            b1: 6.7893,
+            b0: 0.3479,
+            a2: 1.2824,
+            a1: 8.8157,
+            td: 0.7903,
+            k: 0.1008,
+        };
+        let bits = |p: &Plant<2, 4>| {
+            let mut v: Vec<u64> = p.phi.iter().flatten().map(|x| x.to_bits()).collect();
+            v.extend(p.g0.iter().chain(&p.g1).chain(&p.c).map(|x| x.to_bits()));
+            v.push(p.frac.to_bits());
+            v.push(p.delay as u64);
+            v
+        };
+        let ints = Integrators::SpeedPosition;
+        let want = Plant::<2, 4>::new(&lin, ints, 0.05, true).unwrap();
+        for _ in 0..2 {
+            assert_eq!(
+                bits(&Plant::cached(&lin, ints, 0.05, true).unwrap()),
+                bits(&want)
+            );
+        }
+        // Another dt, basis, model or type is another plant; errors are not kept.
+        let other = Plant::<2, 4>::new(&lin, ints, 0.1, true).unwrap();
+        assert_eq!(
+            bits(&Plant::cached(&lin, ints, 0.1, true).unwrap()),
+            bits(&other)
+        );
+        let canon = Plant::<2, 4>::cached(&lin, ints, 0.05, false).unwrap();
+        assert!(!canon.diag);
+        let k2 = Linear { k: 0.2, ..lin };
+        assert_eq!(
+            bits(&Plant::cached(&k2, ints, 0.05, true).unwrap()),
+            bits(&Plant::<2, 4>::new(&k2, ints, 0.05, true).unwrap())
+        );
+        let p2 = Plant::<2, 2>::cached(&lin, Integrators::None, 0.05, true).unwrap();
+        assert_eq!(
+            p2.c,
+            Plant::<2, 2>::new(&lin, Integrators::None, 0.05, true)
+                .unwrap()
+                .c
+        );
+        assert!(Plant::<2, 4>::new(&lin, ints, -1.0, true).is_err());
+        assert!(Plant::<2, 4>::cached(&lin, ints, -1.0, true).is_err());
+        assert!(Plant::<2, 4>::cached(&lin, ints, -1.0, true).is_err());
+        assert_eq!(
+            bits(&Plant::cached(&lin, ints, 0.05, true).unwrap()),
+            bits(&want)
+        );
     }
 
     #[test]

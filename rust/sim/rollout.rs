@@ -6,6 +6,7 @@
 //! (`*_into`) or returns a [`Trajectory`].
 
 use super::chain::{check_kind, lower_of, resolve_exo, Chain, Effects, Law, NoEffects, UpperChain};
+use super::closed_blocks::closed_blocks;
 use super::discretize::Integrators;
 use super::kernel::{blocks_apply, response_blocks, run, Record, Response, Stepper, DIVERGED};
 use super::plant::{start, Init, Plant, Start};
@@ -233,6 +234,7 @@ pub fn simulate_into(lin: &Linear, u: &[f64], dt: f64, init: Init, y: &mut [f64]
     check_series("command", &u[..u.len().min(1)])?;
     check_len("out", y, u.len())?;
     with_plant!(
+        cached;
         lin,
         Integrators::None,
         dt,
@@ -327,6 +329,7 @@ pub fn simulate_full_into(
     }
     let ints = Integrators::for_kind(kind);
     with_plant!(
+        cached;
         lin,
         ints,
         dt,
@@ -405,13 +408,10 @@ fn closed_rec<const M: usize, const N: usize, const D: bool, const F: bool, cons
     // Both leader series as long as the run (checked by `closed_loop_into`): with
     // `run` bounding `n` by that length, the per-sample reads need no bounds check.
     let lead_v = &lead_v[..lead_x.len()];
-    let law = |n: usize, o: &super::kernel::Obs| {
-        let (lx, lv) = (lead_x[n], lead_v[n]);
-        up.command(lx, lv, o.p, o.v)
-    };
     if eff.effects.is_empty() {
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, true, &s, int0)?;
-        run(&mut st, lead_x.len(), law, &mut rec);
+        // The kernel's steps, four samples at a time where that applies.
+        closed_blocks(&mut st, up, lead_x, lead_v, &mut rec);
         // Linear: a run to the end with a finite stepper proves the leader finite
         // (see `Stepper::finite`); otherwise (divergence, or a bad sample to name)
         // the leader is checked now.
@@ -465,6 +465,7 @@ pub fn closed_loop_into(
         check_len("out", s, n)?;
     }
     with_plant!(
+        cached;
         lin,
         Integrators::SpeedPosition,
         dt,
@@ -1300,6 +1301,7 @@ pub fn platoon_into<P: PlatoonOut + ?Sized>(
     }
     outs.check(lead_x.len())?;
     with_plant!(
+        cached;
         lin,
         Integrators::SpeedPosition,
         dt,

@@ -1,0 +1,580 @@
+//! The linear closed loop (no effect) four samples at a time, with the very
+//! operations of the one kernel, so bit for bit the trajectory of
+//! [`super::kernel::run`].
+//!
+//! A closed-loop step is a few dozen floating-point operations, all of them needed at
+//! every sample, and the kernel's loop issues them one sample after the other: the
+//! two multiply-add units bound it, not its dependency chains. Only three operations
+//! sit on a chain from one sample to the next: each mode's `z' = phi z + t` (one
+//! multiply-add), the speed's `v' = v + t` and the position's `p' = p + t` (one
+//! addition each). Everything else at sample `n` (the input terms of the dead-time
+//! line's outputs, the response `C z`, the speed and position increments, the upper
+//! law's command, the reference into the line) reads the state at `n` and line
+//! outputs written at least `i` samples earlier. With a whole-sample dead time of
+//! `i >= 4` samples the four line outputs a block of four samples reads were all
+//! written before the block starts, so per block (AVX2, one sample per lane):
+//!
+//! 1. the modes' input terms of the four samples side by side (one four-wide
+//!    operation per term), then the two modes' chains together (both modes in one
+//!    two-wide register), one multiply-add per sample; the four responses and speed
+//!    increments side by side;
+//! 2. the speed's chain (three additions give the block's speeds, a fourth the next
+//!    block's), the four position increments side by side, the position's chain;
+//! 3. the four commands and references side by side, into the outputs and the line.
+//!
+//! Each lane performs exactly the kernel's operations for its sample, in the same
+//! order (the kernel's `observe`, the upper law, `step` and `advance`), so the
+//! trajectory is the kernel's to the bit (tested: `closed_blocks_equal_the_kernel`),
+//! and every identity built on the kernel holds (a platoon equals its followers
+//! simulated one by one, neutral effects equal the linear path, a closed-loop cost is
+//! the rollout's). What changes is the work per sample: the operations off the
+//! chains take a quarter of the instructions.
+//!
+//! What bounds it then is latency: a block's stages form one long dependency path
+//! (line outputs, modes, speeds, positions, commands, references), and the dead-time
+//! line closes it into a loop (a block's references are the line outputs of the
+//! blocks a dead time later). So the blocks are software-pipelined (stage 1 of the
+//! next block is issued before stage 2 of this one, which needs a dead time of at
+//! least two blocks), each block reads the line as the two whole blocks of references
+//! its outputs lie in (loads that match earlier stores, which the CPU forwards), the
+//! divergence test runs lane by lane in registers, and the speed's and the position's
+//! chains are written in assembly so that the compiler cannot merge them.
+//!
+//! Applies to the second-order models with a dead time of at least eight samples on
+//! a CPU with FMA and AVX2; the others step through the kernel's loop.
+
+use super::chain::NoEffects;
+use super::kernel::{Record, Stepper, BLOCK};
+use super::rollout::Upper;
+
+/// Whether [`closed_blocks`] applies: FMA and AVX2 (`F`, and the CPU), a
+/// second-order model with speed and position (`M == 2`, `N == 4`), and a
+/// whole-sample dead time of at least `2 BLOCK` samples (a block's line outputs are
+/// then written before the block ahead of it starts: the software pipeline's
+/// condition).
+pub fn closed_blocks_apply<const M: usize, const N: usize, const F: bool>(
+    p: &super::plant::Plant<M, N>,
+) -> bool {
+    cfg!(target_arch = "x86_64") && F && M == 2 && N == 4 && p.delay >= 2 * BLOCK && super::fma()
+}
+
+/// The linear closed loop behind the leader `(lead_x, lead_v)` into `rec`, from
+/// sample 0 (the stepper's start) to the end of the leader or the first divergence
+/// (the recorder's chunk test, as [`super::kernel::run`] does it): returns `false`
+/// when the recorder stopped the run. The stepper ends in the state (and with the
+/// dead-time line) the kernel's loop would leave, bit for bit.
+///
+/// Requires [`closed_blocks_apply`] (checked: otherwise the kernel's loop runs) and
+/// `lead_v.len() >= lead_x.len()`.
+pub fn closed_blocks<
+    const M: usize,
+    const N: usize,
+    const D: bool,
+    const F: bool,
+    const U: bool,
+>(
+    st: &mut Stepper<M, N, D, F, NoEffects>,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    rec: &mut Record<'_, true, U>,
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if closed_blocks_apply::<M, N, F>(&st.plant) {
+        // SAFETY: the CPU has FMA and AVX2 (`closed_blocks_apply` checked it).
+        // The offset of a block's first `w1` in its block of references.
+        let o = (st.plant.delay + 1).wrapping_neg() % BLOCK;
+        return unsafe {
+            match o {
+                0 => closed_avx2::<M, N, D, F, U, 0>(st, up, lead_x, lead_v, rec),
+                1 => closed_avx2::<M, N, D, F, U, 1>(st, up, lead_x, lead_v, rec),
+                2 => closed_avx2::<M, N, D, F, U, 2>(st, up, lead_x, lead_v, rec),
+                _ => closed_avx2::<M, N, D, F, U, 3>(st, up, lead_x, lead_v, rec),
+            }
+        };
+    }
+    let law = |n: usize, o: &super::kernel::Obs| up.command(lead_x[n], lead_v[n], o.p, o.v);
+    super::kernel::run(st, lead_x.len(), law, rec)
+}
+
+/// [`closed_blocks`] in AVX2 intrinsics (see the module documentation). A lane's
+/// `_mm256_fmadd_pd(a, b, c)` is the kernel's `a.mul_add(b, c)` (`madd::<true>`),
+/// and Rust contracts nothing else, so each lane rounds as the kernel does.
+///
+/// `O` is the offset of a block's first `w1` in its block of references,
+/// `(-(i + 1)) mod 4`.
+///
+/// # Safety
+/// The CPU must support FMA and AVX2; `M == 2`, `N == 4`, a dead time of at least
+/// `2 BLOCK` samples.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn closed_avx2<
+    const M: usize,
+    const N: usize,
+    const D: bool,
+    const F: bool,
+    const U: bool,
+    const O: usize,
+>(
+    st: &mut Stepper<M, N, D, F, NoEffects>,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    rec: &mut Record<'_, true, U>,
+) -> bool {
+    use super::kernel::{Sink, CHUNK, DIVERGED};
+    use std::arch::x86_64::*;
+    debug_assert!(M == 2 && N == 4 && st.plant.delay >= 2 * BLOCK);
+    let len = lead_x.len().min(rec.capacity());
+    let (lead_x, lead_v) = (&lead_x[..len], &lead_v[..len]);
+    let p = st.plant;
+    let i = p.delay;
+    debug_assert_eq!(O, (i + 1).wrapping_neg() % BLOCK);
+    // A local copy of the dead-time line in whole blocks of references (a power of
+    // two, so a block never wraps), long enough that the blocks written while a
+    // block's line outputs wait to be read never overwrite them.
+    let cap = (i + 2 * BLOCK).next_power_of_two();
+    let mask = cap - 1;
+    let mut line = vec![0.0; cap];
+    st.line_out(&mut line, 0);
+    let c = |x: f64| _mm256_set1_pd(x);
+    // Input maps of the line's outputs (mode 0, mode 1, speed, position).
+    let g0: [__m256d; 4] = std::array::from_fn(|r| c(p.g0[r % N]));
+    let g1: [__m256d; 4] = std::array::from_fn(|r| c(p.g1[r % N]));
+    let (s, q) = (M % N, (M + 1) % N);
+    // Speed and position rows on the modes (and the position on the speed).
+    let (pv0, pv1) = (c(p.phi[s][0]), c(p.phi[s][1 % N]));
+    let (px0, px1, pxv) = (c(p.phi[q][0]), c(p.phi[q][1 % N]), c(p.phi[q][s]));
+    let (c0, c1) = (c(p.c[0]), c(p.c[1 % N]));
+    // The modes' own terms (lane r: mode r) and, without modal coordinates, each
+    // mode's term of the other.
+    let ldiag = _mm_set_pd(p.phi[1 % N][1 % N], p.phi[0][0]);
+    let loff = _mm_set_pd(p.phi[1 % N][0], p.phi[0][1 % N]);
+    let (kg, kv, tg, gmin, k) = (c(up.kg), c(up.kv), c(up.tg), c(up.gmin), c(p.k));
+    let inner = p.k != 0.0;
+    let mut zc = _mm_set_pd(st.x[1 % N], st.x[0]);
+    let (mut v, mut pos) = (st.x[s], st.x[q]);
+    let lp = line.as_mut_ptr();
+    let (plx, plv) = (lead_x.as_ptr(), lead_v.as_ptr());
+    let (pa, pv, px, pu) = (
+        rec.a.as_mut_ptr(),
+        rec.v.as_mut_ptr(),
+        rec.x.as_mut_ptr(),
+        rec.u.as_mut_ptr(),
+    );
+    debug_assert!(len <= rec.a.len() && len <= rec.v.len() && len <= rec.x.len());
+    debug_assert!(!U || len <= rec.u.len());
+    let step = |z: __m128d, t: __m128d| {
+        if D {
+            _mm_fmadd_pd(ldiag, z, t)
+        } else {
+            _mm_fmadd_pd(ldiag, z, _mm_fmadd_pd(loff, _mm_permute_pd::<1>(z), t))
+        }
+    };
+    // Stage 1 of the block at `n0`: from the modes at `n0` (`zc`, advanced to the
+    // block's end) and the line, the modes at the four samples, the responses, the
+    // speed increments and the position increments' input terms.
+    // SAFETY (the line): `base` and `base + BLOCK` (masked) are multiples of BLOCK
+    // below `cap`, so each load reads four slots of the line.
+    let stage1 = |n0: usize, zc: &mut __m128d| {
+        // w1[j] = u_ref[n0+j-i-1], w0[j] = u_ref[n0+j-i]: written before the block,
+        // read as the two whole blocks of references they lie in (each load then
+        // matches one earlier store, which the CPU forwards) and aligned in registers.
+        let base = (n0.wrapping_sub(i + 1) & mask) & !(BLOCK - 1);
+        let ra = _mm256_loadu_pd(lp.add(base));
+        let rb = _mm256_loadu_pd(lp.add((base + BLOCK) & mask));
+        let (w1, w0) = align::<O>(ra, rb);
+        // The modes' input terms, then their chains, both modes per register.
+        let tz0 = _mm256_fmadd_pd(g1[0], w1, _mm256_mul_pd(g0[0], w0));
+        let tz1 = _mm256_fmadd_pd(g1[1], w1, _mm256_mul_pd(g0[1], w0));
+        let a = _mm256_unpacklo_pd(tz0, tz1); // [t0 t1] of samples 0 and 2
+        let b = _mm256_unpackhi_pd(tz0, tz1); // of samples 1 and 3
+        let z0 = *zc;
+        let z1 = step(z0, _mm256_castpd256_pd128(a));
+        let z2 = step(z1, _mm256_castpd256_pd128(b));
+        let z3 = step(z2, _mm256_extractf128_pd::<1>(a));
+        *zc = step(z3, _mm256_extractf128_pd::<1>(b));
+        let e = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(z0), z2);
+        let o = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(z1), z3);
+        let m0 = _mm256_unpacklo_pd(e, o); // mode 0 at the four samples
+        let m1 = _mm256_unpackhi_pd(e, o); // mode 1
+                                           // Responses (`observe`), speed increments, position increments' inputs.
+        let y = _mm256_fmadd_pd(c1, m1, _mm256_mul_pd(c0, m0));
+        let tv = _mm256_fmadd_pd(g1[2], w1, _mm256_mul_pd(g0[2], w0));
+        let tv = _mm256_fmadd_pd(pv1, m1, _mm256_fmadd_pd(pv0, m0, tv));
+        let tp = _mm256_fmadd_pd(g1[3], w1, _mm256_mul_pd(g0[3], w0));
+        [m0, m1, y, tv, tp]
+    };
+    // Stage 2 of the block at `n0`: the speed's chain, the position increments and
+    // chain, the upper law, the references into the line, the outputs.
+    // SAFETY: `(n0 & mask) + 4 <= cap` (`n0` and `cap` are multiples of BLOCK), and
+    // `n0 + 4 <= len`, the length of the leader slices and at most that of the
+    // outputs (`len <= rec.capacity()`).
+    let stage2 = |[m0, m1, y, tv, tp]: [__m256d; 5], v: &mut f64, pos: &mut f64| {
+        let (vs, v3) = chain(*v, tv);
+        *v = add(v3, lane3(tv));
+        let tpv = _mm256_fmadd_pd(pxv, vs, tp);
+        let tp = _mm256_fmadd_pd(px1, m1, _mm256_fmadd_pd(px0, m0, tpv));
+        let (ps, p3) = chain(*pos, tp);
+        *pos = add(p3, lane3(tp));
+        [vs, ps, y]
+    };
+    let law = |n0: usize, [vs, ps, y]: [__m256d; 3]| {
+        // The upper law (Eq. 3): kg (lx - p - tg v - gmin) + kv (lv - v).
+        let lx = _mm256_loadu_pd(plx.add(n0));
+        let lv = _mm256_loadu_pd(plv.add(n0));
+        let gap = _mm256_sub_pd(
+            _mm256_sub_pd(_mm256_sub_pd(lx, ps), _mm256_mul_pd(tg, vs)),
+            gmin,
+        );
+        let u = _mm256_add_pd(
+            _mm256_mul_pd(kg, gap),
+            _mm256_mul_pd(kv, _mm256_sub_pd(lv, vs)),
+        );
+        // The reference `u + K y` (the command itself without inner feedback).
+        let r = if inner {
+            _mm256_add_pd(u, _mm256_mul_pd(k, y))
+        } else {
+            u
+        };
+        _mm256_storeu_pd(lp.add(n0 & mask), r);
+        _mm256_storeu_pd(pa.add(n0), y);
+        _mm256_storeu_pd(pv.add(n0), vs);
+        _mm256_storeu_pd(px.add(n0), ps);
+        if U {
+            _mm256_storeu_pd(pu.add(n0), u);
+        }
+    };
+    // Software-pipelined: stage 1 of the next block is issued before stage 2 of this
+    // one (it reads the line up to `u_ref[n0 + 7 - i]`, written before this block
+    // when `i >= 2 BLOCK`), so that the two overlap in the CPU.
+    let end = len / BLOCK * BLOCK;
+    let mut from = 0;
+    let mut n0 = 0;
+    let mut cur = stage1(0, &mut zc);
+    let (sign, big, inf) = (c(-0.0), c(DIVERGED), c(f64::INFINITY));
+    let mut ok = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+    while n0 < end {
+        let next = if n0 + BLOCK < end {
+            stage1(n0 + BLOCK, &mut zc)
+        } else {
+            cur
+        };
+        let done = stage2(cur, &mut v, &mut pos);
+        // The recorder's divergence test (`|a| < DIVERGED`, a finite speed), lane by
+        // lane in registers: the outputs are scanned only when a sample failed it.
+        let [vs, _, y] = done;
+        let good = _mm256_and_pd(
+            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), big),
+            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, vs), inf),
+        );
+        ok = _mm256_and_pd(ok, good);
+        law(n0, done);
+        cur = next;
+        n0 += BLOCK;
+        if n0.is_multiple_of(CHUNK) {
+            if _mm256_movemask_pd(ok) == 0b1111 {
+                rec.written = n0;
+            } else if !rec.proceed(from, n0) {
+                return false;
+            }
+            from = n0;
+        }
+    }
+    st.x = state::<N>(zc, v, pos);
+    st.line_in(&line, end);
+    // The run's last few samples (fewer than a block): the kernel itself.
+    for n in end..len {
+        let o = st.observe(n);
+        let u = up.command(lead_x[n], lead_v[n], o.p, o.v);
+        let a = st.step(n, &o, u);
+        rec.put(n, a, o.v, o.p, u, o.y_lin);
+    }
+    from >= len || rec.proceed(from, len)
+}
+
+/// Lane 3 of `t`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn lane3(t: std::arch::x86_64::__m256d) -> f64 {
+    use std::arch::x86_64::*;
+    let h = _mm256_extractf128_pd::<1>(t);
+    _mm_cvtsd_f64(_mm_unpackhi_pd(h, h))
+}
+
+/// `(w1, w0)`: lanes `O..O + 4` and `O + 1..O + 5` of the eight references `[a, b]`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn align<const O: usize>(
+    a: std::arch::x86_64::__m256d,
+    b: std::arch::x86_64::__m256d,
+) -> (std::arch::x86_64::__m256d, std::arch::x86_64::__m256d) {
+    use std::arch::x86_64::*;
+    // [a2 a3 b0 b1]
+    let mid = _mm256_permute2f128_pd::<0x21>(a, b);
+    match O {
+        // [a0 a1 a2 a3], [a1 a2 a3 b0]
+        0 => (a, _mm256_shuffle_pd::<0b0101>(a, mid)),
+        // [a1 a2 a3 b0], [a2 a3 b0 b1]
+        1 => (_mm256_shuffle_pd::<0b0101>(a, mid), mid),
+        // [a2 a3 b0 b1], [a3 b0 b1 b2]
+        2 => (mid, _mm256_shuffle_pd::<0b0101>(mid, b)),
+        // [a3 b0 b1 b2], [b0 b1 b2 b3]
+        _ => (_mm256_shuffle_pd::<0b0101>(mid, b), b),
+    }
+}
+
+/// `[s, s + t0, (s + t0) + t1, ((s + t0) + t1) + t2]` (an integrator's running value
+/// over three steps, each the kernel's one addition: `vaddsd` is the IEEE addition
+/// of `+`) and its last element.
+///
+/// Written in assembly so that the compiler cannot merge the speed's and the
+/// position's chains: left to itself, LLVM packs the two running values into one
+/// register between blocks, which makes the speed's next chain wait for the
+/// position's (measured: about twice the time per block).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn chain(s: f64, t: std::arch::x86_64::__m256d) -> (std::arch::x86_64::__m256d, f64) {
+    let (out, s3): (std::arch::x86_64::__m256d, f64);
+    // SAFETY: register-only AVX instructions (the callers run with AVX2 enabled).
+    std::arch::asm!(
+        "vaddsd {s1}, {s}, {t:x}",
+        "vpermilpd {q}, {t:x}, 1",
+        "vaddsd {s2}, {s1}, {q}",
+        "vextractf128 {h}, {t}, 1",
+        "vaddsd {s3}, {s2}, {h}",
+        "vunpcklpd {s1}, {s}, {s1}",
+        "vunpcklpd {s2}, {s2}, {s3}",
+        "vinsertf128 {out}, {s1:y}, {s2}, 1",
+        s = in(xmm_reg) s,
+        t = in(ymm_reg) t,
+        s1 = out(xmm_reg) _,
+        s2 = out(xmm_reg) _,
+        q = out(xmm_reg) _,
+        h = out(xmm_reg) _,
+        s3 = out(xmm_reg) s3,
+        out = out(ymm_reg) out,
+        options(pure, nomem, nostack, preserves_flags)
+    );
+    (out, s3)
+}
+
+/// `a + b` (one `vaddsd`) that the compiler cannot pair with another addition (see
+/// [`chain`]).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx")]
+unsafe fn add(a: f64, b: f64) -> f64 {
+    let r: f64;
+    // SAFETY: a register-only AVX instruction.
+    std::arch::asm!(
+        "vaddsd {r}, {a}, {b}",
+        r = lateout(xmm_reg) r,
+        a = in(xmm_reg) a,
+        b = in(xmm_reg) b,
+        options(pure, nomem, nostack, preserves_flags)
+    );
+    r
+}
+
+/// The kernel's state vector from the two modes, the speed and the position.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn state<const N: usize>(zc: std::arch::x86_64::__m128d, v: f64, pos: f64) -> [f64; N] {
+    use std::arch::x86_64::*;
+    let mut x = [0.0; N];
+    let z = [_mm_cvtsd_f64(zc), _mm_cvtsd_f64(_mm_unpackhi_pd(zc, zc))];
+    x[0] = z[0];
+    x[1 % N] = z[1];
+    x[2 % N] = v;
+    x[3 % N] = pos;
+    x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Linear;
+    use crate::sim::discretize::Integrators;
+    use crate::sim::kernel::run;
+    use crate::sim::plant::{start, Init, Plant};
+    use crate::sim::rollout::stepper;
+
+    fn leader(n: usize) -> (Vec<f64>, Vec<f64>) {
+        let lv: Vec<f64> = (0..n)
+            .map(|k| 12.0 + 3.0 * (0.013 * k as f64).sin() + 0.5 * (0.17 * k as f64).cos())
+            .collect();
+        let mut lx = vec![50.0; n];
+        for k in 1..n {
+            lx[k] = lx[k - 1] + 0.025 * (lv[k] + lv[k - 1]);
+        }
+        (lx, lv)
+    }
+
+    /// Runs the kernel's loop and the block form on one model (through `$m`, `$n`:
+    /// model order and state size) and asserts every output, the samples written and
+    /// the final stepper bit-identical.
+    macro_rules! compare {
+        ($m:literal, $n:literal, $d:expr, $f:literal, $pl:expr, $lin:expr, $up:expr, $len:expr, $u:literal) => {{
+            let pl: Plant<$m, $n> = $pl;
+            let (lx, lv) = leader($len);
+            let s = start($lin, Init::Rest, 0.0).unwrap();
+            let int0 = [lv.first().copied().unwrap_or(0.0), 30.0];
+            let mk = || {
+                stepper::<$m, $n, $d, $f, _>(
+                    pl,
+                    $lin,
+                    Integrators::SpeedPosition,
+                    NoEffects,
+                    true,
+                    &s,
+                    int0,
+                )
+                .unwrap()
+            };
+            let mut outs: [[Vec<f64>; 4]; 2] = [
+                [
+                    vec![0.0; $len],
+                    vec![0.0; $len],
+                    vec![0.0; $len],
+                    vec![0.0; $len],
+                ],
+                [
+                    vec![0.0; $len],
+                    vec![0.0; $len],
+                    vec![0.0; $len],
+                    vec![0.0; $len],
+                ],
+            ];
+            let [ka, kb] = &mut outs;
+            let (mut s1, mut s2) = (mk(), mk());
+            let (w1, d1, w2, d2);
+            {
+                let [a, v, x, u] = ka;
+                let mut rec = Record::<true, $u> {
+                    a,
+                    v,
+                    x,
+                    u: if $u { &mut u[..] } else { &mut [] },
+                    written: 0,
+                };
+                let law =
+                    |n: usize, o: &crate::sim::kernel::Obs| $up.command(lx[n], lv[n], o.p, o.v);
+                d1 = run(&mut s1, $len, law, &mut rec);
+                w1 = rec.written;
+            }
+            {
+                let [a, v, x, u] = kb;
+                let mut rec = Record::<true, $u> {
+                    a,
+                    v,
+                    x,
+                    u: if $u { &mut u[..] } else { &mut [] },
+                    written: 0,
+                };
+                d2 = closed_blocks(&mut s2, &$up, &lx, &lv, &mut rec);
+                w2 = rec.written;
+            }
+            assert_eq!((w1, d1), (w2, d2), "written, completed");
+            let stopped = usize::from(!d1);
+            for (p, q) in outs[0].iter().zip(&outs[1]) {
+                for (k, (a, b)) in p.iter().zip(q).enumerate() {
+                    assert_eq!(a.to_bits(), b.to_bits(), "sample {k}: {a} vs {b}");
+                }
+            }
+            if d1 {
+                let bits = |s: &Stepper<$m, $n, $d, $f, NoEffects>| {
+                    let mut v: Vec<u64> = s.x.iter().map(|x| x.to_bits()).collect();
+                    let o = s.observe($len);
+                    v.push(o.y.to_bits());
+                    v
+                };
+                assert_eq!(bits(&s1), bits(&s2), "final state");
+                // The steppers continue identically (the line and w1 came back).
+                let (mut a1, mut a2) = (s1.clone(), s2.clone());
+                for n in $len..$len + 40 {
+                    let (o1, o2) = (a1.observe(n), a2.observe(n));
+                    let r1 = a1.step(n, &o1, 0.3);
+                    let r2 = a2.step(n, &o2, 0.3);
+                    assert_eq!(r1.to_bits(), r2.to_bits(), "continued at {n}");
+                }
+            }
+            stopped
+        }};
+    }
+
+    /// The block form against the kernel's loop, bit for bit: real poles (modal
+    /// coordinates, K > 0), complex poles (the canonical form, K = 0), a real-pole
+    /// model with a dead time of exactly eight samples (f = 0) and inner feedback
+    /// K < 0, one with a long dead time (40 samples); a following and a diverging
+    /// upper law; lengths from 0 to several chunks, ending mid-block and mid-chunk;
+    /// with and without the command output. A dead time under eight samples and a
+    /// first-order model take the kernel's loop (compared too).
+    #[test]
+    fn closed_blocks_equal_the_kernel() {
+        if !crate::sim::fma() {
+            return;
+        }
+        let lin = |b1, b0, a2, a1, td, k| Linear {
+            b1,
+            b0,
+            a2,
+            a1,
+            td,
+            k,
+        };
+        let models = [
+            (lin(6.7893, 0.3479, 1.2824, 8.8157, 0.7903, 0.1008), true),
+            (lin(0.0, 0.7292, 0.0445, 0.1305, 0.7796, 0.0), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.4, -0.2), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 2.03, 0.05), true),
+            // Whole-sample dead times 9, 10, 11 (with 8, 15, 40 above: every offset
+            // of a block's line outputs in the blocks of references).
+            (lin(0.5, 1.0, 0.3, 1.4, 0.47, 0.05), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.52, 0.05), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.57, 0.05), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.3, 0.1), false),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.12, 0.1), false),
+        ];
+        let ups = [
+            Upper {
+                kg: 0.5,
+                kv: 0.1,
+                tg: 2.0,
+                gmin: 9.5,
+            },
+            // diverges
+            Upper {
+                kg: 40.0,
+                kv: 0.0,
+                tg: 0.1,
+                gmin: 2.0,
+            },
+        ];
+        let mut diverged = 0;
+        for (lin, blocks) in &models {
+            for up in &ups {
+                for len in [0, 1, 3, 4, 5, 63, 64, 65, 67, 130, 1001, 3000] {
+                    let pl =
+                        Plant::<2, 4>::new(lin, Integrators::SpeedPosition, 0.05, true).unwrap();
+                    assert_eq!(closed_blocks_apply::<2, 4, true>(&pl), *blocks);
+                    diverged += if pl.diag {
+                        compare!(2, 4, true, true, pl, lin, up, len, true)
+                            + compare!(2, 4, true, true, pl, lin, up, len, false)
+                    } else {
+                        compare!(2, 4, false, true, pl, lin, up, len, true)
+                            + compare!(2, 4, false, true, pl, lin, up, len, false)
+                    };
+                }
+            }
+        }
+        assert!(diverged > 0, "the wild law diverges");
+        // First order: the kernel's loop.
+        let fo = lin(0.0, 1.0, 0.0, 0.45, 0.33, 0.0);
+        let pl = Plant::<1, 3>::new(&fo, Integrators::SpeedPosition, 0.05, false).unwrap();
+        assert!(!closed_blocks_apply::<1, 3, true>(&pl));
+        compare!(1, 3, true, true, pl, &fo, &ups[0], 300, true);
+    }
+}
