@@ -1,4 +1,4 @@
-"""Import time of avll against numpy's (issue 11: ``import avll`` at most 2x ``import
+"""Import time of avll against numpy's (``import avll`` at most 2x ``import
 numpy``), each measured in fresh interpreters, median of ``--runs``.
 
     python benches/bench_import.py [--runs 15]

@@ -1,6 +1,6 @@
 """Numba peers of avll's rollouts: what a performance-minded user would write.
 
-These are the comparison points of issue 10's performance targets. Each workload
+These are the comparison points of the performance targets. Each workload
 has a *plain* loop (the straightforward scalar loop a user writes first) and the
 best variant we could write (modal form, branch-free delay line, time-major
 platoon, parameter sets in parallel). Every peer computes the same numbers as

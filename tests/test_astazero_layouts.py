@@ -1,4 +1,4 @@
-"""AstaZero in both folder layouts (issue 14, item 4): the shared one
+"""AstaZero in both folder layouts: the shared one
 (``platoon/``, ``freeflow/``) and C2ART-OPT's (``Exp/PyData/*.csv`` with
 ``Exp/Slope.csv`` one folder up, ``ExpFreeFlow/PyData``), and the CLI's ``--slope``,
 ``--no-grade`` and ``--lap-length``."""

@@ -1,5 +1,5 @@
 """Atomic outputs, output folders as a unit, outputs that would overwrite inputs, and
-escaped HTML (issue 12, items 4, 6 and 7)."""
+escaped HTML."""
 
 from __future__ import annotations
 

@@ -171,7 +171,7 @@ def test_workflow_packs_the_runs_once(
     proposed_data: list[avll.Run], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """paper_workflow packs the calibration runs and the validation runs once each for
-    all models (issue 10, item 4), with the same results as packing per call."""
+    all models, with the same results as packing per call."""
     from avll import _core
 
     calls: list[int] = []

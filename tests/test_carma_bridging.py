@@ -1,4 +1,4 @@
-"""CARMA bridging (issue 14, item 5): only empty cells are interpolated; a value that
+"""CARMA bridging: only empty cells are interpolated; a value that
 was measured is never overwritten."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A new user's first day with the ``avll`` command (issue 29): each test reproduces one
+"""A new user's first day with the ``avll`` command: each test reproduces one
 finding of the audit and checks that it now ends in a clear error or a correct result.
 
 Findings: outputs over an input's sidecar; one command's output folder replaced by

@@ -1,5 +1,5 @@
 """A corruption corpus over every loader (canonical, generic, carma, openacc-astazero)
-and the CLI options (issue 12, item 9).
+and the CLI options.
 
 Every case is a small valid input set with one defect, run through the ``avll``
 command. Each must end with exit code 2 and exactly one line on stderr (no

@@ -1,4 +1,4 @@
-"""The cross-validated residual loop (issue 13): selection by folds of the
+"""The cross-validated residual loop: selection by folds of the
 calibration runs, the three-way split, flags, "none of these", and the JSON contract
 (``final_model`` -> ``avll.model_from_dict`` + ``avll.simulate_run`` reproduce the
 reported test MSE).
@@ -374,7 +374,7 @@ def test_contract_round_trip_closed_loop() -> None:
 
 
 def test_report_shows_what_the_effects_do_to_stability(rate_result, tmp_path) -> None:
-    """Issue 13 item 6: the report of a loop that accepted an effect evaluates the
+    """The report of a loop that accepted an effect evaluates the
     baseline fit and the final model with its effects, linearised and in a
     time-domain platoon, under the reference upper law (a recorded command)."""
     from avll.diagnose.report import REFERENCE_UPPER, stability_section

@@ -1,4 +1,4 @@
-"""The effects real vehicles have (issue 13 item 4: ``road_load``, ``power_limit``,
+"""The effects real vehicles have (``road_load``, ``power_limit``,
 ``sensor``) and the acceleration-level effects on speed-command models (item 5): the
 Rust engine against the numpy reference written from the equations, neutral
 parameters against the base model, the defining properties of each effect, the

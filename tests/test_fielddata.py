@@ -1,4 +1,4 @@
-"""Calibration on the measured field data (issue 5, items 3–4): the studies of
+"""Calibration on the measured field data: the studies of
 ``avll.studies.fielddata`` and ``avll calibrate --format carma|openacc-astazero``.
 
 Every test reads ``../shared/data`` through the ``shared_data`` fixture and skips

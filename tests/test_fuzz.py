@@ -1,4 +1,4 @@
-"""Property-based fuzzing of the loaders and the main API (issue 12, item 9).
+"""Property-based fuzzing of the loaders and the main API.
 
 CI-sized: derandomized (the same examples on every run), a few hundred examples in
 all, a few seconds. The property everywhere: a call returns a well-formed result or

@@ -1,4 +1,4 @@
-"""Road grade in the AstaZero free-flow stretches (issue 13, item 5): the generated page
+"""Road grade in the AstaZero free-flow stretches: the generated page
 (``avll.studies.grade_freeflow`` -> ``docs/_generated/grade_freeflow.*``) is recomputed and
 compared, and what it reports is pinned: the residual of the calibrated base model
 depends on the grade, but the fitted grade gain is a small fraction of an uncompensated

@@ -1,6 +1,6 @@
 """Thread and memory guards: a request the machine cannot serve is refused at once
 with a ValueError/TypeError naming the argument, before any thread is started or
-any memory is allocated; the process stays alive (issue 12, items 1-2)."""
+any memory is allocated; the process stays alive."""
 
 from __future__ import annotations
 

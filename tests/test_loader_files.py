@@ -1,4 +1,4 @@
-"""What the loaders open (issue 29, deliverable 3): regular files only (a FIFO in a
+"""What the loaders open: regular files only (a FIFO in a
 data folder hung the loader; a device or a socket is refused the same way), never a
 symbolic link loop (it gave a traceback), a bounded header (a canonical CSV with a
 10^7-column header ran for minutes at 5.7 GB), and a ``nan`` cell called what it is

@@ -1,4 +1,4 @@
-"""Zarr maps are complete or refused (issue 29, deliverable 3): a map written with
+"""Zarr maps are complete or refused: a map written with
 ``.to_zarr`` and killed mid-write opened as complete, its missing chunks read as 0
 ("locally unstable"); Ctrl-C during ``write_map`` left its temporary folder (2 of 6
 runs). ``write_map`` marks a store complete last, ``open_map`` refuses a store

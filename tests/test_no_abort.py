@@ -1,4 +1,4 @@
-"""No request aborts the process (issue 29, deliverable 3): every allocation that grows
+"""No request aborts the process: every allocation that grows
 with a request is estimated before it is made (boundary, exact delay, chunked and
 distributed maps, the distributed bootstrap) or made fallibly in Rust, so a request
 the machine cannot serve is a ValueError with the estimate. The requests that aborted

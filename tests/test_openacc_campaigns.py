@@ -1,4 +1,4 @@
-"""The native OpenACC loader on every campaign's vocabulary (issue 27): synthetic files
+"""The native OpenACC loader on every campaign's vocabulary: synthetic files
 in the layouts the campaigns' notes document (Casale, JRC low speed, Vicolungo and
 Cherasco style: per-sample Driver, ACC 2 / blank, min / shortest / SL settings, a
 leader without Alt, GPS time of week, absent vehicles), and the real JRC and ZalaZone

@@ -1,5 +1,5 @@
-"""Which effect closes a car's amplification gap (issue 14 item 3,
-:mod:`avll.studies.openacc_effects`): the gap selection and, on a follower driven
+"""Which effect closes a car's amplification gap
+(:mod:`avll.studies.openacc_effects`): the gap selection and, on a follower driven
 with a known actuator saturation, the calibrate-and-replay of the base model plus
 each effect."""
 

@@ -1,4 +1,4 @@
-"""The native OpenACC loader (``format="openacc"``, issue 14 item 1): synthetic files
+"""The native OpenACC loader (``format="openacc"``): synthetic files
 in the published layout (always run), corrupted files, and the real ZalaZone files
 (marked ``data``)."""
 
@@ -83,7 +83,7 @@ def test_gaps_only_empty_cells_change(tmp_path, platoon):
                      empty={"Speed3": short + long, "IVS2": list(range(100, 140)),
                             "E3": [200], "N3": [200], "IVS1": [500, 501]})
     runs = {r.run_id: r for r in load_openacc_native(f)}
-    # issue 27: every stretch of at least min_duration is a run (was: the longest only):
+    # every stretch of at least min_duration is a run (was: the longest only):
     # rows 0..599 and 650..899 (25 s), split by the 5 s hole in Speed3
     r = runs["dynamic_part2/v2-v3/s1"]
     assert len(r) == 600 and r.t[0] == platoon["t"][0]
@@ -252,7 +252,7 @@ def zala():
 def test_zalazone_all_files(zala):
     runs, rep = zala
     assert len(rep["files"]) == 7
-    # issue 27: every stretch of at least 20 s is a run (was: the longest per follower,
+    # every stretch of at least 20 s is a run (was: the longest per follower,
     # 58 runs); the same 58 followers have runs, some split where the spacing jumps
     assert len({(r.meta["file"], r.meta["vehicle_index"]) for r in runs}) == 58
     assert len(runs) == sum(1 for s in rep["stretches"] if s["kept"]) >= 58

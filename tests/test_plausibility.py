@@ -1,5 +1,4 @@
-"""Plausibility warnings, strict mode, units and run-id resolution of the loaders
-(issue 12, items 3 and 5)."""
+"""Plausibility warnings, strict mode, units and run-id resolution of the loaders."""
 
 from __future__ import annotations
 

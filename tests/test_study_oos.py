@@ -1,5 +1,5 @@
-"""The OpenACC study's measured H1 gain and out-of-sample predictions (issue 28,
-items 2 and 3) on synthetic platoons with a known truth (avll.synth_platoon): the
+"""The OpenACC study's measured H1 gain and out-of-sample predictions
+on synthetic platoons with a known truth (avll.synth_platoon): the
 same cars driven in several files, each held out in turn. Fresh seeds (81xx-82xx),
 not those the estimators were developed on."""
 

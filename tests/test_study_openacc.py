@@ -1,4 +1,4 @@
-"""``avll study openacc`` (issue 14, items 2, 3 and 6): the setting-order check, the
+"""``avll study openacc``: the setting-order check, the
 amplification measures, the JSON contract and the CLI's exit codes. The GA budget is
 tiny here (the numbers of the study come from its default budget)."""
 

@@ -1,4 +1,4 @@
-"""``avll study openacc`` on any campaign (issue 27, item 4): runs of any length (no
+"""``avll study openacc`` on any campaign: runs of any length (no
 interval, with the reason, instead of a crash), the setting order in each campaign's
 own order (``setting_rank``), ACC state known / human / unknown (``--acc-unknown``),
 the run meta in the JSON, and the output folder committed as a whole with its

@@ -1,5 +1,5 @@
 """avll.synth_platoon: synthetic platoons with a known truth, and the validation of
-both measured-amplification estimators on them (issue 28, item 2). Each test uses its
+both measured-amplification estimators on them. Each test uses its
 own seeds, none of them the seeds the estimators were developed on."""
 
 from __future__ import annotations
