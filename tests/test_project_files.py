@@ -111,3 +111,21 @@ def test_readme_says_how_long_builds_take_and_how_to_skip_slow_tests() -> None:
         assert f"]({f})" in text, f
     markers = _pyproject()["tool"]["pytest"]["ini_options"]["markers"]
     assert any(m.startswith("slow:") for m in markers)
+
+
+def test_no_ticket_numbers_in_code_tests_or_docs_text() -> None:
+    """Code, tests and docs say what a thing does, not which ticket asked for it: no
+    "issue N" outside the changelog (which is history)."""
+    pat = re.compile(r"\bissues? ?#?\d+\b", re.IGNORECASE)
+    hits = []
+    for top in ("python", "rust", "benches", "tests", "docs"):
+        for p in sorted((ROOT / top).rglob("*")):
+            if (p.suffix not in {".py", ".pyi", ".rs", ".md"} or "_build" in p.parts
+                    or p.name == "changelog.md" or not p.is_file()):
+                continue
+            for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):
+                if pat.search(line) and "no_ticket_numbers" not in line:
+                    hits.append(f"{p.relative_to(ROOT)}:{n}: {line.strip()[:80]}")
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    hits += [f"README.md: {m.group(0)}" for m in pat.finditer(readme)]
+    assert not hits, "\n".join(hits)
