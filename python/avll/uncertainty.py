@@ -98,7 +98,8 @@ class Intervals:
     ``n`` resamples; ``level`` of the percentile intervals; ``block`` the block length
     in seconds (``None``: from the residuals, :func:`block_length`); ``method``
     ``"blocks"`` (moving blocks over time within each run) or ``"runs"`` (whole runs);
-    ``budget`` evaluations per refit (0: ``40 d``); ``step`` the initial simplex step
+    ``budget`` evaluations per refit at most (0: ``200 d``; a refit stops earlier when
+    its best value stalls); ``step`` the initial simplex step
     in unit coordinates; ``seed`` of the multiplicities (``None``: the calibration's).
     """
 
