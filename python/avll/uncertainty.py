@@ -71,6 +71,9 @@ __all__ = [
     "MAX_REL_WIDTH",
     "BOUND_TOL",
     "ATOMS_PER_BLOCK",
+    "CORRECTIONS",
+    "small_sample_scale",
+    "widen",
     "to_dataset",
 ]
 
@@ -89,6 +92,10 @@ BOUND_TOL = 1e-3
 #: Correlations at least this large (absolute) are listed in the report.
 MIN_CORREL = 0.5
 _METHODS = ("blocks", "runs")
+#: The corrections of the resampled deviations (:class:`Intervals`): ``"dof"`` the
+#: small-sample correction (:func:`small_sample_scale`), ``"none"`` the plain
+#: percentile bootstrap.
+CORRECTIONS = ("dof", "none")
 
 
 @dataclass(frozen=True)
@@ -99,7 +106,10 @@ class Intervals:
     in seconds (``None``: from the residuals, :func:`block_length`); ``method``
     ``"blocks"`` (moving blocks over time within each run) or ``"runs"`` (whole runs);
     ``budget`` evaluations per refit (0: ``40 d``); ``step`` the initial simplex step
-    in unit coordinates; ``seed`` of the multiplicities (``None``: the calibration's).
+    in unit coordinates; ``seed`` of the multiplicities (``None``: the calibration's);
+    ``correction`` ``"dof"`` (the resampled deviations widened for the parameters
+    fitted on few effective blocks, :func:`small_sample_scale`) or ``"none"`` (the
+    plain percentile bootstrap, known to be too narrow here).
     """
 
     n: int = 200
@@ -109,6 +119,7 @@ class Intervals:
     budget: int = 0
     step: float = 0.05
     seed: int | None = None
+    correction: str = "dof"
 
     def __post_init__(self) -> None:
         check_int(self.n, "n", min=2)
@@ -122,6 +133,9 @@ class Intervals:
         if self.method not in _METHODS:
             raise ValueError(f"method: must be one of {', '.join(_METHODS)}, got "
                              f"{self.method!r}")
+        if self.correction not in CORRECTIONS:
+            raise ValueError(f"correction: must be one of {', '.join(CORRECTIONS)}, got "
+                             f"{self.correction!r}")
         check_int(self.budget, "budget", min=0)
         if not (isinstance(self.step, (int, float)) and 0 < self.step <= 0.5):
             raise ValueError(f"step: must be in (0, 0.5], got {self.step!r}")
@@ -201,6 +215,72 @@ def _unit(x: np.ndarray, lo: float, hi: float, scale: str) -> np.ndarray:
     return (np.clip(x, lo, hi) - lo) / (hi - lo)
 
 
+def _from_unit(z: np.ndarray, lo: float, hi: float, scale: str) -> np.ndarray:
+    """Values of the unit coordinates ``z`` of the box ``[lo, hi]`` (inverse of
+    :func:`_unit` inside the box)."""
+    if hi == lo:
+        return np.full_like(z, lo)
+    if scale == "log":
+        return np.asarray(lo * (hi / lo) ** z)
+    return np.asarray(lo + z * (hi - lo))
+
+
+def small_sample_scale(blocks: float, params: int, level: float = 0.95) -> float:
+    """The factor by which the resampled deviations from the estimate are widened:
+    ``sqrt(G / (G - p)) * t_{G-p}(q) / z(q)``, ``q = (1 + level) / 2``, for ``G``
+    effective independent ``blocks`` (record length over block length, or the number
+    of runs when whole runs are resampled) and ``p`` fitted ``params``.
+
+    The first factor is the degrees-of-freedom correction of a residual-based
+    variance (the cluster-robust CR2 correction with the average leverage ``p / G``
+    of a block): the fit absorbs ``p`` of the ``G`` independent pieces of the errors,
+    so the fitted residuals, which the bootstrap resamples, are smaller than the
+    errors by ``(G - p) / G`` in variance. The second replaces the normal quantile by
+    Student's with ``G - p`` degrees of freedom (the variance itself is estimated from
+    ``G - p`` pieces). ``inf`` when ``G - p < 1``: fewer effective blocks than
+    parameters determine nothing (the resamples become NaN and every interval
+    ``undetermined``)."""
+    from scipy import stats
+
+    if not (math.isfinite(blocks) and blocks > 0):
+        raise ValueError(f"blocks: must be a number > 0, got {blocks!r}")
+    check_int(params, "params", min=0)
+    if not 0 < level < 1:
+        raise ValueError(f"level: must be in (0, 1), got {level!r}")
+    nu = blocks - params
+    if nu < 1:
+        return math.inf
+    q = 0.5 * (1.0 + level)
+    return float(math.sqrt(blocks / nu) * stats.t.ppf(q, nu) / stats.norm.ppf(q))
+
+
+def widen(samples: np.ndarray, estimate: np.ndarray,
+          bounds: Sequence[tuple[float, float, str]], factor: float) -> np.ndarray:
+    """``samples`` (n, d) with their deviations from ``estimate`` (d) multiplied by
+    ``factor`` in the GA's unit coordinates of the box ``bounds`` (per column
+    ``(lo, hi, scale)``), clipped to the box. ``factor = inf`` (no degrees of freedom
+    left) gives NaN everywhere but in the fixed columns: nothing is determined."""
+    x = np.asarray(samples, dtype=np.float64)
+    out = x.copy()
+    if not factor >= 1.0:
+        raise ValueError(f"factor: must be >= 1, got {factor!r}")
+    if math.isinf(factor):
+        for j, (lo, hi, _) in enumerate(bounds):
+            if hi != lo:
+                out[:, j] = np.nan
+        return out
+    for j, (lo, hi, sc) in enumerate(bounds):
+        if hi == lo:
+            continue
+        z = _unit(x[:, j], lo, hi, sc)
+        z0 = float(_unit(np.array([estimate[j]], dtype=np.float64), lo, hi, sc)[0])
+        dev = z - z0
+        zw = z0 + factor * dev
+        out[:, j] = _from_unit(np.clip(zw, 0.0, 1.0), lo, hi, sc)
+        out[~np.isfinite(x[:, j]), j] = np.nan
+    return out
+
+
 def _linear_columns(cls: Any, x: np.ndarray) -> dict[str, np.ndarray]:
     """The common linear form's coefficients (``b1, b0, a2, a1, Td, K``) of every row
     of ``x`` (the model's parameters), vectorised: the model's own ``linear()`` on an
@@ -231,9 +311,12 @@ class Uncertainty:
     """The uncertainty of one calibration (see the module doc).
 
     ``names`` of the parameter row ``[model | effects | free upper gains]``;
-    ``estimate`` the full-data optimum; ``samples`` (n, d) the refit parameters of the
-    resamples (rows that did not run after a Ctrl-C are dropped); ``costs`` their
-    resampled costs; ``bounds`` the search box (name -> (lo, hi, scale)); ``upper``
+    ``estimate`` the full-data optimum; ``samples`` (n, d) the resampled parameters
+    the intervals come from: the refits' deviations from the estimate widened by
+    ``widening`` (:func:`small_sample_scale` of ``blocks`` effective blocks and
+    ``fitted`` parameters; 1 without correction) in unit coordinates, clipped to the
+    box; ``refits`` (n, d) the refit parameters themselves (rows that did not run
+    after a Ctrl-C are dropped from both); ``costs`` the refits' resampled costs; ``bounds`` the search box (name -> (lo, hi, scale)); ``upper``
     the upper-level gains of the problem's (first) run, the free ones replaced per
     sample; ``mean_speed`` the problem's mean speed (m/s) or None; ``block_s`` and
     ``atom_s`` the block and atom lengths (s); ``combinations`` name -> samples and
@@ -262,6 +345,10 @@ class Uncertainty:
     interrupted: bool = False
     evaluations: int = 0
     rollouts: int = 0
+    refits: np.ndarray | None = None
+    widening: float = 1.0
+    blocks: float = math.nan
+    fitted: int = 0
 
     # -- intervals --------------------------------------------------------------
     def _q(self, v: np.ndarray) -> tuple[float, float]:
@@ -446,6 +533,8 @@ class Uncertainty:
                  + (f" + {', '.join(self.effects)}" if self.effects else ""),
                  f"    resamples: {len(self.samples)} ({self.method}, block {self.block_s:.3g} s"
                  f", atoms {self.atom_s:.3g} s){' INTERRUPTED' if self.interrupted else ''}",
+                 f"    deviations widened x{self.widening:.3g} ({self.blocks:.3g} effective "
+                 f"blocks, {self.fitted} fitted parameters)",
                  f"[[Parameters]] (estimate, {pct} interval, verdict)"]
         w = max((len(n) for n in (*self.names, *self.combinations)), default=4) + 1
         for j, n in enumerate(self.names):
@@ -726,13 +815,22 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         keep = np.isfinite(costs)
         xs, costs = xs[keep], costs[keep]
         runs = [prob.rs.runs[i] for i in plan[0]]
+        bounds = {n: (lo, hi, sc) for n, lo, hi, sc in
+                  zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)}
+        # effective independent pieces: blocks of the record, or whole runs
+        blocks = (float(len(runs)) if opts.method == "runs" else
+                  float(sum(len(r) * float(r.dt) for r in runs) / plan[3]))
+        fitted = sum(1 for lo, hi in zip(prob.lower, prob.upper, strict=True) if hi > lo)
+        fac = (1.0 if opts.correction == "none" else
+               small_sample_scale(blocks, fitted, float(opts.level)))
+        refits = xs
+        xs = widen(refits, x0[k], [bounds[n] for n in prob.names], fac) if fac != 1.0 \
+            else refits.copy()
         run0 = runs[0]
         up = _upper_columns(prob, run0, xs)
         up0 = {n: float(v[0]) for n, v in _upper_columns(prob, run0, x0[k][None, :]).items()}
         vs = [r.v for r in runs if r.v is not None]
         vbar = float(np.mean(np.concatenate(vs))) if vs else None
-        bounds = {n: (lo, hi, sc) for n, lo, hi, sc in
-                  zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)}
         nm = len(cls.param_names())
         lin = _linear_columns(cls, np.vstack([x0[k][None, :nm], xs[:, :nm]]))
         comb = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
@@ -745,10 +843,11 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             combination_estimates={n: float(v[0]) for n, v in comb.items()},
             interrupted=not bool(ran.all()),
             evaluations=int(np.sum(np.asarray(raw["evaluations"])[ran])),
-            rollouts=int(raw["rollouts"]))
+            rollouts=int(raw["rollouts"]), refits=refits, widening=float(fac),
+            blocks=blocks, fitted=int(fitted))
         if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
             u = u.with_combinations(time_gap_effective=u.time_gap_effective())
-        if prob.closed_loop and not prob.effects:
+        if prob.closed_loop and not prob.effects and math.isfinite(fac):
             codes = _exact_codes(prob.cls.name, cls, xs, up, threads)
             c0 = _exact_codes(prob.cls.name, cls, x0[k][None, :],
                               {n: np.array([v]) for n, v in up0.items()}, threads)
