@@ -197,9 +197,10 @@ def test_validation_on_synthetic_platoons_quick() -> None:
 
 @pytest.fixture(scope="module")
 def validation() -> dict:
-    # 8 fresh platoons of 6 cars: 48 cars, enough for a coverage of 85 % to mean something
-    # (the same seeds as the docs' fragment, docs/gen/intervals.py)
-    return validate_intervals(list(range(7301, 7309)), cars=6, n=200)["summary"]
+    # 8 platoons of 6 cars: 48 cars, enough for a coverage of 85 % to mean something; seeds
+    # not used while the method was chosen (that was 7301-7308), the same as the docs'
+    # fragment (docs/gen/intervals.py)
+    return validate_intervals(list(range(7501, 7509)), cars=6, n=200)["summary"]
 
 
 @pytest.mark.slow

@@ -686,7 +686,8 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     closed loop as the OpenACC study does (:data:`avll.studies.openacc.WEIGHTS`, every
     upper gain free, ``Gmin`` in [0, 10] m) with ``n`` resamples. Per car: whether the
     95 % intervals of the band amplification and of ``Tg + Gmin / v̄`` hold the truth,
-    the estimates' relative errors and the intervals' relative widths. A car whose
+    the estimates' relative errors and the intervals' relative widths, and the same
+    for the plain percentile intervals of the same refits (``uncorrected``). A car whose
     record has fewer effective blocks than fitted parameters gets no interval
     (:func:`avll.uncertainty.small_sample_scale` is infinite: ``determined`` False,
     ``inside`` None). Returns ``rows`` and a ``summary`` per quantity: ``coverage``
@@ -717,16 +718,24 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
                                    "widening": u.widening}
             amp, amps = u.band_amplification(run.lead_v, run.dt)
             tge, tges = u.time_gap_effective(float(np.mean(run.v)))
-            for key, est, smp, truth in (
-                    ("amplification", amp, amps, tr["band_gain"]),
-                    ("time_gap_effective", tge, tges, tr["time_gap_effective"])):
+            raw = u.uncorrected()
+            _, amps_raw = raw.band_amplification(run.lead_v, run.dt)
+            _, tges_raw = raw.time_gap_effective(float(np.mean(run.v)))
+            for key, est, smp, truth, smp_raw in (
+                    ("amplification", amp, amps, tr["band_gain"], amps_raw),
+                    ("time_gap_effective", tge, tges, tr["time_gap_effective"], tges_raw)):
+                rlo, rhi = raw._q(smp_raw)
                 lo, hi = u._q(smp)
                 det = math.isfinite(lo) and math.isfinite(hi)
                 row[key] = {"truth": float(truth), "estimate": float(est),
                             "low": lo, "high": hi, "determined": det,
                             "inside": bool(lo <= truth <= hi) if det else None,
                             "error": float(est / truth - 1.0),
-                            "rel_width": float((hi - lo) / truth) if det else math.inf}
+                            "rel_width": float((hi - lo) / truth) if det else math.inf,
+                            # the plain percentile bootstrap (no widening), same refits
+                            "uncorrected": {"low": rlo, "high": rhi,
+                                            "inside": bool(rlo <= truth <= rhi),
+                                            "rel_width": float((rhi - rlo) / truth)}}
             rows.append(row)
     summary: dict[str, Any] = {"cars": len(rows), "seeds": [int(s) for s in seeds],
                                "resamples": int(n), "level": opts.level}
@@ -746,6 +755,10 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
             "mean_error": float(np.mean(err)) if d_all else None,
             "median_abs_error": float(np.median(np.abs(err))) if d_all else None,
             "median_rel_width": float(np.median([x["rel_width"] for x in d])) if d else None,
+            "uncorrected_coverage": float(np.mean([x["uncorrected"]["inside"]
+                                                   for x in d_all])) if d_all else None,
+            "uncorrected_median_rel_width": float(np.median(
+                [x["uncorrected"]["rel_width"] for x in d_all])) if d_all else None,
             # how far the truth lies outside, in interval widths (0 inside)
             "median_miss_in_widths": float(np.median([
                 max(x["low"] - x["truth"], x["truth"] - x["high"], 0.0)

@@ -18,11 +18,13 @@ problem has many runs and the runs, not the seconds, are the independent units.
 
 **Block length from the data.** The Politis-White (2004) automatic block length for
 the circular bootstrap of the mean (flat-top lag window, with the Patton, Politis and
-White 2009 correction), computed on the full-data fit's residual series of each
-weighted channel (acceleration, speed, position) of each run; the largest is used,
-not below :data:`MIN_BLOCK` seconds (a floor: below a few seconds the lower level's
-own response correlates the errors) and not above a third of the shortest run (at
-least three blocks per run).
+White 2009 correction), computed on the full-data fit's *score series* (per run and
+fitted parameter, the weighted residuals of the channels times their sensitivities
+to the parameter: the terms whose sum is the cost's gradient, whose resampled sums
+move the refits; the bandwidth of a sandwich variance is chosen on the estimating
+equations, not on the residuals); the largest is used, not below :data:`MIN_BLOCK`
+seconds (a floor: below a few seconds the lower level's own response correlates the
+errors) and not above a third of the shortest run (at least three blocks per run).
 
 **Refits.** Each resample is refit by the GA's bounded Nelder-Mead in the GA's unit
 coordinates (log scale for the positive coefficients), warm-started from the full-data
@@ -30,9 +32,22 @@ optimum; all resamples in parallel in Rust, one after the other problem, seeded 
 multiplicities are drawn from ``numpy.random.default_rng([seed, problem])``: the same
 result for any thread count), with progress and Ctrl-C.
 
-**What the data determine.** Percentile intervals at ``level``; correlations of the
-resampled parameters in the unit coordinates; a verdict per parameter
-(:meth:`Uncertainty.identified`): *identified* when the interval covers at most
+**Small-sample correction.** The refits are fitted to resamples of the *fitted*
+residuals, which a fit of ``p`` parameters to a record of only ``G`` effective blocks
+(record length over block length; runs when whole runs are resampled) has made
+smaller than the errors, and the spread itself is estimated from few pieces: the
+plain percentile intervals are far too narrow. With ``correction="dof"`` (the
+default) each refit's deviation from the estimate, in unit coordinates, is widened by
+:func:`small_sample_scale` ``= sqrt(G / (G - p)) t_{G-p} / z`` (the average-leverage
+degrees-of-freedom correction of a cluster-robust variance and Student's quantile)
+and clipped to the box; :attr:`Uncertainty.samples` are these widened refits (every
+interval, combination and probability is computed from them) and
+:attr:`Uncertainty.refits` the refits themselves. A record with ``G - p < 1`` determines
+nothing: its samples are NaN and every interval ``undetermined``.
+
+**What the data determine.** Percentile intervals at ``level`` of the (widened)
+samples; correlations of the resampled parameters in the unit coordinates; a verdict
+per parameter (:meth:`Uncertainty.identified`): *identified* when the interval covers at most
 :data:`MAX_BOX_SHARE` of the search box in unit coordinates and neither the estimate
 nor the interval reaches a bound (within :data:`BOUND_TOL` of the box in unit
 coordinates). A parameter whose interval reaches a bound is determined on one side
@@ -316,8 +331,9 @@ class Uncertainty:
     ``widening`` (:func:`small_sample_scale` of ``blocks`` effective blocks and
     ``fitted`` parameters; 1 without correction) in unit coordinates, clipped to the
     box; ``refits`` (n, d) the refit parameters themselves (rows that did not run
-    after a Ctrl-C are dropped from both); ``costs`` the refits' resampled costs; ``bounds`` the search box (name -> (lo, hi, scale)); ``upper``
-    the upper-level gains of the problem's (first) run, the free ones replaced per
+    after a Ctrl-C are dropped from both); ``costs`` the refits' resampled costs;
+    ``bounds`` the search box (name -> (lo, hi, scale)); ``upper`` the upper-level gains
+    of the problem's (first) run, the free ones replaced per
     sample; ``mean_speed`` the problem's mean speed (m/s) or None; ``block_s`` and
     ``atom_s`` the block and atom lengths (s); ``combinations`` name -> samples and
     ``combination_estimates`` name -> full-data value; ``string_codes`` the
@@ -510,6 +526,32 @@ class Uncertainty:
             g[0] = math.nan
         return float(g[0]), g[1:]
 
+    def uncorrected(self) -> Uncertainty:
+        """A copy whose samples are the refits themselves (the plain percentile
+        bootstrap, no widening; the exact-delay codes dropped), for comparison."""
+        from dataclasses import replace
+
+        if self.refits is None or self.widening == 1.0:
+            return self
+        up = dict(self.upper)
+        for n in up:
+            if n in self.names:
+                up[n] = self.refits[:, self.names.index(n)].copy()
+        cls_comb: dict[str, np.ndarray] = {}
+        if self.combinations:
+            from .models import model_class
+
+            cls = model_class(self.model)
+            lin = _linear_columns(cls, self.refits[:, :len(cls.param_names())])
+            full = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
+            cls_comb = {n: full[n] for n in self.combinations if n in full}
+        out = replace(self, samples=self.refits, upper=up, widening=1.0, string_codes=None,
+                      string_code_estimate=None,
+                      combinations={**self.combinations, **cls_comb})
+        if "time_gap_effective" in self.combinations and self.mean_speed is not None:
+            out = out.with_combinations(time_gap_effective=out.time_gap_effective())
+        return out
+
     def with_combinations(self, **more: tuple[float, np.ndarray]) -> Uncertainty:
         """A copy with more combinations (name -> (estimate, samples))."""
         from dataclasses import replace
@@ -686,18 +728,7 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
     elif opts.method == "runs":
         block = shortest
     else:
-        kw = {k2: v for k2, v in prob.kw.items() if k2 != "runs"}
-        sim = np.asarray(_core.simulate_batch(
-            prob.cls.name, np.ascontiguousarray(x0[None, :]), prob.rs._handle.take(uniq),
-            threads=int(threads), **kw))  # (a, v, x) x 1 row x samples
-        off = np.concatenate([[0], np.cumsum([len(r) for r in runs])])
-        res = []
-        w = prob.kw["weights"]
-        for j, r in enumerate(runs):
-            sl = slice(int(off[j]), int(off[j + 1]))
-            for ch, meas in (("a", r.a), ("v", r.v), ("x", r.x)):
-                if w["avx".index(ch)] > 0 and meas is not None:
-                    res.append(sim["avx".index(ch), 0, sl] - meas)
+        res = _score_series(prob, uniq, runs, x0, threads)
         block = block_length(res, dt, MIN_BLOCK, shortest / 3.0)
     rng = np.random.default_rng([int(seed), int(k)])
     atoms, counts = [], []
@@ -726,6 +757,50 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
             start += c
     atom_s = float(np.mean([a * float(r.dt) for a, r in zip(atoms, runs, strict=True)]))
     return uniq, atoms, np.ascontiguousarray(w), float(block), atom_s
+
+
+#: Finite-difference step (unit coordinates) of the score series.
+_SCORE_STEP = 1e-3
+
+
+def _score_series(prob: Any, uniq: Sequence[int], runs: Sequence[Any], x0: np.ndarray,
+                  threads: int) -> list[np.ndarray]:
+    """The estimating-equation (score) series of the full-data fit, per run and fitted
+    parameter: ``g_j(t) = Σ_c w_c (∂ŷ_c(t) / ∂z_j) (ŷ_c(t) - y_c(t))`` over the weighted
+    channels ``c`` (acceleration, speed, position), ``z`` the GA's unit coordinates
+    (forward differences of one batch of rollouts, stepped into the box). The cost's
+    gradient is their sum; the bootstrap's spread of the refits is that of their
+    resampled sums, so their serial correlation sets the block length."""
+    free = [j for j, (lo, hi) in enumerate(zip(prob.lower, prob.upper, strict=True))
+            if hi > lo]
+    rows = [np.asarray(x0, dtype=np.float64).copy()]
+    steps = []
+    for j in free:
+        lo, hi, sc = prob.lower[j], prob.upper[j], prob.scale[j]
+        z = float(_unit(np.array([x0[j]], dtype=np.float64), lo, hi, sc)[0])
+        h = _SCORE_STEP if z + _SCORE_STEP <= 1.0 else -_SCORE_STEP
+        row = rows[0].copy()
+        row[j] = float(_from_unit(np.array([z + h]), lo, hi, sc)[0])
+        rows.append(row)
+        steps.append(h)
+    kw = {k2: v for k2, v in prob.kw.items() if k2 != "runs"}
+    sim = np.asarray(_core.simulate_batch(
+        prob.cls.name, np.ascontiguousarray(np.vstack(rows)), prob.rs._handle.take(list(uniq)),
+        threads=int(threads), **kw))  # (a, v, x) x rows x samples
+    off = np.concatenate([[0], np.cumsum([len(r) for r in runs])])
+    w = prob.kw["weights"]
+    out: list[np.ndarray] = []
+    with np.errstate(invalid="ignore", over="ignore"):
+        for q, r in enumerate(runs):
+            sl = slice(int(off[q]), int(off[q + 1]))
+            g = np.zeros((len(steps), len(r)))
+            for c, meas in enumerate((r.a, r.v, r.x)):
+                if w[c] > 0 and meas is not None:
+                    e = sim[c, 0, sl] - meas
+                    for i, h in enumerate(steps):
+                        g[i] += w[c] * (sim[c, i + 1, sl] - sim[c, 0, sl]) / h * e
+            out.extend(g)
+    return out
 
 
 def _upper_columns(prob: Any, run: Any, x: np.ndarray) -> dict[str, np.ndarray]:
