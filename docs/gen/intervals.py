@@ -55,6 +55,12 @@ def render(numbers: dict[str, Any]) -> str:
                      f"{_p(d['uncorrected_median_rel_width'])} | {_p(d['within_10pct'])} | "
                      f"{100 * d['mean_error']:+.2f} % | {_p(d['median_abs_error'])} | "
                      f"{d['median_miss_in_widths']:.2f} |")
+    miss = {lab: s[k].get("no_estimate", 0) for k, lab in
+            (("amplification", "amplification"), ("time_gap_effective", "Tg + Gmin / v̄"))}
+    if any(miss.values()):
+        lines += ["", "Cars whose calibrated closed loop is locally unstable (no amplification "
+                  "estimate; not within 10 %, left out of the errors): "
+                  + ", ".join(f"{v} ({k})" for k, v in miss.items()) + "."]
     lines += ["", "\"Intervals holding the truth\" and the width count the cars with an "
               "interval; a car whose record has fewer effective blocks than fitted "
               "parameters has none (counted as holding, the share would be "

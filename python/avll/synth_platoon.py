@@ -693,8 +693,10 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     ``inside`` None). Returns ``rows`` and a ``summary`` per quantity: ``coverage``
     over the cars with an interval, ``coverage_all`` counting a car without one as
     covered (its interval is the whole line), ``undetermined`` (share of cars without),
-    the share of estimates within 10 %, the median relative width (cars with an
-    interval), the mean error; and ``median_widening`` (the median factor by which
+    the share of estimates within 10 % (a car without an estimate, its calibrated
+    closed loop locally unstable, is not within), ``no_estimate`` (their number),
+    the mean and median absolute error of the others, the median relative width
+    (cars with an interval); and ``median_widening`` (the median factor by which
     the resampled deviations were widened, finite ones)."""
     from .calibration import calibrate_many
     from .defaults import UPPER_NAMES
@@ -744,16 +746,19 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     for key in ("amplification", "time_gap_effective"):
         d_all = [r[key] for r in rows]
         d = [x for x in d_all if x["determined"]]
-        err = np.array([x["error"] for x in d_all])
+        err_all = np.array([x["error"] for x in d_all])
+        # an estimate whose closed loop is locally unstable has no amplification (NaN)
+        err = err_all[np.isfinite(err_all)]
         summary[key] = {
             "coverage": float(np.mean([x["inside"] for x in d])) if d else None,
             "coverage_all": float(np.mean([x["inside"] is not False for x in d_all]))
             if d_all else None,
             "undetermined": float(np.mean([not x["determined"] for x in d_all]))
             if d_all else None,
-            "within_10pct": float(np.mean(np.abs(err) <= 0.10)) if d_all else None,
-            "mean_error": float(np.mean(err)) if d_all else None,
-            "median_abs_error": float(np.median(np.abs(err))) if d_all else None,
+            "within_10pct": float(np.mean(np.abs(err_all) <= 0.10)) if d_all else None,
+            "no_estimate": int(np.sum(~np.isfinite(err_all))),
+            "mean_error": float(np.mean(err)) if err.size else None,
+            "median_abs_error": float(np.median(np.abs(err))) if err.size else None,
             "median_rel_width": float(np.median([x["rel_width"] for x in d])) if d else None,
             "uncorrected_coverage": float(np.mean([x["uncorrected"]["inside"]
                                                    for x in d_all])) if d_all else None,
