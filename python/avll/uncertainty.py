@@ -700,7 +700,8 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
     return xr.Dataset(data, coords=cds, attrs={
         "level": lv.pop() if len(lv) == 1 else "mixed",
         "intervals": "percentile intervals of a block bootstrap over time refit from the "
-                     "full-data optimum (avll.uncertainty)",
+                     "full-data optimum, the deviations widened for the parameters fitted "
+                     "on few effective blocks (avll.uncertainty)",
         "identified": f"interval within {MAX_BOX_SHARE} of the search box (unit "
                       f"coordinates) and off the bounds; combinations: width within "
                       f"{MAX_REL_WIDTH} of the estimate"})
