@@ -168,9 +168,12 @@ def test_distributed_calibrations_equal_calibrate_many(client) -> None:  # type:
         assert dict(g.per_run_mse) == dict(w.per_run_mse)
     bw = avll.bootstrap("second", runs, n=3, seed=2, max_generations=10)
     bg = M.bootstrap_distributed("second", runs, n=3, seed=2, client=client, max_generations=10)
+    np.testing.assert_array_equal(bg.refits, bw.refits)
     np.testing.assert_array_equal(bg.samples, bw.samples)
-    # the min-Tg distribution of the bootstrap models, on the same client
-    d = avll.min_stable_tg_samples(avll.models_from_bootstrap(bg), client=client,
+    # the min-Tg distribution of the bootstrap models, on the same client (three runs
+    # leave no degrees of freedom for the parameters, so the intervals are undetermined;
+    # the plumbing uses the refits themselves)
+    d = avll.min_stable_tg_samples(avll.models_from_bootstrap(bg.uncorrected()), client=client,
                                    kg_range=(1e-2, 2.0))
     assert d["tg_min"].shape == (3,)
 

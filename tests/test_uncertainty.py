@@ -4,6 +4,8 @@ on synthetic platoons with a known truth."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -181,17 +183,24 @@ def test_validation_on_synthetic_platoons_quick() -> None:
     assert s["amplification"]["within_10pct"] >= 2 / 3, s
     assert s["time_gap_effective"]["within_10pct"] >= 2 / 3, s
     for r in v["rows"]:
+        assert r["widening"] > 1.0, r
         for key in ("amplification", "time_gap_effective"):
             d = r[key]
-            assert d["low"] < d["high"] and d["rel_width"] > 0, r
-            assert d["inside"] == (d["low"] <= d["truth"] <= d["high"])
+            # a record of fewer effective blocks than parameters gets no interval
+            assert d["determined"] == math.isfinite(r["widening"]), r
+            if d["determined"]:
+                assert d["low"] < d["high"] and d["rel_width"] > 0, r
+                assert d["inside"] == (d["low"] <= d["truth"] <= d["high"])
+            else:
+                assert d["inside"] is None and math.isnan(d["low"]), r
 
 
 @pytest.fixture(scope="module")
 def validation() -> dict:
-    # 8 fresh platoons of 6 cars: 48 cars, enough for a coverage of 85 % to mean something
-    # (the same seeds as the docs' fragment, docs/gen/intervals.py)
-    return validate_intervals(list(range(7301, 7309)), cars=6, n=200)["summary"]
+    # 8 platoons of 6 cars: 48 cars, enough for a coverage of 85 % to mean something; seeds
+    # not used while the method was chosen (that was 7301-7308), the same as the docs'
+    # fragment (docs/gen/intervals.py)
+    return validate_intervals(list(range(7501, 7509)), cars=6, n=200)["summary"]
 
 
 @pytest.mark.slow
@@ -205,10 +214,11 @@ def test_predictions_are_within_10_percent_on_synthetic_platoons(validation) -> 
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=False, reason=(
-    "measured below the 85 % target (see docs/guide/intervals.md and the generated "
-    "numbers): the bootstrap resamples the fitted residuals, which the 10-parameter "
-    "closed-loop fit makes smaller than the true errors on a record of ~20 effective "
-    "blocks; neither longer blocks nor a 3x longer local search close the gap"))
+    "measured below the 85 % target on these seeds (7501-7508, 48 cars, 200 resamples, "
+    "chosen after the method): 70.8 % (amplification) and 72.9 % (Tg + Gmin/v) with the "
+    "small-sample correction, 62.5 % and 54.2 % without; the errors of a 300 s record "
+    "stay correlated beyond the blocks Politis-White allows, and longer blocks leave "
+    "fewer blocks than the 10 fitted parameters (see docs/guide/intervals.md)"))
 def test_intervals_cover_the_truth_on_synthetic_platoons(validation) -> None:  # type: ignore[no-untyped-def]
     s = validation
     assert s["amplification"]["coverage"] >= 0.85, s

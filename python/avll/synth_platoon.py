@@ -686,9 +686,18 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     closed loop as the OpenACC study does (:data:`avll.studies.openacc.WEIGHTS`, every
     upper gain free, ``Gmin`` in [0, 10] m) with ``n`` resamples. Per car: whether the
     95 % intervals of the band amplification and of ``Tg + Gmin / v̄`` hold the truth,
-    the estimates' relative errors and the intervals' relative widths. Returns
-    ``rows`` and a ``summary`` (coverage, share of estimates within 10 %, median
-    relative width, mean error, per quantity)."""
+    the estimates' relative errors and the intervals' relative widths, and the same
+    for the plain percentile intervals of the same refits (``uncorrected``). A car whose
+    record has fewer effective blocks than fitted parameters gets no interval
+    (:func:`avll.uncertainty.small_sample_scale` is infinite: ``determined`` False,
+    ``inside`` None). Returns ``rows`` and a ``summary`` per quantity: ``coverage``
+    over the cars with an interval, ``coverage_all`` counting a car without one as
+    covered (its interval is the whole line), ``undetermined`` (share of cars without),
+    the share of estimates within 10 % (a car without an estimate, its calibrated
+    closed loop locally unstable, is not within), ``no_estimate`` (their number),
+    the mean and median absolute error of the others, the median relative width
+    (cars with an interval); and ``median_widening`` (the median factor by which
+    the resampled deviations were widened, finite ones)."""
     from .calibration import calibrate_many
     from .defaults import UPPER_NAMES
     from .studies.openacc import GMIN_MAX, WEIGHTS
@@ -707,30 +716,54 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
             u = r.uncertainty
             assert run.lead_v is not None and run.v is not None
             row: dict[str, Any] = {"seed": int(seed), "car": run.run_id,
-                                   "block_s": u.block_s}
+                                   "block_s": u.block_s, "blocks": u.blocks,
+                                   "widening": u.widening}
             amp, amps = u.band_amplification(run.lead_v, run.dt)
             tge, tges = u.time_gap_effective(float(np.mean(run.v)))
-            for key, est, smp, truth in (
-                    ("amplification", amp, amps, tr["band_gain"]),
-                    ("time_gap_effective", tge, tges, tr["time_gap_effective"])):
+            raw = u.uncorrected()
+            _, amps_raw = raw.band_amplification(run.lead_v, run.dt)
+            _, tges_raw = raw.time_gap_effective(float(np.mean(run.v)))
+            for key, est, smp, truth, smp_raw in (
+                    ("amplification", amp, amps, tr["band_gain"], amps_raw),
+                    ("time_gap_effective", tge, tges, tr["time_gap_effective"], tges_raw)):
+                rlo, rhi = raw._q(smp_raw)
                 lo, hi = u._q(smp)
+                det = math.isfinite(lo) and math.isfinite(hi)
                 row[key] = {"truth": float(truth), "estimate": float(est),
-                            "low": lo, "high": hi,
-                            "inside": bool(lo <= truth <= hi),
+                            "low": lo, "high": hi, "determined": det,
+                            "inside": bool(lo <= truth <= hi) if det else None,
                             "error": float(est / truth - 1.0),
-                            "rel_width": float((hi - lo) / truth)}
+                            "rel_width": float((hi - lo) / truth) if det else math.inf,
+                            # the plain percentile bootstrap (no widening), same refits
+                            "uncorrected": {"low": rlo, "high": rhi,
+                                            "inside": bool(rlo <= truth <= rhi),
+                                            "rel_width": float((rhi - rlo) / truth)}}
             rows.append(row)
     summary: dict[str, Any] = {"cars": len(rows), "seeds": [int(s) for s in seeds],
                                "resamples": int(n), "level": opts.level}
+    wid = [r["widening"] for r in rows if math.isfinite(r["widening"])]
+    summary["median_widening"] = float(np.median(wid)) if wid else None
     for key in ("amplification", "time_gap_effective"):
-        d = [r[key] for r in rows]
-        err = np.array([x["error"] for x in d])
+        d_all = [r[key] for r in rows]
+        d = [x for x in d_all if x["determined"]]
+        err_all = np.array([x["error"] for x in d_all])
+        # an estimate whose closed loop is locally unstable has no amplification (NaN)
+        err = err_all[np.isfinite(err_all)]
         summary[key] = {
             "coverage": float(np.mean([x["inside"] for x in d])) if d else None,
-            "within_10pct": float(np.mean(np.abs(err) <= 0.10)) if d else None,
-            "mean_error": float(np.mean(err)) if d else None,
-            "median_abs_error": float(np.median(np.abs(err))) if d else None,
+            "coverage_all": float(np.mean([x["inside"] is not False for x in d_all]))
+            if d_all else None,
+            "undetermined": float(np.mean([not x["determined"] for x in d_all]))
+            if d_all else None,
+            "within_10pct": float(np.mean(np.abs(err_all) <= 0.10)) if d_all else None,
+            "no_estimate": int(np.sum(~np.isfinite(err_all))),
+            "mean_error": float(np.mean(err)) if err.size else None,
+            "median_abs_error": float(np.median(np.abs(err))) if err.size else None,
             "median_rel_width": float(np.median([x["rel_width"] for x in d])) if d else None,
+            "uncorrected_coverage": float(np.mean([x["uncorrected"]["inside"]
+                                                   for x in d_all])) if d_all else None,
+            "uncorrected_median_rel_width": float(np.median(
+                [x["uncorrected"]["rel_width"] for x in d_all])) if d_all else None,
             # how far the truth lies outside, in interval widths (0 inside)
             "median_miss_in_widths": float(np.median([
                 max(x["low"] - x["truth"], x["truth"] - x["high"], 0.0)

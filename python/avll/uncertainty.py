@@ -18,11 +18,13 @@ problem has many runs and the runs, not the seconds, are the independent units.
 
 **Block length from the data.** The Politis-White (2004) automatic block length for
 the circular bootstrap of the mean (flat-top lag window, with the Patton, Politis and
-White 2009 correction), computed on the full-data fit's residual series of each
-weighted channel (acceleration, speed, position) of each run; the largest is used,
-not below :data:`MIN_BLOCK` seconds (a floor: below a few seconds the lower level's
-own response correlates the errors) and not above a third of the shortest run (at
-least three blocks per run).
+White 2009 correction), computed on the full-data fit's *score series* (per run and
+fitted parameter, the weighted residuals of the channels times their sensitivities
+to the parameter: the terms whose sum is the cost's gradient, whose resampled sums
+move the refits; the bandwidth of a sandwich variance is chosen on the estimating
+equations, not on the residuals); the largest is used, not below :data:`MIN_BLOCK`
+seconds (a floor: below a few seconds the lower level's own response correlates the
+errors) and not above a third of the shortest run (at least three blocks per run).
 
 **Refits.** Each resample is refit by the GA's bounded Nelder-Mead in the GA's unit
 coordinates (log scale for the positive coefficients), warm-started from the full-data
@@ -30,9 +32,22 @@ optimum; all resamples in parallel in Rust, one after the other problem, seeded 
 multiplicities are drawn from ``numpy.random.default_rng([seed, problem])``: the same
 result for any thread count), with progress and Ctrl-C.
 
-**What the data determine.** Percentile intervals at ``level``; correlations of the
-resampled parameters in the unit coordinates; a verdict per parameter
-(:meth:`Uncertainty.identified`): *identified* when the interval covers at most
+**Small-sample correction.** The refits are fitted to resamples of the *fitted*
+residuals, which a fit of ``p`` parameters to a record of only ``G`` effective blocks
+(record length over block length; runs when whole runs are resampled) has made
+smaller than the errors, and the spread itself is estimated from few pieces: the
+plain percentile intervals are far too narrow. With ``correction="dof"`` (the
+default) each refit's deviation from the estimate, in unit coordinates, is widened by
+:func:`small_sample_scale` ``= sqrt(G / (G - p)) t_{G-p} / z`` (the average-leverage
+degrees-of-freedom correction of a cluster-robust variance and Student's quantile)
+and clipped to the box; :attr:`Uncertainty.samples` are these widened refits (every
+interval, combination and probability is computed from them) and
+:attr:`Uncertainty.refits` the refits themselves. A record with ``G - p < 1`` determines
+nothing: its samples are NaN and every interval ``undetermined``.
+
+**What the data determine.** Percentile intervals at ``level`` of the (widened)
+samples; correlations of the resampled parameters in the unit coordinates; a verdict
+per parameter (:meth:`Uncertainty.identified`): *identified* when the interval covers at most
 :data:`MAX_BOX_SHARE` of the search box in unit coordinates and neither the estimate
 nor the interval reaches a bound (within :data:`BOUND_TOL` of the box in unit
 coordinates). A parameter whose interval reaches a bound is determined on one side
@@ -71,6 +86,9 @@ __all__ = [
     "MAX_REL_WIDTH",
     "BOUND_TOL",
     "ATOMS_PER_BLOCK",
+    "CORRECTIONS",
+    "small_sample_scale",
+    "widen",
     "to_dataset",
 ]
 
@@ -89,6 +107,10 @@ BOUND_TOL = 1e-3
 #: Correlations at least this large (absolute) are listed in the report.
 MIN_CORREL = 0.5
 _METHODS = ("blocks", "runs")
+#: The corrections of the resampled deviations (:class:`Intervals`): ``"dof"`` the
+#: small-sample correction (:func:`small_sample_scale`), ``"none"`` the plain
+#: percentile bootstrap.
+CORRECTIONS = ("dof", "none")
 
 
 @dataclass(frozen=True)
@@ -99,8 +121,11 @@ class Intervals:
     in seconds (``None``: from the residuals, :func:`block_length`); ``method``
     ``"blocks"`` (moving blocks over time within each run) or ``"runs"`` (whole runs);
     ``budget`` evaluations per refit at most (0: ``200 d``; a refit stops earlier when
-    its best value stalls); ``step`` the initial simplex step
-    in unit coordinates; ``seed`` of the multiplicities (``None``: the calibration's).
+    its best value stalls); ``step`` the initial simplex step in unit coordinates;
+    ``seed`` of the multiplicities (``None``: the calibration's); ``correction``
+    ``"dof"`` (the resampled deviations widened for the parameters fitted on few
+    effective blocks, :func:`small_sample_scale`) or ``"none"`` (the plain percentile
+    bootstrap, known to be too narrow here).
     """
 
     n: int = 200
@@ -110,6 +135,7 @@ class Intervals:
     budget: int = 0
     step: float = 0.05
     seed: int | None = None
+    correction: str = "dof"
 
     def __post_init__(self) -> None:
         check_int(self.n, "n", min=2)
@@ -123,6 +149,9 @@ class Intervals:
         if self.method not in _METHODS:
             raise ValueError(f"method: must be one of {', '.join(_METHODS)}, got "
                              f"{self.method!r}")
+        if self.correction not in CORRECTIONS:
+            raise ValueError(f"correction: must be one of {', '.join(CORRECTIONS)}, got "
+                             f"{self.correction!r}")
         check_int(self.budget, "budget", min=0)
         if not (isinstance(self.step, (int, float)) and 0 < self.step <= 0.5):
             raise ValueError(f"step: must be in (0, 0.5], got {self.step!r}")
@@ -202,6 +231,72 @@ def _unit(x: np.ndarray, lo: float, hi: float, scale: str) -> np.ndarray:
     return (np.clip(x, lo, hi) - lo) / (hi - lo)
 
 
+def _from_unit(z: np.ndarray, lo: float, hi: float, scale: str) -> np.ndarray:
+    """Values of the unit coordinates ``z`` of the box ``[lo, hi]`` (inverse of
+    :func:`_unit` inside the box)."""
+    if hi == lo:
+        return np.full_like(z, lo)
+    if scale == "log":
+        return np.asarray(lo * (hi / lo) ** z)
+    return np.asarray(lo + z * (hi - lo))
+
+
+def small_sample_scale(blocks: float, params: int, level: float = 0.95) -> float:
+    """The factor by which the resampled deviations from the estimate are widened:
+    ``sqrt(G / (G - p)) * t_{G-p}(q) / z(q)``, ``q = (1 + level) / 2``, for ``G``
+    effective independent ``blocks`` (record length over block length, or the number
+    of runs when whole runs are resampled) and ``p`` fitted ``params``.
+
+    The first factor is the degrees-of-freedom correction of a residual-based
+    variance (the cluster-robust CR2 correction with the average leverage ``p / G``
+    of a block): the fit absorbs ``p`` of the ``G`` independent pieces of the errors,
+    so the fitted residuals, which the bootstrap resamples, are smaller than the
+    errors by ``(G - p) / G`` in variance. The second replaces the normal quantile by
+    Student's with ``G - p`` degrees of freedom (the variance itself is estimated from
+    ``G - p`` pieces). ``inf`` when ``G - p < 1``: fewer effective blocks than
+    parameters determine nothing (the resamples become NaN and every interval
+    ``undetermined``)."""
+    from scipy import stats
+
+    if not (math.isfinite(blocks) and blocks > 0):
+        raise ValueError(f"blocks: must be a number > 0, got {blocks!r}")
+    check_int(params, "params", min=0)
+    if not 0 < level < 1:
+        raise ValueError(f"level: must be in (0, 1), got {level!r}")
+    nu = blocks - params
+    if nu < 1:
+        return math.inf
+    q = 0.5 * (1.0 + level)
+    return float(math.sqrt(blocks / nu) * stats.t.ppf(q, nu) / stats.norm.ppf(q))
+
+
+def widen(samples: np.ndarray, estimate: np.ndarray,
+          bounds: Sequence[tuple[float, float, str]], factor: float) -> np.ndarray:
+    """``samples`` (n, d) with their deviations from ``estimate`` (d) multiplied by
+    ``factor`` in the GA's unit coordinates of the box ``bounds`` (per column
+    ``(lo, hi, scale)``), clipped to the box. ``factor = inf`` (no degrees of freedom
+    left) gives NaN everywhere but in the fixed columns: nothing is determined."""
+    x = np.asarray(samples, dtype=np.float64)
+    out = x.copy()
+    if not factor >= 1.0:
+        raise ValueError(f"factor: must be >= 1, got {factor!r}")
+    if math.isinf(factor):
+        for j, (lo, hi, _) in enumerate(bounds):
+            if hi != lo:
+                out[:, j] = np.nan
+        return out
+    for j, (lo, hi, sc) in enumerate(bounds):
+        if hi == lo:
+            continue
+        z = _unit(x[:, j], lo, hi, sc)
+        z0 = float(_unit(np.array([estimate[j]], dtype=np.float64), lo, hi, sc)[0])
+        dev = z - z0
+        zw = z0 + factor * dev
+        out[:, j] = _from_unit(np.clip(zw, 0.0, 1.0), lo, hi, sc)
+        out[~np.isfinite(x[:, j]), j] = np.nan
+    return out
+
+
 def _linear_columns(cls: Any, x: np.ndarray) -> dict[str, np.ndarray]:
     """The common linear form's coefficients (``b1, b0, a2, a1, Td, K``) of every row
     of ``x`` (the model's parameters), vectorised: the model's own ``linear()`` on an
@@ -232,10 +327,14 @@ class Uncertainty:
     """The uncertainty of one calibration (see the module doc).
 
     ``names`` of the parameter row ``[model | effects | free upper gains]``;
-    ``estimate`` the full-data optimum; ``samples`` (n, d) the refit parameters of the
-    resamples (rows that did not run after a Ctrl-C are dropped); ``costs`` their
-    resampled costs; ``bounds`` the search box (name -> (lo, hi, scale)); ``upper``
-    the upper-level gains of the problem's (first) run, the free ones replaced per
+    ``estimate`` the full-data optimum; ``samples`` (n, d) the resampled parameters
+    the intervals come from: the refits' deviations from the estimate widened by
+    ``widening`` (:func:`small_sample_scale` of ``blocks`` effective blocks and
+    ``fitted`` parameters; 1 without correction) in unit coordinates, clipped to the
+    box; ``refits`` (n, d) the refit parameters themselves (rows that did not run
+    after a Ctrl-C are dropped from both); ``costs`` the refits' resampled costs;
+    ``bounds`` the search box (name -> (lo, hi, scale)); ``upper`` the upper-level gains
+    of the problem's (first) run, the free ones replaced per
     sample; ``mean_speed`` the problem's mean speed (m/s) or None; ``block_s`` and
     ``atom_s`` the block and atom lengths (s); ``combinations`` name -> samples and
     ``combination_estimates`` name -> full-data value; ``string_codes`` the
@@ -263,6 +362,10 @@ class Uncertainty:
     interrupted: bool = False
     evaluations: int = 0
     rollouts: int = 0
+    refits: np.ndarray | None = None
+    widening: float = 1.0
+    blocks: float = math.nan
+    fitted: int = 0
 
     # -- intervals --------------------------------------------------------------
     def _q(self, v: np.ndarray) -> tuple[float, float]:
@@ -424,6 +527,32 @@ class Uncertainty:
             g[0] = math.nan
         return float(g[0]), g[1:]
 
+    def uncorrected(self) -> Uncertainty:
+        """A copy whose samples are the refits themselves (the plain percentile
+        bootstrap, no widening; the exact-delay codes dropped), for comparison."""
+        from dataclasses import replace
+
+        if self.refits is None or self.widening == 1.0:
+            return self
+        up = dict(self.upper)
+        for n in up:
+            if n in self.names:
+                up[n] = self.refits[:, self.names.index(n)].copy()
+        cls_comb: dict[str, np.ndarray] = {}
+        if self.combinations:
+            from .models import model_class
+
+            cls = model_class(self.model)
+            lin = _linear_columns(cls, self.refits[:, :len(cls.param_names())])
+            full = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
+            cls_comb = {n: full[n] for n in self.combinations if n in full}
+        out = replace(self, samples=self.refits, upper=up, widening=1.0, string_codes=None,
+                      string_code_estimate=None,
+                      combinations={**self.combinations, **cls_comb})
+        if "time_gap_effective" in self.combinations and self.mean_speed is not None:
+            out = out.with_combinations(time_gap_effective=out.time_gap_effective())
+        return out
+
     def with_combinations(self, **more: tuple[float, np.ndarray]) -> Uncertainty:
         """A copy with more combinations (name -> (estimate, samples))."""
         from dataclasses import replace
@@ -447,6 +576,8 @@ class Uncertainty:
                  + (f" + {', '.join(self.effects)}" if self.effects else ""),
                  f"    resamples: {len(self.samples)} ({self.method}, block {self.block_s:.3g} s"
                  f", atoms {self.atom_s:.3g} s){' INTERRUPTED' if self.interrupted else ''}",
+                 f"    deviations widened x{self.widening:.3g} ({self.blocks:.3g} effective "
+                 f"blocks, {self.fitted} fitted parameters)",
                  f"[[Parameters]] (estimate, {pct} interval, verdict)"]
         w = max((len(n) for n in (*self.names, *self.combinations)), default=4) + 1
         for j, n in enumerate(self.names):
@@ -570,7 +701,8 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
     return xr.Dataset(data, coords=cds, attrs={
         "level": lv.pop() if len(lv) == 1 else "mixed",
         "intervals": "percentile intervals of a block bootstrap over time refit from the "
-                     "full-data optimum (avll.uncertainty)",
+                     "full-data optimum, the deviations widened for the parameters fitted "
+                     "on few effective blocks (avll.uncertainty)",
         "identified": f"interval within {MAX_BOX_SHARE} of the search box (unit "
                       f"coordinates) and off the bounds; combinations: width within "
                       f"{MAX_REL_WIDTH} of the estimate"})
@@ -598,18 +730,7 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
     elif opts.method == "runs":
         block = shortest
     else:
-        kw = {k2: v for k2, v in prob.kw.items() if k2 != "runs"}
-        sim = np.asarray(_core.simulate_batch(
-            prob.cls.name, np.ascontiguousarray(x0[None, :]), prob.rs._handle.take(uniq),
-            threads=int(threads), **kw))  # (a, v, x) x 1 row x samples
-        off = np.concatenate([[0], np.cumsum([len(r) for r in runs])])
-        res = []
-        w = prob.kw["weights"]
-        for j, r in enumerate(runs):
-            sl = slice(int(off[j]), int(off[j + 1]))
-            for ch, meas in (("a", r.a), ("v", r.v), ("x", r.x)):
-                if w["avx".index(ch)] > 0 and meas is not None:
-                    res.append(sim["avx".index(ch), 0, sl] - meas)
+        res = _score_series(prob, uniq, runs, x0, threads)
         block = block_length(res, dt, MIN_BLOCK, shortest / 3.0)
     rng = np.random.default_rng([int(seed), int(k)])
     atoms, counts = [], []
@@ -638,6 +759,50 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
             start += c
     atom_s = float(np.mean([a * float(r.dt) for a, r in zip(atoms, runs, strict=True)]))
     return uniq, atoms, np.ascontiguousarray(w), float(block), atom_s
+
+
+#: Finite-difference step (unit coordinates) of the score series.
+_SCORE_STEP = 1e-3
+
+
+def _score_series(prob: Any, uniq: Sequence[int], runs: Sequence[Any], x0: np.ndarray,
+                  threads: int) -> list[np.ndarray]:
+    """The estimating-equation (score) series of the full-data fit, per run and fitted
+    parameter: ``g_j(t) = Σ_c w_c (∂ŷ_c(t) / ∂z_j) (ŷ_c(t) - y_c(t))`` over the weighted
+    channels ``c`` (acceleration, speed, position), ``z`` the GA's unit coordinates
+    (forward differences of one batch of rollouts, stepped into the box). The cost's
+    gradient is their sum; the bootstrap's spread of the refits is that of their
+    resampled sums, so their serial correlation sets the block length."""
+    free = [j for j, (lo, hi) in enumerate(zip(prob.lower, prob.upper, strict=True))
+            if hi > lo]
+    rows = [np.asarray(x0, dtype=np.float64).copy()]
+    steps = []
+    for j in free:
+        lo, hi, sc = prob.lower[j], prob.upper[j], prob.scale[j]
+        z = float(_unit(np.array([x0[j]], dtype=np.float64), lo, hi, sc)[0])
+        h = _SCORE_STEP if z + _SCORE_STEP <= 1.0 else -_SCORE_STEP
+        row = rows[0].copy()
+        row[j] = float(_from_unit(np.array([z + h]), lo, hi, sc)[0])
+        rows.append(row)
+        steps.append(h)
+    kw = {k2: v for k2, v in prob.kw.items() if k2 != "runs"}
+    sim = np.asarray(_core.simulate_batch(
+        prob.cls.name, np.ascontiguousarray(np.vstack(rows)), prob.rs._handle.take(list(uniq)),
+        threads=int(threads), **kw))  # (a, v, x) x rows x samples
+    off = np.concatenate([[0], np.cumsum([len(r) for r in runs])])
+    w = prob.kw["weights"]
+    out: list[np.ndarray] = []
+    with np.errstate(invalid="ignore", over="ignore"):
+        for q, r in enumerate(runs):
+            sl = slice(int(off[q]), int(off[q + 1]))
+            g = np.zeros((len(steps), len(r)))
+            for c, meas in enumerate((r.a, r.v, r.x)):
+                if w[c] > 0 and meas is not None:
+                    e = sim[c, 0, sl] - meas
+                    for i, h in enumerate(steps):
+                        g[i] += w[c] * (sim[c, i + 1, sl] - sim[c, 0, sl]) / h * e
+            out.extend(g)
+    return out
 
 
 def _upper_columns(prob: Any, run: Any, x: np.ndarray) -> dict[str, np.ndarray]:
@@ -727,13 +892,22 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         keep = np.isfinite(costs)
         xs, costs = xs[keep], costs[keep]
         runs = [prob.rs.runs[i] for i in plan[0]]
+        bounds = {n: (lo, hi, sc) for n, lo, hi, sc in
+                  zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)}
+        # effective independent pieces: blocks of the record, or whole runs
+        blocks = (float(len(runs)) if opts.method == "runs" else
+                  float(sum(len(r) * float(r.dt) for r in runs) / plan[3]))
+        fitted = sum(1 for lo, hi in zip(prob.lower, prob.upper, strict=True) if hi > lo)
+        fac = (1.0 if opts.correction == "none" else
+               small_sample_scale(blocks, fitted, float(opts.level)))
+        refits = xs
+        xs = widen(refits, x0[k], [bounds[n] for n in prob.names], fac) if fac != 1.0 \
+            else refits.copy()
         run0 = runs[0]
         up = _upper_columns(prob, run0, xs)
         up0 = {n: float(v[0]) for n, v in _upper_columns(prob, run0, x0[k][None, :]).items()}
         vs = [r.v for r in runs if r.v is not None]
         vbar = float(np.mean(np.concatenate(vs))) if vs else None
-        bounds = {n: (lo, hi, sc) for n, lo, hi, sc in
-                  zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)}
         nm = len(cls.param_names())
         lin = _linear_columns(cls, np.vstack([x0[k][None, :nm], xs[:, :nm]]))
         comb = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
@@ -746,10 +920,11 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             combination_estimates={n: float(v[0]) for n, v in comb.items()},
             interrupted=not bool(ran.all()),
             evaluations=int(np.sum(np.asarray(raw["evaluations"])[ran])),
-            rollouts=int(raw["rollouts"]))
+            rollouts=int(raw["rollouts"]), refits=refits, widening=float(fac),
+            blocks=blocks, fitted=int(fitted))
         if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
             u = u.with_combinations(time_gap_effective=u.time_gap_effective())
-        if prob.closed_loop and not prob.effects:
+        if prob.closed_loop and not prob.effects and math.isfinite(fac):
             codes = _exact_codes(prob.cls.name, cls, xs, up, threads)
             c0 = _exact_codes(prob.cls.name, cls, x0[k][None, :],
                               {n: np.array([v]) for n, v in up0.items()}, threads)
