@@ -399,24 +399,31 @@ class Uncertainty:
         est = self.upper_estimate["Tg"] + self.upper_estimate["Gmin"] / v
         return float(est), np.asarray(self.upper["Tg"] + self.upper["Gmin"] / v)
 
-    def band_amplification(self, lead_v: np.ndarray, dt: float,
-                           band: Sequence[float] | None = None) -> tuple[float, np.ndarray]:
-        """``|H|`` of the calibrated closed loop (true delay) as an RMS gain on the
-        band-passed spectrum of the predecessor's speed ``lead_v``
-        (:func:`avll.spectral.band_gain_rows`): the full-data value and the
-        resamples' (NaN where the closed loop is locally unstable, when known). With
-        effects, the base model's linear loop (the effects are left out of ``|H|``)."""
-        from .models import model_class
-        from .spectral import DEFAULT_BAND, band_gain_rows
+    def rows(self) -> np.ndarray:
+        """The closed loops as parameter rows ``[model | effects | kg, kv, Tg, Gmin]``
+        (the row order of :func:`avll.effect_stability.frequency_response_rows`): the
+        full-data optimum first, then one row per resample."""
+        from .defaults import UPPER_NAMES
 
-        cls = model_class(self.model)
-        k = len(cls.param_names())
-        rows = np.vstack([self.estimate[None, :k], self.samples[:, :k]])
-        lin = _linear_columns(cls, rows)
-        up = {n: np.concatenate([[self.upper_estimate[n]], self.upper[n]])
-              for n in ("kg", "kv", "Tg")}
-        g = band_gain_rows(lin, up["kg"], up["kv"], up["Tg"], lead_v, dt,
-                           DEFAULT_BAND if band is None else band)
+        k = len(self.names) - sum(1 for n in self.names if n in UPPER_NAMES)
+        up = np.column_stack([np.concatenate([[self.upper_estimate[n]], self.upper[n]])
+                              for n in UPPER_NAMES])
+        return np.ascontiguousarray(np.hstack([
+            np.vstack([self.estimate[None, :k], self.samples[:, :k]]), up]))
+
+    def band_amplification(self, lead_v: np.ndarray, dt: float,
+                           band: Sequence[float] | None = None, *, v: float | None = None,
+                           threads: int = 0) -> tuple[float, np.ndarray]:
+        """``|H|`` of the calibrated closed loop -- the base model with its effects of
+        both levels, linearised at ``v`` (default: the mean of ``lead_v``), every delay
+        exact -- as an RMS gain on the band-passed spectrum of the predecessor's speed
+        ``lead_v`` (:func:`avll.effect_stability.band_amplification_rows`, every row in
+        one Rust call): the full-data value and the resamples' (NaN where the closed
+        loop is locally unstable, when known)."""
+        from .effect_stability import band_amplification_rows
+
+        g = band_amplification_rows(self.model, self.rows(), lead_v, dt, band,
+                                    effects=self.effects, v=v, threads=threads)
         if self.string_codes is not None:
             g[1:][self.string_codes == 0] = math.nan
         if self.string_code_estimate == 0:
@@ -462,8 +469,10 @@ class Uncertainty:
                              f"{ver[n]}")
         p = self.string_stable_probability
         if p is not None:
+            how = ("certified test, every delay exact" if self.effects else
+                   "exact test, true delay")
             lines.append(f"    P(string stable): {p:.3f} (locally unstable: "
-                         f"{self.locally_unstable_share:.3f}; exact test, true delay)")
+                         f"{self.locally_unstable_share:.3f}; {how})")
         c = self.correlations
         pairs = [(abs(c[i, j]), self.names[i], self.names[j], c[i, j])
                  for i in range(len(self.names)) for j in range(i + 1, len(self.names))
@@ -653,9 +662,22 @@ def _upper_columns(prob: Any, run: Any, x: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def _exact_codes(model: str, cls: Any, x: np.ndarray, up: Mapping[str, np.ndarray],
-                 threads: int) -> np.ndarray:
-    """Exact-delay codes of each row's closed loop."""
+                 threads: int, effects: Sequence[str] = (), v: float | None = None
+                 ) -> np.ndarray:
+    """Exact-delay codes of each row's closed loop; with ``effects`` (their parameters
+    after the model's in ``x``) the certified test of every delay
+    (:func:`avll.effect_stability.stability_codes_rows`, linearised at ``v``)."""
     k = len(cls.param_names())
+    if effects:
+        from .defaults import UPPER_NAMES
+        from .effect_stability import stability_codes_rows
+        from .effects import EFFECTS
+
+        ne = sum(len(EFFECTS[e].param_names()) for e in effects)
+        rows = np.hstack([x[:, :k + ne], np.column_stack([up[n] for n in UPPER_NAMES])])
+        c, _ = stability_codes_rows(model, rows, effects=list(effects),
+                                    v=0.0 if v is None else float(v), threads=threads)
+        return np.where(np.all(np.isfinite(rows), axis=1), c, 0)
     ok = np.all(np.isfinite(x), axis=1) & np.isfinite(up["kg"]) & np.isfinite(up["Tg"]) & \
         np.isfinite(up["kv"])
     codes = np.zeros(x.shape[0], dtype=np.int64)
@@ -748,10 +770,11 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             rollouts=int(raw["rollouts"]))
         if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
             u = u.with_combinations(time_gap_effective=u.time_gap_effective())
-        if prob.closed_loop and not prob.effects:
-            codes = _exact_codes(prob.cls.name, cls, xs, up, threads)
+        if prob.closed_loop:
+            codes = _exact_codes(prob.cls.name, cls, xs, up, threads, prob.effects, vbar)
             c0 = _exact_codes(prob.cls.name, cls, x0[k][None, :],
-                              {n: np.array([v]) for n, v in up0.items()}, threads)
+                              {n: np.array([v]) for n, v in up0.items()}, threads,
+                              prob.effects, vbar)
             from dataclasses import replace
 
             u = replace(u, string_codes=codes, string_code_estimate=int(c0[0]))
