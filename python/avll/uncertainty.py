@@ -239,7 +239,10 @@ class Uncertainty:
     ``atom_s`` the block and atom lengths (s); ``combinations`` name -> samples and
     ``combination_estimates`` name -> full-data value; ``string_codes`` the
     exact-delay codes (0 locally unstable, 1 string unstable, 2 string stable) of the
-    samples when computed (closed loop)."""
+    samples when computed (closed loop), ``string_certified`` whether each code is
+    proven (False: the test could not decide -- a loop on a boundary or over its
+    budget -- and the code is 0 or 1, never 2) and ``string_test`` the test used
+    (:data:`STRING_TEST_EXACT` or :data:`STRING_TEST_CERTIFIED`)."""
 
     model: str
     effects: tuple[str, ...]
@@ -259,6 +262,8 @@ class Uncertainty:
     combination_estimates: dict[str, float] = field(default_factory=dict)
     string_codes: np.ndarray | None = None
     string_code_estimate: int | None = None
+    string_certified: np.ndarray | None = None
+    string_test: str | None = None
     interrupted: bool = False
     evaluations: int = 0
     rollouts: int = 0
@@ -359,12 +364,23 @@ class Uncertainty:
 
     @property
     def string_stable_probability(self) -> float | None:
-        """Share of the resamples whose closed loop is string stable (exact test with
-        the true delay; locally unstable resamples count as not string stable), or
-        None when not computed."""
+        """Share of the resamples whose closed loop is string stable (locally
+        unstable resamples count as not string stable), or None when not computed.
+        Every verdict is a proof, not a frequency sample (:attr:`string_test`: the exact
+        one-delay test for the base model, the certified interval-arithmetic test of
+        every delay with structures); a resample the test cannot decide counts as not
+        string stable (:attr:`string_uncertified_share`)."""
         if self.string_codes is None or self.string_codes.size == 0:
             return None
         return float(np.mean(self.string_codes == 2))
+
+    @property
+    def string_uncertified_share(self) -> float | None:
+        """Share of the resamples whose stability test could not decide (counted as
+        not string stable), or None when not computed."""
+        if self.string_certified is None or self.string_certified.size == 0:
+            return None
+        return float(np.mean(~self.string_certified))
 
     @property
     def locally_unstable_share(self) -> float | None:
@@ -469,10 +485,11 @@ class Uncertainty:
                              f"{ver[n]}")
         p = self.string_stable_probability
         if p is not None:
-            how = ("certified test, every delay exact" if self.effects else
-                   "exact test, true delay")
+            how = self.string_test or "exact test, true delay"
+            und = self.string_uncertified_share
             lines.append(f"    P(string stable): {p:.3f} (locally unstable: "
-                         f"{self.locally_unstable_share:.3f}; {how})")
+                         f"{self.locally_unstable_share:.3f}; {how}"
+                         + (f"; undecided: {und:.3f}" if und else "") + ")")
         c = self.correlations
         pairs = [(abs(c[i, j]), self.names[i], self.names[j], c[i, j])
                  for i in range(len(self.names)) for j in range(i + 1, len(self.names))
@@ -496,6 +513,8 @@ class Uncertainty:
             "verdicts": self.verdicts(),
             "identified": self.identified(),
             "string_stable_probability": self.string_stable_probability,
+            "string_test": self.string_test,
+            "string_undecided_share": self.string_uncertified_share,
             "resamples": int(len(self.samples)),
             "method": self.method,
             "block_s": float(self.block_s),
@@ -661,12 +680,22 @@ def _upper_columns(prob: Any, run: Any, x: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
+#: How :attr:`Uncertainty.string_codes` are decided without structures.
+STRING_TEST_EXACT = ("exact test, true delay (crossing frequencies and a certified "
+                     "string sweep; avll.stability.exact_delay_codes)")
+#: ... and with structures (every delay of the follower kept).
+STRING_TEST_CERTIFIED = ("certified test, every delay exact (argument principle and "
+                         "|Den|^2 - |Num|^2 swept in interval arithmetic; "
+                         "avll.effect_stability.stability_codes_rows)")
+
+
 def _exact_codes(model: str, cls: Any, x: np.ndarray, up: Mapping[str, np.ndarray],
                  threads: int, effects: Sequence[str] = (), v: float | None = None
-                 ) -> np.ndarray:
-    """Exact-delay codes of each row's closed loop; with ``effects`` (their parameters
-    after the model's in ``x``) the certified test of every delay
-    (:func:`avll.effect_stability.stability_codes_rows`, linearised at ``v``)."""
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Exact-delay codes of each row's closed loop and whether each is certified; with
+    ``effects`` (their parameters after the model's in ``x``) the certified test of
+    every delay (:func:`avll.effect_stability.stability_codes_rows`, linearised at
+    ``v``)."""
     k = len(cls.param_names())
     if effects:
         from .defaults import UPPER_NAMES
@@ -675,19 +704,23 @@ def _exact_codes(model: str, cls: Any, x: np.ndarray, up: Mapping[str, np.ndarra
 
         ne = sum(len(EFFECTS[e].param_names()) for e in effects)
         rows = np.hstack([x[:, :k + ne], np.column_stack([up[n] for n in UPPER_NAMES])])
-        c, _ = stability_codes_rows(model, rows, effects=list(effects),
-                                    v=0.0 if v is None else float(v), threads=threads)
-        return np.where(np.all(np.isfinite(rows), axis=1), c, 0)
+        fin = np.all(np.isfinite(rows), axis=1)
+        c, cert = stability_codes_rows(model, rows, effects=list(effects),
+                                       v=0.0 if v is None else float(v), threads=threads)
+        return np.where(fin, c, 0), np.where(fin, cert, True)
     ok = np.all(np.isfinite(x), axis=1) & np.isfinite(up["kg"]) & np.isfinite(up["Tg"]) & \
         np.isfinite(up["kv"])
     codes = np.zeros(x.shape[0], dtype=np.int64)
+    cert = np.ones(x.shape[0], dtype=bool)
     if ok.any():
-        c, _ = _core.delay_codes_rows(model, np.ascontiguousarray(x[ok, :k]),
-                                      [float(v) for v in up["kg"][ok]],
-                                      [float(v) for v in up["Tg"][ok]],
-                                      [float(v) for v in up["kv"][ok]], threads=int(threads))
+        c, settled = _core.delay_codes_rows(model, np.ascontiguousarray(x[ok, :k]),
+                                            [float(v) for v in up["kg"][ok]],
+                                            [float(v) for v in up["Tg"][ok]],
+                                            [float(v) for v in up["kv"][ok]],
+                                            threads=int(threads))
         codes[ok] = np.asarray(c, dtype=np.int64)
-    return codes
+        cert[ok] = np.asarray(settled, dtype=bool)
+    return codes, cert
 
 
 def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarray],
@@ -771,13 +804,17 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
             u = u.with_combinations(time_gap_effective=u.time_gap_effective())
         if prob.closed_loop:
-            codes = _exact_codes(prob.cls.name, cls, xs, up, threads, prob.effects, vbar)
-            c0 = _exact_codes(prob.cls.name, cls, x0[k][None, :],
-                              {n: np.array([v]) for n, v in up0.items()}, threads,
-                              prob.effects, vbar)
+            codes, cert = _exact_codes(prob.cls.name, cls, xs, up, threads, prob.effects,
+                                       vbar)
+            c0, _ = _exact_codes(prob.cls.name, cls, x0[k][None, :],
+                                 {n: np.array([v]) for n, v in up0.items()}, threads,
+                                 prob.effects, vbar)
             from dataclasses import replace
 
-            u = replace(u, string_codes=codes, string_code_estimate=int(c0[0]))
+            u = replace(u, string_codes=codes, string_code_estimate=int(c0[0]),
+                        string_certified=cert,
+                        string_test=STRING_TEST_CERTIFIED if prob.effects else
+                        STRING_TEST_EXACT)
         out.append(u)
     return out
 

@@ -248,7 +248,11 @@ fn canonical_list(effects: &[String], kind: CommandKind) -> PyResult<EffectList>
     if list.0.iter().map(|k| k.name()).ne(names.iter().copied()) {
         return Err(pyo3::exceptions::PyValueError::new_err(format!(
             "effects: give them in their canonical order ({}), got {}",
-            list.0.iter().map(|k| k.name()).collect::<Vec<_>>().join(", "),
+            list.0
+                .iter()
+                .map(|k| k.name())
+                .collect::<Vec<_>>()
+                .join(", "),
             names.join(", ")
         )));
     }

@@ -393,7 +393,11 @@ impl FollowerLoop {
         // s X = jω X = (−ω X.im, ω X.re)
         let sx = Cx::new(-(om * xv.im), om * xv.re);
         let r = cx_sub(d, sx);
-        r.re.lo.abs().max(r.re.hi.abs()).max(r.im.lo.abs()).max(r.im.hi.abs())
+        r.re.lo
+            .abs()
+            .max(r.re.hi.abs())
+            .max(r.im.lo.abs())
+            .max(r.im.hi.abs())
     }
 }
 
@@ -427,8 +431,14 @@ mod tests {
     /// its roots' count checked against the one-delay crossing argument.
     #[test]
     fn argument_principle_on_classic_equations() {
-        for &(k, tau) in &[(1.0, 1.5), (1.0, 1.6), (2.0, 0.7), (2.0, 0.8), (0.5, 3.0), (0.5, 3.2)]
-        {
+        for &(k, tau) in &[
+            (1.0, 1.5),
+            (1.0, 1.6),
+            (2.0, 0.7),
+            (2.0, 0.8),
+            (0.5, 3.0),
+            (0.5, 3.2),
+        ] {
             let mut d = Quasi::default();
             d.push(0.0, Poly::linear(1.0, 0.0));
             d.push(tau, Poly::constant(k));
@@ -447,7 +457,12 @@ mod tests {
         }
         // two incommensurate delays: s + a e^{-τ1 s} + b e^{-τ2 s}; at τ2 = τ1 it is
         // the one-delay case with k = a + b
-        for &(a, b, t1) in &[(0.6, 0.4, 1.5), (0.6, 0.4, 1.6), (1.0, 1.0, 0.7), (1.0, 1.0, 0.8)] {
+        for &(a, b, t1) in &[
+            (0.6, 0.4, 1.5),
+            (0.6, 0.4, 1.6),
+            (1.0, 1.0, 0.7),
+            (1.0, 1.0, 0.8),
+        ] {
             let mut d = Quasi::default();
             d.push(0.0, Poly::linear(1.0, 0.0));
             d.push(t1, Poly::constant(a));
@@ -481,9 +496,14 @@ mod tests {
             (vec![], vec![]),
             (vec!["perception"], vec![0.35]),
             (vec!["feedforward"], vec![0.6, 0.8]),
-            (vec!["perception", "closing", "feedforward"], vec![0.3, 1.6, 1.3, 0.5, 0.7]),
-            (vec!["delay", "road_load", "perception", "speed_gains"],
-             vec![0.2, 0.1, 0.01, 0.0005, 0.25, 0.02, 0.01]),
+            (
+                vec!["perception", "closing", "feedforward"],
+                vec![0.3, 1.6, 1.3, 0.5, 0.7],
+            ),
+            (
+                vec!["delay", "road_load", "perception", "speed_gains"],
+                vec![0.2, 0.1, 0.01, 0.0005, 0.25, 0.02, 0.01],
+            ),
         ];
         for (names, p) in cases {
             let (l, t, u) = forms(&names, &p, up, 20.0);
@@ -491,9 +511,15 @@ mod tests {
             for &w in &[0.01, 0.2, 0.9, 3.0, 12.0] {
                 let want = super::super::response(&l, &t, &u, w);
                 let got = fl.h(w);
-                assert!((got - want).norm() <= 1e-10 * want.norm().max(1.0), "{names:?} {w}");
+                assert!(
+                    (got - want).norm() <= 1e-10 * want.norm().max(1.0),
+                    "{names:?} {w}"
+                );
                 let scale = fl.den.eval(Iv::point(w)).abs2().hi.sqrt();
-                assert!(fl.identity_residual(w) <= 1e-12 * scale.max(1.0), "{names:?} {w}");
+                assert!(
+                    fl.identity_residual(w) <= 1e-12 * scale.max(1.0),
+                    "{names:?} {w}"
+                );
             }
             // g encloses (|Den|² − |Num|²)/ω² at points and over pieces
             for &w in &[0.02, 0.5, 2.0] {
@@ -502,7 +528,10 @@ mod tests {
                 let direct = 0.5 * (d.lo + d.hi - n.lo - n.hi) / (w * w);
                 let gi = fl.g(Iv::new(w * (1.0 - 1e-9), w * (1.0 + 1e-9)));
                 let tol = 1e-8 * d.hi / (w * w);
-                assert!(gi.lo - tol <= direct && direct <= gi.hi + tol, "{names:?} {w} {gi:?}");
+                assert!(
+                    gi.lo - tol <= direct && direct <= gi.hi + tol,
+                    "{names:?} {w} {gi:?}"
+                );
                 let wide = fl.g(Iv::new(0.0, w));
                 assert!(wide.lo <= gi.hi && gi.lo <= wide.hi);
             }

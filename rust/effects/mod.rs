@@ -646,7 +646,7 @@ fn check_rows(
             ),
         ));
     }
-    if rows.len() % d != 0 {
+    if !rows.len().is_multiple_of(d) {
         return Err(AvllError::new("rows", "is not a whole number of rows"));
     }
     Ok(())

@@ -745,7 +745,9 @@ mod tests {
         let initial = vec![vec![truth.clone()], vec![poor.clone()], vec![]];
         let run = |t: usize, init: &[Vec<Vec<f64>>]| {
             crate::parallel::with_threads(t, || {
-                calibrate_many(&sp, &runs, &problems, &b, &o, true, false, init, |_, _| None)
+                calibrate_many(&sp, &runs, &problems, &b, &o, true, false, init, |_, _| {
+                    None
+                })
             })
             .unwrap()
             .unwrap()
@@ -765,9 +767,11 @@ mod tests {
         assert_eq!(plain[2], r1[2]);
         // shapes are checked, naming the problem and the row
         let err = |init: &[Vec<Vec<f64>>]| {
-            calibrate_many(&sp, &runs, &problems, &b, &o, true, false, init, |_, _| None)
-                .unwrap_err()
-                .to_string()
+            calibrate_many(&sp, &runs, &problems, &b, &o, true, false, init, |_, _| {
+                None
+            })
+            .unwrap_err()
+            .to_string()
         };
         assert!(err(&[vec![truth.clone()]]).contains("one per problem"));
         let short = vec![vec![], vec![vec![1.0; 5]], vec![]];
