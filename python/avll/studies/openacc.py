@@ -683,9 +683,6 @@ def openacc_study(
     for c in cars:
         c["base_model"] = {k: c.get(k) for k in BASE_KEYS}
     selection = None
-    if structures is not False and not out_of_sample:
-        raise ValueError("structures: the selection needs the out-of-sample folds "
-                         "(out_of_sample=True), or give structures=False")
     if structures is not False and oos_plan is not None and oos_plan["subsets"]:
         selection = _select(model, runs, metas, cars, oos_plan, oos_res, results[model],
                             structures, band=band, seed=seed, threads=threads,
@@ -888,9 +885,10 @@ def _selection_summary(cars: Sequence[Mapping[str, Any]], sel: Any,
     structures were accepted for which cars, and the out-of-sample amplification
     bias before (base model) and after (final model)."""
     if sel is None:
-        return {"enabled": structures is not False, "reason": (
+        return {"enabled": False, "reason": (
             "not run (structures=False)" if structures is False
-            else "no car has another file of its setting (no fold)")}
+            else "not run: no car has another file of its setting (no fold), or the "
+                 "out-of-sample step is off (out_of_sample=False)")}
     s, final_seconds = sel
     out: dict[str, Any] = {"enabled": True, **s.to_dict(),
                            "final_fits_seconds": round(final_seconds, 1)}
