@@ -416,3 +416,38 @@ def test_every_default_bound_has_a_physical_reason() -> None:
         assert BOUND_REASONS.get(p), p
         used.add(p)
     assert used == set(BOUND_REASONS)  # no reason for a bound that does not exist
+
+
+def test_per_problem_warm_start_never_ends_above_its_start() -> None:
+    """Each problem of ``calibrate_many`` starts from its own row (the base fit's optimum
+    with an added structure at its neutral values, :func:`start_row`, which costs exactly
+    the base fit's cost): with elitism the richer fit never ends above it, even on a
+    budget too short to find it alone; bad shapes give errors naming the argument."""
+    from avll.calibration import start_row
+
+    true = TRUE["first"]
+    runs = paper_experiment(true, seed=6, runs=(3, 4, 5), duration=60.0)
+    kw = dict(closed_loop=True, upper_free=("kg",), seed=2, threads=2)
+    base = calibrate_many("first", runs, "per_run", max_generations=15, **kw)
+    starts = [[start_row(b, ["perception"])] for b in base]
+    for b, s, run in zip(base, starts, runs, strict=True):
+        c = avll.batch_cost("first", s[0][None], [run], effects=["perception"],
+                            closed_loop=True, upper_free=[0])[0, 0]
+        assert c == pytest.approx(b.cost, rel=1e-9)
+    rich = calibrate_many("first", runs, "per_run", effects=["perception"], max_generations=2,
+                          initial_per_problem=starts, **kw)
+    for b, r in zip(base, rich, strict=True):
+        assert r.cost <= b.cost * (1 + 1e-9)
+    again = calibrate_many("first", runs, "per_run", effects=["perception"], max_generations=2,
+                           initial_per_problem=starts, **{**kw, "threads": 1})
+    assert [r.params for r in again] == [r.params for r in rich]
+    with pytest.raises(ValueError, match="initial_per_problem"):
+        calibrate_many("first", runs, "per_run", effects=["perception"], max_generations=1,
+                       initial_per_problem=starts[:2], **kw)
+    with pytest.raises(ValueError, match=r"initial_per_problem\[1\]\[0\]"):
+        calibrate_many("first", runs, "per_run", effects=["perception"], max_generations=1,
+                       initial_per_problem=[starts[0], [starts[1][0][:-1]], []], **kw)
+    with pytest.raises(ValueError, match="needs subsets"):
+        calibrate("first", runs, initial_per_problem=starts, **kw)
+    with pytest.raises(ValueError, match="unknown effect"):
+        start_row(base[0], ["nope"])

@@ -254,3 +254,73 @@ def test_vehicle_effects_road_load_power_limit_sensor() -> None:
     base = effect_stability(SECOND, UP, v0=v0, amplitudes=(1.0,), n_cars=1, thresholds=False)
     np.testing.assert_allclose(r.amplification, base.amplification, rtol=1e-9)
     assert any("observed" in n for n in r.linear[1].notes)
+
+
+def test_response_rows_are_the_one_model_response_and_the_oracle() -> None:
+    """:func:`frequency_response_rows` (one Rust call over many parameter rows) gives
+    each row the one-model :func:`frequency_response` and the numpy oracle, with and
+    without structures of both levels; refused rows are NaN, bad shapes clear errors."""
+    from avll.effect_stability import frequency_response_rows
+    from avll.effects import Closing, Delay, Feedforward, Perception
+    from avll.reference.effects import frequency_response as oracle
+
+    w = np.array([0.02, 0.15, 0.6, 2.5])
+    rng = np.random.default_rng(3)
+    for effs in ((), (Delay(0.2),), (Perception(0.3), Closing(1.4, 1.2), Feedforward(0.5, 0.8))):
+        models, ups, rows = [], [], []
+        for _ in range(5):
+            vals = PROPOSED.to_array() * rng.uniform(0.9, 1.1, PROPOSED.to_array().size)
+            base = type(PROPOSED).from_array(vals)
+            m = WithEffects(base, effs)
+            up = avll.UpperLevel(kg=rng.uniform(0.1, 0.3), kv=rng.uniform(0.2, 0.6),
+                                 Tg=rng.uniform(1.0, 2.0), Gmin=rng.uniform(1.0, 5.0))
+            models.append(m)
+            ups.append(up)
+            rows.append(np.concatenate([m.to_array(), up.to_array()]))
+        names = list(models[0].effect_names)
+        h = frequency_response_rows(PROPOSED, np.array(rows), w, effects=names, v=18.0)
+        assert h.shape == (5, w.size)
+        for k in range(5):
+            np.testing.assert_allclose(h[k], frequency_response(models[k], ups[k], w, v=18.0),
+                                       rtol=1e-12)
+            np.testing.assert_allclose(h[k], oracle(models[k], ups[k], w, v=18.0), rtol=1e-9)
+    bad = np.array(rows)
+    bad[1, 0] = np.nan  # a refused row: NaN, the others untouched
+    hb = frequency_response_rows(PROPOSED, bad, w, effects=names, v=18.0)
+    assert np.isnan(hb[1]).all() and np.isfinite(hb[[0, 2, 3, 4]]).all()
+    with pytest.raises(ValueError, match="rows"):
+        frequency_response_rows(PROPOSED, np.array(rows)[:, :-1], w, effects=names)
+    with pytest.raises(ValueError, match="canonical"):
+        frequency_response_rows(PROPOSED, np.array(rows), w, effects=names[::-1])
+    with pytest.raises(ValueError, match="omega"):
+        frequency_response_rows(PROPOSED, np.array(rows), [0.0], effects=names)
+
+
+def test_certified_codes_rows_agree_with_the_exact_one_delay_test() -> None:
+    """Without structures the certified codes over rows are
+    :func:`avll.stability.exact_delay_codes`'s wherever both are certified; with a
+    perception delay the verdicts are certified too, and a long one destabilises."""
+    from avll.effect_stability import stability_codes_rows
+    from avll.stability import exact_delay_codes
+
+    rng = np.random.default_rng(11)
+    n = 120
+    kg = 10 ** rng.uniform(-2, 0.5, n)
+    tg = rng.uniform(0.0, 8.0, n)
+    kv = rng.uniform(-0.1, 1.1, n)
+    base = PROPOSED.to_array()
+    rows = np.column_stack([np.tile(base, (n, 1)), kg, kv, tg, np.full(n, 2.0)])
+    c, ok = stability_codes_rows(PROPOSED, rows)
+    want, settled = exact_delay_codes(PROPOSED, kg, tg, kv)
+    both = ok & np.asarray(settled, dtype=bool)
+    assert both.mean() > 0.9
+    np.testing.assert_array_equal(c[both], np.asarray(want)[both])
+    assert len(set(c[both].tolist())) == 3
+    prow = np.concatenate([base, [0.0], [0.2, 0.5, 1.6, 3.0]])
+    taus = np.array([0.0, 0.2, 3.0])
+    prows = np.tile(prow, (3, 1))
+    prows[:, base.size] = taus
+    pc, pok = stability_codes_rows(PROPOSED, prows, effects=["perception"], v=20.0)
+    assert pok.all() and pc[-1] == 0
+    c0, _ = exact_delay_codes(PROPOSED, 0.2, 1.6, 0.5)
+    assert pc[0] == int(np.asarray(c0)[0])

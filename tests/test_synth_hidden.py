@@ -132,3 +132,73 @@ def test_blind_null_structures_add_nothing() -> None:
                                                                  "feedforward"],
                            cars=5, seed=1)  # fmt: skip
     assert r.candidates.heldout_change > -0.01
+
+
+#: The blind test of the study's selection: fresh seeds (never run while the selection
+#: was developed, on seeds 1-3), 4 cars x 3 files of 300 s each, GA 100 generations.
+BLIND_KW = dict(cars=4, files=3, max_generations=100, starts=1, duration=300.0)
+BLIND_HIDDEN = HiddenUpper(radar_period=0.1, radar_latency=0.3, ff_gain=0.5, ff_window=1.5,
+                           ratio=1.5)
+
+
+@pytest.fixture(scope="module")
+def blind_selection():  # type: ignore[no-untyped-def]
+    from avll.synth_platoon import validate_selection
+
+    return validate_selection([301, 302], hidden=BLIND_HIDDEN, **BLIND_KW)
+
+
+@pytest.mark.slow
+def test_blind_selection_finds_structure_and_fixes_the_time_gap(blind_selection) -> None:  # type: ignore[no-untyped-def]
+    """What holds on the fresh seeds: the base model underestimates the amplification
+    of most held-out files and reads ``Tg + Gmin/v̄`` long; the study's selection
+    accepts structures out of sample and its final model reads ``Tg + Gmin/v̄``
+    within 5 % for the median car."""
+    r = blind_selection
+    assert r.base.mean_error < 0 and r.base.underestimated > 0.5
+    assert r.base.time_gap_median_error > 0
+    assert r.with_structures > 0.5
+    assert r.final.time_gap_median_abs_error < 0.05
+    assert abs(r.final.time_gap_median_error) < abs(r.base.time_gap_median_error)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "measured on seeds 301, 302 (8 cars, 24 held-out files): final mean error -4.4 % "
+    "(base -6.0 %), 62.5 % within 5 % (base 46 %); targets +-1.5 % and 90 %"))
+def test_blind_selection_removes_the_amplification_bias(blind_selection) -> None:  # type: ignore[no-untyped-def]
+    """The issue's amplification targets for the final model (mean error within
+    1.5 %, at least 90 % of held-out files within 5 %). Measured (seeds 301, 302, 24
+    held-out files): base mean -6.0 %, median -5.5 %, 46 % within 5 %, 96 %
+    underestimated; final mean -4.4 %, median -2.9 %, 62.5 % within 5 %, 83 %
+    underestimated; ``Tg + Gmin/v̄`` median +2.8 % -> +0.7 %. Accepted: closing for
+    every car, perception for 15 of 24 files, speed_gains for 3. What stands between:
+    (1) the noise floor, -1.6 % with nothing hidden (the null test); (2) the
+    large-amplification cars (true band gain 1.9-2.5: -12 % to -20 % both before and
+    after): near resonance |H| is very sensitive to the loop's phase, and the fits
+    trade the structures' delays with the lower level's; the candidate forms are not
+    the limit -- fitted directly to the hidden response of two development cars they
+    reproduce its band gain to
+    within 0.1 % (a radar hold + latency as a delay ~0.05-0.1 s longer, the windowed
+    difference as a first-order filter) -- the closed-loop identification from three
+    300 s files is; (3) at most two structures, so the three hidden mechanisms cannot
+    all enter (closing came first for every car; perception did not pass as the
+    second for the car of largest gain); (4) GA convergence at 100 generations (the
+    control in the selection keeps it from biasing the selection, not the final fit).
+    Selection cost: 1093 s and 715 s per seed on the shared, loaded 2-core machine."""
+    r = blind_selection
+    assert abs(r.final.mean_error) <= 0.015 and r.final.within_5pct >= 0.9
+
+
+@pytest.mark.slow
+def test_blind_selection_adds_nothing_when_nothing_is_hidden() -> None:
+    """Nothing hidden (a fresh seed): the selection accepts nothing, so the final model
+    is the base model. Measured (seed 303, 12 held-out files): no structure accepted;
+    base = final mean amplification error -1.6 % (the noise floor: ZalaZone-like noise
+    and the follower-side disturbance), 11 of 12 within 5 %, ``Tg + Gmin/v̄`` median
+    error -0.02 %; 734 s on the shared 2-core machine."""
+    from avll.synth_platoon import validate_selection
+
+    r = validate_selection([303], hidden=None, **BLIND_KW)
+    assert r.with_structures <= 0.25
+    assert abs(r.final.mean_error - r.base.mean_error) < 0.01

@@ -242,3 +242,43 @@ def test_combinations_match_their_definitions() -> None:
         assert dc_gain(lin)[i] == pytest.approx(m.dc_gain, rel=1e-12)
         assert dc_gain(lin)[i] == pytest.approx(abs(gfb), rel=1e-6)
         assert low_frequency_delay(lin)[i] == pytest.approx(-np.angle(gfb) / w, rel=1e-4)
+
+
+def test_band_amplification_and_string_verdicts_carry_the_structures(platoon, fitted
+                                                                    ) -> None:  # type: ignore[no-untyped-def]
+    """With structures (both levels) the band amplification of every resample is the
+    whole follower's |H| (one Rust call over the rows), the full-data value is the
+    study's prediction of the fitted WithEffects, and the string verdicts come from the
+    certified test of every delay (said in :attr:`Uncertainty.string_test`)."""
+    from avll.calibration import start_row
+    from avll.effect_stability import band_amplification_rows
+    from avll.uncertainty import STRING_TEST_CERTIFIED, STRING_TEST_EXACT
+
+    run = platoon.runs[0]
+    effs = ["perception", "feedforward"]
+    r = avll.calibrate("proposed", [run], effects=effs, seed=3, starts=1, max_generations=20,
+                       initial=[start_row(fitted[0], effs)], intervals=Intervals(n=30), **CL)
+    assert r.cost <= fitted[0].cost * (1 + 1e-9)
+    u = r.uncertainty
+    assert u is not None and u.string_test == STRING_TEST_CERTIFIED
+    assert u.string_certified is not None and u.string_certified.shape == (30,)
+    up = avll.UpperLevel(**{k: r.upper[k] for k in UPPER_NAMES})
+    amp, amps = u.band_amplification(run.lead_v, run.dt)
+    assert r.with_effects is not None
+    want = predicted_amplification(r.with_effects, up, run.lead_v, run.dt)
+    assert amp == pytest.approx(want, rel=1e-12)
+    base_only = predicted_amplification(r.model, up, run.lead_v, run.dt)
+    assert np.isfinite(want) and abs(want / base_only - 1) > 1e-6, "the structures enter |H|"
+    rows = u.rows()
+    assert rows.shape == (31, len(u.names) + 4 - sum(n in UPPER_NAMES for n in u.names))
+    again = band_amplification_rows("proposed", rows, run.lead_v, run.dt,
+                                    effects=list(u.effects))
+    fin = np.isfinite(amps)
+    np.testing.assert_allclose(amps[fin], again[1:][fin], rtol=1e-12)
+    p = u.string_stable_probability
+    assert p is not None and 0.0 <= p <= 1.0
+    assert "certified test" in u.report()
+    assert u.to_dict()["string_test"] == STRING_TEST_CERTIFIED
+    base = avll.calibrate("proposed", [run], seed=3, starts=1, max_generations=20,
+                          intervals=Intervals(n=20), **CL)
+    assert base.uncertainty is not None and base.uncertainty.string_test == STRING_TEST_EXACT

@@ -169,6 +169,7 @@ def calibrate(
     in_turn: bool = False,
     options: dict[str, Any] | None = None,
     initial: npt.NDArray[np.float64] | None = None,
+    initial_per_problem: list[npt.NDArray[np.float64]] | None = None,
     progress: Callable[[dict[str, Any]], Any] | None = None,
     threads: int = 0,
 ) -> list[dict[str, Any]]: ...
@@ -361,6 +362,26 @@ def linearize_upper(
     gmin: float,
     v: float = 0.0,
 ) -> dict[str, float]: ...
+def follower_response_rows(
+    model: str,
+    rows: npt.NDArray[np.float64],
+    effects: list[str],
+    omega: npt.NDArray[np.float64],
+    v: float = 0.0,
+    side: int = 0,
+    command_kind: str = "acceleration",
+    threads: int = 0,
+) -> npt.NDArray[np.complex128]: ...
+def follower_codes_rows(
+    model: str,
+    rows: npt.NDArray[np.float64],
+    effects: list[str],
+    v: float = 0.0,
+    side: int = 0,
+    command_kind: str = "acceleration",
+    budget: int = 20000,
+    threads: int = 0,
+) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.bool_]]: ...
 def follower_response(
     model: str,
     params: list[float],

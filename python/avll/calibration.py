@@ -62,6 +62,7 @@ __all__ = [
     "calibrate_many",
     "calibrate_effects",
     "bootstrap",
+    "start_row",
     "paper_workflow",
     "split_runs",
 ]
@@ -328,15 +329,21 @@ def _ga_memory(prob: _Problem, n_problems: int, ga: dict[str, Any]) -> None:
                  per=per, unit="problems")
 
 
-def _initial(prob: _Problem, initial: Sequence[Any] | None) -> np.ndarray | None:
-    if not initial:
+def _initial(prob: _Problem, initial: Sequence[Any] | None, name: str = "initial"
+             ) -> np.ndarray | None:
+    """Starting rows ``[model | effects | free upper gains]`` from models or numbers
+    (``name`` the argument in errors); ``None`` for none."""
+    if initial is None or (not isinstance(initial, np.ndarray) and not initial):
         return None
+    if isinstance(initial, (str, bytes)) or not hasattr(initial, "__iter__"):
+        raise TypeError(f"{name}: expected a list of models or parameter rows, got "
+                        f"{initial!r:.60}")
     rows = []
     for k, m in enumerate(initial):
         if isinstance(m, LowerLevelModel):
             if type(m) is not prob.cls:
                 raise ValueError(
-                    f"initial[{k}]: a {type(m).__name__}, expected {prob.cls.__name__}"
+                    f"{name}[{k}]: a {type(m).__name__}, expected {prob.cls.__name__}"
                 )
             row = list(m.to_array())
             row += [0.5 * (prob.lower[i] + prob.upper[i]) for i in range(len(row), len(prob.names))]
@@ -344,14 +351,68 @@ def _initial(prob: _Problem, initial: Sequence[Any] | None) -> np.ndarray | None
             try:
                 row = [float(v) for v in np.asarray(m, dtype=np.float64).ravel()]
             except (TypeError, ValueError):
-                raise TypeError(f"initial[{k}]: expected a model or numbers, got {m!r:.60}"
+                raise TypeError(f"{name}[{k}]: expected a model or numbers, got {m!r:.60}"
                                 ) from None
         if len(row) != len(prob.names):
             raise ValueError(
-                f"initial[{k}]: expected {len(prob.names)} values ({', '.join(prob.names)})"
+                f"{name}[{k}]: expected {len(prob.names)} values ({', '.join(prob.names)}), "
+                f"got {len(row)}"
             )
+        if not all(math.isfinite(v) for v in row):
+            raise ValueError(f"{name}[{k}]: not finite ({row})")
         rows.append(row)
     return np.ascontiguousarray(np.array(rows, dtype=np.float64))
+
+
+def _initial_per_problem(prob: _Problem, per: Sequence[Sequence[Any]] | None, n: int,
+                         starts: int) -> list[np.ndarray] | None:
+    """Each problem's own starting rows (:func:`calibrate_many`'s ``initial_per_problem``:
+    one list per problem), repeated for its ``starts``; ``None`` for none."""
+    if per is None:
+        return None
+    if isinstance(per, (str, bytes)) or not hasattr(per, "__len__"):
+        raise TypeError(f"initial_per_problem: expected one list of rows per problem, got "
+                        f"{per!r:.60}")
+    if len(per) != n:
+        raise ValueError(f"initial_per_problem: {len(per)} lists of starting rows for {n} "
+                         f"problems (one list per problem, empty for none)")
+    d = len(prob.names)
+    out = []
+    for k, rows in enumerate(per):
+        arr = _initial(prob, rows, f"initial_per_problem[{k}]")
+        arr = np.zeros((0, d)) if arr is None else arr
+        out += [arr] * starts
+    return out
+
+
+def start_row(result: CalibrationResult, effects: Sequence[str] = ()) -> np.ndarray:
+    """The parameter row ``[model | effects | free upper gains]`` of ``result`` extended
+    by ``effects`` at their neutral values (the effects of ``result`` and ``effects``
+    together, in canonical order): a start for a calibration of the richer model that
+    costs exactly what ``result`` costs (an effect at its neutral values is the
+    identity), e.g. ``initial_per_problem`` of :func:`calibrate_many`."""
+    from .effects import EFFECTS, canonical
+
+    x = np.asarray(result.x if result.x is not None else
+                   [*result.model.to_array(), *result.upper.values()], dtype=np.float64)
+    have = tuple(result.with_effects.effect_names) if result.with_effects is not None else ()
+    for e in effects:
+        if e not in EFFECTS:
+            raise ValueError(f"effects: unknown effect {e!r}; known: {', '.join(EFFECTS)}")
+    names = canonical(list(dict.fromkeys([*have, *effects])))
+    n_model = len(result.model.param_names())
+    n_upper = len(result.upper)
+    own: dict[str, np.ndarray] = {}
+    o = n_model
+    for e in have:
+        k = len(EFFECTS[e].param_names())
+        own[e] = x[o:o + k]
+        o += k
+    parts = [x[:n_model]]
+    for e in names:
+        parts.append(own[e] if e in own else np.asarray(EFFECTS[e].neutral, dtype=np.float64))
+    parts.append(x[len(x) - n_upper:] if n_upper else np.zeros(0))
+    return np.concatenate(parts)
 
 
 class _Bar:
@@ -436,6 +497,7 @@ def _run(
     progress: bool | str | Callable[[dict[str, Any]], Any],
     desc: str,
     options: Mapping[str, Any],
+    initial_per_problem: list[np.ndarray] | None = None,
 ) -> list[dict[str, Any]]:
     ga = _ga_kwargs(options)
     seed = check_seed(seed)
@@ -464,6 +526,7 @@ def _run(
             in_turn=in_turn,
             options=ga,
             initial=_initial(prob, initial),
+            initial_per_problem=initial_per_problem,
             progress=bar if (callable(progress) or bar.bar.mode != "none") else None,
             threads=int(threads),
             **prob.kw,
@@ -490,6 +553,7 @@ def calibrate(
     weights: Sequence[float] = (1.0, 0.0, 0.0),
     init: str = "rest",
     initial: Sequence[Any] | None = None,
+    initial_per_problem: Sequence[Sequence[Any]] | None = None,
     target: float | None = None,
     starts: int = DEFAULT_STARTS,
     threads: int = 0,
@@ -513,7 +577,9 @@ def calibrate(
     of kg, kv, Tg, Gmin) calibrates those gains too. ``weights`` weigh the mean squared
     errors of acceleration, speed and position. ``init`` is the rollouts' initial state
     (``"rest"`` or ``"steady"``). ``initial`` seeds the population with models or
-    parameter vectors; ``target`` stops as soon as the cost is at most that value.
+    parameter vectors; with ``subsets``, ``initial_per_problem`` gives each problem its
+    own starting rows too (one list per subset, see :func:`calibrate_many`).
+    ``target`` stops as soon as the cost is at most that value.
     ``starts`` independent GA runs (seeds ``_core.derive_seed(seed, j)``; with one
     start, ``seed`` itself) run one after the other, each with all the threads, and
     the best is kept: on the proposed model a start occasionally settles in a local
@@ -545,8 +611,11 @@ def calibrate(
             model, runs, subsets, effects=effects, seed=seed, threads=threads,
             progress=progress, bounds=bounds, closed_loop=closed_loop, upper_free=upper_free,
             weights=weights, init=init, initial=initial, target=target, starts=starts,
-            intervals=intervals, **ga_options,
+            intervals=intervals, initial_per_problem=initial_per_problem, **ga_options,
         )  # fmt: skip
+    if initial_per_problem is not None:
+        raise ValueError("initial_per_problem: needs subsets (one list of rows per "
+                         "problem); give a single problem's rows as initial=")
     return _calibrate(
         model, runs, bounds=bounds, seed=seed, closed_loop=closed_loop, upper_free=upper_free,
         weights=weights, init=init, initial=initial, target=target, starts=starts,
@@ -672,6 +741,7 @@ def calibrate_many(
     target: float | None = None,
     starts: int = 1,
     intervals: Any = None,
+    initial_per_problem: Sequence[Sequence[Any]] | None = None,
     **ga_options: Any,
 ) -> list[CalibrationResult]:
     """Solves many independent calibration problems in one parallel call.
@@ -685,6 +755,13 @@ def calibrate_many(
     the best. Each result's ``per_run_mse`` covers the runs of its problem (once
     each). ``intervals``: as :func:`calibrate`, each problem with its own resamples
     (drawn from ``numpy.random.default_rng([seed, k])`` for problem ``k``).
+
+    ``initial`` rows join every problem's first population; ``initial_per_problem``
+    (one list per problem of models or rows ``[model | effects | free upper gains]``,
+    empty for none) gives each problem its own starts before them, e.g. the problem's
+    base optimum extended by added effects at their neutral values
+    (:func:`start_row`): the GA keeps its best individual, so such a fit never ends
+    above the start's cost (to rounding).
     """
     from .uncertainty import Intervals
 
@@ -706,10 +783,11 @@ def calibrate_many(
         if not idx:
             raise ValueError("subsets: no problems given")
     expanded = [sub for sub in idx for _ in range(n_st)]
+    per = _initial_per_problem(prob, initial_per_problem, len(idx), n_st)
     raws = _run(
         prob, expanded, seed=seed, derive_seeds=True, initial=initial, target=target,
         threads=threads, progress=progress, desc=f"calibrate {prob.cls.name} x{len(idx)}",
-        options=ga_options,
+        options=ga_options, initial_per_problem=per,
     )  # fmt: skip
     out = []
     for k, sub in enumerate(idx):

@@ -85,6 +85,9 @@ __all__ = [
     "EffectStability",
     "effect_stability",
     "frequency_response",
+    "frequency_response_rows",
+    "band_amplification_rows",
+    "stability_codes_rows",
 ]
 
 #: Effects whose action depends on the size of the disturbance.
@@ -133,6 +136,102 @@ def frequency_response(
         model.base.name, model.base.values(), list(model.effect_names),
         [float(x) for e in model.effects for x in e.to_array()], float(upper.kg),
         float(upper.kv), float(upper.Tg), float(upper.Gmin), w, float(v), int(side)))
+
+
+def _rows_arg(model: Any, rows: Any, effects: Sequence[str]) -> tuple[str, list[str], np.ndarray]:
+    """The model's name, the effects (canonical order) and the rows as a C-contiguous
+    float array, checked (``ValueError`` naming the argument)."""
+    from .effects import EFFECTS, canonical
+    from .models import model_class
+
+    name = model_class(model).name
+    for e in effects:
+        if e not in EFFECTS:
+            raise ValueError(f"effects: unknown effect {e!r}; known: {', '.join(EFFECTS)}")
+    effs = list(canonical(list(effects)))
+    if list(effects) != effs:
+        raise ValueError(f"effects: give them in their canonical order ({', '.join(effs)}), "
+                         f"the order of the rows' columns")
+    try:
+        r = np.ascontiguousarray(np.asarray(rows, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise ValueError(f"rows: expected a 2-D array of numbers, got {rows!r:.60}") from None
+    if r.ndim == 1:
+        r = r[None, :]
+    if r.ndim != 2:
+        raise ValueError(f"rows: expected a 2-D array (rows x parameters), got shape {r.shape}")
+    return name, effs, r
+
+
+def frequency_response_rows(
+    model: Any, rows: Any, omega: Any, *, effects: Sequence[str] = (), v: float = 0.0,
+    side: int = 0, threads: int = 0,
+) -> np.ndarray:
+    """:func:`frequency_response` of many parameter rows at once, in Rust (one call, in
+    parallel over rows): ``rows`` (``n x d``) are ``[model | effects | kg, kv, Tg,
+    Gmin]`` -- e.g. a calibration's resamples (:meth:`avll.Uncertainty.rows`) -- with the
+    ``effects``' parameters in their canonical order (the order of ``effects``, which
+    must be canonical), each linearised at the speed ``v`` on ``side``. Returns the
+    complex ``H(jw)`` (``n x len(omega)``), NaN for a row whose parameters the model, an
+    effect or the law refuses."""
+    from . import _core
+    from ._limits import check_threads
+
+    name, effs, r = _rows_arg(model, rows, effects)
+    w = np.ascontiguousarray(np.atleast_1d(np.asarray(omega, dtype=np.float64)))
+    if w.ndim != 1 or np.any(~np.isfinite(w)) or np.any(w <= 0):
+        raise ValueError("omega: frequencies must be finite and > 0")
+    return np.asarray(_core.follower_response_rows(
+        name, r, effs, w, v=float(v), side=int(side), threads=check_threads(threads)))
+
+
+def band_amplification_rows(
+    model: Any, rows: Any, lead_v: Any, dt: float, band: Sequence[float] | None = None, *,
+    effects: Sequence[str] = (), v: float | None = None, trim: float | None = None,
+    threads: int = 0,
+) -> np.ndarray:
+    """The band amplification of many parameter rows (:func:`frequency_response_rows`):
+    ``sqrt(sum |H(f)|^2 w(f))`` over the periodogram bins of the band-passed predecessor
+    speed ``lead_v`` (:func:`avll.spectral.band_weights`, the study's weighting), one
+    value per row (NaN without a bin or for a refused row). ``v`` is the linearisation
+    speed (default: the mean of ``lead_v``)."""
+    from .spectral import DEFAULT_BAND, TRIM, band_weights
+
+    lv = np.asarray(lead_v, dtype=np.float64)
+    f, w = band_weights(lv, dt, DEFAULT_BAND if band is None else band,
+                        TRIM if trim is None else trim)
+    _, _, r = _rows_arg(model, rows, effects)
+    if f.size == 0:
+        return np.full(r.shape[0], np.nan)
+    vv = float(np.mean(lv)) if v is None else float(v)
+    h = np.abs(frequency_response_rows(model, r, 2.0 * np.pi * f, effects=effects, v=vv,
+                                       threads=threads))
+    return np.asarray(np.sqrt(np.sum(h * h * w[None, :], axis=1)))
+
+
+def stability_codes_rows(
+    model: Any, rows: Any, *, effects: Sequence[str] = (), v: float = 0.0, side: int = 0,
+    budget: int = 20000, threads: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Certified stability codes (0 locally unstable, 1 string unstable, 2 string
+    stable) of the closed loops of many parameter rows ``[model | effects | kg, kv, Tg,
+    Gmin]`` linearised at ``v``, and whether each is certified: every delay kept exactly
+    (the lower level's dead time, a command ``delay`` outside its inner loop,
+    ``perception``'s delay of the radar terms) with ``feedforward``'s filter and the
+    speed feedback of ``speed_drag``/``road_load`` (``rust/effects/follower.rs``: the
+    argument principle for the local test, the sign of ``|D|^2 - |N|^2`` for the string
+    test, both swept in interval arithmetic, so a verdict is a proof, not a sample; an
+    undecided test -- a loop on the boundary, or over ``budget`` interval evaluations --
+    gives code 0 or 1 uncertified). Without structures the verdicts are those of
+    :func:`avll.stability.exact_delay_codes`."""
+    from . import _core
+    from ._limits import check_int, check_threads
+
+    name, effs, r = _rows_arg(model, rows, effects)
+    c, ok = _core.follower_codes_rows(name, r, effs, v=float(v), side=int(side),
+                                      budget=check_int(budget, "budget", min=1),
+                                      threads=check_threads(threads))
+    return np.asarray(c, dtype=np.int64), np.asarray(ok, dtype=bool)
 
 
 _KEYS = ("b1", "b0", "a2", "a1", "Td", "K")

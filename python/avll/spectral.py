@@ -59,7 +59,7 @@ biased low by about ``tau / T_segment``.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -78,8 +78,6 @@ __all__ = [
     "band_weights",
     "h1_band_gain",
     "welch_effective_averages",
-    "closed_loop_gain",
-    "band_gain_rows",
 ]
 
 #: Band (Hz) of the amplification (the OpenACC study's band, :mod:`avll.studies.openacc`).
@@ -178,46 +176,6 @@ def band_weights(lead_v: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_
     if not m.any() or p[m].sum() <= 0:
         return np.zeros(0), np.zeros(0)
     return f[m], p[m] / p[m].sum()
-
-
-def closed_loop_gain(lin: Mapping[str, Any], kg: Any, kv: Any, tg: Any, f_hz: Any
-                     ) -> np.ndarray:
-    """``|H(j 2π f)|`` of the closed loop (paper Eq. 8) with the true delay:
-    ``H = G (kv s + kg) / ((A − K G) s² + G ((kv + Tg kg) s + kg))``,
-    ``G = (b1 s + b0) e^{−Td s}``, ``A = a2 s² + a1 s + 1``, for the lower level's
-    common linear coefficients ``lin`` (``b1, b0, a2, a1, Td, K``: scalars, or arrays
-    of one length ``n`` with ``kg``, ``kv``, ``tg``, giving an ``(n, len(f))``
-    array)."""
-    f = np.asarray(f_hz, dtype=np.float64)
-    arrays = any(np.ndim(v) > 0 for v in (*lin.values(), kg, kv, tg))
-
-    def col(v: Any) -> Any:
-        return np.asarray(v, dtype=np.float64)[:, None] if arrays else float(v)
-
-    s = 2j * np.pi * (f[None, :] if arrays else f)
-    b1, b0, a2, a1, td, k = (col(lin[n]) for n in ("b1", "b0", "a2", "a1", "Td", "K"))
-    kg, kv, tg = col(kg), col(kv), col(tg)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        g = (b1 * s + b0) * np.exp(-s * td)
-        a = a2 * s * s + a1 * s + 1.0
-        mu = kv + tg * kg
-        h = g * (kv * s + kg) / ((a - k * g) * s * s + g * (mu * s + kg))
-    return np.asarray(np.abs(h))
-
-
-def band_gain_rows(lin: Mapping[str, Any], kg: Any, kv: Any, tg: Any, lead_v: np.ndarray,
-                   dt: float, band: Sequence[float] = DEFAULT_BAND, trim: float = TRIM
-                   ) -> np.ndarray:
-    """``|H|`` of many closed loops (:func:`closed_loop_gain`, coefficient arrays) as
-    RMS gains on the predecessor's band-passed spectrum,
-    ``sqrt(Σ |H|² P / Σ P)`` over the band's periodogram bins
-    (:func:`band_weights`): one value per row (NaN without a bin)."""
-    f, w = band_weights(lead_v, dt, band, trim)
-    n = np.broadcast(*(np.asarray(v) for v in (*lin.values(), kg, kv, tg))).shape
-    if f.size == 0:
-        return np.full(n, np.nan)
-    h = closed_loop_gain(lin, kg, kv, tg, f)
-    return np.asarray(np.sqrt(np.sum(h * h * w, axis=-1)))
 
 
 def welch_effective_averages(k: int, n: int = 0, step: int = 0) -> float:

@@ -91,7 +91,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -119,6 +119,11 @@ __all__ = [
     "StructureSummary",
     "StructureCheck",
     "validate_structure",
+    "synth_campaign",
+    "SelectionRow",
+    "SelectionSummary",
+    "SelectionCheck",
+    "validate_selection",
 ]
 
 DEFAULT_BAND: tuple[float, float] = (0.02, 0.2)
@@ -944,3 +949,171 @@ def validate_structure(
                 "candidates": names, "heldout": heldout, "max_generations": max_generations,
                 "starts": starts, "seed": seed, **platoon}
     return StructureCheck(tuple(rows), base, cand, settings)
+
+
+def synth_campaign(cars: int, files: int, *, seed: int, hidden: HiddenUpper | None = None,
+                   model: str = "proposed", **platoon: Any) -> list[Run]:
+    """A synthetic campaign of ``files`` recordings of the same ``cars`` random
+    ``model`` followers (the structures ``hidden`` in their upper law, or none): each
+    file a :func:`synth_platoon` of its own leader, disturbances and noise (seed
+    ``[seed, j]`` for file ``j``), every run's ``meta`` naming its file, car,
+    setting ``"M"``, ACC and the campaign ``"synthetic"`` (so the OpenACC study's
+    out-of-sample folds are the car's other files), its truth in ``meta["truth"]``.
+    ``platoon`` options go to :func:`synth_platoon`. Deterministic in ``seed``."""
+    nc = check_int(cars, "cars", min=1, max=50)
+    nf = check_int(files, "files", min=1, max=50)
+    seed = check_seed(seed)
+    rng = np.random.default_rng([seed, 17])
+    fine = float(platoon.get("fine_dt", 0.01))
+    truths = [random_car(rng, model, hidden=hidden, fine_dt=fine,
+                         disturbance_std=float(platoon.get("disturbance_std", 0.05)),
+                         disturbance_tau=float(platoon.get("disturbance_tau", 3.0)))
+              for _ in range(nc)]  # fmt: skip
+    kw = {k: v for k, v in platoon.items() if k not in ("disturbance_std", "disturbance_tau")}
+    runs: list[Run] = []
+    for j in range(nf):
+        stem = f"synthetic_seed{seed}_file{j}.csv"
+        pl = synth_platoon(truths, seed=int(np.random.SeedSequence([seed, j]).generate_state(1)[0]),
+                           file_name=stem, **kw)
+        for r in pl.runs:
+            runs.append(replace(r, meta={**r.meta, "campaign": "synthetic", "file": stem}))
+    return runs
+
+
+@dataclass(frozen=True)
+class SelectionRow:
+    """One held-out run of :func:`validate_selection`: its truth (``band_gain``,
+    ``time_gap``) and the out-of-sample predictions of the base model and of the
+    study's final model (``|H|`` band amplification and ``Tg + Gmin/v̄`` from the
+    car's other files), with the final model's structures."""
+
+    seed: int
+    file: str
+    car: str
+    band_gain: float
+    time_gap: float
+    base_amplification: float
+    base_time_gap: float
+    amplification: float
+    time_gap_fit: float
+    effects: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class SelectionSummary:
+    """Errors ``predicted / truth - 1`` of one model over the held-out runs: the
+    amplification's mean, median, share within 5 %, share underestimated; the median
+    (signed and absolute) error of ``Tg + Gmin/v̄``."""
+
+    n: int
+    mean_error: float
+    median_error: float
+    within_5pct: float
+    underestimated: float
+    time_gap_median_error: float
+    time_gap_median_abs_error: float
+
+
+@dataclass(frozen=True)
+class SelectionCheck:
+    """Result of :func:`validate_selection`: ``rows``, the ``base`` and ``final``
+    summaries, the share of runs whose final model carries a structure
+    (``with_structures``), the structures accepted (name -> runs), the selection's
+    wall time per seed (``seconds``) and the settings."""
+
+    rows: tuple[SelectionRow, ...]
+    base: SelectionSummary
+    final: SelectionSummary
+    with_structures: float
+    accepted: dict[str, int]
+    seconds: tuple[float, ...]
+    settings: dict[str, Any]
+
+
+def _sel_summary(amp: np.ndarray, truth: np.ndarray, tg: np.ndarray, tg_true: np.ndarray
+                 ) -> SelectionSummary:
+    ok = np.isfinite(amp)
+    e = amp[ok] / truth[ok] - 1.0
+    g = tg / tg_true - 1.0
+    g = g[np.isfinite(g)]
+    nan = math.nan
+    return SelectionSummary(
+        n=int(e.size), mean_error=float(np.mean(e)) if e.size else nan,
+        median_error=float(np.median(e)) if e.size else nan,
+        within_5pct=float(np.mean(np.abs(e) <= 0.05)) if e.size else nan,
+        underestimated=float(np.mean(e < 0)) if e.size else nan,
+        time_gap_median_error=float(np.median(g)) if g.size else nan,
+        time_gap_median_abs_error=float(np.median(np.abs(g))) if g.size else nan)
+
+
+def validate_selection(
+    seeds: Sequence[int],
+    *,
+    hidden: HiddenUpper | None,
+    cars: int = 4,
+    files: int = 3,
+    model: str = "proposed",
+    candidates: Sequence[str] | None = None,
+    max_generations: int | None = None,
+    pop_size: int | None = None,
+    starts: int | None = None,
+    seed: int = 0,
+    threads: int = 0,
+    **platoon: Any,
+) -> SelectionCheck:
+    """The blind test of the OpenACC study's structure selection: for each of
+    ``seeds`` a synthetic campaign (:func:`synth_campaign`: ``cars`` followers with
+    ``hidden`` structures, or none, each recorded in ``files`` files) goes through
+    :func:`avll.studies.openacc.openacc_study` itself (``model`` only, no intervals,
+    no figures; ``candidates`` the selection's, default its own), and each held-out
+    run's out-of-sample prediction (a model calibrated on the car's other files) is
+    compared with the truth, for the base model (``base_model``) and the final one:
+    the band amplification (``|H|`` on the run's predecessor spectrum, vs the truth's
+    small-signal band gain) and ``Tg + Gmin/v̄``. Deterministic in ``seeds`` and
+    ``seed``."""
+    from .studies.openacc import openacc_study
+
+    rows: list[SelectionRow] = []
+    secs: list[float] = []
+    acc: dict[str, int] = {}
+    for s in seeds:
+        runs = synth_campaign(cars, files, seed=int(s), hidden=hidden, model=model, **platoon)
+        st = openacc_study(runs, model=model, models=(model,), seed=seed, threads=threads,
+                           max_generations=max_generations, pop_size=pop_size,
+                           starts=starts, intervals=False, figures=False,
+                           structures=True if candidates is None else list(candidates))
+        sel = st.summary["structure_selection"]
+        secs.append(float(sel.get("seconds") or 0.0) + float(sel.get("final_fits_seconds")
+                                                              or 0.0))
+        truth = {r.run_id: r.meta["truth"] for r in runs}
+        for c in st.summary["cars"]:
+            tr = truth[c["run_id"]]
+            b = c["base_model"]
+
+            def num(x: Any) -> float:
+                return math.nan if x is None else float(x)
+
+            effs = tuple(c["final_model_effects"])
+            for e in effs:
+                acc[e] = acc.get(e, 0) + 1
+            rows.append(SelectionRow(int(s), str(c["file"]), str(c["car"]),
+                                     float(tr["band_gain"]), float(tr["time_gap_effective"]),
+                                     num(b["amplification_predicted_oos"]),
+                                     num(b["time_gap_effective_oos"]),
+                                     num(c["amplification_predicted_oos"]),
+                                     num(c["time_gap_effective_oos"]), effs))
+
+    def col(name: str) -> np.ndarray:
+        return np.array([getattr(r, name) for r in rows], dtype=float)
+
+    truth_g, tg = col("band_gain"), col("time_gap")
+    base = _sel_summary(col("base_amplification"), truth_g, col("base_time_gap"), tg)
+    final = _sel_summary(col("amplification"), truth_g, col("time_gap_fit"), tg)
+    settings = {"seeds": [int(x) for x in seeds], "cars": cars, "files": files,
+                "model": model, "hidden": None if hidden is None else hidden.__dict__.copy(),
+                "candidates": None if candidates is None else list(candidates),
+                "max_generations": max_generations, "pop_size": pop_size, "starts": starts,
+                "seed": seed, **platoon}
+    return SelectionCheck(tuple(rows), base, final,
+                          float(np.mean([bool(r.effects) for r in rows])) if rows else 0.0,
+                          acc, tuple(secs), settings)

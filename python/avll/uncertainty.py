@@ -339,7 +339,10 @@ class Uncertainty:
     ``atom_s`` the block and atom lengths (s); ``combinations`` name -> samples and
     ``combination_estimates`` name -> full-data value; ``string_codes`` the
     exact-delay codes (0 locally unstable, 1 string unstable, 2 string stable) of the
-    samples when computed (closed loop)."""
+    samples when computed (closed loop), ``string_certified`` whether each code is
+    proven (False: the test could not decide -- a loop on a boundary or over its
+    budget -- and the code is 0 or 1, never 2) and ``string_test`` the test used
+    (:data:`STRING_TEST_EXACT` or :data:`STRING_TEST_CERTIFIED`)."""
 
     model: str
     effects: tuple[str, ...]
@@ -359,6 +362,8 @@ class Uncertainty:
     combination_estimates: dict[str, float] = field(default_factory=dict)
     string_codes: np.ndarray | None = None
     string_code_estimate: int | None = None
+    string_certified: np.ndarray | None = None
+    string_test: str | None = None
     interrupted: bool = False
     evaluations: int = 0
     rollouts: int = 0
@@ -463,12 +468,23 @@ class Uncertainty:
 
     @property
     def string_stable_probability(self) -> float | None:
-        """Share of the resamples whose closed loop is string stable (exact test with
-        the true delay; locally unstable resamples count as not string stable), or
-        None when not computed."""
+        """Share of the resamples whose closed loop is string stable (locally
+        unstable resamples count as not string stable), or None when not computed.
+        Every verdict is a proof, not a frequency sample (:attr:`string_test`: the exact
+        one-delay test for the base model, the certified interval-arithmetic test of
+        every delay with structures); a resample the test cannot decide counts as not
+        string stable (:attr:`string_uncertified_share`)."""
         if self.string_codes is None or self.string_codes.size == 0:
             return None
         return float(np.mean(self.string_codes == 2))
+
+    @property
+    def string_uncertified_share(self) -> float | None:
+        """Share of the resamples whose stability test could not decide (counted as
+        not string stable), or None when not computed."""
+        if self.string_certified is None or self.string_certified.size == 0:
+            return None
+        return float(np.mean(~self.string_certified))
 
     @property
     def locally_unstable_share(self) -> float | None:
@@ -503,24 +519,31 @@ class Uncertainty:
         est = self.upper_estimate["Tg"] + self.upper_estimate["Gmin"] / v
         return float(est), np.asarray(self.upper["Tg"] + self.upper["Gmin"] / v)
 
-    def band_amplification(self, lead_v: np.ndarray, dt: float,
-                           band: Sequence[float] | None = None) -> tuple[float, np.ndarray]:
-        """``|H|`` of the calibrated closed loop (true delay) as an RMS gain on the
-        band-passed spectrum of the predecessor's speed ``lead_v``
-        (:func:`avll.spectral.band_gain_rows`): the full-data value and the
-        resamples' (NaN where the closed loop is locally unstable, when known). With
-        effects, the base model's linear loop (the effects are left out of ``|H|``)."""
-        from .models import model_class
-        from .spectral import DEFAULT_BAND, band_gain_rows
+    def rows(self) -> np.ndarray:
+        """The closed loops as parameter rows ``[model | effects | kg, kv, Tg, Gmin]``
+        (the row order of :func:`avll.effect_stability.frequency_response_rows`): the
+        full-data optimum first, then one row per resample."""
+        from .defaults import UPPER_NAMES
 
-        cls = model_class(self.model)
-        k = len(cls.param_names())
-        rows = np.vstack([self.estimate[None, :k], self.samples[:, :k]])
-        lin = _linear_columns(cls, rows)
-        up = {n: np.concatenate([[self.upper_estimate[n]], self.upper[n]])
-              for n in ("kg", "kv", "Tg")}
-        g = band_gain_rows(lin, up["kg"], up["kv"], up["Tg"], lead_v, dt,
-                           DEFAULT_BAND if band is None else band)
+        k = len(self.names) - sum(1 for n in self.names if n in UPPER_NAMES)
+        up = np.column_stack([np.concatenate([[self.upper_estimate[n]], self.upper[n]])
+                              for n in UPPER_NAMES])
+        return np.ascontiguousarray(np.hstack([
+            np.vstack([self.estimate[None, :k], self.samples[:, :k]]), up]))
+
+    def band_amplification(self, lead_v: np.ndarray, dt: float,
+                           band: Sequence[float] | None = None, *, v: float | None = None,
+                           threads: int = 0) -> tuple[float, np.ndarray]:
+        """``|H|`` of the calibrated closed loop -- the base model with its effects of
+        both levels, linearised at ``v`` (default: the mean of ``lead_v``), every delay
+        exact -- as an RMS gain on the band-passed spectrum of the predecessor's speed
+        ``lead_v`` (:func:`avll.effect_stability.band_amplification_rows`, every row in
+        one Rust call): the full-data value and the resamples' (NaN where the closed
+        loop is locally unstable, when known)."""
+        from .effect_stability import band_amplification_rows
+
+        g = band_amplification_rows(self.model, self.rows(), lead_v, dt, band,
+                                    effects=self.effects, v=v, threads=threads)
         if self.string_codes is not None:
             g[1:][self.string_codes == 0] = math.nan
         if self.string_code_estimate == 0:
@@ -547,7 +570,7 @@ class Uncertainty:
             full = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
             cls_comb = {n: full[n] for n in self.combinations if n in full}
         out = replace(self, samples=self.refits, upper=up, widening=1.0, string_codes=None,
-                      string_code_estimate=None,
+                      string_code_estimate=None, string_certified=None,
                       combinations={**self.combinations, **cls_comb})
         if "time_gap_effective" in self.combinations and self.mean_speed is not None:
             out = out.with_combinations(time_gap_effective=out.time_gap_effective())
@@ -594,8 +617,11 @@ class Uncertainty:
                              f"{ver[n]}")
         p = self.string_stable_probability
         if p is not None:
+            how = self.string_test or "exact test, true delay"
+            und = self.string_uncertified_share
             lines.append(f"    P(string stable): {p:.3f} (locally unstable: "
-                         f"{self.locally_unstable_share:.3f}; exact test, true delay)")
+                         f"{self.locally_unstable_share:.3f}; {how}"
+                         + (f"; undecided: {und:.3f}" if und else "") + ")")
         c = self.correlations
         pairs = [(abs(c[i, j]), self.names[i], self.names[j], c[i, j])
                  for i in range(len(self.names)) for j in range(i + 1, len(self.names))
@@ -619,6 +645,8 @@ class Uncertainty:
             "verdicts": self.verdicts(),
             "identified": self.identified(),
             "string_stable_probability": self.string_stable_probability,
+            "string_test": self.string_test,
+            "string_undecided_share": self.string_uncertified_share,
             "resamples": int(len(self.samples)),
             "method": self.method,
             "block_s": float(self.block_s),
@@ -818,20 +846,47 @@ def _upper_columns(prob: Any, run: Any, x: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
+#: How :attr:`Uncertainty.string_codes` are decided without structures.
+STRING_TEST_EXACT = ("exact test, true delay (crossing frequencies and a certified "
+                     "string sweep; avll.stability.exact_delay_codes)")
+#: ... and with structures (every delay of the follower kept).
+STRING_TEST_CERTIFIED = ("certified test, every delay exact (argument principle and "
+                         "|Den|^2 - |Num|^2 swept in interval arithmetic; "
+                         "avll.effect_stability.stability_codes_rows)")
+
+
 def _exact_codes(model: str, cls: Any, x: np.ndarray, up: Mapping[str, np.ndarray],
-                 threads: int) -> np.ndarray:
-    """Exact-delay codes of each row's closed loop."""
+                 threads: int, effects: Sequence[str] = (), v: float | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Exact-delay codes of each row's closed loop and whether each is certified; with
+    ``effects`` (their parameters after the model's in ``x``) the certified test of
+    every delay (:func:`avll.effect_stability.stability_codes_rows`, linearised at
+    ``v``)."""
     k = len(cls.param_names())
+    if effects:
+        from .defaults import UPPER_NAMES
+        from .effect_stability import stability_codes_rows
+        from .effects import EFFECTS
+
+        ne = sum(len(EFFECTS[e].param_names()) for e in effects)
+        rows = np.hstack([x[:, :k + ne], np.column_stack([up[n] for n in UPPER_NAMES])])
+        fin = np.all(np.isfinite(rows), axis=1)
+        c, cert = stability_codes_rows(model, rows, effects=list(effects),
+                                       v=0.0 if v is None else float(v), threads=threads)
+        return np.where(fin, c, 0), np.where(fin, cert, True)
     ok = np.all(np.isfinite(x), axis=1) & np.isfinite(up["kg"]) & np.isfinite(up["Tg"]) & \
         np.isfinite(up["kv"])
     codes = np.zeros(x.shape[0], dtype=np.int64)
+    cert = np.ones(x.shape[0], dtype=bool)
     if ok.any():
-        c, _ = _core.delay_codes_rows(model, np.ascontiguousarray(x[ok, :k]),
-                                      [float(v) for v in up["kg"][ok]],
-                                      [float(v) for v in up["Tg"][ok]],
-                                      [float(v) for v in up["kv"][ok]], threads=int(threads))
+        c, settled = _core.delay_codes_rows(model, np.ascontiguousarray(x[ok, :k]),
+                                            [float(v) for v in up["kg"][ok]],
+                                            [float(v) for v in up["Tg"][ok]],
+                                            [float(v) for v in up["kv"][ok]],
+                                            threads=int(threads))
         codes[ok] = np.asarray(c, dtype=np.int64)
-    return codes
+        cert[ok] = np.asarray(settled, dtype=bool)
+    return codes, cert
 
 
 def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarray],
@@ -924,13 +979,18 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             blocks=blocks, fitted=int(fitted))
         if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
             u = u.with_combinations(time_gap_effective=u.time_gap_effective())
-        if prob.closed_loop and not prob.effects and math.isfinite(fac):
-            codes = _exact_codes(prob.cls.name, cls, xs, up, threads)
-            c0 = _exact_codes(prob.cls.name, cls, x0[k][None, :],
-                              {n: np.array([v]) for n, v in up0.items()}, threads)
+        if prob.closed_loop and math.isfinite(fac):
+            codes, cert = _exact_codes(prob.cls.name, cls, xs, up, threads, prob.effects,
+                                       vbar)
+            c0, _ = _exact_codes(prob.cls.name, cls, x0[k][None, :],
+                                 {n: np.array([v]) for n, v in up0.items()}, threads,
+                                 prob.effects, vbar)
             from dataclasses import replace
 
-            u = replace(u, string_codes=codes, string_code_estimate=int(c0[0]))
+            u = replace(u, string_codes=codes, string_code_estimate=int(c0[0]),
+                        string_certified=cert,
+                        string_test=STRING_TEST_CERTIFIED if prob.effects else
+                        STRING_TEST_EXACT)
         out.append(u)
     return out
 

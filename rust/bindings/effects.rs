@@ -5,7 +5,7 @@ use super::guard;
 use crate::effects::{AnyEffect, EffectKind, EffectList, Operating};
 use crate::model::{CommandKind, ModelKind};
 use crate::sim::Upper;
-use numpy::{Complex64, IntoPyArray, PyArray1, PyReadonlyArray1};
+use numpy::{Complex64, IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::collections::BTreeMap;
@@ -202,7 +202,100 @@ fn follower_response<'py>(
     Ok(h.into_pyarray(py))
 }
 
+/// The follower's exact frequency response of many parameter rows (`n x d`: `[model |
+/// effects | kg, kv, Tg, Gmin]`, the effects' parameters in their canonical order) at
+/// the frequencies `omega` (rad/s), linearised at speed `v` on `side`
+/// (`crate::effects::response_rows`): a complex `n x len(omega)` array, NaN rows where
+/// a row's parameters are refused or have no small-signal form. In parallel over rows.
+#[pyfunction]
+#[pyo3(signature = (model, rows, effects, omega, v = 0.0, side = 0, command_kind = "acceleration", threads = 0))]
+#[allow(clippy::too_many_arguments)]
+fn follower_response_rows<'py>(
+    py: Python<'py>,
+    model: &str,
+    rows: PyReadonlyArray2<'py, f64>,
+    effects: Vec<String>,
+    omega: PyReadonlyArray1<'py, f64>,
+    v: f64,
+    side: i8,
+    command_kind: &str,
+    threads: usize,
+) -> PyResult<Bound<'py, PyArray2<Complex64>>> {
+    let kind = guard(|| CommandKind::from_name(command_kind))?;
+    let mk = guard(|| ModelKind::from_name(model))?;
+    let list = canonical_list(&effects, kind)?;
+    guard(|| crate::error::check_finite("v", v))?;
+    let (n, d, data) = super::slice2("rows", &rows)?;
+    let w = super::slice1("omega", &omega)?;
+    let op = Operating { v, side };
+    let h = py.detach(|| {
+        guard(|| {
+            crate::parallel::with_threads(threads, || {
+                crate::effects::response_rows(mk, &list, kind, data, d, w, &op)
+            })?
+        })
+    })?;
+    let arr = numpy::ndarray::Array2::from_shape_vec((n, w.len()), h)
+        .map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string()))?;
+    Ok(arr.into_pyarray(py))
+}
+
+/// The list of `effects`, refused unless given in their canonical order (the order of
+/// the parameter rows' columns).
+fn canonical_list(effects: &[String], kind: CommandKind) -> PyResult<EffectList> {
+    let names: Vec<&str> = effects.iter().map(|s| s.as_str()).collect();
+    let list = guard(|| EffectList::from_names(&names, kind))?;
+    if list.0.iter().map(|k| k.name()).ne(names.iter().copied()) {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "effects: give them in their canonical order ({}), got {}",
+            list.0
+                .iter()
+                .map(|k| k.name())
+                .collect::<Vec<_>>()
+                .join(", "),
+            names.join(", ")
+        )));
+    }
+    Ok(list)
+}
+
+/// Certified stability codes (0 locally unstable, 1 string unstable, 2 string stable)
+/// and their certification flags of many parameter rows (`n x d`: `[model | effects |
+/// kg, kv, Tg, Gmin]`) linearised at speed `v` on `side`, every delay kept exactly
+/// (`crate::effects::follower`). In parallel over rows.
+#[pyfunction]
+#[pyo3(signature = (model, rows, effects, v = 0.0, side = 0, command_kind = "acceleration", budget = 20000, threads = 0))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn follower_codes_rows<'py>(
+    py: Python<'py>,
+    model: &str,
+    rows: PyReadonlyArray2<'py, f64>,
+    effects: Vec<String>,
+    v: f64,
+    side: i8,
+    command_kind: &str,
+    budget: usize,
+    threads: usize,
+) -> PyResult<(Bound<'py, PyArray1<u8>>, Bound<'py, PyArray1<bool>>)> {
+    let kind = guard(|| CommandKind::from_name(command_kind))?;
+    let mk = guard(|| ModelKind::from_name(model))?;
+    let list = canonical_list(&effects, kind)?;
+    guard(|| crate::error::check_finite("v", v))?;
+    let (_, d, data) = super::slice2("rows", &rows)?;
+    let out = py.detach(|| {
+        guard(|| {
+            crate::parallel::with_threads(threads, || {
+                crate::effects::codes_rows(mk, &list, kind, data, d, &Operating { v, side }, budget)
+            })?
+        })
+    })?;
+    let (c, ok): (Vec<u8>, Vec<bool>) = out.into_iter().unzip();
+    Ok((c.into_pyarray(py), ok.into_pyarray(py)))
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(follower_codes_rows, m)?)?;
+    m.add_function(wrap_pyfunction!(follower_response_rows, m)?)?;
     m.add_function(wrap_pyfunction!(effect_info, m)?)?;
     m.add_function(wrap_pyfunction!(linearize_effects, m)?)?;
     m.add_function(wrap_pyfunction!(linearize_upper, m)?)?;

@@ -241,13 +241,16 @@ fn ga_check<'py>(
 /// and Eq. 6 run costs of the best parameters). With `in_turn` the problems are
 /// independent starts of one problem, run one after the other with all the threads
 /// each; the starts after the first that reaches the target (or after a Ctrl-C) are
-/// skipped, and only the starts that ran are returned.
+/// skipped, and only the starts that ran are returned. `initial` rows (R x d) join
+/// every problem's first population; `initial_per_problem` (one R_k x d array per
+/// problem) adds problem `k`'s own rows before them (e.g. each problem's base optimum
+/// with added effects at their neutral values).
 #[pyfunction]
 #[pyo3(signature = (
     model, runs, lower_bounds, upper_bounds, scale, effects=Vec::new(),
     upper_free=Vec::new(), command_kind="acceleration", weights=(1.0, 0.0, 0.0),
     init="rest", closed_loop=false, problems=None, derive_seeds=true, in_turn=false,
-    options=None, initial=None, progress=None, threads=0
+    options=None, initial=None, initial_per_problem=None, progress=None, threads=0
 ))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
@@ -268,6 +271,7 @@ fn calibrate<'py>(
     in_turn: bool,
     options: Option<&Bound<'py, PyDict>>,
     initial: Option<PyReadonlyArray2<'py, f64>>,
+    initial_per_problem: Option<Vec<PyReadonlyArray2<'py, f64>>>,
     progress: Option<Py<PyAny>>,
     threads: usize,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
@@ -298,6 +302,20 @@ fn calibrate<'py>(
     let runs = rs.refs();
     let problems = problems.unwrap_or_else(|| vec![(0..runs.len()).collect()]);
     let n_problems = problems.len();
+    let mut per_problem: Vec<Vec<Vec<f64>>> = Vec::new();
+    for (k, arr) in initial_per_problem.iter().flatten().enumerate() {
+        let (_, c, s) = slice2(&format!("initial_per_problem[{k}]"), arr)?;
+        per_problem.push(if c == 0 {
+            Vec::new()
+        } else {
+            s.chunks(c).map(|r| r.to_vec()).collect()
+        });
+    }
+    if initial_per_problem.is_some() {
+        guard(|| {
+            crate::optimize::calibrate::check_initial(&per_problem, n_problems, bounds.dim())
+        })?;
+    }
 
     let (outcome, by_user) = relay(py, threads, progress.as_ref(), n_problems, |send, stop| {
         crate::optimize::calibrate::calibrate_many(
@@ -308,6 +326,7 @@ fn calibrate<'py>(
             &opts,
             derive_seeds,
             in_turn,
+            &per_problem,
             move |k, p| {
                 send(Msg::Progress {
                     problem: k,

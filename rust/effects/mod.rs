@@ -51,6 +51,8 @@
 //! paper's Eq. 3. Their small-signal forms ([`Effect::linearize_upper`], collected by
 //! [`linearize_upper`] into an [`UpperLin`]) enter the follower's exact frequency
 //! response [`response`] beside the lower level's [`Linear`] and [`Terms`].
+pub mod follower;
+
 use crate::error::{check_finite, AvllError, Result};
 use crate::model::{CommandKind, Linear};
 use crate::sim::Upper;
@@ -600,4 +602,118 @@ pub fn response(lin: &Linear, t: &Terms, u: &UpperLin, omega: f64) -> Complex<f6
     let p = r + f * s * d;
     let q = r + s * (u.kg * u.tg) - f * s * (-d + 1.0);
     gfb * p / (s * s + gfb * q)
+}
+
+/// The small-signal forms of a parameter row `[model | effects | kg, kv, Tg, Gmin]`.
+fn row_forms(
+    model: crate::model::ModelKind,
+    effects: &EffectList,
+    kind: CommandKind,
+    row: &[f64],
+    op: &Operating,
+) -> Result<(Linear, Terms, UpperLin)> {
+    let (nm, ne) = (model.n_params(), effects.n_params());
+    let lin = model.linear(&row[..nm])?;
+    let effs = effects.build(&row[nm..nm + ne], kind)?;
+    let u = &row[nm + ne..];
+    let up = Upper {
+        kg: u[0],
+        kv: u[1],
+        tg: u[2],
+        gmin: u[3],
+    };
+    up.validate()?;
+    let (l, t) = linearize_terms(&lin, &effs, op)?;
+    Ok((l, t, linearize_upper(&up, &effs, op)?))
+}
+
+/// Checks the shape of parameter rows `[model | effects | kg, kv, Tg, Gmin]`.
+fn check_rows(
+    model: crate::model::ModelKind,
+    effects: &EffectList,
+    rows: &[f64],
+    d: usize,
+) -> Result<()> {
+    let (nm, ne) = (model.n_params(), effects.n_params());
+    if d != nm + ne + 4 {
+        return Err(AvllError::new(
+            "rows",
+            format!(
+                "have {d} columns; the model {:?} ({nm}), the effects ({ne}) and kg, kv, Tg, \
+                 Gmin need {}",
+                model.name(),
+                nm + ne + 4
+            ),
+        ));
+    }
+    if !rows.len().is_multiple_of(d) {
+        return Err(AvllError::new("rows", "is not a whole number of rows"));
+    }
+    Ok(())
+}
+
+/// Certified stability codes (0 locally unstable, 1 string unstable, 2 string stable)
+/// of many parameter rows `[model | effects | kg, kv, Tg, Gmin]` linearised at `op`,
+/// with every delay kept exactly ([`follower::FollowerLoop`]: the dead time, a command
+/// delay, a perception delay), and whether each is certified; a row without a
+/// small-signal form gets `(0, false)`. `budget` interval evaluations per test. In
+/// parallel over rows.
+pub fn codes_rows(
+    model: crate::model::ModelKind,
+    effects: &EffectList,
+    kind: CommandKind,
+    rows: &[f64],
+    d: usize,
+    op: &Operating,
+    budget: usize,
+) -> Result<Vec<(u8, bool)>> {
+    use rayon::prelude::*;
+    check_rows(model, effects, rows, d)?;
+    Ok(rows
+        .par_chunks(d)
+        .map(|row| match row_forms(model, effects, kind, row, op) {
+            Ok((l, t, u)) => {
+                let mut fl = follower::FollowerLoop::new(&l, &t, &u);
+                fl.budget = budget.max(1);
+                fl.code()
+            }
+            Err(_) => (0, false),
+        })
+        .collect())
+}
+
+/// The follower's exact frequency response ([`response`]) of many parameter rows at
+/// once: each row of `rows` (row-major, `n x d`) is `[model | effects | kg, kv, Tg,
+/// Gmin]` (the effects' parameters in the canonical order of `effects`), linearised at
+/// the operating point `op`; the result is `n x omega.len()` (row-major). A row whose
+/// parameters the model, an effect or the law refuses, or whose small-signal form does
+/// not exist, gives NaN. In parallel over rows (the values do not depend on the
+/// threads).
+pub fn response_rows(
+    model: crate::model::ModelKind,
+    effects: &EffectList,
+    kind: CommandKind,
+    rows: &[f64],
+    d: usize,
+    omega: &[f64],
+    op: &Operating,
+) -> Result<Vec<Complex<f64>>> {
+    use rayon::prelude::*;
+    check_rows(model, effects, rows, d)?;
+    if let Some(w) = omega.iter().find(|w| !(w.is_finite() && **w > 0.0)) {
+        return Err(AvllError::new(
+            "omega",
+            format!("frequencies must be finite and > 0, got {w}"),
+        ));
+    }
+    let m = omega.len();
+    let nan = Complex::new(f64::NAN, f64::NAN);
+    let one = |row: &[f64]| -> Vec<Complex<f64>> {
+        match row_forms(model, effects, kind, row, op) {
+            Ok((l, t, u)) => omega.iter().map(|&w| response(&l, &t, &u, w)).collect(),
+            Err(_) => vec![nan; m],
+        }
+    };
+    let parts: Vec<Vec<Complex<f64>>> = rows.par_chunks(d).with_min_len(8).map(one).collect();
+    Ok(parts.concat())
 }

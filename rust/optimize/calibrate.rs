@@ -353,9 +353,48 @@ fn calibrate_one(
     Ok(Calibration { ga, per_run })
 }
 
+/// Checks per-problem starting rows (`initial[k]`: the rows of problem `k`; empty: none
+/// for any problem): one list per problem, each row `d` finite values.
+pub fn check_initial(initial: &[Vec<Vec<f64>>], n_problems: usize, d: usize) -> Result<()> {
+    if initial.is_empty() {
+        return Ok(());
+    }
+    if initial.len() != n_problems {
+        return Err(AvllError::new(
+            "initial_per_problem",
+            format!(
+                "has {} lists of starting rows, one per problem is needed ({n_problems})",
+                initial.len()
+            ),
+        ));
+    }
+    for (k, rows) in initial.iter().enumerate() {
+        for (j, x) in rows.iter().enumerate() {
+            if x.len() != d {
+                return Err(AvllError::new(
+                    format!("initial_per_problem[{k}][{j}]"),
+                    format!("has {} values, expected {d}", x.len()),
+                ));
+            }
+            if x.iter().any(|v| !v.is_finite()) {
+                return Err(AvllError::new(
+                    format!("initial_per_problem[{k}][{j}]"),
+                    "is not finite",
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Solves many independent calibration problems: problem `k` is Eq. 6 over the runs
 /// `problems[k]` (repeats allowed), with the seed `derive_seed(opts.seed, k)` when
-/// `derive` is true (else `opts.seed` for all). `callback(k, progress)` returns
+/// `derive` is true (else `opts.seed` for all). Problem `k` starts from its own rows
+/// `initial[k]` (when `initial` is not empty; e.g. a base model's optimum for the same
+/// problem with the added effects at their neutral values) followed by the rows
+/// `opts.initial` shared by every problem: the GA keeps its best individual (plus
+/// survival, or the elite), so the result costs at most what the best of those rows
+/// costs. `callback(k, progress)` returns
 /// `None`/`Some(true)` to continue and `Some(false)` to stop every problem (each then
 /// returns its best so far).
 ///
@@ -374,6 +413,7 @@ pub fn calibrate_many(
     opts: &GaOptions,
     derive: bool,
     in_turn: bool,
+    initial: &[Vec<Vec<f64>>],
     callback: impl Fn(usize, &Progress) -> Option<bool> + Sync,
 ) -> Result<Vec<Calibration>> {
     spec.validate(runs)?;
@@ -381,10 +421,14 @@ pub fn calibrate_many(
     for (k, p) in problems.iter().enumerate() {
         multiplicities(p, runs.len(), k)?;
     }
+    check_initial(initial, problems.len(), bounds.dim())?;
     let seeded = |k: usize| {
         let mut o = opts.clone();
         if derive {
             o.seed = derive_seed(opts.seed, k as u64);
+        }
+        if let Some(own) = initial.get(k) {
+            o.initial = own.iter().chain(&opts.initial).cloned().collect();
         }
         o
     };
@@ -625,7 +669,7 @@ mod tests {
         let problems = vec![vec![0, 1, 2], vec![0, 0, 2], vec![1]];
         let run = |t: usize| {
             crate::parallel::with_threads(t, || {
-                calibrate_many(&sp, &runs, &problems, &b, &o, true, false, |_, _| None)
+                calibrate_many(&sp, &runs, &problems, &b, &o, true, false, &[], |_, _| None)
             })
             .unwrap()
             .unwrap()
@@ -639,7 +683,7 @@ mod tests {
         let all = vec![vec![0, 1, 2]; 3];
         let run2 = |t: usize, o: &GaOptions| {
             crate::parallel::with_threads(t, || {
-                calibrate_many(&sp, &runs, &all, &b, o, true, true, |_, _| None)
+                calibrate_many(&sp, &runs, &all, &b, o, true, true, &[], |_, _| None)
             })
             .unwrap()
             .unwrap()
@@ -648,7 +692,7 @@ mod tests {
         assert_eq!(full, run2(1, &o));
         assert_eq!(full.len(), 3);
         let parallel = crate::parallel::with_threads(2, || {
-            calibrate_many(&sp, &runs, &all, &b, &o, true, false, |_, _| None)
+            calibrate_many(&sp, &runs, &all, &b, &o, true, false, &[], |_, _| None)
         })
         .unwrap()
         .unwrap();
@@ -677,5 +721,62 @@ mod tests {
             let w = multiplicities(&all[0], runs.len(), 0).unwrap();
             assert_eq!(c.ga.f, subset_cost(&sp, &c.ga.x, &runs, &w));
         }
+    }
+
+    #[test]
+    fn per_problem_starts_bound_each_result_and_are_checked() {
+        let (us, ys) = synthetic_runs();
+        let runs = refs(&us, &ys);
+        let sp = spec();
+        let b = proposed_box();
+        // A short search that cannot find the optimum alone; each problem starts from
+        // its own row: problem 0 from the truth, problem 1 from a poor row, problem 2
+        // from none.
+        let o = GaOptions {
+            seed: 5,
+            max_generations: 2,
+            polish: false,
+            local_every: 0,
+            ..Default::default()
+        };
+        let truth = vec![6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008];
+        let poor = vec![1.0, 0.5, 2.0, 0.8, 0.33, -0.4];
+        let problems = vec![vec![0, 1, 2], vec![1, 2], vec![2]];
+        let initial = vec![vec![truth.clone()], vec![poor.clone()], vec![]];
+        let run = |t: usize, init: &[Vec<Vec<f64>>]| {
+            crate::parallel::with_threads(t, || {
+                calibrate_many(&sp, &runs, &problems, &b, &o, true, false, init, |_, _| {
+                    None
+                })
+            })
+            .unwrap()
+            .unwrap()
+        };
+        let (r1, r2) = (run(1, &initial), run(2, &initial));
+        assert_eq!(r1, r2);
+        let cost = |row: &[f64], k: usize| {
+            let w = multiplicities(&problems[k], runs.len(), k).unwrap();
+            subset_cost(&sp, row, &runs, &w)
+        };
+        assert!(r1[0].ga.f <= cost(&truth, 0) * (1.0 + 1e-12));
+        assert!(r1[1].ga.f <= cost(&poor, 1) * (1.0 + 1e-12));
+        // without its row, problem 0 ends well above the truth's cost in 2 generations
+        let plain = run(1, &[]);
+        assert!(plain[0].ga.f > 2.0 * cost(&truth, 0), "{}", plain[0].ga.f);
+        // the problem without rows is the same search as without any rows
+        assert_eq!(plain[2], r1[2]);
+        // shapes are checked, naming the problem and the row
+        let err = |init: &[Vec<Vec<f64>>]| {
+            calibrate_many(&sp, &runs, &problems, &b, &o, true, false, init, |_, _| {
+                None
+            })
+            .unwrap_err()
+            .to_string()
+        };
+        assert!(err(&[vec![truth.clone()]]).contains("one per problem"));
+        let short = vec![vec![], vec![vec![1.0; 5]], vec![]];
+        assert!(err(&short).contains("initial_per_problem[1][0]"));
+        let nan = vec![vec![], vec![], vec![vec![f64::NAN; 6]]];
+        assert!(err(&nan).contains("initial_per_problem[2][0]"));
     }
 }

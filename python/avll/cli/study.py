@@ -54,7 +54,8 @@ def _openacc(args: argparse.Namespace) -> int:
                        starts=args.starts, band=band, n_boot=args.bootstrap,
                        gmin_max=args.gmin_max, acc_unknown=args.acc_unknown,
                        out_of_sample=not args.no_out_of_sample,
-                       intervals=_intervals(args.resamples), **load)  # fmt: skip
+                       intervals=_intervals(args.resamples),
+                       structures=_structures(args.structures), **load)  # fmt: skip
     log(f"writing {args.out}" + (f" and {args.json}" if args.json else ""))
     st.save(args.out, args.json)
     s = st.summary
@@ -75,6 +76,23 @@ def _openacc(args: argparse.Namespace) -> int:
               "measured 95 % interval "
               + ("n/a" if inside is None else f"{inside:.2f} of {oos['n_with_interval']}"))
     return 0
+
+
+def _structures(text: str) -> Any:
+    """The study's ``structures`` from ``--structures`` (``auto``, ``none`` or names)."""
+    from ..effects import EFFECTS
+
+    t = text.strip().lower()
+    if t == "auto":
+        return True
+    if t == "none":
+        return False
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in EFFECTS]
+    if bad or not names:
+        raise ValueError(f"--structures: expected auto, none or effect names "
+                         f"({', '.join(EFFECTS)}), got {text!r}")
+    return names
 
 
 def _intervals(n: int | None) -> Any:
@@ -141,6 +159,10 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
                    help="skip the out-of-sample step (one model per car and setting "
                    "calibrated on the car's other files, predicting the held-out file; "
                    "default: run it)")
+    p.add_argument("--structures", default="auto", metavar="auto|none|NAMES",
+                   help="the cross-validated structure selection after the out-of-sample "
+                   "step: auto (its default candidates), none, or candidate names "
+                   "comma-separated, e.g. perception,closing (default: auto)")
     add_progress(p)
     declare_io(p, inputs=("path",), files=("json",), folders=("out",))
     p.set_defaults(func=_openacc)

@@ -243,7 +243,7 @@ def predicted_amplification(model: Any, upper: UpperLevel, lead_v: np.ndarray,
     return float(np.sqrt(np.sum(h * h * w)))
 
 
-def replay_amplification(model: LowerLevelModel, upper: UpperLevel, run: Run,
+def replay_amplification(model: Any, upper: UpperLevel, run: Run,
                          band: Sequence[float] = DEFAULT_BAND,
                          trim: float = TRIM) -> tuple[float, np.ndarray]:
     """The amplification of the calibrated closed loop replayed behind the measured
@@ -545,6 +545,10 @@ def openacc_study(
     figures: bool = True,
     out_of_sample: bool = True,
     intervals: Any = True,
+    structures: bool | Sequence[str] = True,
+    min_gain: float = 0.02,
+    alpha: float = 0.05,
+    max_structures: int = 2,
     **load_options: Any,
 ) -> OpenACCStudy:
     """Runs the study (see the module doc) on native OpenACC data at ``path`` (a
@@ -567,7 +571,17 @@ def openacc_study(
     :class:`avll.Intervals`) gives the main model's calibrations (in-sample and out
     of sample) their block-bootstrap uncertainty (:mod:`avll.uncertainty`): the
     ``*_ci``, ``params_ci``, ``identified`` and ``string_stable_probability`` keys
-    (``null`` with a ``_reason`` without)."""
+    (``null`` with a ``_reason`` without).
+
+    ``structures`` (``True``: :data:`avll.studies.openacc_select.CANDIDATES`, a list
+    of candidate names, or ``False``) runs the cross-validated structure selection
+    after the out-of-sample step (:func:`avll.studies.openacc_select.select_structures`:
+    per car and setting, leave one file out, accepted when the held-out error falls by
+    at least ``min_gain`` in most folds and significantly at ``alpha``, greedily up to
+    ``max_structures``): the contract's predictions then come from the final model
+    (``final_model_effects``), the base model's numbers beside them under
+    ``base_model``, and ``structure_selection`` in the summary (its cost in
+    ``seconds``)."""
     from ..uncertainty import Intervals
 
     say = log or (lambda s: None)
@@ -666,6 +680,16 @@ def openacc_study(
             raise KeyboardInterrupt
     for i, (r, c) in enumerate(zip(runs, cars, strict=True)):
         c.update(_oos_entry(i, r, c, model, oos_plan, oos_res, runs, band))
+    for c in cars:
+        c["base_model"] = {k: c.get(k) for k in BASE_KEYS}
+    selection = None
+    if structures is not False and oos_plan is not None and oos_plan["subsets"]:
+        selection = _select(model, runs, metas, cars, oos_plan, oos_res, results[model],
+                            structures, band=band, seed=seed, threads=threads,
+                            progress=progress, iopts=iopts, say=say,
+                            gmin_max=gmin_max, max_generations=max_generations,
+                            pop_size=pop_size, min_gain=min_gain, alpha=alpha,
+                            max_structures=max_structures)  # fmt: skip
     acc_rows = [{"campaign": c["campaign"], "car": c["car"],
                  "setting": c["setting"] if c["_in_order"] else None,
                  "setting_rank": c["setting_rank"], "Tg": c["Tg"],
@@ -721,6 +745,7 @@ def openacc_study(
             "amplification_replay_oos": "out of sample: that model replayed on this run",
         },
         "out_of_sample": _oos_summary(cars, out_of_sample),
+        "structure_selection": _selection_summary(cars, selection, structures),
         "car_overview": _car_overview(cars, left_out, dropped),
         "left_out": left_out,
         "dropped_by_loader": dropped,
@@ -737,6 +762,151 @@ def openacc_study(
     summary["seconds"] = round(time.perf_counter() - t0, 1)
     report = _report(summary, tables)
     return OpenACCStudy(summary, tables, figs, report, runs, results)
+
+
+#: The contract's keys of a car computed from the study's model; the base model's
+#: values are kept under ``base_model`` (the final model may carry structures).
+BASE_KEYS: tuple[str, ...] = (
+    "params", "Tg", "cal_mse", "at_bound", "amplification_predicted",
+    "amplification_predicted_ci", "amplification_replay", "time_gap_effective",
+    "time_gap_effective_ci", "string_stable_probability", "params_ci", "identified",
+    "amplification_predicted_oos", "amplification_predicted_oos_ci",
+    "amplification_predicted_oos_error", "amplification_replay_oos",
+    "amplification_replay_oos_error", "time_gap_effective_oos", "time_gap_effective_oos_ci",
+    "string_stable_probability_oos", "oos_params")
+
+
+def _replace_entry(c: dict[str, Any], new: Mapping[str, Any]) -> None:
+    """Updates car ``c`` with ``new``, dropping the stale ``_reason``/``_note`` of every
+    key ``new`` recomputes."""
+    for k in list(c):
+        for sfx in ("_reason", "_note", "_test"):
+            if k.endswith(sfx) and k[: -len(sfx)] in new:
+                del c[k]
+    c.update(new)
+
+
+def _final_in_sample(i: int, r: Run, fit: Any, main: str, band: Sequence[float]
+                     ) -> dict[str, Any]:
+    """The in-sample contract keys of run ``i`` from the final model's calibration
+    ``fit`` on this run (as :func:`_car_entry` does for the base model)."""
+    assert r.lead_v is not None and r.v is not None
+    mod, up, effs = _closed_loop_of(main, fit)
+    short = _short_record(len(r), r.dt, band)
+    code = _stability_code(mod, up, float(np.mean(r.lead_v)))
+    a_h = predicted_amplification(mod, up, r.lead_v, r.dt, band) if code and short is None \
+        else math.nan
+    a_r = replay_amplification(mod, up, r, band)[0] if short is None else math.nan
+    params = dict(fit.params)
+    e: dict[str, Any] = {
+        "params": params, "Tg": _fin(params["Tg"]), "cal_mse": _fin(float(fit.cost)),
+        "at_bound": list(fit.at_bound), "amplification_predicted": _fin(a_h),
+        "amplification_replay": _fin(a_r),
+        "time_gap_effective": _fin(_time_gap(mod, up, float(np.mean(r.v)))),
+        "final_model_effects": list(effs)}
+    if e["amplification_predicted"] is None:
+        e["amplification_predicted_reason"] = (
+            short or ("the final closed loop is locally unstable (every delay exact): abs "
+                      "H(jω) is not its gain" if not code else "no periodogram bin"))
+    if e["amplification_replay"] is None:
+        e["amplification_replay_reason"] = short or "the final closed loop diverges in replay"
+    e.update(_interval_entry(fit, r, band, short, ""))
+    return e
+
+
+def _select(model: str, runs: Sequence[Run], metas: Sequence[Mapping[str, Any]],
+            cars: list[dict[str, Any]], plan: Mapping[str, Any], oos_res: Sequence[Any],
+            base_in: Sequence[Any], structures: bool | Sequence[str], *,
+            band: Sequence[float], seed: int, threads: int, progress: Any, iopts: Any,
+            say: Callable[[str], Any], gmin_max: float, max_generations: int,
+            pop_size: int, min_gain: float, alpha: float, max_structures: int) -> Any:
+    """The structure stage: the selection, then the final model's fits (out of sample:
+    the selection's fold fits, re-entered for their intervals; in sample: each run
+    calibrated with its group's structures, warm-started from its base fit and its
+    fold's fit) and the cars' contract keys recomputed from them."""
+    from ..calibration import start_row
+    from .openacc_select import CANDIDATES, select_structures
+
+    cands = CANDIDATES if structures is True else tuple(structures)  # type: ignore[arg-type]
+    kw: dict[str, Any] = dict(
+        bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True, upper_free=_UPPER,
+        weights=WEIGHTS, init="rest", max_generations=max_generations, pop_size=pop_size)
+    say(f"structures: cross-validated selection over {', '.join(cands)} "
+        f"({len(plan['subsets'])} folds)")
+    sel = select_structures(model, runs, plan, oos_res, [_oos_key(m) for m in metas],
+                            calibrate_kw={**kw, "progress": progress}, weights=WEIGHTS,
+                            candidates=cands, min_gain=min_gain, alpha=alpha,
+                            max_structures=max_structures, seed=int(seed) + 3571,
+                            threads=threads, log=say)  # fmt: skip
+    final_oos = list(oos_res)
+    by: dict[tuple[str, ...], list[int]] = {}
+    for k, effs in enumerate(sel.effects):
+        if effs:
+            by.setdefault(effs, []).append(k)
+    t0 = time.perf_counter()
+    for effs, ks in by.items():
+        res = calibrate_many(
+            model, runs, [plan["subsets"][k] for k in ks], effects=list(effs),
+            initial_per_problem=[[sel.fold_fits[k].x] for k in ks],
+            seed=int(seed) + 7927, threads=threads, progress=progress, starts=1,
+            intervals=iopts, **{**kw, "max_generations": 1})  # fmt: skip
+        for k, f in zip(ks, res, strict=True):
+            final_oos[k] = f
+    byi: dict[tuple[str, ...], list[int]] = {}
+    for i, k in enumerate(plan["problem"]):
+        if k is not None and sel.effects[k]:
+            byi.setdefault(sel.effects[k], []).append(i)
+    final_in: dict[int, Any] = {}
+    for effs, idx in byi.items():
+        say(f"structures: the final model {'+'.join(effs)} in sample ({len(idx)} runs)")
+        res = calibrate_many(
+            model, runs, [[i] for i in idx], effects=list(effs),
+            initial_per_problem=[[start_row(base_in[i], effs),
+                                  sel.fold_fits[plan["problem"][i]].x] for i in idx],
+            seed=int(seed) + 15485863, threads=threads, progress=progress, starts=1,
+            intervals=iopts, **kw)  # fmt: skip
+        if any(f.interrupted for f in res):
+            raise KeyboardInterrupt
+        for i, f in zip(idx, res, strict=True):
+            final_in[i] = f
+    for i, (r, c) in enumerate(zip(runs, cars, strict=True)):
+        if i in final_in:
+            _replace_entry(c, _final_in_sample(i, r, final_in[i], model, band))
+            _replace_entry(c, _oos_entry(i, r, c, model, plan, final_oos, runs, band))
+        step = [s.to_dict() for s in sel.steps if (s.campaign, s.car, s.setting) ==
+                tuple(_oos_key(metas[i]) or (None, None, None))[:3]]
+        c["structures"] = {"accepted": list(c["final_model_effects"]), "steps": step}
+    return sel, time.perf_counter() - t0
+
+
+def _selection_summary(cars: Sequence[Mapping[str, Any]], sel: Any,
+                       structures: bool | Sequence[str]) -> dict[str, Any]:
+    """The structure stage in the summary: the selection's settings and steps, which
+    structures were accepted for which cars, and the out-of-sample amplification
+    bias before (base model) and after (final model)."""
+    if sel is None:
+        return {"enabled": False, "reason": (
+            "not run (structures=False)" if structures is False
+            else "not run: no car has another file of its setting (no fold), or the "
+                 "out-of-sample step is off (out_of_sample=False)")}
+    s, final_seconds = sel
+    out: dict[str, Any] = {"enabled": True, **s.to_dict(),
+                           "final_fits_seconds": round(final_seconds, 1)}
+    out["accepted"] = [{"campaign": c["campaign"], "car": c["car"], "setting": c["setting"],
+                        "file": c["file"], "effects": c["final_model_effects"]}
+                       for c in cars if c["final_model_effects"]]
+    flat = [{**c, **c["base_model"]} for c in cars]
+    for grp in ("acc", "human"):
+        out[grp] = {
+            "base_oos_H_vs_h1": _vs(flat, "amplification_predicted_oos",
+                                    "amplification_measured_h1",
+                                    "amplification_measured_h1_ci", grp,
+                                    "amplification_predicted_oos_ci"),
+            "final_oos_H_vs_h1": _vs(cars, "amplification_predicted_oos",
+                                     "amplification_measured_h1",
+                                     "amplification_measured_h1_ci", grp,
+                                     "amplification_predicted_oos_ci")}
+    return out
 
 
 def _per_campaign(order: Mapping[str, Any]) -> dict[str, dict[str, int]]:
@@ -948,8 +1118,7 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
         res = results[m][i]
         params = dict(res.params)
         mod, up, _effects = _closed_loop_of(m, res)
-        codes, _settled = exact_delay_codes(mod, up.kg, up.Tg, up.kv)
-        code = int(codes[0])
+        code = _stability_code(mod, up, float(np.mean(r.lead_v)))
         a_h = (predicted_amplification(mod, up, r.lead_v, r.dt, band)
                if code and short is None else math.nan)
         a_r = replay_amplification(mod, up, r, band)[0] if short is None else math.nan
@@ -957,7 +1126,7 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
         d: dict[str, Any] = {
             "params": params, "cal_mse": _fin(cost), "at_bound": list(res.at_bound),
             "amplification_H": _fin(a_h), "amplification_replay": _fin(a_r),
-            "time_gap_effective": _fin(up.Tg + up.Gmin / max(float(np.mean(r.v)), 0.1)),
+            "time_gap_effective": _fin(_time_gap(mod, up, float(np.mean(r.v)))),
             "per_run_mse": _fin(res.per_run_mse.get(r.run_id, math.nan)),
             "local_stable": code > 0, "string_stable": (code == 2) if code else None,
         }
@@ -1083,16 +1252,16 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
     fit = res[k]
     params = dict(fit.params)
     mod, up, _effects = _closed_loop_of(main, fit)
+    e["final_model_effects_oos"] = list(_effects)
     e["oos_files"] = sorted({str(runs[j].meta.get("file") or runs[j].run_id)
                              for j in plan["subsets"][k]})
     e["oos_params"] = params
     e["oos_at_bound"] = list(fit.at_bound)
-    e["time_gap_effective_oos"] = _fin(up.Tg + up.Gmin / max(float(np.mean(r.v)), 0.1))
+    e["time_gap_effective_oos"] = _fin(_time_gap(mod, up, float(np.mean(r.v))))
     if e["time_gap_effective_oos"] is None:
         e["time_gap_effective_oos_reason"] = "not finite"
     short = _short_record(len(r), r.dt, band)
-    codes, _settled = exact_delay_codes(mod, up.kg, up.Tg, up.kv)
-    code = int(codes[0])
+    code = _stability_code(mod, up, float(np.mean(r.lead_v)))
     e["string_stable_oos"] = (code == 2) if code else None
     if short is not None:
         e["amplification_predicted_oos_reason"] = short
@@ -1131,15 +1300,49 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
     return e
 
 
-def _closed_loop_of(name: str, fit: Any) -> tuple[LowerLevelModel, UpperLevel, tuple[str, ...]]:
-    """The closed loop a calibration describes: the lower level, the upper law and the
-    names of the effects the model carries (empty for the base model). The one place
-    the study turns a calibration into the model it predicts with."""
+def _closed_loop_of(name: str, fit: Any) -> tuple[Any, UpperLevel, tuple[str, ...]]:
+    """The closed loop a calibration describes: the follower (the lower-level model,
+    or an :class:`avll.WithEffects` when the calibration carries structures), the
+    upper law and the names of the effects the model carries (empty for the base
+    model). The one place the study turns a calibration into the model it predicts
+    with."""
     params = dict(fit.params)
     effects: tuple[str, ...] = ()
-    if getattr(fit, "with_effects", None) is not None:
+    model: Any = _model_of(name, params)
+    if getattr(fit, "with_effects", None) is not None and fit.with_effects.effect_names:
         effects = tuple(fit.with_effects.effect_names)
-    return _model_of(name, params), _upper_of(params), effects
+        model = fit.with_effects
+    return model, _upper_of(params), effects
+
+
+def _time_gap(model: Any, up: UpperLevel, v: float) -> float:
+    """``Tg + Gmin / v̄`` of the law at the mean speed ``v`` (at least 0.1 m/s): with
+    structures, their equilibrium time gap (:meth:`avll.WithEffects.upper_linear`'s
+    ``Tg_eq``, e.g. ``Tg + ch v`` of ``speed_gains``) in place of ``Tg``."""
+    from ..effects import WithEffects
+
+    vv = max(float(v), 0.1)
+    if isinstance(model, WithEffects) and model.effects:
+        return float(model.upper_linear(up, v=vv)["Tg_eq"] + up.Gmin / vv)
+    return float(up.Tg + up.Gmin / vv)
+
+
+def _stability_code(model: Any, up: UpperLevel, v: float) -> int:
+    """The closed loop's stability code (0 locally unstable, 1 string unstable, 2
+    string stable): the exact one-delay test for a base model, the certified test of
+    every delay (linearised at ``v``) with structures; an undecided test gives 0 or 1."""
+    from ..effects import WithEffects
+
+    if isinstance(model, WithEffects) and model.effects:
+        from ..effect_stability import stability_codes_rows
+
+        row = np.concatenate([model.to_array(), up.to_array()])[None, :]
+        c, _ = stability_codes_rows(model.base, row, effects=list(model.effect_names),
+                                    v=float(v))
+        return int(c[0])
+    base = model.base if isinstance(model, WithEffects) else model
+    codes, _settled = exact_delay_codes(base, up.kg, up.Tg, up.kv)
+    return int(codes[0])
 
 
 def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
@@ -1183,7 +1386,9 @@ def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
     p = u.string_stable_probability
     e["string_stable_probability" + sfx] = _fin(p) if p is not None else None
     if p is None:
-        e[f"string_stable_probability{sfx}_reason"] = "not computed (effects or open loop)"
+        e[f"string_stable_probability{sfx}_reason"] = "not computed (open loop)"
+    else:
+        e[f"string_stable_probability{sfx}_test"] = u.string_test
     if not sfx:
         e["params_ci"] = {n: (None if v is None else v)
                           for n, v in u.to_dict()["params_ci"].items()}
