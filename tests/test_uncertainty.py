@@ -204,6 +204,7 @@ def validation() -> dict:
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_predictions_are_within_10_percent_on_synthetic_platoons(validation) -> None:  # type: ignore[no-untyped-def]
     s = validation
     print(s)
@@ -213,6 +214,7 @@ def test_predictions_are_within_10_percent_on_synthetic_platoons(validation) -> 
 
 
 @pytest.mark.slow
+@pytest.mark.long
 @pytest.mark.xfail(strict=False, reason=(
     "measured below the 85 % target on these seeds (7501-7508, 48 cars, 200 resamples, "
     "chosen after the method): 70.8 % (amplification) and 72.9 % (Tg + Gmin/v) with the "
