@@ -283,7 +283,7 @@ def test_cli_exact_thresholds(tmp_path, capsys) -> None:  # type: ignore[no-unty
     assert "inf Tg" in capsys.readouterr().out
 
 
-def test_ctrl_c_stops_an_exact_delay_search() -> None:
+def test_ctrl_c_stops_an_exact_delay_search(sigint_handler: None) -> None:
     """An exact-delay infimum search takes a minute; SIGINT stops it within seconds."""
     import os
     import signal

@@ -567,7 +567,7 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
 UNSTAMPED: dict[str, str] = {
     name: f"unstamped: regenerate with `{COMMAND.format(name=name)}`"
     + (f" ({REGISTRY[name].note})" if REGISTRY[name].note else "")
-    for name in ("calibrate-bench", "calibrate-bench-20", "findings-openacc")
+    for name in ("findings-openacc",)
 }
 
 
