@@ -143,3 +143,24 @@ def test_out_of_sample_flag_is_checked(bad: Any) -> None:
     with pytest.raises(ValueError, match="out_of_sample"):
         openacc_study(runs, models=("proposed",), max_generations=2, starts=1, n_boot=100,
                       figures=False, out_of_sample=bad)
+
+
+def test_an_undetermined_interval_says_why() -> None:
+    """A record with fewer effective blocks than fitted parameters has no interval: the
+    study's reason says so (not that the refits failed)."""
+    from types import SimpleNamespace
+
+    from avll.studies.openacc import _interval_entry
+
+    u = SimpleNamespace(samples=np.full((4, 3), np.nan), widening=float("inf"), blocks=7.5,
+                        fitted=10)
+    t = np.arange(600) * 0.1
+    r = Run(t=t, command=np.zeros_like(t), a=np.zeros_like(t), v=np.full_like(t, 20.0),
+                 lead_v=np.full_like(t, 20.0), run_id="r")
+    e = _interval_entry(SimpleNamespace(uncertainty=u), r, (0.02, 0.2), None, "")
+    assert e["amplification_predicted_ci"] is None
+    assert "fewer effective blocks than fitted parameters (7.5 blocks, 10 parameters)" in \
+        e["amplification_predicted_ci_reason"]
+    u2 = SimpleNamespace(samples=np.full((4, 3), np.nan), widening=1.4, blocks=30.0, fitted=10)
+    e2 = _interval_entry(SimpleNamespace(uncertainty=u2), r, (0.02, 0.2), None, "")
+    assert e2["params_ci_reason"] == "no resample could be refit"

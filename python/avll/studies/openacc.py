@@ -1174,9 +1174,10 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
 #: Why a prediction has no interval when the study runs without intervals.
 INTERVALS_OFF = "intervals not estimated (the study ran with intervals=False)"
 #: The method of the predictions' intervals.
-OOS_CI_REASON = ("95 % percentile intervals of a moving-block bootstrap over time of the "
-                 "calibration (blocks from the residuals' autocorrelation), each resample "
-                 "refit by a local search from the full-data optimum (avll.uncertainty)")
+OOS_CI_REASON = ("95 % intervals of a moving-block bootstrap over time of the calibration "
+                 "(blocks from the fit's score series), each resample refit by a local "
+                 "search from the full-data optimum, the deviations widened by the "
+                 "small-sample correction for the parameters fitted (avll.uncertainty)")
 
 
 def _oos_key(meta: Mapping[str, Any]) -> tuple[Any, ...] | None:
@@ -1365,8 +1366,11 @@ def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
     assert r.v is not None and r.lead_v is not None
     ok = np.isfinite(u.samples).all(axis=1)
     if not ok.any():
+        why = ("undetermined: the record holds fewer effective blocks than fitted "
+               f"parameters ({u.blocks:.1f} blocks, {u.fitted} parameters)"
+               if not math.isfinite(u.widening) else "no resample could be refit")
         for k in keys:
-            e[f"{k}_reason"] = "no resample could be refit"
+            e[f"{k}_reason"] = why
         return e
     _, tge = u.time_gap_effective(float(np.mean(r.v)))
     e[f"time_gap_effective{sfx}_ci"] = _ci(tge, u.level)
