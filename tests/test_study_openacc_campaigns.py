@@ -19,7 +19,7 @@ from avll.data import Run
 from avll.studies import openacc as st
 
 FAST = {"model": "first", "models": ("first",), "max_generations": 3, "pop_size": 8,
-        "starts": 1, "n_boot": 100, "intervals": False}
+        "starts": 1, "n_boot": 100, "intervals": False, "structures": False}
 
 
 def platoon_runs(stem, *, n=1200, tg=1.5, seed=0, meta=None, vehicles=4, dt=0.1):
@@ -244,7 +244,8 @@ def test_real_campaign_jrc_low_speed(tmp_path):
     out, js = tmp_path / "o", tmp_path / "s.json"
     assert main(["study", "openacc", str(d), "--out", str(out), "--json", str(js),
                  "--max-generations", "3", "--pop-size", "8", "--starts", "1",
-                 "--bootstrap", "100", "--model", "first", "--models", "first", "-q"]) == 0
+                 "--bootstrap", "100", "--model", "first", "--models", "first", "--resamples",
+                 "20", "--structures", "none", "-q"]) == 0
     s = json.loads(js.read_text())
     _atomic.read_manifest(out)
     assert s["campaigns"] == ["JRC low speed"] and s["cars"]
