@@ -99,6 +99,7 @@ def test_platoon_with_a_hidden_structure() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_blind_upper_structures_on_hidden_platoons() -> None:
     """The blind test (fresh seeds, the default GA budget): a hidden radar latency,
     windowed feedforward and smooth closing asymmetry bias the base model as on real
@@ -123,6 +124,7 @@ def test_blind_upper_structures_on_hidden_platoons() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_blind_null_structures_add_nothing() -> None:
     """Nothing hidden (fresh seeds): the candidate structures do not predict the
     held-out data better than the base model (within 1 % for the median car). Measured,
