@@ -51,6 +51,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 import argparse  # noqa: E402
 import ctypes  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import platform  # noqa: E402
 import resource  # noqa: E402
 import sys  # noqa: E402
@@ -117,33 +118,54 @@ class Timing:
     rounds: list[float] = field(default_factory=list)
 
 
+#: Shortest timed sample (s): a call faster than this is timed as a batch of calls, so
+#: that the CPU clock's granularity (tick-based on some machines) cannot round it to 0.
+MIN_SAMPLE_S = 0.02
+
+
 def measure(
     fns: Sequence[Callable[[], object]], repeat: int, seconds: float = 0.0
 ) -> list[Timing]:
     """Best CPU and wall times of each call, and its mean page faults: one warm-up
     call each, then rounds calling every function in turn (round-robin, so that load
     changes hit every implementation alike), at least ``repeat`` rounds and until the
-    rounds took ``seconds`` per function. In a round each function is called twice
-    back to back and the second call is timed: the state a loop of calls to one
-    implementation runs in (its memory and caches as its previous call left them),
-    not the state another implementation's call left."""
+    rounds took ``seconds`` per function. In a round each function is called once
+    untimed and then timed: the state a loop of calls to one implementation runs in
+    (its memory and caches as its previous call left them), not the state another
+    implementation's call left. A call shorter than :data:`MIN_SAMPLE_S` is timed as
+    a batch of back-to-back calls lasting about that long, and the batch's times are
+    divided by its size (the CPU clock of some machines advances in ticks of several
+    milliseconds: a single short call could read 0)."""
+    batch: list[int] = []
     for fn in fns:
         fn()
+        w0 = time.perf_counter()
+        fn()
+        one = time.perf_counter() - w0
+        batch.append(max(1, math.ceil(MIN_SAMPLE_S / max(one, 1e-9))))
     cpus: list[list[float]] = [[] for _ in fns]
     walls: list[list[float]] = [[] for _ in fns]
-    faults: list[int] = [0 for _ in fns]
+    faults: list[float] = [0.0 for _ in fns]
     start = time.perf_counter()
     rounds = 0
     while rounds < max(1, repeat) or time.perf_counter() - start < 2 * seconds * len(fns):
         rounds += 1
         for k, fn in enumerate(fns):
+            n = batch[k]
             fn()
             f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             w0, c0 = time.perf_counter(), time.process_time()
-            fn()
-            cpus[k].append(time.process_time() - c0)
-            walls[k].append(time.perf_counter() - w0)
-            faults[k] += resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+            for _ in range(n):
+                fn()
+            cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+            if cpu <= 0.0:
+                raise RuntimeError(
+                    f"the CPU clock read 0 s over {n} call(s) lasting {wall:.3g} s of wall "
+                    "time: process_time does not advance on this machine"
+                )
+            cpus[k].append(cpu / n)
+            walls[k].append(wall / n)
+            faults[k] += (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) / n
     return [
         Timing(min(c), min(w), f / rounds, rounds, c)
         for c, w, f in zip(cpus, walls, faults, strict=True)
@@ -457,7 +479,7 @@ def bench_open(n: int, repeat: int, seconds: float = 0.0) -> list[Table]:
     na = len(peers.OPEN_PEERS)
     return _pair(
         f"open_{n}", f"(a) open-loop rollout, proposed model, {n:,} samples", n,
-        f"one thread, best CPU time of {t.calls} calls each (round-robin)", "avll.simulate",
+        f"one thread, best CPU time per call over {t.calls} rounds (round-robin)", "avll.simulate",
         t, t_out, peers.OPEN_PEERS, tps[:na], diffs, peers.OPEN_INTO_PEERS, tps[na:],
         into_diffs,
     )  # fmt: skip
@@ -498,7 +520,7 @@ def bench_closed(n: int, repeat: int, seconds: float = 0.0) -> list[Table]:
         f"(b) closed loop behind a recorded leader (Eq. 3, kg {UPPER_CLOSED.kg}, "
         f"Tg {UPPER_CLOSED.Tg} s), {n:,} samples",
         n,
-        f"one thread, best CPU time of {t.calls} calls each (round-robin)"
+        f"one thread, best CPU time per call over {t.calls} rounds (round-robin)"
         + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
         "avll.closed_loop", t, t_out, peers.CLOSED_PEERS, tps[:na], diffs,
         peers.CLOSED_INTO_PEERS, tps[na:], into_diffs,
@@ -544,7 +566,7 @@ def bench_platoon(n: int, followers: int, repeat: int, seconds: float = 0.0) -> 
         f"platoon_{followers}x{n}",
         f"(c) {followers}-car platoon (Eq. 3, kg {up.kg}, kv {up.kv}, Tg {up.Tg} s), {n:,} samples",
         steps,
-        f"one thread, best CPU time of {t.calls} calls each (round-robin); "
+        f"one thread, best CPU time per call over {t.calls} rounds (round-robin); "
         "steps = followers x samples"
         + (f"; checked on the first {CHECK_SAMPLES:,} samples" if n > CHECK_SAMPLES else ""),
         "avll.platoon", t, t_out, peers.PLATOON_PEERS, tps[:na], diffs,
@@ -612,7 +634,7 @@ def bench_cost(
                 f"(d) batched Eq. 6 cost, {n_params:,} parameter sets x {label}, {th} thread"
                 + ("s" if th > 1 else ""),
                 steps,
-                f"best CPU time of {t.calls} calls each (all threads), i.e. per core; "
+                f"best CPU time per call over {t.calls} rounds (all threads), i.e. per core; "
                 f"{int(np.isinf(want).any(axis=1).sum())} sets cost inf",
                 row(
                     f"avll.batch_cost(threads={th})",
