@@ -533,7 +533,7 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              sidecars=("docs/_generated/openacc_campaigns.json",),
              rerender=lambda: body(_own("openacc_campaigns").render(
                  json.loads((GEN / "openacc_campaigns.json").read_text(encoding="utf-8")))),
-             note="the OpenACC study on every shared campaign (about an hour)"),
+             note="the OpenACC study on every shared campaign (hours)"),
     # ---- benchmarks (timings: never compared; their tables re-rendered from their JSON)
     Fragment("calibrate-bench", "docs/_generated/calibrate_bench.md",
              _in_place("bench_calibrate", ["--json", "docs/_generated/calibrate_bench.json",
