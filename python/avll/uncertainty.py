@@ -544,11 +544,12 @@ class Uncertainty:
 
         def eq(row: np.ndarray, up: Mapping[str, float]) -> float:
             vals = [float(row[c]) for c in cols]
-            gains = [float(up[k]) for k in ("kg", "kv", "Tg", "Gmin")]
-            if not all(math.isfinite(x) for x in (*vals, *gains)):
+            kg, kv, tg_, gmin = (float(up[k]) for k in ("kg", "kv", "Tg", "Gmin"))
+            if not all(math.isfinite(x) for x in (*vals, kg, kv, tg_, gmin)):
                 return math.nan
             try:
-                return float(_core.linearize_upper(names, vals, *gains, float(v))["Tg_eq"])
+                return float(_core.linearize_upper(names, vals, kg, kv, tg_, gmin,
+                                                   float(v))["Tg_eq"])
             except ValueError:
                 return math.nan
 
