@@ -283,3 +283,33 @@ def test_band_amplification_and_string_verdicts_carry_the_structures(platoon, fi
     base = avll.calibrate("proposed", [run], seed=3, starts=1, max_generations=20,
                           intervals=Intervals(n=20), **CL)
     assert base.uncertainty is not None and base.uncertainty.string_test == STRING_TEST_EXACT
+
+
+def test_time_gap_effective_with_speed_gains_is_the_equilibrium_one(platoon, fitted
+                                                                   ) -> None:  # type: ignore[no-untyped-def]
+    """With speed-dependent gains the effective time gap of the estimate and of every
+    resample is ``Tg_eq + Gmin / v̄`` (``Tg_eq = Tg + ch v̄``), the OpenACC study's point
+    estimate, not ``Tg + Gmin / v̄``."""
+    from avll.calibration import start_row
+    from avll.studies.openacc import _time_gap
+
+    run = platoon.runs[0]
+    effs = ["speed_gains"]
+    r = avll.calibrate("proposed", [run], effects=effs, seed=3, starts=1, max_generations=20,
+                       initial=[start_row(fitted[0], effs)], intervals=Intervals(n=20), **CL)
+    u = r.uncertainty
+    assert u is not None and r.with_effects is not None
+    v = float(np.mean(run.v))
+    up = avll.UpperLevel(**{k: r.upper[k] for k in UPPER_NAMES})
+    est, smp = u.time_gap_effective(v)
+    assert est == pytest.approx(_time_gap(r.with_effects, up, v), rel=1e-12)
+    j = u.names.index("speed_gains.ch")
+    ch = u.samples[:, j]
+    assert np.count_nonzero(ch) > 0, "the resamples move ch"
+    plain = u.upper["Tg"] + u.upper["Gmin"] / v
+    fin = np.isfinite(smp)
+    assert fin.sum() >= 15
+    np.testing.assert_allclose(smp[fin] - plain[fin], ch[fin] * v, rtol=1e-9, atol=1e-12)
+    assert est - (u.upper_estimate["Tg"] + u.upper_estimate["Gmin"] / v) == pytest.approx(
+        u.estimate[j] * v, rel=1e-9, abs=1e-12)
+    assert r.intervals["time_gap_effective"][0] <= est <= r.intervals["time_gap_effective"][1]

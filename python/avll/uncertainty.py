@@ -511,13 +511,53 @@ class Uncertainty:
 
     def time_gap_effective(self, v_mean: float | None = None) -> tuple[float, np.ndarray]:
         """``Tg + Gmin / v̄`` at ``v_mean`` (default the problem's mean speed): the
-        full-data value and the resamples'."""
+        full-data value and the resamples'. With upper-level structures, their
+        equilibrium time gap at ``v̄`` (``Tg_eq`` of :meth:`avll.WithEffects.upper_linear`,
+        e.g. ``Tg + ch v̄`` of ``speed_gains``) in place of ``Tg``, as the OpenACC
+        study's point estimate."""
         v = self.mean_speed if v_mean is None else float(v_mean)
         if v is None or not math.isfinite(v):
             raise ValueError("v_mean: the calibration has no mean speed; give v_mean")
         v = max(v, 0.1)
-        est = self.upper_estimate["Tg"] + self.upper_estimate["Gmin"] / v
-        return float(est), np.asarray(self.upper["Tg"] + self.upper["Gmin"] / v)
+        tg_est, tg = self._equilibrium_time_gaps(v)
+        est = tg_est + self.upper_estimate["Gmin"] / v
+        return float(est), np.asarray(tg + self.upper["Gmin"] / v)
+
+    def _equilibrium_time_gaps(self, v: float) -> tuple[float, np.ndarray]:
+        """The law's equilibrium time gap at speed ``v``, full-data and per resample:
+        ``Tg`` without upper-level structures, their ``Tg_eq`` with them."""
+        from .effects import EFFECTS
+        from .models import model_class
+
+        tg0, tg = float(self.upper_estimate["Tg"]), np.asarray(self.upper["Tg"], dtype=float)
+        pos = len(model_class(self.model).param_names())
+        names: list[str] = []
+        cols: list[int] = []
+        for e in self.effects:
+            n = len(EFFECTS[e].param_names())
+            if EFFECTS[e].level == "upper":
+                names.append(e)
+                cols.extend(range(pos, pos + n))
+            pos += n
+        if not names:
+            return tg0, tg
+
+        def eq(row: np.ndarray, up: Mapping[str, float]) -> float:
+            vals = [float(row[c]) for c in cols]
+            kg, kv, tg_, gmin = (float(up[k]) for k in ("kg", "kv", "Tg", "Gmin"))
+            if not all(math.isfinite(x) for x in (*vals, kg, kv, tg_, gmin)):
+                return math.nan
+            try:
+                return float(_core.linearize_upper(names, vals, kg, kv, tg_, gmin,
+                                                   float(v))["Tg_eq"])
+            except ValueError:
+                return math.nan
+
+        est = eq(self.estimate, self.upper_estimate)
+        keys = ("kg", "kv", "Tg", "Gmin")
+        per = np.array([eq(row, {k: self.upper[k][i] for k in keys})
+                        for i, row in enumerate(self.samples)])
+        return est, per
 
     def rows(self) -> np.ndarray:
         """The closed loops as parameter rows ``[model | effects | kg, kv, Tg, Gmin]``

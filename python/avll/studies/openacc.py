@@ -670,10 +670,17 @@ def openacc_study(
     if oos_plan is not None and oos_plan["subsets"]:
         say(f"out of sample: calibrating {model} on each car's other files of its setting "
             f"({len(oos_plan['subsets'])} problems, leave one file out)")
+        from ..calibration import start_row
+
+        # each problem starts from its runs' own in-sample optima (finite on each run):
+        # a short GA budget then does not end without a finite fit on a problem whose
+        # runs each have one
         oos_res = calibrate_many(
             model, runs, oos_plan["subsets"], seed=int(seed) + 7919, threads=threads,
             progress=progress, bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True,
             upper_free=_UPPER, weights=WEIGHTS, init="rest", starts=starts,
+            initial_per_problem=[[start_row(results[model][j]) for j in sub]
+                                 for sub in oos_plan["subsets"]],
             max_generations=max_generations, pop_size=pop_size, intervals=iopts)  # fmt: skip
         if any(r.interrupted or (r.uncertainty is not None and r.uncertainty.interrupted)
                for r in oos_res):
