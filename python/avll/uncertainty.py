@@ -525,39 +525,28 @@ class Uncertainty:
 
     def _equilibrium_time_gaps(self, v: float) -> tuple[float, np.ndarray]:
         """The law's equilibrium time gap at speed ``v``, full-data and per resample:
-        ``Tg`` without upper-level structures, their ``Tg_eq`` with them."""
-        from .effects import EFFECTS
-        from .models import model_class
+        ``Tg`` without upper-level structures, their ``Tg_eq``
+        (:meth:`avll.WithEffects.upper_linear`) with them."""
+        from .effects import EFFECTS, WithEffects
+        from .models import UpperLevel, model_class
 
         tg0, tg = float(self.upper_estimate["Tg"]), np.asarray(self.upper["Tg"], dtype=float)
-        pos = len(model_class(self.model).param_names())
-        names: list[str] = []
-        cols: list[int] = []
-        for e in self.effects:
-            n = len(EFFECTS[e].param_names())
-            if EFFECTS[e].level == "upper":
-                names.append(e)
-                cols.extend(range(pos, pos + n))
-            pos += n
-        if not names:
+        if not any(EFFECTS[e].level == "upper" for e in self.effects):
             return tg0, tg
+        k = len(model_class(self.model).param_names())
+        k += sum(len(EFFECTS[e].param_names()) for e in self.effects)
 
         def eq(row: np.ndarray, up: Mapping[str, float]) -> float:
-            vals = [float(row[c]) for c in cols]
-            kg, kv, tg_, gmin = (float(up[k]) for k in ("kg", "kv", "Tg", "Gmin"))
-            if not all(math.isfinite(x) for x in (*vals, kg, kv, tg_, gmin)):
-                return math.nan
             try:
-                return float(_core.linearize_upper(names, vals, kg, kv, tg_, gmin,
-                                                   float(v))["Tg_eq"])
-            except ValueError:
+                m = WithEffects.from_array(self.model, self.effects, row[:k])
+                law = UpperLevel(**{n: float(up[n]) for n in ("kg", "kv", "Tg", "Gmin")})
+                return float(m.upper_linear(law, v=float(v))["Tg_eq"])
+            except ValueError:  # a resample outside a parameter's domain (NaN rows too)
                 return math.nan
 
-        est = eq(self.estimate, self.upper_estimate)
-        keys = ("kg", "kv", "Tg", "Gmin")
-        per = np.array([eq(row, {k: self.upper[k][i] for k in keys})
+        per = np.array([eq(row, {n: self.upper[n][i] for n in self.upper})
                         for i, row in enumerate(self.samples)])
-        return est, per
+        return eq(self.estimate, self.upper_estimate), per
 
     def rows(self) -> np.ndarray:
         """The closed loops as parameter rows ``[model | effects | kg, kv, Tg, Gmin]``
