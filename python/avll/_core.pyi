@@ -195,6 +195,7 @@ def refit_resamples(
     budget: int = 0,
     step: float = 0.02,
     ftol: float = 1e-9,
+    method: str = "simplex",
     progress: Callable[[dict[str, Any]], Any] | None = None,
     threads: int = 0,
 ) -> list[dict[str, Any]]: ...

@@ -87,6 +87,7 @@ __all__ = [
     "BOUND_TOL",
     "ATOMS_PER_BLOCK",
     "CORRECTIONS",
+    "REFITS",
     "small_sample_scale",
     "widen",
     "to_dataset",
@@ -111,6 +112,8 @@ _METHODS = ("blocks", "runs")
 #: small-sample correction (:func:`small_sample_scale`), ``"none"`` the plain
 #: percentile bootstrap.
 CORRECTIONS = ("dof", "none")
+#: How each resample is refit (:class:`Intervals`).
+REFITS = ("simplex", "lm")
 
 
 @dataclass(frozen=True)
@@ -125,7 +128,11 @@ class Intervals:
     ``seed`` of the multiplicities (``None``: the calibration's); ``correction``
     ``"dof"`` (the resampled deviations widened for the parameters fitted on few
     effective blocks, :func:`small_sample_scale`) or ``"none"`` (the plain percentile
-    bootstrap, known to be too narrow here).
+    bootstrap, known to be too narrow here); ``refit`` how each resample is refit from
+    the full-data optimum: ``"simplex"`` (the GA's bounded Nelder-Mead, ``step`` its
+    first simplex) or ``"lm"`` (bounded Levenberg-Marquardt on the resample's weighted
+    residuals: the same minima in a fraction of the rollouts, see
+    ``rust/optimize/resample.rs``).
     """
 
     n: int = 200
@@ -136,6 +143,7 @@ class Intervals:
     step: float = 0.05
     seed: int | None = None
     correction: str = "dof"
+    refit: str = "simplex"
 
     def __post_init__(self) -> None:
         check_int(self.n, "n", min=2)
@@ -152,6 +160,9 @@ class Intervals:
         if self.correction not in CORRECTIONS:
             raise ValueError(f"correction: must be one of {', '.join(CORRECTIONS)}, got "
                              f"{self.correction!r}")
+        if self.refit not in REFITS:
+            raise ValueError(f"refit: must be one of {', '.join(REFITS)}, got "
+                             f"{self.refit!r}")
         check_int(self.budget, "budget", min=0)
         if not (isinstance(self.step, (int, float)) and 0 < self.step <= 0.5):
             raise ValueError(f"step: must be in (0, 0.5], got {self.step!r}")
@@ -953,7 +964,7 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
                 prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
                 scale=prob.scale, problems=[[int(i) for i in s] for s in subsets], x0=x0,
                 atoms=[p[1] for p in plans], resample_weights=[p[2] for p in plans],
-                budget=int(opts.budget), step=float(opts.step),
+                budget=int(opts.budget), step=float(opts.step), method=opts.refit,
                 progress=cb if (callable(progress) or bar.mode != "none") else None,
                 threads=int(threads), **prob.kw)
         else:

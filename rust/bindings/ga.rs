@@ -443,13 +443,14 @@ fn relay<T: Send>(
 /// array per problem (A: those runs' atoms in that order). Returns one dict per
 /// problem: `x` (B x d), `f`, `f_x0` (the resampled cost at the optimum),
 /// `evaluations`, `done` (False: skipped after a stop), `f_full`, `cache_hits`,
-/// `rollouts`, `interrupted`.
+/// `rollouts`, `interrupted`. `method`: `"simplex"` (the bounded Nelder–Mead) or
+/// `"lm"` (bounded Levenberg–Marquardt on the weighted residuals).
 #[pyfunction]
 #[pyo3(signature = (
     model, runs, lower_bounds, upper_bounds, scale, problems, x0, atoms, resample_weights,
     effects=Vec::new(), upper_free=Vec::new(), command_kind="acceleration",
     weights=(1.0, 0.0, 0.0), init="rest", closed_loop=false, budget=0, step=0.02,
-    ftol=1e-9, progress=None, threads=0
+    ftol=1e-9, method="simplex", progress=None, threads=0
 ))]
 #[allow(clippy::too_many_arguments)]
 fn refit_resamples<'py>(
@@ -472,10 +473,14 @@ fn refit_resamples<'py>(
     budget: usize,
     step: f64,
     ftol: f64,
+    method: &str,
     progress: Option<Py<PyAny>>,
     threads: usize,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
-    use crate::optimize::resample::{refit_resamples as refit, RefitOptions, ResampleProblem};
+    use crate::optimize::resample::{
+        refit_resamples as refit, RefitMethod, RefitOptions, ResampleProblem,
+    };
+    let method = guard(|| RefitMethod::from_name(method))?;
     let spec = cost_spec(
         model,
         &effects,
@@ -520,6 +525,7 @@ fn refit_resamples<'py>(
         budget,
         step,
         ftol,
+        method,
         ..Default::default()
     };
     let rs = runs.get();

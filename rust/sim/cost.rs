@@ -1201,3 +1201,33 @@ fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: 
         go!(true, run.v.unwrap_or(run.a), run.x.unwrap_or(run.a))
     }
 }
+
+/// The weighted residuals of `row` on `run` as the Eq. 6 cost sees them, sample-major:
+/// for each sample `t` and each channel `c` of positive weight (acceleration, speed,
+/// position, in this order), `sqrt(w_c) (ŷ_c(t) - y_c(t))`, so that the run's squared
+/// error sum is the sum of their squares (that of [`run_atom_sums`] up to rounding).
+/// `out` is cleared and filled (`len x` the channels of positive weight). Returns
+/// `false` for an invalid or unstable row or a response that is not finite.
+pub fn run_residuals(spec: &CostSpec, row: &[f64], run: &RunRef, out: &mut Vec<f64>) -> bool {
+    out.clear();
+    let n = run.len();
+    let (mut a, mut v, mut x) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    if !simulate_one(spec, row, run, &mut a, &mut v, &mut x)
+        || a.iter().any(|q| !(q.abs() < kernel::DIVERGED))
+    {
+        return false;
+    }
+    let meas = [run.a, run.v.unwrap_or(run.a), run.x.unwrap_or(run.a)];
+    let sims = [&a, &v, &x];
+    let chans: Vec<(usize, f64)> = (0..3)
+        .filter(|&c| spec.weights[c] > 0.0)
+        .map(|c| (c, spec.weights[c].sqrt()))
+        .collect();
+    out.reserve(n * chans.len());
+    for t in 0..n {
+        for &(c, s) in &chans {
+            out.push(s * (sims[c][t] - meas[c][t]));
+        }
+    }
+    out.iter().all(|r| r.is_finite())
+}
