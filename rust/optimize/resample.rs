@@ -465,7 +465,7 @@ fn lm_refit(
         jac = std::borrow::Cow::Owned(fresh);
     }
     let f = s / den;
-    if !moved || !(f < f0) {
+    if !moved || f.is_nan() || f >= f0 {
         return (x0.to_vec(), f0, evals);
     }
     bounds.to_user(&z, &mut x);

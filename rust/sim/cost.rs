@@ -1213,7 +1213,7 @@ pub fn run_residuals(spec: &CostSpec, row: &[f64], run: &RunRef, out: &mut Vec<f
     let n = run.len();
     let (mut a, mut v, mut x) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
     if !simulate_one(spec, row, run, &mut a, &mut v, &mut x)
-        || a.iter().any(|q| !(q.abs() < kernel::DIVERGED))
+        || a.iter().any(|q| q.is_nan() || q.abs() >= kernel::DIVERGED)
     {
         return false;
     }
