@@ -24,7 +24,7 @@
 
 use super::ga::{local_search, Bounds, Objective};
 use crate::error::{AvllError, Result};
-use crate::sim::cost::{n_atoms, run_atom_sums, run_residuals};
+use crate::sim::cost::{n_atoms, residual_channels, run_atom_sums, run_residuals};
 use crate::sim::{CostSpec, RunRef};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -172,13 +172,17 @@ impl Atoms<'_> {
     /// `self.entry_atom[e]`.
     fn residuals(&self, row: &[f64]) -> Option<Vec<f64>> {
         self.rollouts.fetch_add(1, Ordering::Relaxed);
-        let mut all = Vec::with_capacity(self.entry_atom.len());
-        let mut part = Vec::new();
-        for run in &self.runs {
-            if !run_residuals(self.spec, row, run, &mut part) {
+        let mut all = vec![0.0; self.entry_atom.len()];
+        let mut sums = vec![0.0; *self.offsets.last().unwrap_or(&0)];
+        let nch = residual_channels(self.spec);
+        let mut at = 0;
+        for (j, run) in self.runs.iter().enumerate() {
+            let part = &mut all[at..at + run.len() * nch];
+            let s = &mut sums[self.offsets[j]..self.offsets[j + 1]];
+            if !run_residuals(self.spec, row, run, self.atom[j], s, part) {
                 return None;
             }
-            all.extend_from_slice(&part);
+            at += run.len() * nch;
         }
         Some(all)
     }
@@ -229,8 +233,9 @@ impl Objective for OneResample<'_, '_> {
 
 /// Forward-difference step (unit coordinates) of the Levenberg–Marquardt Jacobians.
 const LM_STEP: f64 = 1e-4;
-/// Iterations of a Levenberg–Marquardt refit at most.
-const LM_ITERS: usize = 200;
+/// Trial steps of a Levenberg–Marquardt refit at most (the evaluation budget caps it
+/// first in practice).
+const LM_ITERS: usize = 1000;
 
 /// The Jacobian of the residuals `r` at unit point `z` (one column per parameter free
 /// in the box, a forward difference of [`LM_STEP`] into the box; `None` for a column
@@ -359,6 +364,7 @@ fn lm_refit(
     }
     let ea = &atoms.entry_atom;
     let sse = |r: &[f64]| -> f64 { r.iter().zip(ea).map(|(e, &q)| om[q as usize] * e * e).sum() };
+    let sw: Vec<f64> = ea.iter().map(|&q| om[q as usize].sqrt()).collect();
     let mut evals = 1 + jac0.1.len();
     let mut z = z0.clone();
     let mut r = r0.clone();
@@ -367,7 +373,11 @@ fn lm_refit(
     let (mut mu, mut nu) = (1e-3, 2.0);
     let mut moved = false;
     let mut x = vec![0.0; z.len()];
-    for _ in 0..LM_ITERS {
+    // `fresh`: the Jacobian is the finite-difference one at `z` (not a Broyden update).
+    let (mut fresh, mut since) = (true, 0usize);
+    let refresh_after = 2 * jac0.0.len().max(1);
+    let mut trials = 0;
+    'outer: while trials < LM_ITERS {
         if evals >= budget || stop.load(Ordering::Relaxed) || !(s.is_finite() && s > 0.0) {
             break;
         }
@@ -378,40 +388,24 @@ fn lm_refit(
             break;
         }
         let n = act.len();
-        let col = |k: usize| cols[act[k]].as_deref().unwrap_or(&[]);
-        let mut g = vec![0.0; n];
-        let mut h = nalgebra::DMatrix::<f64>::zeros(n, n);
-        for a in 0..n {
-            let ca = col(a);
-            g[a] = ca
-                .iter()
-                .zip(&r)
-                .zip(ea)
-                .map(|((j, e), &q)| om[q as usize] * j * e)
-                .sum();
-            for b in 0..=a {
-                let cb = col(b);
-                let v: f64 = ca
-                    .iter()
-                    .zip(cb)
-                    .zip(ea)
-                    .map(|((p, q2), &q)| om[q as usize] * p * q2)
-                    .sum();
-                h[(a, b)] = v;
-                h[(b, a)] = v;
-            }
-        }
-        if g.iter().any(|v| !v.is_finite()) || h.iter().any(|v| !v.is_finite()) {
-            break;
-        }
+        // sqrt(ω)-weighted Jacobian and residuals: H = JwᵀJw, g = Jwᵀrw (one product).
+        let jw = nalgebra::DMatrix::from_fn(sw.len(), n + 1, |e, k| {
+            sw[e]
+                * if k < n {
+                    cols[act[k]].as_deref().map_or(0.0, |c| c[e])
+                } else {
+                    r[e]
+                }
+        });
+        let full = jw.tr_mul(&jw);
+        let h = full.view((0, 0), (n, n)).into_owned();
+        let g: Vec<f64> = (0..n).map(|k| full[(k, n)]).collect();
         let dmax = (0..n).map(|k| h[(k, k)]).fold(0.0, f64::max);
-        if dmax <= 0.0 {
-            break;
-        }
         let lo: Vec<f64> = act.iter().map(|&k| -z[free[k]]).collect();
         let hi: Vec<f64> = act.iter().map(|&k| 1.0 - z[free[k]]).collect();
+        let usable = dmax > 0.0 && g.iter().chain(h.iter()).all(|v| v.is_finite());
         let mut accepted = None;
-        while evals < budget && mu <= 1e12 && !stop.load(Ordering::Relaxed) {
+        while usable && evals < budget && mu <= 1e12 && !stop.load(Ordering::Relaxed) {
             let mut hd = h.clone();
             for k in 0..n {
                 hd[(k, k)] += mu * h[(k, k)].max(1e-12 * dmax);
@@ -432,6 +426,7 @@ fn lm_refit(
             }
             bounds.to_user(&zt, &mut x);
             evals += 1;
+            trials += 1;
             let (rt, st) = match atoms.residuals(&x) {
                 Some(rt) => {
                     let st = sse(&rt);
@@ -446,23 +441,60 @@ fn lm_refit(
                 accepted = Some((zt, rt, st));
                 break;
             }
+            if !fresh {
+                // A rejected step on an updated Jacobian: recompute it before damping more.
+                break;
+            }
             mu *= nu;
             nu *= 2.0;
         }
         let Some((zt, rt, st)) = accepted else {
-            break;
+            if fresh {
+                break;
+            }
+            let j = jacobian(atoms, bounds, &z, &r);
+            evals += j.1.len();
+            jac = std::borrow::Cow::Owned(j);
+            (fresh, since) = (true, 0);
+            continue 'outer;
         };
         let rel = (s - st) / s;
-        z = zt;
-        r = rt;
-        s = st;
-        moved = true;
-        if rel <= ftol || evals >= budget {
+        if rel <= ftol && fresh {
+            (z, s, moved) = (zt, st, true);
             break;
         }
-        let fresh = jacobian(atoms, bounds, &z, &r);
-        evals += fresh.1.len();
-        jac = std::borrow::Cow::Owned(fresh);
+        // Broyden's rank-one update of the Jacobian along the step (Madsen, Nielsen and
+        // Tingleff, Methods for non-linear least squares problems, 2004, sec. 3.4),
+        // recomputed by differences every `refresh_after` steps and when a step on the
+        // updated one fails or gains almost nothing.
+        since += 1;
+        let refresh = rel <= ftol || since >= refresh_after;
+        if refresh {
+            let j = jacobian(atoms, bounds, &zt, &rt);
+            evals += j.1.len();
+            jac = std::borrow::Cow::Owned(j);
+            (fresh, since) = (true, 0);
+        } else {
+            let dz: Vec<f64> = act.iter().map(|&k| zt[free[k]] - z[free[k]]).collect();
+            let dd: f64 = dz.iter().map(|v| v * v).sum();
+            if dd > 0.0 {
+                let cols = &mut jac.to_mut().1;
+                let mut u: Vec<f64> = rt.iter().zip(&r).map(|(p, q)| p - q).collect();
+                for (k, &c) in act.iter().enumerate() {
+                    if let Some(cv) = cols[c].as_deref() {
+                        u.iter_mut().zip(cv).for_each(|(ui, ji)| *ui -= ji * dz[k]);
+                    }
+                }
+                for (k, &c) in act.iter().enumerate() {
+                    if let Some(cv) = cols[c].as_mut() {
+                        let f = dz[k] / dd;
+                        cv.iter_mut().zip(&u).for_each(|(ji, ui)| *ji += ui * f);
+                    }
+                }
+            }
+            fresh = false;
+        }
+        (z, r, s, moved) = (zt, rt, st, true);
     }
     let f = s / den;
     if !moved || f.is_nan() || f >= f0 {
@@ -590,7 +622,7 @@ pub fn refit_resamples(
         };
         let mut atoms = atoms;
         if opts.method == RefitMethod::LevenbergMarquardt {
-            let chans = spec.weights.iter().filter(|w| **w > 0.0).count();
+            let chans = residual_channels(spec);
             let mut ea = Vec::new();
             for (j, run) in atoms.runs.iter().enumerate() {
                 for t in 0..run.len() {
@@ -922,17 +954,16 @@ mod tests {
         assert!(2 * e_lm < e_nm, "lm {e_lm} vs simplex {e_nm} evaluations");
         // the residuals' squares are the atom sums
         let row = [1.1, 0.25, 0.9, 0.15];
-        let mut r = Vec::new();
-        assert!(run_residuals(&sp, &row, &runs[0], &mut r));
+        let n = runs[0].len();
+        let (mut r, mut sums) = (vec![0.0; n], vec![0.0; n_atoms(n, 7)]);
+        assert!(run_residuals(&sp, &row, &runs[0], 7, &mut sums, &mut r));
         let sse: f64 = r.iter().map(|e| e * e).sum();
-        let c = run_cost(&sp, &row, &runs[0], f64::INFINITY) * runs[0].len() as f64;
+        let c = run_cost(&sp, &row, &runs[0], f64::INFINITY) * n as f64;
         assert!((sse - c).abs() <= 1e-10 * c, "{sse} vs {c}");
-        assert!(!run_residuals(
-            &sp,
-            &[1.0, 1.0, -1.0, 0.0],
-            &runs[0],
-            &mut r
-        ));
+        let first: f64 = r[..7].iter().map(|e| e * e).sum();
+        assert!((first - sums[0]).abs() <= 1e-12 * sums[0]);
+        let bad = [1.0, 1.0, -1.0, 0.0];
+        assert!(!run_residuals(&sp, &bad, &runs[0], 7, &mut sums, &mut r));
         assert!(RefitMethod::from_name("newton").is_err());
     }
 }

@@ -1038,12 +1038,16 @@ fn lane_sse<const L: usize, const F: bool, const SAME: bool, const ONE: bool, co
 /// `atom` samples (the last one shorter). A block bootstrap over time reweights these
 /// sums (a resample is a vector of atom multiplicities), so one rollout of a
 /// parameter row serves every resample.
-struct AtomSse<'a, const FULL: bool> {
+struct AtomSse<'a, const FULL: bool, const RES: bool> {
     a: &'a [f64],
     v: &'a [f64],
     x: &'a [f64],
     w: [f64; 3],
     out: &'a mut [f64],
+    /// With `RES`: the weighted residuals (see [`run_residuals`]), `nch` per sample.
+    res: &'a mut [f64],
+    sw: [f64; 3],
+    nch: usize,
     atom: usize,
     /// The current atom and the first sample of the next one.
     cur: usize,
@@ -1051,7 +1055,7 @@ struct AtomSse<'a, const FULL: bool> {
     peak: f64,
 }
 
-impl<const FULL: bool> kernel::Sink for AtomSse<'_, FULL> {
+impl<const FULL: bool, const RES: bool> kernel::Sink for AtomSse<'_, FULL, RES> {
     #[inline(always)]
     fn put(&mut self, n: usize, a: f64, v: f64, p: f64, _u: f64, y_lin: f64) {
         if n == self.next {
@@ -1065,6 +1069,17 @@ impl<const FULL: bool> kernel::Sink for AtomSse<'_, FULL> {
             let ex = p - self.x[n];
             s += self.w[1] * ev * ev + self.w[2] * ex * ex;
             self.peak = self.peak.max(v.abs());
+            if RES {
+                let mut k = n * self.nch;
+                for (c, d) in [e, ev, ex].into_iter().enumerate() {
+                    if self.w[c] > 0.0 {
+                        self.res[k] = self.sw[c] * d;
+                        k += 1;
+                    }
+                }
+            }
+        } else if RES {
+            self.res[n] = self.sw[0] * e;
         }
         self.out[self.cur] += s;
         self.peak = self.peak.max(a.abs()).max(y_lin.abs());
@@ -1103,6 +1118,41 @@ pub fn run_atom_sums(
     atom: usize,
     out: &mut [f64],
 ) -> bool {
+    atom_sums_and_residuals(spec, row, run, atom, out, &mut [])
+}
+
+/// The channels of positive weight (acceleration, speed, position) of `spec`.
+pub fn residual_channels(spec: &CostSpec) -> usize {
+    spec.weights.iter().filter(|w| **w > 0.0).count()
+}
+
+/// [`run_atom_sums`] and, in the same rollout, the weighted residuals behind them into
+/// `res` (sample-major: for each sample `t` and each channel `c` of positive weight, in
+/// the order acceleration, speed, position, `sqrt(w_c) (ŷ_c(t) - y_c(t))`;
+/// `run.len() x` [`residual_channels`] values), so that each atom's sum is the sum of
+/// its residuals' squares. Returns `false` where [`run_atom_sums`] does.
+pub fn run_residuals(
+    spec: &CostSpec,
+    row: &[f64],
+    run: &RunRef,
+    atom: usize,
+    out: &mut [f64],
+    res: &mut [f64],
+) -> bool {
+    if res.len() != run.len() * residual_channels(spec) || res.is_empty() {
+        return false;
+    }
+    atom_sums_and_residuals(spec, row, run, atom, out, res)
+}
+
+fn atom_sums_and_residuals(
+    spec: &CostSpec,
+    row: &[f64],
+    run: &RunRef,
+    atom: usize,
+    out: &mut [f64],
+    res: &mut [f64],
+) -> bool {
     let atom = atom.max(1);
     if out.len() != n_atoms(run.len(), atom) {
         return false;
@@ -1119,7 +1169,7 @@ pub fn run_atom_sums(
             ints,
             run.dt,
             modal,
-            atoms_n(&lin, &effs, &up, spec, run, atom, &mut *out)
+            atoms_n(&lin, &effs, &up, spec, run, atom, &mut *out, &mut *res)
         )
     })();
     r.unwrap_or(false) && out.iter().all(|s| s.is_finite())
@@ -1135,18 +1185,19 @@ fn atoms_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     run: &RunRef,
     atom: usize,
     out: &mut [f64],
+    res: &mut [f64],
 ) -> Result<bool> {
     if !loop_stable(lin, &plant) {
         return Ok(false);
     }
     if effs.is_empty() {
-        atoms_chain::<M, N, D, F, _>(plant, lin, NoEffects, up, spec, run, atom, out)
+        atoms_chain::<M, N, D, F, _>(plant, lin, NoEffects, up, spec, run, atom, out, res)
     } else {
         let ch = Effects {
             effects: effs.to_vec(),
             exo: resolve_exo(effs, &run.exo, run.len())?,
         };
-        atoms_chain::<M, N, D, F, _>(plant, lin, ch, up, spec, run, atom, out)
+        atoms_chain::<M, N, D, F, _>(plant, lin, ch, up, spec, run, atom, out, res)
     }
 }
 
@@ -1160,8 +1211,11 @@ fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: 
     run: &RunRef,
     atom: usize,
     out: &mut [f64],
+    res: &mut [f64],
 ) -> Result<bool> {
     let len = run.len();
+    let sw = spec.weights.map(f64::sqrt);
+    let nch = residual_channels(spec);
     let mut st = start_stepper::<M, N, D, F, C>(plant, lin, chain, spec, run)?;
     let (u, lx, lv, up) = (
         run.command.unwrap_or(&[]),
@@ -1170,13 +1224,16 @@ fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: 
         *up,
     );
     macro_rules! go {
-        ($full:literal, $v:expr, $x:expr) => {{
-            let mut sink = AtomSse::<$full> {
+        ($full:literal, $res:literal, $v:expr, $x:expr) => {{
+            let mut sink = AtomSse::<$full, $res> {
                 a: run.a,
                 v: $v,
                 x: $x,
                 w: spec.weights,
                 out,
+                res,
+                sw,
+                nch,
                 atom,
                 cur: 0,
                 next: atom,
@@ -1195,39 +1252,10 @@ fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: 
             Ok(done && sink.peak < kernel::DIVERGED)
         }};
     }
-    if N == M {
-        go!(false, run.a, run.a)
-    } else {
-        go!(true, run.v.unwrap_or(run.a), run.x.unwrap_or(run.a))
+    match (N == M, res.is_empty()) {
+        (true, true) => go!(false, false, run.a, run.a),
+        (true, false) => go!(false, true, run.a, run.a),
+        (false, true) => go!(true, false, run.v.unwrap_or(run.a), run.x.unwrap_or(run.a)),
+        (false, false) => go!(true, true, run.v.unwrap_or(run.a), run.x.unwrap_or(run.a)),
     }
-}
-
-/// The weighted residuals of `row` on `run` as the Eq. 6 cost sees them, sample-major:
-/// for each sample `t` and each channel `c` of positive weight (acceleration, speed,
-/// position, in this order), `sqrt(w_c) (ŷ_c(t) - y_c(t))`, so that the run's squared
-/// error sum is the sum of their squares (that of [`run_atom_sums`] up to rounding).
-/// `out` is cleared and filled (`len x` the channels of positive weight). Returns
-/// `false` for an invalid or unstable row or a response that is not finite.
-pub fn run_residuals(spec: &CostSpec, row: &[f64], run: &RunRef, out: &mut Vec<f64>) -> bool {
-    out.clear();
-    let n = run.len();
-    let (mut a, mut v, mut x) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-    if !simulate_one(spec, row, run, &mut a, &mut v, &mut x)
-        || a.iter().any(|q| q.is_nan() || q.abs() >= kernel::DIVERGED)
-    {
-        return false;
-    }
-    let meas = [run.a, run.v.unwrap_or(run.a), run.x.unwrap_or(run.a)];
-    let sims = [&a, &v, &x];
-    let chans: Vec<(usize, f64)> = (0..3)
-        .filter(|&c| spec.weights[c] > 0.0)
-        .map(|c| (c, spec.weights[c].sqrt()))
-        .collect();
-    out.reserve(n * chans.len());
-    for t in 0..n {
-        for &(c, s) in &chans {
-            out.push(s * (sims[c][t] - meas[c][t]));
-        }
-    }
-    out.iter().all(|r| r.is_finite())
 }
