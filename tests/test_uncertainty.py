@@ -129,6 +129,31 @@ def test_levenberg_marquardt_refits_reach_the_simplex_minima(platoon, fitted
             method="newton", **prob.kw)
 
 
+@pytest.mark.parametrize("effects", [["speed_gains"], ["closing"], ["feedforward"]])
+def test_resampled_cost_carries_the_upper_level_structures(platoon, fitted, effects
+                                                          ) -> None:  # type: ignore[no-untyped-def]
+    """The refits' cost at unit weights is the calibration's cost with upper-level
+    structures too (they act through the law: before the fix, the atom sums ran the
+    plain law, and a speed_gains optimum of cost 0.018 was refit from a start costing
+    0.074)."""
+    from avll.calibration import start_row
+
+    run = platoon.runs[0]
+    r = avll.calibrate("proposed", [run], effects=effects, seed=3, starts=1,
+                       max_generations=5, initial=[start_row(fitted[0], effects)], **CL)
+    prob = _problem("proposed", [run], effects=effects, bounds={"Gmin": (0.0, 10.0)},
+                    closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS, init="rest")
+    x0 = np.ascontiguousarray(np.asarray(r.x)[None, :])
+    w = np.ones((1, -(-len(run) // 25)))
+    for method in ("simplex", "lm"):
+        o = _core.refit_resamples(
+            prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
+            scale=prob.scale, problems=[[0]], x0=x0, atoms=[[25]], resample_weights=[w],
+            budget=30, method=method, **prob.kw)[0]
+        assert o["f_full"] == pytest.approx(r.cost, rel=1e-9), (method, o["f_full"], r.cost)
+        assert o["f"][0] <= r.cost * (1 + 1e-12)
+
+
 def test_uncertainty_result(platoon, fitted) -> None:  # type: ignore[no-untyped-def]
     r = fitted[0]
     u = r.uncertainty

@@ -1,7 +1,8 @@
 """Generates the numbers of the intervals guide (docs/guide/intervals.md): the coverage
 of the 95 % intervals of the band amplification and of ``Tg + Gmin / v̄`` on synthetic
 platoons with a known truth (:func:`avll.synth_platoon.validate_intervals`, the slow test's
-seeds), the same cars' plain percentile intervals, and the cost of intervals in the
+seeds), the same cars' plain percentile intervals, the two refits compared on the same
+resamples (:func:`compare_refits`), and the cost of intervals in the
 OpenACC study on the shared ZalaZone folder (from
 ``docs/_generated/intervals_bench.json``, written by ``benches/bench_intervals.py``).
 
@@ -24,11 +25,58 @@ N = 200
 BENCH = Path(__file__).resolve().parents[1] / "_generated" / "intervals_bench.json"
 
 
+#: The comparison of the two refits: the first seed's cars, this many resamples each.
+COMPARE_N = 50
+
+
+def compare_refits(seed: int = SEEDS[0], cars: int = CARS, n: int = COMPARE_N
+                   ) -> dict[str, Any]:
+    """The two refits of :class:`avll.Intervals` on the same resamples (the validation's
+    calibrations of ``seed``, one thread): CPU time of the calibrations alone and with
+    intervals by each refit, rollouts per refit, and the refits' resampled costs
+    (Levenberg-Marquardt relative to the simplex, per resample)."""
+    import time
+
+    import numpy as np
+
+    from avll import Intervals
+    from avll.calibration import calibrate_many
+    from avll.defaults import UPPER_NAMES
+    from avll.studies.openacc import GMIN_MAX, WEIGHTS
+    from avll.synth_platoon import synth_platoon
+
+    sp = synth_platoon(cars, seed=seed, duration=300.0, models=("proposed",))
+    kw = dict(seed=seed, starts=2, closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,
+              bounds={"Gmin": (0.0, GMIN_MAX)}, threads=1)
+    out: dict[str, Any] = {"seed": seed, "cars": cars, "resamples": n}
+    costs = {}
+    for name, iv in (("none", None), ("simplex", Intervals(n=n, refit="simplex")),
+                     ("lm", Intervals(n=n, refit="lm"))):
+        c0 = time.process_time()
+        res = calibrate_many("proposed", sp.runs, "per_run", intervals=iv, **kw)
+        out[name] = {"cpu_seconds": time.process_time() - c0}
+        if iv is not None:
+            us = [r.uncertainty for r in res]
+            out[name]["rollouts_per_refit"] = sum(u.rollouts for u in us) / (n * cars)
+            costs[name] = [np.asarray(u.costs) for u in us]
+    for name in ("simplex", "lm"):
+        out[name]["intervals_cpu_seconds"] = out[name]["cpu_seconds"] - out["none"]["cpu_seconds"]
+        out[name]["ratio_to_calibration"] = out[name]["cpu_seconds"] / out["none"]["cpu_seconds"]
+    rel = np.concatenate([a / b - 1.0 for a, b in zip(costs["lm"], costs["simplex"],
+                                                        strict=True) if a.shape == b.shape])
+    rel = rel[np.isfinite(rel)]
+    out["lm_cost_vs_simplex"] = {"median": float(np.median(rel)), "min": float(rel.min()),
+                                 "max": float(rel.max()),
+                                 "below_or_equal": float(np.mean(rel <= 1e-12))}
+    return out
+
+
 def collect() -> dict[str, Any]:
-    """The validation's summary and the benchmark's numbers (None when not run)."""
+    """The validation's summary, the refits' comparison and the benchmark's numbers
+    (None when not run)."""
     v = validate_intervals(list(SEEDS), cars=CARS, n=N)
     bench = json.loads(BENCH.read_text(encoding="utf-8")) if BENCH.exists() else None
-    return {"validation": v["summary"], "bench": bench}
+    return {"validation": v["summary"], "refits": compare_refits(), "bench": bench}
 
 
 def _p(x: Any) -> str:
@@ -68,6 +116,24 @@ def render(numbers: dict[str, Any]) -> str:
               + ", ".join(f"{_p(s[k]['coverage_all'])} ({lab})" for k, lab in
                           (("amplification", "amplification"),
                            ("time_gap_effective", "Tg + Gmin / v̄"))) + ")."]
+    c = numbers.get("refits")
+    if c:
+        q = c["lm_cost_vs_simplex"]
+        lines += ["", f"The two refits of the same resamples (seed {c['seed']}, {c['cars']} "
+                  f"cars, {c['resamples']} resamples each, one thread; CPU time):", "",
+                  "| refit | intervals' CPU time | rollouts per refit | calibration with "
+                  "intervals / calibration alone |", "|---|---|---|---|"]
+        for k, lab in (("lm", "Levenberg–Marquardt (`refit=\"lm\"`, the default)"),
+                       ("simplex", "Nelder–Mead (`refit=\"simplex\"`)")):
+            d = c[k]
+            lines.append(f"| {lab} | {d['intervals_cpu_seconds']:.0f} s | "
+                         f"{d['rollouts_per_refit']:.0f} | {d['ratio_to_calibration']:.2f} |")
+        lines += ["", f"The calibrations alone: {c['none']['cpu_seconds']:.0f} s. "
+                  "Levenberg–Marquardt's resampled cost relative to the simplex's, per "
+                  f"resample: median {100 * q['median']:+.3f} %, from "
+                  f"{100 * q['min']:+.2f} % to {100 * q['max']:+.2f} %; at or below it "
+                  f"for {_p(q['below_or_equal'])} of the resamples (the cost has local "
+                  "minima; the simplex also stops at its evaluation cap)."]
     b = numbers.get("bench")
     if b:
         lines += ["", f"OpenACC study on the ZalaZone folder ({b['without']['cars']} cars, "

@@ -1,5 +1,5 @@
 """How sure a calibration is: intervals, correlations and identifiability from a
-block bootstrap over time, refit by a local search from the full-data optimum.
+block bootstrap over time, refit from the full-data optimum.
 
 :func:`avll.calibrate` with ``intervals=True`` (or an :class:`Intervals`) runs this
 second stage after the GA and fills :attr:`avll.CalibrationResult.uncertainty` (an
@@ -26,11 +26,13 @@ equations, not on the residuals); the largest is used, not below :data:`MIN_BLOC
 seconds (a floor: below a few seconds the lower level's own response correlates the
 errors) and not above a third of the shortest run (at least three blocks per run).
 
-**Refits.** Each resample is refit by the GA's bounded Nelder-Mead in the GA's unit
-coordinates (log scale for the positive coefficients), warm-started from the full-data
-optimum; all resamples in parallel in Rust, one after the other problem, seeded (the
-multiplicities are drawn from ``numpy.random.default_rng([seed, problem])``: the same
-result for any thread count), with progress and Ctrl-C.
+**Refits.** Each resample is refit in the GA's unit coordinates (log scale for the
+positive coefficients), warm-started from the full-data optimum, by a bounded
+Levenberg-Marquardt iteration on its weighted residuals (``Intervals(refit="lm")``, the
+default) or by the GA's bounded Nelder-Mead (``refit="simplex"``); all resamples in
+parallel in Rust, one after the other problem, seeded (the multiplicities are drawn
+from ``numpy.random.default_rng([seed, problem])``: the same result for any thread
+count), with progress and Ctrl-C.
 
 **Small-sample correction.** The refits are fitted to resamples of the *fitted*
 residuals, which a fit of ``p`` parameters to a record of only ``G`` effective blocks
@@ -123,16 +125,18 @@ class Intervals:
     ``n`` resamples; ``level`` of the percentile intervals; ``block`` the block length
     in seconds (``None``: from the residuals, :func:`block_length`); ``method``
     ``"blocks"`` (moving blocks over time within each run) or ``"runs"`` (whole runs);
-    ``budget`` evaluations per refit at most (0: ``200 d``; a refit stops earlier when
-    its best value stalls); ``step`` the initial simplex step in unit coordinates;
+    ``budget`` rollouts per refit at most (0: ``200 d``; a refit stops earlier when
+    its cost stalls); ``step`` the initial simplex step in unit coordinates (simplex
+    refits);
     ``seed`` of the multiplicities (``None``: the calibration's); ``correction``
     ``"dof"`` (the resampled deviations widened for the parameters fitted on few
     effective blocks, :func:`small_sample_scale`) or ``"none"`` (the plain percentile
     bootstrap, known to be too narrow here); ``refit`` how each resample is refit from
-    the full-data optimum: ``"simplex"`` (the GA's bounded Nelder-Mead, ``step`` its
-    first simplex) or ``"lm"`` (bounded Levenberg-Marquardt on the resample's weighted
-    residuals: the same minima in a fraction of the rollouts, see
-    ``rust/optimize/resample.rs``).
+    the full-data optimum: ``"lm"`` (the default: bounded Levenberg-Marquardt on the
+    resample's weighted residuals, Broyden updates of the Jacobian between
+    finite-difference ones) or ``"simplex"`` (the GA's bounded Nelder-Mead); the two
+    reach the same minima, the first in a fraction of the rollouts (compared in
+    ``docs/guide/intervals.md``).
     """
 
     n: int = 200
@@ -143,7 +147,7 @@ class Intervals:
     step: float = 0.05
     seed: int | None = None
     correction: str = "dof"
-    refit: str = "simplex"
+    refit: str = "lm"
 
     def __post_init__(self) -> None:
         check_int(self.n, "n", min=2)

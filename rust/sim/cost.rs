@@ -1191,22 +1191,20 @@ fn atoms_n<const M: usize, const N: usize, const D: bool, const F: bool>(
         return Ok(false);
     }
     if effs.is_empty() {
-        atoms_chain::<M, N, D, F, _>(plant, lin, NoEffects, up, spec, run, atom, out, res)
+        atoms_chain::<M, N, D, F, _, _>(plant, lin, NoEffects, *up, spec, run, atom, out, res)
     } else {
-        let ch = Effects {
-            effects: effs.to_vec(),
-            exo: resolve_exo(effs, &run.exo, run.len())?,
-        };
-        atoms_chain::<M, N, D, F, _>(plant, lin, ch, up, spec, run, atom, out, res)
+        // The upper-level structures act through the law, as in the cost itself.
+        let (ch, law) = with_effects(effs, up, run)?;
+        atoms_chain::<M, N, D, F, _, _>(plant, lin, ch, law, spec, run, atom, out, res)
     }
 }
 
 #[allow(clippy::too_many_arguments)]
-fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
+fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain, L: Law>(
     plant: Plant<M, N>,
     lin: &Linear,
     chain: C,
-    up: &Upper,
+    mut law: L,
     spec: &CostSpec,
     run: &RunRef,
     atom: usize,
@@ -1217,11 +1215,10 @@ fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: 
     let sw = spec.weights.map(f64::sqrt);
     let nch = residual_channels(spec);
     let mut st = start_stepper::<M, N, D, F, C>(plant, lin, chain, spec, run)?;
-    let (u, lx, lv, up) = (
+    let (u, lx, lv) = (
         run.command.unwrap_or(&[]),
         run.lead_x.unwrap_or(&[]),
         run.lead_v.unwrap_or(&[]),
-        *up,
     );
     macro_rules! go {
         ($full:literal, $res:literal, $v:expr, $x:expr) => {{
@@ -1243,7 +1240,7 @@ fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: 
                 kernel::run(
                     &mut st,
                     len,
-                    |n, o| up.command(lx[n], lv[n], o.p, o.v),
+                    |n, o| law.command(lx[n], lv[n], o.p, o.v),
                     &mut sink,
                 )
             } else {
