@@ -812,6 +812,23 @@ mod tests {
         .unwrap()
     }
 
+    /// Both runs in atoms of 40 samples, `b` resamples: 0 all ones, the others
+    /// pseudo-random multiplicities; the start near the truth.
+    fn problem(runs: &[RunRef], b: usize) -> ResampleProblem {
+        let atom = 40;
+        let a: usize = runs.iter().map(|r| n_atoms(r.len(), atom)).sum();
+        let mut w = vec![1.0; a];
+        for i in 1..b {
+            w.extend((0..a).map(|q| ((q * 31 + i * 17) % 3) as f64));
+        }
+        ResampleProblem {
+            runs: vec![(0, 1.0), (1, 1.0)],
+            atom: vec![atom, atom],
+            x0: vec![1.05, 0.28, 0.85, 0.18],
+            weights: w,
+        }
+    }
+
     #[test]
     fn atom_sums_add_up_to_the_run_cost() {
         let (us, ys) = data();
@@ -842,20 +859,8 @@ mod tests {
         let runs = refs(&us, &ys);
         let sp = spec();
         let b = bounds();
-        let atom = 40;
-        let a: usize = runs.iter().map(|r| n_atoms(r.len(), atom)).sum();
-        // Resample 0: all ones; the others: pseudo-random multiplicities.
-        let mut w = vec![1.0; a];
-        for i in 1..6 {
-            w.extend((0..a).map(|q| ((q * 31 + i * 17) % 3) as f64));
-        }
-        let x0 = vec![1.05, 0.28, 0.85, 0.18];
-        let p = ResampleProblem {
-            runs: vec![(0, 1.0), (1, 1.0)],
-            atom: vec![atom, atom],
-            x0: x0.clone(),
-            weights: w,
-        };
+        let p = problem(&runs, 6);
+        let x0 = p.x0.clone();
         let o = RefitOptions {
             budget: 300,
             ..Default::default()
@@ -908,18 +913,7 @@ mod tests {
         let runs = refs(&us, &ys);
         let sp = spec();
         let b = bounds();
-        let atom = 40;
-        let a: usize = runs.iter().map(|r| n_atoms(r.len(), atom)).sum();
-        let mut w = vec![1.0; a];
-        for i in 1..8 {
-            w.extend((0..a).map(|q| ((q * 31 + i * 17) % 3) as f64));
-        }
-        let p = ResampleProblem {
-            runs: vec![(0, 1.0), (1, 1.0)],
-            atom: vec![atom, atom],
-            x0: vec![1.05, 0.28, 0.85, 0.18],
-            weights: w,
-        };
+        let p = problem(&runs, 8);
         let go = |method| {
             let o = RefitOptions {
                 method,

@@ -1118,7 +1118,7 @@ pub fn run_atom_sums(
     atom: usize,
     out: &mut [f64],
 ) -> bool {
-    atom_sums_and_residuals(spec, row, run, atom, out, &mut [])
+    run_residuals(spec, row, run, atom, out, &mut [])
 }
 
 /// The channels of positive weight (acceleration, speed, position) of `spec`.
@@ -1129,8 +1129,9 @@ pub fn residual_channels(spec: &CostSpec) -> usize {
 /// [`run_atom_sums`] and, in the same rollout, the weighted residuals behind them into
 /// `res` (sample-major: for each sample `t` and each channel `c` of positive weight, in
 /// the order acceleration, speed, position, `sqrt(w_c) (ŷ_c(t) - y_c(t))`;
-/// `run.len() x` [`residual_channels`] values), so that each atom's sum is the sum of
-/// its residuals' squares. Returns `false` where [`run_atom_sums`] does.
+/// `run.len() x` [`residual_channels`] values, or none when `res` is empty), so that
+/// each atom's sum is the sum of its residuals' squares. Returns `false` where
+/// [`run_atom_sums`] does, and for a `res` of another length.
 pub fn run_residuals(
     spec: &CostSpec,
     row: &[f64],
@@ -1139,20 +1140,9 @@ pub fn run_residuals(
     out: &mut [f64],
     res: &mut [f64],
 ) -> bool {
-    if res.len() != run.len() * residual_channels(spec) || res.is_empty() {
+    if !res.is_empty() && res.len() != run.len() * residual_channels(spec) {
         return false;
     }
-    atom_sums_and_residuals(spec, row, run, atom, out, res)
-}
-
-fn atom_sums_and_residuals(
-    spec: &CostSpec,
-    row: &[f64],
-    run: &RunRef,
-    atom: usize,
-    out: &mut [f64],
-    res: &mut [f64],
-) -> bool {
     let atom = atom.max(1);
     if out.len() != n_atoms(run.len(), atom) {
         return false;
