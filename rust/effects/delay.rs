@@ -9,18 +9,14 @@
 //! as the outer term `command_delay` for any `K`.
 
 use super::{check_range, Effect, Operating, Terms};
-use crate::discretize::split_delay;
+use crate::discretize::DelayLine;
 use crate::error::{AvllError, Result};
 use crate::model::{CommandKind, Linear};
 
 #[derive(Debug, Clone)]
 pub struct Delay {
     pub tau: f64,
-    i: usize,
-    f: f64,
-    n: usize,
-    mask: usize,
-    buf: Vec<f64>,
+    line: DelayLine<f64>,
 }
 
 impl Effect for Delay {
@@ -33,37 +29,17 @@ impl Effect for Delay {
         check_range("delay.tau", p[0], 0.0, 600.0)?;
         Ok(Self {
             tau: p[0],
-            i: 0,
-            f: 0.0,
-            n: 0,
-            mask: 0,
-            buf: Vec::new(),
+            line: DelayLine::default(),
         })
     }
 
     fn reset(&mut self, u_hist: f64, dt: f64) {
-        let (i, f) = split_delay(self.tau, dt);
-        self.i = i;
-        self.f = f;
-        self.n = 0;
-        let cap = (i + 2).next_power_of_two();
-        self.mask = cap - 1;
-        self.buf.clear();
-        self.buf.resize(cap, u_hist);
+        self.line.reset(self.tau, dt, u_hist);
     }
 
     #[inline(always)]
     fn command(&mut self, u: f64, _y: f64) -> f64 {
-        let n = self.n;
-        self.buf[n & self.mask] = u;
-        self.n += 1;
-        let u0 = self.buf[n.wrapping_sub(self.i) & self.mask];
-        if self.f > 0.0 {
-            let u1 = self.buf[n.wrapping_sub(self.i + 1) & self.mask];
-            (1.0 - self.f) * u0 + self.f * u1
-        } else {
-            u0
-        }
+        self.line.push(u)
     }
 
     fn linearize(&self, lin: &Linear, _op: &Operating) -> Result<Linear> {

@@ -17,18 +17,14 @@
 //! stays undelayed. Exact for any amplitude (a delay is linear).
 
 use super::{check_range, Effect, Level, Operating, UpperLin};
-use crate::discretize::split_delay;
+use crate::discretize::DelayLine;
 use crate::error::Result;
 use crate::model::CommandKind;
 
 #[derive(Debug, Clone)]
 pub struct Perception {
     pub tau: f64,
-    i: usize,
-    f: f64,
-    n: usize,
-    mask: usize,
-    buf: Vec<(f64, f64)>,
+    line: DelayLine<(f64, f64)>,
 }
 
 impl Effect for Perception {
@@ -42,44 +38,21 @@ impl Effect for Perception {
         check_range("perception.tau", p[0], 0.0, 60.0)?;
         Ok(Self {
             tau: p[0],
-            i: 0,
-            f: 0.0,
-            n: 0,
-            mask: 0,
-            buf: Vec::new(),
+            line: DelayLine::default(),
         })
     }
 
     fn reset(&mut self, _u_hist: f64, dt: f64) {
-        let (i, f) = split_delay(self.tau, dt);
-        self.i = i;
-        self.f = f;
-        self.n = 0;
-        let cap = (i + 2).next_power_of_two();
-        self.mask = cap - 1;
-        self.buf.clear();
-        self.buf.resize(cap, (0.0, 0.0));
+        self.line.reset(self.tau, dt, (0.0, 0.0));
     }
 
     #[inline(always)]
     fn perceive(&mut self, gap: f64, dv: f64) -> (f64, f64) {
-        let n = self.n;
-        if n == 0 {
+        if self.line.is_empty() {
             // The history: the first sample held.
-            self.buf.fill((gap, dv));
+            self.line.fill((gap, dv));
         }
-        self.buf[n & self.mask] = (gap, dv);
-        self.n += 1;
-        let (g0, v0) = self.buf[n.wrapping_sub(self.i) & self.mask];
-        if self.f > 0.0 {
-            let (g1, v1) = self.buf[n.wrapping_sub(self.i + 1) & self.mask];
-            (
-                (1.0 - self.f) * g0 + self.f * g1,
-                (1.0 - self.f) * v0 + self.f * v1,
-            )
-        } else {
-            (g0, v0)
-        }
+        self.line.push((gap, dv))
     }
 
     fn linearize_upper(&self, u: &UpperLin, _op: &Operating) -> Result<UpperLin> {

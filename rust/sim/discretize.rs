@@ -148,6 +148,78 @@ pub fn split_delay(td: f64, dt: f64) -> (usize, f64) {
     (i as usize, f)
 }
 
+/// A value a [`DelayLine`] can interpolate: `(1 - f) a + f b`.
+pub trait Lerp: Copy + Default {
+    fn lerp(a: Self, b: Self, f: f64) -> Self;
+}
+
+impl Lerp for f64 {
+    #[inline(always)]
+    fn lerp(a: f64, b: f64, f: f64) -> f64 {
+        (1.0 - f) * a + f * b
+    }
+}
+
+impl Lerp for (f64, f64) {
+    #[inline(always)]
+    fn lerp(a: Self, b: Self, f: f64) -> Self {
+        (f64::lerp(a.0, b.0, f), f64::lerp(a.1, b.1, f))
+    }
+}
+
+/// A fractional delay of a sampled signal by linear interpolation between its samples:
+/// with `tau/dt = i + f`, `x'[n] = (1 - f) x[n-i] + f x[n-i-1]` ([`split_delay`]), in a
+/// ring buffer of the last `i + 2` samples (a power of two). The history before the
+/// first sample is the value given to [`DelayLine::reset`].
+#[derive(Debug, Clone, Default)]
+pub struct DelayLine<T> {
+    i: usize,
+    f: f64,
+    n: usize,
+    mask: usize,
+    buf: Vec<T>,
+}
+
+impl<T: Lerp> DelayLine<T> {
+    /// Starts the line for delay `tau` at sample time `dt`, its history all `hist`.
+    pub fn reset(&mut self, tau: f64, dt: f64, hist: T) {
+        let (i, f) = split_delay(tau, dt);
+        (self.i, self.f, self.n) = (i, f, 0);
+        let cap = (i + 2).next_power_of_two();
+        self.mask = cap - 1;
+        self.buf.clear();
+        self.buf.resize(cap, hist);
+    }
+
+    /// Samples pushed since the reset.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Sets the whole history to `x` (e.g. the first sample held).
+    pub fn fill(&mut self, x: T) {
+        self.buf.fill(x);
+    }
+
+    /// Pushes sample `x[n]` and returns the delayed `x'[n]`.
+    #[inline(always)]
+    pub fn push(&mut self, x: T) -> T {
+        let n = self.n;
+        self.buf[n & self.mask] = x;
+        self.n += 1;
+        let x0 = self.buf[n.wrapping_sub(self.i) & self.mask];
+        if self.f > 0.0 {
+            T::lerp(x0, self.buf[n.wrapping_sub(self.i + 1) & self.mask], self.f)
+        } else {
+            x0
+        }
+    }
+}
+
 /// Discretizes `lin` for sample time `dt`, with the given integrators.
 /// `N` must equal `lin.order() + ints.count()`.
 pub fn discretize<const N: usize>(lin: &Linear, ints: Integrators, dt: f64) -> Result<Discrete<N>> {
