@@ -51,7 +51,7 @@
 //! agree).
 
 use super::{Linear, Terms, UpperLin};
-use crate::stability::interval::{Cx, DIv, Iv, Num};
+use crate::stability::interval::{sweep_positive, Cx, DIv, Iv, Num, Sweep};
 use crate::stability::poly::Poly;
 use crate::stability::{LOCAL_UNSTABLE, STABLE, STRING_UNSTABLE};
 use std::f64::consts::PI;
@@ -324,42 +324,11 @@ impl FollowerLoop {
     pub fn string(&self) -> Verdict {
         let (_, cn, rest) = self.den.cauchy();
         let ws = (1.01 * (rest + self.num.sum_abs()) / cn.abs()).max(1.0);
-        if self.g(Iv::point(0.0)).hi < 0.0 {
-            return Verdict::No;
+        match sweep_positive(ws, self.budget, |w| self.g(w), |_, _, _| false) {
+            Sweep::Positive => Verdict::Yes,
+            Sweep::Negative => Verdict::No,
+            Sweep::Undecided => Verdict::Undecided,
         }
-        let n0 = 64;
-        let w_lo = ws * 1e-6;
-        let mut edges = vec![0.0];
-        for i in 0..=n0 {
-            edges.push(w_lo * (ws / w_lo).powf(i as f64 / n0 as f64));
-        }
-        *edges.last_mut().unwrap() = ws;
-        for &w in &edges[1..] {
-            if self.g(Iv::point(w)).hi < 0.0 {
-                return Verdict::No;
-            }
-        }
-        let mut stack: Vec<(f64, f64)> = edges.windows(2).rev().map(|e| (e[0], e[1])).collect();
-        let mut evals = 0usize;
-        while let Some((lo, hi)) = stack.pop() {
-            evals += 1;
-            if evals > self.budget {
-                return Verdict::Undecided;
-            }
-            if self.g(Iv::new(lo, hi)).lo > 0.0 {
-                continue;
-            }
-            let m = 0.5 * (lo + hi);
-            if self.g(Iv::point(m)).hi < 0.0 {
-                return Verdict::No;
-            }
-            if m <= lo || m >= hi {
-                return Verdict::Undecided;
-            }
-            stack.push((m, hi));
-            stack.push((lo, m));
-        }
-        Verdict::Yes
     }
 
     /// The map code (0 locally unstable, 1 string unstable, 2 stable) and whether it is

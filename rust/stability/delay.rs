@@ -36,7 +36,7 @@
 //! differentiation in interval arithmetic), is positive; a point whose enclosure is
 //! negative is a certified witness of string instability; any other piece is halved. A sweep that exceeds its budget of pieces is undecided.
 
-use super::interval::{Cx, DIv, Iv, Num};
+use super::interval::{sweep_positive, Cx, DIv, Iv, Num, Sweep};
 use super::poly::Poly;
 use super::{roots, routh};
 use crate::error::{AvllError, Result};
@@ -239,57 +239,20 @@ impl DelayLoop {
             Some(w) => w,
             None => return Verdict::Undecided,
         };
-        // quick witnesses on a coarse log grid (exact sign where the enclosure is tight)
-        let g0 = self.g(kg, tg, kv, Iv::point(0.0));
-        if g0.hi < 0.0 {
-            return Verdict::Unstable;
-        }
-        let n0 = 64;
-        let mut edges = Vec::with_capacity(n0 + 2);
-        edges.push(0.0);
-        let w_lo = wc * 1e-6;
-        for i in 0..=n0 {
-            edges.push(w_lo * (wc / w_lo).powf(i as f64 / n0 as f64));
-        }
-        *edges.last_mut().unwrap() = wc;
-        for &w in &edges[1..] {
-            if self.g(kg, tg, kv, Iv::point(w)).hi < 0.0 {
-                return Verdict::Unstable;
-            }
-        }
-        let mut stack: Vec<(f64, f64)> = edges.windows(2).rev().map(|e| (e[0], e[1])).collect();
-        let mut evals = 0usize;
-        while let Some((lo, hi)) = stack.pop() {
-            evals += 1;
-            if evals > self.budget {
-                return Verdict::Undecided;
-            }
-            let piece = Iv::new(lo, hi);
-            let gi = self.g(kg, tg, kv, piece);
-            if gi.lo > 0.0 {
-                continue;
-            }
+        // mean-value form on a piece: g(ω) >= g(mid) − max|g'| |ω − mid| (converges
+        // quadratically near a positive minimum of g)
+        let refine = |lo: f64, hi: f64, gm: Iv| {
             let mid = 0.5 * (lo + hi);
-            let gm = self.g(kg, tg, kv, Iv::point(mid));
-            if gm.hi < 0.0 {
-                return Verdict::Unstable;
-            }
-            // mean-value form: g(ω) >= g(mid) − max|g'| |ω − mid| on the piece
-            // (converges quadratically near a positive minimum of g)
-            let d = self.g_d(kg, tg, kv, piece).d;
+            let d = self.g_d(kg, tg, kv, Iv::new(lo, hi)).d;
             let slope = d.lo.abs().max(d.hi.abs());
             let half = Iv::new(0.0, (hi - mid).max(mid - lo));
-            let bound = gm - Iv::point(slope) * half;
-            if bound.lo > 0.0 {
-                continue;
-            }
-            if mid <= lo || mid >= hi {
-                return Verdict::Undecided;
-            }
-            stack.push((mid, hi));
-            stack.push((lo, mid));
+            (gm - Iv::point(slope) * half).lo > 0.0
+        };
+        match sweep_positive(wc, self.budget, |w| self.g(kg, tg, kv, w), refine) {
+            Sweep::Positive => Verdict::Stable,
+            Sweep::Negative => Verdict::Unstable,
+            Sweep::Undecided => Verdict::Undecided,
         }
-        Verdict::Stable
     }
 
     /// `min (1 − |H(jω)|²)/ω² = min g(ω)/|D(jω)|²` over `n` log-spaced frequencies on

@@ -346,3 +346,69 @@ mod tests {
         assert!(x.lo <= 0.30000000000000004 && x.hi >= 0.3);
     }
 }
+
+/// How a certified sweep of `g(ω) > 0` ([`sweep_positive`]) ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sweep {
+    /// `g > 0` on the whole of `[0, w_cut]`.
+    Positive,
+    /// A point where `g < 0` for certain.
+    Negative,
+    /// Neither within the budget.
+    Undecided,
+}
+
+/// Certifies `g(ω) > 0` on `[0, w_cut]` from interval enclosures `g(piece)`: first
+/// `g(0)` and 65 log-spaced points from `1e-6 w_cut` to `w_cut` as witnesses of a
+/// negative value, then each piece between them bisected until its enclosure, or
+/// `refine(lo, hi, g(mid))` (a sharper bound the caller may have, e.g. a mean-value
+/// form), is positive; a midpoint where `g < 0` is a witness, more than `budget`
+/// pieces (or a piece too small to split) leave it undecided.
+pub fn sweep_positive(
+    w_cut: f64,
+    budget: usize,
+    g: impl Fn(Iv) -> Iv,
+    refine: impl Fn(f64, f64, Iv) -> bool,
+) -> Sweep {
+    if g(Iv::point(0.0)).hi < 0.0 {
+        return Sweep::Negative;
+    }
+    let n0 = 64;
+    let w_lo = w_cut * 1e-6;
+    let mut edges = Vec::with_capacity(n0 + 2);
+    edges.push(0.0);
+    for i in 0..=n0 {
+        edges.push(w_lo * (w_cut / w_lo).powf(i as f64 / n0 as f64));
+    }
+    if let Some(last) = edges.last_mut() {
+        *last = w_cut;
+    }
+    if edges[1..].iter().any(|&w| g(Iv::point(w)).hi < 0.0) {
+        return Sweep::Negative;
+    }
+    let mut stack: Vec<(f64, f64)> = edges.windows(2).rev().map(|e| (e[0], e[1])).collect();
+    let mut evals = 0usize;
+    while let Some((lo, hi)) = stack.pop() {
+        evals += 1;
+        if evals > budget {
+            return Sweep::Undecided;
+        }
+        if g(Iv::new(lo, hi)).lo > 0.0 {
+            continue;
+        }
+        let mid = 0.5 * (lo + hi);
+        let gm = g(Iv::point(mid));
+        if gm.hi < 0.0 {
+            return Sweep::Negative;
+        }
+        if refine(lo, hi, gm) {
+            continue;
+        }
+        if mid <= lo || mid >= hi {
+            return Sweep::Undecided;
+        }
+        stack.push((mid, hi));
+        stack.push((lo, mid));
+    }
+    Sweep::Positive
+}
