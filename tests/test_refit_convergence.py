@@ -29,16 +29,17 @@ def _refits(monkeypatch: pytest.MonkeyPatch, **opts: object) -> dict:
     return got
 
 
+@pytest.mark.parametrize("refit", ["lm", "simplex"])
 def test_refits_leave_the_optimum_and_reach_a_long_refits_values(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    d = _refits(monkeypatch)
+        monkeypatch: pytest.MonkeyPatch, refit: str) -> None:
+    d = _refits(monkeypatch, refit=refit)
     f, f0 = np.asarray(d["f"]), np.asarray(d["f_x0"])
     x = np.asarray(d["x"])
     assert np.all(f <= f0)
     assert np.sum(f < f0 * (1 - 1e-6)) >= 5, (f, f0)   # they move
     assert np.all(np.ptp(x, axis=0) > 0), x            # a spread in every parameter
-    long = _refits(monkeypatch, budget=20_000)
+    long = _refits(monkeypatch, budget=20_000, refit=refit)
     fl = np.asarray(long["f"])
-    # the default stops where a 20,000-evaluation refit stops, to 2e-5 of the cost
+    # the default budget stops where a 20,000-evaluation refit stops, to 2e-5 of the cost
     # (the resamples' gains on the optimum are 1e-4 to 1e-3 of it)
     assert np.all(np.abs(f - fl) <= 2e-5 * fl), (f, fl)
