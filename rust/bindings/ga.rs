@@ -504,14 +504,10 @@ fn refit_resamples<'py>(
     }
     let mut probs = Vec::with_capacity(n);
     let mut sizes = Vec::with_capacity(n);
+    let rs = runs.get();
+    let refs = rs.refs();
     for (k, sub) in problems.iter().enumerate() {
-        let mut uniq: Vec<usize> = sub.clone();
-        uniq.sort_unstable();
-        uniq.dedup();
-        let runs_m: Vec<(usize, f64)> = uniq
-            .iter()
-            .map(|&j| (j, sub.iter().filter(|&&q| q == j).count() as f64))
-            .collect();
+        let runs_m = guard(|| crate::optimize::calibrate::multiplicities(sub, refs.len(), k))?;
         let (b, _, w) = slice2(&format!("resample_weights[{k}]"), &resample_weights[k])?;
         sizes.push(b);
         probs.push(ResampleProblem {
@@ -528,8 +524,6 @@ fn refit_resamples<'py>(
         method,
         ..Default::default()
     };
-    let rs = runs.get();
-    let refs = rs.refs();
     let (out, by_user) = relay(py, threads, progress.as_ref(), n, |send, stop| {
         refit(&spec, &refs, &probs, &bounds, &opts, |k, done| {
             send(Msg::Resample {

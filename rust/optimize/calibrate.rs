@@ -271,7 +271,7 @@ pub struct Calibration {
 }
 
 /// Multiplicities of a subset: sorted unique indices with their counts.
-fn multiplicities(subset: &[usize], r: usize, problem: usize) -> Result<Vec<(usize, f64)>> {
+pub fn multiplicities(subset: &[usize], r: usize, problem: usize) -> Result<Vec<(usize, f64)>> {
     if subset.is_empty() {
         return Err(AvllError::new(
             format!("problems[{problem}]"),
