@@ -684,7 +684,7 @@ def validate_amplification(
 
 def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
                        duration: float = 300.0, starts: int = 2, threads: int = 0,
-                       refit: str = "simplex", **platoon: Any) -> dict[str, Any]:
+                       refit: str | None = None, **platoon: Any) -> dict[str, Any]:
     """Coverage on a known truth: for each seed a synthetic platoon
     (:func:`avll.synth_platoon.synth_platoon`, proposed lower levels, ``cars``
     followers, ``duration`` s, ``platoon`` further options), each follower calibrated
@@ -703,14 +703,14 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     the mean and median absolute error of the others, the median relative width
     (cars with an interval); and ``median_widening`` (the median factor by which
     the resampled deviations were widened, finite ones). ``refit``: how the resamples
-    are refit (:class:`avll.Intervals`)."""
+    are refit (:class:`avll.Intervals`; ``None`` its default)."""
     from .calibration import calibrate_many
     from .defaults import UPPER_NAMES
     from .studies.openacc import GMIN_MAX, WEIGHTS
     from .uncertainty import Intervals
 
     rows: list[dict[str, Any]] = []
-    opts = Intervals(n=n, refit=refit)
+    opts = Intervals(n=n) if refit is None else Intervals(n=n, refit=refit)
     for seed in seeds:
         sp = synth_platoon(cars, seed=int(seed), duration=duration,
                            models=platoon.pop("models", ("proposed",)), **platoon)
