@@ -525,6 +525,15 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
                  json.loads((GEN / "amplification.json").read_text(encoding="utf-8"))),
              note="the two amplification estimators against a known truth on synthetic "
                   "platoons (minutes)"),
+    Fragment("openacc-campaigns", "docs/_generated/openacc_campaigns.md",
+             lambda a: _numbers(_own("openacc_campaigns"), Path(a.data_root)),
+             ("docs/gen/openacc_campaigns.py", "python/avll/studies/openacc.py",
+              "python/avll/studies/openacc_select.py", "python/avll/uncertainty.py",
+              "python/avll/spectral.py", *_FIELD, *_LOOP), cheap=False, data=True,
+             sidecars=("docs/_generated/openacc_campaigns.json",),
+             rerender=lambda: body(_own("openacc_campaigns").render(
+                 json.loads((GEN / "openacc_campaigns.json").read_text(encoding="utf-8")))),
+             note="the OpenACC study on every shared campaign (hours)"),
     # ---- benchmarks (timings: never compared; their tables re-rendered from their JSON)
     Fragment("calibrate-bench", "docs/_generated/calibrate_bench.md",
              _in_place("bench_calibrate", ["--json", "docs/_generated/calibrate_bench.json",
