@@ -410,8 +410,8 @@ def _download(dataset: str, f: DatasetFile, url: str, folder: Path, *, bar: bool
     logger = pooch.get_logger()
     level = logger.level
     logger.setLevel(logging.WARNING)  # avll says what it downloads; pooch need not
-    downloader = pooch.HTTPDownloader(progressbar=bar, timeout=TIMEOUT) \
-        if url.lower().startswith(("http://", "https://")) else None
+    downloader = _HTTPDownload(bar) if url.lower().startswith(("http://", "https://")) \
+        else None
     try:
         pooch.retrieve(url, known_hash=f"sha256:{f.sha256}", fname=path.name,
                        path=path.parent, downloader=downloader, progressbar=bar)
@@ -434,6 +434,39 @@ def _download(dataset: str, f: DatasetFile, url: str, folder: Path, *, bar: bool
                             "written") from None
     finally:
         logger.setLevel(level)
+
+
+class _HTTPDownload:
+    """pooch's downloader interface (``(url, output_file, pooch)``) over one
+    ``requests`` session whose response is closed on every path: pooch's own
+    HTTPDownloader leaves the connection of a failed, truncated or interrupted transfer
+    open until the garbage collector finds it (a ResourceWarning at a random later
+    point)."""
+
+    def __init__(self, bar: bool) -> None:
+        self.bar = bar
+
+    def __call__(self, url: str, output_file: Any, _pooch: Any) -> None:
+        import requests
+
+        with requests.Session() as session, \
+                session.get(url, stream=True, timeout=TIMEOUT) as response, \
+                open(output_file, "w+b") as out:
+            response.raise_for_status()
+            progress = None
+            if self.bar:
+                from tqdm import tqdm
+
+                progress = tqdm(total=int(response.headers.get("content-length", 0)),
+                                ncols=79, unit="B", unit_scale=True, leave=True)
+            try:
+                for chunk in response.iter_content(chunk_size=1024):
+                    out.write(chunk)
+                    if progress is not None:
+                        progress.update(len(chunk))
+            finally:
+                if progress is not None:
+                    progress.close()
 
 
 def _reason(e: BaseException) -> str:

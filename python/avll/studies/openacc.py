@@ -1390,7 +1390,9 @@ def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
         _, amp = u.band_amplification(r.lead_v, r.dt, band)
         e[key] = _ci(amp, u.level)
         if e[key] is None:
-            e[f"{key}_reason"] = "every resampled closed loop is locally unstable"
+            bad = int(np.isnan(amp).sum())
+            e[f"{key}_reason"] = (f"{bad} of {amp.size} resampled closed loops are locally "
+                                  "unstable (an interval needs two stable ones)")
         elif np.isnan(amp).any():
             e[f"{key}_note"] = (f"{int(np.isnan(amp).sum())} of {amp.size} resampled closed "
                                 "loops are locally unstable and left out")
