@@ -63,6 +63,18 @@ def _keep(vs: dict[str, Any] | None) -> dict[str, Any] | None:
     return {k: vs.get(k) for k in keys}
 
 
+def _reason_kinds(acc: list[dict[str, Any]]) -> dict[str, int]:
+    """How many ACC cars lack an out-of-sample prediction, per kind of reason (the
+    reason's text before its details: the run's length, the car's name, ...)."""
+    kinds: dict[str, int] = {}
+    for c in acc:
+        if c["amplification_predicted_oos"] is None:
+            why = str(c.get("amplification_predicted_oos_reason"))
+            kind = why.split(":")[0].split(" (")[0].strip()
+            kinds[kind] = kinds.get(kind, 0) + 1
+    return dict(sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
 def campaign_numbers(label: str, path: Path, seed: int = SEED) -> dict[str, Any]:
     """One campaign's study (:data:`BUDGET`, main model only) and the numbers of the
     page; kept in ``out/openacc_campaigns/SLUG.numbers.json`` and reused by a later
@@ -74,6 +86,12 @@ def campaign_numbers(label: str, path: Path, seed: int = SEED) -> dict[str, Any]
         old = json.loads(cache.read_text(encoding="utf-8"))
         if old.get("settings") == settings:
             _log(f"{label}: reusing {cache} (commit {old.get('commit')})")
+            saved = OUT / f"{slug}.json"
+            if "no_prediction_reason_kinds" not in old and saved.exists():
+                # numbers kept before the reasons were counted: from the same study
+                cars = json.loads(saved.read_text(encoding="utf-8"))["cars"]
+                old["no_prediction_reason_kinds"] = _reason_kinds(
+                    [c for c in cars if c["group"] == "acc"])
             return dict(old)
     commit = head_commit()
     t0 = time.perf_counter()
@@ -102,6 +120,7 @@ def campaign_numbers(label: str, path: Path, seed: int = SEED) -> dict[str, Any]
         "no_prediction_reasons": sorted({str(c.get("amplification_predicted_oos_reason"))
                                          for c in acc
                                          if c["amplification_predicted_oos"] is None}),
+        "no_prediction_reason_kinds": _reason_kinds(acc),
         "final_oos": _keep(o["acc"]["oos_H_vs_h1"]),
         "in_sample": _keep(o["acc"]["in_sample_H_vs_h1"]),
         "base_oos": _keep(sel["acc"]["base_oos_H_vs_h1"]) if sel["enabled"] else None,
@@ -183,7 +202,9 @@ def render(numbers: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c in numbers["campaigns"]:
-        f, b, i = c["final_oos"] or {}, c["base_oos"] or {}, c["in_sample"] or {}
+        f, i = c["final_oos"] or {}, c["in_sample"] or {}
+        # without the selection the final model is the base model
+        b = c["base_oos"] or (f if not c["selection_enabled"] else {})
         acc = (", ".join(c["accepted"]) + f" ({c['accepted_cars']} cars)"
                if c["accepted"] else ("none" if c["selection_enabled"] else "not run"))
         lines.append(
@@ -200,8 +221,11 @@ def render(numbers: dict[str, Any]) -> str:
     for c in numbers["campaigns"]:
         missing = c["acc_cars"] - c["acc_cars_with_prediction"]
         if missing:
+            kinds = c.get("no_prediction_reason_kinds") or dict.fromkeys(
+                c["no_prediction_reasons"], None)
+            why = "; ".join(k if n is None else f"{n} x {k}" for k, n in kinds.items())
             lines.append(f"- {c['campaign']}: {missing} ACC car(s) without an out-of-sample "
-                         f"prediction ({'; '.join(c['no_prediction_reasons'])}).")
+                         f"prediction ({why}).")
         if not c["selection_enabled"]:
             lines.append(f"- {c['campaign']}: structure selection {c['selection_reason']}.")
     for f in numbers.get("failed", []):
