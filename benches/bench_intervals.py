@@ -10,7 +10,12 @@ since the machine is shared; and both CPU times of this process (every thread), 
 ratio the other users of a shared machine do not change.
 
     python benches/bench_intervals.py [--data /work/shared/data/openacc-zalazone]
-        [--threads 0] [--n 200] [--json OUT] [--out DIR]
+        [--threads 0] [--n 200] [--models proposed,first,second] [--no-structures]
+        [--json OUT] [--out DIR]
+
+``--models`` (the study's ``models``; default: the study's three) and
+``--no-structures`` (the study without its structure selection, which runs the same in
+both and takes hours here) narrow the study; the JSON says which was run.
 
 ``--out DIR`` also saves the study with intervals (its summary, tables and report:
 the out-of-sample predictions with their intervals, the bias and the shares inside
@@ -25,19 +30,28 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import avll
 from avll.studies.openacc import openacc_study
 
 
-def run(data: str, threads: int, n: int, out_dir: str | None = None) -> dict[str, object]:
+def run(data: str, threads: int, n: int, out_dir: str | None = None,
+        models: tuple[str, ...] | None = None, structures: bool = True
+        ) -> dict[str, object]:
     """Both timings, their ratio and the load around each."""
     out: dict[str, object] = {"data": data, "threads": threads, "cores": os.cpu_count(),
-                              "avll": avll.__version__}
+                              "avll": avll.__version__, "resamples": n,
+                              "models": list(models) if models else "the study's default",
+                              "structures": structures}
+    narrow: dict[str, Any] = {"structures": structures}
+    if models:
+        narrow["models"] = models
     for name, iv in (("without", False), ("with", avll.Intervals(n=n))):
         load0 = os.getloadavg()[0]
         t0, c0 = time.perf_counter(), time.process_time()
-        st = openacc_study(data, intervals=iv, threads=threads, figures=False)
+        st = openacc_study(data, intervals=iv, threads=threads, figures=False,
+                           **narrow)
         dt, cpu = time.perf_counter() - t0, time.process_time() - c0
         out[name] = {"seconds": round(dt, 1), "cpu_seconds": round(cpu, 1),
                      "load_before": round(load0, 2),
@@ -61,10 +75,14 @@ def main() -> None:
     ap.add_argument("--data", default="/work/shared/data/openacc-zalazone")
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--n", type=int, default=avll.Intervals().n)
+    ap.add_argument("--models", default=None, help="comma-separated lower-level models")
+    ap.add_argument("--no-structures", action="store_true",
+                    help="without the structure selection (in both runs)")
     ap.add_argument("--json", default=None)
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
-    res = run(a.data, a.threads, a.n, a.out)
+    models = tuple(m.strip() for m in a.models.split(",")) if a.models else None
+    res = run(a.data, a.threads, a.n, a.out, models, not a.no_structures)
     print(json.dumps(res, indent=1))
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=1, allow_nan=False) + "\n")
