@@ -685,8 +685,27 @@ def _with_uncertainty(prob: _Problem, subsets: Sequence[Sequence[int]],
 
     xs = [np.asarray(r.x, dtype=np.float64) for r in results]
     us = estimate(prob, subsets, xs, opts, seed=seed, threads=threads, progress=progress)
-    return [replace(r, uncertainty=u, intervals=u.intervals)
-            for r, u in zip(results, us, strict=True)]
+    out = []
+    for sub, r, u in zip(subsets, results, us, strict=True):
+        if r.x is not None and not np.array_equal(u.estimate, r.x):
+            r = _polished(prob, sub, r, u.estimate, u.cost_estimate, threads)
+        out.append(replace(r, uncertainty=u, intervals=u.intervals))
+    return out
+
+
+def _polished(prob: _Problem, sub: Sequence[int], res: CalibrationResult, x: np.ndarray,
+              cost: float, threads: int) -> CalibrationResult:
+    """``res`` moved to the row ``x`` of full-data cost ``cost`` (the uncertainty
+    stage's polish), its per-run costs recomputed there."""
+    uniq = sorted(set(int(i) for i in sub))
+    row = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[None, :])
+    per_run = np.asarray(_core.batch_cost(prob.cls.name, row, threads=check_threads(threads),
+                                          **prob.kw))[0]
+    raw = {"x": x, "f": cost, "f_ga": res.cost_ga, "generations": res.generations,
+           "evaluations": res.evaluations, "interrupted": res.interrupted, "stop": res.stop,
+           "history": res.history}
+    new = _result(prob, raw, [prob.rs.runs[i] for i in uniq], res.seed, per_run[uniq])
+    return replace(new, start_costs=res.start_costs)
 
 
 def _per_run(raw: Mapping[str, Any], n_runs: int) -> np.ndarray:

@@ -828,7 +828,7 @@ def bootstrap_distributed(
                 w = weights[k]
                 futs = [c.submit(_refit_task, model, runs_f, pkw, sub, x0[k], atoms[k],
                                  w[i : i + batch], int(o.budget), float(o.step), str(o.refit),
-                                 int(th), pure=False)
+                                 float(o.ftol), int(th), pure=False)
                         for i in range(0, w.shape[0], batch)]
                 parts = c.gather(futs)
                 merged: dict[str, Any] = {
@@ -848,7 +848,7 @@ def bootstrap_distributed(
 
 def _refit_task(model: Any, runs: list[Any], pkw: dict[str, Any], sub: list[int],
                 x0: np.ndarray, atoms: list[int], weights: np.ndarray, budget: int,
-                step: float, method: str, threads: int) -> dict[str, Any]:
+                step: float, method: str, ftol: float, threads: int) -> dict[str, Any]:
     """One task of the distributed refits: the resamples ``weights`` of one problem."""
     from .calibration import _problem
 
@@ -858,5 +858,5 @@ def _refit_task(model: Any, runs: list[Any], pkw: dict[str, Any], sub: list[int]
         problems=[sub], x0=np.array([[float(v) for v in np.ravel(x0)]], dtype=np.float64),
         atoms=[atoms],
         resample_weights=[np.array(weights, dtype=np.float64, order="C", copy=True)],
-        budget=budget, step=step, method=method,
+        budget=budget, step=step, method=method, ftol=ftol,
         threads=threads, **prob.kw)[0])

@@ -90,7 +90,7 @@ Seeded: one random stream per ``(seed, purpose, car)``.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -684,7 +684,8 @@ def validate_amplification(
 
 def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
                        duration: float = 300.0, starts: int = 2, threads: int = 0,
-                       refit: str | None = None, **platoon: Any) -> dict[str, Any]:
+                       options: Mapping[str, Any] | None = None, **platoon: Any
+                       ) -> dict[str, Any]:
     """Coverage on a known truth: for each seed a synthetic platoon
     (:func:`avll.synth_platoon.synth_platoon`, proposed lower levels, ``cars``
     followers, ``duration`` s, ``platoon`` further options), each follower calibrated
@@ -702,15 +703,16 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     closed loop locally unstable, is not within), ``no_estimate`` (their number),
     the mean and median absolute error of the others, the median relative width
     (cars with an interval); and ``median_widening`` (the median factor by which
-    the resampled deviations were widened, finite ones). ``refit``: how the resamples
-    are refit (:class:`avll.Intervals`; ``None`` its default)."""
+    the resampled deviations were widened, finite ones). ``options``: further fields
+    of the :class:`avll.Intervals` (e.g. ``refit``, ``steps``; ``None``: the
+    defaults)."""
     from .calibration import calibrate_many
     from .defaults import UPPER_NAMES
     from .studies.openacc import GMIN_MAX, WEIGHTS
     from .uncertainty import Intervals
 
     rows: list[dict[str, Any]] = []
-    opts = Intervals(n=n) if refit is None else Intervals(n=n, refit=refit)
+    opts = Intervals(n=n, **dict(options or {}))
     for seed in seeds:
         sp = synth_platoon(cars, seed=int(seed), duration=duration,
                            models=platoon.pop("models", ("proposed",)), **platoon)
@@ -746,7 +748,9 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
                                             "rel_width": float((rhi - rlo) / truth)}}
             rows.append(row)
     summary: dict[str, Any] = {"cars": len(rows), "seeds": [int(s) for s in seeds],
-                               "resamples": int(n), "level": opts.level}
+                               "resamples": int(n), "level": opts.level,
+                               "refit": opts.refit, "polish": bool(opts.polish),
+                               "ftol": float(opts.ftol)}
     wid = [r["widening"] for r in rows if math.isfinite(r["widening"])]
     summary["median_widening"] = float(np.median(wid)) if wid else None
     for key in ("amplification", "time_gap_effective"):

@@ -26,6 +26,14 @@ equations, not on the residuals); the largest is used, not below :data:`MIN_BLOC
 seconds (a floor: below a few seconds the lower level's own response correlates the
 errors) and not above a third of the shortest run (at least three blocks per run).
 
+**Polish.** The GA's optimum is first refit on the full data by the same local search
+(``Intervals(polish=True)``, the default): the resamples must start from a local
+minimum of the full-data cost, or their refits travel from one side of it to their
+own minima (which widens the intervals and, near a stability edge, carries them
+across it). The calibration's estimate and cost become the polished ones (the GA's
+are kept in :attr:`Uncertainty.cost_given`), and the score series and the resamples
+start there.
+
 **Refits.** Each resample is refit in the GA's unit coordinates (log scale for the
 positive coefficients), warm-started from the full-data optimum, by a bounded
 Levenberg-Marquardt iteration on its weighted residuals (``Intervals(refit="lm")``, the
@@ -131,12 +139,16 @@ class Intervals:
     ``seed`` of the multiplicities (``None``: the calibration's); ``correction``
     ``"dof"`` (the resampled deviations widened for the parameters fitted on few
     effective blocks, :func:`small_sample_scale`) or ``"none"`` (the plain percentile
-    bootstrap, known to be too narrow here); ``refit`` how each resample is refit from
-    the full-data optimum: ``"lm"`` (the default: bounded Levenberg-Marquardt on the
-    resample's weighted residuals, Broyden updates of the Jacobian between
-    finite-difference ones) or ``"simplex"`` (the GA's bounded Nelder-Mead); the two
-    reach the same minima, the first in a fraction of the rollouts (compared in
-    ``docs/guide/intervals.md``).
+    bootstrap, known to be too narrow here); ``polish`` refits the GA's optimum on the
+    full data first, with the resamples' local search, so that they start from a local
+    minimum (the calibration then reports the polished estimate); ``ftol`` stops a refit
+    (and the polish) when its last step gained at most that share of its cost;
+    ``refit`` how each
+    resample is refit from the full-data optimum: ``"lm"`` (the default: bounded
+    Levenberg-Marquardt on the resample's weighted residuals, Broyden updates of the
+    Jacobian between finite-difference ones) or ``"simplex"`` (the GA's bounded
+    Nelder-Mead); the two reach the same minima, the first in a fraction of the
+    rollouts (compared in ``docs/guide/intervals.md``).
     """
 
     n: int = 200
@@ -148,6 +160,8 @@ class Intervals:
     seed: int | None = None
     correction: str = "dof"
     refit: str = "lm"
+    polish: bool = True
+    ftol: float = 1e-9
 
     def __post_init__(self) -> None:
         check_int(self.n, "n", min=2)
@@ -168,6 +182,11 @@ class Intervals:
             raise ValueError(f"refit: must be one of {', '.join(REFITS)}, got "
                              f"{self.refit!r}")
         check_int(self.budget, "budget", min=0)
+        if not (isinstance(self.ftol, (int, float)) and not isinstance(self.ftol, bool)
+                and 0 <= self.ftol < 1):
+            raise ValueError(f"ftol: must be in [0, 1), got {self.ftol!r}")
+        if not isinstance(self.polish, bool):
+            raise TypeError(f"polish: must be True or False, got {self.polish!r}")
         if not (isinstance(self.step, (int, float)) and 0 < self.step <= 0.5):
             raise ValueError(f"step: must be in (0, 0.5], got {self.step!r}")
         if self.seed is not None:
@@ -357,7 +376,10 @@ class Uncertainty:
     samples when computed (closed loop), ``string_certified`` whether each code is
     proven (False: the test could not decide -- a loop on a boundary or over its
     budget -- and the code is 0 or 1, never 2) and ``string_test`` the test used
-    (:data:`STRING_TEST_EXACT` or :data:`STRING_TEST_CERTIFIED`)."""
+    (:data:`STRING_TEST_EXACT` or :data:`STRING_TEST_CERTIFIED`). ``cost_given`` is the
+    full-data cost at the optimum the stage was given (the GA's), ``cost_estimate``
+    the one at ``estimate`` (lower when the polish moved it) and
+    ``polish_evaluations`` the polish's rollouts."""
 
     model: str
     effects: tuple[str, ...]
@@ -386,6 +408,9 @@ class Uncertainty:
     widening: float = 1.0
     blocks: float = math.nan
     fitted: int = 0
+    cost_given: float = math.nan
+    cost_estimate: float = math.nan
+    polish_evaluations: int = 0
 
     # -- intervals --------------------------------------------------------------
     def _q(self, v: np.ndarray) -> tuple[float, float]:
@@ -645,6 +670,9 @@ class Uncertainty:
                  f", atoms {self.atom_s:.3g} s){' INTERRUPTED' if self.interrupted else ''}",
                  f"    deviations widened x{self.widening:.3g} ({self.blocks:.3g} effective "
                  f"blocks, {self.fitted} fitted parameters)",
+                 f"    estimate: cost {self.cost_estimate:.6g}"
+                 + (f" (polished from {self.cost_given:.6g} in {self.polish_evaluations} "
+                    f"rollouts)" if self.cost_estimate < self.cost_given else ""),
                  f"[[Parameters]] (estimate, {pct} interval, verdict)"]
         w = max((len(n) for n in (*self.names, *self.combinations)), default=4) + 1
         for j, n in enumerate(self.names):
@@ -695,6 +723,8 @@ class Uncertainty:
             "method": self.method,
             "block_s": float(self.block_s),
             "level": float(self.level),
+            "cost_given": _finite_or_none(self.cost_given),
+            "cost_estimate": _finite_or_none(self.cost_estimate),
         }
 
     def to_dataset(self, **coords: Any) -> Any:
@@ -783,6 +813,40 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
 # ---------------------------------------------------------------------------
 # The stage itself (called by avll.calibrate / calibrate_many)
 # ---------------------------------------------------------------------------
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def _polish(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray, opts: Intervals,
+            threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+    """Each problem's optimum refit on its full data (one resample of unit weights, the
+    refits' local search): the starts (kept where the refit did not lower the cost),
+    their full-data costs, the costs at the given optima, the rollouts, and whether a
+    Ctrl-C stopped it."""
+    uniq = [sorted(set(int(i) for i in s)) for s in subsets]
+    raws = _core.refit_resamples(
+        prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper, scale=prob.scale,
+        problems=[[int(i) for i in s] for s in subsets], x0=x0,
+        atoms=[[len(prob.rs.runs[i]) for i in u] for u in uniq],
+        resample_weights=[np.ones((1, len(u))) for u in uniq], budget=int(opts.budget),
+        step=float(opts.step), ftol=float(opts.ftol), method=opts.refit,
+        threads=int(threads), **prob.kw)
+    x = x0.copy()
+    f = np.full(len(subsets), np.nan)
+    given = np.full(len(subsets), np.nan)
+    evals = np.zeros(len(subsets), dtype=np.int64)
+    for k, raw in enumerate(raws):
+        given[k] = float(raw["f_full"])
+        f[k] = given[k]
+        if bool(np.asarray(raw["done"])[0]):
+            fk = float(np.asarray(raw["f"])[0])
+            evals[k] = int(np.asarray(raw["evaluations"])[0])
+            if math.isfinite(fk) and fk < given[k]:
+                x[k] = np.asarray(raw["x"], dtype=np.float64)[0]
+                f[k] = fk
+    return x, f, given, evals, any(bool(r["interrupted"]) for r in raws)
 
 
 def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: int,
@@ -940,7 +1004,9 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
              ) -> list[Uncertainty]:
     """The uncertainty stage for the problems ``subsets`` (run positions, repeats
     count) of the calibration problem ``prob`` with full-data optima ``x0s``: one
-    :class:`Uncertainty` per problem. Used by :func:`avll.calibrate`. ``refit``
+    :class:`Uncertainty` per problem, each centred on its polished optimum
+    (:attr:`Intervals.polish`; ``Uncertainty.estimate``). Used by
+    :func:`avll.calibrate`. ``refit``
     replaces the refits in this process: ``refit(subsets, x0, atoms, weights, opts,
     threads)`` returns what :func:`avll._core.refit_resamples` returns for the same
     multiplicities (drawn here), e.g. as ``dask.distributed`` tasks
@@ -948,6 +1014,14 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
     threads = check_threads(threads)
     seed = check_seed(seed if opts.seed is None else opts.seed)
     x0 = np.ascontiguousarray(np.vstack([np.asarray(x, dtype=np.float64) for x in x0s]))
+    n_p = len(subsets)
+    f_est = f_given = np.full(n_p, np.nan)
+    p_evals = np.zeros(n_p, dtype=np.int64)
+    if opts.polish:
+        x0, f_est, f_given, p_evals, stopped = _polish(prob, subsets, x0, opts, threads)
+        if stopped:
+            _sigint.clear()
+            return [_stopped(prob, s, x0[k], opts, f_given[k]) for k, s in enumerate(subsets)]
     plans = [_plan(prob, s, x0[k], opts, seed, k, threads) for k, s in enumerate(subsets)]
     bar: Any = None
     if callable(progress):
@@ -968,7 +1042,8 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
                 prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
                 scale=prob.scale, problems=[[int(i) for i in s] for s in subsets], x0=x0,
                 atoms=[p[1] for p in plans], resample_weights=[p[2] for p in plans],
-                budget=int(opts.budget), step=float(opts.step), method=opts.refit,
+                budget=int(opts.budget), step=float(opts.step), ftol=float(opts.ftol),
+                method=opts.refit,
                 progress=cb if (callable(progress) or bar.mode != "none") else None,
                 threads=int(threads), **prob.kw)
         else:
@@ -1020,7 +1095,10 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             interrupted=not bool(ran.all()),
             evaluations=int(np.sum(np.asarray(raw["evaluations"])[ran])),
             rollouts=int(raw["rollouts"]), refits=refits, widening=float(fac),
-            blocks=blocks, fitted=int(fitted))
+            blocks=blocks, fitted=int(fitted),
+            cost_given=float(f_given[k] if opts.polish else raw["f_full"]),
+            cost_estimate=float(f_est[k] if opts.polish else raw["f_full"]),
+            polish_evaluations=int(p_evals[k]))
         if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
             u = u.with_combinations(time_gap_effective=u.time_gap_effective())
         if prob.closed_loop and math.isfinite(fac):
@@ -1038,3 +1116,19 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         out.append(u)
     return out
 
+
+def _stopped(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals,
+             cost: float) -> Uncertainty:
+    """The uncertainty of a problem whose polish a Ctrl-C stopped: no resample refit."""
+    d = len(prob.names)
+    bounds = {n: (lo, hi, sc) for n, lo, hi, sc in
+              zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)}
+    run0 = prob.rs.runs[int(sub[0])]
+    up0 = {n: float(v[0]) for n, v in _upper_columns(prob, run0, x0[None, :]).items()}
+    return Uncertainty(
+        model=prob.cls.name, effects=tuple(prob.effects), names=tuple(prob.names),
+        estimate=x0.copy(), samples=np.empty((0, d)), costs=np.empty(0),
+        level=float(opts.level), method=opts.method, block_s=math.nan, atom_s=math.nan,
+        bounds=bounds, upper={n: np.empty(0) for n in up0}, upper_estimate=up0,
+        mean_speed=None, interrupted=True, refits=np.empty((0, d)), cost_given=cost,
+        cost_estimate=cost)
