@@ -27,12 +27,14 @@ seconds (a floor: below a few seconds the lower level's own response correlates 
 errors) and not above a third of the shortest run (at least three blocks per run).
 
 **Polish.** The GA's optimum is first refit on the full data by the same local search
-(``Intervals(polish=True)``, the default): the resamples must start from a local
+(``Intervals(polish=True)``, the default): the resamples should start from a local
 minimum of the full-data cost, or their refits travel from one side of it to their
-own minima (which widens the intervals and, near a stability edge, carries them
-across it). The calibration's estimate and cost become the polished ones (the GA's
+own minima. The calibration's estimate and cost become the polished ones (the GA's
 are kept in :attr:`Uncertainty.cost_given`), and the score series and the resamples
-start there.
+start there. In closed loop a polish that would carry a locally stable optimum across
+the edge of local stability (exact test, true delay) is not taken: the car followed
+its predecessor through the record, and a cost that prefers a slowly diverging loop
+fits the record's length, not the car.
 
 **Refits.** Each resample is refit in the GA's unit coordinates (log scale for the
 positive coefficients), warm-started from the full-data optimum, by a bounded
@@ -835,6 +837,7 @@ def _polish(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray, opts: I
         threads=int(threads), **prob.kw)
     x = x0.copy()
     f = np.full(len(subsets), np.nan)
+    codes = _closed_loop_codes(prob, subsets, x0, threads) if prob.closed_loop else None
     given = np.full(len(subsets), np.nan)
     evals = np.zeros(len(subsets), dtype=np.int64)
     for k, raw in enumerate(raws):
@@ -846,7 +849,39 @@ def _polish(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray, opts: I
             if math.isfinite(fk) and fk < given[k]:
                 x[k] = np.asarray(raw["x"], dtype=np.float64)[0]
                 f[k] = fk
+    if codes is not None:
+        # The polish stays on the given optimum's side of the edge of local stability:
+        # a car that followed its predecessor for the whole record is locally stable,
+        # and a polish that crosses the edge fits the record's length, not the car.
+        moved = [k for k in range(len(subsets)) if codes[k] != 0 and f[k] < given[k]]
+        if moved:
+            after = _closed_loop_codes(prob, [subsets[k] for k in moved], x[moved], threads)
+            for k, c in zip(moved, after, strict=True):
+                if c == 0:
+                    x[k], f[k] = x0[k], given[k]
     return x, f, given, evals, any(bool(r["interrupted"]) for r in raws)
+
+
+def _closed_loop_codes(prob: Any, subsets: Sequence[Sequence[int]], x: np.ndarray,
+                       threads: int) -> list[int]:
+    """The exact-delay code of each problem's row (its first run's upper level, the
+    free gains from the row; linearised at the problem's mean speed)."""
+    out = []
+    for k, sub in enumerate(subsets):
+        runs = [prob.rs.runs[int(i)] for i in sorted(set(int(i) for i in sub))]
+        up = _upper_columns(prob, runs[0], x[k][None, :])
+        vs = [r.v for r in runs if r.v is not None]
+        vbar = float(np.mean(np.concatenate(vs))) if vs else None
+        c, _ = _exact_codes(prob.cls.name, _model_class(prob.cls.name), x[k][None, :], up,
+                            threads, prob.effects, vbar)
+        out.append(int(c[0]))
+    return out
+
+
+def _model_class(name: str) -> Any:
+    from .models import model_class
+
+    return model_class(name)
 
 
 def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: int,
