@@ -704,8 +704,8 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     the mean and median absolute error of the others, the median relative width
     (cars with an interval); and ``median_widening`` (the median factor by which
     the resampled deviations were widened, finite ones). ``options``: further fields
-    of the :class:`avll.Intervals` (e.g. ``refit``, ``steps``; ``None``: the
-    defaults)."""
+    of the :class:`avll.Intervals` (e.g. ``refit``, ``ftol``, ``polish``; ``None``:
+    the defaults)."""
     from .calibration import calibrate_many
     from .defaults import UPPER_NAMES
     from .studies.openacc import GMIN_MAX, WEIGHTS

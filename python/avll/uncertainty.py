@@ -144,11 +144,10 @@ class Intervals:
     bootstrap, known to be too narrow here); ``polish`` refits the GA's optimum on the
     full data first, with the resamples' local search, so that they start from a local
     minimum (the calibration then reports the polished estimate); ``ftol`` stops a refit
-    (and the polish) when its last step gained at most that share of its cost;
-    ``refit`` how each
-    resample is refit from the full-data optimum: ``"lm"`` (the default: bounded
-    Levenberg-Marquardt on the resample's weighted residuals, Broyden updates of the
-    Jacobian between finite-difference ones) or ``"simplex"`` (the GA's bounded
+    (and the polish) when its last step gained at most that share of its cost; ``refit``
+    how each resample is refit from the full-data optimum: ``"lm"`` (the default:
+    bounded Levenberg-Marquardt on the resample's weighted residuals, Broyden updates
+    of the Jacobian between finite-difference ones) or ``"simplex"`` (the GA's bounded
     Nelder-Mead); the two reach the same minima, the first in a fraction of the
     rollouts (compared in ``docs/guide/intervals.md``).
     """
@@ -837,7 +836,6 @@ def _polish(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray, opts: I
         threads=int(threads), **prob.kw)
     x = x0.copy()
     f = np.full(len(subsets), np.nan)
-    codes = _closed_loop_codes(prob, subsets, x0, threads) if prob.closed_loop else None
     given = np.full(len(subsets), np.nan)
     evals = np.zeros(len(subsets), dtype=np.int64)
     for k, raw in enumerate(raws):
@@ -849,16 +847,17 @@ def _polish(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray, opts: I
             if math.isfinite(fk) and fk < given[k]:
                 x[k] = np.asarray(raw["x"], dtype=np.float64)[0]
                 f[k] = fk
-    if codes is not None:
+    moved = [k for k in range(len(subsets)) if f[k] < given[k]]
+    if prob.closed_loop and moved:
         # The polish stays on the given optimum's side of the edge of local stability:
         # a car that followed its predecessor for the whole record is locally stable,
         # and a polish that crosses the edge fits the record's length, not the car.
-        moved = [k for k in range(len(subsets)) if codes[k] != 0 and f[k] < given[k]]
-        if moved:
-            after = _closed_loop_codes(prob, [subsets[k] for k in moved], x[moved], threads)
-            for k, c in zip(moved, after, strict=True):
-                if c == 0:
-                    x[k], f[k] = x0[k], given[k]
+        sub = [subsets[k] for k in moved]
+        before = _closed_loop_codes(prob, sub, x0[moved], threads)
+        after = _closed_loop_codes(prob, sub, x[moved], threads)
+        for k, b, a in zip(moved, before, after, strict=True):
+            if b != 0 and a == 0:
+                x[k], f[k] = x0[k], given[k]
     return x, f, given, evals, any(bool(r["interrupted"]) for r in raws)
 
 
@@ -866,22 +865,18 @@ def _closed_loop_codes(prob: Any, subsets: Sequence[Sequence[int]], x: np.ndarra
                        threads: int) -> list[int]:
     """The exact-delay code of each problem's row (its first run's upper level, the
     free gains from the row; linearised at the problem's mean speed)."""
+    from .models import model_class
+
     out = []
     for k, sub in enumerate(subsets):
         runs = [prob.rs.runs[int(i)] for i in sorted(set(int(i) for i in sub))]
         up = _upper_columns(prob, runs[0], x[k][None, :])
         vs = [r.v for r in runs if r.v is not None]
         vbar = float(np.mean(np.concatenate(vs))) if vs else None
-        c, _ = _exact_codes(prob.cls.name, _model_class(prob.cls.name), x[k][None, :], up,
+        c, _ = _exact_codes(prob.cls.name, model_class(prob.cls.name), x[k][None, :], up,
                             threads, prob.effects, vbar)
         out.append(int(c[0]))
     return out
-
-
-def _model_class(name: str) -> Any:
-    from .models import model_class
-
-    return model_class(name)
 
 
 def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: int,
