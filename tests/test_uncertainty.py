@@ -244,6 +244,38 @@ def test_the_estimate_is_polished_before_resampling(platoon) -> None:  # type: i
     assert s8.cost == ga8.cost and u8.cost_estimate == u8.cost_given
 
 
+def test_ctrl_c_during_the_polish_returns_the_calibration_without_resamples(
+        platoon, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A Ctrl-C in the polish (the first refit call) stops the stage: the GA's fit is
+    returned, its uncertainty interrupted, with no resample and no further refit."""
+    import avll.uncertainty as U
+
+    calls = []
+    real = U._core.refit_resamples
+
+    def stopped(*a, **k):  # type: ignore[no-untyped-def]
+        calls.append(k["resample_weights"][0].shape)
+        out = real(*a, **k)
+        for r in out:  # as a stop before the refit ran returns it
+            r["interrupted"] = True
+            r["done"][:] = False
+            r["x"][:] = np.nan
+            r["f"][:] = np.nan
+        return out
+
+    monkeypatch.setattr(U._core, "refit_resamples", stopped)
+    kw = dict(seed=3, starts=1, max_generations=2, **CL)
+    r = avll.calibrate("proposed", platoon.runs[:1], intervals=Intervals(n=8), **kw)
+    monkeypatch.undo()
+    plain = avll.calibrate("proposed", platoon.runs[:1], **kw)
+    u = r.uncertainty
+    assert calls == [(1, 1)]  # the polish only, no resample refit
+    assert u.interrupted and u.samples.shape == (0, len(u.names))
+    np.testing.assert_array_equal(r.x, plain.x)
+    assert r.cost == plain.cost and u.cost_given == u.cost_estimate
+    assert all(math.isnan(lo) and math.isnan(hi) for lo, hi in r.intervals.values())
+
+
 def test_intervals_are_seeded(platoon) -> None:  # type: ignore[no-untyped-def]
     kw = dict(seed=7, starts=1, max_generations=60, **CL)
     a = avll.calibrate("proposed", platoon.runs[:1], intervals=Intervals(n=12), threads=1, **kw)
