@@ -122,10 +122,14 @@ def test_out_of_sample_off_says_why() -> None:
 def test_oos_prediction_matches_the_truth(seed: int, n_cars: int, gens: int) -> None:
     """Generator structure = the model's (proposed lower level + constant-time-gap
     law): the held-out prediction of each file's band gain and of Tg + Gmin/v̄ is
-    within 10 % of that file's truth for most cars (small GA budget in the quick case)."""
+    within 10 % of that file's truth for most cars (small GA budget in the quick case).
+    The structure selection is off: it is 90 % of the study's time here (101 s of 111 s
+    in the quick case) and is tested on its own, with nothing and with something
+    hidden (``tests/test_openacc_select.py``, ``tests/test_synth_hidden.py``)."""
     runs, truth = _campaign(seed, 3, n_cars, 300.0)
     s = openacc_study(runs, models=("proposed",), max_generations=gens, starts=1,
-                      n_boot=200, figures=False, seed=5, intervals=False).summary
+                      n_boot=200, figures=False, seed=5, intervals=False,
+                      structures=False).summary
     err_a, err_tg = [], []
     for c in s["cars"]:
         tr = truth[c["run_id"]]
