@@ -224,6 +224,12 @@ class _Problem:
         """The runs of the problem (``avll.maps`` reads them)."""
         return list(self.rs.runs)
 
+    @property
+    def box(self) -> dict[str, tuple[float, float, str]]:
+        """The search box: name -> (lo, hi, scale)."""
+        return {n: (lo, hi, sc) for n, lo, hi, sc in
+                zip(self.names, self.lower, self.upper, self.scale, strict=True)}
+
 
 class _Packs:
     """Run sets packed once (one :class:`avll.RunSet` per list of runs) and reused for
@@ -473,10 +479,7 @@ def _result(
         history=np.asarray(raw["history"]),
         cost_ga=float(raw["f_ga"]),
         seed=int(seed),
-        bounds={
-            n: (lo, hi, s)
-            for n, lo, hi, s in zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)
-        },
+        bounds=prob.box,
         upper=upper,
         at_bound=at_bound,
         with_effects=with_effects,

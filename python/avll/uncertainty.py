@@ -816,12 +816,6 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
 # ---------------------------------------------------------------------------
 
 
-def _bounds(prob: Any) -> dict[str, tuple[float, float, str]]:
-    """The search box of the calibration problem: name -> (lo, hi, scale)."""
-    return {n: (lo, hi, sc) for n, lo, hi, sc in
-            zip(prob.names, prob.lower, prob.upper, prob.scale, strict=True)}
-
-
 def _finite_or_none(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
@@ -1102,7 +1096,7 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         keep = np.isfinite(costs)
         xs, costs = xs[keep], costs[keep]
         runs = [prob.rs.runs[i] for i in plan[0]]
-        bounds = _bounds(prob)
+        bounds = prob.box
         # effective independent pieces: blocks of the record, or whole runs
         blocks = (float(len(runs)) if opts.method == "runs" else
                   float(sum(len(r) * float(r.dt) for r in runs) / plan[3]))
@@ -1156,7 +1150,7 @@ def _stopped(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals,
              cost: float) -> Uncertainty:
     """The uncertainty of a problem whose polish a Ctrl-C stopped: no resample refit."""
     d = len(prob.names)
-    bounds = _bounds(prob)
+    bounds = prob.box
     run0 = prob.rs.runs[int(sub[0])]
     up0 = {n: float(v[0]) for n, v in _upper_columns(prob, run0, x0[None, :]).items()}
     return Uncertainty(
