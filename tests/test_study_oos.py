@@ -77,22 +77,16 @@ def test_keys_present_or_null_with_reason() -> None:
         # the out-of-sample model's own resamples (blocks of the other file)
         lo, hi = c["time_gap_effective_oos_ci"]
         assert lo <= hi
-        if c["amplification_predicted_oos"] is not None \
-                and c["amplification_predicted_oos_ci"] is None:
-            # a point estimate at the edge of local stability (3 generations, a 200 s
-            # record): the full-data cost's minimum lies across the edge (the polish
-            # does not take it) and most resamples' minima too
-            why = c["amplification_predicted_oos_ci_reason"]
-            n_bad, n_all = (int(w) for w in why.split(" resampled")[0].split(" of "))
-            assert n_bad >= n_all - 1 and "locally unstable" in why, why
+        if c["amplification_predicted_oos"] is not None:
+            # a locally unstable loop costs inf: the refits stay on the stable side
+            assert c["amplification_predicted_oos_ci"] is not None, \
+                c["amplification_predicted_oos_ci_reason"]
         c2 = by[(f, "car2")]
         assert c2["oos_files"] == [] and c2["amplification_predicted_oos"] is None
         assert "no other file of the same setting" in c2["amplification_predicted_oos_reason"]
         assert c2["time_gap_effective_oos"] is None
         assert c2["time_gap_effective_oos_ci"] is None
         assert "no other file" in c2["time_gap_effective_oos_ci_reason"]
-    assert any(by[(f, "car1")]["amplification_predicted_oos_ci"] is not None
-               for f in ("f0.csv", "f1.csv"))
     oos = s["out_of_sample"]
     assert oos["cars_with_prediction"] + oos["cars_without_other_file"] == 4
     assert oos["cars_without_other_file"] == 2

@@ -197,6 +197,23 @@ impl CostSpec {
         Some((lin, effs, up))
     }
 
+    /// [`CostSpec::prepare`] for a cost: `None` also for a closed loop without effects
+    /// that is locally unstable (exact test with the true delay,
+    /// [`crate::stability::delay::DelayLoop::local`]): the car followed its
+    /// predecessor through the record, and a slowly diverging loop that fits a finite
+    /// record is no description of it. Undecided loops keep their cost. With effects
+    /// the rollout alone decides (their loops are tested in `avll.effect_stability`).
+    fn prepare_cost(&self, row: &[f64], run: &RunRef) -> Option<(Linear, Vec<AnyEffect>, Upper)> {
+        let (lin, effs, up) = self.prepare(row, run)?;
+        if self.closed_loop && effs.is_empty() {
+            let dl = crate::stability::delay::DelayLoop::new(&lin).ok()?;
+            if dl.local(up.kg, up.tg, up.kv) == Some(false) {
+                return None;
+            }
+        }
+        Some((lin, effs, up))
+    }
+
     fn integrators(&self) -> Integrators {
         if self.accel_only() {
             Integrators::None
@@ -227,7 +244,7 @@ fn with_effects<'a>(
 /// samples; `inf` for no bound). An unabandoned value does not depend on `limit`.
 /// Assumes `spec.validate(runs)` passed.
 pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef, limit: f64) -> f64 {
-    let Some((lin, effs, up)) = spec.prepare(row, run) else {
+    let Some((lin, effs, up)) = spec.prepare_cost(row, run) else {
         return f64::INFINITY;
     };
     let modal = modal_ok(&effs);
@@ -677,7 +694,7 @@ pub fn lane_plants(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<Lan
     }
     let mut out = Vec::with_capacity(LANES);
     for (k, row) in rows.iter().enumerate() {
-        let Some((lin, _, _)) = spec.prepare(row, run) else {
+        let Some((lin, _, _)) = spec.prepare_cost(row, run) else {
             continue;
         };
         if lin.order() != 2 {
@@ -1148,7 +1165,7 @@ pub fn run_residuals(
         return false;
     }
     out.iter_mut().for_each(|o| *o = 0.0);
-    let Some((lin, effs, up)) = spec.prepare(row, run) else {
+    let Some((lin, effs, up)) = spec.prepare_cost(row, run) else {
         return false;
     };
     let modal = modal_ok(&effs);

@@ -328,3 +328,54 @@ fn small_signal_forms_hold_in_the_time_domain() {
     }
     assert!(moved >= 4, "the structures must change |H| ({moved} did)");
 }
+
+#[test]
+fn a_locally_unstable_closed_loop_costs_inf_though_its_record_is_finite() {
+    use super::cost::{run_atom_sums, run_cost};
+    use crate::stability::delay::DelayLoop;
+    let n = 200; // 10 s: too short for the slow divergence to show in the rollout
+    let (lx, lv) = leader(n, 15.0, 1.0, 0.06);
+    let dl = DelayLoop::new(&proposed()).unwrap();
+    let slow = Upper {
+        kg: 0.2,
+        kv: 0.05,
+        tg: 0.3,
+        gmin: 3.0,
+    };
+    assert_eq!(dl.local(slow.kg, slow.tg, slow.kv), Some(false));
+    assert_eq!(dl.local(UP.kg, UP.tg, UP.kv), Some(true));
+    let x0 = lx[0] - 25.0;
+    let spec = CostSpec::linear(
+        ModelKind::Proposed,
+        CommandKind::Acceleration,
+        [1.0, 1.0, 1.0],
+        Init::Rest,
+        true,
+        vec![],
+    );
+    let row = [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008];
+    for (up, stable) in [(UP, true), (slow, false)] {
+        let tr = closed_loop(&proposed(), &EffectsRef::NONE, &up, &lx, &lv, DT, lv[0], x0).unwrap();
+        assert!(tr.a.iter().chain(&tr.v).chain(&tr.x).all(|v| v.is_finite()));
+        let a: Vec<f64> = tr.a.iter().map(|x| x + 0.01).collect();
+        let run = RunRef {
+            dt: DT,
+            command: None,
+            lead_x: Some(&lx),
+            lead_v: Some(&lv),
+            a: &a,
+            v: Some(&tr.v),
+            x: Some(&tr.x),
+            upper: up,
+            exo: vec![],
+        };
+        let c = run_cost(&spec, &row, &run, f64::INFINITY);
+        let mut sums = vec![0.0; 4];
+        let ok = run_atom_sums(&spec, &row, &run, 50, &mut sums);
+        assert_eq!(c.is_finite(), stable, "{c}");
+        assert_eq!(ok, stable);
+        if stable {
+            assert!((c - 1e-4).abs() < 1e-12, "{c}");
+        }
+    }
+}
