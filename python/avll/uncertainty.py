@@ -34,7 +34,8 @@ are kept in :attr:`Uncertainty.cost_given`), and the score series and the resamp
 start there. In closed loop a polish that would carry a locally stable optimum across
 the edge of local stability (exact test, true delay) is not taken: the car followed
 its predecessor through the record, and a cost that prefers a slowly diverging loop
-fits the record's length, not the car.
+fits the record's length, not the car (without effects the cost is ``inf`` there
+already; with effects this guard keeps the polish on the stable side).
 
 **Refits.** Each resample is refit in the GA's unit coordinates (log scale for the
 positive coefficients), warm-started from the full-data optimum, by a bounded

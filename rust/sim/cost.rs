@@ -239,7 +239,8 @@ fn with_effects<'a>(
 }
 
 /// The Eq. 6 cost of `row` on `run` (`sum(w s) / len`), `inf` for invalid or
-/// unstable parameters or a diverged response, and `inf` as soon as the weighted sum
+/// unstable parameters (in closed loop also a locally unstable loop,
+/// `CostSpec::prepare_cost`) or a diverged response, and `inf` as soon as the weighted sum
 /// of squared errors reaches `limit` (checked every [`super::kernel::CHUNK`]
 /// samples; `inf` for no bound). An unabandoned value does not depend on `limit`.
 /// Assumes `spec.validate(runs)` passed.
