@@ -9,7 +9,9 @@
 //! scale parameters spanning decades (e.g. `m2`, `m3`) are searched evenly per
 //! decade. A parameter with `lo == hi` is fixed.
 //!
-//! * initial population: a Latin hypercube in `z` (plus optional user points);
+//! * initial population: a Latin hypercube in `z` (plus optional user points); an
+//!   individual valued `inf` is redrawn uniformly until finite, up to
+//!   [`REDRAW_ROUNDS`] times (in closed loop most of a wide box is locally unstable);
 //! * selection: tournaments of `tournament` individuals;
 //! * crossover: simulated binary crossover (SBX, bounded form) with distribution
 //!   index `eta_c`, applied to a pair with probability `crossover_prob`, each gene
@@ -371,6 +373,11 @@ pub struct GaResult {
 const TAG_INIT: u64 = 0x494e_4954;
 const TAG_LHS: u64 = 0x004c_4853;
 const TAG_BREED: u64 = 0x0042_5245_4544;
+const TAG_REDRAW: u64 = 0x5244_5257_0000;
+
+/// Rounds of redrawing the initial individuals whose value is `inf` (see
+/// [`minimize`]).
+pub const REDRAW_ROUNDS: u64 = 32;
 
 /// The random stream of `(seed, generation, index, purpose)`.
 fn stream(seed: u64, generation: u64, index: u64, tag: u64) -> ChaCha8Rng {
@@ -785,6 +792,31 @@ where
         *ind = bounds.to_unit(x);
     }
     let mut fit = ev.many(&pop);
+    // Individuals valued `inf` (outside the region where the objective is defined:
+    // an unstable lower level, a locally unstable closed loop; most of a wide box in
+    // closed loop) carry no information: each is redrawn uniformly, up to
+    // REDRAW_ROUNDS times, until its value is finite; the user's points are kept.
+    let n_user = opts.initial.len().min(n);
+    for round in 0..REDRAW_ROUNDS {
+        let bad: Vec<usize> = (n_user..n).filter(|&i| !fit[i].is_finite()).collect();
+        if bad.is_empty() {
+            break;
+        }
+        let zs: Vec<Vec<f64>> = bad
+            .iter()
+            .map(|&i| {
+                let mut r = stream(opts.seed, 0, i as u64, TAG_REDRAW ^ round);
+                (0..d).map(|_| r.random::<f64>()).collect()
+            })
+            .collect();
+        let fz = ev.many(&zs);
+        for ((&i, z), v) in bad.iter().zip(zs).zip(fz) {
+            if v.is_finite() {
+                pop[i] = z;
+                fit[i] = v;
+            }
+        }
+    }
     sort_pop(&mut pop, &mut fit);
     let mut history = vec![fit[0]];
     let mut x_best = vec![0.0; d];

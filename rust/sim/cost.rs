@@ -197,17 +197,36 @@ impl CostSpec {
         Some((lin, effs, up))
     }
 
-    /// [`CostSpec::prepare`] for a cost: `None` also for a closed loop without effects
-    /// that is locally unstable (exact test with the true delay,
-    /// [`crate::stability::delay::DelayLoop::local`]): the car followed its
-    /// predecessor through the record, and a slowly diverging loop that fits a finite
-    /// record is no description of it. Undecided loops keep their cost. With effects
-    /// the rollout alone decides (their loops are tested in `avll.effect_stability`).
+    /// [`CostSpec::prepare`] for a cost: `None` also for a closed loop that is locally
+    /// unstable: the car followed its predecessor through the record, and a slowly
+    /// diverging loop that fits a finite record is no description of it. Without
+    /// effects the exact test with the true delay
+    /// ([`crate::stability::delay::DelayLoop::local`]); with effects the certified test
+    /// of every delay ([`crate::effects::follower::FollowerLoop::local`]) of their
+    /// small-signal form at the run's mean predecessor speed (the operating point of
+    /// the study's predictions). Undecided loops, and effects without a small-signal
+    /// form there, keep their cost (the rollout decides).
     fn prepare_cost(&self, row: &[f64], run: &RunRef) -> Option<(Linear, Vec<AnyEffect>, Upper)> {
         let (lin, effs, up) = self.prepare(row, run)?;
-        if self.closed_loop && effs.is_empty() {
+        if !self.closed_loop {
+            return Some((lin, effs, up));
+        }
+        if effs.is_empty() {
             let dl = crate::stability::delay::DelayLoop::new(&lin).ok()?;
             if dl.local(up.kg, up.tg, up.kv) == Some(false) {
+                return None;
+            }
+            return Some((lin, effs, up));
+        }
+        let lead_v = run.lead_v?;
+        let v = lead_v.iter().sum::<f64>() / lead_v.len().max(1) as f64;
+        let op = crate::effects::Operating { v, side: 0 };
+        if let (Ok((l, t)), Ok(u)) = (
+            crate::effects::linearize_terms(&lin, &effs, &op),
+            crate::effects::linearize_upper(&up, &effs, &op),
+        ) {
+            let fl = crate::effects::follower::FollowerLoop::new(&l, &t, &u);
+            if fl.local() == crate::effects::follower::Verdict::No {
                 return None;
             }
         }

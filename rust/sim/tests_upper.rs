@@ -379,3 +379,61 @@ fn a_locally_unstable_closed_loop_costs_inf_though_its_record_is_finite() {
         }
     }
 }
+
+#[test]
+fn with_effects_a_locally_unstable_closed_loop_costs_inf_too() {
+    use super::cost::run_cost;
+    use crate::effects::follower::{FollowerLoop, Verdict};
+    use crate::effects::{linearize_terms, linearize_upper};
+    let n = 200;
+    let (lx, lv) = leader(n, 15.0, 1.0, 0.06);
+    let lin = proposed();
+    let list = EffectList::from_names(&["perception"], CommandKind::Acceleration).unwrap();
+    let op = Operating {
+        v: lv.iter().sum::<f64>() / n as f64,
+        side: 0,
+    };
+    // the stable law UP with a short and a long perception delay: the exact test of
+    // every delay calls the first stable and the second unstable
+    let verdict = |tau: f64| {
+        let effs = list.build(&[tau], CommandKind::Acceleration).unwrap();
+        let (l, t) = linearize_terms(&lin, &effs, &op).unwrap();
+        let u = linearize_upper(&UP, &effs, &op).unwrap();
+        FollowerLoop::new(&l, &t, &u).local()
+    };
+    let unstable_tau = [1.0, 1.5, 3.0, 6.0]
+        .into_iter()
+        .find(|&t| verdict(t) == Verdict::No)
+        .expect("a perception delay that destabilises the loop");
+    assert_eq!(verdict(0.1), Verdict::Yes);
+    let x0 = lx[0] - 25.0;
+    let tr = closed_loop(&lin, &EffectsRef::NONE, &UP, &lx, &lv, DT, lv[0], x0).unwrap();
+    let run = RunRef {
+        dt: DT,
+        command: None,
+        lead_x: Some(&lx),
+        lead_v: Some(&lv),
+        a: &tr.a,
+        v: Some(&tr.v),
+        x: Some(&tr.x),
+        upper: UP,
+        exo: vec![],
+    };
+    let spec = CostSpec {
+        effects: list,
+        ..CostSpec::linear(
+            ModelKind::Proposed,
+            CommandKind::Acceleration,
+            [1.0, 1.0, 1.0],
+            Init::Rest,
+            true,
+            vec![],
+        )
+    };
+    let row = |tau: f64| [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008, tau];
+    assert!(run_cost(&spec, &row(0.1), &run, f64::INFINITY).is_finite());
+    assert_eq!(
+        run_cost(&spec, &row(unstable_tau), &run, f64::INFINITY),
+        f64::INFINITY
+    );
+}
