@@ -104,17 +104,9 @@ struct Eq6<'a> {
     par: bool,
 }
 
-/// The search's factor on the cost of a locally unstable closed loop: such a row still
-/// steers the search (in a wide box most closed loops are locally unstable, and the
-/// good basins are reached through them), but a locally stable row that fits within
-/// this factor ranks before it, so the population also holds the stable twin of an
-/// unstable fit (e.g. the unsaturated-stable car behind a saturated limit cycle).
-pub const UNSTABLE_FACTOR: f64 = 2.0;
-
 impl Objective for Eq6<'_> {
     fn eval(&self, x: &[f64]) -> f64 {
-        let k = self.factor(x);
-        k * combine(
+        combine(
             &run_costs(self.spec, x, self.runs, &self.w, self.par),
             &self.w,
         )
@@ -134,8 +126,7 @@ impl Objective for Eq6<'_> {
     /// unabandoned value is bit-identical); `inf` once the partial sums prove the
     /// result `>= bound`.
     fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
-        let k = self.factor(x);
-        k * self.bounded(x, bound / k)
+        self.bounded(x, bound)
     }
 
     /// Offspring in groups of [`LANES`] stepped together through the lane kernel
@@ -155,15 +146,6 @@ impl Objective for Eq6<'_> {
 }
 
 impl Eq6<'_> {
-    /// [`UNSTABLE_FACTOR`] for a locally unstable closed loop, else 1.
-    fn factor(&self, x: &[f64]) -> f64 {
-        if self.spec.relaxed && !self.admissible(x) {
-            UNSTABLE_FACTOR
-        } else {
-            1.0
-        }
-    }
-
     /// Eq. 6 with early abandoning (see [`Objective::eval_bounded`]).
     fn bounded(&self, x: &[f64], bound: f64) -> f64 {
         let mut done = 0.0; // sum of w_j c_j over finished runs
