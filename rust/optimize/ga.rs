@@ -663,7 +663,7 @@ impl Answer {
     ) {
         let mut x = vec![0.0; bounds.dim()];
         for (z, &v) in pop.iter().zip(fit) {
-            if !(v < self.f) {
+            if v.partial_cmp(&self.f) != Some(std::cmp::Ordering::Less) {
                 return; // sorted: no better one follows (inf and NaN included)
             }
             let key: Vec<u64> = z.iter().map(|c| c.to_bits()).collect();

@@ -11,6 +11,29 @@ use crate::model::{CommandKind, Linear, ModelKind};
 
 const DT: f64 = 0.05;
 
+/// A closed-loop run behind the leader `(lx, lv)` (sampled at [`DT`]) with the
+/// measured `a`, `v`, `x` and the law `up`.
+fn closed_run<'a>(
+    lx: &'a [f64],
+    lv: &'a [f64],
+    a: &'a [f64],
+    v: &'a [f64],
+    x: &'a [f64],
+    up: Upper,
+) -> RunRef<'a> {
+    RunRef {
+        dt: DT,
+        command: None,
+        lead_x: Some(lx),
+        lead_v: Some(lv),
+        a,
+        v: Some(v),
+        x: Some(x),
+        upper: up,
+        exo: vec![],
+    }
+}
+
 fn proposed() -> Linear {
     Linear {
         b1: 6.7893,
@@ -222,17 +245,7 @@ fn closed_loop_cost_with_structures_equals_its_rollout() {
     let x0 = lx[0] - 25.0;
     let truth = closed_loop(&proposed(), &eff, &UP, &lx, &lv, DT, lv[0], x0).unwrap();
     let a: Vec<f64> = truth.a.iter().map(|x| x + 0.01).collect();
-    let run = RunRef {
-        dt: DT,
-        command: None,
-        lead_x: Some(&lx),
-        lead_v: Some(&lv),
-        a: &a,
-        v: Some(&truth.v),
-        x: Some(&truth.x),
-        upper: UP,
-        exo: vec![],
-    };
+    let run = closed_run(&lx, &lv, &a, &truth.v, &truth.x, UP);
     let spec = CostSpec {
         effects: EffectList::from_names(&names, CommandKind::Acceleration).unwrap(),
         ..CostSpec::linear(
@@ -358,17 +371,7 @@ fn a_locally_unstable_closed_loop_costs_inf_though_its_record_is_finite() {
         let tr = closed_loop(&proposed(), &EffectsRef::NONE, &up, &lx, &lv, DT, lv[0], x0).unwrap();
         assert!(tr.a.iter().chain(&tr.v).chain(&tr.x).all(|v| v.is_finite()));
         let a: Vec<f64> = tr.a.iter().map(|x| x + 0.01).collect();
-        let run = RunRef {
-            dt: DT,
-            command: None,
-            lead_x: Some(&lx),
-            lead_v: Some(&lv),
-            a: &a,
-            v: Some(&tr.v),
-            x: Some(&tr.x),
-            upper: up,
-            exo: vec![],
-        };
+        let run = closed_run(&lx, &lv, &a, &tr.v, &tr.x, up);
         let c = run_cost(&spec, &row, &run, f64::INFINITY);
         let mut sums = vec![0.0; 4];
         let ok = run_atom_sums(&spec, &row, &run, 50, &mut sums);
@@ -408,17 +411,7 @@ fn with_effects_a_locally_unstable_closed_loop_costs_inf_too() {
     assert_eq!(verdict(0.1), Verdict::Yes);
     let x0 = lx[0] - 25.0;
     let tr = closed_loop(&lin, &EffectsRef::NONE, &UP, &lx, &lv, DT, lv[0], x0).unwrap();
-    let run = RunRef {
-        dt: DT,
-        command: None,
-        lead_x: Some(&lx),
-        lead_v: Some(&lv),
-        a: &tr.a,
-        v: Some(&tr.v),
-        x: Some(&tr.x),
-        upper: UP,
-        exo: vec![],
-    };
+    let run = closed_run(&lx, &lv, &tr.a, &tr.v, &tr.x, UP);
     let spec = CostSpec {
         effects: list,
         ..CostSpec::linear(
