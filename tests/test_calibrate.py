@@ -215,6 +215,53 @@ def test_closed_loop_with_free_upper_gain() -> None:
     assert r.params["Td"] == pytest.approx(1.0758, rel=0.05)
 
 
+def test_closed_loop_answer_is_locally_stable() -> None:
+    """A locally unstable closed loop costs inf even where its rollout stays finite over
+    the record, and the calibration returns a locally stable parameter set (the best
+    its GA's population held). The car: a synthetic platoon's first follower, 300 s,
+    every upper gain free."""
+    from avll.defaults import UPPER_NAMES
+    from avll.rollout import closed_loop
+    from avll.studies.openacc import WEIGHTS
+    from avll.synth_platoon import synth_platoon
+
+    run = synth_platoon(2, seed=101, duration=300.0, models=("proposed",)).runs[0]
+    kw = dict(closed_loop=True, weights=WEIGHTS, init="rest")
+    r = calibrate("proposed", [run], seed=5, starts=1, max_generations=30,
+                  upper_free=UPPER_NAMES, bounds={"Gmin": (0.0, 10.0)}, **kw)  # fmt: skip
+    names = avll.Proposed.param_names()
+    k, td = len(names), names.index("Td")
+
+    def code(row: np.ndarray) -> int:
+        up = r.upper
+        c, _ = _core.delay_codes_rows("proposed", np.ascontiguousarray(row[None, :k]),
+                                      [up["kg"]], [up["Tg"]], [up["kv"]], threads=1)
+        return int(c[0])
+
+    def scaled(s: float) -> np.ndarray:
+        row = r.x.copy()
+        row[td] *= s
+        return row
+
+    assert code(r.x) != 0 and np.isfinite(r.cost)
+    cost = avll.batch_cost("proposed", r.x[None, :], [run], upper_free=(0, 1, 2, 3), **kw)
+    assert cost[0, 0] == pytest.approx(r.cost, rel=1e-9)
+    # the same loop with the dead time raised to just across the edge (bisection)
+    lo, hi = 1.0, 2.0
+    while code(scaled(hi)) != 0 and hi < 64:
+        lo, hi = hi, 2 * hi
+    assert code(scaled(hi)) == 0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if code(scaled(mid)) != 0 else (lo, mid)
+    row = scaled(hi)
+    sim = closed_loop(avll.Proposed(*row[:k]), run.lead_x, run.lead_v, run.dt,
+                      avll.UpperLevel(**r.upper), v0=float(run.v[0]), x0=float(run.x[0]))
+    assert np.isfinite(sim.v).all()
+    unstable = avll.batch_cost("proposed", row[None, :], [run], upper_free=(0, 1, 2, 3), **kw)
+    assert np.isinf(unstable[0, 0])
+
+
 def test_speed_command_runs() -> None:
     # A speed-tracking lower level (command and response are speeds; Eq. 6 still
     # compares accelerations, here the derivative of the simulated speed).

@@ -15,6 +15,7 @@ import pytest
 
 from avll.data import Run
 from avll.studies.openacc import INTERVALS_OFF, openacc_study
+from avll.studies.openacc_select import CANDIDATES
 from avll.synth_platoon import random_car, synth_platoon
 from avll.uncertainty import Intervals
 
@@ -66,7 +67,10 @@ def test_keys_present_or_null_with_reason() -> None:
         assert lo < c["amplification_measured_h1"] < hi
         assert 0.0 < c["coherence"] <= 1.0
         _check_null_with_reason(c, CI_KEYS)
-        assert c["final_model_effects"] == []
+        # a 3-generation GA: what the selection accepts here is no claim (the blind
+        # tests in test_synth_hidden.py are); the key names what the model carries
+        assert set(c["final_model_effects"]) <= set(CANDIDATES)
+        assert c["final_model_effects"] == c["structures"]["accepted"]
         assert set(c["params_ci"]) == set(c["params"])
         lo, hi = c["time_gap_effective_ci"]
         assert lo <= hi
@@ -77,22 +81,16 @@ def test_keys_present_or_null_with_reason() -> None:
         # the out-of-sample model's own resamples (blocks of the other file)
         lo, hi = c["time_gap_effective_oos_ci"]
         assert lo <= hi
-        if c["amplification_predicted_oos"] is not None \
-                and c["amplification_predicted_oos_ci"] is None:
-            # a point estimate at the edge of local stability (3 generations, a 200 s
-            # record): the full-data cost's minimum lies across the edge (the polish
-            # does not take it) and most resamples' minima too
-            why = c["amplification_predicted_oos_ci_reason"]
-            n_bad, n_all = (int(w) for w in why.split(" resampled")[0].split(" of "))
-            assert n_bad >= n_all - 1 and "locally unstable" in why, why
+        if c["amplification_predicted_oos"] is not None:
+            # a locally unstable loop costs inf: the refits stay on the stable side
+            assert c["amplification_predicted_oos_ci"] is not None, \
+                c["amplification_predicted_oos_ci_reason"]
         c2 = by[(f, "car2")]
         assert c2["oos_files"] == [] and c2["amplification_predicted_oos"] is None
         assert "no other file of the same setting" in c2["amplification_predicted_oos_reason"]
         assert c2["time_gap_effective_oos"] is None
         assert c2["time_gap_effective_oos_ci"] is None
         assert "no other file" in c2["time_gap_effective_oos_ci_reason"]
-    assert any(by[(f, "car1")]["amplification_predicted_oos_ci"] is not None
-               for f in ("f0.csv", "f1.csv"))
     oos = s["out_of_sample"]
     assert oos["cars_with_prediction"] + oos["cars_without_other_file"] == 4
     assert oos["cars_without_other_file"] == 2

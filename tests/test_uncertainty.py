@@ -99,12 +99,16 @@ def test_refits_are_exact_at_unit_weights_and_do_not_depend_on_threads(platoon, 
     assert a["done"].all() and not a["interrupted"]
 
 
-def test_levenberg_marquardt_refits_reach_the_simplex_minima(platoon, fitted
-                                                             ) -> None:  # type: ignore[no-untyped-def]
+def test_levenberg_marquardt_refits_against_the_simplex(platoon, fitted
+                                                       ) -> None:  # type: ignore[no-untyped-def]
     """The two refits of the same resamples (closed loop, every upper gain free, three
-    weighted channels): Levenberg-Marquardt ends at the Nelder-Mead's minimum or below
-    (never above its start) in fewer rollouts. The cost has local minima: measured here,
-    LM lower on 4 of the 6 resamples (by up to 0.7 %), higher on one by 0.2 %."""
+    weighted channels): Levenberg-Marquardt never ends above its start, in fewer
+    rollouts. Where a resample's minimum lies across the edge of local stability (a
+    locally unstable loop costs inf), a step across it is refused: LM, a least-squares
+    method, stops where its steps are, the simplex slides along the edge. Measured on
+    this car (its estimate is on the edge): LM 0.3-4.2 % above the simplex on the five
+    resampled weights, equal at unit weights (the estimate is polished). On the intervals
+    guide's cars (seed 7601, 50 resamples each) the median difference is -0.002 %."""
     prob = _problem("proposed", platoon.runs, bounds={"Gmin": (0.0, 10.0)},
                     closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS, init="rest")
     x0 = np.ascontiguousarray(fitted[0].x[None, :])
@@ -123,8 +127,9 @@ def test_levenberg_marquardt_refits_reach_the_simplex_minima(platoon, fitted
     assert lm["f_full"] == nm["f_full"]
     np.testing.assert_array_equal(lm["f_x0"], nm["f_x0"])
     assert np.all(lm["f"] <= lm["f_x0"]) and lm["done"].all()
+    assert np.isfinite(lm["f"]).all() and np.isfinite(nm["f"]).all()
     ratio = lm["f"] / nm["f"]
-    assert np.median(ratio) <= 1.0 and ratio.max() <= 1.005, ratio
+    assert ratio[0] == pytest.approx(1.0, rel=1e-6) and ratio.max() <= 1.05, ratio
     assert lm["evaluations"].sum() < nm["evaluations"].sum() / 2, (lm["evaluations"],
                                                                    nm["evaluations"])
     with pytest.raises(ValueError, match="method"):
@@ -233,15 +238,15 @@ def test_the_estimate_is_polished_before_resampling(platoon) -> None:  # type: i
     np.testing.assert_array_equal(q.x, plain.x)
     assert q.cost == plain.cost and q.uncertainty.cost_estimate == pytest.approx(plain.cost,
                                                                                  rel=1e-9)
-    # a polish that would carry a locally stable optimum across the edge of local
-    # stability is not taken (here it would gain 0.4 %)
+    # the polish cannot carry a locally stable optimum across the edge of local
+    # stability: a locally unstable closed loop costs inf, so the refit's steps across
+    # it are refused and the polished estimate stays locally stable
     kw8 = dict(kw, max_generations=8)
     ga8 = avll.calibrate("proposed", [run], **kw8)
     s8 = avll.calibrate("proposed", [run], intervals=Intervals(n=8), **kw8)
     u8 = s8.uncertainty
     assert u8.polish_evaluations > 0 and u8.string_code_estimate != 0
-    np.testing.assert_array_equal(s8.x, ga8.x)
-    assert s8.cost == ga8.cost and u8.cost_estimate == u8.cost_given
+    assert s8.cost == u8.cost_estimate <= u8.cost_given == pytest.approx(ga8.cost, rel=1e-9)
 
 
 def test_ctrl_c_during_the_polish_returns_the_calibration_without_resamples(

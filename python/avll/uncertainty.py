@@ -31,10 +31,11 @@ errors) and not above a third of the shortest run (at least three blocks per run
 minimum of the full-data cost, or their refits travel from one side of it to their
 own minima. The calibration's estimate and cost become the polished ones (the GA's
 are kept in :attr:`Uncertainty.cost_given`), and the score series and the resamples
-start there. In closed loop a polish that would carry a locally stable optimum across
-the edge of local stability (exact test, true delay) is not taken: the car followed
-its predecessor through the record, and a cost that prefers a slowly diverging loop
-fits the record's length, not the car.
+start there. In closed loop a locally unstable loop costs ``inf`` (the exact test with
+the true delay; with effects the certified test at the run's mean predecessor speed),
+so neither the polish nor the refits can carry a locally stable optimum across the
+edge of local stability: the car followed its predecessor through the record, and a
+cost that prefers a slowly diverging loop fits the record's length, not the car.
 
 **Refits.** Each resample is refit in the GA's unit coordinates (log scale for the
 positive coefficients), warm-started from the full-data optimum, by a bounded
@@ -847,36 +848,7 @@ def _polish(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray, opts: I
             if math.isfinite(fk) and fk < given[k]:
                 x[k] = np.asarray(raw["x"], dtype=np.float64)[0]
                 f[k] = fk
-    moved = [k for k in range(len(subsets)) if f[k] < given[k]]
-    if prob.closed_loop and moved:
-        # The polish stays on the given optimum's side of the edge of local stability:
-        # a car that followed its predecessor for the whole record is locally stable,
-        # and a polish that crosses the edge fits the record's length, not the car.
-        sub = [subsets[k] for k in moved]
-        before = _closed_loop_codes(prob, sub, x0[moved], threads)
-        after = _closed_loop_codes(prob, sub, x[moved], threads)
-        for k, b, a in zip(moved, before, after, strict=True):
-            if b != 0 and a == 0:
-                x[k], f[k] = x0[k], given[k]
     return x, f, given, evals, any(bool(r["interrupted"]) for r in raws)
-
-
-def _closed_loop_codes(prob: Any, subsets: Sequence[Sequence[int]], x: np.ndarray,
-                       threads: int) -> list[int]:
-    """The exact-delay code of each problem's row (its first run's upper level, the
-    free gains from the row; linearised at the problem's mean speed)."""
-    from .models import model_class
-
-    out = []
-    for k, sub in enumerate(subsets):
-        runs = [prob.rs.runs[int(i)] for i in sorted(set(int(i) for i in sub))]
-        up = _upper_columns(prob, runs[0], x[k][None, :])
-        vs = [r.v for r in runs if r.v is not None]
-        vbar = float(np.mean(np.concatenate(vs))) if vs else None
-        c, _ = _exact_codes(prob.cls.name, model_class(prob.cls.name), x[k][None, :], up,
-                            threads, prob.effects, vbar)
-        out.append(int(c[0]))
-    return out
 
 
 def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: int,

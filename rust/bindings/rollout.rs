@@ -53,6 +53,7 @@ pub(super) fn cost_spec(
             init: Init::from_name(init)?,
             closed_loop,
             upper_free,
+            relaxed: false,
         })
     })
 }

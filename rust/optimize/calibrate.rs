@@ -112,24 +112,21 @@ impl Objective for Eq6<'_> {
         )
     }
 
+    /// A closed loop must be locally stable on every run of the problem (the spec is
+    /// relaxed for the search: see [`CostSpec::relaxed`]).
+    fn admissible(&self, x: &[f64]) -> bool {
+        !self.spec.closed_loop
+            || self
+                .w
+                .iter()
+                .all(|&(j, _)| !self.spec.locally_unstable(x, &self.runs[j]))
+    }
+
     /// The same per-run costs as [`subset_cost`] and the same combination (so an
     /// unabandoned value is bit-identical); `inf` once the partial sums prove the
     /// result `>= bound`.
     fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
-        let mut done = 0.0; // sum of w_j c_j over finished runs
-        let mut costs = Vec::with_capacity(self.w.len());
-        for &(j, wj) in &self.w {
-            let run = &self.runs[j];
-            // c_j = S_j / n_j; abandon once done + wj S_j / n_j >= bound * total.
-            let limit = (bound * self.total - done) * run.len() as f64 / wj;
-            let c = run_cost(self.spec, x, run, limit);
-            if !c.is_finite() {
-                return f64::INFINITY;
-            }
-            done += wj * c;
-            costs.push(c);
-        }
-        combine(&costs, &self.w)
+        self.bounded(x, bound)
     }
 
     /// Offspring in groups of [`LANES`] stepped together through the lane kernel
@@ -149,6 +146,24 @@ impl Objective for Eq6<'_> {
 }
 
 impl Eq6<'_> {
+    /// Eq. 6 with early abandoning (see [`Objective::eval_bounded`]).
+    fn bounded(&self, x: &[f64], bound: f64) -> f64 {
+        let mut done = 0.0; // sum of w_j c_j over finished runs
+
+        let mut costs = Vec::with_capacity(self.w.len());
+        for &(j, wj) in &self.w {
+            let run = &self.runs[j];
+            // c_j = S_j / n_j; abandon once done + wj S_j / n_j >= bound * total.
+            let limit = (bound * self.total - done) * run.len() as f64 / wj;
+            let c = run_cost(self.spec, x, run, limit);
+            if !c.is_finite() {
+                return f64::INFINITY;
+            }
+            done += wj * c;
+            costs.push(c);
+        }
+        combine(&costs, &self.w)
+    }
     /// `xs` in groups of [`LANES`] through [`Eq6::lane_group`] (point by point where
     /// the lanes do not apply), in parallel over groups, each at the value `bound`
     /// gives when it is read; every value is passed to `offer` once known.
@@ -337,8 +352,12 @@ fn calibrate_one(
     }
     let w = multiplicities(subset, runs.len(), problem)?;
     let total = w.iter().map(|p| p.1).sum();
+    let search = CostSpec {
+        relaxed: true,
+        ..spec.clone()
+    };
     let f = Eq6 {
-        spec,
+        spec: &search,
         runs,
         w,
         total,

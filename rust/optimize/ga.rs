@@ -28,8 +28,13 @@
 //!   the survival threshold as a bound ([`Objective::eval_bounded`]), shared by the
 //!   threads and falling as the generation's values arrive ([`Survival`]); the
 //!   calibration objective stops a rollout once its partial Eq. 6 sum exceeds it;
+//! * answer: the best individual the population held that the objective admits
+//!   ([`Objective::admissible`]; every point by default), so the search may pass
+//!   through points that cannot be the answer (`history` and the callback follow
+//!   the answer, the stall test the search); none admitted: the search's best,
+//!   valued `inf`;
 //! * polish (optional): a bounded Nelder–Mead (adaptive coefficients, trial points
-//!   projected onto the box) from the best individual, restarted once.
+//!   projected onto the box) from the answer, restarted once, on admissible points.
 //!
 //! # Reproducibility
 //!
@@ -466,6 +471,15 @@ pub trait Objective: Sync {
     fn eval_offspring(&self, xs: &[Vec<f64>], survival: &Survival) -> Vec<f64> {
         xs.par_iter().map(|x| survival.evaluate(self, x)).collect()
     }
+    /// Whether `x` (parameter coordinates) may be the answer. The GA searches on the
+    /// values alone and returns the best admissible individual its population held
+    /// (see [`minimize`]); the polish stays on admissible points. The default admits
+    /// every point. The calibration's closed loop admits only locally stable loops: an
+    /// unstable one that fits the record steers the search, it is never the answer.
+    fn admissible(&self, x: &[f64]) -> bool {
+        let _ = x;
+        true
+    }
 }
 
 /// The (mu + lambda) survival threshold of one generation while its offspring are
@@ -598,6 +612,71 @@ impl Survival {
 impl<F: Fn(&[f64]) -> f64 + Sync> Objective for F {
     fn eval(&self, x: &[f64]) -> f64 {
         self(x)
+    }
+}
+
+/// `f` on its admissible points, `inf` elsewhere: the polish's objective.
+struct AdmissibleOnly<'a, F: ?Sized>(&'a F);
+
+impl<F: Objective + ?Sized> Objective for AdmissibleOnly<'_, F> {
+    fn eval(&self, x: &[f64]) -> f64 {
+        if self.0.admissible(x) {
+            self.0.eval(x)
+        } else {
+            f64::INFINITY
+        }
+    }
+    fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
+        if self.0.admissible(x) {
+            self.0.eval_bounded(x, bound)
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// The best admissible individual the population has held ([`Objective::admissible`]):
+/// the GA's answer. Each distinct individual is tested once.
+struct Answer {
+    z: Option<Vec<f64>>,
+    f: f64,
+    tested: std::collections::HashMap<Vec<u64>, bool>,
+}
+
+impl Answer {
+    fn new() -> Self {
+        Self {
+            z: None,
+            f: f64::INFINITY,
+            tested: std::collections::HashMap::new(),
+        }
+    }
+
+    /// Takes the best admissible individual of `pop` (sorted by `fit`) that is better
+    /// than the answer so far.
+    fn update<F: Objective + ?Sized>(
+        &mut self,
+        f: &F,
+        bounds: &Bounds,
+        pop: &[Vec<f64>],
+        fit: &[f64],
+    ) {
+        let mut x = vec![0.0; bounds.dim()];
+        for (z, &v) in pop.iter().zip(fit) {
+            if v.partial_cmp(&self.f) != Some(std::cmp::Ordering::Less) {
+                return; // sorted: no better one follows (inf and NaN included)
+            }
+            let key: Vec<u64> = z.iter().map(|c| c.to_bits()).collect();
+            let ok = *self.tested.entry(key).or_insert_with(|| {
+                bounds.to_user(z, &mut x);
+                f.admissible(&x)
+            });
+            if ok {
+                self.z = Some(z.clone());
+                self.f = v;
+                return;
+            }
+        }
     }
 }
 
@@ -786,14 +865,19 @@ where
     }
     let mut fit = ev.many(&pop);
     sort_pop(&mut pop, &mut fit);
-    let mut history = vec![fit[0]];
+    let mut answer = Answer::new();
+    answer.update(f, bounds, &pop, &fit);
+    let mut history = vec![answer.f];
+    // The search's own best per generation (the stall test): below `history` where
+    // inadmissible individuals lead the population.
+    let mut search = vec![fit[0]];
     let mut x_best = vec![0.0; d];
     let mut stop = StopReason::MaxGenerations;
     let mut generation = 0;
 
     let mut stopped_by_callback = false;
     while generation < opts.max_generations {
-        if fit[0] <= opts.target {
+        if answer.f <= opts.target {
             stop = StopReason::Target;
             break;
         }
@@ -889,14 +973,16 @@ where
                 fit.truncate(n);
             }
         }
-        history.push(fit[0]);
+        answer.update(f, bounds, &pop, &fit);
+        history.push(answer.f);
+        search.push(fit[0]);
 
-        bounds.to_user(&pop[0], &mut x_best);
+        bounds.to_user(answer.z.as_ref().unwrap_or(&pop[0]), &mut x_best);
         let go_on = callback(&Progress {
             phase: Phase::Ga,
             iteration: generation,
             evaluations: ev.evaluations,
-            best_f: fit[0],
+            best_f: answer.f,
             best_x: &x_best,
         });
         if !go_on {
@@ -905,7 +991,7 @@ where
             break;
         }
         if generation >= opts.stall_generations {
-            let old = history[generation - opts.stall_generations];
+            let old = search[generation - opts.stall_generations];
             let new = fit[0];
             let stalled = if old.is_finite() {
                 old - new <= opts.ftol * new.abs().max(1e-300)
@@ -930,12 +1016,20 @@ where
             break;
         }
     }
-    if stop == StopReason::MaxGenerations && fit[0] <= opts.target {
+    if stop == StopReason::MaxGenerations && answer.f <= opts.target {
         stop = StopReason::Target;
     }
-    let f_ga = fit[0];
-    let mut z_best = pop[0].clone();
-    let mut f_best = fit[0];
+    // No admissible individual: the search's best, valued `inf` (the caller's cost of
+    // an inadmissible point; e.g. a locally unstable closed loop).
+    let f_ga = answer.f;
+    let mut f_best = answer.f;
+    let mut z_best = answer.z.take().unwrap_or_else(|| pop[0].clone());
+    let only = AdmissibleOnly(f);
+    let mut ev = Evaluator {
+        f: &only,
+        bounds,
+        evaluations: ev.evaluations,
+    };
 
     if opts.polish && !stopped_by_callback && stop != StopReason::Target && f_best.is_finite() {
         let step = simplex_steps(&pop, n, d);
@@ -1164,6 +1258,52 @@ mod tests {
         assert!(r.history.windows(2).all(|w| w[1] <= w[0]), "elitism");
         let p = minimize(&sphere, &b, &GaOptions::default(), |_| true).unwrap();
         assert!(p.f < 1e-12 && p.f <= p.f_ga, "polished f = {}", p.f);
+    }
+
+    /// A sphere centred at 0.3 whose answers must lie in `x[0] <= cut`.
+    struct Fenced {
+        cut: f64,
+    }
+
+    impl Objective for Fenced {
+        fn eval(&self, x: &[f64]) -> f64 {
+            sphere(x)
+        }
+        fn admissible(&self, x: &[f64]) -> bool {
+            x[0] <= self.cut
+        }
+    }
+
+    #[test]
+    fn the_answer_is_the_best_admissible_point() {
+        let b = Bounds::linear(vec![-5.0; 3], vec![5.0; 3]).unwrap();
+        let free = minimize(&sphere, &b, &GaOptions::default(), |_| true).unwrap();
+        assert!((free.x[0] - 0.3).abs() < 1e-3);
+        // The unconstrained minimum is not admissible: the answer is on the fence's
+        // side, and the polish takes it to the constrained minimum (x0 = 0).
+        let r = minimize(&Fenced { cut: 0.0 }, &b, &GaOptions::default(), |_| true).unwrap();
+        assert!(r.x[0] <= 0.0, "{:?}", r.x);
+        assert!(
+            (r.x[0]).abs() < 1e-3 && (r.x[1] - 0.3).abs() < 1e-3,
+            "{:?}",
+            r.x
+        );
+        assert!((r.f - sphere(&r.x)).abs() < 1e-15);
+        assert!(r.f <= r.f_ga && r.f > free.f);
+        assert!(r.history.windows(2).all(|w| w[1] <= w[0]));
+        assert_eq!(*r.history.last().unwrap(), r.f_ga);
+        // Without the polish the answer is still admissible.
+        let o = GaOptions {
+            polish: false,
+            ..Default::default()
+        };
+        let g = minimize(&Fenced { cut: 0.0 }, &b, &o, |_| true).unwrap();
+        assert!(g.x[0] <= 0.0 && g.f == g.f_ga && g.f.is_finite());
+        // Nothing admissible: the search's best, valued inf.
+        let none = minimize(&Fenced { cut: -6.0 }, &b, &o, |_| true).unwrap();
+        assert!(none.f.is_infinite() && none.f_ga.is_infinite());
+        assert!(none.history.iter().all(|h| h.is_infinite()));
+        assert!(none.x.iter().all(|v| v.is_finite() && v.abs() <= 5.0));
     }
 
     #[test]

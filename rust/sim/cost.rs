@@ -64,6 +64,11 @@ pub struct CostSpec {
     /// calibrated: their values follow the model and effect parameters in each row,
     /// in this order, and override the runs' own.
     pub upper_free: Vec<usize>,
+    /// The GA's search objective: a locally unstable closed loop keeps the cost of its
+    /// rollout (it steers the search; the GA never returns it, see
+    /// [`crate::optimize::ga::Objective::admissible`]). Everywhere else `false`: such a
+    /// loop costs `inf` ([`CostSpec::locally_unstable`]).
+    pub relaxed: bool,
 }
 
 impl CostSpec {
@@ -84,6 +89,7 @@ impl CostSpec {
             init,
             closed_loop,
             upper_free,
+            relaxed: false,
         }
     }
 
@@ -197,12 +203,68 @@ impl CostSpec {
         Some((lin, effs, up))
     }
 
+    /// [`CostSpec::prepare`] for a cost: `None` also for a closed loop that is locally
+    /// unstable ([`CostSpec::locally_unstable`]), unless the spec is
+    /// [`CostSpec::relaxed`] (the GA's search).
+    fn prepare_cost(&self, row: &[f64], run: &RunRef) -> Option<(Linear, Vec<AnyEffect>, Upper)> {
+        let (lin, effs, up) = self.prepare(row, run)?;
+        if self.closed_loop && !self.relaxed && unstable_loop(&lin, &effs, &up, run) {
+            return None;
+        }
+        Some((lin, effs, up))
+    }
+
+    /// Whether `row` makes the closed loop of `run` locally unstable (an open-loop spec
+    /// or invalid parameters: `false`; the cost decides those). A car followed its
+    /// predecessor through the record, and a slowly diverging loop that fits a finite
+    /// record is no description of it, so such a row costs `inf`. Without effects the
+    /// exact test with the true delay
+    /// ([`crate::stability::delay::DelayLoop::local`]); with effects the certified test
+    /// of every delay ([`crate::effects::follower::FollowerLoop::local`]) of their
+    /// small-signal form at the run's mean predecessor speed (the operating point of
+    /// the study's predictions). Undecided loops, and effects without a small-signal
+    /// form there, count as stable (the rollout decides).
+    pub fn locally_unstable(&self, row: &[f64], run: &RunRef) -> bool {
+        if !self.closed_loop {
+            return false;
+        }
+        match self.prepare(row, run) {
+            Some((lin, effs, up)) => unstable_loop(&lin, &effs, &up, run),
+            None => false,
+        }
+    }
+
     fn integrators(&self) -> Integrators {
         if self.accel_only() {
             Integrators::None
         } else {
             Integrators::for_kind(self.kind)
         }
+    }
+}
+
+/// See [`CostSpec::locally_unstable`].
+fn unstable_loop(lin: &Linear, effs: &[AnyEffect], up: &Upper, run: &RunRef) -> bool {
+    if effs.is_empty() {
+        return match crate::stability::delay::DelayLoop::new(lin) {
+            Ok(dl) => dl.local(up.kg, up.tg, up.kv) == Some(false),
+            Err(_) => false,
+        };
+    }
+    let Some(lead_v) = run.lead_v else {
+        return false;
+    };
+    let v = lead_v.iter().sum::<f64>() / lead_v.len().max(1) as f64;
+    let op = crate::effects::Operating { v, side: 0 };
+    match (
+        crate::effects::linearize_terms(lin, effs, &op),
+        crate::effects::linearize_upper(up, effs, &op),
+    ) {
+        (Ok((l, t)), Ok(u)) => {
+            crate::effects::follower::FollowerLoop::new(&l, &t, &u).local()
+                == crate::effects::follower::Verdict::No
+        }
+        _ => false,
     }
 }
 
@@ -222,12 +284,13 @@ fn with_effects<'a>(
 }
 
 /// The Eq. 6 cost of `row` on `run` (`sum(w s) / len`), `inf` for invalid or
-/// unstable parameters or a diverged response, and `inf` as soon as the weighted sum
+/// unstable parameters (in closed loop also a locally unstable loop,
+/// `CostSpec::prepare_cost`) or a diverged response, and `inf` as soon as the weighted sum
 /// of squared errors reaches `limit` (checked every [`super::kernel::CHUNK`]
 /// samples; `inf` for no bound). An unabandoned value does not depend on `limit`.
 /// Assumes `spec.validate(runs)` passed.
 pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef, limit: f64) -> f64 {
-    let Some((lin, effs, up)) = spec.prepare(row, run) else {
+    let Some((lin, effs, up)) = spec.prepare_cost(row, run) else {
         return f64::INFINITY;
     };
     let modal = modal_ok(&effs);
@@ -677,7 +740,7 @@ pub fn lane_plants(spec: &CostSpec, rows: &[&[f64]], run: &RunRef) -> Option<Lan
     }
     let mut out = Vec::with_capacity(LANES);
     for (k, row) in rows.iter().enumerate() {
-        let Some((lin, _, _)) = spec.prepare(row, run) else {
+        let Some((lin, _, _)) = spec.prepare_cost(row, run) else {
             continue;
         };
         if lin.order() != 2 {
@@ -1148,7 +1211,7 @@ pub fn run_residuals(
         return false;
     }
     out.iter_mut().for_each(|o| *o = 0.0);
-    let Some((lin, effs, up)) = spec.prepare(row, run) else {
+    let Some((lin, effs, up)) = spec.prepare_cost(row, run) else {
         return false;
     };
     let modal = modal_ok(&effs);

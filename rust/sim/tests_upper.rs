@@ -11,6 +11,29 @@ use crate::model::{CommandKind, Linear, ModelKind};
 
 const DT: f64 = 0.05;
 
+/// A closed-loop run behind the leader `(lx, lv)` (sampled at [`DT`]) with the
+/// measured `a`, `v`, `x` and the law `up`.
+fn closed_run<'a>(
+    lx: &'a [f64],
+    lv: &'a [f64],
+    a: &'a [f64],
+    v: &'a [f64],
+    x: &'a [f64],
+    up: Upper,
+) -> RunRef<'a> {
+    RunRef {
+        dt: DT,
+        command: None,
+        lead_x: Some(lx),
+        lead_v: Some(lv),
+        a,
+        v: Some(v),
+        x: Some(x),
+        upper: up,
+        exo: vec![],
+    }
+}
+
 fn proposed() -> Linear {
     Linear {
         b1: 6.7893,
@@ -222,17 +245,7 @@ fn closed_loop_cost_with_structures_equals_its_rollout() {
     let x0 = lx[0] - 25.0;
     let truth = closed_loop(&proposed(), &eff, &UP, &lx, &lv, DT, lv[0], x0).unwrap();
     let a: Vec<f64> = truth.a.iter().map(|x| x + 0.01).collect();
-    let run = RunRef {
-        dt: DT,
-        command: None,
-        lead_x: Some(&lx),
-        lead_v: Some(&lv),
-        a: &a,
-        v: Some(&truth.v),
-        x: Some(&truth.x),
-        upper: UP,
-        exo: vec![],
-    };
+    let run = closed_run(&lx, &lv, &a, &truth.v, &truth.x, UP);
     let spec = CostSpec {
         effects: EffectList::from_names(&names, CommandKind::Acceleration).unwrap(),
         ..CostSpec::linear(
@@ -327,4 +340,93 @@ fn small_signal_forms_hold_in_the_time_domain() {
         }
     }
     assert!(moved >= 4, "the structures must change |H| ({moved} did)");
+}
+
+#[test]
+fn a_locally_unstable_closed_loop_costs_inf_though_its_record_is_finite() {
+    use super::cost::{run_atom_sums, run_cost};
+    use crate::stability::delay::DelayLoop;
+    let n = 200; // 10 s: too short for the slow divergence to show in the rollout
+    let (lx, lv) = leader(n, 15.0, 1.0, 0.06);
+    let dl = DelayLoop::new(&proposed()).unwrap();
+    let slow = Upper {
+        kg: 0.2,
+        kv: 0.05,
+        tg: 0.3,
+        gmin: 3.0,
+    };
+    assert_eq!(dl.local(slow.kg, slow.tg, slow.kv), Some(false));
+    assert_eq!(dl.local(UP.kg, UP.tg, UP.kv), Some(true));
+    let x0 = lx[0] - 25.0;
+    let spec = CostSpec::linear(
+        ModelKind::Proposed,
+        CommandKind::Acceleration,
+        [1.0, 1.0, 1.0],
+        Init::Rest,
+        true,
+        vec![],
+    );
+    let row = [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008];
+    for (up, stable) in [(UP, true), (slow, false)] {
+        let tr = closed_loop(&proposed(), &EffectsRef::NONE, &up, &lx, &lv, DT, lv[0], x0).unwrap();
+        assert!(tr.a.iter().chain(&tr.v).chain(&tr.x).all(|v| v.is_finite()));
+        let a: Vec<f64> = tr.a.iter().map(|x| x + 0.01).collect();
+        let run = closed_run(&lx, &lv, &a, &tr.v, &tr.x, up);
+        let c = run_cost(&spec, &row, &run, f64::INFINITY);
+        let mut sums = vec![0.0; 4];
+        let ok = run_atom_sums(&spec, &row, &run, 50, &mut sums);
+        assert_eq!(c.is_finite(), stable, "{c}");
+        assert_eq!(ok, stable);
+        if stable {
+            assert!((c - 1e-4).abs() < 1e-12, "{c}");
+        }
+    }
+}
+
+#[test]
+fn with_effects_a_locally_unstable_closed_loop_costs_inf_too() {
+    use super::cost::run_cost;
+    use crate::effects::follower::{FollowerLoop, Verdict};
+    use crate::effects::{linearize_terms, linearize_upper};
+    let n = 200;
+    let (lx, lv) = leader(n, 15.0, 1.0, 0.06);
+    let lin = proposed();
+    let list = EffectList::from_names(&["perception"], CommandKind::Acceleration).unwrap();
+    let op = Operating {
+        v: lv.iter().sum::<f64>() / n as f64,
+        side: 0,
+    };
+    // the stable law UP with a short and a long perception delay: the exact test of
+    // every delay calls the first stable and the second unstable
+    let verdict = |tau: f64| {
+        let effs = list.build(&[tau], CommandKind::Acceleration).unwrap();
+        let (l, t) = linearize_terms(&lin, &effs, &op).unwrap();
+        let u = linearize_upper(&UP, &effs, &op).unwrap();
+        FollowerLoop::new(&l, &t, &u).local()
+    };
+    let unstable_tau = [1.0, 1.5, 3.0, 6.0]
+        .into_iter()
+        .find(|&t| verdict(t) == Verdict::No)
+        .expect("a perception delay that destabilises the loop");
+    assert_eq!(verdict(0.1), Verdict::Yes);
+    let x0 = lx[0] - 25.0;
+    let tr = closed_loop(&lin, &EffectsRef::NONE, &UP, &lx, &lv, DT, lv[0], x0).unwrap();
+    let run = closed_run(&lx, &lv, &tr.a, &tr.v, &tr.x, UP);
+    let spec = CostSpec {
+        effects: list,
+        ..CostSpec::linear(
+            ModelKind::Proposed,
+            CommandKind::Acceleration,
+            [1.0, 1.0, 1.0],
+            Init::Rest,
+            true,
+            vec![],
+        )
+    };
+    let row = |tau: f64| [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008, tau];
+    assert!(run_cost(&spec, &row(0.1), &run, f64::INFINITY).is_finite());
+    assert_eq!(
+        run_cost(&spec, &row(unstable_tau), &run, f64::INFINITY),
+        f64::INFINITY
+    );
 }

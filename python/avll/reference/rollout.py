@@ -503,6 +503,11 @@ def mse(sim: np.ndarray, meas: np.ndarray) -> float:
     return float(np.mean((np.asarray(sim) - np.asarray(meas)) ** 2))
 
 
+#: Padé order of the reference's local-stability test of a closed loop (the Rust cost
+#: keeps the delay exact; the two agree away from the edge).
+CLOSED_LOOP_PADE = 8
+
+
 def run_cost(
     model: LowerLevelModel,
     run: Run,
@@ -518,11 +523,19 @@ def run_cost(
     closed loop drives it with the leader through ``upper`` (default: the run's
     law), starting at the run's measured speed and position, lower level at rest.
     A lower level that is not asymptotically stable (:func:`lower_level_stable`,
-    whatever the run's length) or a response that leaves ``|y| < DIVERGED`` costs
-    ``inf``."""
+    whatever the run's length), in closed loop a locally unstable loop (the roots of
+    Eq. 8's denominator with the delay's Padé-8 approximant, :mod:`.stability`), or a
+    response that leaves ``|y| < DIVERGED`` costs ``inf``."""
     wa, wv, wx = weights
     if not lower_level_stable(model, run.dt):
         return math.inf
+    if closed_loop_:
+        from .stability import stability_code
+
+        law0 = upper if upper is not None else run.upper
+        if law0 is not None and stability_code(model, law0.kg, law0.Tg, law0.kv,
+                                                pade_order=CLOSED_LOOP_PADE) == 0:
+            return math.inf
     v0 = float(run.v[0]) if run.v is not None else 0.0
     x0 = float(run.x[0]) if run.x is not None else 0.0
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging follower is inf here
