@@ -126,7 +126,20 @@ impl Objective for Eq6<'_> {
     /// unabandoned value is bit-identical); `inf` once the partial sums prove the
     /// result `>= bound`.
     fn eval_bounded(&self, x: &[f64], bound: f64) -> f64 {
-        self.bounded(x, bound)
+        let mut done = 0.0; // sum of w_j c_j over finished runs
+        let mut costs = Vec::with_capacity(self.w.len());
+        for &(j, wj) in &self.w {
+            let run = &self.runs[j];
+            // c_j = S_j / n_j; abandon once done + wj S_j / n_j >= bound * total.
+            let limit = (bound * self.total - done) * run.len() as f64 / wj;
+            let c = run_cost(self.spec, x, run, limit);
+            if !c.is_finite() {
+                return f64::INFINITY;
+            }
+            done += wj * c;
+            costs.push(c);
+        }
+        combine(&costs, &self.w)
     }
 
     /// Offspring in groups of [`LANES`] stepped together through the lane kernel
@@ -146,24 +159,6 @@ impl Objective for Eq6<'_> {
 }
 
 impl Eq6<'_> {
-    /// Eq. 6 with early abandoning (see [`Objective::eval_bounded`]).
-    fn bounded(&self, x: &[f64], bound: f64) -> f64 {
-        let mut done = 0.0; // sum of w_j c_j over finished runs
-
-        let mut costs = Vec::with_capacity(self.w.len());
-        for &(j, wj) in &self.w {
-            let run = &self.runs[j];
-            // c_j = S_j / n_j; abandon once done + wj S_j / n_j >= bound * total.
-            let limit = (bound * self.total - done) * run.len() as f64 / wj;
-            let c = run_cost(self.spec, x, run, limit);
-            if !c.is_finite() {
-                return f64::INFINITY;
-            }
-            done += wj * c;
-            costs.push(c);
-        }
-        combine(&costs, &self.w)
-    }
     /// `xs` in groups of [`LANES`] through [`Eq6::lane_group`] (point by point where
     /// the lanes do not apply), in parallel over groups, each at the value `bound`
     /// gives when it is read; every value is passed to `offer` once known.

@@ -11,6 +11,21 @@ use crate::model::{CommandKind, Linear, ModelKind};
 
 const DT: f64 = 0.05;
 
+/// The proposed model's closed-loop spec with `effects` (three unit weights, from rest).
+fn closed_spec(effects: EffectList) -> CostSpec {
+    CostSpec {
+        effects,
+        ..CostSpec::linear(
+            ModelKind::Proposed,
+            CommandKind::Acceleration,
+            [1.0, 1.0, 1.0],
+            Init::Rest,
+            true,
+            vec![],
+        )
+    }
+}
+
 /// A closed-loop run behind the leader `(lx, lv)` (sampled at [`DT`]) with the
 /// measured `a`, `v`, `x` and the law `up`.
 fn closed_run<'a>(
@@ -246,17 +261,7 @@ fn closed_loop_cost_with_structures_equals_its_rollout() {
     let truth = closed_loop(&proposed(), &eff, &UP, &lx, &lv, DT, lv[0], x0).unwrap();
     let a: Vec<f64> = truth.a.iter().map(|x| x + 0.01).collect();
     let run = closed_run(&lx, &lv, &a, &truth.v, &truth.x, UP);
-    let spec = CostSpec {
-        effects: EffectList::from_names(&names, CommandKind::Acceleration).unwrap(),
-        ..CostSpec::linear(
-            ModelKind::Proposed,
-            CommandKind::Acceleration,
-            [1.0, 1.0, 1.0],
-            Init::Rest,
-            true,
-            vec![],
-        )
-    };
+    let spec = closed_spec(EffectList::from_names(&names, CommandKind::Acceleration).unwrap());
     let mut row = vec![6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008];
     row.extend(canonical_row(&given));
     let c = batch_cost(&spec, &row, &[run]).unwrap();
@@ -412,17 +417,7 @@ fn with_effects_a_locally_unstable_closed_loop_costs_inf_too() {
     let x0 = lx[0] - 25.0;
     let tr = closed_loop(&lin, &EffectsRef::NONE, &UP, &lx, &lv, DT, lv[0], x0).unwrap();
     let run = closed_run(&lx, &lv, &tr.a, &tr.v, &tr.x, UP);
-    let spec = CostSpec {
-        effects: list,
-        ..CostSpec::linear(
-            ModelKind::Proposed,
-            CommandKind::Acceleration,
-            [1.0, 1.0, 1.0],
-            Init::Rest,
-            true,
-            vec![],
-        )
-    };
+    let spec = closed_spec(list);
     let row = |tau: f64| [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008, tau];
     assert!(run_cost(&spec, &row(0.1), &run, f64::INFINITY).is_finite());
     assert_eq!(
