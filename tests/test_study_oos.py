@@ -15,7 +15,6 @@ import pytest
 
 from avll.data import Run
 from avll.studies.openacc import INTERVALS_OFF, openacc_study
-from avll.studies.openacc_select import CANDIDATES
 from avll.synth_platoon import random_car, synth_platoon
 from avll.uncertainty import Intervals
 
@@ -67,10 +66,7 @@ def test_keys_present_or_null_with_reason() -> None:
         assert lo < c["amplification_measured_h1"] < hi
         assert 0.0 < c["coherence"] <= 1.0
         _check_null_with_reason(c, CI_KEYS)
-        # a 3-generation GA: what the selection accepts here is no claim (the blind
-        # tests in test_synth_hidden.py are); the key names what the model carries
-        assert set(c["final_model_effects"]) <= set(CANDIDATES)
-        assert c["final_model_effects"] == c["structures"]["accepted"]
+        assert c["final_model_effects"] == []
         assert set(c["params_ci"]) == set(c["params"])
         lo, hi = c["time_gap_effective_ci"]
         assert lo <= hi
