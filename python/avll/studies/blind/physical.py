@@ -107,8 +107,8 @@ def run_case(scenario: str) -> dict[str, Any]:
     test_before = float(np.mean(run_mse(res.baseline, test)))
     test_after = float(np.mean(run_mse(res.final, test)))
     truth = runs[0].meta["truth"]
-    flags = sorted({str(f.get("kind")) for f in getattr(res, "flags", [])})
-    unexplained = getattr(res, "unexplained", {}) or {}
+    flags = sorted({f.kind for f in res.flags})
+    unexplained = res.unexplained or {}
     return {
         "scenario": scenario,
         "acceptable": list(acceptable),
