@@ -363,14 +363,7 @@ fn a_locally_unstable_closed_loop_costs_inf_though_its_record_is_finite() {
     assert_eq!(dl.local(slow.kg, slow.tg, slow.kv), Some(false));
     assert_eq!(dl.local(UP.kg, UP.tg, UP.kv), Some(true));
     let x0 = lx[0] - 25.0;
-    let spec = CostSpec::linear(
-        ModelKind::Proposed,
-        CommandKind::Acceleration,
-        [1.0, 1.0, 1.0],
-        Init::Rest,
-        true,
-        vec![],
-    );
+    let spec = closed_spec(EffectList::default());
     let row = [6.7893, 1.2824, 8.8157, 0.3479, 0.7903, 0.1008];
     for (up, stable) in [(UP, true), (slow, false)] {
         let tr = closed_loop(&proposed(), &EffectsRef::NONE, &up, &lx, &lv, DT, lv[0], x0).unwrap();
