@@ -271,6 +271,45 @@ fn jacobian(atoms: &Atoms, bounds: &Bounds, z: &[f64], r: &[f64]) -> Jacobian {
     (free, cols)
 }
 
+/// The weighted normal equations of columns `cols` and residuals `r` under entry
+/// weights `w`: `H_kl = Σ_e w_e c_k[e] c_l[e]`, `g_k = Σ_e w_e c_k[e] r[e]` (each sum
+/// in four interleaved partial sums, which the compiler keeps in vector registers).
+fn weighted_gram(cols: &[&[f64]], r: &[f64], w: &[f64]) -> (nalgebra::DMatrix<f64>, Vec<f64>) {
+    let n = cols.len();
+    let mut h = nalgebra::DMatrix::zeros(n, n);
+    let mut g = vec![0.0; n];
+    let mut wc = vec![0.0; w.len()];
+    for k in 0..n {
+        for (o, (a, b)) in wc.iter_mut().zip(w.iter().zip(cols[k])) {
+            *o = a * b;
+        }
+        for l in k..n {
+            let v = dot(&wc, cols[l]);
+            h[(k, l)] = v;
+            h[(l, k)] = v;
+        }
+        g[k] = dot(&wc, r);
+    }
+    (h, g)
+}
+
+/// `Σ a_i b_i` in four interleaved partial sums.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut s = [0.0; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for i in 0..4 {
+            s[i] += x[i] * y[i];
+        }
+    }
+    let mut t = (s[0] + s[1]) + (s[2] + s[3]);
+    for (x, y) in ra.iter().zip(rb) {
+        t += x * y;
+    }
+    t
+}
+
 /// The step `s` minimising `g·s + s·H·s / 2` within `lo <= s <= hi` (`H` symmetric
 /// positive definite, `lo <= 0 <= hi`): projected Newton from 0 (the Newton step on the
 /// coordinates not held at a face by the gradient, an Armijo search along the
@@ -364,7 +403,7 @@ fn lm_refit(
     }
     let ea = &atoms.entry_atom;
     let sse = |r: &[f64]| -> f64 { r.iter().zip(ea).map(|(e, &q)| om[q as usize] * e * e).sum() };
-    let sw: Vec<f64> = ea.iter().map(|&q| om[q as usize].sqrt()).collect();
+    let we: Vec<f64> = ea.iter().map(|&q| om[q as usize]).collect();
     let mut evals = 1 + jac0.1.len();
     let mut z = z0.clone();
     let mut r = r0.clone();
@@ -388,18 +427,9 @@ fn lm_refit(
             break;
         }
         let n = act.len();
-        // sqrt(ω)-weighted Jacobian and residuals: H = JwᵀJw, g = Jwᵀrw (one product).
-        let jw = nalgebra::DMatrix::from_fn(sw.len(), n + 1, |e, k| {
-            sw[e]
-                * if k < n {
-                    cols[act[k]].as_deref().map_or(0.0, |c| c[e])
-                } else {
-                    r[e]
-                }
-        });
-        let full = jw.tr_mul(&jw);
-        let h = full.view((0, 0), (n, n)).into_owned();
-        let g: Vec<f64> = (0..n).map(|k| full[(k, n)]).collect();
+        // The weighted normal equations: H = Jᵀ Ω J, g = Jᵀ Ω r.
+        let cs: Vec<&[f64]> = act.iter().filter_map(|&k| cols[k].as_deref()).collect();
+        let (h, g) = weighted_gram(&cs, &r, &we);
         let dmax = (0..n).map(|k| h[(k, k)]).fold(0.0, f64::max);
         let lo: Vec<f64> = act.iter().map(|&k| -z[free[k]]).collect();
         let hi: Vec<f64> = act.iter().map(|&k| 1.0 - z[free[k]]).collect();

@@ -307,6 +307,7 @@ pub fn run_cost(spec: &CostSpec, row: &[f64], run: &RunRef, limit: f64) -> f64 {
     r.unwrap_or(f64::INFINITY)
 }
 
+#[inline(always)]
 fn cost_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -328,6 +329,7 @@ fn cost_n<const M: usize, const N: usize, const D: bool, const F: bool>(
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn cost_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain, L: Law>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -374,6 +376,7 @@ fn cost_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: C
 /// The stepper of a cost or batched-simulation rollout: the closed loop starts the
 /// lower level at rest with the measured speed and position; the open loop by
 /// `spec.init` with the measured (or zero) speed and position.
+#[inline(always)]
 fn start_stepper<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -616,6 +619,7 @@ fn simulate_one(
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn sim_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -667,6 +671,7 @@ fn sim_n<const M: usize, const N: usize, const D: bool, const F: bool>(
 
 /// Runs into the output slices: a closed loop that diverges is NaN after the
 /// divergence; an open loop is recorded as it is.
+#[inline(always)]
 fn record<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
     st: &mut super::kernel::Stepper<M, N, D, F, C>,
     len: usize,
@@ -947,9 +952,10 @@ fn lane_sse_for<const L: usize, const SAME: bool>(
             if super::fma() {
                 // SAFETY: the CPU supports FMA and AVX2 (checked just above).
                 unsafe {
-                    super::with_fma(|| {
-                        lane_sse::<L, true, SAME, $one, $diag>(lanes, us, ms, wa, lim)
-                    })
+                    super::with_fma(
+                        #[inline(always)]
+                        || lane_sse::<L, true, SAME, $one, $diag>(lanes, us, ms, wa, lim),
+                    )
                 }
             } else {
                 lane_sse::<L, false, SAME, $one, $diag>(lanes, us, ms, wa, lim)
@@ -1229,6 +1235,7 @@ pub fn run_residuals(
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn atoms_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -1253,6 +1260,7 @@ fn atoms_n<const M: usize, const N: usize, const D: bool, const F: bool>(
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn atoms_chain<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain, L: Law>(
     plant: Plant<M, N>,
     lin: &Linear,

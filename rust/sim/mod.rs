@@ -77,7 +77,12 @@ macro_rules! call_fma {
     ($f:ident, $m:literal, $n:literal, $d:expr, $p:expr $(, $arg:expr)*) => {{
         if $crate::sim::fma() {
             // SAFETY: the CPU supports FMA and AVX2 (checked just above).
-            unsafe { $crate::sim::with_fma(|| $f::<$m, $n, $d, true>($p $(, $arg)*)) }
+            unsafe {
+                $crate::sim::with_fma(
+                    #[inline(always)]
+                    || $f::<$m, $n, $d, true>($p $(, $arg)*),
+                )
+            }
         } else {
             $f::<$m, $n, $d, false>($p $(, $arg)*)
         }

@@ -126,6 +126,7 @@ impl<'a> EffectsRef<'a> {
 }
 
 /// A stepper for `plant` with `chain`, started at `s` with the integrators at `int0`.
+#[inline(always)]
 pub(crate) fn stepper<const M: usize, const N: usize, const D: bool, const F: bool, C: Chain>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -195,6 +196,7 @@ fn check_len(arg: &str, xs: &[f64], len: usize) -> Result<()> {
     Ok(())
 }
 
+#[inline(always)]
 fn response_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -270,6 +272,7 @@ impl<'a> Out<'a> {
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn full_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -359,6 +362,7 @@ pub fn simulate_full(
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn closed_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -394,6 +398,7 @@ fn closed_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     }
 }
 
+#[inline(always)]
 fn closed_rec<const M: usize, const N: usize, const D: bool, const F: bool, const U: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -528,6 +533,7 @@ pub fn closed_loop_law_into(
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn closed_law_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
@@ -753,6 +759,7 @@ impl PlatoonOut for TimeMajor<'_> {
 }
 
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn platoon_n<const M: usize, const N: usize, const D: bool, const F: bool>(
     plant: Plant<M, N>,
     lin: &Linear,
