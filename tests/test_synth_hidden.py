@@ -71,7 +71,10 @@ def test_truth_response_is_the_simulated_amplification(hidden: HiddenUpper) -> N
         h = abs(hidden.response(BASE, UP, [2 * np.pi * f], v=20.0, fine_dt=FINE)[0])
         plain = abs(frequency_response(BASE, UP, [2 * np.pi * f])[0])
         q = (hidden.ratio - 1) / (hidden.ratio + 1)
-        assert amp(v) / amp(lv) == pytest.approx(h, rel=max(5e-3, q * q))
+        # the radar's hold is a describing approximation; the rest is exact, the
+        # generator's own hold at fine_dt included (half a period of dead time)
+        tol = max(5e-3 if hidden.radar_period > 0 else 1e-5, q * q)
+        assert amp(v) / amp(lv) == pytest.approx(h, rel=tol)
         assert abs(h / plain - 1) > 0.01, "the structure must change |H|"
 
 

@@ -372,6 +372,7 @@ def follower_response_rows(
     side: int = 0,
     command_kind: str = "acceleration",
     threads: int = 0,
+    hold: float = 0.0,
 ) -> npt.NDArray[np.complex128]: ...
 def follower_codes_rows(
     model: str,
@@ -395,4 +396,5 @@ def follower_response(
     omega: npt.NDArray[np.float64],
     v: float = 0.0,
     side: int = 0,
+    hold: float = 0.0,
 ) -> npt.NDArray[np.complex128]: ...

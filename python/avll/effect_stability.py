@@ -103,7 +103,7 @@ OMEGA_GRID: np.ndarray = np.logspace(-3, math.log10(30.0), 2000)
 
 def frequency_response(
     model: LowerLevelModel | WithEffects, upper: UpperLevel, omega: Any, *, v: float = 0.0,
-    side: int = 0,
+    side: int = 0, hold: float = 0.0,
 ) -> np.ndarray:
     """The follower's exact frequency response ``H(jw)`` (predecessor speed to
     follower speed; paper Eq. 8 with the true delays), complex, over ``omega`` (rad/s,
@@ -120,7 +120,14 @@ def frequency_response(
     1)`` on the perceived predecessor speed, the gains of ``closing`` (averaged) and
     ``speed_gains`` (at ``v``)). Computed in Rust (``rust/effects/mod.rs``,
     ``response``); :func:`avll.reference.effects.frequency_response` is its numpy
-    oracle."""
+    oracle.
+
+    ``hold`` (s): the sample period the loop runs at (0: the continuous loop of Eq. 8).
+    A rollout at ``dt`` holds the law's command and the inner feedback over each
+    sample, which below the Nyquist frequency acts as a dead time of ``dt / 2`` added
+    to the lower level's: a model calibrated on runs sampled at ``dt`` describes the
+    follower through ``hold=dt`` (see ``docs/guide/intervals.md``, "The sampled
+    loop")."""
     from . import _core
 
     if isinstance(model, LowerLevelModel):
@@ -135,7 +142,8 @@ def frequency_response(
     return np.asarray(_core.follower_response(
         model.base.name, model.base.values(), list(model.effect_names),
         [float(x) for e in model.effects for x in e.to_array()], float(upper.kg),
-        float(upper.kv), float(upper.Tg), float(upper.Gmin), w, float(v), int(side)))
+        float(upper.kv), float(upper.Tg), float(upper.Gmin), w, float(v), int(side),
+        float(hold)))
 
 
 def _rows_arg(model: Any, rows: Any, effects: Sequence[str]) -> tuple[str, list[str], np.ndarray]:
@@ -165,15 +173,16 @@ def _rows_arg(model: Any, rows: Any, effects: Sequence[str]) -> tuple[str, list[
 
 def frequency_response_rows(
     model: Any, rows: Any, omega: Any, *, effects: Sequence[str] = (), v: float = 0.0,
-    side: int = 0, threads: int = 0,
+    side: int = 0, threads: int = 0, hold: float = 0.0,
 ) -> np.ndarray:
     """:func:`frequency_response` of many parameter rows at once, in Rust (one call, in
     parallel over rows): ``rows`` (``n x d``) are ``[model | effects | kg, kv, Tg,
     Gmin]`` -- e.g. a calibration's resamples (:meth:`avll.Uncertainty.rows`) -- with the
     ``effects``' parameters in their canonical order (the order of ``effects``, which
-    must be canonical), each linearised at the speed ``v`` on ``side``. Returns the
-    complex ``H(jw)`` (``n x len(omega)``), NaN for a row whose parameters the model, an
-    effect or the law refuses."""
+    must be canonical), each linearised at the speed ``v`` on ``side``, the loop run at
+    sample period ``hold`` (:func:`frequency_response`). Returns the complex ``H(jw)``
+    (``n x len(omega)``), NaN for a row whose parameters the model, an effect or the
+    law refuses."""
     from . import _core
     from ._limits import check_threads
 
@@ -182,19 +191,22 @@ def frequency_response_rows(
     if w.ndim != 1 or np.any(~np.isfinite(w)) or np.any(w <= 0):
         raise ValueError("omega: frequencies must be finite and > 0")
     return np.asarray(_core.follower_response_rows(
-        name, r, effs, w, v=float(v), side=int(side), threads=check_threads(threads)))
+        name, r, effs, w, v=float(v), side=int(side), threads=check_threads(threads),
+        hold=float(hold)))
 
 
 def band_amplification_rows(
     model: Any, rows: Any, lead_v: Any, dt: float, band: Sequence[float] | None = None, *,
     effects: Sequence[str] = (), v: float | None = None, trim: float | None = None,
-    threads: int = 0,
+    threads: int = 0, hold: float | None = None,
 ) -> np.ndarray:
     """The band amplification of many parameter rows (:func:`frequency_response_rows`):
     ``sqrt(sum |H(f)|^2 w(f))`` over the periodogram bins of the band-passed predecessor
     speed ``lead_v`` (:func:`avll.spectral.band_weights`, the study's weighting), one
     value per row (NaN without a bin or for a refused row). ``v`` is the linearisation
-    speed (default: the mean of ``lead_v``)."""
+    speed (default: the mean of ``lead_v``); ``hold`` the sample period of the loop
+    (:func:`frequency_response`; default ``dt``: rows calibrated on runs sampled at
+    ``dt``)."""
     from .spectral import DEFAULT_BAND, TRIM, band_weights
 
     lv = np.asarray(lead_v, dtype=np.float64)
@@ -205,7 +217,8 @@ def band_amplification_rows(
         return np.full(r.shape[0], np.nan)
     vv = float(np.mean(lv)) if v is None else float(v)
     h = np.abs(frequency_response_rows(model, r, 2.0 * np.pi * f, effects=effects, v=vv,
-                                       threads=threads))
+                                       threads=threads,
+                                       hold=float(dt) if hold is None else hold))
     return np.asarray(np.sqrt(np.sum(h * h * w[None, :], axis=1)))
 
 

@@ -205,7 +205,9 @@ class HiddenUpper:
                  fine_dt: float) -> np.ndarray:
         """The follower's ``H(jw)`` with this law (small signal about the speed ``v``;
         ``model`` a base model or an :class:`avll.WithEffects` with lower-level effects
-        only; ``fine_dt`` the rate the law runs at, which rounds the window):
+        only; ``fine_dt`` the rate the law runs at, which rounds the window and holds
+        the command, half a period more dead time, see
+        :func:`avll.effect_stability.frequency_response`):
         ``G_fb P / (s² + G_fb Q)`` with ``G_fb`` the lower level
         (``G e^{-tau_c s} / (1 - K G + beta/s)``), ``P = (kg' + kv' s) D + F s D``,
         ``Q = (kg' + kv' s) D + kg' Tg s - F s (1 - D)``, ``D = e^{-latency s} (1 -
@@ -217,8 +219,9 @@ class HiddenUpper:
             raise ValueError("model: the hidden law replaces the upper-level effects")
         c = m.linear(v=v, terms=True)
         s = 1j * np.asarray(omega, dtype=np.float64)
-        g = (c["b1"] * s + c["b0"]) * np.exp(-c["Td"] * s) / (c["a2"] * s * s
-                                                              + c["a1"] * s + 1.0)
+        # the generator runs at fine_dt: its hold adds fine_dt / 2 to the dead time
+        g = (c["b1"] * s + c["b0"]) * np.exp(-(c["Td"] + 0.5 * fine_dt) * s) / (
+            c["a2"] * s * s + c["a1"] * s + 1.0)
         gfb = g * np.exp(-c["command_delay"] * s) / (1.0 - c["K"] * g
                                                      + c["speed_feedback"] / s)
         d = np.exp(-self.radar_latency * s)
@@ -430,7 +433,7 @@ def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt:
 
     def gain_of(fh: np.ndarray) -> np.ndarray:
         if hid is None or hid.neutral:
-            return transfer_gain(lin_model, car.upper, fh, v=v_mean)
+            return transfer_gain(lin_model, car.upper, fh, v=v_mean, hold=fine_dt)
         return np.abs(hid.response(lin_model, car.upper, 2 * np.pi * fh, v=v_mean,
                                    fine_dt=fine_dt))
 

@@ -604,17 +604,19 @@ class Uncertainty:
 
     def band_amplification(self, lead_v: np.ndarray, dt: float,
                            band: Sequence[float] | None = None, *, v: float | None = None,
-                           threads: int = 0) -> tuple[float, np.ndarray]:
+                           threads: int = 0, hold: float | None = None
+                           ) -> tuple[float, np.ndarray]:
         """``|H|`` of the calibrated closed loop -- the base model with its effects of
         both levels, linearised at ``v`` (default: the mean of ``lead_v``), every delay
         exact -- as an RMS gain on the band-passed spectrum of the predecessor's speed
         ``lead_v`` (:func:`avll.effect_stability.band_amplification_rows`, every row in
-        one Rust call): the full-data value and the resamples' (NaN where the closed
-        loop is locally unstable, when known)."""
+        one Rust call; ``hold`` the loop's sample period, default ``dt``): the full-data
+        value and the resamples' (NaN where the closed loop is locally unstable, when
+        known)."""
         from .effect_stability import band_amplification_rows
 
         g = band_amplification_rows(self.model, self.rows(), lead_v, dt, band,
-                                    effects=self.effects, v=v, threads=threads)
+                                    effects=self.effects, v=v, threads=threads, hold=hold)
         if self.string_codes is not None:
             g[1:][self.string_codes == 0] = math.nan
         if self.string_code_estimate == 0:

@@ -165,7 +165,7 @@ fn linearize_upper<'py>(
 /// follower speed; `crate::effects::response`) of base + effects (both levels) under
 /// the law (kg, kv, tg, gmin), linearised at speed `v` on `side`: a complex array.
 #[pyfunction]
-#[pyo3(signature = (model, params, effects, effect_params, kg, kv, tg, gmin, omega, v = 0.0, side = 0))]
+#[pyo3(signature = (model, params, effects, effect_params, kg, kv, tg, gmin, omega, v = 0.0, side = 0, hold = 0.0))]
 #[allow(clippy::too_many_arguments)]
 fn follower_response<'py>(
     py: Python<'py>,
@@ -180,7 +180,9 @@ fn follower_response<'py>(
     omega: PyReadonlyArray1<'py, f64>,
     v: f64,
     side: i8,
+    hold: f64,
 ) -> PyResult<Bound<'py, PyArray1<Complex64>>> {
+    guard(|| crate::effects::check_hold(hold))?;
     let lin = guard(|| ModelKind::from_name(model)?.linear(&params))?;
     let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
     let up = Upper { kg, kv, tg, gmin };
@@ -193,6 +195,7 @@ fn follower_response<'py>(
     }
     let op = Operating { v, side };
     let (l, t) = guard(|| crate::effects::linearize_terms(&lin, &effs, &op))?;
+    let l = crate::effects::held(l, hold);
     let u = guard(|| crate::effects::linearize_upper(&up, &effs, &op))?;
     let h: Vec<Complex64> = py.detach(|| {
         w.iter()
@@ -208,7 +211,7 @@ fn follower_response<'py>(
 /// (`crate::effects::response_rows`): a complex `n x len(omega)` array, NaN rows where
 /// a row's parameters are refused or have no small-signal form. In parallel over rows.
 #[pyfunction]
-#[pyo3(signature = (model, rows, effects, omega, v = 0.0, side = 0, command_kind = "acceleration", threads = 0))]
+#[pyo3(signature = (model, rows, effects, omega, v = 0.0, side = 0, command_kind = "acceleration", threads = 0, hold = 0.0))]
 #[allow(clippy::too_many_arguments)]
 fn follower_response_rows<'py>(
     py: Python<'py>,
@@ -220,6 +223,7 @@ fn follower_response_rows<'py>(
     side: i8,
     command_kind: &str,
     threads: usize,
+    hold: f64,
 ) -> PyResult<Bound<'py, PyArray2<Complex64>>> {
     let kind = guard(|| CommandKind::from_name(command_kind))?;
     let mk = guard(|| ModelKind::from_name(model))?;
@@ -231,7 +235,7 @@ fn follower_response_rows<'py>(
     let h = py.detach(|| {
         guard(|| {
             crate::parallel::with_threads(threads, || {
-                crate::effects::response_rows(mk, &list, kind, data, d, w, &op)
+                crate::effects::response_rows(mk, &list, kind, data, d, w, &op, hold)
             })?
         })
     })?;

@@ -604,6 +604,29 @@ pub fn response(lin: &Linear, t: &Terms, u: &UpperLin, omega: f64) -> Complex<f6
     gfb * p / (s * s + gfb * q)
 }
 
+/// The lower level of a loop run at sample period `hold` (s): the law's command and
+/// the inner feedback held over each sample, which acts on the response below the
+/// Nyquist frequency as a dead time of half a period. The rollouts run so (every
+/// model and effect at the run's `dt`), so a model calibrated on runs sampled at `dt`
+/// describes the follower with `td + dt / 2` (`hold = 0`: the continuous loop, the
+/// paper's Eq. 8).
+pub fn held(mut lin: Linear, hold: f64) -> Linear {
+    lin.td += 0.5 * hold;
+    lin
+}
+
+/// `hold` must be a finite number of seconds >= 0.
+pub fn check_hold(hold: f64) -> Result<()> {
+    if hold.is_finite() && hold >= 0.0 {
+        Ok(())
+    } else {
+        Err(AvllError::new(
+            "hold",
+            format!("must be a finite sample period >= 0 s, got {hold}"),
+        ))
+    }
+}
+
 /// The small-signal forms of a parameter row `[model | effects | kg, kv, Tg, Gmin]`.
 fn row_forms(
     model: crate::model::ModelKind,
@@ -685,10 +708,12 @@ pub fn codes_rows(
 /// The follower's exact frequency response ([`response`]) of many parameter rows at
 /// once: each row of `rows` (row-major, `n x d`) is `[model | effects | kg, kv, Tg,
 /// Gmin]` (the effects' parameters in the canonical order of `effects`), linearised at
-/// the operating point `op`; the result is `n x omega.len()` (row-major). A row whose
+/// the operating point `op`, the loop run at sample period `hold` ([`held`]; 0: the
+/// continuous loop); the result is `n x omega.len()` (row-major). A row whose
 /// parameters the model, an effect or the law refuses, or whose small-signal form does
 /// not exist, gives NaN. In parallel over rows (the values do not depend on the
 /// threads).
+#[allow(clippy::too_many_arguments)]
 pub fn response_rows(
     model: crate::model::ModelKind,
     effects: &EffectList,
@@ -697,9 +722,11 @@ pub fn response_rows(
     d: usize,
     omega: &[f64],
     op: &Operating,
+    hold: f64,
 ) -> Result<Vec<Complex<f64>>> {
     use rayon::prelude::*;
     check_rows(model, effects, rows, d)?;
+    check_hold(hold)?;
     if let Some(w) = omega.iter().find(|w| !(w.is_finite() && **w > 0.0)) {
         return Err(AvllError::new(
             "omega",
@@ -710,7 +737,10 @@ pub fn response_rows(
     let nan = Complex::new(f64::NAN, f64::NAN);
     let one = |row: &[f64]| -> Vec<Complex<f64>> {
         match row_forms(model, effects, kind, row, op) {
-            Ok((l, t, u)) => omega.iter().map(|&w| response(&l, &t, &u, w)).collect(),
+            Ok((l, t, u)) => {
+                let l = held(l, hold);
+                omega.iter().map(|&w| response(&l, &t, &u, w)).collect()
+            }
             Err(_) => vec![nan; m],
         }
     };

@@ -334,7 +334,8 @@ def platoon_effects(
 
 
 def frequency_response(
-    model: WithEffects | LowerLevelModel, upper: UpperLevel, omega: Any, *, v: float = 0.0
+    model: WithEffects | LowerLevelModel, upper: UpperLevel, omega: Any, *, v: float = 0.0,
+    hold: float = 0.0,
 ) -> np.ndarray:
     """``V/V_p`` of the follower at ``s = j omega``, from the linearised closed loop
     written in the positions: the lower level ``A = G_fb U`` (``A = s² X`` the
@@ -344,11 +345,13 @@ def frequency_response(
     s + 1) (s X + D s (X_p - X))`` with ``D = e^{-tau_p s}`` (``perception``),
     ``kg, kv`` at ``v`` (``speed_gains``) times ``(1 + r)/2`` (``closing``), ``Tg' =
     Tg + 2 ch v`` (the slope of the desired gap ``Tg v + ch v²``); solved for ``X/X_p``
-    (= ``V/V_p``)."""
+    (= ``V/V_p``). A loop run at sample period ``hold`` holds the command and the inner
+    feedback over each sample: ``hold / 2`` more dead time in ``G``."""
     if isinstance(model, LowerLevelModel):
         model = WithEffects(model, ())
     eff: dict[str, Any] = {e.name: e for e in model.effects}
-    c = model.base.linear()
+    c = dict(model.base.linear())
+    c["Td"] = c["Td"] + 0.5 * hold
     s = 1j * np.asarray(omega, dtype=float)
     g = (c["b1"] * s + c["b0"]) * np.exp(-c["Td"] * s) / (c["a2"] * s**2 + c["a1"] * s + 1)
     beta, tau_c = 0.0, 0.0

@@ -216,30 +216,36 @@ def bootstrap_ci(bf: np.ndarray, bp: np.ndarray, dt: float, *, block: float = BL
     return float(np.quantile(ratio, q)), float(np.quantile(ratio, 1.0 - q))
 
 
-def transfer_gain(model: Any, upper: UpperLevel, f_hz: Any, *, v: float = 0.0) -> np.ndarray:
+def transfer_gain(model: Any, upper: UpperLevel, f_hz: Any, *, v: float = 0.0,
+                  hold: float = 0.0) -> np.ndarray:
     """``|H(j 2π f)|`` of the closed loop (paper Eq. 8) with the true delay, for a base
-    model or an :class:`avll.WithEffects` (both levels, linearised at the speed ``v``):
-    the modulus of :func:`avll.effect_stability.frequency_response`. For a base model,
+    model or an :class:`avll.WithEffects` (both levels, linearised at the speed ``v``),
+    the loop run at sample period ``hold`` (0: continuous): the modulus of
+    :func:`avll.effect_stability.frequency_response`. For a base model and ``hold=0``,
     ``H = G (kv s + kg) / ((A − K G) s² + G ((kv + Tg kg) s + kg))``,
     ``G = (b1 s + b0) e^{−Td s}``, ``A = a2 s² + a1 s + 1``."""
     from ..effect_stability import frequency_response
 
     return np.asarray(np.abs(frequency_response(model, upper, 2.0 * np.pi * np.asarray(
-        f_hz, dtype=np.float64), v=v)))
+        f_hz, dtype=np.float64), v=v, hold=hold)))
 
 
 def predicted_amplification(model: Any, upper: UpperLevel, lead_v: np.ndarray,
                             dt: float, band: Sequence[float] = DEFAULT_BAND,
-                            trim: float = TRIM, *, v: float | None = None) -> float:
+                            trim: float = TRIM, *, v: float | None = None,
+                            hold: float | None = None) -> float:
     """RMS gain of ``|H|`` (:func:`transfer_gain`; a base model or an
     :class:`avll.WithEffects`, linearised at ``v``, by default the predecessor's mean
     speed) on the predecessor's band-passed speed spectrum: ``sqrt(Σ |H|² P / Σ P)``
     over the periodogram bins (Hann window) within the band
-    (:func:`avll.spectral.band_weights`)."""
+    (:func:`avll.spectral.band_weights`). ``hold``: the sample period of the loop
+    (default ``dt``: a model calibrated on runs sampled at ``dt``; 0: the continuous
+    loop)."""
     f, w = band_weights(lead_v, dt, band, trim)
     if not f.size:
         return math.nan
-    h = transfer_gain(model, upper, f, v=float(np.mean(lead_v)) if v is None else v)
+    h = transfer_gain(model, upper, f, v=float(np.mean(lead_v)) if v is None else v,
+                      hold=float(dt) if hold is None else hold)
     return float(np.sqrt(np.sum(h * h * w)))
 
 
