@@ -182,7 +182,7 @@ fn follower_response<'py>(
     side: i8,
     hold: f64,
 ) -> PyResult<Bound<'py, PyArray1<Complex64>>> {
-    guard(|| crate::effects::check_hold(hold))?;
+    guard(|| crate::error::check_nonneg("hold", hold))?;
     let lin = guard(|| ModelKind::from_name(model)?.linear(&params))?;
     let effs = effects_of(&effects, &effect_params, CommandKind::Acceleration)?;
     let up = Upper { kg, kv, tg, gmin };

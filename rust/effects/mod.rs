@@ -615,18 +615,6 @@ pub fn held(mut lin: Linear, hold: f64) -> Linear {
     lin
 }
 
-/// `hold` must be a finite number of seconds >= 0.
-pub fn check_hold(hold: f64) -> Result<()> {
-    if hold.is_finite() && hold >= 0.0 {
-        Ok(())
-    } else {
-        Err(AvllError::new(
-            "hold",
-            format!("must be a finite sample period >= 0 s, got {hold}"),
-        ))
-    }
-}
-
 /// The small-signal forms of a parameter row `[model | effects | kg, kv, Tg, Gmin]`.
 fn row_forms(
     model: crate::model::ModelKind,
@@ -726,7 +714,7 @@ pub fn response_rows(
 ) -> Result<Vec<Complex<f64>>> {
     use rayon::prelude::*;
     check_rows(model, effects, rows, d)?;
-    check_hold(hold)?;
+    crate::error::check_nonneg("hold", hold)?;
     if let Some(w) = omega.iter().find(|w| !(w.is_finite() && **w > 0.0)) {
         return Err(AvllError::new(
             "omega",
