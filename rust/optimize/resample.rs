@@ -271,29 +271,85 @@ fn jacobian(atoms: &Atoms, bounds: &Bounds, z: &[f64], r: &[f64]) -> Jacobian {
     (free, cols)
 }
 
+/// Entries per block of [`weighted_gram`] (a multiple of 4): the block's weighted
+/// columns and their products stay in the first-level cache.
+const GRAM_BLOCK: usize = 256;
+
 /// The weighted normal equations of columns `cols` and residuals `r` under entry
-/// weights `w`: `H_kl = Σ_e w_e c_k[e] c_l[e]`, `g_k = Σ_e w_e c_k[e] r[e]` (each sum
-/// in four interleaved partial sums, which the compiler keeps in vector registers).
+/// weights `w`: `H_kl = Σ_e w_e c_k[e] c_l[e]`, `g_k = Σ_e w_e c_k[e] r[e]`. Each sum
+/// is [`dot`]`(w ∘ c_k, c_l)` to the bit (four interleaved partial sums, then the
+/// entries past the last multiple of four), computed block by block of
+/// [`GRAM_BLOCK`] entries so that one pass over the columns serves every pair:
+/// a pair at a time over the whole columns streamed them from memory `d (d + 1)`
+/// times, and that, not the rollouts, was most of a refit's time on long records.
+#[inline(always)]
 fn weighted_gram(cols: &[&[f64]], r: &[f64], w: &[f64]) -> (nalgebra::DMatrix<f64>, Vec<f64>) {
     let n = cols.len();
+    let len = w.len();
+    let body = len - len % 4;
+    // Partial sums of the pairs (k, l >= k), then of g_k, in that order.
+    let np = n * (n + 1) / 2;
+    let mut acc = vec![[0.0f64; 4]; np + n];
+    let mut wc = vec![[0.0f64; GRAM_BLOCK]; n];
+    let mut start = 0;
+    while start < body {
+        let end = (start + GRAM_BLOCK).min(body);
+        let m = end - start;
+        for (o, c) in wc.iter_mut().zip(cols) {
+            for (x, (a, b)) in o[..m]
+                .iter_mut()
+                .zip(w[start..end].iter().zip(&c[start..end]))
+            {
+                *x = a * b;
+            }
+        }
+        let mut p = 0;
+        for k in 0..n {
+            let x = &wc[k][..m];
+            for c in &cols[k..] {
+                acc[p] = partial4(acc[p], x, &c[start..end]);
+                p += 1;
+            }
+            acc[np + k] = partial4(acc[np + k], x, &r[start..end]);
+        }
+        start = end;
+    }
+    let finish = |s: [f64; 4], k: usize, y: &[f64]| -> f64 {
+        let mut t = (s[0] + s[1]) + (s[2] + s[3]);
+        for e in body..len {
+            t += (w[e] * cols[k][e]) * y[e];
+        }
+        t
+    };
     let mut h = nalgebra::DMatrix::zeros(n, n);
     let mut g = vec![0.0; n];
-    let mut wc = vec![0.0; w.len()];
+    let mut p = 0;
     for k in 0..n {
-        for (o, (a, b)) in wc.iter_mut().zip(w.iter().zip(cols[k])) {
-            *o = a * b;
-        }
         for l in k..n {
-            let v = dot(&wc, cols[l]);
+            let v = finish(acc[p], k, cols[l]);
             h[(k, l)] = v;
             h[(l, k)] = v;
+            p += 1;
         }
-        g[k] = dot(&wc, r);
+        g[k] = finish(acc[np + k], k, r);
     }
     (h, g)
 }
 
-/// `Σ a_i b_i` in four interleaved partial sums.
+/// The four interleaved partial sums of [`dot`] carried on over `a`, `b` (lengths a
+/// multiple of 4).
+#[inline(always)]
+fn partial4(mut s: [f64; 4], a: &[f64], b: &[f64]) -> [f64; 4] {
+    for (x, y) in a.chunks_exact(4).zip(b.chunks_exact(4)) {
+        for i in 0..4 {
+            s[i] += x[i] * y[i];
+        }
+    }
+    s
+}
+
+/// `Σ a_i b_i` in four interleaved partial sums (the order [`weighted_gram`] keeps).
+#[cfg(test)]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut s = [0.0; 4];
     let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
@@ -381,6 +437,7 @@ fn box_qp(g: &[f64], h: &nalgebra::DMatrix<f64>, lo: &[f64], hi: &[f64]) -> Vec<
 /// Returns the parameters, the resampled cost and the rollouts (those of the shared
 /// start counted too, as the local search counts its own).
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn lm_refit(
     atoms: &Atoms,
     bounds: &Bounds,
@@ -402,8 +459,8 @@ fn lm_refit(
         }
     }
     let ea = &atoms.entry_atom;
-    let sse = |r: &[f64]| -> f64 { r.iter().zip(ea).map(|(e, &q)| om[q as usize] * e * e).sum() };
     let we: Vec<f64> = ea.iter().map(|&q| om[q as usize]).collect();
+    let sse = |r: &[f64]| -> f64 { r.iter().zip(&we).map(|(e, w)| w * e * e).sum() };
     let mut evals = 1 + jac0.1.len();
     let mut z = z0.clone();
     let mut r = r0.clone();
@@ -709,7 +766,31 @@ pub fn refit_resamples(
                 let mut hist: Vec<f64> = Vec::new();
                 let (x, fx, evals) = if let (Some(st), true) = (&lm_start, f0.is_finite()) {
                     let w = &p.weights[i * a..(i + 1) * a];
-                    lm_refit(&atoms, bounds, st, w, (&x0, f0), budget, opts.ftol, &stop)
+                    if crate::sim::fma() {
+                        // SAFETY: the CPU has AVX2 and FMA (checked just above). The
+                        // iteration's sums and updates then run four wide; nothing
+                        // contracts a product and a sum into one rounding, so every
+                        // value is the same as without.
+                        unsafe {
+                            crate::sim::with_fma(
+                                #[inline(always)]
+                                || {
+                                    lm_refit(
+                                        &atoms,
+                                        bounds,
+                                        st,
+                                        w,
+                                        (&x0, f0),
+                                        budget,
+                                        opts.ftol,
+                                        &stop,
+                                    )
+                                },
+                            )
+                        }
+                    } else {
+                        lm_refit(&atoms, bounds, st, w, (&x0, f0), budget, opts.ftol, &stop)
+                    }
                 } else if f0.is_finite() {
                     local_search(&f, bounds, &x0, f0, &steps, budget, |_, fb| {
                         if fb >= f0 {
@@ -935,6 +1016,37 @@ mod tests {
         let stopped =
             refit_resamples(&sp, &runs, std::slice::from_ref(&p), &b, &o, |_, _| false).unwrap();
         assert!(stopped[0].refits.iter().any(|f| !f.done));
+    }
+
+    #[test]
+    fn the_blocked_gram_is_the_pairwise_dots_to_the_bit() {
+        for (len, n) in [
+            (0, 2),
+            (1, 1),
+            (3, 3),
+            (255, 4),
+            (256, 10),
+            (257, 2),
+            (1031, 7),
+        ] {
+            let f = |k: usize, e: usize| ((k * 7919 + e * 104_729) % 1000) as f64 / 37.0 - 13.0;
+            let cols: Vec<Vec<f64>> = (0..n)
+                .map(|k| (0..len).map(|e| f(k, e)).collect())
+                .collect();
+            let w: Vec<f64> = (0..len).map(|e| 0.5 + f(99, e).abs()).collect();
+            let r: Vec<f64> = (0..len).map(|e| f(7, e) * 1e-3).collect();
+            let cs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+            let (h, g) = weighted_gram(&cs, &r, &w);
+            for k in 0..n {
+                let wc: Vec<f64> = w.iter().zip(&cols[k]).map(|(a, b)| a * b).collect();
+                for l in k..n {
+                    let want = dot(&wc, &cols[l]).to_bits();
+                    assert_eq!(h[(k, l)].to_bits(), want, "{len} {k} {l}");
+                    assert_eq!(h[(l, k)].to_bits(), want);
+                }
+                assert_eq!(g[k].to_bits(), dot(&wc, &r).to_bits(), "{len} g{k}");
+            }
+        }
     }
 
     #[test]
