@@ -69,6 +69,17 @@ def run(data: str, threads: int, n: int, out_dir: str | None = None,
     return out
 
 
+def _commit() -> str:
+    """The checkout's commit (short), or "unknown"."""
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True, cwd=Path(__file__).parent).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
 def main() -> None:
     """Command line."""
     ap = argparse.ArgumentParser(description=__doc__)
@@ -83,6 +94,8 @@ def main() -> None:
     a = ap.parse_args()
     models = tuple(m.strip() for m in a.models.split(",")) if a.models else None
     res = run(a.data, a.threads, a.n, a.out, models, not a.no_structures)
+    res["commit"] = _commit()
+    res["command"] = "python " + " ".join(["benches/bench_intervals.py", *sys.argv[1:]])
     print(json.dumps(res, indent=1))
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=1, allow_nan=False) + "\n")
