@@ -32,6 +32,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from perf_tables import head_commit
+
 import avll
 from avll.studies.openacc import openacc_study
 
@@ -69,17 +71,6 @@ def run(data: str, threads: int, n: int, out_dir: str | None = None,
     return out
 
 
-def _commit() -> str:
-    """The checkout's commit (short), or "unknown"."""
-    import subprocess
-
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True, cwd=Path(__file__).parent).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def main() -> None:
     """Command line."""
     ap = argparse.ArgumentParser(description=__doc__)
@@ -94,7 +85,7 @@ def main() -> None:
     a = ap.parse_args()
     models = tuple(m.strip() for m in a.models.split(",")) if a.models else None
     res = run(a.data, a.threads, a.n, a.out, models, not a.no_structures)
-    res["commit"] = _commit()
+    res["commit"] = head_commit()
     res["command"] = "python " + " ".join(["benches/bench_intervals.py", *sys.argv[1:]])
     print(json.dumps(res, indent=1))
     if a.json:
