@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import avll
-from avll.uncertainty import Intervals, small_sample_scale, widen
+from avll.uncertainty import Intervals, small_sample_scale, widen, widen_values
 
 # Student's t quantiles from the tables (not from the code under test)
 T975 = {10: 2.228139, 30: 2.042272, 4: 2.776445}
@@ -51,6 +51,51 @@ def test_widen_scales_deviations_in_unit_coordinates_and_clips_to_the_box() -> N
     assert np.isnan(nothing[:, :2]).all() and np.all(nothing[:, 2] == 2.0)
     with pytest.raises(ValueError, match="factor"):
         widen(x, est, bounds, 0.5)
+
+
+def test_widen_values_scales_a_quantitys_own_deviations() -> None:
+    v = np.array([1.9, 2.1, 2.4, np.nan])
+    w = widen_values(2.0, v, 1.5)
+    assert w[:3] == pytest.approx([1.85, 2.15, 2.6]) and np.isnan(w[3])
+    assert np.array_equal(widen_values(2.0, v[:3], 1.0), v[:3])
+    assert np.isnan(widen_values(2.0, v, math.inf)).all()
+    assert np.isnan(widen_values(math.nan, v, 1.5)).all()
+    with pytest.raises(ValueError, match="factor"):
+        widen_values(2.0, v, 0.9)
+
+
+def test_a_combinations_interval_does_not_feel_the_box_of_its_terms() -> None:
+    """Two parameters that trade off along a valley the data do not determine: the
+    refits spread along it (``Tg + Gmin / v`` constant) by amounts that depend on the
+    optimiser, not on the data. Widening the parameters and clipping them to the box
+    before combining them turned that spread into a wide, one-sided interval of the
+    combination; widened as a quantity of its own, it is the refits' spread of the
+    combination times the factor, whatever they did along the valley."""
+    from dataclasses import replace
+
+    from avll.uncertainty import Uncertainty
+
+    rng = np.random.default_rng(5)
+    v, fac = 20.0, 1.5
+    est = np.array([1.5, 1.0])  # Tg (s), Gmin (m): Gmin near its lower bound 0
+    along = rng.normal(0.0, 0.05, 200)  # the valley: Tg + Gmin / v unchanged
+    noise = rng.normal(0.0, 0.002, 200)  # what the data determine
+    refits = np.column_stack([est[0] + along + noise, est[1] - v * along])
+    bounds = {"Tg": (0.5, 4.0, "lin"), "Gmin": (0.0, 10.0, "lin")}
+    base = Uncertainty(model="proposed", effects=(), names=("Tg", "Gmin"), estimate=est,
+                       samples=widen(refits, est, list(bounds.values()), fac),
+                       costs=np.zeros(200), level=0.95, method="blocks", block_s=10.0,
+                       atom_s=1.0, bounds=bounds,
+                       upper={"Tg": refits[:, 0], "Gmin": refits[:, 1]},
+                       upper_estimate={"Tg": 1.5, "Gmin": 1.0}, mean_speed=v,
+                       refits=refits, widening=fac)
+    base = replace(base, upper={"Tg": base.samples[:, 0], "Gmin": base.samples[:, 1]})
+    e, smp = base.time_gap_effective(v)
+    assert e == pytest.approx(1.55)
+    np.testing.assert_allclose(smp, e + fac * noise, rtol=0, atol=1e-12)
+    # the clipped widened parameters, combined, give a much wider interval
+    clipped = base.samples[:, 0] + base.samples[:, 1] / v
+    assert np.ptp(clipped) > 5 * np.ptp(smp)
 
 
 def _ls_coverage(x: np.ndarray, reps: int, rng: np.random.Generator) -> tuple[float, float]:

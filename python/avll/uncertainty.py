@@ -50,13 +50,20 @@ residuals, which a fit of ``p`` parameters to a record of only ``G`` effective b
 (record length over block length; runs when whole runs are resampled) has made
 smaller than the errors, and the spread itself is estimated from few pieces: the
 plain percentile intervals are far too narrow. With ``correction="dof"`` (the
-default) each refit's deviation from the estimate, in unit coordinates, is widened by
+default) each quantity's resampled deviations from its estimate are widened by
 :func:`small_sample_scale` ``= sqrt(G / (G - p)) t_{G-p} / z`` (the average-leverage
-degrees-of-freedom correction of a cluster-robust variance and Student's quantile)
-and clipped to the box; :attr:`Uncertainty.samples` are these widened refits (every
-interval, combination and probability is computed from them) and
-:attr:`Uncertainty.refits` the refits themselves. A record with ``G - p < 1`` determines
-nothing: its samples are NaN and every interval ``undetermined``.
+degrees-of-freedom correction of a cluster-robust variance and Student's quantile):
+the parameters' in the GA's unit coordinates, clipped to the box
+(:attr:`Uncertainty.samples`, from which the correlations and the probability of string
+stability come; :attr:`Uncertainty.refits` are the refits themselves), and every
+combination's and the band amplification's in its own units, from the refits' values
+(:func:`widen_values`). Widening the parameters first and combining the widened ones
+made a combination's interval depend on how far the refits had travelled along the
+directions the data do not determine (the box clips one of two parameters that trade
+off, the maps are not linear): on the same resamples, two refit rules that reach the
+same values of ``Tg + Gmin / v̄`` gave intervals of markedly different widths. A
+record with ``G - p < 1`` determines nothing: its samples are NaN and every interval
+``undetermined``.
 
 **What the data determine.** Percentile intervals at ``level`` of the (widened)
 samples; correlations of the resampled parameters in the unit coordinates; a verdict
@@ -103,6 +110,7 @@ __all__ = [
     "REFITS",
     "small_sample_scale",
     "widen",
+    "widen_values",
     "to_dataset",
 ]
 
@@ -333,6 +341,20 @@ def widen(samples: np.ndarray, estimate: np.ndarray,
     return out
 
 
+def widen_values(estimate: float, values: np.ndarray, factor: float) -> np.ndarray:
+    """A derived quantity's resampled ``values`` with their deviations from its
+    full-data ``estimate`` multiplied by ``factor`` in the quantity's own units: the
+    small-sample correction (:func:`small_sample_scale`) of a combination or of the
+    band amplification. ``factor = inf`` (no degrees of freedom left) or a non-finite
+    estimate gives NaN everywhere."""
+    v = np.asarray(values, dtype=np.float64)
+    if not factor >= 1.0:
+        raise ValueError(f"factor: must be >= 1, got {factor!r}")
+    if math.isinf(factor) or not math.isfinite(estimate):
+        return np.full(v.shape, np.nan)
+    return np.asarray(estimate + factor * (v - estimate))
+
+
 def _linear_columns(cls: Any, x: np.ndarray) -> dict[str, np.ndarray]:
     """The common linear form's coefficients (``b1, b0, a2, a1, Td, K``) of every row
     of ``x`` (the model's parameters), vectorised: the model's own ``linear()`` on an
@@ -364,10 +386,11 @@ class Uncertainty:
 
     ``names`` of the parameter row ``[model | effects | free upper gains]``;
     ``estimate`` the full-data optimum; ``samples`` (n, d) the resampled parameters
-    the intervals come from: the refits' deviations from the estimate widened by
-    ``widening`` (:func:`small_sample_scale` of ``blocks`` effective blocks and
-    ``fitted`` parameters; 1 without correction) in unit coordinates, clipped to the
-    box; ``refits`` (n, d) the refit parameters themselves (rows that did not run
+    the parameters' intervals come from: the refits' deviations from the estimate
+    widened by ``widening`` (:func:`small_sample_scale` of ``blocks`` effective blocks
+    and ``fitted`` parameters; 1 without correction) in unit coordinates, clipped to the
+    box (the combinations' samples are the refits' values widened in their own units,
+    :func:`widen_values`); ``refits`` (n, d) the refit parameters themselves (rows that did not run
     after a Ctrl-C are dropped from both); ``costs`` the refits' resampled costs;
     ``bounds`` the search box (name -> (lo, hi, scale)); ``upper`` the upper-level gains
     of the problem's (first) run, the free ones replaced per
@@ -556,10 +579,15 @@ class Uncertainty:
         full-data value and the resamples'. With upper-level structures, their
         equilibrium time gap at ``v̄`` (``Tg_eq`` of :meth:`avll.WithEffects.upper_linear`,
         e.g. ``Tg + ch v̄`` of ``speed_gains``) in place of ``Tg``, as the OpenACC
-        study's point estimate."""
+        study's point estimate. With a small-sample correction the resamples' values are
+        the refits' with their deviations widened (:func:`widen_values`)."""
         v = self.mean_speed if v_mean is None else float(v_mean)
         if v is None or not math.isfinite(v):
             raise ValueError("v_mean: the calibration has no mean speed; give v_mean")
+        if self.refits is not None and self.widening != 1.0:
+            # widened as a quantity of its own (see the module doc)
+            est, raw = self.uncorrected().time_gap_effective(v)
+            return est, widen_values(est, raw, self.widening)
         v = max(v, 0.1)
         tg_est, tg = self._equilibrium_time_gaps(v)
         est = tg_est + self.upper_estimate["Gmin"] / v
@@ -611,10 +639,19 @@ class Uncertainty:
         exact -- as an RMS gain on the band-passed spectrum of the predecessor's speed
         ``lead_v`` (:func:`avll.effect_stability.band_amplification_rows`, every row in
         one Rust call; ``hold`` the loop's sample period, default ``dt``): the full-data
-        value and the resamples' (NaN where the closed loop is locally unstable, when
-        known)."""
+        value (NaN where its closed loop is locally unstable, when known) and the
+        resamples'. With a small-sample correction (``widening > 1``) the resamples' are
+        the refits' values with their deviations from the full-data one widened
+        (:func:`widen_values`); without, the samples' (NaN where a closed loop is
+        locally unstable, when known)."""
         from .effect_stability import band_amplification_rows
 
+        if self.refits is not None and self.widening != 1.0:
+            # the refits' |H|, widened as a quantity of its own (see the module doc)
+            est, raw = self.uncorrected().band_amplification(lead_v, dt, band, v=v,
+                                                             threads=threads, hold=hold)
+            wide = widen_values(est, raw, self.widening)
+            return (math.nan if self.string_code_estimate == 0 else est), wide
         g = band_amplification_rows(self.model, self.rows(), lead_v, dt, band,
                                     effects=self.effects, v=v, threads=threads, hold=hold)
         if self.string_codes is not None:
@@ -1086,8 +1123,11 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         vs = [r.v for r in runs if r.v is not None]
         vbar = float(np.mean(np.concatenate(vs))) if vs else None
         nm = len(cls.param_names())
-        lin = _linear_columns(cls, np.vstack([x0[k][None, :nm], xs[:, :nm]]))
+        # the combinations of the refits, widened as quantities of their own
+        lin = _linear_columns(cls, np.vstack([x0[k][None, :nm], refits[:, :nm]]))
         comb = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
+        comb = {n: np.concatenate([v[:1], widen_values(float(v[0]), v[1:], fac)])
+                for n, v in comb.items()}
         u = Uncertainty(
             model=prob.cls.name, effects=tuple(prob.effects), names=tuple(prob.names),
             estimate=x0[k].copy(), samples=xs, costs=costs, level=float(opts.level),
