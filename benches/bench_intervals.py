@@ -29,12 +29,12 @@ import json
 import os
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from perf_tables import head_commit
 
 import avll
+from avll import _atomic
 from avll.studies.openacc import openacc_study
 
 
@@ -89,7 +89,7 @@ def main() -> None:
     res["command"] = "python " + " ".join(["benches/bench_intervals.py", *sys.argv[1:]])
     print(json.dumps(res, indent=1))
     if a.json:
-        Path(a.json).write_text(json.dumps(res, indent=1, allow_nan=False) + "\n")
+        _atomic.write_json(a.json, res, indent=1)
 
 
 if __name__ == "__main__":

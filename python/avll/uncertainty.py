@@ -586,7 +586,7 @@ class Uncertainty:
             raise ValueError("v_mean: the calibration has no mean speed; give v_mean")
         if self.refits is not None and self.widening != 1.0:
             # widened as a quantity of its own (see the module doc)
-            est, raw = self.uncorrected().time_gap_effective(v)
+            est, raw = self._raw().time_gap_effective(v)
             return est, widen_values(est, raw, self.widening)
         v = max(v, 0.1)
         tg_est, tg = self._equilibrium_time_gaps(v)
@@ -648,8 +648,8 @@ class Uncertainty:
 
         if self.refits is not None and self.widening != 1.0:
             # the refits' |H|, widened as a quantity of its own (see the module doc)
-            est, raw = self.uncorrected().band_amplification(lead_v, dt, band, v=v,
-                                                             threads=threads, hold=hold)
+            est, raw = self._raw().band_amplification(lead_v, dt, band, v=v,
+                                                      threads=threads, hold=hold)
             wide = widen_values(est, raw, self.widening)
             return (math.nan if self.string_code_estimate == 0 else est), wide
         g = band_amplification_rows(self.model, self.rows(), lead_v, dt, band,
@@ -663,14 +663,9 @@ class Uncertainty:
     def uncorrected(self) -> Uncertainty:
         """A copy whose samples are the refits themselves (the plain percentile
         bootstrap, no widening; the exact-delay codes dropped), for comparison."""
-        from dataclasses import replace
-
         if self.refits is None or self.widening == 1.0:
             return self
-        up = dict(self.upper)
-        for n in up:
-            if n in self.names:
-                up[n] = self.refits[:, self.names.index(n)].copy()
+        out = self._raw()
         cls_comb: dict[str, np.ndarray] = {}
         if self.combinations:
             from .models import model_class
@@ -679,12 +674,25 @@ class Uncertainty:
             lin = _linear_columns(cls, self.refits[:, :len(cls.param_names())])
             full = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
             cls_comb = {n: full[n] for n in self.combinations if n in full}
-        out = replace(self, samples=self.refits, upper=up, widening=1.0, string_codes=None,
-                      string_code_estimate=None, string_certified=None,
-                      combinations={**self.combinations, **cls_comb})
+        out = out.with_combinations(**{n: (self.combination_estimates[n], v)
+                                       for n, v in cls_comb.items()})
         if "time_gap_effective" in self.combinations and self.mean_speed is not None:
             out = out.with_combinations(time_gap_effective=out.time_gap_effective())
         return out
+
+    def _raw(self) -> Uncertainty:
+        """The refits as samples (their upper gains too), no widening, no exact-delay
+        codes; the combinations left as they are (:meth:`uncorrected` recomputes them).
+        What the quantities widened in their own units are computed from."""
+        from dataclasses import replace
+
+        assert self.refits is not None
+        up = dict(self.upper)
+        for n in up:
+            if n in self.names:
+                up[n] = self.refits[:, self.names.index(n)].copy()
+        return replace(self, samples=self.refits, upper=up, widening=1.0, string_codes=None,
+                       string_code_estimate=None, string_certified=None)
 
     def with_combinations(self, **more: tuple[float, np.ndarray]) -> Uncertainty:
         """A copy with more combinations (name -> (estimate, samples))."""
