@@ -449,9 +449,11 @@ class _HTTPDownload:
     def __call__(self, url: str, output_file: Any, _pooch: Any) -> None:
         import requests
 
-        with requests.Session() as session, \
-                session.get(url, stream=True, timeout=TIMEOUT) as response, \
-                open(output_file, "w+b") as out:
+        # The file is opened before the request is sent: a Ctrl-C can then only arrive
+        # inside the ``with`` (once data flows), never between ``open`` returning and the
+        # ``with`` taking it, which left the file object to the garbage collector.
+        with open(output_file, "w+b") as out, requests.Session() as session, \
+                session.get(url, stream=True, timeout=TIMEOUT) as response:
             response.raise_for_status()
             progress = None
             if self.bar:
