@@ -161,3 +161,52 @@ def test_a_ctrl_c_lost_in_a_destructor_is_raised_at_the_next_progress_update(
     # Outside the command: Python's handler is back, nothing latched.
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     _sigint.check()
+
+
+@pytest.mark.skipif(not hasattr(__import__("signal"), "SIGINT") or __import__("os").name != "posix",
+                    reason="needs SIGINT delivery")
+def test_the_command_does_not_print_a_ctrl_c_python_ignored_and_delivers_it(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """In the ``avll`` command's process a Ctrl-C that lands in a weakref callback or a
+    ``__del__`` (importlib's module-lock callback during an import, once in CI) is not
+    printed as "Exception ignored ... Traceback": it is latched and delivered by the next
+    check (the command checks once more before committing its outputs). Other
+    unraisable exceptions still reach the previous hook."""
+    import os
+    import signal
+    import sys
+
+    from avll import _sigint
+
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        pytest.skip("the test runner replaced Python's SIGINT handler")
+    seen: list[type[BaseException] | None] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_type))
+    monkeypatch.setattr(_sigint, "console", True)  # as in `avll ...` after at_startup()
+
+    class Swallows:
+        def __del__(self) -> None:
+            os.kill(os.getpid(), signal.SIGINT)
+            sum(range(10_000))  # the handler runs here; its exception is ignored
+
+    class Fails:
+        def __del__(self) -> None:
+            raise ValueError("not a Ctrl-C")
+
+    signal.signal(signal.SIGINT, _sigint.quiet_exit)
+    try:
+        _sigint.command_starts()
+        assert signal.getsignal(signal.SIGINT) is _sigint.handler
+        Swallows()
+        assert seen == []  # not printed ...
+        assert _sigint.interrupted()
+        with pytest.raises(KeyboardInterrupt):
+            _sigint.check()  # ... but delivered
+        Fails()
+        assert seen == [ValueError]
+        _sigint._restore_unraisable()
+        assert sys.unraisablehook is not _sigint._quiet_unraisable
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        _sigint.clear()
+        _sigint._restore_unraisable()

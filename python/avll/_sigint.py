@@ -20,9 +20,10 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from types import FrameType
+from typing import Any
 
 _pending = False
 
@@ -59,7 +60,8 @@ def latched() -> Iterator[None]:
         if old is signal.default_int_handler:
             signal.signal(signal.SIGINT, handler)
             installed = True
-    clear()
+    if installed:  # the command's own latch (command_starts) keeps a Ctrl-C of its start
+        clear()
     try:
         yield
     finally:
@@ -115,15 +117,45 @@ def at_startup() -> None:
         console = True
 
 
+#: The ``sys.unraisablehook`` the command replaced (:func:`command_starts`), if any.
+_previous_hook: Callable[[Any], object] | None = None
+
+
+def _quiet_unraisable(u: Any) -> None:
+    """``sys.unraisablehook`` of the ``avll`` command while it runs: a
+    ``KeyboardInterrupt`` that Python could not raise (it landed in a weakref callback or
+    a ``__del__``, e.g. importlib's module-lock callback during an import) is latched by
+    :func:`handler` and delivered by :func:`check` (at the next progress update, and
+    before the command commits its outputs); Python would print it as "Exception
+    ignored" with a traceback, for an interruption the command reports in one line.
+    Anything else goes to the hook it replaced."""
+    if u.exc_type is KeyboardInterrupt and _pending:
+        return
+    (_previous_hook or sys.__unraisablehook__)(u)
+
+
 def command_starts() -> None:
     """The command runs: a Ctrl-C raises ``KeyboardInterrupt`` again (the command handles
     it itself and commits or removes its outputs), through :func:`handler`, which also
     latches it: a library that turns the ``KeyboardInterrupt`` into another error (a C++
     extension converting arguments, say) still leaves :func:`interrupted` true, so the
-    command reports the interruption, not that error."""
+    command reports the interruption, not that error; one Python had to ignore is not
+    printed (:func:`_quiet_unraisable`)."""
+    global _previous_hook
     if console and signal.getsignal(signal.SIGINT) is quiet_exit:
         clear()
         signal.signal(signal.SIGINT, handler)
+        if sys.unraisablehook is not _quiet_unraisable:
+            _previous_hook = sys.unraisablehook
+            sys.unraisablehook = _quiet_unraisable
+
+
+def _restore_unraisable() -> None:
+    """Puts back the ``sys.unraisablehook`` :func:`command_starts` replaced."""
+    global _previous_hook
+    if sys.unraisablehook is _quiet_unraisable and _previous_hook is not None:
+        sys.unraisablehook = _previous_hook
+    _previous_hook = None
 
 
 def interrupted() -> bool:
@@ -142,5 +174,6 @@ def command_ends() -> None:
     if console and threading.current_thread() is threading.main_thread():
         import atexit
 
-        signal.signal(signal.SIGINT, quiet_exit)
+        signal.signal(signal.SIGINT, quiet_exit)  # never raises: nothing left to latch
+        _restore_unraisable()
         atexit.register(signal.signal, signal.SIGINT, signal.SIG_IGN)

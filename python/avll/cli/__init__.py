@@ -187,6 +187,7 @@ def _main(argv: Sequence[str] | None) -> int:
 
         check_io(args)  # before any work (and before loading the loaders)
         # imported after parsing: `avll --help` does not load the loaders (pandas)
+        from .. import _sigint
         from .._atomic import figure_dpi, output_group
         from .._sigint import latched
         from ..io._common import strict_warnings
@@ -196,7 +197,10 @@ def _main(argv: Sequence[str] | None) -> int:
             warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
             # every output of the command is committed as one unit at its end
             with strict_warnings(bool(getattr(args, "strict", False))), output_group():
-                return int(args.func(args) or 0)
+                code = int(args.func(args) or 0)
+                # a Ctrl-C Python had to ignore (avll._sigint), before the outputs commit
+                _sigint.check()
+                return code
     except KeyboardInterrupt:
         print(f"{_who(command)}: interrupted", file=sys.stderr)
         return 130
