@@ -175,11 +175,15 @@ def test_the_command_does_not_print_a_ctrl_c_python_ignored_and_delivers_it(
     import os
     import signal
     import sys
+    import threading
 
     from avll import _sigint
 
-    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
-        pytest.skip("the test runner replaced Python's SIGINT handler")
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers can only be set in the main thread")
+    # the command's own handlers are set here and the runner's put back after (so the
+    # test also runs under pytest-xdist, whose workers replace Python's handler)
+    previous = signal.getsignal(signal.SIGINT)
     seen: list[type[BaseException] | None] = []
     monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_type))
     monkeypatch.setattr(_sigint, "console", True)  # as in `avll ...` after at_startup()
@@ -207,6 +211,6 @@ def test_the_command_does_not_print_a_ctrl_c_python_ignored_and_delivers_it(
         _sigint._restore_unraisable()
         assert sys.unraisablehook is not _sigint._quiet_unraisable
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, previous)
         _sigint.clear()
         _sigint._restore_unraisable()
