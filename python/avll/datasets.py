@@ -449,9 +449,11 @@ class _HTTPDownload:
     def __call__(self, url: str, output_file: Any, _pooch: Any) -> None:
         import requests
 
-        # The file is opened before the request is sent: a Ctrl-C can then only arrive
-        # inside the ``with`` (once data flows), never between ``open`` returning and the
-        # ``with`` taking it, which left the file object to the garbage collector.
+        # The file is opened before the request is sent, so a Ctrl-C pressed once data
+        # flows lands inside the ``with``, which closes it. Opened after the response,
+        # such a Ctrl-C could fall between ``open`` returning and the ``with`` taking the
+        # file, leaving it to the garbage collector. The same instant before the request
+        # remains (pooch still removes the file; only a ResourceWarning could follow).
         with open(output_file, "w+b") as out, requests.Session() as session, \
                 session.get(url, stream=True, timeout=TIMEOUT) as response:
             response.raise_for_status()

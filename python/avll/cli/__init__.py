@@ -189,10 +189,9 @@ def _main(argv: Sequence[str] | None) -> int:
         # imported after parsing: `avll --help` does not load the loaders (pandas)
         from .. import _sigint
         from .._atomic import figure_dpi, output_group
-        from .._sigint import latched
         from ..io._common import strict_warnings
 
-        with warnings.catch_warnings(), latched(), figure_dpi(getattr(args, "dpi", None)):
+        with warnings.catch_warnings(), _sigint.latched(), figure_dpi(getattr(args, "dpi", None)):
             warnings.simplefilter("always", DataWarning)
             warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
             # every output of the command is committed as one unit at its end
