@@ -1,7 +1,9 @@
 """The resample refits of the intervals converge: warm-started at the full-data optimum,
 each refit leaves it (the first simplexes around the optimum are all worse, so a stall
 window counted from the start stopped every refit at the start itself: intervals of
-width zero) and ends where a refit with a far larger budget ends."""
+width zero) and ends where a refit with a far larger budget ends (the simplex), or,
+capped at ``avll.uncertainty.LM_BUDGET_PER_PARAM d`` rollouts (the Levenberg-Marquardt
+refits: a k-step bootstrap), gains at least 90 % of what that refit gains."""
 
 from __future__ import annotations
 
@@ -40,6 +42,12 @@ def test_refits_leave_the_optimum_and_reach_a_long_refits_values(
     assert np.all(np.ptp(x, axis=0) > 0), x            # a spread in every parameter
     long = _refits(monkeypatch, budget=20_000, refit=refit)
     fl = np.asarray(long["f"])
-    # the default budget stops where a 20,000-evaluation refit stops, to 2e-5 of the cost
-    # (the resamples' gains on the optimum are 1e-4 to 1e-3 of it)
-    assert np.all(np.abs(f - fl) <= 2e-5 * fl), (f, fl)
+    if refit == "simplex":
+        # the default budget stops where a 20,000-evaluation refit stops, to 2e-5 of the
+        # cost (the resamples' gains on the optimum are 1e-4 to 1e-3 of it)
+        assert np.all(np.abs(f - fl) <= 2e-5 * fl), (f, fl)
+    else:
+        # the k-step refits: at least 90 % of the long refit's gain on the optimum, and
+        # most of them end where it ends
+        assert np.all(f0 - f >= 0.9 * (f0 - fl)), (f, fl, f0)
+        assert np.sum(np.abs(f - fl) <= 2e-5 * fl) >= 4, (f, fl)

@@ -696,12 +696,15 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     upper gain free, ``Gmin`` in [0, 10] m) with ``n`` resamples. Per car: whether the
     95 % intervals of the band amplification and of ``Tg + Gmin / v̄`` hold the truth,
     the estimates' relative errors and the intervals' relative widths, and the same
-    for the plain percentile intervals of the same refits (``uncorrected``). A car whose
-    record has fewer effective blocks than fitted parameters gets no interval
-    (:func:`avll.uncertainty.small_sample_scale` is infinite: ``determined`` False,
-    ``inside`` None). Returns ``rows`` and a ``summary`` per quantity: ``coverage``
-    over the cars with an interval, ``coverage_all`` counting a car without one as
-    covered (its interval is the whole line), ``undetermined`` (share of cars without),
+    for the intervals of the same refits without the small-sample widening
+    (``uncorrected``). A car whose record has fewer effective blocks than fitted
+    parameters gets no interval (:func:`avll.uncertainty.small_sample_scale` is
+    infinite: ``determined`` False, ``inside`` None), nor for ``Tg + Gmin / v̄`` one
+    whose fitted gap loop is slower than its record
+    (:meth:`avll.Uncertainty.gap_loop_too_slow`). Returns ``rows`` and a ``summary``
+    per quantity: ``coverage`` over the cars with an interval, ``coverage_all``
+    counting a car without one as covered (its interval is the whole line),
+    ``undetermined`` (share of cars without),
     the share of estimates within 10 % (a car without an estimate, its calibrated
     closed loop locally unstable, is not within), ``no_estimate`` (their number),
     the mean and median absolute error of the others, the median relative width
@@ -737,17 +740,18 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
             for key, est, smp, truth, smp_raw in (
                     ("amplification", amp, amps, tr["band_gain"], amps_raw),
                     ("time_gap_effective", tge, tges, tr["time_gap_effective"], tges_raw)):
-                rlo, rhi = raw._q(smp_raw)
-                lo, hi = u._q(smp)
+                rlo, rhi = raw._q(smp_raw, est)
+                lo, hi = u._q(smp, est)
                 det = math.isfinite(lo) and math.isfinite(hi)
                 row[key] = {"truth": float(truth), "estimate": float(est),
                             "low": lo, "high": hi, "determined": det,
                             "inside": bool(lo <= truth <= hi) if det else None,
                             "error": float(est / truth - 1.0),
                             "rel_width": float((hi - lo) / truth) if det else math.inf,
-                            # the plain percentile bootstrap (no widening), same refits
+                            # the same refits without the small-sample widening
                             "uncorrected": {"low": rlo, "high": rhi,
-                                            "inside": bool(rlo <= truth <= rhi),
+                                            "inside": bool(rlo <= truth <= rhi) if det
+                                            else None,
                                             "rel_width": float((rhi - rlo) / truth)}}
             rows.append(row)
     summary: dict[str, Any] = {"cars": len(rows), "seeds": [int(s) for s in seeds],
@@ -774,9 +778,9 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
             "median_abs_error": float(np.median(np.abs(err))) if err.size else None,
             "median_rel_width": float(np.median([x["rel_width"] for x in d])) if d else None,
             "uncorrected_coverage": float(np.mean([x["uncorrected"]["inside"]
-                                                   for x in d_all])) if d_all else None,
+                                                   for x in d])) if d else None,
             "uncorrected_median_rel_width": float(np.median(
-                [x["uncorrected"]["rel_width"] for x in d_all])) if d_all else None,
+                [x["uncorrected"]["rel_width"] for x in d])) if d else None,
             # how far the truth lies outside, in interval widths (0 inside)
             "median_miss_in_widths": float(np.median([
                 max(x["low"] - x["truth"], x["truth"] - x["high"], 0.0)

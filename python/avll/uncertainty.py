@@ -40,7 +40,14 @@ cost that prefers a slowly diverging loop fits the record's length, not the car.
 **Refits.** Each resample is refit in the GA's unit coordinates (log scale for the
 positive coefficients), warm-started from the full-data optimum, by a bounded
 Levenberg-Marquardt iteration on its weighted residuals (``Intervals(refit="lm")``, the
-default) or by the GA's bounded Nelder-Mead (``refit="simplex"``); all resamples in
+default) or by the GA's bounded Nelder-Mead (``refit="simplex"``). A
+Levenberg-Marquardt refit takes at most :data:`LM_BUDGET_PER_PARAM` ``d`` rollouts
+(``d`` parameters; :attr:`Intervals.budget` sets another cap): a *k-step bootstrap*
+(Andrews 2002, Econometrica 70: a fixed number of Newton-type steps from the full-data
+optimum gives the full bootstrap's accuracy, with blocks of dependent data too).
+Chosen on the development seeds of the synthetic platoons: the intervals hold the
+truth as often as with refits run to convergence, at a fraction of their rollouts;
+all resamples in
 parallel in Rust, one after the other problem, seeded (the multiplicities are drawn
 from ``numpy.random.default_rng([seed, problem])``: the same result for any thread
 count), with progress and Ctrl-C.
@@ -65,9 +72,15 @@ same values of ``Tg + Gmin / v̄`` gave intervals of markedly different widths. 
 record with ``G - p < 1`` determines nothing: its samples are NaN and every interval
 ``undetermined``.
 
-**What the data determine.** Percentile intervals at ``level`` of the (widened)
-samples; correlations of the resampled parameters in the unit coordinates; a verdict
-per parameter (:meth:`Uncertainty.identified`): *identified* when the interval covers at most
+**What the data determine.** Symmetric intervals at ``level`` of the (widened)
+samples about the estimate (:func:`symmetric_interval`, Hall 1988; the parameters'
+in unit coordinates, clipped to the box): on the development seeds the equal-tailed
+percentile interval left the estimate out where the refits drift to one side of it,
+and with it the truth beside the estimate. ``Tg + Gmin / v̄`` has no interval when the
+fit's gap loop is slower than the record (:meth:`Uncertainty.gap_loop_too_slow`: ``kg``
+or the lower level's DC gain at zero, where the equilibrium gap is not determined).
+Correlations of the resampled parameters in the unit coordinates; a verdict per
+parameter (:meth:`Uncertainty.identified`): *identified* when the interval covers at most
 :data:`MAX_BOX_SHARE` of the search box in unit coordinates and neither the estimate
 nor the interval reaches a bound (within :data:`BOUND_TOL` of the box in unit
 coordinates). A parameter whose interval reaches a bound is determined on one side
@@ -89,7 +102,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -111,6 +124,8 @@ __all__ = [
     "small_sample_scale",
     "widen",
     "widen_values",
+    "symmetric_interval",
+    "LM_BUDGET_PER_PARAM",
     "to_dataset",
 ]
 
@@ -128,6 +143,10 @@ MAX_REL_WIDTH = 0.5
 BOUND_TOL = 1e-3
 #: Correlations at least this large (absolute) are listed in the report.
 MIN_CORREL = 0.5
+#: Rollouts per fitted parameter of a Levenberg-Marquardt refit when
+#: :attr:`Intervals.budget` is 0 (the polish and simplex refits keep Rust's ``200 d``):
+#: a k-step bootstrap (Andrews 2002), see the module doc.
+LM_BUDGET_PER_PARAM = 10
 _METHODS = ("blocks", "runs")
 #: The corrections of the resampled deviations (:class:`Intervals`): ``"dof"`` the
 #: small-sample correction (:func:`small_sample_scale`), ``"none"`` the plain
@@ -141,11 +160,12 @@ REFITS = ("simplex", "lm")
 class Intervals:
     """Options of the uncertainty stage of :func:`avll.calibrate`.
 
-    ``n`` resamples; ``level`` of the percentile intervals; ``block`` the block length
+    ``n`` resamples; ``level`` of the symmetric intervals; ``block`` the block length
     in seconds (``None``: from the residuals, :func:`block_length`); ``method``
     ``"blocks"`` (moving blocks over time within each run) or ``"runs"`` (whole runs);
-    ``budget`` rollouts per refit at most (0: ``200 d``; a refit stops earlier when
-    its cost stalls); ``step`` the initial simplex step in unit coordinates (simplex
+    ``budget`` rollouts per refit at most (0: :data:`LM_BUDGET_PER_PARAM` ``d`` for
+    ``"lm"`` refits, ``200 d`` for ``"simplex"`` ones and for the polish; a refit stops
+    earlier when its cost stalls); ``step`` the initial simplex step in unit coordinates (simplex
     refits);
     ``seed`` of the multiplicities (``None``: the calibration's); ``correction``
     ``"dof"`` (the resampled deviations widened for the parameters fitted on few
@@ -341,6 +361,22 @@ def widen(samples: np.ndarray, estimate: np.ndarray,
     return out
 
 
+def symmetric_interval(estimate: float, samples: np.ndarray, level: float
+                       ) -> tuple[float, float]:
+    """The symmetric bootstrap interval at ``level`` (Hall 1988): ``estimate ± q``,
+    ``q`` the ``level`` quantile of the finite samples' absolute deviations from the
+    estimate. Unlike the equal-tailed percentile interval it always holds the estimate:
+    where the refits drift to one side of it (a box, a curved valley), the percentile
+    interval can leave out the estimate and the truth beside it. NaN when there is no
+    finite sample or no finite estimate."""
+    v = np.asarray(samples, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0 or not math.isfinite(estimate):
+        return (math.nan, math.nan)
+    q = float(np.quantile(np.abs(v - estimate), level))
+    return (float(estimate - q), float(estimate + q))
+
+
 def widen_values(estimate: float, values: np.ndarray, factor: float) -> np.ndarray:
     """A derived quantity's resampled ``values`` with their deviations from its
     full-data ``estimate`` multiplied by ``factor`` in the quantity's own units: the
@@ -404,7 +440,8 @@ class Uncertainty:
     (:data:`STRING_TEST_EXACT` or :data:`STRING_TEST_CERTIFIED`). ``cost_given`` is the
     full-data cost at the optimum the stage was given (the GA's), ``cost_estimate``
     the one at ``estimate`` (lower when the polish moved it) and
-    ``polish_evaluations`` the polish's rollouts."""
+    ``polish_evaluations`` the polish's rollouts; ``record_s`` the length of the
+    problem's record (s, the runs' durations summed)."""
 
     model: str
     effects: tuple[str, ...]
@@ -436,27 +473,46 @@ class Uncertainty:
     cost_given: float = math.nan
     cost_estimate: float = math.nan
     polish_evaluations: int = 0
+    record_s: float = math.nan
 
     # -- intervals --------------------------------------------------------------
-    def _q(self, v: np.ndarray) -> tuple[float, float]:
-        v = np.asarray(v, dtype=np.float64)
-        v = v[np.isfinite(v)]
-        if v.size == 0:
+    def _q(self, v: np.ndarray, estimate: float) -> tuple[float, float]:
+        """The symmetric interval at ``level`` of samples ``v`` about ``estimate``
+        (:func:`symmetric_interval`)."""
+        return symmetric_interval(float(estimate), v, self.level)
+
+    def _param_interval(self, j: int) -> tuple[float, float]:
+        """Parameter ``j``'s symmetric interval, in the GA's unit coordinates (where the
+        samples were widened) and clipped to the box."""
+        n = self.names[j]
+        lo, hi, sc = self.bounds[n]
+        if lo == hi:
+            return (float(lo), float(hi))
+        z = _unit(np.asarray(self.samples[:, j], dtype=np.float64), lo, hi, sc)
+        ze = float(_unit(np.array([self.estimate[j]], dtype=np.float64), lo, hi, sc)[0])
+        zl, zh = symmetric_interval(ze, z, self.level)
+        if not (math.isfinite(zl) and math.isfinite(zh)):
             return (math.nan, math.nan)
-        a = (1.0 - self.level) / 2.0
-        lo, hi = np.quantile(v, [a, 1.0 - a])
-        return (float(lo), float(hi))
+        ql, qh = _from_unit(np.clip(np.array([zl, zh]), 0.0, 1.0), lo, hi, sc)
+        return (float(ql), float(qh))
+
+    def interval(self, name: str) -> tuple[float, float]:
+        """The interval of a parameter or a combination (:attr:`intervals`)."""
+        if name in self.names:
+            return self._param_interval(self.names.index(name))
+        return self._q(self.combinations[name], self.combination_estimates.get(name, math.nan))
 
     @property
     def intervals(self) -> dict[str, tuple[float, float]]:
-        """Percentile intervals at ``level``: parameters, then combinations."""
-        out = {n: self._q(self.samples[:, j]) for j, n in enumerate(self.names)}
-        out.update({n: self._q(v) for n, v in self.combinations.items()})
+        """Symmetric intervals at ``level`` (:func:`symmetric_interval`): parameters
+        (in unit coordinates, clipped to the box), then combinations."""
+        out = {n: self._param_interval(j) for j, n in enumerate(self.names)}
+        out.update({n: self.interval(n) for n in self.combinations})
         return out
 
     def ci(self) -> Any:
         """A DataFrame: rows the parameters and combinations, columns ``estimate``,
-        ``median``, ``low``, ``high`` (percentile interval at ``level``) and
+        ``median``, ``low``, ``high`` (symmetric interval at ``level``) and
         ``verdict``."""
         import pandas as pd
 
@@ -502,7 +558,7 @@ class Uncertainty:
             if lo == hi:
                 out[n] = "fixed"
                 continue
-            ql, qh = self._q(self.samples[:, j])
+            ql, qh = self._param_interval(j)
             if not (math.isfinite(ql) and math.isfinite(qh)):
                 out[n] = "undetermined"
                 continue
@@ -517,8 +573,8 @@ class Uncertainty:
             else:
                 out[n] = "identified"
         for n, v in self.combinations.items():
-            ql, qh = self._q(v)
             est = self.combination_estimates.get(n, math.nan)
+            ql, qh = self._q(v, est)
             if not (math.isfinite(ql) and math.isfinite(qh) and math.isfinite(est)):
                 out[n] = "undetermined"
             elif qh - ql > MAX_REL_WIDTH * abs(est):
@@ -591,7 +647,34 @@ class Uncertainty:
         v = max(v, 0.1)
         tg_est, tg = self._equilibrium_time_gaps(v)
         est = tg_est + self.upper_estimate["Gmin"] / v
-        return float(est), np.asarray(tg + self.upper["Gmin"] / v)
+        smp = np.asarray(tg + self.upper["Gmin"] / v, dtype=np.float64)
+        if self.gap_loop_too_slow():
+            smp = np.full_like(smp, np.nan)  # undetermined: see gap_loop_too_slow
+        return float(est), smp
+
+    def gap_loop_period(self) -> float:
+        """``2 π / sqrt(kg G(0))`` (s) of the estimate: the natural period of the gap
+        loop (the gap gain through the lower level's static gain ``G(0)``, the
+        :func:`dc_gain`); ``inf`` when that gain is not positive (no gap feedback, or a
+        lower level that does not answer a steady command)."""
+        g = self.upper_estimate.get("kg", math.nan) * self.combination_estimates.get(
+            "dc_gain", math.nan)
+        return 2.0 * math.pi / math.sqrt(g) if g > 0 else math.inf
+
+    def gap_loop_too_slow(self) -> bool:
+        """Whether ``Tg + Gmin / v̄`` is undetermined by this fit: the gap loop's natural
+        period (:meth:`gap_loop_period`) is longer than the record (:attr:`record_s`).
+        The equilibrium gap ``Gmin + Tg v`` is where the gap feedback settles; a fit
+        whose gap loop takes longer than the record to settle (``kg`` or the DC gain at
+        zero: a corner local minimum of a closed-loop fit with free gains) cannot
+        determine it, and the refits from that corner do not leave it."""
+        return bool(math.isfinite(self.record_s) and self.gap_loop_period() > self.record_s)
+
+    def gap_loop_reason(self) -> str:
+        """Why :meth:`gap_loop_too_slow` holds, with the numbers."""
+        return (f"undetermined: the fitted gap loop's natural period "
+                f"{self.gap_loop_period():.3g} s exceeds the record ({self.record_s:.0f} s; "
+                "kg or the lower level's DC gain at zero)")
 
     def _equilibrium_time_gaps(self, v: float) -> tuple[float, np.ndarray]:
         """The law's equilibrium time gap at speed ``v``, full-data and per resample:
@@ -684,7 +767,6 @@ class Uncertainty:
         """The refits as samples (their upper gains too), no widening, no exact-delay
         codes; the combinations left as they are (:meth:`uncorrected` recomputes them).
         What the quantities widened in their own units are computed from."""
-        from dataclasses import replace
 
         assert self.refits is not None
         up = dict(self.upper)
@@ -696,8 +778,6 @@ class Uncertainty:
 
     def with_combinations(self, **more: tuple[float, np.ndarray]) -> Uncertainty:
         """A copy with more combinations (name -> (estimate, samples))."""
-        from dataclasses import replace
-
         comb = dict(self.combinations)
         est = dict(self.combination_estimates)
         for n, (e, v) in more.items():
@@ -851,7 +931,7 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
     lv = {u.level for u in items}
     return xr.Dataset(data, coords=cds, attrs={
         "level": lv.pop() if len(lv) == 1 else "mixed",
-        "intervals": "percentile intervals of a block bootstrap over time refit from the "
+        "intervals": "symmetric intervals of a block bootstrap over time refit from the "
                      "full-data optimum, the deviations widened for the parameters fitted "
                      "on few effective blocks (avll.uncertainty)",
         "identified": f"interval within {MAX_BOX_SHARE} of the search box (unit "
@@ -866,6 +946,15 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
 
 def _finite_or_none(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
+
+
+def refit_budget(opts: Intervals, d: int) -> int:
+    """Rollouts per resample refit: :attr:`Intervals.budget`, or when 0
+    :data:`LM_BUDGET_PER_PARAM` ``d`` for Levenberg-Marquardt refits (0, Rust's
+    ``200 d``, for simplex refits)."""
+    if opts.budget or opts.refit != "lm":
+        return int(opts.budget)
+    return LM_BUDGET_PER_PARAM * int(d)
 
 
 def _polish(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray, opts: Intervals,
@@ -1091,13 +1180,14 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
                 prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
                 scale=prob.scale, problems=[[int(i) for i in s] for s in subsets], x0=x0,
                 atoms=[p[1] for p in plans], resample_weights=[p[2] for p in plans],
-                budget=int(opts.budget), step=float(opts.step), ftol=float(opts.ftol),
-                method=opts.refit,
+                budget=refit_budget(opts, x0.shape[1]), step=float(opts.step),
+                ftol=float(opts.ftol), method=opts.refit,
                 progress=cb if (callable(progress) or bar.mode != "none") else None,
                 threads=int(threads), **prob.kw)
         else:
             raws = refit([[int(i) for i in s] for s in subsets], x0, [p[1] for p in plans],
-                         [p[2] for p in plans], opts, threads)
+                         [p[2] for p in plans],
+                         replace(opts, budget=refit_budget(opts, x0.shape[1])), threads)
         done = not any(bool(r["interrupted"]) for r in raws)
         if not done:
             _sigint.clear()
@@ -1149,7 +1239,8 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             blocks=blocks, fitted=int(fitted),
             cost_given=float(f_given[k] if opts.polish else raw["f_full"]),
             cost_estimate=float(f_est[k] if opts.polish else raw["f_full"]),
-            polish_evaluations=int(p_evals[k]))
+            polish_evaluations=int(p_evals[k]),
+            record_s=float(sum(len(r) * float(r.dt) for r in runs)))
         if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
             u = u.with_combinations(time_gap_effective=u.time_gap_effective())
         if prob.closed_loop and math.isfinite(fac):
@@ -1158,8 +1249,6 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             c0, _ = _exact_codes(prob.cls.name, cls, x0[k][None, :],
                                  {n: np.array([v]) for n, v in up0.items()}, threads,
                                  prob.effects, vbar)
-            from dataclasses import replace
-
             u = replace(u, string_codes=codes, string_code_estimate=int(c0[0]),
                         string_certified=cert,
                         string_test=STRING_TEST_CERTIFIED if prob.effects else

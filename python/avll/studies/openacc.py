@@ -131,6 +131,7 @@ from ..spectral import (
     bandpass,
 )
 from ..stability import exact_delay_codes
+from ..uncertainty import symmetric_interval
 
 __all__ = [
     "WEIGHTS",
@@ -1385,16 +1386,17 @@ def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
         for k in keys:
             e[f"{k}_reason"] = why
         return e
-    _, tge = u.time_gap_effective(float(np.mean(r.v)))
-    e[f"time_gap_effective{sfx}_ci"] = _ci(tge, u.level)
+    tge0, tge = u.time_gap_effective(float(np.mean(r.v)))
+    e[f"time_gap_effective{sfx}_ci"] = _ci(tge0, tge, u.level)
     if e[f"time_gap_effective{sfx}_ci"] is None:
-        e[f"time_gap_effective{sfx}_ci_reason"] = "not finite"
+        e[f"time_gap_effective{sfx}_ci_reason"] = (
+            u.gap_loop_reason() if u.gap_loop_too_slow() else "not finite")
     key = f"amplification_predicted{sfx}_ci"
     if short is not None:
         e[f"{key}_reason"] = short
     else:
-        _, amp = u.band_amplification(r.lead_v, r.dt, band)
-        e[key] = _ci(amp, u.level)
+        amp0, amp = u.band_amplification(r.lead_v, r.dt, band)
+        e[key] = _ci(amp0, amp, u.level)
         if e[key] is None:
             bad = int(np.isnan(amp).sum())
             e[f"{key}_reason"] = (f"{bad} of {amp.size} resampled closed loops are locally "
@@ -1415,15 +1417,15 @@ def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
     return e
 
 
-def _ci(samples: np.ndarray, level: float) -> list[float] | None:
-    """Percentile interval of the finite samples, or None."""
-    v = np.asarray(samples, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    if v.size < 2:
+def _ci(estimate: float, samples: np.ndarray, level: float) -> list[float] | None:
+    """The symmetric interval about ``estimate`` of the finite samples
+    (:func:`avll.uncertainty.symmetric_interval`), or None with fewer than two."""
+    if int(np.isfinite(np.asarray(samples, dtype=np.float64)).sum()) < 2:
         return None
-    a = (1.0 - level) / 2.0
-    lo, hi = np.quantile(v, [a, 1.0 - a])
-    return [float(lo), float(hi)]
+    lo, hi = symmetric_interval(float(estimate), samples, level)
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return None
+    return [lo, hi]
 
 
 def _vs(cars: Sequence[Mapping[str, Any]], pred: str, meas: str, ci: str | None,
