@@ -425,12 +425,25 @@ def validation_long() -> dict:
 
 @pytest.mark.slow
 @pytest.mark.long
-def test_intervals_hold_the_truth_on_longer_records(validation_long) -> None:  # type: ignore[no-untyped-def]
-    """On 20 min records the intervals of both quantities hold the truth for at least
-    85 % of the cars: the shortfall of ``Tg + Gmin / v̄`` on 5 min records is theirs
-    (the estimates' errors shrink faster than the intervals), not the method's."""
+def test_amplification_intervals_hold_the_truth_on_longer_records(validation_long
+                                                                  ) -> None:  # type: ignore[no-untyped-def]
     s = validation_long
     assert s["amplification"]["coverage"] >= 0.85, s
+
+
+@pytest.mark.slow
+@pytest.mark.long
+@pytest.mark.xfail(strict=True, reason=(
+    "on 20 min records (fresh seeds 7801-7804, 24 cars) the intervals of Tg + Gmin/v hold "
+    "the truth for 83.3 % (20 of 24; 95.5 % on the development seeds 7301-7304): the "
+    "estimates' errors shrink faster than the intervals, but the shortfall of the 5 min "
+    "records is not only theirs (docs/_generated/intervals.md)"))
+def test_time_gap_intervals_hold_the_truth_on_longer_records(validation_long
+                                                             ) -> None:  # type: ignore[no-untyped-def]
+    """Whether the shortfall of ``Tg + Gmin / v̄`` on 5 min records is the records' (the
+    estimates' errors shrink faster than the intervals as the record grows): at least
+    85 % on 20 min records (not met; strict, so that it turns red when it is)."""
+    s = validation_long
     assert s["time_gap_effective"]["coverage"] >= 0.85, s
 
 
