@@ -389,33 +389,6 @@ def test_time_gaps_are_within_10_percent_on_synthetic_platoons(validation) -> No
     assert s["time_gap_effective"]["within_10pct"] >= 0.90, s
 
 
-@pytest.mark.slow
-@pytest.mark.long
-def test_amplification_intervals_cover_the_truth_on_synthetic_platoons(validation
-                                                                       ) -> None:  # type: ignore[no-untyped-def]
-    """The 95 % intervals of the band amplification hold the truth for at least 85 % of
-    the cars (the issue's criterion; the docs' fragment on these seeds says by how
-    much, from the same function)."""
-    s = validation
-    assert s["amplification"]["coverage"] >= 0.85, s
-
-
-@pytest.mark.slow
-@pytest.mark.long
-@pytest.mark.xfail(strict=True, reason=(
-    "the symmetric intervals of Tg + Gmin/v, widened in their own units, hold the truth "
-    "for fewer than 85 % of these cars (docs/_generated/intervals.md): the cars they miss "
-    "have estimates within 2 % of the truth with intervals narrower still (|z| 2-4.4). "
-    "The former rule (the parameters widened and clipped, then combined) passed through "
-    "an artifact of the box (docs/guide/intervals.md)"))
-def test_time_gap_intervals_cover_the_truth_on_synthetic_platoons(validation
-                                                                  ) -> None:  # type: ignore[no-untyped-def]
-    """The issue's criterion for ``Tg + Gmin / v̄``: at least 85 % (not met; strict, so
-    that a method that meets it turns this red until the mark goes)."""
-    s = validation
-    assert s["time_gap_effective"]["coverage"] >= 0.85, s
-
-
 @pytest.fixture(scope="module")
 def validation_long() -> dict:
     # the same method on records four times as long, fresh seeds (docs/gen/intervals.py)
@@ -425,25 +398,36 @@ def validation_long() -> dict:
 
 @pytest.mark.slow
 @pytest.mark.long
-def test_amplification_intervals_hold_the_truth_on_longer_records(validation_long
-                                                                  ) -> None:  # type: ignore[no-untyped-def]
-    s = validation_long
+@pytest.mark.parametrize("records", ["validation", "validation_long"])
+def test_amplification_intervals_cover_the_truth_on_synthetic_platoons(
+        records: str, request: pytest.FixtureRequest) -> None:
+    """The 95 % intervals of the band amplification hold the truth for at least 85 % of
+    the cars (the issue's criterion; the docs' fragment on these seeds says by how
+    much, from the same function), on 5 min records and on 20 min ones."""
+    s = request.getfixturevalue(records)
     assert s["amplification"]["coverage"] >= 0.85, s
 
 
 @pytest.mark.slow
 @pytest.mark.long
-@pytest.mark.xfail(strict=True, reason=(
-    "on 20 min records (fresh seeds 7801-7804, 24 cars) the intervals of Tg + Gmin/v hold "
-    "the truth for 83.3 % (20 of 24; 95.5 % on the development seeds 7301-7304): the "
-    "estimates' errors shrink faster than the intervals, but the shortfall of the 5 min "
-    "records is not only theirs (docs/_generated/intervals.md)"))
-def test_time_gap_intervals_hold_the_truth_on_longer_records(validation_long
-                                                             ) -> None:  # type: ignore[no-untyped-def]
-    """Whether the shortfall of ``Tg + Gmin / v̄`` on 5 min records is the records' (the
-    estimates' errors shrink faster than the intervals as the record grows): at least
-    85 % on 20 min records (not met; strict, so that it turns red when it is)."""
-    s = validation_long
+@pytest.mark.parametrize("records", [
+    pytest.param("validation", marks=pytest.mark.xfail(strict=True, reason=(
+        "the symmetric intervals of Tg + Gmin/v, widened in their own units, hold the "
+        "truth for fewer than 85 % of these cars (docs/_generated/intervals.md): the cars "
+        "they miss have estimates within 2 % of the truth with intervals narrower still "
+        "(|z| 2-4.4). The former rule (the parameters widened and clipped, then "
+        "combined) passed through an artifact of the box (docs/guide/intervals.md)"))),
+    pytest.param("validation_long", marks=pytest.mark.xfail(strict=True, reason=(
+        "on 20 min records (fresh seeds 7801-7804, 24 cars) 83.3 % (20 of 24; 95.5 % on "
+        "the development seeds 7301-7304): the estimates' errors shrink faster than the "
+        "intervals, but the shortfall of the 5 min records is not only theirs "
+        "(docs/_generated/intervals.md)")))])
+def test_time_gap_intervals_cover_the_truth_on_synthetic_platoons(
+        records: str, request: pytest.FixtureRequest) -> None:
+    """The issue's criterion for ``Tg + Gmin / v̄``: at least 85 %, on 5 min and on
+    20 min records (not met; strict, so that a method that meets it turns this red
+    until the mark goes)."""
+    s = request.getfixturevalue(records)
     assert s["time_gap_effective"]["coverage"] >= 0.85, s
 
 
