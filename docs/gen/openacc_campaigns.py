@@ -45,8 +45,8 @@ SEED = 0
 #: The study's GA budget and resamples here: reduced from the study's defaults
 #: (:data:`avll.defaults.GA_OPTIONS`, :data:`avll.defaults.DEFAULT_STARTS`,
 #: ``avll.Intervals().n``) for the run time; the structure selection on (``structures``,
-#: the study's default), although on this 2-core machine Casale alone takes more than an
-#: hour with it. The page states all three.
+#: the study's default; the page's study time per campaign says what it costs). The
+#: page states all three.
 BUDGET: dict[str, Any] = {"max_generations": 100, "starts": 1, "resamples": 100,
                           "structures": True}
 
