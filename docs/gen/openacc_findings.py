@@ -49,7 +49,8 @@ def generate(data: Path, seed: int = 0) -> Generated:
     fails = ", ".join(c["car"] for c in wo["checks"] if not c["held"]) or "none"
     atb = sum("Gmin" in c["at_bound"] for c in s["cars"])
     atb_w = sum("Gmin" in c["at_bound"] for c in w["cars"])
-    report = study.report.split("\n", 1)[1]  # drop the report's own title
+    # drop the report's own title; the data folder relative to the repository, as above
+    report = study.report.split("\n", 1)[1].replace(str(data), data_rel)
     page = [
         "(findings-openacc)=",
         "# Findings: OpenACC ZalaZone — time gaps and measured string stability",
