@@ -576,7 +576,7 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
 UNSTAMPED: dict[str, str] = {
     name: f"unstamped: regenerate with `{COMMAND.format(name=name)}`"
     + (f" ({REGISTRY[name].note})" if REGISTRY[name].note else "")
-    for name in ("findings-openacc",)
+    for name in ()
 }
 
 
