@@ -767,7 +767,6 @@ class Uncertainty:
         """The refits as samples (their upper gains too), no widening, no exact-delay
         codes; the combinations left as they are (:meth:`uncorrected` recomputes them).
         What the quantities widened in their own units are computed from."""
-
         assert self.refits is not None
         up = dict(self.upper)
         for n in up:
@@ -1161,6 +1160,8 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             _sigint.clear()
             return [_stopped(prob, s, x0[k], opts, f_given[k]) for k, s in enumerate(subsets)]
     plans = [_plan(prob, s, x0[k], opts, seed, k, threads) for k, s in enumerate(subsets)]
+    # the refits' own budget (the polish above kept the options' one)
+    ropts = replace(opts, budget=refit_budget(opts, x0.shape[1]))
     bar: Any = None
     if callable(progress):
         cb: Any = progress
@@ -1180,14 +1181,13 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
                 prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
                 scale=prob.scale, problems=[[int(i) for i in s] for s in subsets], x0=x0,
                 atoms=[p[1] for p in plans], resample_weights=[p[2] for p in plans],
-                budget=refit_budget(opts, x0.shape[1]), step=float(opts.step),
-                ftol=float(opts.ftol), method=opts.refit,
+                budget=ropts.budget, step=float(opts.step), ftol=float(opts.ftol),
+                method=opts.refit,
                 progress=cb if (callable(progress) or bar.mode != "none") else None,
                 threads=int(threads), **prob.kw)
         else:
             raws = refit([[int(i) for i in s] for s in subsets], x0, [p[1] for p in plans],
-                         [p[2] for p in plans],
-                         replace(opts, budget=refit_budget(opts, x0.shape[1])), threads)
+                         [p[2] for p in plans], ropts, threads)
         done = not any(bool(r["interrupted"]) for r in raws)
         if not done:
             _sigint.clear()
@@ -1206,9 +1206,9 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         xs, costs = xs[keep], costs[keep]
         runs = [prob.rs.runs[i] for i in plan[0]]
         bounds = prob.box
+        record_s = float(sum(len(r) * float(r.dt) for r in runs))
         # effective independent pieces: blocks of the record, or whole runs
-        blocks = (float(len(runs)) if opts.method == "runs" else
-                  float(sum(len(r) * float(r.dt) for r in runs) / plan[3]))
+        blocks = float(len(runs)) if opts.method == "runs" else record_s / plan[3]
         fitted = sum(1 for lo, hi in zip(prob.lower, prob.upper, strict=True) if hi > lo)
         fac = (1.0 if opts.correction == "none" else
                small_sample_scale(blocks, fitted, float(opts.level)))
@@ -1240,7 +1240,7 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             cost_given=float(f_given[k] if opts.polish else raw["f_full"]),
             cost_estimate=float(f_est[k] if opts.polish else raw["f_full"]),
             polish_evaluations=int(p_evals[k]),
-            record_s=float(sum(len(r) * float(r.dt) for r in runs)))
+            record_s=record_s)
         if prob.closed_loop and vbar is not None and math.isfinite(up0["Tg"]):
             u = u.with_combinations(time_gap_effective=u.time_gap_effective())
         if prob.closed_loop and math.isfinite(fac):
