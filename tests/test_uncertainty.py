@@ -362,10 +362,11 @@ def test_validation_on_synthetic_platoons_quick() -> None:
 @pytest.fixture(scope="module")
 def validation() -> dict:
     # 8 platoons of 6 cars: 48 cars, enough for a coverage of 85 % to mean something; seeds
-    # not used while the method was chosen (that was 7301-7308; 7501-7508 and 7601-7608
-    # were the final checks of earlier rules), the same as the docs' fragment
+    # not used while the method was chosen (that was 7301-7308; 7501-7508, 7601-7608 and
+    # 7701-7708 were the final checks of earlier rules), the same as the docs' fragment
     # (docs/gen/intervals.py)
-    return validate_intervals(list(range(7701, 7709)), cars=6, n=200)["summary"]
+    from docs.gen.intervals import SEEDS
+    return validate_intervals(list(SEEDS), cars=6, n=200)["summary"]
 
 
 @pytest.mark.slow
@@ -392,8 +393,9 @@ def test_time_gaps_are_within_10_percent_on_synthetic_platoons(validation) -> No
 @pytest.fixture(scope="module")
 def validation_long() -> dict:
     # the same method on records four times as long, fresh seeds (docs/gen/intervals.py)
-    return validate_intervals(list(range(7801, 7805)), cars=6, n=200,
-                              duration=1200.0)["summary"]
+    from docs.gen.intervals import LONG_DURATION, LONG_SEEDS
+    return validate_intervals(list(LONG_SEEDS), cars=6, n=200,
+                              duration=LONG_DURATION)["summary"]
 
 
 @pytest.mark.slow
