@@ -564,7 +564,9 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
     Fragment("findings-openacc", "docs/findings-openacc.md",
              lambda a: _own("openacc_findings").generate(Path(a.data_root) / "openacc-zalazone"),
              ("docs/gen/openacc_findings.py", "python/avll/studies/openacc.py",
-              "python/avll/studies/openacc_effects.py", *_FIELD, *_LOOP), cheap=False,
+              "python/avll/studies/openacc_effects.py", "python/avll/studies/openacc_select.py",
+              "python/avll/uncertainty.py", "python/avll/spectral.py", *_FIELD, *_LOOP),
+             cheap=False,
              data=True, note="a page; hours (the full GA budget on every car)"),
 ]}
 
