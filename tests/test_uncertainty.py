@@ -56,6 +56,9 @@ def test_interval_options_are_checked() -> None:
         Intervals(ftol=-1e-9)
     with pytest.raises(TypeError, match="polish"):
         Intervals(polish=1)  # type: ignore[arg-type]
+    for bad in (0.0, -1.0, math.inf, math.nan, True):
+        with pytest.raises(ValueError, match="block_factor"):
+            Intervals(block_factor=bad)
     with pytest.raises(TypeError, match="intervals"):
         Intervals.of("yes")
     assert Intervals.of(True) == Intervals()
@@ -163,6 +166,24 @@ def test_resampled_cost_carries_the_upper_level_structures(platoon, fitted, effe
             budget=30, method=method, **prob.kw)[0]
         assert o["f_full"] == pytest.approx(r.cost, rel=1e-9), (method, o["f_full"], r.cost)
         assert o["f"][0] <= r.cost * (1 + 1e-12)
+
+
+def test_the_block_is_the_factor_times_the_politis_white_length(platoon, fitted
+                                                                 ) -> None:  # type: ignore[no-untyped-def]
+    """The same fit (same seed and start), its score series' Politis-White length times
+    ``block_factor`` (above the floor, below the cap), and the default factor is
+    :data:`avll.uncertainty.BLOCK_FACTOR`."""
+    from avll.uncertainty import BLOCK_FACTOR, MIN_BLOCK
+
+    run = platoon.runs[1]
+    bs = [avll.calibrate("proposed", [run], seed=5, starts=1, max_generations=2,
+                         initial=[fitted[1].x], intervals=Intervals(n=4, polish=False, **kw),
+                         **CL).uncertainty.block_s
+          for kw in ({"block_factor": 1.0}, {"block_factor": 2.0}, {})]
+    assert MIN_BLOCK < bs[0] < bs[1] < 100.0
+    assert bs[1] == pytest.approx(2.0 * bs[0], rel=1e-12)
+    assert bs[2] == pytest.approx(BLOCK_FACTOR * bs[0], rel=1e-12)
+    assert Intervals().block_factor == BLOCK_FACTOR
 
 
 def test_uncertainty_result(platoon, fitted) -> None:  # type: ignore[no-untyped-def]

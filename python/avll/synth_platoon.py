@@ -726,12 +726,15 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
                              closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,
                              bounds={"Gmin": (0.0, GMIN_MAX)}, intervals=opts,
                              threads=threads)
-        for r, run, tr in zip(res, sp.runs, sp.truth, strict=True):
+        costs = _fit_and_truth_costs(res, sp)
+        for r, run, tr, cost in zip(res, sp.runs, sp.truth, costs, strict=True):
             u = r.uncertainty
             assert run.lead_v is not None and run.v is not None
             row: dict[str, Any] = {"seed": int(seed), "car": run.run_id,
                                    "block_s": u.block_s, "blocks": u.blocks,
-                                   "widening": u.widening}
+                                   "widening": u.widening,
+                                   "gap_loop_slow": bool(u.gap_loop_too_slow()),
+                                   "cost_fit": cost[0], "cost_truth": cost[1]}
             amp, amps = u.band_amplification(run.lead_v, run.dt)
             tge, tges = u.time_gap_effective(float(np.mean(run.v)))
             raw = u.uncorrected()
@@ -757,9 +760,19 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
     summary: dict[str, Any] = {"cars": len(rows), "seeds": [int(s) for s in seeds],
                                "resamples": int(n), "level": opts.level,
                                "refit": opts.refit, "polish": bool(opts.polish),
-                               "ftol": float(opts.ftol)}
+                               "ftol": float(opts.ftol),
+                               "block_factor": float(opts.block_factor)}
     wid = [r["widening"] for r in rows if math.isfinite(r["widening"])]
     summary["median_widening"] = float(np.median(wid)) if wid else None
+    summary["median_block_s"] = float(np.median([r["block_s"] for r in rows]))
+    slow = [r for r in rows if r["gap_loop_slow"]]
+    # the data, not the optimiser: such a fit costs less than the true parameters
+    summary["gap_loop_slow"] = len(slow)
+    summary["gap_loop_slow_below_truth_cost"] = sum(
+        1 for r in slow if r["cost_fit"] < r["cost_truth"])
+    from scipy import stats
+
+    zq = float(stats.norm.ppf(0.5 + opts.level / 2.0))
     for key in ("amplification", "time_gap_effective"):
         d_all = [r[key] for r in rows]
         d = [x for x in d_all if x["determined"]]
@@ -786,8 +799,34 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
                 max(x["low"] - x["truth"], x["truth"] - x["high"], 0.0)
                 / max(x["high"] - x["low"], 1e-300) for x in d if not x["inside"]]))
             if any(not x["inside"] for x in d) else 0.0,
+            # (estimate - truth) / half-width x z: a standard deviation of one is nominal
+            "standardised_error_sd": float(np.std([
+                (x["estimate"] - x["truth"]) / max((x["high"] - x["low"]) / 2.0, 1e-300) * zq
+                for x in d])) if d else None,
         }
     return {"rows": rows, "summary": summary}
+
+
+def _fit_and_truth_costs(res: Sequence[Any], sp: SynthPlatoon) -> list[tuple[float, float]]:
+    """Per car, the closed-loop cost (the OpenACC study's weights) of the fitted
+    parameters and of the true ones on the car's run (NaN for the truth when the car's
+    true structure is not the proposed model with Eq. 3)."""
+    from .defaults import UPPER_NAMES
+    from .models import Proposed
+    from .rollout import batch_cost
+    from .studies.openacc import WEIGHTS
+
+    out = []
+    for r, run, tr in zip(res, sp.runs, sp.truth, strict=True):
+        rows = [np.asarray(r.x, dtype=np.float64)]
+        plain = tr["model"] == "proposed" and not tr["effects"] and tr["hidden"] is None
+        if plain:
+            rows.append(np.array([tr["params"][k] for k in Proposed.param_names()]
+                                 + [tr["upper"][k] for k in UPPER_NAMES]))
+        c = batch_cost("proposed", np.vstack(rows), [run], closed_loop=True,
+                       upper_free=list(range(len(UPPER_NAMES))), weights=WEIGHTS, threads=1)
+        out.append((float(c[0, 0]), float(c[1, 0]) if plain else math.nan))
+    return out
 
 
 @dataclass(frozen=True)

@@ -28,13 +28,11 @@ response correlates the errors) and not above a third of the shortest run (at le
 three blocks per run). Politis-White's length minimises the mean squared error of the
 *variance* estimate; an interval's coverage error is dominated by that estimate's
 downward bias (of order ``1 / b``, Lahiri 2003, ch. 7), so intervals want longer
-blocks. The factor was chosen on the development seeds of the synthetic platoons
-(7301-7308, 48 cars, the same fits): factors 1, 1.25, 1.5 and 2 held the truth of
-``Tg + Gmin / v̄`` for 87.8, 92.7, 100 and 100 % of the 41 cars with an interval and of
-the band amplification for 89.6, 93.8, 93.8 and 100 % of 48 (median widths 1.36, 1.66,
-2.22 and 6.72 %; 5.8, 6.9, 8.4 and 23.7 %), and 1.25 is the smallest whose standardised
-errors of ``Tg + Gmin / v̄`` have a standard deviation of one (1.22, 1.00, 0.82, 0.31);
-the final check is on fresh seeds (docs/_generated/intervals.md).
+blocks. :data:`BLOCK_FACTOR` was chosen on the development seeds of the synthetic
+platoons (7301-7308) among 1, 1.25, 1.5 and 2, as the smallest whose standardised errors
+of ``Tg + Gmin / v̄`` have a standard deviation of one (the table is generated into
+``docs/_generated/intervals.md``; ``Intervals(block_factor=...)``); the final check is on
+fresh seeds (the same page).
 
 **Polish.** The GA's optimum is first refit on the full data by the same local search
 (``Intervals(polish=True)``, the default): the resamples should start from a local
@@ -174,7 +172,8 @@ class Intervals:
     """Options of the uncertainty stage of :func:`avll.calibrate`.
 
     ``n`` resamples; ``level`` of the symmetric intervals; ``block`` the block length
-    in seconds (``None``: from the residuals, :func:`block_length`); ``method``
+    in seconds (``None``: ``block_factor`` times the Politis-White length of the
+    fit's score series, :func:`block_length`; see the module doc); ``method``
     ``"blocks"`` (moving blocks over time within each run) or ``"runs"`` (whole runs);
     ``budget`` rollouts per refit at most (0: :data:`LM_BUDGET_PER_PARAM` ``d`` for
     ``"lm"`` refits, ``200 d`` for ``"simplex"`` ones and for the polish; a refit stops
@@ -197,6 +196,7 @@ class Intervals:
     n: int = 200
     level: float = 0.95
     block: float | None = None
+    block_factor: float = BLOCK_FACTOR
     method: str = "blocks"
     budget: int = 0
     step: float = 0.05
@@ -215,6 +215,10 @@ class Intervals:
                                            and math.isfinite(self.block) and self.block > 0):
             raise ValueError(f"block: must be a number of seconds > 0 or None, got "
                              f"{self.block!r}")
+        bf = self.block_factor
+        if isinstance(bf, bool) or not isinstance(bf, (int, float)) or not (
+                math.isfinite(bf) and bf > 0):
+            raise ValueError(f"block_factor: must be a number > 0, got {bf!r}")
         if self.method not in _METHODS:
             raise ValueError(f"method: must be one of {', '.join(_METHODS)}, got "
                              f"{self.method!r}")
@@ -1017,7 +1021,7 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
         block = shortest
     else:
         res = _score_series(prob, uniq, runs, x0, threads)
-        block = min(max(BLOCK_FACTOR * block_length(res, dt, 0.0), MIN_BLOCK),
+        block = min(max(opts.block_factor * block_length(res, dt, 0.0), MIN_BLOCK),
                     max(shortest / 3.0, dt))
     rng = np.random.default_rng([int(seed), int(k)])
     atoms, counts = [], []
