@@ -209,3 +209,24 @@ def test_oos_fits_start_from_the_runs_in_sample_optima(monkeypatch: pytest.Monke
         assert math.isfinite(fit.cost)
         assert fit.cost <= inside[sub[0]].cost * (1 + 1e-9), (sub, fit.cost,
                                                               inside[sub[0]].cost)
+
+
+def test_time_gap_comparisons_leave_out_values_the_data_do_not_determine() -> None:
+    """Out of sample vs in-sample: a car whose in-sample ``Tg + Gmin / v̄`` the data do
+    not determine (a corner fit near zero) is no reference and would dominate the mean;
+    it is left out and counted. A car without intervals (``identified`` None) is kept."""
+    from avll.studies.openacc import _rel
+
+    def car(oos: float, ins: float, ident: list[str] | None) -> dict[str, Any]:
+        return {"group": "acc", "time_gap_effective_oos": oos, "time_gap_effective": ins,
+                "identified": ident}
+
+    cars = [car(1.05, 1.0, ["time_gap_effective"]), car(1.5, 1e-6, ["m1"]),
+            car(0.95, 1.0, None), car(2.0, 1.0, ["time_gap_effective"])]
+    r = _rel(cars, "time_gap_effective_oos", "time_gap_effective", "acc", b_identified=True)
+    assert r["n"] == 3 and r["left_out_unidentified"] == 1
+    assert r["mean_rel_diff"] == pytest.approx((0.05 - 0.05 + 1.0) / 3)
+    assert r["within_10pct_count"] == 2
+    plain = _rel(cars, "time_gap_effective_oos", "time_gap_effective", "acc")
+    assert plain["n"] == 4 and plain["left_out_unidentified"] == 0
+    assert plain["mean_rel_diff"] > 1e5  # what the mean did with the corner fit in it

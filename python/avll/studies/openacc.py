@@ -1471,15 +1471,22 @@ def _inside_predicted(cs: Sequence[Mapping[str, Any]], pred_ci: str | None, meas
 
 
 def _rel(cars: Sequence[Mapping[str, Any]], a: str, b: str, group: str,
-         a_ci: str | None = None) -> dict[str, Any]:
+         a_ci: str | None = None, b_identified: bool = False) -> dict[str, Any]:
     """``a / b - 1`` over the cars of ``group`` with both finite: ``n``, ``mean`` and
-    ``median_abs``; with ``a_ci`` (``a``'s interval) the share of ``b`` inside it."""
-    cs = [c for c in cars if c["group"] == group and c.get(a) is not None
-          and c.get(b) is not None and math.isfinite(c[b]) and c[b] > 0]
+    ``median_abs``; with ``a_ci`` (``a``'s interval) the share of ``b`` inside it. With
+    ``b_identified`` only the cars whose ``b`` the data determine (``b`` in the car's
+    ``identified``; a car without intervals is kept): a value the data leave open, e.g.
+    a corner fit's ``Tg + Gmin / v̄`` near zero, is no reference, and one such ratio
+    outweighs all others in the mean (``left_out_unidentified`` counts them)."""
+    both = [c for c in cars if c["group"] == group and c.get(a) is not None
+            and c.get(b) is not None and math.isfinite(c[b]) and c[b] > 0]
+    cs = [c for c in both if not b_identified or c.get("identified") is None
+          or b in c["identified"]]
     d = np.asarray([c[a] / c[b] - 1.0 for c in cs], dtype=float)
     return {"a": a, "b": b, "n": int(d.size), "mean_rel_diff": _fin(np.mean(d)) if d.size
             else None, "median_abs_rel_diff": _fin(np.median(np.abs(d))) if d.size else None,
             "within_10pct_count": int(np.sum(np.abs(d) <= 0.10)),
+            "left_out_unidentified": len(both) - len(cs),
             **_inside_predicted(cs, a_ci, b)}
 
 
@@ -1515,7 +1522,7 @@ def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, 
                                              "amplification_measured_ci", grp),
         }
         out[grp]["time_gap_effective_oos_vs_in_sample"] = _rel(
-            cars, "time_gap_effective_oos", "time_gap_effective", grp)
+            cars, "time_gap_effective_oos", "time_gap_effective", grp, b_identified=True)
         # the model-free counterpart: the median measured time headway (gap / speed)
         out[grp]["time_gap_effective_oos_vs_headway_measured"] = _rel(
             cars, "time_gap_effective_oos", "headway_measured", grp,
@@ -1572,7 +1579,10 @@ def _oos_lines(s: Mapping[str, Any]) -> list[str]:
              + (f", measured inside the predicted 95 % interval "
                 f"{t['measured_inside_predicted_ci_count']} of "
                 f"{t['n_with_prediction_interval']}" if t.get("n_with_prediction_interval")
-                else "") for key, lab in tl
+                else "")
+             + (f" ({t['left_out_unidentified']} cars whose in-sample value the data do not "
+                "determine left out)" if t.get("left_out_unidentified") else "")
+             for key, lab in tl
              for t in (o["acc"][key],) if t["n"]]
     if parts:
         lines += ["", "Effective time gap Tg + Gmin/v̄ at the held-out run's mean speed (ACC "
