@@ -110,28 +110,28 @@ def output_cache(limit: int | None = None) -> tuple[int, int]:
     return _core.output_cache(limit)
 
 
-def _out_array(name: str, arr: Any, shape: tuple[int, ...], order: str = "C") -> np.ndarray:
-    """A caller's output array, checked: numpy float64 of ``shape``, contiguous in
-    ``order`` ("C", or "F" for the platoon's transposed layout), writeable."""
+def _check_out(
+    outs: Sequence[tuple[str, Any]], shape: tuple[int, ...], inputs: Sequence[np.ndarray],
+    order: str = "C",
+) -> None:
+    """``ValueError`` naming the array unless each of a caller's ``(name, array)`` outputs
+    is a numpy float64 array of ``shape``, contiguous in ``order`` ("C", or "F" for the
+    platoon's transposed layout) and writeable, sharing no memory with ``inputs`` or
+    another output (numpy's bounds test)."""
     lay = ("C-contiguous" if order == "C" else
            f"Fortran-ordered (e.g. np.empty({shape[::-1]}).T)")
     want = f"a float64 numpy array of shape {shape}, {lay} and writeable"
-    if not isinstance(arr, np.ndarray):
-        raise ValueError(f"{name}: must be {want}, got {type(arr).__name__}")
-    if arr.dtype != np.float64:
-        raise ValueError(f"{name}: must be {want}, got dtype {arr.dtype}")
-    if arr.shape != shape:
-        raise ValueError(f"{name}: must be {want}, got shape {arr.shape}")
-    if not (arr.flags.c_contiguous if order == "C" else arr.flags.f_contiguous):
-        raise ValueError(f"{name}: must be {want}, got a non-contiguous array")
-    if not arr.flags.writeable:
-        raise ValueError(f"{name}: must be {want}, got a read-only array")
-    return arr
-
-
-def _no_overlap(outs: Sequence[tuple[str, np.ndarray]], inputs: Sequence[np.ndarray]) -> None:
-    """``ValueError`` when an output array may share memory with an input or with
-    another output (numpy's bounds test)."""
+    for name, arr in outs:
+        if not isinstance(arr, np.ndarray):
+            raise ValueError(f"{name}: must be {want}, got {type(arr).__name__}")
+        if arr.dtype != np.float64:
+            raise ValueError(f"{name}: must be {want}, got dtype {arr.dtype}")
+        if arr.shape != shape:
+            raise ValueError(f"{name}: must be {want}, got shape {arr.shape}")
+        if not (arr.flags.c_contiguous if order == "C" else arr.flags.f_contiguous):
+            raise ValueError(f"{name}: must be {want}, got a non-contiguous array")
+        if not arr.flags.writeable:
+            raise ValueError(f"{name}: must be {want}, got a read-only array")
     for k, (name, o) in enumerate(outs):
         for a in inputs:
             if np.may_share_memory(o, a):
@@ -141,12 +141,9 @@ def _no_overlap(outs: Sequence[tuple[str, np.ndarray]], inputs: Sequence[np.ndar
                 raise ValueError(f"{name}: shares memory with {other}; pass separate arrays")
 
 
-_FIELDS = ("a", "v", "x", "command")
-
-
 def _out_seq(out: Any) -> tuple[Any, ...]:
     """The four output arrays (a, v, x, command) of a :class:`Trajectory` or a
-    sequence of four (each array is checked by the binding)."""
+    sequence of four."""
     if isinstance(out, Trajectory):
         return (out.a, out.v, out.x, out.command)
     if isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__") or len(out) != 4:
@@ -155,20 +152,9 @@ def _out_seq(out: Any) -> tuple[Any, ...]:
     return tuple(out)
 
 
-def _out_traj(
-    out: Any, shape: tuple[int, ...], inputs: Sequence[np.ndarray], order: str = "C"
-) -> tuple[np.ndarray, ...]:
-    """:func:`_out_seq`, each array checked here (see :func:`_out_array`)."""
-    arrs = _out_seq(out)
-    names = [f"out[{k}] ({f})" for k, f in enumerate(_FIELDS)]
-    checked = tuple(_out_array(n, a, shape, order) for n, a in zip(names, arrs, strict=True))
-    _no_overlap(list(zip(names, checked, strict=True)), inputs)
-    return checked
-
-
-def _traj_out(out: Any, arrs: tuple[np.ndarray, ...]) -> Trajectory:
-    """The result of a call with ``out=``: the caller's Trajectory itself, or a new one
-    over the caller's arrays."""
+def _result(out: Any, arrs: Any) -> Trajectory:
+    """The result of a rollout: the caller's ``out`` itself when it is a Trajectory,
+    else a new one over ``arrs``."""
     return out if isinstance(out, Trajectory) else Trajectory(*arrs)
 
 
@@ -179,23 +165,20 @@ def _dt(dt: Any) -> float:
     return check_number(dt, "dt", positive=True)
 
 
-def _f64(name: str, x: Any) -> np.ndarray:
+def _numbers(name: str, x: Any) -> np.ndarray:
     if isinstance(x, (str, bytes)) or x is None:
         raise ValueError(f"{name}: expected an array of numbers, got {x!r:.40}")
     try:
-        arr = np.asarray(x, dtype=np.float64)
+        return np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError) as e:
         raise ValueError(f"{name}: expected an array of numbers ({e})") from None
+
+
+def _f64(name: str, x: Any) -> np.ndarray:
+    arr = _numbers(name, x)
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be 1-D, got shape {arr.shape}")
     return np.ascontiguousarray(arr)
-
-
-def _model(model: Any) -> tuple[str, list[float]]:
-    if not isinstance(model, LowerLevelModel):
-        raise ValueError(f"model: expected an avll model or avll.WithEffects, got "
-                         f"{type(model).__name__}")
-    return model.name, model.values()
 
 
 #: The last model checked by :func:`_model_at`, with its ``dt``, name and values.
@@ -203,14 +186,14 @@ _last: tuple[Any, float, str, list[float]] | None = None
 
 
 def _model_at(model: LowerLevelModel, dt: float) -> tuple[str, list[float]]:
-    """:func:`_model` and :func:`check_lower_level` at ``dt``, remembered for the last
-    model object (models are frozen: the same object has the same values), so that a
-    loop of calls on one model pays for them once."""
+    """Name and values of ``model`` after :func:`check_lower_level` at ``dt``, remembered
+    for the last model object (models are frozen: the same object has the same values),
+    so that a loop of calls on one model pays for them once."""
     global _last
     c = _last  # one read: another thread may replace it, never half of it
     if c is not None and c[0] is model and c[1] == dt:
         return c[2], c[3]
-    name, p = _model(model)
+    name, p = model.name, model.values()
     check_lower_level(model, dt)
     _last = (model, dt, name, p)
     return name, list(p)
@@ -222,8 +205,8 @@ def _base(model: Any) -> LowerLevelModel | None:
         return model
     if isinstance(model, WithEffects):
         return model.base if not model.effects else None
-    _model(model)  # the error naming it
-    return None  # pragma: no cover - _model raised
+    raise ValueError(f"model: expected an avll model or avll.WithEffects, got "
+                     f"{type(model).__name__}")
 
 
 def _with_effects(model: WithEffects, dt: float) -> tuple[str, list[float], list[str],
@@ -241,6 +224,16 @@ def _with_effects(model: WithEffects, dt: float) -> tuple[str, list[float], list
                 "no trajectory is returned")
     return (model.base.name, model.base.values(), list(model.effect_names),
             [float(x) for e in model.effects for x in e.to_array()])
+
+
+def _parts(model: Any, base: LowerLevelModel | None, dt: float
+           ) -> tuple[str, list[float], list[str], list[float]]:
+    """Model name and values, effect names and values of the core call, after the
+    stability policy: ``base`` (:func:`_base`) with no effect, else :func:`_with_effects`."""
+    if base is not None:
+        return (*_model_at(base, dt), [], [])
+    assert isinstance(model, WithEffects)
+    return _with_effects(model, dt)
 
 
 def _exo(exo: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
@@ -310,22 +303,19 @@ def simulate(
     dt = _dt(dt)
     u = _f64("command", command)
     base = _base(model)
+    name, p, en, ep = _parts(model, base, dt)
     if base is not None:
-        name, p = _model_at(base, dt)
         # `out` is checked by the binding (dtype, shape, layout, writeable, shared memory)
         y = _core.simulate(name, p, u, dt, init, out)
-        _finite_or_raise(model, dt, y)
-        return y
-    assert isinstance(model, WithEffects)
-    speed = command_kind == "speed"
-    arrs = None
-    if out is not None:
-        spare = [np.empty(u.size) for _ in range(3)]
-        arrs = [*spare[:1], out, *spare[1:]] if speed else [out, *spare]
-    b, p, en, ep = _with_effects(model, dt)
-    a, v, _, _ = _core.simulate_full(b, p, u, dt, command_kind, init, 0.0, 0.0, effects=en,
-                                     effect_params=ep, exo=_exo(exo), out=arrs)  # fmt: skip
-    y = v if speed else a
+    else:
+        speed = command_kind == "speed"
+        arrs = None
+        if out is not None:
+            spare = [np.empty(u.size) for _ in range(3)]
+            arrs = [*spare[:1], out, *spare[1:]] if speed else [out, *spare]
+        a, v, _, _ = _core.simulate_full(name, p, u, dt, command_kind, init, 0.0, 0.0,
+                                         effects=en, effect_params=ep, exo=_exo(exo), out=arrs)
+        y = v if speed else a
     _finite_or_raise(model, dt, y)
     return y
 
@@ -352,19 +342,11 @@ def simulate_full(
     u = _f64("command", command)
     v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
     arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
-    base = _base(model)
-    if base is not None:
-        name, p = _model(base)
-        check_lower_level(base, dt)
-        en: list[str] = []
-        ep: list[float] = []
-    else:
-        assert isinstance(model, WithEffects)
-        name, p, en, ep = _with_effects(model, dt)
+    name, p, en, ep = _parts(model, _base(model), dt)
     d = _core.simulate_full(name, p, u, dt, command_kind, init, v0, x0, effects=en,
                             effect_params=ep, exo=_exo(exo), out=arrs)  # fmt: skip
     _finite_or_raise(model, dt, d[0], d[1])
-    return Trajectory(*d) if arrs is None else _traj_out(out, arrs)
+    return _result(out, d if arrs is None else arrs)
 
 
 def closed_loop(
@@ -394,16 +376,11 @@ def closed_loop(
     if lv.size != lx.size:
         raise ValueError(f"lead_v: length {lv.size} differs from lead_x's {lx.size}")
     arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
-    if base is not None:
-        name, p = _model_at(base, dt)
-        d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0,
-                              out=arrs)  # fmt: skip
-    else:
-        assert isinstance(model, WithEffects)
-        b, p, en, ep = _with_effects(model, dt)
-        d = _core.closed_loop(b, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0,
-                              effects=en, effect_params=ep, exo=_exo(exo), out=arrs)
-    return Trajectory(*d) if arrs is None else _traj_out(out, arrs)
+    name, p, en, ep = _parts(model, base, dt)
+    fx = {} if base is not None else _exo(exo)  # a base model reads no exogenous signal
+    d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0, effects=en,
+                          effect_params=ep, exo=fx, out=arrs)  # fmt: skip
+    return _result(out, d if arrs is None else arrs)
 
 
 def platoon(
@@ -436,8 +413,11 @@ def platoon(
     up = _upper(upper)
     dt = _dt(dt)
     lx, lv = _f64("lead_x", lead_x), _f64("lead_v", lead_v)
-    arrs = None if out is None else _out_traj(out, (nf, lx.size), [lx, lv], order="F")
-    if arrs is None:
+    arrs = None if out is None else _out_seq(out)
+    if arrs is not None:
+        names = [f"out[{k}] ({f})" for k, f in enumerate(("a", "v", "x", "command"))]
+        _check_out(list(zip(names, arrs, strict=True)), (nf, lx.size), [lx, lv], order="F")
+    else:
         per = 2 * 4 * 8 * max(lx.size, 1)
         need = float(nf) * per
         check_memory(
@@ -446,18 +426,11 @@ def platoon(
             "simulate fewer followers per call (the last follower's x and v lead the next "
             "slice)",
             per=per, unit="followers")
-    if base is not None:
-        name, p = _model(base)
-        check_lower_level(base, dt)
-        en: list[str] = []
-        ep: list[float] = []
-    else:
-        assert isinstance(model, WithEffects)
-        name, p, en, ep = _with_effects(model, dt)
+    name, p, en, ep = _parts(model, base, dt)
     d = _core.platoon(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, nf, effects=en,
                       effect_params=ep, exo=_exo(exo),
                       out=None if arrs is None else [a.T for a in arrs])  # fmt: skip
-    return Trajectory(*(a.T for a in d)) if arrs is None else _traj_out(out, arrs)
+    return _result(out, [a.T for a in d] if arrs is None else arrs)
 
 
 def _structure(
@@ -514,8 +487,7 @@ def batch_cost(
         raise TypeError(f"runs: expected a sequence of avll.Run, got {type(runs).__name__}")
     nr = max(len(runs), 1)
     if out is not None:
-        _out_array("out", out, (p.shape[0], len(runs)))
-        _no_overlap([("out", out)], [p])
+        _check_out([("out", out)], (p.shape[0], len(runs)), [p])
     check_memory(8.0 * p.shape[0] * nr,
                  f"batch_cost: {p.shape[0]} parameter rows x {len(runs)} runs x 8 bytes",
                  "evaluate the parameter rows in slices", per=8.0 * nr, unit="rows")
@@ -527,12 +499,7 @@ def batch_cost(
 def params_2d(params: Any, name: str = "params") -> np.ndarray:
     """Parameter rows as a C-contiguous (P, n) float64 array (a ``ValueError`` naming
     ``name`` for anything that is not numbers; ``ValueError`` for more than 2-D)."""
-    if isinstance(params, (str, bytes)) or params is None:
-        raise ValueError(f"{name}: expected an array of numbers, got {params!r:.40}")
-    try:
-        p = np.asarray(params, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{name}: expected an array of numbers ({e})") from None
+    p = _numbers(name, params)
     if p.ndim > 2:
         raise ValueError(f"{name}: must be 1-D (one row) or 2-D (rows), got shape {p.shape}")
     return np.ascontiguousarray(np.atleast_2d(p))
@@ -582,8 +549,7 @@ def simulate_batch(
     kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop,
                     upper_free=upper_free, exo=exo_needs(names))  # fmt: skip
     if out is not None:
-        _out_array("out", out, (3, p.shape[0], rs.total))
-        _no_overlap([("out", out)], [p])
+        _check_out([("out", out)], (3, p.shape[0], rs.total), [p])
     arr = _core.simulate_batch(cls.name, p, effects=list(names), threads=check_threads(threads),
                                out=out, **kw)  # fmt: skip
     off = rs.offsets
