@@ -1,5 +1,5 @@
 """The files of each dataset of :mod:`avll.datasets`: (path in the dataset folder, size
-in bytes, sha256, path at the source or an empty string when it is the same path).
+in bytes, sha256, path in the source folder or an empty string when it is the same path).
 
 The OpenACC campaigns are every file of the JRC's campaign folder as published (from the
 manifest of the JRC open-data server's listing); ``carma`` and ``astazero-c2art`` are the
@@ -188,20 +188,15 @@ FILES: dict[str, tuple[tuple[str, int, str, str], ...]] = {
     ),
     "carma": (
         ("data-elements.xlsx", 110366,
-         "fcb75b2ce4c6fd84f44c28b32fa94e3fac7ec843bb22929d3a984a7a78fd706f",
-         "data/raw/carma/Data Elements.xlsx"),
+         "fcb75b2ce4c6fd84f44c28b32fa94e3fac7ec843bb22929d3a984a7a78fd706f", "Data Elements.xlsx"),
         ("data10.csv", 2947469,
-         "74b6dc21fd9e812a2828e078aa5f085a2e49bbe3bb72546faeb046385d8ca214",
-         "data/raw/carma/data10.csv"),
+         "74b6dc21fd9e812a2828e078aa5f085a2e49bbe3bb72546faeb046385d8ca214", ""),
         ("data5.csv", 1741578,
-         "ae33802c1c8455e4c4b5ae5260a833902313b1a301c06f64b23848b5ec4b91a8",
-         "data/raw/carma/data5.csv"),
+         "ae33802c1c8455e4c4b5ae5260a833902313b1a301c06f64b23848b5ec4b91a8", ""),
         ("data6.csv", 1411645,
-         "1d47c756a2e89f66ea196cff700ee2abd96299078664907394f732c0b1488a3f",
-         "data/raw/carma/data6.csv"),
+         "1d47c756a2e89f66ea196cff700ee2abd96299078664907394f732c0b1488a3f", ""),
         ("data9.csv", 3154736,
-         "47e20a9b982910a16bdd54e1da4a2d4c55de2d4685358ac4d09ebb96a03dadba",
-         "data/raw/carma/data9.csv"),
+         "47e20a9b982910a16bdd54e1da4a2d4c55de2d4685358ac4d09ebb96a03dadba", ""),
     ),
     "astazero-c2art": (
         ("LICENSE-C2ART-OPT", 1063,

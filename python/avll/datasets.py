@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
 from typing import Any
 from urllib.parse import quote
@@ -98,6 +98,7 @@ CC_BY_URL = "https://creativecommons.org/licenses/by/4.0/"
 #: copies of the files; abbreviated ids, which GitHub resolves).
 CARMA_REPO, CARMA_COMMIT = "licit-lab/vrt_analysis", "fcdc1b15ad9a"
 C2ART_REPO, C2ART_COMMIT = "yinglonghe/C2ART-OPT", "8d392d8138"
+_RAW = "https://raw.githubusercontent.com"
 
 
 @dataclass(frozen=True)
@@ -177,61 +178,50 @@ class FetchResult:
         return sum(1 for s in self.status.values() if s == what)
 
 
-def _jrc(name: str, campaign: str, title: str, origin: str) -> Dataset:
+def _files(name: str, base: str) -> tuple[DatasetFile, ...]:
+    """The registered files of dataset ``name`` (none when not registered), each
+    downloaded from its path in the source folder ``base``."""
+    return tuple(DatasetFile(n, size, sha, f"{base}/{quote(src or n)}")
+                 for n, size, sha, src in _FILES.get(name, ()))
+
+
+def _jrc(name: str, campaign: str, when: str, place: str) -> Dataset:
+    """A JRC OpenACC campaign; ``when`` (country, year) goes into the title, ``place``
+    into the origin."""
     base = f"{JRC_OPENACC}/{quote(campaign)}"
-    files = tuple(DatasetFile(n, size, sha, f"{base}/{quote(src or n)}")
-                  for n, size, sha, src in _FILES.get(name, ()))
     return Dataset(
-        name=name, title=title, origin=origin, url=base + "/",
+        name=name, title=f"OpenACC {campaign} ({when}), the JRC's native files",
+        origin="JRC OpenACC database (European Commission, Joint Research Centre), campaign "
+        f"{place}: commercial ACC cars in platoons, GNSS trajectories",
+        url=base + "/",
         source=f"the JRC open-data server, folder LATEST/{campaign}/ of the OpenACC "
         "database (JRCDBT0001), every file of the campaign folder as published",
         licence=CC_BY, licence_url=CC_BY_URL, citation=OPENACC_PAPER, citation_url=OPENACC_DOI,
-        licence_short="CC BY 4.0", cite_as="Makridis et al. 2021", files=files,
+        licence_short="CC BY 4.0", cite_as="Makridis et al. 2021", files=_files(name, base),
         references=(("JRC data catalogue: OpenACC", JRC_CATALOGUE),),
     )
 
 
-def _github(repo: str, commit: str, name: str) -> tuple[DatasetFile, ...]:
-    raw = f"https://raw.githubusercontent.com/{repo}/{commit}"
-    return tuple(DatasetFile(n, size, sha, f"{raw}/{quote(src or n)}")
-                 for n, size, sha, src in _FILES[name])
-
-
 def _registry() -> dict[str, Dataset]:
-    jrc_origin = ("JRC OpenACC database (European Commission, Joint Research Centre), "
-                  "campaign {}: commercial ACC cars in platoons, GNSS trajectories")
     reg = [
-        Dataset(
-            name="openacc-astazero",
-            title="OpenACC AstaZero (Sweden, 2019), the JRC's native files",
-            origin=jrc_origin.format("AstaZero test track, Sweden, July 2019"),
-            url=f"{JRC_OPENACC}/AstaZero/",
+        replace(
+            _jrc("openacc-astazero", "AstaZero", "Sweden, 2019",
+                 "AstaZero test track, Sweden, July 2019"),
             source="the JRC open-data server, folder LATEST/AstaZero/ of the OpenACC database",
-            licence=CC_BY, licence_url=CC_BY_URL, citation=OPENACC_PAPER,
-            citation_url=OPENACC_DOI, licence_short="CC BY 4.0", cite_as="Makridis et al. 2021",
             note="The file list of this campaign is not registered: avll knows no names, "
             "sizes or SHA-256 of the JRC's AstaZero folder, so it cannot fetch and verify "
             "it. Download the campaign folder from the JRC server yourself (its url), or "
             "use 'astazero-c2art' (the AstaZero platoon and free-flow files the project "
             "reads, from a pinned redistribution, checked by hash).",
-            references=(("JRC data catalogue: OpenACC", JRC_CATALOGUE),),
         ),
-        _jrc("openacc-zalazone", "ZalaZone",
-             "OpenACC ZalaZone (Hungary, 2019), the JRC's native files",
-             jrc_origin.format("ZalaZone test track, Hungary, October 2019")),
-        _jrc("openacc-casale", "Casale",
-             "OpenACC Casale (Italy, 2020), the JRC's native files",
-             jrc_origin.format("Ispra - Casale Monferrato public motorway, Italy, "
-                               "October 2020")),
-        _jrc("openacc-jrc-low-speed", "JRC low speed",
-             "OpenACC JRC low speed (Italy, 2020), the JRC's native files",
-             jrc_origin.format("JRC Ispra site roads, Italy, September 2020")),
-        _jrc("openacc-vicolungo", "Vicolungo",
-             "OpenACC Vicolungo (Italy), the JRC's native files",
-             jrc_origin.format("Vicolungo, Italy")),
-        _jrc("openacc-cherasco", "Cherasco",
-             "OpenACC Cherasco (Italy), the JRC's native files",
-             jrc_origin.format("Cherasco, Italy")),
+        _jrc("openacc-zalazone", "ZalaZone", "Hungary, 2019",
+             "ZalaZone test track, Hungary, October 2019"),
+        _jrc("openacc-casale", "Casale", "Italy, 2020",
+             "Ispra - Casale Monferrato public motorway, Italy, October 2020"),
+        _jrc("openacc-jrc-low-speed", "JRC low speed", "Italy, 2020",
+             "JRC Ispra site roads, Italy, September 2020"),
+        _jrc("openacc-vicolungo", "Vicolungo", "Italy", "Vicolungo, Italy"),
+        _jrc("openacc-cherasco", "Cherasco", "Italy", "Cherasco, Italy"),
         Dataset(
             name="carma",
             title="FHWA CARMA CACC platoon tests (July 2018, 5 Cadillac SRX)",
@@ -245,7 +235,7 @@ def _registry() -> dict[str, Dataset]:
             licence_url="https://www.usa.gov/government-copyright",
             citation=CARMA_REPORT, citation_url=CARMA_DOI,
             licence_short="US federal work", cite_as="Tiernan et al. 2019",
-            files=_github(CARMA_REPO, CARMA_COMMIT, "carma"),
+            files=_files("carma", f"{_RAW}/{CARMA_REPO}/{CARMA_COMMIT}/data/raw/carma"),
             references=((f"{CARMA_REPO}", f"https://github.com/{CARMA_REPO}"),),
         ),
         Dataset(
@@ -266,7 +256,7 @@ def _registry() -> dict[str, Dataset]:
             licence_url=f"https://github.com/{C2ART_REPO}/blob/{C2ART_COMMIT}/LICENSE",
             citation=OPENACC_PAPER, citation_url=OPENACC_DOI,
             licence_short="MIT (repository); data CC BY 4.0", cite_as="Makridis et al. 2021",
-            files=_github(C2ART_REPO, C2ART_COMMIT, "astazero-c2art"),
+            files=_files("astazero-c2art", f"{_RAW}/{C2ART_REPO}/{C2ART_COMMIT}"),
             references=((f"{C2ART_REPO}", f"https://github.com/{C2ART_REPO}"),
                         ("JRC data catalogue: OpenACC", JRC_CATALOGUE)),
         ),
@@ -299,16 +289,6 @@ def cache_dir() -> Path:
     import pooch
 
     return Path(pooch.os_cache("avll"))
-
-
-def _is_valid(path: Path, f: DatasetFile) -> bool:
-    return path.stat().st_size == f.size and _sha256(path) == f.sha256
-
-
-def _url(f: DatasetFile, base_url: str | None) -> str:
-    if base_url is None:
-        return f.url
-    return base_url.rstrip("/") + "/" + quote(f.mirror_name)
 
 
 def _mb(n: int) -> str:
@@ -372,7 +352,7 @@ def fetch_report(name: str, *, dest: str | os.PathLike[str] | None = None,
             raise ValueError(f"dest: {path} is a folder where dataset {name!r} has the file "
                              f"{f.name!r}")
         if path.is_file():
-            if _is_valid(path, f):
+            if path.stat().st_size == f.size and _sha256(path) == f.sha256:
                 status[f.name] = "verified"
                 continue
             status[f.name] = "replaced"
@@ -383,7 +363,7 @@ def fetch_report(name: str, *, dest: str | os.PathLike[str] | None = None,
         total = sum(f.size for f in todo)
         say(f"{len(todo)} of {len(ds.files)} files to download ({_mb(total)}) into {folder}")
     for i, f in enumerate(todo, 1):
-        url = _url(f, base_url)
+        url = f.url if base_url is None else base_url.rstrip("/") + "/" + quote(f.mirror_name)
         if status[f.name] == "replaced":
             say(f"{f.name}: present with another SHA-256, downloading a verified copy")
         say(f"[{i}/{len(todo)}] {f.name} ({_mb(f.size)}) from {url}")
