@@ -30,6 +30,7 @@ import contextlib
 import contextvars
 import hashlib
 import json
+import math
 import os
 import shutil
 import signal
@@ -76,26 +77,13 @@ def _fsync_file(path: str | os.PathLike[str]) -> None:
 
 
 def _fsync_dir(path: str | os.PathLike[str]) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # pragma: no cover - e.g. Windows
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover
-        pass
-    finally:
-        os.close(fd)
+    with contextlib.suppress(OSError):  # e.g. Windows, where a folder cannot be opened
+        _fsync_file(path)
 
 
-def _read_umask() -> int:
-    # os.umask can only be read by setting it: done once, at import
-    m = os.umask(0o022)
-    os.umask(m)
-    return m
-
-
-_UMASK = _read_umask()
+# os.umask can only be read by setting it: done once, at import
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
 
 
 @contextlib.contextmanager
@@ -183,8 +171,6 @@ def write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8")
 
 
 def _non_finite(v: Any) -> bool:
-    import math
-
     return isinstance(v, float) and not math.isfinite(v)
 
 
@@ -448,11 +434,9 @@ def _commit(stage: Path, dest: Path, meta: dict[str, Any]) -> None:
             target = dest / f
             target.parent.mkdir(parents=True, exist_ok=True)
             os.replace(stage / f, target)
-        keep = set(new)
-        for f in old:
-            if f not in keep:
-                with contextlib.suppress(OSError):
-                    (dest / f).unlink()
+        for f in set(old).difference(new):
+            with contextlib.suppress(OSError):
+                (dest / f).unlink()
         write_json(dest / MANIFEST, doc)
 
 
@@ -486,11 +470,9 @@ def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
     """Whether two paths name the same file (the same resolved path, or the same inode
     through a link)."""
     pa, pb = Path(a), Path(b)
-    try:
+    with contextlib.suppress(OSError):
         if pa.exists() and pb.exists():
             return os.path.samefile(pa, pb)
-    except OSError:
-        pass
     try:
         return pa.resolve() == pb.resolve()
     except (OSError, RuntimeError):  # a symbolic link loop: compared as written (the
