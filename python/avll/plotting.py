@@ -99,6 +99,24 @@ def _new(nrow: int = 1, ncol: int = 1, size: tuple[float, float] = (6.0, 4.0)) -
     return fig, axes
 
 
+def _kv_panels(kg: np.ndarray, kvs: np.ndarray) -> tuple[Figure, list[Any]]:
+    """A figure of one kg-Tg panel per kv (three a row, spare panels hidden), each
+    titled and labelled, its kg axis log-scaled when the kg grid is log-spaced."""
+    ncol = min(kvs.size, 3)
+    fig, axes = _new((kvs.size + ncol - 1) // ncol, ncol, (4.2, 3.6))
+    panels = list(axes.ravel())
+    log = is_log_spaced(kg)
+    for ax, kv in zip(panels, kvs, strict=False):
+        if log:
+            ax.set_xscale("log")
+        ax.set_title(f"kv = {kv:g} 1/s")
+        ax.set_xlabel("kg (1/s²)" + (", log scale" if log else ""))
+        ax.set_ylabel("Tg (s)")
+    for ax in panels[kvs.size :]:
+        ax.set_visible(False)
+    return fig, panels[: kvs.size]
+
+
 def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Any,
             maps: Sequence[Any], pade_order: int = 2, *,
             labels: Sequence[str] | None = None) -> Figure:
@@ -114,13 +132,8 @@ def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Any,
     kvs = np.atleast_1d(np.asarray(kv_values, dtype=float))
     names = [getattr(m, "name", str(m)) for m in models]
     labs = list(labels) if labels is not None else [model_label(n) for n in names]
-    n = kvs.size
-    ncol = min(n, 3)
-    nrow = (n + ncol - 1) // ncol
-    fig, axes = _new(nrow, ncol, (4.2, 3.6))
-    log = is_log_spaced(kg)
-    for j in range(n):
-        ax = axes[j // ncol][j % ncol]
+    fig, panels = _kv_panels(kg, kvs)
+    for j, ax in enumerate(panels):
         any_stable = False
         for i, mp in enumerate(maps):
             st = (np.asarray(mp)[:, :, j] == 2).astype(float).T  # (tg, kg)
@@ -133,15 +146,8 @@ def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Any,
         if not any_stable:
             ax.text(0.5, 0.5, "nothing stable", ha="center", va="center",
                     transform=ax.transAxes)
-        if log:
-            ax.set_xscale("log")
         ax.set_xlim(kg[0], kg[-1])
         ax.set_ylim(tg[0], tg[-1])
-        ax.set_title(f"kv = {kvs[j]:g} 1/s")
-        ax.set_xlabel("kg (1/s²)" + (", log scale" if log else ""))
-        ax.set_ylabel("Tg (s)")
-    for j in range(n, nrow * ncol):
-        axes[j // ncol][j % ncol].set_visible(False)
     handles: list[Any] = [
         Patch(color=model_color(nm, i), alpha=0.4, label=f"{lab}: locally and string stable")
         for i, (nm, lab) in enumerate(zip(names, labs, strict=True))
@@ -165,23 +171,11 @@ def classes(codes: Any, kg: Any, tg: Any, kv_values: Any, *,
     kg, tg = np.asarray(kg, dtype=float), np.asarray(tg, dtype=float)
     kvs = np.atleast_1d(np.asarray(kv_values, dtype=float))
     c = np.asarray(codes)
-    n = kvs.size
-    ncol = min(n, 3)
-    nrow = (n + ncol - 1) // ncol
-    fig, axes = _new(nrow, ncol, (4.2, 3.6))
+    fig, panels = _kv_panels(kg, kvs)
     cmap = ListedColormap([CLASS_COLORS[k] for k in (0, 1, 2)])
     norm = BoundaryNorm([-0.5, 0.5, 1.5, 2.5], 3)
-    log = is_log_spaced(kg)
-    for j in range(n):
-        ax = axes[j // ncol][j % ncol]
+    for j, ax in enumerate(panels):
         ax.pcolormesh(kg, tg, c[:, :, j].T, cmap=cmap, norm=norm, shading="nearest")
-        if log:
-            ax.set_xscale("log")
-        ax.set_title(f"kv = {kvs[j]:g} 1/s")
-        ax.set_xlabel("kg (1/s²)" + (", log scale" if log else ""))
-        ax.set_ylabel("Tg (s)")
-    for j in range(n, nrow * ncol):
-        axes[j // ncol][j % ncol].set_visible(False)
     fig.legend(handles=[Patch(color=CLASS_COLORS[k], label=f"{k}: {CLASS_LABELS[k]}")
                         for k in (0, 1, 2)],
                loc="outside lower center", ncol=3, frameon=False, fontsize="small")
