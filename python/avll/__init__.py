@@ -139,11 +139,9 @@ def __getattr__(name: str) -> Any:
     import importlib
 
     if name in _LAZY:
-        mod = importlib.import_module(f".{name}", __name__)
-        globals()[name] = mod
-        return mod
-    if name == "PAPER_TABLE_II":
-        val: Any = importlib.import_module(".paper", __name__).TABLE_II
+        val: Any = importlib.import_module(f".{name}", __name__)
+    elif name == "PAPER_TABLE_II":
+        val = importlib.import_module(".paper", __name__).TABLE_II
     elif name in _LAZY_NAMES:
         val = getattr(importlib.import_module(f".{_LAZY_NAMES[name]}", __name__), name)
     else:

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import PAPER_TABLE_II
+from . import PAPER_TABLE_II, _atomic, plotting
+from ._limits import check_memory, check_number
 from .rollout import simulate
 
 
@@ -14,9 +15,7 @@ def demo_command(dt: float = 0.05, duration: float = 60.0) -> np.ndarray:
     """A built-in command acceleration (m/s²): 1 for the first 10 s, -0.5 for the next
     10 s (two steps), then a 0.1 Hz sine of amplitude 0.8 to the end."""
     t = np.arange(0.0, duration, dt)
-    u = np.where(t < 10, 1.0, 0.0) + np.where((t >= 10) & (t < 20), -0.5, 0.0)
-    u = u + np.where(t >= 20, 0.8 * np.sin(2 * np.pi * 0.1 * (t - 20)), 0.0)
-    return u
+    return np.select([t < 10, t < 20], [1.0, -0.5], 0.8 * np.sin(2 * np.pi * 0.1 * (t - 20)))
 
 
 def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
@@ -27,14 +26,9 @@ def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
 
     matplotlib.use("Agg")
 
-    from . import _atomic
-    from ._limits import check_number
-
     dt = check_number(dt, "dt", positive=True)
     if dt > 10.0:
         raise ValueError(f"dt: {dt:g} s is longer than the 60 s demo command; use <= 10 s")
-    from ._limits import check_memory
-
     check_memory(8.0 * 8 * 60.0 / dt, f"simulate: 60 s at dt={dt:g} s x 8 series",
                  "use a larger dt")
     u = demo_command(dt)
@@ -48,13 +42,7 @@ def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
             fmt = ["%.10g", "%.6g"] + ["%.6g"] * len(res)
             np.savetxt(tmp, cols, delimiter=",", header="t,command," + ",".join(res),
                        comments="", fmt=fmt)
-        _plot(t, u, res, stage / "simulate.png")
+        fig = plotting.traces(t, None, res, command=u,
+                              title="Table II models on the built-in command (simulated)")
+        _atomic.savefig(fig, stage / "simulate.png", dpi=120)
     return res
-
-
-def _plot(t: np.ndarray, u: np.ndarray, res: dict[str, np.ndarray], path: Path) -> None:
-    from . import _atomic, plotting
-
-    fig = plotting.traces(t, None, res, command=u,
-                          title="Table II models on the built-in command (simulated)")
-    _atomic.savefig(fig, path, dpi=120)
