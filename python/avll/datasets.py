@@ -351,14 +351,11 @@ def fetch_report(name: str, *, dest: str | os.PathLike[str] | None = None,
         if path.is_dir():
             raise ValueError(f"dest: {path} is a folder where dataset {name!r} has the file "
                              f"{f.name!r}")
-        if path.is_file():
-            if path.stat().st_size == f.size and _sha256(path) == f.sha256:
-                status[f.name] = "verified"
-                continue
-            status[f.name] = "replaced"
+        if path.is_file() and path.stat().st_size == f.size and _sha256(path) == f.sha256:
+            status[f.name] = "verified"
         else:
-            status[f.name] = "downloaded"
-        todo.append(f)
+            status[f.name] = "replaced" if path.is_file() else "downloaded"
+            todo.append(f)
     if todo:
         total = sum(f.size for f in todo)
         say(f"{len(todo)} of {len(ds.files)} files to download ({_mb(total)}) into {folder}")
