@@ -303,16 +303,16 @@ def simulate(
     dt = _dt(dt)
     u = _f64("command", command)
     base = _base(model)
-    name, p, en, ep = _parts(model, base, dt)
     if base is not None:
         # `out` is checked by the binding (dtype, shape, layout, writeable, shared memory)
-        y = _core.simulate(name, p, u, dt, init, out)
+        y = _core.simulate(*_model_at(base, dt), u, dt, init, out)
     else:
         speed = command_kind == "speed"
         arrs = None
         if out is not None:
             spare = [np.empty(u.size) for _ in range(3)]
             arrs = [*spare[:1], out, *spare[1:]] if speed else [out, *spare]
+        name, p, en, ep = _parts(model, None, dt)
         a, v, _, _ = _core.simulate_full(name, p, u, dt, command_kind, init, 0.0, 0.0,
                                          effects=en, effect_params=ep, exo=_exo(exo), out=arrs)
         y = v if speed else a
@@ -376,10 +376,13 @@ def closed_loop(
     if lv.size != lx.size:
         raise ValueError(f"lead_v: length {lv.size} differs from lead_x's {lx.size}")
     arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
-    name, p, en, ep = _parts(model, base, dt)
-    fx = {} if base is not None else _exo(exo)  # a base model reads no exogenous signal
-    d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0, effects=en,
-                          effect_params=ep, exo=fx, out=arrs)  # fmt: skip
+    if base is not None:  # the fast path of a loop of calls: no effect arguments
+        d = _core.closed_loop(*_model_at(base, dt), lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin,
+                              v0, x0, out=arrs)  # fmt: skip
+    else:
+        name, p, en, ep = _parts(model, None, dt)
+        d = _core.closed_loop(name, p, lx, lv, dt, up.kg, up.kv, up.Tg, up.Gmin, v0, x0,
+                              effects=en, effect_params=ep, exo=_exo(exo), out=arrs)
     return _result(out, d if arrs is None else arrs)
 
 
