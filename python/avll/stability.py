@@ -498,13 +498,9 @@ class PadeReport:
     def summary(self) -> str:
         """One-line summary."""
         n = int(self.differs.sum())
-        parts = []
-        for a in range(3):
-            for b in range(3):
-                if a != b:
-                    k = int(((self.pade == a) & (self.exact == b)).sum())
-                    if k:
-                        parts.append(f"{k} Padé {a} vs exact {b}")
+        counts = {(a, b): int(((self.pade == a) & (self.exact == b)).sum())
+                  for a in range(3) for b in range(3) if a != b}
+        parts = [f"{k} Padé {a} vs exact {b}" for (a, b), k in counts.items() if k]
         return (
             f"Padé-{self.pade_order} differs from the exact delay at {n} of "
             f"{self.pade.size} points ({100 * self.fraction:.3f} %)"
@@ -774,16 +770,15 @@ def _extremum(
         name, p, which, rs[0], rs[1], rs[2], _pade_arg(pade_order), n_scan,
         n_grid=n_grid, threads=threads,
     )
-    labels = (r1[0], r2[0])
-    coords = dict(zip(("kg", "tg", "kv"), at, strict=True))
+    kg, tg, kv = (float(x) for x in at)
     return Extremum(
         quantity=which,
         value=float(val),
-        kg=float(coords["kg"]),
-        tg=float(coords["tg"]),
-        kv=float(coords["kv"]),
+        kg=kg,
+        tg=tg,
+        kv=kv,
         attained=bool(at_end) and float(val) == rs[2][0 if which == "tg_min" else 1],
-        on_edge=tuple(lab for lab, e in zip(labels, edge, strict=True) if e),
+        on_edge=tuple(lab for lab, e in zip((r1[0], r2[0]), edge, strict=True) if e),
         ranges={r1[0]: rs[0][:2], r2[0]: rs[1][:2], r3[0]: rs[2][:2]},
         pade_order=pade_order,
         evaluations=int(evals),
