@@ -63,14 +63,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._limits import check_int, check_number
-from .effects import EFFECTS, WithEffects, equivalent_model
-from .models import LowerLevelModel, UpperLevel
+from . import _core
+from ._limits import check_int, check_number, check_threads
+from .effects import EFFECTS, WithEffects, canonical, equivalent_model
+from .models import LowerLevelModel, UpperLevel, model_class
 from .rollout import platoon
 from .stability import kv_supremum, min_stable_tg, stability_points, stable_intervals
 
@@ -101,6 +102,23 @@ DRIFT_TOL = 0.05
 OMEGA_GRID: np.ndarray = np.logspace(-3, math.log10(30.0), 2000)
 
 
+def _with_effects(model: Any) -> WithEffects:
+    """``model`` as an :class:`avll.WithEffects` (a base model: with no effects)."""
+    if isinstance(model, LowerLevelModel):
+        model = WithEffects(model, ())
+    if not isinstance(model, WithEffects):
+        raise TypeError(f"model: expected a model or WithEffects, got {type(model).__name__}")
+    return model
+
+
+def _omega(omega: Any) -> np.ndarray:
+    """``omega`` (rad/s) as a C-contiguous 1-D float array, finite and > 0."""
+    w = np.ascontiguousarray(np.atleast_1d(np.asarray(omega, dtype=np.float64)))
+    if w.ndim != 1 or np.any(~np.isfinite(w)) or np.any(w <= 0):
+        raise ValueError("omega: frequencies must be finite and > 0")
+    return w
+
+
 def frequency_response(
     model: LowerLevelModel | WithEffects, upper: UpperLevel, omega: Any, *, v: float = 0.0,
     side: int = 0, hold: float = 0.0,
@@ -128,17 +146,10 @@ def frequency_response(
     to the lower level's: a model calibrated on runs sampled at ``dt`` describes the
     follower through ``hold=dt`` (see ``docs/guide/intervals.md``, "The sampled
     loop")."""
-    from . import _core
-
-    if isinstance(model, LowerLevelModel):
-        model = WithEffects(model, ())
-    if not isinstance(model, WithEffects):
-        raise TypeError(f"model: expected a model or WithEffects, got {type(model).__name__}")
+    model = _with_effects(model)
     if not isinstance(upper, UpperLevel):
         raise TypeError(f"upper: expected an avll.UpperLevel, got {upper!r:.60}")
-    w = np.ascontiguousarray(np.atleast_1d(np.asarray(omega, dtype=np.float64)))
-    if w.ndim != 1 or np.any(~np.isfinite(w)) or np.any(w <= 0):
-        raise ValueError("omega: frequencies must be finite and > 0")
+    w = _omega(omega)
     return np.asarray(_core.follower_response(
         model.base.name, model.base.values(), list(model.effect_names),
         [float(x) for e in model.effects for x in e.to_array()], float(upper.kg),
@@ -149,9 +160,6 @@ def frequency_response(
 def _rows_arg(model: Any, rows: Any, effects: Sequence[str]) -> tuple[str, list[str], np.ndarray]:
     """The model's name, the effects (canonical order) and the rows as a C-contiguous
     float array, checked (``ValueError`` naming the argument)."""
-    from .effects import EFFECTS, canonical
-    from .models import model_class
-
     name = model_class(model).name
     for e in effects:
         if e not in EFFECTS:
@@ -183,15 +191,9 @@ def frequency_response_rows(
     sample period ``hold`` (:func:`frequency_response`). Returns the complex ``H(jw)``
     (``n x len(omega)``), NaN for a row whose parameters the model, an effect or the
     law refuses."""
-    from . import _core
-    from ._limits import check_threads
-
     name, effs, r = _rows_arg(model, rows, effects)
-    w = np.ascontiguousarray(np.atleast_1d(np.asarray(omega, dtype=np.float64)))
-    if w.ndim != 1 or np.any(~np.isfinite(w)) or np.any(w <= 0):
-        raise ValueError("omega: frequencies must be finite and > 0")
     return np.asarray(_core.follower_response_rows(
-        name, r, effs, w, v=float(v), side=int(side), threads=check_threads(threads),
+        name, r, effs, _omega(omega), v=float(v), side=int(side), threads=check_threads(threads),
         hold=float(hold)))
 
 
@@ -237,9 +239,6 @@ def stability_codes_rows(
     undecided test -- a loop on the boundary, or over ``budget`` interval evaluations --
     gives code 0 or 1 uncertified). Without structures the verdicts are those of
     :func:`avll.stability.exact_delay_codes`."""
-    from . import _core
-    from ._limits import check_int, check_threads
-
     name, effs, r = _rows_arg(model, rows, effects)
     c, ok = _core.follower_codes_rows(name, r, effs, v=float(v), side=int(side),
                                       budget=check_int(budget, "budget", min=1),
@@ -313,15 +312,8 @@ class LinearStability:
     notes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary."""
-        return {
-            "label": self.label, "side": self.side, "coeffs": self.coeffs,
-            "drag": self.drag, "outer_delay": self.outer_delay,
-            "gain_at_omega": self.gain_at_omega, "peak_gain": self.peak_gain,
-            "peak_omega": self.peak_omega, "code": self.code,
-            "tg_min_at_gains": self.tg_min_at_gains, "min_stable_tg": self.min_stable_tg,
-            "kv_threshold": self.kv_threshold, "notes": list(self.notes),
-        }  # fmt: skip
+        """JSON-ready dictionary (the fields, ``notes`` as a list)."""
+        return {**asdict(self), "notes": list(self.notes)}
 
 
 def _linear_entry(
@@ -489,6 +481,18 @@ def _fit_amplitude(t: np.ndarray, v: np.ndarray, omega: float) -> float:
     return float(math.hypot(coef[2], coef[3]))
 
 
+def _car_ratios(x: np.ndarray, amps: np.ndarray) -> np.ndarray:
+    """``x`` (amplitudes x cars, the leader first) of each car over the car ahead's; NaN
+    where not finite. A car whose value is below 1e-6 A did not oscillate (e.g. a dead
+    band swallowed the disturbance): the ratio behind it is undefined."""
+    prev = x[:, :-1]
+    ok = np.isfinite(prev) & (prev > 1e-6 * amps[:, None])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(ok, x[:, 1:] / np.where(ok, prev, 1.0), np.nan)
+    r[~np.isfinite(r)] = np.nan
+    return r
+
+
 def _upper_arg(upper: Any) -> UpperLevel:
     if isinstance(upper, UpperLevel):
         return upper
@@ -534,10 +538,7 @@ def effect_stability(
     skips the (slower, ~1 s each) extrema searches; ``kg_range``, ``kv_range`` and
     ``tg_range`` are their boxes (the paper's: Tg in [0, 15] s). ``progress=True``
     shows a tqdm bar over the amplitudes (one platoon each)."""
-    if isinstance(model, LowerLevelModel):
-        model = WithEffects(model, ())
-    if not isinstance(model, WithEffects):
-        raise TypeError(f"model: expected a model or WithEffects, got {type(model).__name__}")
+    model = _with_effects(model)
     upper = _upper_arg(upper)
     v0 = check_number(v0, "v0", positive=True)
     dt = check_number(dt, "dt", positive=True)
@@ -589,14 +590,10 @@ def effect_stability(
     n = int(math.ceil((warm_periods + measure_periods) * per / dt)) + 1
     t = np.arange(n) * dt
     ramp = np.where(t < per, 0.5 * (1 - np.cos(np.pi * t / per)), 1.0)
-    meas = t >= warm_periods * per
-    meas &= t < (warm_periods + measure_periods) * per
+    meas = (t >= warm_periods * per) & (t < (warm_periods + measure_periods) * per)
     exo = {str(EFFECTS[e].exo): np.zeros(n) for e in names if EFFECTS[e].exo}
     n_amp = amps.size
-    speed_amp = np.full((n_amp, n_cars + 1), np.nan)
-    half = np.full((n_amp, n_cars + 1), np.nan)
-    vmin = np.full((n_amp, n_cars + 1), np.nan)
-    drift = np.full((n_amp, n_cars + 1), np.nan)
+    speed_amp, half, vmin, drift = (np.full((n_amp, n_cars + 1), np.nan) for _ in range(4))
     tm = t[meas]
     first_half = tm < tm[0] + 0.5 * (tm[-1] - tm[0] + dt)
 
@@ -605,12 +602,11 @@ def effect_stability(
         a1 = _fit_amplitude(tm[first_half], vm[first_half], omega)
         a2 = _fit_amplitude(tm[~first_half], vm[~first_half], omega)
         return _fit_amplitude(tm, vm, omega), (a2 / a1 - 1.0 if a1 > 0 else math.nan)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
 
-        bar = tqdm(total=n_amp, desc="platoon", unit="amplitude", leave=False)
-    try:
+    from tqdm.auto import tqdm
+
+    with tqdm(total=n_amp, desc="platoon", unit="amplitude", leave=False,
+              disable=not progress) as bar:
         for k, a in enumerate(amps):
             lv = v0 + a * ramp * np.sin(omega * t)
             lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
@@ -625,23 +621,8 @@ def effect_stability(
                 speed_amp[k, i], drift[k, i] = fit(vs[i])
                 half[k, i] = 0.5 * float(np.ptp(vs[i][meas]))
                 vmin[k, i] = float(vs[i][meas].min())
-            if bar is not None:
-                bar.update(1)
-    finally:
-        if bar is not None:
-            bar.close()
-    # A car whose fundamental amplitude is below 1e-6 A did not oscillate (e.g. a
-    # dead band swallowed the disturbance): the ratio behind it is undefined.
-    prev = speed_amp[:, :-1]
-    ok = np.isfinite(prev) & (prev > 1e-6 * amps[:, None])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ampl = np.where(ok, speed_amp[:, 1:] / np.where(ok, prev, 1.0), np.nan)
-    ampl[~np.isfinite(ampl)] = np.nan
-    hprev = half[:, :-1]
-    hok = np.isfinite(hprev) & (hprev > 1e-6 * amps[:, None])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rampl = np.where(hok, half[:, 1:] / np.where(hok, hprev, 1.0), np.nan)
-    rampl[~np.isfinite(rampl)] = np.nan
+            bar.update(1)
+    ampl, rampl = _car_ratios(speed_amp, amps), _car_ratios(half, amps)
     for k, a in enumerate(amps):
         moving = np.flatnonzero(np.abs(drift[k, 1:]) > DRIFT_TOL)
         if moving.size:

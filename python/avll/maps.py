@@ -29,7 +29,8 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -61,12 +62,9 @@ _DIM_ALIASES = {"kg": "kg", "Tg": "Tg", "tg": "Tg", "kv": "kv"}
 
 
 def _map_attrs(model: LowerLevelModel, pade_order: int | None) -> dict[str, Any]:
-    attrs = S._attrs(model, pade_order)
-    attrs["codes"] = S.CODE_MEANINGS
-    attrs["code_local_unstable"] = S.LOCAL_UNSTABLE
-    attrs["code_string_unstable"] = S.STRING_UNSTABLE
-    attrs["code_stable"] = S.STABLE
-    return attrs
+    return {**S._attrs(model, pade_order), "codes": S.CODE_MEANINGS,
+            "code_local_unstable": S.LOCAL_UNSTABLE, "code_string_unstable": S.STRING_UNSTABLE,
+            "code_stable": S.STABLE}
 
 
 def _chunk_sizes(chunks: Mapping[str, int], shape: tuple[int, int, int]) -> tuple[int, ...]:
@@ -84,17 +82,11 @@ def _chunk_sizes(chunks: Mapping[str, int], shape: tuple[int, int, int]) -> tupl
     return tuple(out[d] for d in DIMS)
 
 
-def _point_bytes(order: int) -> float:
-    """Peak bytes per grid point of one map computation: the uint8 code for a Padé
-    map; the three float64 meshgrid axes, the code and the settled flag for the exact
-    delay (``order == 0``)."""
-    return 1.0 if order else 3 * 8.0 + 2.0
-
-
 def _block_memory(what: str, points: float, order: int, hint: str) -> None:
-    per = _point_bytes(order)
-    check_memory(points * per, f"{what}: {points:.0f} points x {per:g} bytes", hint,
-                 per=per, unit="points")
+    """The memory check of one map computation; peak bytes per grid point: the uint8 code
+    for a Padé map, the three float64 meshgrid axes, the code and the settled flag for
+    the exact delay (``order == 0``)."""
+    S._grid_memory(what, points, 1.0 if order else S._POINT_BYTES, hint)
 
 
 _CHUNK_HINT = "use smaller chunks (e.g. chunks={'kg': 200, 'Tg': 200})"
@@ -170,9 +162,7 @@ def map_dataset(
             _block_memory(f"map_dataset: {kg_a.size} kg x {tg_a.size} Tg x {kv_a.size} kv",
                           float(kg_a.size) * tg_a.size * kv_a.size, order,
                           "pass chunks= to compute it chunk by chunk, or split the grid")
-            g = np.meshgrid(kg_a, tg_a, kv_a, indexing="ij")
-            codes, _ = S.exact_delay_codes(model, *g, threads=th, budget=budget)
-            data = codes.reshape(g[0].shape)
+            data, _ = S._exact_grid(model, kg_a, tg_a, kv_a, threads=th, budget=budget)
         else:
             data = S.stability_map(model, kg_a, tg_a, kv_a, order, threads=th, progress=progress)
         return xr.DataArray(data, dims=DIMS, coords=coords, name="codes", attrs=attrs)
@@ -187,18 +177,8 @@ def map_dataset(
                   float(cs[0]) * cs[1] * cs[2], order, _CHUNK_HINT)
     tok = tokenize(name, p, kg_a, tg_a, kv_a, order, budget)
     arr = da.map_blocks(
-        _map_block,
-        name,
-        p,
-        kg_a,
-        tg_a,
-        kv_a,
-        order,
-        th,
-        int(budget),
-        dtype=np.uint8,
-        chunks=da.core.normalize_chunks(cs, shape),
-        meta=np.empty((0, 0, 0), dtype=np.uint8),
+        _map_block, name, p, kg_a, tg_a, kv_a, order, th, int(budget), dtype=np.uint8,
+        chunks=da.core.normalize_chunks(cs, shape), meta=np.empty((0, 0, 0), dtype=np.uint8),
         name=f"avll-stability-map-{tok}",
     )
     return xr.DataArray(arr, dims=DIMS, coords=coords, name="codes", attrs=attrs)
@@ -375,9 +355,8 @@ def open_map(path: str | os.PathLike[str], format: str | None = None) -> Any:
         if not _is_marked(p):
             raise ValueError(
                 f"path: {p} has no completeness marker (the group {COMPLETE_MARKER!r}): it "
-                "was not "
-                "written by avll.write_map, or its writing was interrupted, so chunks may "
-                "be missing (a missing chunk reads as 0, 'locally unstable'); write it "
+                "was not written by avll.write_map, or its writing was interrupted, so chunks "
+                "may be missing (a missing chunk reads as 0, 'locally unstable'); write it "
                 "again with avll.write_map"
             )
         ds = xr.open_zarr(p, consolidated=False)
@@ -421,37 +400,32 @@ def local_client(n_workers: int = 2, threads_per_worker: int = 1, **kwargs: Any)
     return Client(cluster)
 
 
-class _ClientScope:
-    """The given client, or a local one created and closed around the work."""
+@contextmanager
+def _client_scope(client: Any) -> Iterator[Any]:
+    """The given client; for a scheduler address a client connected to it, or without
+    ``client`` a local cluster's, each created and closed around the work."""
+    if client is not None and not isinstance(client, str):
+        yield client
+        return
+    from distributed import Client
 
-    def __init__(self, client: Any) -> None:
-        self.given = client
-        self.client: Any = None
-
-    def __enter__(self) -> Any:
-        if self.given is not None:
-            from distributed import Client
-
-            self.client = self.given if not isinstance(self.given, str) else Client(self.given)
-        else:
-            self.client = local_client()
-        return self.client
-
-    def __exit__(self, *exc: Any) -> None:
-        if self.given is None or isinstance(self.given, str):
-            cluster = getattr(self.client, "cluster", None)
-            self.client.close()
-            if cluster is not None and self.given is None:
-                cluster.close()
+    c = local_client() if client is None else Client(client)
+    try:
+        yield c
+    finally:
+        cluster = getattr(c, "cluster", None)
+        c.close()
+        if cluster is not None and client is None:
+            cluster.close()
 
 
 def _members(models: Any) -> tuple[list[str], list[LowerLevelModel]]:
     if isinstance(models, LowerLevelModel):
         models = [models]
     # a calibration with intervals (or its uncertainty): its resampled models
-    unc = getattr(models, "uncertainty", None)
-    if unc is not None or hasattr(models, "samples") and hasattr(models, "models"):
-        models = (unc if unc is not None else models).models()
+    if getattr(models, "uncertainty", None) is not None or (
+            hasattr(models, "samples") and hasattr(models, "models")):
+        models = models_from_bootstrap(models)
     if isinstance(models, Mapping):
         names, ms = [str(k) for k in models], list(models.values())
     else:
@@ -473,8 +447,7 @@ def _sweep_task(
     name, p = S._model(model)
     kg, tg, kv = (np.array(a, dtype=np.float64) for a in (kg, tg, kv))
     _block_memory(f"sweep: one map of {kg.size} kg x {tg.size} Tg x {kv.size} kv on a worker",
-                  float(kg.size) * tg.size * kv.size, S._pade_arg(order),
-                  "split the grid (e.g. a few kv values per call) and concatenate")
+                  float(kg.size) * tg.size * kv.size, S._pade_arg(order), S._SPLIT_GRID)
     codes = _map_block(
         name, p, kg, tg, kv, S._pade_arg(order), threads, S.EXACT_BUDGET,
         block_info={None: {"array-location": [(0, kg.size), (0, tg.size), (0, kv.size)]}},
@@ -520,17 +493,16 @@ def sweep(
     threads = check_threads(threads)
     tasks = [(m, o) for m in ms for o in orders]
     points = float(kg_a.size) * tg_a.size * kv_a.size
-    hint = "split the grid (e.g. a few kv values per call) and concatenate"
     # one task's map on a worker, before any cluster is started or contacted
     _block_memory(f"sweep: one map of {kg_a.size} kg x {tg_a.size} Tg x {kv_a.size} kv",
-                  points, 0 if None in orders else 1, hint)
+                  points, 0 if None in orders else 1, S._SPLIT_GRID)
     if reduce is None:
         # the gathered maps and their stacked copy, here
         check_memory(2.0 * points * len(tasks),
                      f"sweep: {len(ms)} members x {len(orders)} orders x {points:.0f} points "
                      f"gathered and stacked (2 bytes per point)",
-                     f"{hint}, or pass reduce='thresholds'")
-    with _ClientScope(client) as c:
+                     f"{S._SPLIT_GRID}, or pass reduce='thresholds'")
+    with _client_scope(client) as c:
         futs = [
             c.submit(_sweep_task, m, kg_a, tg_a, kv_a, o, threads, reduce, pure=False)
             for m, o in tasks
@@ -632,7 +604,7 @@ def min_stable_tg_samples(
     kw = dict(kg_range=tuple(kg_range), kv_range=tuple(kv_range), pade_order=pade_order,
               tg_range=tuple(tg_range), threads=int(threads))
     if distributed:
-        with _ClientScope(client) as c:
+        with _client_scope(client) as c:
             res = c.gather([c.submit(_min_tg_task, m, kw, pure=False) for m in ms])
     else:
         res = [_min_tg_task(m, kw) for m in ms]
@@ -731,12 +703,10 @@ def calibrate_many_distributed(
     from ._limits import check_seed
     from .calibration import _ga_kwargs, _ga_memory, _problem
 
-    for bad in ("starts", "progress"):
-        if bad in kwargs:
-            v = kwargs.pop(bad)
-            if (bad == "starts" and check_int(v, "starts", min=1) != 1) or (
-                    bad == "progress" and v):
-                raise ValueError(f"{bad}: not supported by calibrate_many_distributed")
+    if check_int(kwargs.pop("starts", 1), "starts", min=1) != 1:
+        raise ValueError("starts: not supported by calibrate_many_distributed")
+    if kwargs.pop("progress", False):
+        raise ValueError("progress: not supported by calibrate_many_distributed")
     seed = check_seed(seed)
     threads = check_threads(threads)
     batch = check_int(batch, "batch", min=1)
@@ -757,7 +727,7 @@ def calibrate_many_distributed(
     _ga_memory(prob, min(batch, len(subs)), ga)
     items = list(enumerate(subs))
     blocks = [items[i : i + batch] for i in range(0, len(items), batch)]
-    with _ClientScope(client) as c:
+    with _client_scope(client) as c:
         runs_f = c.scatter(runs, broadcast=True)
         futs = [
             c.submit(_calibrate_block, model, runs_f, b, seed, threads, kwargs,
@@ -822,7 +792,7 @@ def bootstrap_distributed(
     def refit(subsets: list[list[int]], x0: np.ndarray, atoms: list[list[int]],
               weights: list[np.ndarray], o: Any, th: int) -> list[dict[str, Any]]:
         out: list[dict[str, Any]] = []
-        with _ClientScope(client) as c:
+        with _client_scope(client) as c:
             runs_f = c.scatter(runs, broadcast=True)
             for k, sub in enumerate(subsets):
                 w = weights[k]

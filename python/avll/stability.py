@@ -23,8 +23,9 @@ Labelled (xarray), chunked (Dask) and distributed maps are in :mod:`avll.maps`.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -90,10 +91,24 @@ def _floats(name: str, x: Any) -> np.ndarray:
         raise ValueError(f"{name}: expected numbers ({e})") from None
 
 
-def _grid_memory(what: str, points: float, per_point: float) -> None:
-    check_memory(points * per_point, f"{what}: {points:.0f} points x {per_point:g} bytes",
-                 "split the grid (e.g. a few kv values per call) and concatenate",
+_SPLIT_GRID = "split the grid (e.g. a few kv values per call) and concatenate"
+
+
+def _grid_memory(what: str, points: float, per_point: float, hint: str = _SPLIT_GRID) -> None:
+    check_memory(points * per_point, f"{what}: {points:.0f} points x {per_point:g} bytes", hint,
                  per=per_point, unit="points")
+
+
+def _with_progress(call: Callable[..., Any], progress: bool | str, total: int, desc: str,
+                   unit_scale: bool = False) -> Any:
+    """``call()``, or with ``progress`` (:func:`avll.progress.resolve_mode`) asking for it
+    ``call(progress=cb)`` with ``cb(done, total)`` moving a bar of ``total`` points."""
+    from .progress import Progress, resolve_mode
+
+    if resolve_mode(progress) == "none":
+        return call()
+    with Progress(total, desc, unit="pt", unit_scale=unit_scale, mode=progress) as bar:
+        return call(progress=lambda done, _total: bar.advance_to(done))
 
 
 #: Largest ``n_scan`` (and ``n_w``) the engine accepts (a scan holds that many points
@@ -166,18 +181,9 @@ def stability_map(
     # the uint8 map, and as much again for what a caller derives from it (codes == 2)
     _grid_memory(f"stability_map: {kg.size} kg x {tg.size} tg x {kv.size} kv",
                  float(kg.size) * tg.size * kv.size, 2.0)
-    from .progress import Progress, resolve_mode
-
-    if resolve_mode(progress) == "none":
-        return _core.stability_map(name, p, kg, tg, kv, order, nt)
-    total = kg.size * tg.size * kv.size
-    with Progress(total, f"stability {name}", unit="pt", unit_scale=True,
-                  mode=progress) as bar:
-
-        def cb(done: int, _total: int) -> None:
-            bar.advance_to(done)
-
-        return _core.stability_map(name, p, kg, tg, kv, order, nt, cb)
+    return _with_progress(partial(_core.stability_map, name, p, kg, tg, kv, order, nt),
+                          progress, kg.size * tg.size * kv.size, f"stability {name}",
+                          unit_scale=True)
 
 
 def stability_points(
@@ -192,15 +198,8 @@ def stability_points(
     except ValueError as e:
         raise ValueError(f"kg, tg, kv: shapes do not broadcast ({e})") from None
     _grid_memory("stability_points", float(kg.size), 3 * 8.0 + 1.0)
-    shape = kg.shape
-    flat = [np.ascontiguousarray(a.ravel()) for a in (kg, tg, kv)]
-    for n, a in zip(("kg", "tg", "kv"), flat, strict=True):
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{n}: values must be finite")
-    out = _core.stability_points(
-        name, p, flat[0], flat[1], flat[2], _order(pade_order), nt
-    )
-    return out.reshape(shape)
+    out = _core.stability_points(name, p, *_points(kg, tg, kv), _order(pade_order), nt)
+    return out.reshape(kg.shape)
 
 
 # ---------------------------------------------------------------------------
@@ -282,20 +281,13 @@ def _reduce(kg: np.ndarray, tg: np.ndarray, kv: np.ndarray, any_kg: np.ndarray,
             any_tg: np.ndarray) -> Thresholds:
     """The thresholds from a map's two reductions: ``any_kg`` (kg, kv), some Tg
     stable; ``any_tg`` (tg, kv), some kg stable."""
-    kg_max = np.array(
-        [kg[any_kg[:, j]].max() if any_kg[:, j].any() else np.nan for j in range(kv.size)]
-    )
-    tg_min = np.array(
-        [tg[any_tg[:, j]].min() if any_tg[:, j].any() else np.nan for j in range(kv.size)]
-    )
-    has: np.ndarray = np.asarray(any_kg.any(axis=0))
+    kg_max = np.array([kg[m].max() if m.any() else np.nan for m in any_kg.T])
+    tg_min = np.array([tg[m].min() if m.any() else np.nan for m in any_tg.T])
     order = np.argsort(kv)
-    last = np.nan
-    first_empty = np.nan
-    for pos, j in enumerate(order):
-        if has[j]:
-            last = float(kv[j])
-            first_empty = float(kv[order[pos + 1]]) if pos + 1 < len(order) else np.nan
+    # the last kv (in increasing order) with a stable point, and the grid value after it
+    pos = np.flatnonzero(np.asarray(any_kg.any(axis=0))[order])
+    last = float(kv[order[pos[-1]]]) if pos.size else np.nan
+    first_empty = float(kv[order[pos[-1] + 1]]) if pos.size and pos[-1] + 1 < kv.size else np.nan
     tg_all = tg[any_tg.any(axis=1)]
     return Thresholds(
         kv=kv.copy(),
@@ -332,12 +324,8 @@ def kv_threshold(
     kg, tg = _axis("kg", kg), _axis("tg", tg)
     kv_lo, kv_hi = check_number(kv_lo, "kv_lo"), check_number(kv_hi, "kv_hi")
     tol = check_number(tol, "tol", positive=True)
-    return float(
-        _core.kv_threshold_grid(
-            name, p, kg, tg, float(kv_lo), float(kv_hi), _order(pade_order), float(tol),
-            threads=int(threads),
-        )
-    )
+    return float(_core.kv_threshold_grid(name, p, kg, tg, kv_lo, kv_hi, _order(pade_order), tol,
+                                         threads=threads))
 
 
 #: Default constants of :func:`capacity`: with ``length / speed = 7/30 s`` the
@@ -392,6 +380,8 @@ def _broadcast_size(*arrays: Any) -> float:
 
 
 def _points(kg: Any, tg: Any, kv: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points as three contiguous float arrays (each flattened, the lengths
+    broadcast), checked finite."""
     arrs = np.broadcast_arrays(
         *(np.atleast_1d(np.asarray(a, dtype=np.float64)).ravel() for a in (kg, tg, kv))
     )
@@ -473,13 +463,20 @@ def exact_delay_codes(
     budget = check_int(budget, "budget", min=1)
     del orders
     name, p = _model(model)
-    check_memory(_broadcast_size(kg, tg, kv) * _POINT_BYTES,
-                 f"exact_delay_codes: {_broadcast_size(kg, tg, kv):.0f} points",
-                 "split the points into several calls and concatenate",
-                 per=_POINT_BYTES, unit="points")
+    _grid_memory("exact_delay_codes", _broadcast_size(kg, tg, kv), _POINT_BYTES,
+                 "split the points into several calls and concatenate")
     kg, tg, kv = _points(kg, tg, kv)
     codes, ok = _core.delay_points(name, p, kg, tg, kv, int(budget), int(threads))
     return codes, ok
+
+
+def _exact_grid(model: LowerLevelModel, kg: np.ndarray, tg: np.ndarray, kv: np.ndarray,
+                **kw: Any) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`exact_delay_codes` (``kw`` its keywords) over the grid ``kg x tg x kv``: the
+    codes and the settled flags, each of shape ``(len(kg), len(tg), len(kv))``."""
+    g = np.meshgrid(kg, tg, kv, indexing="ij")
+    codes, settled = exact_delay_codes(model, *g, **kw)
+    return codes.reshape(g[0].shape), settled.reshape(g[0].shape)
 
 
 @dataclass(frozen=True)
@@ -501,13 +498,9 @@ class PadeReport:
     def summary(self) -> str:
         """One-line summary."""
         n = int(self.differs.sum())
-        parts = []
-        for a in range(3):
-            for b in range(3):
-                if a != b:
-                    k = int(((self.pade == a) & (self.exact == b)).sum())
-                    if k:
-                        parts.append(f"{k} Padé {a} vs exact {b}")
+        counts = {(a, b): int(((self.pade == a) & (self.exact == b)).sum())
+                  for a in range(3) for b in range(3) if a != b}
+        parts = [f"{k} Padé {a} vs exact {b}" for (a, b), k in counts.items() if k]
         return (
             f"Padé-{self.pade_order} differs from the exact delay at {n} of "
             f"{self.pade.size} points ({100 * self.fraction:.3f} %)"
@@ -532,16 +525,14 @@ def pade_report(
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     _grid_memory("pade_report", float(kg.size) * tg.size * kv.size, 8 * 8.0)
     pade = stability_map(model, kg, tg, kv, pade_order, threads=threads)
-    g = np.meshgrid(kg, tg, kv, indexing="ij")
-    codes, settled = exact_delay_codes(model, *g, threads=threads, **exact_kw)
-    exact = codes.reshape(pade.shape)
+    exact, settled = _exact_grid(model, kg, tg, kv, threads=threads, **exact_kw)
     differs = exact != pade
     return PadeReport(
         pade_order=int(pade_order),
         pade=pade,
         exact=exact,
         differs=differs,
-        unsettled=~settled.reshape(pade.shape),
+        unsettled=~settled,
         fraction=float(differs.mean()),
     )
 
@@ -633,10 +624,10 @@ def boundary(
         raise ValueError(f"which: expected '<tg|kg|kv>_<min|max>', got {which!r}")
     axis = _ALIASES[ax_name]
     given = {"kg": kg, "Tg": tg, "kv": kv}
-    fixed = [a for a in ("kg", "Tg", "kv") if a != axis]
+    fixed = [a for a in given if a != axis]
     for a in fixed:
         if given[a] is None:
-            raise ValueError(f"{a.lower() if a == 'Tg' else a}: needed for {which!r}")
+            raise ValueError(f"{a.lower()}: needed for {which!r}")
     if given[axis] is not None:
         raise ValueError(f"{ax_name}: is the searched axis of {which!r}; use search_range")
     u = _axis(fixed[0], given[fixed[0]])
@@ -650,37 +641,23 @@ def boundary(
     rtol = check_number(rtol, "rtol", positive=True)
     _scan_memory(f"boundary: {u.size} {fixed[0]} x {w.size} {fixed[1]}", n_scan, threads,
                  8.0 * u.size * w.size)
-    args = (name, p, _AXES[axis], u, w, lo, hi, "inf" if end == "min" else "sup")
-    kw: dict[str, Any] = dict(
-        pade_order=_pade_arg(pade_order), level=lev, n_scan=n_scan, log=log,
-        rtol=rtol, threads=threads,
-    )
-    from .progress import Progress, resolve_mode
-
-    if resolve_mode(progress) != "none":
-        with Progress(u.size * w.size, f"boundary {which}", unit="pt", mode=progress) as bar:
-
-            def cb(done: int, _total: int) -> None:
-                bar.advance_to(done)
-
-            vals = _core.stability_boundary(*args, progress=cb, **kw)
-    else:
-        vals = _core.stability_boundary(*args, **kw)
-    attrs = _attrs(model, pade_order)
-    attrs.update(
-        {
-            "boundary": which,
-            "definition": (
-                f"{'infimum' if end == 'min' else 'supremum'} of the "
-                f"{'locally' if lev == 1 else 'locally and string'} stable {axis} "
-                f"within the searched range (NaN: nothing stable there)"
-            ),
-            "search_range": [lo, hi],
-            "level": level,
-            "n_scan": int(n_scan),
-            "rtol": float(rtol),
-        }
-    )
+    call = partial(_core.stability_boundary, name, p, _AXES[axis], u, w, lo, hi,
+                   "inf" if end == "min" else "sup", pade_order=_pade_arg(pade_order),
+                   level=lev, n_scan=n_scan, log=log, rtol=rtol, threads=threads)
+    vals = _with_progress(call, progress, u.size * w.size, f"boundary {which}")
+    attrs = {
+        **_attrs(model, pade_order),
+        "boundary": which,
+        "definition": (
+            f"{'infimum' if end == 'min' else 'supremum'} of the "
+            f"{'locally' if lev == 1 else 'locally and string'} stable {axis} "
+            f"within the searched range (NaN: nothing stable there)"
+        ),
+        "search_range": [lo, hi],
+        "level": level,
+        "n_scan": int(n_scan),
+        "rtol": float(rtol),
+    }
     return xr.DataArray(
         vals, dims=tuple(fixed), coords={fixed[0]: u, fixed[1]: w}, name=which, attrs=attrs
     )
@@ -705,18 +682,14 @@ def stable_intervals(
     if axis not in _ALIASES:
         raise ValueError(f"axis: must be 'kg', 'tg' or 'kv', got {axis!r}")
     ax = _ALIASES[axis]
-    given = {"kg": kg, "Tg": tg, "kv": kv}
-    point = []
-    for a in ("kg", "Tg", "kv"):
-        v = given[a]
-        if a == ax:
-            if v is not None:
-                raise ValueError(f"{axis}: is the searched axis; use search_range")
-            point.append(0.0)
-        else:
-            if v is None or not math.isfinite(float(v)):
-                raise ValueError(f"{a.lower() if a == 'Tg' else a}: a finite value is needed")
-            point.append(float(v))
+    given: dict[str, Any] = {"kg": kg, "Tg": tg, "kv": kv}
+    if given[ax] is not None:
+        raise ValueError(f"{axis}: is the searched axis; use search_range")
+    given[ax] = 0.0
+    for a, v in given.items():
+        if v is None or not math.isfinite(float(v)):
+            raise ValueError(f"{a.lower()}: a finite value is needed")
+    point = [float(v) for v in given.values()]
     lo, hi = _range_arg("search_range", search_range or DEFAULT_RANGES[ax])
     name, p = _model(model)
     n_scan = check_int(n_scan, "n_scan", min=2, max=MAX_SCAN)
@@ -797,16 +770,15 @@ def _extremum(
         name, p, which, rs[0], rs[1], rs[2], _pade_arg(pade_order), n_scan,
         n_grid=n_grid, threads=threads,
     )
-    labels = (r1[0], r2[0])
-    coords = dict(zip(("kg", "tg", "kv"), at, strict=True))
+    kg, tg, kv = (float(x) for x in at)
     return Extremum(
         quantity=which,
         value=float(val),
-        kg=float(coords["kg"]),
-        tg=float(coords["tg"]),
-        kv=float(coords["kv"]),
+        kg=kg,
+        tg=tg,
+        kv=kv,
         attained=bool(at_end) and float(val) == rs[2][0 if which == "tg_min" else 1],
-        on_edge=tuple(lab for lab, e in zip(labels, edge, strict=True) if e),
+        on_edge=tuple(lab for lab, e in zip((r1[0], r2[0]), edge, strict=True) if e),
         ranges={r1[0]: rs[0][:2], r2[0]: rs[1][:2], r3[0]: rs[2][:2]},
         pade_order=pade_order,
         evaluations=int(evals),
@@ -890,27 +862,24 @@ def pade_error_map(
     _grid_memory(f"pade_error_map: {kg.size} kg x {tg.size} tg x {kv.size} kv x "
                  f"{len(orders)} orders", float(kg.size) * tg.size * kv.size,
                  _POINT_BYTES + 4.0 * len(orders))
-    g = np.meshgrid(kg, tg, kv, indexing="ij")
-    codes, ok = exact_delay_codes(model, *g, threads=threads, budget=budget)
-    exact = codes.reshape(g[0].shape)
-    cert = ok.reshape(g[0].shape)
+    exact, cert = _exact_grid(model, kg, tg, kv, threads=threads, budget=budget)
     pade = np.stack([stability_map(model, kg, tg, kv, o, threads=threads) for o in orders])
-    n_cert = max(int(cert.sum()), 1)
-    differs = (pade != exact[None]) & cert[None]
-    frac = differs.reshape(len(orders), -1).sum(axis=1) / n_cert
-    fs = ((pade == STABLE) & (exact[None] != STABLE) & cert[None]).reshape(len(orders), -1)
-    fu = ((pade != STABLE) & (exact[None] == STABLE) & cert[None]).reshape(len(orders), -1)
+    # per order, the certified points where the Padé code differs, is falsely stable
+    # and is falsely unstable
+    per_order = (1, 2, 3)
+    differs = ((pade != exact[None]) & cert[None]).sum(axis=per_order)
+    fs = ((pade == STABLE) & (exact[None] != STABLE) & cert[None]).sum(axis=per_order)
+    fu = ((pade != STABLE) & (exact[None] == STABLE) & cert[None]).sum(axis=per_order)
     coords = {"kg": kg, "Tg": tg, "kv": kv, "pade_order": np.array(orders)}
-    attrs = _attrs(model, None)
-    attrs["codes"] = CODE_MEANINGS
+    attrs = {**_attrs(model, None), "codes": CODE_MEANINGS}
     return xr.Dataset(
         {
             "exact": (("kg", "Tg", "kv"), exact),
             "certified": (("kg", "Tg", "kv"), cert),
             "pade": (("pade_order", "kg", "Tg", "kv"), pade),
-            "fraction_differs": (("pade_order",), frac),
-            "false_stable": (("pade_order",), fs.sum(axis=1)),
-            "false_unstable": (("pade_order",), fu.sum(axis=1)),
+            "fraction_differs": (("pade_order",), differs / max(int(cert.sum()), 1)),
+            "false_stable": (("pade_order",), fs),
+            "false_unstable": (("pade_order",), fu),
         },
         coords=coords,
         attrs=attrs,
