@@ -16,6 +16,7 @@ The command's contract (scripts depend on it)::
 from __future__ import annotations
 
 import argparse
+import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -109,13 +110,11 @@ def _cmd(args: argparse.Namespace) -> int:
     else:
         taken = {r.run_id for r in (*cal, *test)}
         val = [r for r in runs if r.run_id not in taken]
-    names = list(splits)
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            both = sorted({r.run_id for r in splits[a]} & {r.run_id for r in splits[b]})
-            if both:
-                raise ValueError(f"{b}: run(s) {', '.join(both)} are also in {a}; the "
-                                 "selections must be disjoint")
+    for a, b in itertools.combinations(splits, 2):
+        both = sorted({r.run_id for r in splits[a]} & {r.run_id for r in splits[b]})
+        if both:
+            raise ValueError(f"{b}: run(s) {', '.join(both)} are also in {a}; the "
+                             "selections must be disjoint")
     res = effect_loop(args.model, cal, val, test_runs=test, seed=args.seed, init=args.init,
                       folds=args.folds, min_gain=args.min_gain,
                       max_effects=args.max_effects, max_generations=args.max_generations,
