@@ -176,11 +176,11 @@ def available_memory() -> tuple[int | None, str]:
 
 def fmt_bytes(n: float) -> str:
     """``1.5 GB`` style (powers of 1000)."""
-    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
-        if abs(n) < 1000 or unit == "PB":
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if abs(n) < 1000:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1000.0
-    return f"{n:.1f} PB"  # pragma: no cover
+    return f"{n:.1f} PB"
 
 
 def check_memory(nbytes: float, what: str, hint: str, *, per: float | None = None,

@@ -99,9 +99,9 @@ def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParse
 
 
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                  file: Any = None, line: str | None = None, *, command: str = "") -> None:
+                  file: Any = None, line: str | None = None, *, who: str = "avll") -> None:
     text = " ".join(str(message).split())
-    print(f"avll {command}: warning: {text}", file=sys.stderr)
+    print(f"{who}: warning: {text}", file=sys.stderr)
 
 
 class _QuietPipe:
@@ -167,10 +167,10 @@ def _forget_unhandled_interrupt() -> None:
 
 
 def _main(argv: Sequence[str] | None) -> int:
-    command = "?"
+    who = "avll"  # in messages: "avll COMMAND" once the command is known
     try:
         args = build_parser().parse_args(argv)
-        command = args.command
+        who = f"avll {args.command}"
 
         from ..data import DataWarning
         from ._common import check_io
@@ -182,7 +182,7 @@ def _main(argv: Sequence[str] | None) -> int:
 
         with warnings.catch_warnings(), _sigint.latched(), figure_dpi(getattr(args, "dpi", None)):
             warnings.simplefilter("always", DataWarning)
-            warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
+            warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, who=who)
             # every output of the command is committed as one unit at its end
             with strict_warnings(bool(getattr(args, "strict", False))), output_group():
                 code = int(args.func(args) or 0)
@@ -192,17 +192,12 @@ def _main(argv: Sequence[str] | None) -> int:
     except (KeyboardInterrupt, ValueError, TypeError, OSError, MemoryError) as e:
         # (a Ctrl-C another error hid counts as a Ctrl-C)
         if isinstance(e, KeyboardInterrupt) or (_sigint.console and _sigint.interrupted()):
-            print(f"{_who(command)}: interrupted", file=sys.stderr)
+            print(f"{who}: interrupted", file=sys.stderr)
             return 130
         msg = " ".join(str(e).split())
         if isinstance(e, MemoryError):
             msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
-        print(f"{_who(command)}: error: {msg}", file=sys.stderr)
+        print(f"{who}: error: {msg}", file=sys.stderr)
         return 2
-
-
-def _who(command: str) -> str:
-    """``avll COMMAND`` for messages (``avll`` before the command is known)."""
-    return "avll" if command == "?" else f"avll {command}"
 
 

@@ -2,10 +2,8 @@
 (:func:`avll.diagnose.effect_loop`) on measured or synthetic runs.
 
 Registration needs no heavy import (the loop, scipy and the loaders are imported when
-the command runs), so ``avll --help`` and ``avll diagnose --help`` stay fast. The
-options are the shared ones of :mod:`avll.cli._common`: ``--model``, ``--format``,
-``--command-kind``, run selections by id or glob pattern, ``--seed``, ``--threads``,
-``--json``, ``--progress``/``-q``; the output paths are checked before any work.
+the command runs), so ``avll --help`` and ``avll diagnose --help`` stay fast; the
+options are the shared ones of :mod:`avll.cli._common`.
 
 The command's contract (scripts depend on it)::
 
