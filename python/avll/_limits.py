@@ -28,6 +28,8 @@ import numbers
 import os
 from typing import Any
 
+from . import _core
+
 __all__ = [
     "SMALL",
     "MEMORY_FRACTION",
@@ -85,8 +87,6 @@ def check_number(value: Any, name: str, *, finite: bool = True, positive: bool =
 
 def max_threads() -> int:
     """The largest accepted ``threads`` (from the Rust core: 4 x the available cores)."""
-    from . import _core
-
     return int(_core.max_threads())
 
 
@@ -95,8 +95,6 @@ def check_threads(threads: Any, name: str = "threads") -> int:
     n = check_int(threads, name, min=0)
     top = max_threads()
     if n > top:
-        from . import _core
-
         raise ValueError(
             f"{name}: {n} is more than {_core.THREADS_PER_CORE} x the "
             f"{_core.available_cores()} available cores (at most {top}); use 0 for all cores"
@@ -109,29 +107,26 @@ def check_seed(seed: Any, name: str = "seed") -> int:
     return check_int(seed, name, min=0, max=SEED_MAX)
 
 
-def _meminfo_available() -> int | None:
+def _status_kb(key: str, path: str = "/proc/self/status") -> int | None:
+    """The ``key:`` line (a size in kB) of a ``/proc`` file, in bytes (None: not there)."""
     try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def _status_kb(key: str) -> int | None:
-    try:
-        with open("/proc/self/status", encoding="ascii") as f:
+        with open(path, encoding="ascii") as f:
             for line in f:
                 if line.startswith(key + ":"):
                     return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
     return None
+
+
+def _meminfo_available() -> int | None:
+    m = _status_kb("MemAvailable", "/proc/meminfo")
+    if m is not None:
+        return m
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
 
 
 def _cgroup_available() -> int | None:
@@ -172,26 +167,20 @@ def _rlimit_available() -> list[tuple[int, str]]:
 
 def available_memory() -> tuple[int | None, str]:
     """Bytes this process can still allocate (``None`` if unknown) and what limits it."""
-    cands: list[tuple[int, str]] = []
-    m = _meminfo_available()
-    if m is not None:
-        cands.append((m, "available memory"))
-    c = _cgroup_available()
-    if c is not None:
-        cands.append((c, "the cgroup memory limit"))
+    cands = [(n, what) for n, what in ((_meminfo_available(), "available memory"),
+                                       (_cgroup_available(), "the cgroup memory limit"))
+             if n is not None]
     cands += _rlimit_available()
-    if not cands:
-        return None, "unknown"
-    return min(cands)
+    return min(cands) if cands else (None, "unknown")
 
 
 def fmt_bytes(n: float) -> str:
     """``1.5 GB`` style (powers of 1000)."""
-    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
-        if abs(n) < 1000 or unit == "PB":
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if abs(n) < 1000:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1000.0
-    return f"{n:.1f} PB"  # pragma: no cover
+    return f"{n:.1f} PB"
 
 
 def check_memory(nbytes: float, what: str, hint: str, *, per: float | None = None,

@@ -16,6 +16,7 @@ The library installs nothing by itself: in a notebook or a script Python's own h
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -53,20 +54,16 @@ def latched() -> Iterator[None]:
     """Installs :func:`handler` for the block (main thread, and only in place of
     Python's default handler); restores the previous handler and clears the latch
     afterwards."""
-    installed = False
-    old: object = None
-    if threading.current_thread() is threading.main_thread():
-        old = signal.getsignal(signal.SIGINT)
-        if old is signal.default_int_handler:
-            signal.signal(signal.SIGINT, handler)
-            installed = True
-    if installed:  # the command's own latch (command_starts) keeps a Ctrl-C of its start
-        clear()
+    installed = (threading.current_thread() is threading.main_thread()
+                 and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    if installed:
+        signal.signal(signal.SIGINT, handler)
+        clear()  # only here: under command_starts' handler a Ctrl-C of its start stays latched
     try:
         yield
     finally:
         if installed:
-            signal.signal(signal.SIGINT, old)  # type: ignore[arg-type]
+            signal.signal(signal.SIGINT, signal.default_int_handler)
         clear()
 
 
@@ -82,14 +79,10 @@ def quiet_exit(signum: int, frame: FrameType | None) -> None:
     so it flushes stdout, prints one line and exits with 130 at once, without a
     traceback and without ending the process by the signal."""
     for stream in (sys.stdout, sys.stderr):
-        try:
+        with contextlib.suppress(Exception):  # a closed pipe: nothing left to say there
             stream.flush()
-        except Exception:  # noqa: BLE001 - a closed pipe: nothing left to say there
-            pass
-    try:
+    with contextlib.suppress(OSError):
         os.write(2, b"avll: interrupted\n")
-    except OSError:
-        pass
     os._exit(130)
 
 

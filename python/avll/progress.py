@@ -66,17 +66,18 @@ def messages(prefix: str, progress: Any, file: TextIO | None = None) -> Callable
     mode = resolve_mode(progress, file)
     if mode == "none":
         return lambda msg: None
+    return lambda msg: _emit(f"{prefix}: {msg}", mode == "bar", file)
 
-    def say(msg: str) -> None:
-        out = sys.stderr if file is None else file
-        if mode == "bar":
-            from tqdm.auto import tqdm
 
-            tqdm.write(f"{prefix}: {msg}", file=out)
-        else:
-            print(f"{prefix}: {msg}", file=out, flush=True)
+def _emit(line: str, bar: bool, file: TextIO | None) -> None:
+    """Prints ``line`` on ``file`` (default stderr), above any tqdm bar when ``bar``."""
+    out = sys.stderr if file is None else file
+    if bar:
+        from tqdm.auto import tqdm
 
-    return say
+        tqdm.write(line, file=out)
+    else:
+        print(line, file=out, flush=True)
 
 
 class Progress:
@@ -104,9 +105,8 @@ class Progress:
         if self.mode == "bar":
             from tqdm.auto import tqdm
 
-            tot = int(self.total) if self.total.is_integer() else self.total
-            self._bar = tqdm(total=tot, desc=desc, unit=unit, leave=True,
-                             file=sys.stderr if file is None else file, unit_scale=unit_scale)
+            self._bar = tqdm(total=_num(self.total), desc=desc, unit=unit, leave=True,
+                             file=self._out(), unit_scale=unit_scale)
         elif self.mode == "log":
             self._log("started")
 
@@ -121,8 +121,7 @@ class Progress:
         el = time.perf_counter() - self._t0
         extra = f", {self.postfix}" if self.postfix else ""
         print(f"avll: {self.desc}: {state} {pct} ({_count(n)}/{_count(tot)} {self.unit}), "
-              f"{el:.1f} s"
-              f"{extra}", file=self._out(), flush=True)
+              f"{el:.1f} s{extra}", file=self._out(), flush=True)
         self.lines += 1
         self._last = time.perf_counter()
 
@@ -139,7 +138,7 @@ class Progress:
         self.n = n
         if self._bar is not None:
             if step > 0:
-                self._bar.update(int(step) if step.is_integer() else step)
+                self._bar.update(_num(step))
         elif (self.mode == "log" and step > 0 and n < self.total
               and time.perf_counter() - self._last >= self._interval):
             self._log("running")
@@ -154,7 +153,7 @@ class Progress:
         self.total = max(float(total), 0.0)
         self.n = min(self.n, self.total)
         if self._bar is not None:
-            self._bar.total = int(self.total) if self.total.is_integer() else self.total
+            self._bar.total = _num(self.total)
             self._bar.refresh()
 
     def set_postfix(self, text: str) -> None:
@@ -173,12 +172,8 @@ class Progress:
 
     def write(self, msg: str) -> None:
         """Prints a message line without breaking the bar (nothing in ``none`` mode)."""
-        if self.mode == "none":
-            return
-        if self._bar is not None:
-            self._bar.write(msg, file=self._out())
-        else:
-            print(msg, file=self._out(), flush=True)
+        if self.mode != "none":
+            _emit(msg, self._bar is not None, self.file)
 
     def close(self, complete: bool = True) -> None:
         """Ends the stage: ``complete=True`` moves the count to the total first (the
@@ -201,10 +196,13 @@ class Progress:
         self.close(complete=exc_type is None)
 
 
+def _num(x: float) -> float | int:
+    """``x`` as an ``int`` when it is whole (tqdm shows ``7`` rather than ``7.0``)."""
+    return int(x) if x.is_integer() else x
+
+
 def _count(x: float) -> str:
-    """A count as an integer (``7308400``, never
-    ``7.3084e+06``); a fractional amount with 4 significant digits."""
+    """A count as an integer (``7308400``, never ``7.3084e+06``); a fractional amount
+    with 4 significant digits."""
     v = float(x)
-    if v.is_integer():
-        return str(int(v))
-    return f"{v:.4g}"
+    return str(int(v)) if v.is_integer() else f"{v:.4g}"

@@ -20,6 +20,7 @@ Shared behaviour of every sub-command (see docs/guarantees.md):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import io
 import os
@@ -27,6 +28,8 @@ import sys
 import warnings
 from collections.abc import Sequence
 from typing import Any
+
+from .. import _sigint
 
 # "module:function" registering one or more sub-commands, in help order: one module
 # per command in this package.
@@ -85,11 +88,6 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def _command_of(argv: Sequence[str]) -> str:
-    """The sub-command named in ``argv`` (the first word that is not an option)."""
-    return next((a for a in argv if not a.startswith("-")), "")
-
-
 def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
     """``parser`` and every sub-command parser below it."""
     out = [parser]
@@ -101,9 +99,9 @@ def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParse
 
 
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                  file: Any = None, line: str | None = None, *, command: str = "") -> None:
+                  file: Any = None, line: str | None = None, *, who: str = "avll") -> None:
     text = " ".join(str(message).split())
-    print(f"avll {command}: warning: {text}", file=sys.stderr)
+    print(f"{who}: warning: {text}", file=sys.stderr)
 
 
 class _QuietPipe:
@@ -116,30 +114,26 @@ class _QuietPipe:
         self.gone = False
 
     def write(self, s: str) -> int:
-        if not self.gone:
-            try:
-                return int(self._stream.write(s))
-            except BrokenPipeError:
-                self._drop()
+        self._guarded(self._stream.write, s)
         return len(s)
 
     def flush(self) -> None:
-        if not self.gone:
-            try:
-                self._stream.flush()
-            except BrokenPipeError:
-                self._drop()
+        self._guarded(self._stream.flush)
 
-    def _drop(self) -> None:
-        self.gone = True
-        # what is still buffered goes nowhere at exit instead of raising again
+    def _guarded(self, call: Any, *args: Any) -> None:
+        if self.gone:
+            return
         try:
-            fd = self._stream.fileno()
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, fd)
-            os.close(null)
-        except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
-            pass
+            call(*args)
+        except BrokenPipeError:
+            self.gone = True
+            # what is still buffered goes nowhere at exit instead of raising again
+            with contextlib.suppress(OSError, ValueError, AttributeError,
+                                     io.UnsupportedOperation):
+                fd = self._stream.fileno()
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, fd)
+                os.close(null)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._stream, name)
@@ -148,8 +142,6 @@ class _QuietPipe:
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C).
     A closed pipe on stdout is not an error (the rest of the output is dropped)."""
-    from .. import _sigint
-
     _sigint.command_starts()
     real = sys.stdout
     guard = _QuietPipe(real)
@@ -175,49 +167,37 @@ def _forget_unhandled_interrupt() -> None:
 
 
 def _main(argv: Sequence[str] | None) -> int:
-    command = "?"
+    who = "avll"  # in messages: "avll COMMAND" once the command is known
     try:
-        argv = list(sys.argv[1:] if argv is None else argv)
-        parser = build_parser(only=_command_of(argv))
-        args = parser.parse_args(argv)
-        command = args.command
+        args = build_parser().parse_args(argv)
+        who = f"avll {args.command}"
 
         from ..data import DataWarning
         from ._common import check_io
 
         check_io(args)  # before any work (and before loading the loaders)
         # imported after parsing: `avll --help` does not load the loaders (pandas)
-        from .. import _sigint
         from .._atomic import figure_dpi, output_group
         from ..io._common import strict_warnings
 
         with warnings.catch_warnings(), _sigint.latched(), figure_dpi(getattr(args, "dpi", None)):
             warnings.simplefilter("always", DataWarning)
-            warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, command=command)
+            warnings.showwarning = lambda *a, **k: _show_warning(*a, **k, who=who)
             # every output of the command is committed as one unit at its end
             with strict_warnings(bool(getattr(args, "strict", False))), output_group():
                 code = int(args.func(args) or 0)
                 # a Ctrl-C Python had to ignore (avll._sigint), before the outputs commit
                 _sigint.check()
                 return code
-    except KeyboardInterrupt:
-        print(f"{_who(command)}: interrupted", file=sys.stderr)
-        return 130
-    except (ValueError, TypeError, OSError, MemoryError) as e:
-        from .. import _sigint
-
-        if _sigint.console and _sigint.interrupted():  # a Ctrl-C another error hid
-            print(f"{_who(command)}: interrupted", file=sys.stderr)
+    except (KeyboardInterrupt, ValueError, TypeError, OSError, MemoryError) as e:
+        # (a Ctrl-C another error hid counts as a Ctrl-C)
+        if isinstance(e, KeyboardInterrupt) or (_sigint.console and _sigint.interrupted()):
+            print(f"{who}: interrupted", file=sys.stderr)
             return 130
         msg = " ".join(str(e).split())
         if isinstance(e, MemoryError):
             msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
-        print(f"{_who(command)}: error: {msg}", file=sys.stderr)
+        print(f"{who}: error: {msg}", file=sys.stderr)
         return 2
-
-
-def _who(command: str) -> str:
-    """``avll COMMAND`` for messages (``avll`` before the command is known)."""
-    return "avll" if command == "?" else f"avll {command}"
 
 

@@ -16,38 +16,15 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
+import itertools
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from .._limits import check_int
 from ..models import MODELS as _MODELS
-
-__all__ = [
-    "MODEL_NAMES",
-    "FORMAT_NAMES",
-    "add_models",
-    "add_model",
-    "models_of",
-    "add_cal_runs",
-    "select_runs",
-    "add_seed",
-    "add_threads",
-    "add_json",
-    "add_ga_budget",
-    "add_progress",
-    "add_format",
-    "add_command_kind",
-    "add_astazero_options",
-    "astazero_options",
-    "declare_io",
-    "check_io",
-    "add_dpi",
-    "check_figure_path",
-    "check_informative",
-    "FIGURE_FORMATS",
-    "parse_list",
-]
 
 #: The lower-level models the commands know (the registry :data:`avll.models.MODELS`).
 MODEL_NAMES: tuple[str, ...] = tuple(_MODELS)
@@ -82,11 +59,10 @@ class _Models(argparse.Action):
         setattr(ns, self.dest, got)
 
 
-def add_models(p: argparse.ArgumentParser, default: Sequence[str], *, alias: bool = False,
+def add_models(p: argparse.ArgumentParser, default: Sequence[str], *,
                what: str = "models") -> None:
     """``--models``: several models; ``models_of`` gives the selection or ``default``.
-    (``--model`` is always one model, see :func:`add_model`; ``alias`` is ignored: the
-    old ``--model`` spelling of ``--models`` is gone.)"""
+    (``--model`` is always one model, see :func:`add_model`.)"""
     p.add_argument("--models", dest="models", action=_Models, default=None,
                    metavar="M[,M...]",
                    help=f"{what}, comma-separated or repeated, from {', '.join(MODEL_NAMES)} "
@@ -157,9 +133,7 @@ class _Count(argparse.Action):
             n = int(str(values))
         except ValueError:
             raise ValueError(f"{name}: expected an integer, got {values!r}") from None
-        if n < self.minimum:
-            raise ValueError(f"{name}: must be >= {self.minimum}, got {n}")
-        setattr(ns, self.dest, n)
+        setattr(ns, self.dest, check_int(n, name, min=self.minimum))
 
 
 def add_ga_budget(p: argparse.ArgumentParser, *, generations: int, starts: int,
@@ -394,10 +368,9 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
                             path.with_name(path.name + ".meta.json"), False))
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
     named = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
-    for i, (la, pa) in enumerate(named):
-        for lb, pb in named[i + 1:]:
-            if same_file(pa, pb):
-                raise ValueError(f"{lb}: {pb} is also the output of {la}; choose distinct names")
+    for (la, pa), (lb, pb) in itertools.combinations(named, 2):
+        if same_file(pa, pb):
+            raise ValueError(f"{lb}: {pb} is also the output of {la}; choose distinct names")
     for d in getattr(args, "io_figures", ()):
         if given(d) is not None:
             check_figure_path(_label(d, positional), given(d))
@@ -445,8 +418,6 @@ def check_informative(runs: Sequence[Any], source: Any, what: str = "calibrate")
     """A warning (:class:`avll.DataWarning`, naming the file and the run) for each run
     that is too short, constant or all zero; a :class:`avll.DataError` when every run is
     so (nothing to ``what`` on)."""
-    import warnings
-
     from ..data import DataError, DataWarning
 
     bad = [(r.run_id, why) for r in runs if (why := _degenerate(r)) is not None]

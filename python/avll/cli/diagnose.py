@@ -2,10 +2,8 @@
 (:func:`avll.diagnose.effect_loop`) on measured or synthetic runs.
 
 Registration needs no heavy import (the loop, scipy and the loaders are imported when
-the command runs), so ``avll --help`` and ``avll diagnose --help`` stay fast. The
-options are the shared ones of :mod:`avll.cli._common`: ``--model``, ``--format``,
-``--command-kind``, run selections by id or glob pattern, ``--seed``, ``--threads``,
-``--json``, ``--progress``/``-q``; the output paths are checked before any work.
+the command runs), so ``avll --help`` and ``avll diagnose --help`` stay fast; the
+options are the shared ones of :mod:`avll.cli._common`.
 
 The command's contract (scripts depend on it)::
 
@@ -16,6 +14,7 @@ The command's contract (scripts depend on it)::
 from __future__ import annotations
 
 import argparse
+import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -109,13 +108,11 @@ def _cmd(args: argparse.Namespace) -> int:
     else:
         taken = {r.run_id for r in (*cal, *test)}
         val = [r for r in runs if r.run_id not in taken]
-    names = list(splits)
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            both = sorted({r.run_id for r in splits[a]} & {r.run_id for r in splits[b]})
-            if both:
-                raise ValueError(f"{b}: run(s) {', '.join(both)} are also in {a}; the "
-                                 "selections must be disjoint")
+    for a, b in itertools.combinations(splits, 2):
+        both = sorted({r.run_id for r in splits[a]} & {r.run_id for r in splits[b]})
+        if both:
+            raise ValueError(f"{b}: run(s) {', '.join(both)} are also in {a}; the "
+                             "selections must be disjoint")
     res = effect_loop(args.model, cal, val, test_runs=test, seed=args.seed, init=args.init,
                       folds=args.folds, min_gain=args.min_gain,
                       max_effects=args.max_effects, max_generations=args.max_generations,

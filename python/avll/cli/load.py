@@ -21,22 +21,16 @@ def _cmd(args: argparse.Namespace) -> int:
     from ..io import read_runs, write_runs
     from ..io._common import summarize
 
-    opts: dict[str, Any] = {}
-    if (args.dt is not None or args.max_gap is not None) and args.format == "canonical":
+    opts: dict[str, Any] = {k: v for k in ("dt", "max_gap") if (v := getattr(args, k)) is not None}
+    if opts and args.format == "canonical":
         raise ValueError("--dt: the canonical format is already uniformly sampled and is not "
                          "resampled; use --format generic to resample a table")
-    if args.dt is not None:
-        opts["dt"] = args.dt
-    if args.max_gap is not None:
-        opts["max_gap"] = args.max_gap
-    if args.min_duration is not None:
-        if args.format != "carma":
-            raise ValueError("--min-duration: only for --format carma")
-        opts["min_duration"] = args.min_duration
-    if args.grade_offset is not None:
-        if args.format != "openacc-astazero":
-            raise ValueError("--grade-offset: only for --format openacc-astazero")
-        opts["grade_offset"] = args.grade_offset
+    # the loader options of one format
+    for key, fmt in (("min_duration", "carma"), ("grade_offset", "openacc-astazero")):
+        if getattr(args, key) is not None:
+            if args.format != fmt:
+                raise ValueError(f"--{key.replace('_', '-')}: only for --format {fmt}")
+            opts[key] = getattr(args, key)
     opts.update(astazero_options(args))
     runs = read_runs(args.path, command_kind=args.command_kind, format=args.format, **opts)
     print(summarize(runs))

@@ -12,16 +12,10 @@ from typing import Any
 
 import numpy as np
 
+from .._limits import check_int
 from ..paper import SECTION_IV_GRID
 from ..report import num
-from ._common import (
-    add_json,
-    add_models,
-    add_progress,
-    add_threads,
-    declare_io,
-    models_of,
-)
+from ._common import add_json, add_models, add_progress, add_threads, declare_io, models_of
 
 _DEFAULT_MODELS = ("second", "proposed")
 
@@ -92,11 +86,9 @@ def _cmd(args: argparse.Namespace) -> int:
         thresholds,
     )
 
-    if args.panels < 1:
-        raise ValueError(f"--panels: must be >= 1, got {args.panels}")
+    check_int(args.panels, "--panels", min=1)
     if args.source:
-        chosen = models_from_json(args.source, args.models)
-        models = list(chosen.values())
+        models = list(models_from_json(args.source, args.models).values())
         source = f"calibrated ({Path(args.source).name})"
     else:
         models = [PAPER_TABLE_II[n] for n in models_of(args)]
@@ -107,8 +99,7 @@ def _cmd(args: argparse.Namespace) -> int:
     kg = _range(args.kg, "kg", log=args.kg_log)
     tg = _range(args.tg, "tg")
     kv = _range(args.kv, "kv")
-    total = kg.size * tg.size * kv.size
-    show = args.progress if total >= 2_000_000 else "none"
+    show = args.progress if kg.size * tg.size * kv.size >= 2_000_000 else "none"
     if args.scheduler:
         from ..maps import sweep
 
@@ -116,10 +107,8 @@ def _cmd(args: argparse.Namespace) -> int:
                       client=args.scheduler, threads=args.threads)
         maps = [np.asarray(swept.values[i, 0]) for i in range(len(models))]
     else:
-        maps = [
-            stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads, progress=show)
-            for m in models
-        ]
+        maps = [stability_map(m, kg, tg, kv, args.pade_order, threads=args.threads,
+                              progress=show) for m in models]
     ths = [thresholds(mp, kg, tg, kv) for mp in maps]
     print(f"models: {source}")
     print(
@@ -139,8 +128,7 @@ def _cmd(args: argparse.Namespace) -> int:
               f"{kv[-1]:g}: no kv threshold in the given range)")
     exact: dict[str, dict[str, Any]] = {}
     if args.exact:
-        kg_r, tg_r, kv_r = (float(kg.min()), float(kg.max())), (float(tg.min()), float(
-            tg.max())), (float(kv.min()), float(kv.max()))
+        kg_r, tg_r, kv_r = ((float(x.min()), float(x.max())) for x in (kg, tg, kv))
         lo = kg_r if kg_r[0] > 0 else (1e-6, kg_r[1])
         print("\nexact (not grid-bound) over the same ranges (kg, Tg and kv of the grid"
               + ("; kg from 1e-06, as kg = 0 has no gap control" if kg_r[0] <= 0 else "")
@@ -152,10 +140,8 @@ def _cmd(args: argparse.Namespace) -> int:
             print(f"{m.name:<10} {_exact_tg_text(e1, tg_r)}; {_exact_kv_text(e2, kv_r)}")
     print()
     rows = _table_rows(kv.size)
-    head = "kv (1/s)".rjust(10) + "".join(
-        f"{m.name + ' kg_max':>18}{m.name + ' Tg_min':>18}" for m in models
-    )
-    print(head)
+    print("kv (1/s)".rjust(10)
+          + "".join(f"{m.name + ' kg_max':>18}{m.name + ' Tg_min':>18}" for m in models))
     edges = False
     for j in rows:
         cells = []

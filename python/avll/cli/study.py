@@ -13,6 +13,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .._limits import check_int
 from ..defaults import DEFAULT_STARTS, GA_OPTIONS
 from ._common import (
     add_ga_budget,
@@ -34,24 +35,20 @@ def _openacc(args: argparse.Namespace) -> int:
     log = messages("avll study openacc", args.progress)
 
     models = models_of(args)
-    try:
-        band = tuple(float(b) for b in args.band.split(","))
+    try:  # (also a ValueError for more or fewer than two numbers)
+        lo, hi = map(float, args.band.split(","))
     except ValueError:
         raise ValueError(f"--band: expected LOW,HIGH in Hz, got {args.band!r}") from None
-    if len(band) != 2:
-        raise ValueError(f"--band: expected LOW,HIGH in Hz, got {args.band!r}")
-    _check_band(band, 0.1)
+    _check_band((lo, hi), 0.1)
     if not Path(args.path).exists():
         raise FileNotFoundError(f"{args.path}: no such file or folder")
-    load: dict[str, Any] = {}
-    for key in ("setting", "car", "track"):
-        val = getattr(args, key)
-        if val is not None:
-            load[key] = [v.strip() for v in val.split(",") if v.strip()]
+    load: dict[str, Any] = {
+        key: [v.strip() for v in val.split(",") if v.strip()]
+        for key in ("setting", "car", "track") if (val := getattr(args, key)) is not None}
     st = openacc_study(args.path, model=args.model, models=models, seed=args.seed,
                        threads=args.threads, progress=args.progress, log=log,
                        max_generations=args.max_generations, pop_size=args.pop_size,
-                       starts=args.starts, band=band, n_boot=args.bootstrap,
+                       starts=args.starts, band=(lo, hi), n_boot=args.bootstrap,
                        gmin_max=args.gmin_max, acc_unknown=args.acc_unknown,
                        out_of_sample=not args.no_out_of_sample,
                        intervals=_intervals(args.resamples),
@@ -101,9 +98,7 @@ def _intervals(n: int | None) -> Any:
 
     if n is None:
         return True
-    if n < 0:
-        raise ValueError(f"--resamples: must be >= 0, got {n}")
-    return False if n == 0 else Intervals(n=n)
+    return False if check_int(n, "--resamples", min=0) == 0 else Intervals(n=n)
 
 
 def register_openacc(sub: argparse._SubParsersAction) -> None:
@@ -127,7 +122,7 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
                    help="output folder (required; no default)")
     add_json(p, "the summary (also written to DIR/summary.json)")
     add_model(p, "proposed", "lower-level model of the contract's params, Tg and prediction")
-    add_models(p, ("first", "second", "proposed"), alias=False, what="models compared")
+    add_models(p, ("first", "second", "proposed"), what="models compared")
     add_seed(p, "GA and the bootstrap")
     add_threads(p)
     add_ga_budget(p, generations=GA_OPTIONS["max_generations"], starts=DEFAULT_STARTS,
