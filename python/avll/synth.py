@@ -13,6 +13,8 @@ configurable size. Every run has its own random stream derived from
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._limits import check_int, check_memory, check_number, check_seed
@@ -32,6 +34,42 @@ __all__ = [
 
 #: The proposed model with Table II's parameters (the default true lower level).
 TABLE_II_PROPOSED = TABLE_II["proposed"]
+
+
+def _table_i_upper(r: int) -> UpperLevel:
+    """Run ``r``'s constant-time-gap law: Table I's ``kg, Tg``, ``kv = 0``, ``Gmin``."""
+    if r not in TABLE_I:
+        raise ValueError(f"runs: run {r} is not in Table I (1..21)")
+    kg, tg = TABLE_I[r]
+    return UpperLevel(kg=kg, kv=0.0, Tg=tg, Gmin=GMIN)
+
+
+def _noisy(rng: np.random.Generator, y: np.ndarray, sd: float) -> np.ndarray:
+    """``y`` plus white Gaussian noise of standard deviation ``sd`` (a copy for 0)."""
+    return y + rng.normal(0.0, sd, y.size) if sd > 0 else y.copy()
+
+
+def _measured(rng: np.random.Generator, a: np.ndarray, v: np.ndarray, x: np.ndarray,
+              noise_a: float, noise_v: float, noise_x: float, quantization_a: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The logged ``a, v, x`` of the true ones: white noise on each, ``a`` then rounded to
+    multiples of ``quantization_a`` (0: not)."""
+    a = _noisy(rng, a, noise_a)
+    if quantization_a > 0:
+        a = np.round(a / quantization_a) * quantization_a
+    return a, _noisy(rng, v, noise_v), _noisy(rng, x, noise_x)
+
+
+def _ar1(rng: np.random.Generator, n: int, phi: float, std: float) -> np.ndarray:
+    """A stationary AR(1) ``e[k] = phi e[k-1] + w[k]`` of standard deviation ``std``
+    (zeros for ``std <= 0``)."""
+    if std <= 0 or n == 0:
+        return np.zeros(n)
+    from scipy import signal
+
+    w = rng.normal(0.0, std * math.sqrt(1.0 - phi * phi), n)
+    w[0] = rng.normal(0.0, std)
+    return np.asarray(signal.lfilter([1.0], [1.0, -phi], w))
 
 
 def leader_profile(
@@ -96,41 +134,21 @@ def paper_experiment(
         check_int(r, "runs", min=1, max=len(TABLE_I)) for r in runs)
     out = []
     for r in chosen:
-        if r not in TABLE_I:
-            raise ValueError(f"runs: run {r} is not in Table I (1..21)")
-        kg, tg = TABLE_I[r]
-        upper = UpperLevel(kg=kg, kv=0.0, Tg=tg, Gmin=GMIN)
+        upper = _table_i_upper(r)
         rng = np.random.default_rng([int(seed), r])
         t, lx, lv = leader_profile(duration, dt, rng)
-        la = np.gradient(lv, dt)
         tr = closed_loop(model, lx, lv, dt, upper, v0=0.0, x0=lx[0] - GMIN)
         if not np.all(np.isfinite(tr.a)):
             raise ValueError(f"model: the follower diverges in run {r} ({model})")
-        a = tr.a + rng.normal(0.0, noise_a, t.size) if noise_a > 0 else tr.a.copy()
-        if quantization_a > 0:
-            a = np.round(a / quantization_a) * quantization_a
-        v = tr.v + rng.normal(0.0, noise_v, t.size) if noise_v > 0 else tr.v.copy()
-        x = tr.x + rng.normal(0.0, noise_x, t.size) if noise_x > 0 else tr.x.copy()
+        a, v, x = _measured(rng, tr.a, tr.v, tr.x, noise_a, noise_v, noise_x, quantization_a)
+        noise = {"a": noise_a, "v": noise_v, "x": noise_x, "quant_a": quantization_a}
         out.append(
             Run(
-                run_id=str(r),
-                t=t,
-                a=a,
-                command_kind="acceleration",
-                command=tr.command,
-                v=v,
-                x=x,
-                lead_x=lx,
-                lead_v=lv,
-                lead_a=la,
-                upper=upper,
-                meta={
-                    "synthetic": True,
-                    "true_model": {"name": model.name, **model.to_dict()},
-                    "seed": int(seed),
-                    "noise": {"a": noise_a, "v": noise_v, "x": noise_x, "quant_a": quantization_a},
-                    "calibration_run": r in PAPER_CAL_RUNS,
-                },
+                run_id=str(r), t=t, a=a, command_kind="acceleration", command=tr.command,
+                v=v, x=x, lead_x=lx, lead_v=lv, lead_a=np.gradient(lv, dt), upper=upper,
+                meta={"synthetic": True, "true_model": {"name": model.name, **model.to_dict()},
+                      "seed": int(seed), "noise": noise,
+                      "calibration_run": r in PAPER_CAL_RUNS},
             )
-        )
+        )  # fmt: skip
     return out

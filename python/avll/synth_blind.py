@@ -77,7 +77,7 @@ import numpy as np
 from ._limits import check_int, check_number, check_seed
 from .data import Run
 from .models import UpperLevel
-from .synth import GMIN, TABLE_I, leader_profile
+from .synth import GMIN, _ar1, _noisy, _table_i_upper, leader_profile
 
 __all__ = [
     "DEFAULTS",
@@ -241,15 +241,14 @@ def simulate_vehicle(
     gear = sum(1 for s in ups if v >= s)
     shift_left = 0.0
     applied = -1  # index of the command the actuator applies (-1: none yet, 0 command)
-    cmds = np.zeros(n)
+    cmds = out["command"]  # by send index
     limited = cut = 0
-    a = 0.0
+
+    def road_load(vv: float) -> float:
+        return c0 * math.tanh(vv / 0.3) + c1 * vv + c2 * vv * vv
 
     def resist(vv: float, pp: float) -> float:
-        g = grade_at(pp)
-        return (c0 * math.tanh(vv / 0.3) + c1 * vv + c2 * vv * vv) + m * G * math.sin(
-            math.atan(g)
-        )
+        return road_load(vv) + m * G * math.sin(math.atan(grade_at(pp)))
 
     for k in range(n):
         # Acceleration now (for the record): body force minus resistances.
@@ -262,7 +261,6 @@ def simulate_vehicle(
         u = float(upper.command(lead_x[k], lead_v[k], pos, v)) if command is None \
             else float(command[k])  # fmt: skip
         cmds[k] = u
-        out["command"][k] = u
         t0 = k * dt
         for j in range(substeps):
             t = t0 + j * h
@@ -273,8 +271,7 @@ def simulate_vehicle(
             if hi > applied:
                 applied = hi
             uc = cmds[applied] if applied >= 0 else 0.0
-            rl = c0 * math.tanh(v / 0.3) + c1 * v + c2 * v * v
-            f_d = m * uc + comp * rl
+            f_d = m * uc + comp * road_load(v)
             d_drive = f_d if f_d > 0 else 0.0
             d_brake = -f_d if f_d < 0 else 0.0
             f_drive = d_drive + (f_drive - d_drive) * e_drive
@@ -337,7 +334,7 @@ def simulate_platoon(
     ``(n_cars, samples)``; a diverging car raises ``ValueError``."""
     n_cars = check_int(n_cars, "n_cars", min=1)
     seed = check_seed(seed)
-    p = {**DEFAULTS, **dict(params)}
+    p = {**DEFAULTS, **params}
     lx, lv = np.asarray(lead_x, dtype=float), np.asarray(lead_v, dtype=float)
     vs, xs = [], []
     for i in range(n_cars):
@@ -377,31 +374,19 @@ def blind_experiment(
     out = []
     for r in runs:
         r = check_int(r, "runs", min=1)
-        if r not in TABLE_I:
-            raise ValueError(f"runs: run {r} is not in Table I (1..21)")
-        kg, tg = TABLE_I[r]
-        upper = UpperLevel(kg=kg, kv=0.0, Tg=tg, Gmin=GMIN)
+        upper = _table_i_upper(r)
         t, lx, lv = leader_profile(duration, dt, np.random.default_rng([seed, r, 1317]))
         terrain = _terrain(np.random.default_rng([seed, r, 1318]), p["grade_rms"])
         tr = simulate_vehicle(p, lx, lv, dt, upper, rng_latency=np.random.default_rng(
             [seed, r, 1319]), terrain=terrain, substeps=substeps, x0=lx[0] - GMIN)  # fmt: skip
         rng = np.random.default_rng([seed, r, 1320])
-        a = tr["a_sensor"] if p["sensor_lag"] > 0 else tr["a"].copy()
-        a = a + p["sensor_bias"]
-        if p["noise_a"] > 0:
-            a = a + rng.normal(0.0, p["noise_a"], t.size)
+        a = tr["a_sensor"] if p["sensor_lag"] > 0 else tr["a"]
+        a = _noisy(rng, a + p["sensor_bias"], p["noise_a"])
         if p["ar1_sigma"] > 0:
-            phi = p["ar1_phi"]
-            w = rng.normal(0.0, p["ar1_sigma"] * math.sqrt(1 - phi * phi), t.size)
-            e = np.empty(t.size)
-            e[0] = rng.normal(0.0, p["ar1_sigma"])
-            for i in range(1, t.size):
-                e[i] = phi * e[i - 1] + w[i]
-            a = a + e
+            a = a + _ar1(rng, t.size, p["ar1_phi"], p["ar1_sigma"])
         if p["quantization_a"] > 0:
             a = np.round(a / p["quantization_a"]) * p["quantization_a"]
-        v = tr["v"] + rng.normal(0.0, p["noise_v"], t.size) if p["noise_v"] > 0 else tr["v"]
-        x = tr["x"] + rng.normal(0.0, p["noise_x"], t.size) if p["noise_x"] > 0 else tr["x"]
+        v, x = _noisy(rng, tr["v"], p["noise_v"]), _noisy(rng, tr["x"], p["noise_x"])
         # The logged grade estimate: low-passed true grade plus white noise.
         al = math.exp(-dt / p["grade_sensor_lag"]) if p["grade_sensor_lag"] > 0 else 0.0
         gs = np.empty(t.size)

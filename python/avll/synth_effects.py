@@ -30,7 +30,7 @@ random stream per ``(seed, run)``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -38,7 +38,7 @@ from scipy.linalg import expm
 
 from .data import Run
 from .models import LowerLevelModel, UpperLevel
-from .synth import GMIN, TABLE_I, leader_profile
+from .synth import GMIN, _measured, _table_i_upper, leader_profile
 
 __all__ = ["GENERATOR_DEFAULTS", "expected_params", "paper_experiment_effects"]
 
@@ -56,26 +56,26 @@ GENERATOR_DEFAULTS: dict[str, dict[str, float]] = {
 }
 
 
+_EXPECTED: dict[str, Callable[[Mapping[str, float]], dict[str, float]]] = {
+    "asymmetric": lambda p: {"kb": p["brake_gain"]},
+    "saturation": lambda p: {"a_max": p["A"], "d_max": p["D"]},
+    "rate_limit": lambda p: {"j_max": p["j"]},
+    "deadband": lambda p: {"delta": p["delta"]},
+    "speed_drag": lambda p: {"c0": p["F0"] / p["M"], "c2": p["F2"] / p["M"]},
+    "grade": lambda p: {"g_eff": G * (1 - p["rho"])},
+    # Re-sampling every `hold` s from 20 Hz lags (hold - dt)/2 on average.
+    "delay": lambda p: {"tau": p["shift"] + 0.5 * (p["hold"] - 0.05)},
+}
+
+
 def expected_params(effect: str, gen: Mapping[str, float] | None = None) -> dict[str, float]:
-    """What the library's parameters should come out near, from the generator's
-    (first-order equivalences; the blind tests state their tolerances around them)."""
-    p = {**GENERATOR_DEFAULTS[effect], **(gen or {})}
-    if effect == "asymmetric":
-        return {"kb": p["brake_gain"]}
-    if effect == "saturation":
-        return {"a_max": p["A"], "d_max": p["D"]}
-    if effect == "rate_limit":
-        return {"j_max": p["j"]}
-    if effect == "deadband":
-        return {"delta": p["delta"]}
-    if effect == "speed_drag":
-        return {"c0": p["F0"] / p["M"], "c2": p["F2"] / p["M"]}
-    if effect == "grade":
-        return {"g_eff": G * (1 - p["rho"])}
-    if effect == "delay":
-        # Re-sampling every `hold` s from 20 Hz lags (hold - dt)/2 on average.
-        return {"tau": p["shift"] + 0.5 * (p["hold"] - 0.05)}
-    raise ValueError(f"effect: unknown {effect!r}")
+    """What the library's parameters should come out near for the generator ``effect``
+    with parameters ``gen`` (defaults :data:`GENERATOR_DEFAULTS`): first-order
+    equivalences, the blind tests state their tolerances around them. An unknown
+    ``effect`` is a ``ValueError``."""
+    if effect not in _EXPECTED:
+        raise ValueError(f"effect: unknown {effect!r}")
+    return _EXPECTED[effect]({**GENERATOR_DEFAULTS[effect], **(gen or {})})
 
 
 def _grade_profile(x: np.ndarray, amplitude: float, phase: float) -> np.ndarray:
@@ -102,7 +102,6 @@ def _truth_rollout(
     else:
         am, bm, cm = np.array([[-1 / a1]]), np.array([1.0]), np.array([b0 / a1])
     m = am.shape[0]
-    # Augment with the brake lag state (used only by "asymmetric"): z' = (w_neg - z)/T.
     asym = effects.get("asymmetric")
     tb = float(asym["brake_lag"]) if asym else 1.0
     gb = float(asym["brake_gain"]) if asym else 1.0
@@ -138,12 +137,8 @@ def _truth_rollout(
     pa, ga_p, ga_n = zoh((1 - f) * dt)
     pb, gb_p, gb_n = zoh(f * dt)
     c_full = np.concatenate([cm, [0.0, 0.0, 0.0]])
-    sat = effects.get("saturation")
-    rl = effects.get("rate_limit")
-    dz = effects.get("deadband")
-    drag = effects.get("speed_drag")
-    grd = effects.get("grade")
-    dly = effects.get("delay")
+    sat, rl, dz, drag, grd, dly = (effects.get(k) for k in (
+        "saturation", "rate_limit", "deadband", "speed_drag", "grade", "delay"))
     n = lx.size
     out = {key: np.zeros(n) for key in ("a", "v", "x", "command", "grade")}
     x = np.zeros(n_s)
@@ -191,11 +186,9 @@ def _truth_rollout(
             w0p, w0n, w1p, w1n = max(w0, 0), min(w0, 0), max(w1, 0), min(w1, 0)
         else:
             w0p, w0n, w1p, w1n = w0, 0.0, w1, 0.0
-        if f > 0:
-            xm = pb @ x + gb_p * w1p + gb_n * w1n
-            x = pa @ xm + ga_p * w0p + ga_n * w0n
-        else:
-            x = pa @ x + ga_p * w0p + ga_n * w0n
+        if f > 0:  # the step is split at the fractional delay
+            x = pb @ x + gb_p * w1p + gb_n * w1n
+        x = pa @ x + ga_p * w0p + ga_n * w0n
         # Speed and position: exact for the linear output, plus the effects'
         # difference held over the interval.
         dp += dt * dv + 0.5 * dt * dt * (a - y)
@@ -237,10 +230,7 @@ def paper_experiment_effects(
         effs[name] = {**GENERATOR_DEFAULTS[name], **(par or {})}
     out = []
     for r in runs:
-        if r not in TABLE_I:
-            raise ValueError(f"runs: run {r} is not in Table I (1..21)")
-        kg, tg = TABLE_I[r]
-        upper = UpperLevel(kg=kg, kv=0.0, Tg=tg, Gmin=GMIN)
+        upper = _table_i_upper(r)
         rng = np.random.default_rng([int(seed), r, 6])
         t, lx, lv = leader_profile(duration * leader_speedup, dt, rng)
         if leader_speedup != 1.0:
@@ -250,11 +240,8 @@ def paper_experiment_effects(
             t = ts
         phase = float(rng.uniform(0, 2 * np.pi))
         tr = _truth_rollout(model, effs, lx, lv, dt, upper, lx[0] - GMIN, phase)
-        a = tr["a"] + rng.normal(0.0, noise_a, t.size) if noise_a > 0 else tr["a"].copy()
-        if quantization_a > 0:
-            a = np.round(a / quantization_a) * quantization_a
-        v = tr["v"] + rng.normal(0.0, noise_v, t.size) if noise_v > 0 else tr["v"].copy()
-        x = tr["x"] + rng.normal(0.0, noise_x, t.size) if noise_x > 0 else tr["x"].copy()
+        a, v, x = _measured(rng, tr["a"], tr["v"], tr["x"], noise_a, noise_v, noise_x,
+                            quantization_a)
         exo: dict[str, Any] = {}
         if "grade" in effs:
             exo["grade"] = tr["grade"]

@@ -91,7 +91,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -103,6 +103,7 @@ from .effects import Effect, Grade, WithEffects
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import TABLE_II_PARAMS
 from .rollout import Trajectory, closed_loop
+from .synth import _ar1
 
 __all__ = [
     "Equipment",
@@ -286,18 +287,6 @@ class SynthPlatoon:
     settings: dict[str, Any] = field(default_factory=dict)
 
 
-def _ar1(rng: np.random.Generator, n: int, dt: float, std: float, tau: float) -> np.ndarray:
-    """A stationary AR(1) of standard deviation ``std`` and correlation time ``tau``."""
-    if std <= 0 or n == 0:
-        return np.zeros(n)
-    from scipy import signal
-
-    phi = math.exp(-dt / tau)
-    w = rng.normal(0.0, std * math.sqrt(1.0 - phi * phi), n)
-    w[0] = rng.normal(0.0, std)
-    return np.asarray(signal.lfilter([1.0], [1.0, -phi], w))
-
-
 def _smooth(rng: np.random.Generator, n: int, dt: float, std: float, tau: float) -> np.ndarray:
     """A stationary, smooth (differentiable) coloured noise of standard deviation
     ``std``: white noise through two first-order lags of time constant ``tau``
@@ -338,10 +327,9 @@ def leader_speed(
     lo, hi = (float(b) for b in band)
     f = np.exp(rng.uniform(math.log(lo), math.log(hi), n_tones))
     fd = rng.uniform(0.003, 0.015, 3)
-    amp_b = np.full(n_tones, band_rms * math.sqrt(2.0 / n_tones))
-    amp_d = np.full(3, drift_rms * math.sqrt(2.0 / 3.0))
     freqs = np.concatenate([f, fd])
-    amps = np.concatenate([amp_b, amp_d])
+    amps = np.concatenate([np.full(n_tones, band_rms * math.sqrt(2.0 / n_tones)),
+                           np.full(3, drift_rms * math.sqrt(2.0 / 3.0))])
     ph = rng.uniform(0.0, 2 * math.pi, freqs.size)
     w = 2 * math.pi * freqs
     # s(t) = sum A sin(w t + p); its integral from 0 is sum A (cos p - cos(w t + p)) / w.
@@ -349,12 +337,10 @@ def leader_speed(
     si = (np.cos(ph)[None, :] - np.cos(np.outer(t, w) + ph)) @ (amps / w)
     # fade in: e(t) = (1 - cos(pi t / ramp)) / 2 until ramp; the position integrates
     # e s numerically (trapezoid on the fine grid) where e < 1, exactly afterwards.
-    if ramp > 0:
-        e = np.where(t < ramp, 0.5 * (1.0 - np.cos(np.pi * np.minimum(t, ramp) / ramp)), 1.0)
-    else:
-        e = np.ones_like(t)
-    v = v_mean + e * s
+    e = (np.where(t < ramp, 0.5 * (1.0 - np.cos(np.pi * np.minimum(t, ramp) / ramp)), 1.0)
+         if ramp > 0 else np.ones_like(t))
     osc = e * s
+    v = v_mean + osc
     xo = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(t) * (osc[1:] + osc[:-1]))])
     k = int(np.searchsorted(t, ramp))
     if k < t.size:
@@ -444,14 +430,11 @@ def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt:
     return {
         "model": car.model.name,
         "params": {k: float(v) for k, v in car.model.to_dict().items()},
-        "upper": {"kg": car.upper.kg, "kv": car.upper.kv, "Tg": car.upper.Tg,
-                  "Gmin": car.upper.Gmin},
+        "upper": asdict(car.upper),
         "effects": [{"name": e.name, **{k: float(v) for k, v in
                                         zip(e.param_names(), e.to_array(), strict=True)}}
                     for e in car.effects],
-        "hidden": None if hid is None else {k: float(getattr(hid, k)) for k in (
-            "radar_period", "radar_latency", "ff_gain", "ff_window", "ratio", "width_gap",
-            "width_speed")},
+        "hidden": None if hid is None else {k: float(v) for k, v in asdict(hid).items()},
         "disturbance_std": car.disturbance_std,
         "disturbance_tau": car.disturbance_tau,
         "band": [lo, hi],
@@ -553,8 +536,8 @@ def synth_platoon(
                          f"around v_mean={v_mean:g} m/s; use a larger v_mean")
     vs, xs = [lv], [lx]
     for i, car in enumerate(truths, start=1):
-        d = _ar1(np.random.default_rng([seed, 2, i]), n_fine, fine_dt, car.disturbance_std,
-                 car.disturbance_tau)
+        d = _ar1(np.random.default_rng([seed, 2, i]), n_fine,
+                 math.exp(-fine_dt / car.disturbance_tau), car.disturbance_std)
         mod = WithEffects(car.model, (*car.effects, Grade(g_eff=1.0)))
         v_start = float(vs[-1][0])
         gap0 = car.upper.Gmin + mod.upper_linear(car.upper, v=v_start)["Tg_eq"] * v_start
@@ -652,8 +635,6 @@ def validate_amplification(
     from .studies.openacc import amplification, bandpass, bootstrap_ci
 
     rows: list[dict[str, Any]] = []
-    acc: dict[str, tuple[list[float], list[bool], list[int]]] = {
-        "rms_ratio": ([], [], [0]), "h1": ([], [], [0])}
     for s in seeds:
         pl = synth_platoon(cars, seed=int(s), band=band, **platoon)
         for j, (r, tr) in enumerate(zip(pl.runs, pl.truth, strict=True)):
@@ -669,17 +650,13 @@ def validate_amplification(
                    "coherence": g.coherence, "h1_reason": g.reason,
                    "rms_ratio_true": tr["rms_ratio_true"]}
             rows.append(row)
-            for key, est, ci in (("rms_ratio", ratio, (lo, hi)), ("h1", g.gain, g.ci)):
-                err, inside, missing = acc[key]
-                if est is None or not math.isfinite(est):
-                    missing[0] += 1
-                    continue
-                err.append(est / truth - 1.0)
-                if ci is not None:
-                    inside.append(bool(ci[0] <= truth <= ci[1]))
     out: dict[str, Any] = {"rows": rows}
-    for key, (err, inside, missing) in acc.items():
-        out[key] = _summary(err, inside, missing[0])
+    for key in ("rms_ratio", "h1"):
+        ok = [r for r in rows if r[key] is not None and math.isfinite(r[key])]
+        cis = [(r[f"{key}_ci"], r["truth"]) for r in ok if r[f"{key}_ci"] is not None]
+        out[key] = _summary([r[key] / r["truth"] - 1.0 for r in ok],
+                            [bool(ci[0] <= truth <= ci[1]) for ci, truth in cis],
+                            len(rows) - len(ok))
     coh = [r["coherence"] for r in rows if r["coherence"] is not None]
     out["h1"]["median_coherence"] = float(np.median(coh)) if coh else None
     return out
@@ -892,16 +869,11 @@ def _structure_summary(amp: np.ndarray, truth: np.ndarray, tg: np.ndarray, tg_tr
         heldout_change=float(np.median(held / held_base - 1.0)))
 
 
-def _split(run: Run, k: int) -> tuple[Run, Run]:
-    """The run's first ``k`` samples and the rest (each a run of its own)."""
-    from dataclasses import replace
-
-    def part(sl: slice, tag: str) -> Run:
-        cut = {f: getattr(run, f)[sl] for f in ("t", "a", "v", "x", "lead_x", "lead_v",
-                                                  "lead_a") if getattr(run, f) is not None}
-        return replace(run, run_id=f"{run.run_id}/{tag}", **cut)
-
-    return part(slice(0, k), "cal"), part(slice(k, None), "heldout")
+def _head(run: Run, k: int) -> Run:
+    """The run's first ``k`` samples, a run of its own."""
+    cut = {f: getattr(run, f)[:k] for f in ("t", "a", "v", "x", "lead_x", "lead_v", "lead_a")
+           if getattr(run, f) is not None}
+    return replace(run, run_id=f"{run.run_id}/cal", **cut)
 
 
 def validate_structure(
@@ -919,11 +891,6 @@ def validate_structure(
     **platoon: Any,
 ) -> StructureCheck:
     """The blind test of the upper-level structures: on the platoons of ``seeds``
-    (see below; the held-out cost is the study's objective over the last ``heldout`` of
-    each run, the fit simulated over the whole run so that the held-out part continues
-    the calibrated part instead of restarting it).
-
-    On the platoons of ``seeds``
     (``cars`` random ``model`` followers, the structures ``hidden`` in their upper
     level -- or none -- and ``platoon`` options to :func:`synth_platoon`), each car is
     calibrated in closed loop (the OpenACC study's weights and ``Gmin`` box, every
@@ -933,9 +900,12 @@ def validate_structure(
     compared with the truth: the band amplification predicted by ``|H|`` (the fit's
     small-signal form, :func:`avll.studies.openacc.predicted_amplification`, on the
     whole run's measured predecessor) against the true band gain, ``Tg + Gmin/v̄``
-    against the true law's, and the cost on the held-out part. Deterministic in
-    ``seeds`` and ``seed``."""
+    against the true law's, and the cost on the held-out part (the study's objective
+    over the last ``heldout`` of each run, the fit simulated over the whole run so that
+    the held-out part continues the calibrated part instead of restarting it).
+    Deterministic in ``seeds`` and ``seed``."""
     from .calibration import calibrate
+    from .effects import effect_class
     from .rollout import simulate_batch
     from .studies.openacc import GMIN_MAX, WEIGHTS, predicted_amplification
 
@@ -943,8 +913,6 @@ def validate_structure(
     if not names:
         raise ValueError("candidates: give at least one upper-level structure")
     for n in names:
-        from .effects import effect_class
-
         if effect_class(n).level != "upper":
             raise ValueError(f"candidates: {n!r} is not an upper-level structure")
     heldout = check_number(heldout, "heldout", positive=True)
@@ -956,7 +924,7 @@ def validate_structure(
     for s in seeds:
         pl = synth_platoon(cars, seed=int(s), models=(model,), hidden=hidden, **platoon)
         k = int(round(len(pl.runs[0]) * (1.0 - heldout)))
-        cal = [_split(r, k)[0] for r in pl.runs]
+        cal = [_head(r, k) for r in pl.runs]
         fits = {}
         for key, effs in (("base", []), ("candidates", names)):
             res = calibrate(model, cal, effects=effs, subsets="per_run", closed_loop=True,
@@ -1097,6 +1065,10 @@ def _sel_summary(amp: np.ndarray, truth: np.ndarray, tg: np.ndarray, tg_true: np
         time_gap_median_abs_error=float(np.median(np.abs(g))) if g.size else nan)
 
 
+def _num(x: Any) -> float:
+    return math.nan if x is None else float(x)
+
+
 def validate_selection(
     seeds: Sequence[int],
     *,
@@ -1140,19 +1112,15 @@ def validate_selection(
         for c in st.summary["cars"]:
             tr = truth[c["run_id"]]
             b = c["base_model"]
-
-            def num(x: Any) -> float:
-                return math.nan if x is None else float(x)
-
             effs = tuple(c["final_model_effects"])
             for e in effs:
                 acc[e] = acc.get(e, 0) + 1
             rows.append(SelectionRow(int(s), str(c["file"]), str(c["car"]),
                                      float(tr["band_gain"]), float(tr["time_gap_effective"]),
-                                     num(b["amplification_predicted_oos"]),
-                                     num(b["time_gap_effective_oos"]),
-                                     num(c["amplification_predicted_oos"]),
-                                     num(c["time_gap_effective_oos"]), effs))
+                                     _num(b["amplification_predicted_oos"]),
+                                     _num(b["time_gap_effective_oos"]),
+                                     _num(c["amplification_predicted_oos"]),
+                                     _num(c["time_gap_effective_oos"]), effs))
 
     def col(name: str) -> np.ndarray:
         return np.array([getattr(r, name) for r in rows], dtype=float)
