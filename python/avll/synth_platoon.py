@@ -696,9 +696,9 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
 
     rows: list[dict[str, Any]] = []
     opts = Intervals(n=n, **dict(options or {}))
+    models = platoon.pop("models", ("proposed",))  # every seed's platoon, not the first's only
     for seed in seeds:
-        sp = synth_platoon(cars, seed=int(seed), duration=duration,
-                           models=platoon.pop("models", ("proposed",)), **platoon)
+        sp = synth_platoon(cars, seed=int(seed), duration=duration, models=models, **platoon)
         res = calibrate_many("proposed", sp.runs, "per_run", seed=int(seed), starts=starts,
                              closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,
                              bounds={"Gmin": (0.0, GMIN_MAX)}, intervals=opts,
