@@ -46,10 +46,9 @@ _COMMANDS = [
 ]
 
 
-def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     """The ``avll`` argument parser with every registered sub-command (no
-    registration imports a heavy package; ``only``, the command about to run, is
-    accepted for compatibility and changes nothing)."""
+    registration imports a heavy package)."""
     from .. import __version__
 
     parser = argparse.ArgumentParser(
