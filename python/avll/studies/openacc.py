@@ -108,6 +108,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -467,12 +468,7 @@ def run_meta(run: Run, root: str | Path | None = None) -> dict[str, Any]:
     if "setting_rank" in m:
         setting = m.get("setting")
     setting = None if setting is None or str(setting).strip() == "" else str(setting)
-    if "setting_rank" in m:
-        rank = m["setting_rank"]
-        rank = int(rank) if isinstance(rank, (int, np.integer)) and not isinstance(
-            rank, bool) else None
-    else:
-        rank = _RANK.get(setting) if setting is not None else None
+    rank = _rank_of({**m, "setting": setting})
     camp = m.get("campaign")
     if not camp:
         cr = _campaign_root(Path(file)) if "file" in m else None
@@ -500,15 +496,10 @@ def _acc_label(acc: bool | None) -> str:
 def _load(path: str | Path, load_options: Mapping[str, Any]
           ) -> tuple[list[Run], dict[str, Any]]:
     """The runs and the loader's report (:func:`~avll.io.openacc_native.openacc_native_report`)."""
-    from ..io import openacc_native
+    from ..io.openacc_native import openacc_native_report
 
-    rep = getattr(openacc_native, "openacc_native_report", None)
-    if rep is not None:
-        runs, report = rep(path, **load_options)
-        return list(runs), dict(report or {})
-    from ..io import read_runs  # pragma: no cover - a loader without its report
-
-    return read_runs(path, format="openacc", **load_options), {}  # pragma: no cover
+    runs, report = openacc_native_report(path, **load_options)
+    return list(runs), dict(report or {})
 
 
 def _loader_dropped(report: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -655,23 +646,20 @@ def openacc_study(
     dropped = _loader_dropped(load_report)
     say(f"{len(runs)} runs in {len({m['file'] for m in metas})} files; {len(left_out)} runs "
         f"left out by the study, {len(dropped)} stretches dropped by the loader")
+    # the study's calibration options (closed loop, box, objective, GA budget)
+    kw: dict[str, Any] = dict(
+        bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True, upper_free=_UPPER,
+        weights=WEIGHTS, init="rest", max_generations=max_generations, pop_size=pop_size)
     results: dict[str, list[Any]] = {}
     for k, m in enumerate(models):
         say(f"calibrating {m}: {len(runs)} cars in one parallel call "
             f"(GA {max_generations} generations, {starts} start(s) per car)")
-        res = calibrate_many(
+        results[m] = _checked(calibrate_many(
             m, runs, "per_run", seed=int(seed) + 1000 * k, threads=threads, progress=progress,
-            bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True, upper_free=_UPPER,
-            weights=WEIGHTS, init="rest", starts=starts, max_generations=max_generations,
-            pop_size=pop_size, intervals=iopts if m == model else None)  # fmt: skip
-        if any(r.interrupted or (r.uncertainty is not None and r.uncertainty.interrupted)
-               for r in res):
-            raise KeyboardInterrupt
-        results[m] = res
+            starts=starts, intervals=iopts if m == model else None, **kw))
     say("measuring and predicting the amplification")
-    cars = []
-    for i, (r, meta) in enumerate(zip(runs, metas, strict=True)):
-        cars.append(_car_entry(i, r, meta, models, model, results, band, n_boot, block, seed))
+    cars = [_car_entry(i, r, meta, models, model, results, band, n_boot, block, seed)
+            for i, (r, meta) in enumerate(zip(runs, metas, strict=True))]
     oos_plan = _oos_plan(metas) if out_of_sample else None
     oos_res: list[Any] = []
     if oos_plan is not None and oos_plan["subsets"]:
@@ -682,16 +670,12 @@ def openacc_study(
         # each problem starts from its runs' own in-sample optima (finite on each run):
         # a short GA budget then does not end without a finite fit on a problem whose
         # runs each have one
-        oos_res = calibrate_many(
+        oos_res = _checked(calibrate_many(
             model, runs, oos_plan["subsets"], seed=int(seed) + 7919, threads=threads,
-            progress=progress, bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True,
-            upper_free=_UPPER, weights=WEIGHTS, init="rest", starts=starts,
+            progress=progress, starts=starts,
             initial_per_problem=[[start_row(results[model][j]) for j in sub]
                                  for sub in oos_plan["subsets"]],
-            max_generations=max_generations, pop_size=pop_size, intervals=iopts)  # fmt: skip
-        if any(r.interrupted or (r.uncertainty is not None and r.uncertainty.interrupted)
-               for r in oos_res):
-            raise KeyboardInterrupt
+            intervals=iopts, **kw))  # fmt: skip
     for i, (r, c) in enumerate(zip(runs, cars, strict=True)):
         c.update(_oos_entry(i, r, c, model, oos_plan, oos_res, runs, band))
     for c in cars:
@@ -700,9 +684,8 @@ def openacc_study(
     if structures is not False and oos_plan is not None and oos_plan["subsets"]:
         selection = _select(model, runs, metas, cars, oos_plan, oos_res, results[model],
                             structures, band=band, seed=seed, threads=threads,
-                            progress=progress, iopts=iopts, say=say,
-                            gmin_max=gmin_max, max_generations=max_generations,
-                            pop_size=pop_size, min_gain=min_gain, alpha=alpha,
+                            progress=progress, iopts=iopts, say=say, kw=kw,
+                            min_gain=min_gain, alpha=alpha,
                             max_structures=max_structures)  # fmt: skip
     acc_rows = [{"campaign": c["campaign"], "car": c["car"],
                  "setting": c["setting"] if c["_in_order"] else None,
@@ -804,19 +787,13 @@ def _final_in_sample(i: int, r: Run, fit: Any, main: str, band: Sequence[float]
                      ) -> dict[str, Any]:
     """The in-sample contract keys of run ``i`` from the final model's calibration
     ``fit`` on this run (as :func:`_car_entry` does for the base model)."""
-    assert r.lead_v is not None and r.v is not None
-    mod, up, effs = _closed_loop_of(main, fit)
     short = _short_record(len(r), r.dt, band)
-    code = _stability_code(mod, up, float(np.mean(r.lead_v)))
-    a_h = predicted_amplification(mod, up, r.lead_v, r.dt, band) if code and short is None \
-        else math.nan
-    a_r = replay_amplification(mod, up, r, band)[0] if short is None else math.nan
+    effs, code, a_h, a_r, tge = _predict(main, fit, r, band, short)
     params = dict(fit.params)
     e: dict[str, Any] = {
         "params": params, "Tg": _fin(params["Tg"]), "cal_mse": _fin(float(fit.cost)),
         "at_bound": list(fit.at_bound), "amplification_predicted": _fin(a_h),
-        "amplification_replay": _fin(a_r),
-        "time_gap_effective": _fin(_time_gap(mod, up, float(np.mean(r.v)))),
+        "amplification_replay": _fin(a_r), "time_gap_effective": tge,
         "final_model_effects": list(effs)}
     if e["amplification_predicted"] is None:
         e["amplification_predicted_reason"] = (
@@ -828,23 +805,30 @@ def _final_in_sample(i: int, r: Run, fit: Any, main: str, band: Sequence[float]
     return e
 
 
+def _checked(res: list[Any]) -> list[Any]:
+    """``res``, the results of a calibration; KeyboardInterrupt when it or an interval's
+    resampling was interrupted."""
+    if any(r.interrupted or (r.uncertainty is not None and r.uncertainty.interrupted)
+           for r in res):
+        raise KeyboardInterrupt
+    return res
+
+
 def _select(model: str, runs: Sequence[Run], metas: Sequence[Mapping[str, Any]],
             cars: list[dict[str, Any]], plan: Mapping[str, Any], oos_res: Sequence[Any],
             base_in: Sequence[Any], structures: bool | Sequence[str], *,
             band: Sequence[float], seed: int, threads: int, progress: Any, iopts: Any,
-            say: Callable[[str], Any], gmin_max: float, max_generations: int,
-            pop_size: int, min_gain: float, alpha: float, max_structures: int) -> Any:
-    """The structure stage: the selection, then the final model's fits (out of sample:
-    the selection's fold fits, re-entered for their intervals; in sample: each run
-    calibrated with its group's structures, warm-started from its base fit and its
-    fold's fit) and the cars' contract keys recomputed from them."""
+            say: Callable[[str], Any], kw: Mapping[str, Any], min_gain: float, alpha: float,
+            max_structures: int) -> Any:
+    """The structure stage (``kw``: the study's calibration options): the selection,
+    then the final model's fits (out of sample: the selection's fold fits, re-entered
+    for their intervals; in sample: each run calibrated with its group's structures,
+    warm-started from its base fit and its fold's fit) and the cars' contract keys
+    recomputed from them."""
     from ..calibration import start_row
     from .openacc_select import CANDIDATES, select_structures
 
     cands = CANDIDATES if structures is True else tuple(structures)  # type: ignore[arg-type]
-    kw: dict[str, Any] = dict(
-        bounds={"Gmin": (0.0, float(gmin_max))}, closed_loop=True, upper_free=_UPPER,
-        weights=WEIGHTS, init="rest", max_generations=max_generations, pop_size=pop_size)
     say(f"structures: cross-validated selection over {', '.join(cands)} "
         f"({len(plan['subsets'])} folds)")
     sel = select_structures(model, runs, plan, oos_res, [_oos_key(m) for m in metas],
@@ -912,13 +896,9 @@ def _selection_summary(cars: Sequence[Mapping[str, Any]], sel: Any,
     flat = [{**c, **c["base_model"]} for c in cars]
     for grp in ("acc", "human"):
         out[grp] = {
-            "base_oos_H_vs_h1": _vs(flat, "amplification_predicted_oos",
-                                    "amplification_measured_h1",
-                                    "amplification_measured_h1_ci", grp,
+            "base_oos_H_vs_h1": _vs(flat, "amplification_predicted_oos", *_H1, grp,
                                     "amplification_predicted_oos_ci"),
-            "final_oos_H_vs_h1": _vs(cars, "amplification_predicted_oos",
-                                     "amplification_measured_h1",
-                                     "amplification_measured_h1_ci", grp,
+            "final_oos_H_vs_h1": _vs(cars, "amplification_predicted_oos", *_H1, grp,
                                      "amplification_predicted_oos_ci")}
     return out
 
@@ -948,21 +928,16 @@ def _car_overview(cars: Sequence[Mapping[str, Any]], left_out: Sequence[Mapping[
         gone = [e for e in left_out if (e["campaign"], e["car"]) == (camp, car)]
         gone += [e for e in dropped
                  if (camp_of_file.get(e["file"], ""), e["car"]) == (camp, car)]
-        reasons: dict[str, int] = {}
-        for e in gone:
-            reasons[e["reason"]] = reasons.get(e["reason"], 0) + 1
         settings = sorted({(c["setting"], c["setting_rank"]) for c in mine},
                           key=lambda sr: (-1 if sr[1] is None else sr[1], str(sr[0])))
-        acc: dict[str, int] = {}
-        for c in mine:
-            acc[_acc_label(c["acc"])] = acc.get(_acc_label(c["acc"]), 0) + 1
         out.append({"campaign": camp, "car": car,
                     "settings": [{"setting": st, "setting_rank": rk} for st, rk in settings],
-                    "acc": acc, "runs_studied": len(mine),
+                    "acc": dict(Counter(_acc_label(c["acc"]) for c in mine)),
+                    "runs_studied": len(mine),
                     "seconds_studied": round(sum(c["duration_s"] for c in mine), 1),
                     "runs_left_out": len(gone),
                     "seconds_left_out": round(sum(e["seconds"] or 0.0 for e in gone), 1),
-                    "reasons_left_out": reasons})
+                    "reasons_left_out": dict(Counter(e["reason"] for e in gone))})
     return out
 
 
@@ -1079,20 +1054,17 @@ def _h1_entry(r: Run, band: Sequence[float], short: str | None,
         return out
     assert r.v is not None and r.lead_v is not None
     g = h1_band_gain(r.lead_v, r.v, r.dt, band)
-    gain = _fin(g.gain) if g.gain is not None else None
-    out["amplification_measured_h1"] = gain
+    gain = out["amplification_measured_h1"] = _fin(g.gain)
     if gain is None:
-        why = g.reason or "the H1 band gain is not finite"
-        reasons["amplification_measured_h1"] = why
+        reasons["amplification_measured_h1"] = g.reason or "the H1 band gain is not finite"
     ci = g.ci
     if gain is not None and ci is not None and all(_fin(x) is not None for x in ci):
         out["amplification_measured_h1_ci"] = [float(ci[0]), float(ci[1])]
     else:
         reasons["amplification_measured_h1_ci"] = (
             g.ci_reason or g.reason or "no interval for the H1 band gain")
-    coh = _fin(g.coherence) if g.coherence is not None else None
-    out["coherence"] = coh
-    if coh is None:
+    out["coherence"] = _fin(g.coherence)
+    if out["coherence"] is None:
         reasons["coherence"] = g.reason or "the band's coherence is not finite"
     return out
 
@@ -1118,29 +1090,23 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
     ma = measured_amplification(r.v, r.lead_v, r.dt, band=band, block=block, n_boot=n_boot,
                                 seed=[int(seed), i])
     e["rms_follower"], e["rms_predecessor"] = ma["rms_follower"], ma["rms_predecessor"]
-    if "amplification_reason" in ma:
-        reasons["amplification_measured"] = ma["amplification_reason"]
-    e["amplification_measured"] = ma["amplification"]
-    e["amplification_measured_ci"] = ma["ci"]
-    if "ci_reason" in ma:
-        reasons["amplification_measured_ci"] = ma["ci_reason"]
+    for key, src in (("amplification_measured", "amplification"),
+                     ("amplification_measured_ci", "ci")):
+        e[key] = ma[src]
+        if f"{src}_reason" in ma:
+            reasons[key] = ma[f"{src}_reason"]
     short = _short_record(len(r), r.dt, band)
     e.update(_h1_entry(r, band, short, reasons))
     e["headway_measured"] = _headway(r)
     per: dict[str, Any] = {}
     for m in models:
         res = results[m][i]
-        params = dict(res.params)
-        mod, up, _effects = _closed_loop_of(m, res)
-        code = _stability_code(mod, up, float(np.mean(r.lead_v)))
-        a_h = (predicted_amplification(mod, up, r.lead_v, r.dt, band)
-               if code and short is None else math.nan)
-        a_r = replay_amplification(mod, up, r, band)[0] if short is None else math.nan
+        effs, code, a_h, a_r, tge = _predict(m, res, r, band, short)
         cost = float(res.cost)
         d: dict[str, Any] = {
-            "params": params, "cal_mse": _fin(cost), "at_bound": list(res.at_bound),
+            "params": dict(res.params), "cal_mse": _fin(cost), "at_bound": list(res.at_bound),
             "amplification_H": _fin(a_h), "amplification_replay": _fin(a_r),
-            "time_gap_effective": _fin(_time_gap(mod, up, float(np.mean(r.v)))),
+            "time_gap_effective": tge,
             "per_run_mse": _fin(res.per_run_mse.get(r.run_id, math.nan)),
             "local_stable": code > 0, "string_stable": (code == 2) if code else None,
         }
@@ -1149,35 +1115,32 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
         if not math.isfinite(cost):
             d["cal_mse_reason"] = "every parameter set of the search was unstable"
         if short is not None:
-            d["amplification_replay_reason"] = short
-        elif not math.isfinite(a_r):
-            d["amplification_replay_reason"] = "the calibrated closed loop diverges in replay"
-        if short is not None:
-            d["amplification_H_reason"] = short
-        elif not code:
-            d["amplification_H_reason"] = ("the calibrated closed loop is locally unstable "
-                                           "(true delay): |H(jω)| is not its gain")
-        elif not math.isfinite(a_h):
-            d["amplification_H_reason"] = "no periodogram bin in the band"
+            d["amplification_replay_reason"] = d["amplification_H_reason"] = short
+        else:
+            if not math.isfinite(a_r):
+                d["amplification_replay_reason"] = "the calibrated closed loop diverges in replay"
+            if not code:
+                d["amplification_H_reason"] = ("the calibrated closed loop is locally unstable "
+                                               "(true delay): |H(jω)| is not its gain")
+            elif not math.isfinite(a_h):
+                d["amplification_H_reason"] = "no periodogram bin in the band"
         meas = e["amplification_measured"]
         for key in ("amplification_H", "amplification_replay"):
             d[f"{key}_error"] = (d[key] / meas - 1.0) if (meas and d[key] is not None) else None
         per[m] = d
+        if m == main:
+            main_effs = list(effs)
     mm = per[main]
     e["params"] = mm["params"]
     e["Tg"] = _fin(mm["params"]["Tg"])
-    e["cal_mse"] = mm["cal_mse"]
-    if mm["cal_mse"] is None:
-        reasons["cal_mse"] = mm["cal_mse_reason"]
-    e["amplification_predicted"] = mm["amplification_H"]
-    if e["amplification_predicted"] is None:
-        reasons["amplification_predicted"] = mm.get("amplification_H_reason", "not finite")
-    e["amplification_replay"] = mm["amplification_replay"]
-    if e["amplification_replay"] is None:
-        reasons["amplification_replay"] = mm.get("amplification_replay_reason", "not finite")
+    for key, src in (("cal_mse", "cal_mse"), ("amplification_predicted", "amplification_H"),
+                     ("amplification_replay", "amplification_replay")):
+        e[key] = mm[src]
+        if e[key] is None:
+            reasons[key] = mm.get(f"{src}_reason", "not finite")
     e["time_gap_effective"] = mm["time_gap_effective"]
     e["at_bound"] = mm["at_bound"]
-    e["final_model_effects"] = list(_closed_loop_of(main, results[main][i])[2])
+    e["final_model_effects"] = main_effs
     e.update(_interval_entry(results[main][i], r, band, short, ""))
     e["models"] = per
     for k, v in reasons.items():
@@ -1253,31 +1216,28 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
     e.update({"amplification_predicted_oos_ci": None, "time_gap_effective_oos_ci": None,
               "amplification_predicted_oos_error": None,
               "amplification_replay_oos_error": None, "oos_files": [], "oos_params": None})
-    why: str | None
-    if plan is None:
-        why = "out-of-sample step not run (out_of_sample=False)"
-    else:
-        why = plan["reasons"][i]
+    why = ("out-of-sample step not run (out_of_sample=False)" if plan is None
+           else plan["reasons"][i])
     if why is not None:
         for k in (*keys, "amplification_predicted_oos_ci", "time_gap_effective_oos_ci"):
             e[f"{k}_reason"] = why
         return e
-    assert plan is not None and r.v is not None and r.lead_v is not None
+    assert plan is not None
     k = plan["problem"][i]
     fit = res[k]
-    params = dict(fit.params)
-    mod, up, _effects = _closed_loop_of(main, fit)
-    e["final_model_effects_oos"] = list(_effects)
+    short = _short_record(len(r), r.dt, band)
+    effs, code, a_h, a_r, tge = _predict(main, fit, r, band, short)
+    e["final_model_effects_oos"] = list(effs)
     e["oos_files"] = sorted({str(runs[j].meta.get("file") or runs[j].run_id)
                              for j in plan["subsets"][k]})
-    e["oos_params"] = params
+    e["oos_params"] = dict(fit.params)
     e["oos_at_bound"] = list(fit.at_bound)
-    e["time_gap_effective_oos"] = _fin(_time_gap(mod, up, float(np.mean(r.v))))
-    if e["time_gap_effective_oos"] is None:
+    e["time_gap_effective_oos"] = tge
+    if tge is None:
         e["time_gap_effective_oos_reason"] = "not finite"
-    short = _short_record(len(r), r.dt, band)
-    code = _stability_code(mod, up, float(np.mean(r.lead_v)))
     e["string_stable_oos"] = (code == 2) if code else None
+    e["amplification_predicted_oos"] = _fin(a_h)
+    e["amplification_replay_oos"] = _fin(a_r)
     if short is not None:
         e["amplification_predicted_oos_reason"] = short
         e["amplification_replay_oos_reason"] = short
@@ -1287,14 +1247,9 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
                 "the out-of-sample closed loop is locally unstable (true delay): abs H(jω) "
                 "is not its gain")
             e["string_stable_oos_reason"] = "the out-of-sample closed loop is locally unstable"
-        else:
-            a_h = _fin(predicted_amplification(mod, up, r.lead_v, r.dt, band))
-            e["amplification_predicted_oos"] = a_h
-            if a_h is None:
-                e["amplification_predicted_oos_reason"] = "no periodogram bin in the band"
-        a_r = _fin(replay_amplification(mod, up, r, band)[0])
-        e["amplification_replay_oos"] = a_r
-        if a_r is None:
+        elif e["amplification_predicted_oos"] is None:
+            e["amplification_predicted_oos_reason"] = "no periodogram bin in the band"
+        if e["amplification_replay_oos"] is None:
             e["amplification_replay_oos_reason"] = ("the out-of-sample closed loop diverges "
                                                     "in replay")
     h1, ratio = car["amplification_measured_h1"], car["amplification_measured"]
@@ -1328,6 +1283,21 @@ def _closed_loop_of(name: str, fit: Any) -> tuple[Any, UpperLevel, tuple[str, ..
         effects = tuple(fit.with_effects.effect_names)
         model = fit.with_effects
     return model, _upper_of(params), effects
+
+
+def _predict(name: str, fit: Any, r: Run, band: Sequence[float], short: str | None
+             ) -> tuple[tuple[str, ...], int, float, float, float | None]:
+    """A calibration's predictions for run ``r``: the effects its model carries, the
+    stability code (:func:`_stability_code`), the band amplification of ``|H|`` (NaN
+    when locally unstable or ``short``) and of the replay (NaN when ``short``), and the
+    effective time gap at ``r``'s mean speed (None when not finite)."""
+    assert r.lead_v is not None and r.v is not None
+    mod, up, effs = _closed_loop_of(name, fit)
+    code = _stability_code(mod, up, float(np.mean(r.lead_v)))
+    a_h = (predicted_amplification(mod, up, r.lead_v, r.dt, band)
+           if code and short is None else math.nan)
+    a_r = replay_amplification(mod, up, r, band)[0] if short is None else math.nan
+    return effs, code, a_h, a_r, _fin(_time_gap(mod, up, float(np.mean(r.v))))
 
 
 def _time_gap(model: Any, up: UpperLevel, v: float) -> float:
@@ -1411,8 +1381,7 @@ def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
     else:
         e[f"string_stable_probability{sfx}_test"] = u.string_test
     if not sfx:
-        e["params_ci"] = {n: (None if v is None else v)
-                          for n, v in u.to_dict()["params_ci"].items()}
+        e["params_ci"] = dict(u.to_dict()["params_ci"])
         e["identified"] = u.identified()
     return e
 
@@ -1426,6 +1395,12 @@ def _ci(estimate: float, samples: np.ndarray, level: float) -> list[float] | Non
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return None
     return [lo, hi]
+
+
+#: The measurements (and their intervals) the predictions are compared with: the H1
+#: band gain for ``|H|``, the band RMS ratio for a replay.
+_H1 = ("amplification_measured_h1", "amplification_measured_h1_ci")
+_RATIO = ("amplification_measured", "amplification_measured_ci")
 
 
 def _vs(cars: Sequence[Mapping[str, Any]], pred: str, meas: str, ci: str | None,
@@ -1507,19 +1482,12 @@ def _oos_summary(cars: Sequence[Mapping[str, Any]], enabled: bool) -> dict[str, 
     }
     for grp in ("acc", "human"):
         out[grp] = {
-            "oos_H_vs_h1": _vs(cars, "amplification_predicted_oos",
-                               "amplification_measured_h1", "amplification_measured_h1_ci",
-                               grp, "amplification_predicted_oos_ci"),
-            "in_sample_H_vs_h1": _vs(cars, "amplification_predicted",
-                                     "amplification_measured_h1",
-                                     "amplification_measured_h1_ci", grp,
+            "oos_H_vs_h1": _vs(cars, "amplification_predicted_oos", *_H1, grp,
+                               "amplification_predicted_oos_ci"),
+            "in_sample_H_vs_h1": _vs(cars, "amplification_predicted", *_H1, grp,
                                      "amplification_predicted_ci"),
-            "oos_replay_vs_ratio": _vs(cars, "amplification_replay_oos",
-                                       "amplification_measured",
-                                       "amplification_measured_ci", grp),
-            "in_sample_replay_vs_ratio": _vs(cars, "amplification_replay",
-                                             "amplification_measured",
-                                             "amplification_measured_ci", grp),
+            "oos_replay_vs_ratio": _vs(cars, "amplification_replay_oos", *_RATIO, grp),
+            "in_sample_replay_vs_ratio": _vs(cars, "amplification_replay", *_RATIO, grp),
         }
         out[grp]["time_gap_effective_oos_vs_in_sample"] = _rel(
             cars, "time_gap_effective_oos", "time_gap_effective", grp, b_identified=True)
@@ -1610,15 +1578,13 @@ def _why_not(chk: Mapping[str, Any], cars: Sequence[Mapping[str, Any]]) -> str:
             f"m/s" + (f", at bound: {'/'.join(c['at_bound'])}" if c["at_bound"] else "")
             for c in cs)
         parts.append(f"{st}: {desc}")
-    eff = {st: np.median([c["time_gap_effective"] for c in mine
-                          if c["setting_rank"] == ranks[st]
-                          and c["time_gap_effective"] is not None] or [np.nan])
-           for st in (chk["longer"], chk["shorter"])}
-    hw = {st: np.median([c["headway_measured"] for c in mine
-                         if c["setting_rank"] == ranks[st]
-                         and c["headway_measured"] is not None
-                         and math.isfinite(c["headway_measured"])] or [np.nan])
-          for st in (chk["longer"], chk["shorter"])}
+
+    def med(key: str) -> dict[str, Any]:
+        return {st: np.median([c[key] for c in mine if c["setting_rank"] == ranks[st]
+                               and c[key] is not None and math.isfinite(c[key])] or [np.nan])
+                for st in (chk["longer"], chk["shorter"])}
+
+    eff, hw = med("time_gap_effective"), med("headway_measured")
     lo_std = min((c["speed_std"] for c in mine), default=math.nan)
     why = []
     flat = [Path(c["file"]).stem for c in mine if c["params"]["kg"] < 0.01]
@@ -1698,17 +1664,13 @@ def _files_summary(runs: Sequence[Run], cars: Sequence[Mapping[str, Any]]) -> li
 
     out = []
     files = [c["file"] for c in cars]
+    fg = np.linspace(0.005, 0.5, 400)
     for f in dict.fromkeys(files):
         rs = [r for r, fc in zip(runs, files, strict=True) if fc == f]
         m0 = rs[0].meta
         # where the platoon oscillates: mean periodogram of the predecessors' speeds
-        spec = []
-        for r in rs:
-            assert r.lead_v is not None
-            fr, p = signal.periodogram(signal.detrend(r.lead_v), fs=1 / r.dt, window="hann")
-            spec.append(np.interp(np.linspace(0.005, 0.5, 400), fr, p))
-        fg = np.linspace(0.005, 0.5, 400)
-        mean = np.mean(spec, axis=0)
+        mean = np.mean([np.interp(fg, *signal.periodogram(signal.detrend(r.lead_v), fs=1 / r.dt,
+                                                          window="hann")) for r in rs], axis=0)
         c0 = next(c for c in cars if c["file"] == f)
         out.append({"file": f, "campaign": c0["campaign"], "folder": c0["folder"],
                     "track": m0.get("track"), "setting": c0["setting"],
@@ -1806,13 +1768,8 @@ def _md_table(df: Any, floatfmt: int = 3) -> str:
     lines = ["| " + " | ".join(str(c) for c in cols) + " |",
              "|" + "|".join("---" for _ in cols) + "|"]
     for _, row in df.iterrows():
-        cells = []
-        for c in cols:
-            v = row[c]
-            if isinstance(v, (float, np.floating)):
-                cells.append(_f(v, floatfmt))
-            else:
-                cells.append(str(v))
+        cells = [_f(row[c], floatfmt) if isinstance(row[c], (float, np.floating)) else str(row[c])
+                 for c in cols]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,7 @@ from ..defaults import GA_OPTIONS, UPPER_NAMES
 from ..effects import EFFECTS, WithEffects
 from ..models import UpperLevel
 from ..rollout import closed_loop
-from .openacc import WEIGHTS, OpenACCStudy, _model_of, _upper_of, amplification
+from .openacc import WEIGHTS, OpenACCStudy, _fin, _model_of, _upper_of, amplification
 
 __all__ = ["EFFECT_CANDIDATES", "effect_gaps"]
 
@@ -52,10 +53,6 @@ EFFECT_CANDIDATES: tuple[str, ...] = (
     "delay", "rate_limit", "deadband", "asymmetric", "saturation", "power_limit",
     "road_load", "sensor", "grade",
 )  # fmt: skip
-
-
-def _fin(x: float) -> float | None:
-    return float(x) if x is not None and math.isfinite(x) else None
 
 
 def _gap_cars(study: OpenACCStudy, tol: float) -> list[tuple[int, str]]:
@@ -182,8 +179,7 @@ def effect_gaps(
                       and f < (1.0 - min_gain) * base_cost)
             closes = bool(math.isfinite(err_r) and abs(err_r) <= tol and better)
             d: dict[str, Any] = {
-                "params": model.effects[0].to_dict(), "upper": {
-                    "kg": up.kg, "kv": up.kv, "Tg": up.Tg, "Gmin": up.Gmin},
+                "params": model.effects[0].to_dict(), "upper": asdict(up),
                 "cal_mse": _fin(f), "amplification_replay": _fin(a_r),
                 "amplification_replay_error": _fin(err_r),
                 "cost_gain": _fin(1.0 - f / base_cost) if base_cost else None,

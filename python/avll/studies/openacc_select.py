@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -99,8 +99,7 @@ class StructureStep:
 
     def to_dict(self) -> dict[str, Any]:
         """Strict-JSON-ready fields (non-finite numbers as None)."""
-        def f(x: float) -> float | None:
-            return float(x) if math.isfinite(x) else None
+        from .openacc import _fin as f
 
         return {"campaign": self.campaign, "car": self.car, "setting": self.setting,
                 "before": list(self.before), "candidate": self.candidate,
@@ -294,8 +293,7 @@ def select_structures(
             best = max((o for o in opts if o[4].passes), key=lambda o: o[4].gain, default=None)
             for o in opts:
                 acc = best is not None and o is best
-                steps.append(o[4] if not acc else StructureStep(
-                    **{**o[4].__dict__, "accepted": True}))
+                steps.append(replace(o[4], accepted=True) if acc else o[4])
             if best is None:
                 active[g] = False
                 continue
