@@ -256,11 +256,12 @@ class Intervals:
 
 
 def block_length(residuals: Sequence[np.ndarray], dt: float, floor: float = MIN_BLOCK,
-                 cap: float | None = None) -> float:
+                 cap: float | None = None, factor: float = 1.0) -> float:
     """The block length (s) of a block bootstrap for serially correlated
-    ``residuals`` (one or more series sampled every ``dt``): the largest Politis-White
-    (2004) automatic block length of the circular bootstrap over the series (with
-    the Patton-Politis-White 2009 correction), at least ``floor``, at most ``cap``."""
+    ``residuals`` (one or more series sampled every ``dt``): ``factor`` times the largest
+    Politis-White (2004) automatic block length of the circular bootstrap over the series
+    (with the Patton-Politis-White 2009 correction), at least ``floor``, at most ``cap``
+    (the intervals use ``factor`` :data:`BLOCK_FACTOR`)."""
     best = 0.0
     for e in residuals:
         e = np.asarray(e, dtype=np.float64)
@@ -268,7 +269,7 @@ def block_length(residuals: Sequence[np.ndarray], dt: float, floor: float = MIN_
         if e.size < 16 or not np.any(e != e[0]):
             continue
         best = max(best, _politis_white(e))
-    b = max(best * dt, float(floor))
+    b = max(factor * (best * dt), float(floor))
     if cap is not None:
         b = min(b, max(float(cap), dt))
     return float(b)
@@ -1021,8 +1022,7 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
         block = shortest
     else:
         res = _score_series(prob, uniq, runs, x0, threads)
-        block = min(max(opts.block_factor * block_length(res, dt, 0.0), MIN_BLOCK),
-                    max(shortest / 3.0, dt))
+        block = block_length(res, dt, MIN_BLOCK, shortest / 3.0, opts.block_factor)
     rng = np.random.default_rng([int(seed), int(k)])
     atoms, counts = [], []
     for r in runs:
