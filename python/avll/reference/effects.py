@@ -38,11 +38,12 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.signal import lfilter
 
 from ..effects import WithEffects
 from ..models import LowerLevelModel, UpperLevel
+from .lfilter import controllable_form
+from .rollout import hold_map, split_delay
 
 __all__ = ["Law", "rollout_effects", "platoon_effects", "frequency_response"]
 
@@ -107,26 +108,9 @@ class Law:
         return u
 
 
-def _zoh(a: np.ndarray, b: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
-    n = a.shape[0]
-    m = np.zeros((n + 1, n + 1))
-    m[:n, :n] = a * tau
-    m[:n, n] = b * tau
-    e = expm(m)
-    return e[:n, :n], e[:n, n]
-
-
 def _system(c: dict[str, float], scale: float, speed_cmd: bool) -> Any:
     """Rational part (time-scaled by ``scale``) plus integrators: (A, B, C, order)."""
-    b1, b0, a2, a1 = c["b1"], c["b0"], c["a2"], c["a1"]
-    if a2 != 0.0:
-        am = np.array([[0.0, 1.0], [-1.0 / a2, -a1 / a2]])
-        bm = np.array([0.0, 1.0])
-        cm = np.array([b0 / a2, b1 / a2])
-    else:
-        am = np.array([[-1.0 / a1]])
-        bm = np.array([1.0])
-        cm = np.array([b0 / a1])
+    am, bm, cm = controllable_form(c)
     m = am.shape[0]
     k = 1 if speed_cmd else 2
     a = np.zeros((m + k, m + k))
@@ -172,16 +156,12 @@ def rollout_effects(
     sysa = _system(c, 1.0, speed_cmd)
     sysb = _system(c, rb, speed_cmd)
     m = sysa[3]
-    r = c["Td"] / dt
-    i = int(np.floor(r))
-    f = r - i
-    if f < 1e-12:
-        f = 0.0
+    i, f = split_delay(c["Td"], dt)
 
     def maps(sys: Any) -> Any:
         a, b, cc, _ = sys
-        pa, ga = _zoh(a, b, (1.0 - f) * dt)
-        pb, gb = _zoh(a, b, f * dt)
+        pa, ga = hold_map(a, b, (1.0 - f) * dt)
+        pb, gb = hold_map(a, b, f * dt)
         return a, b, cc, pa, ga, pb, gb
 
     ma, mb = maps(sysa), maps(sysb)
@@ -193,10 +173,7 @@ def rollout_effects(
     u_hist = 0.0
     if init == "steady" and not closed:
         w_hist = u_first / (1.0 - k_fb * c["b0"])
-        if m == 2:
-            x[0] = c["a2"] * w_hist
-        else:
-            x[0] = c["a1"] * w_hist
+        x[0] = (c["a2"] if m == 2 else c["a1"]) * w_hist
         u_hist = u_first
     if speed_cmd:
         x[m] = x0
@@ -204,6 +181,8 @@ def rollout_effects(
         x[m], x[m + 1] = v0, x0
 
     exo = exo or {}
+    if "delay" in eff:
+        idl, fd = split_delay(eff["delay"].tau, dt)
 
     def gain(w: float) -> float:
         return kb * w if w < 0 else w
@@ -247,11 +226,6 @@ def rollout_effects(
         cmds.append(u)
         uc = u
         if "delay" in eff:
-            rd = eff["delay"].tau / dt
-            idl = int(np.floor(rd))
-            fd = rd - idl
-            if fd < 1e-12:
-                fd = 0.0
             h0 = cmds[n - idl] if n - idl >= 0 else u_hist
             h1 = cmds[n - idl - 1] if n - idl - 1 >= 0 else u_hist
             uc = (1 - fd) * h0 + fd * h1 if fd > 0 else h0
@@ -353,7 +327,6 @@ def frequency_response(
     c = dict(model.base.linear())
     c["Td"] = c["Td"] + 0.5 * hold
     s = 1j * np.asarray(omega, dtype=float)
-    g = (c["b1"] * s + c["b0"]) * np.exp(-c["Td"] * s) / (c["a2"] * s**2 + c["a1"] * s + 1)
     beta, tau_c = 0.0, 0.0
     if "speed_drag" in eff:
         beta += 2 * eff["speed_drag"].c2 * abs(v) + (eff["speed_drag"].c0 / 0.1
@@ -363,11 +336,12 @@ def frequency_response(
         beta += e.c1 + 2 * e.c2 * abs(v) + (e.c0 / 0.1 if abs(v) < 0.1 else 0.0)
     if "delay" in eff:
         tau_c = eff["delay"].tau
+    kb = rb = 1.0
     if "asymmetric" in eff:  # the average of the two sides
         e = eff["asymmetric"]
         kb, rb = 0.5 * (1 + e.kb), 0.5 * (1 + e.rb)
-        g = (c["b1"] * rb * kb * s + kb * c["b0"]) * np.exp(-c["Td"] * s) / (
-            c["a2"] * rb**2 * s**2 + c["a1"] * rb * s + 1)
+    g = (c["b1"] * rb * kb * s + kb * c["b0"]) * np.exp(-c["Td"] * s) / (
+        c["a2"] * rb**2 * s**2 + c["a1"] * rb * s + 1)
     gfb = g * np.exp(-tau_c * s) / (1 - c["K"] * g + beta / s)
     kg, kv, tg = Law(model, upper, 1.0).gains(v)
     if "speed_gains" in eff:

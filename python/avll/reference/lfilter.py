@@ -24,21 +24,24 @@ from scipy import signal
 
 from ..data import Run
 from ..models import LowerLevelModel
+from .rollout import split_delay
 
 __all__ = ["filter_coefficients", "simulate_lfilter", "cost_lfilter"]
 
 
-def _ss(c: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def controllable_form(c: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``A, B, C`` (``B``, ``C`` 1-D) of the controllable canonical form of the rational
+    part ``(b1 s + b0) / (a2 s² + a1 s + 1)``, first order when ``a2 = 0``; ``c`` is
+    :meth:`~avll.models.LowerLevelModel.linear`."""
     b1, b0, a2, a1 = c["b1"], c["b0"], c["a2"], c["a1"]
     if a2 != 0.0:
-        # Controllable canonical form of (b1 s + b0)/(a2 s^2 + a1 s + 1).
         A = np.array([[0.0, 1.0], [-1.0 / a2, -a1 / a2]])
-        B = np.array([[0.0], [1.0]])
-        C = np.array([[b0 / a2, b1 / a2]])
+        B = np.array([0.0, 1.0])
+        C = np.array([b0 / a2, b1 / a2])
     else:
         A = np.array([[-1.0 / a1]])
-        B = np.array([[1.0]])
-        C = np.array([[b0 / a1]])
+        B = np.array([1.0])
+        C = np.array([b0 / a1])
     return A, B, C
 
 
@@ -60,11 +63,11 @@ def _expm(M: np.ndarray) -> np.ndarray:
 
 
 def _zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """``e^{A h}`` and ``∫_0^h e^{Aτ} dτ B`` from one matrix exponential."""
+    """``e^{A h}`` and ``∫_0^h e^{Aτ} dτ B`` (a column) from one matrix exponential."""
     n = A.shape[0]
     M = np.zeros((n + 1, n + 1))
     M[:n, :n] = A * h
-    M[:n, n:] = B * h
+    M[:n, n] = B * h
     E = _expm(M)
     return E[:n, :n], E[:n, n:]
 
@@ -72,19 +75,14 @@ def _zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray
 def filter_coefficients(model: LowerLevelModel, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """``(b, a)`` of the model's exact discretization for ``lfilter`` (see module doc)."""
     c = model.linear()
-    A, B, C = _ss(c)
+    A, B, C = controllable_form(c)
     n = A.shape[0]
-    i = int(np.floor(c["Td"] / dt))
-    f = c["Td"] / dt - i
-    if f < 1e-12:
-        f = 0.0
+    i, f = split_delay(c["Td"], dt)
     phi, _ = _zoh(A, B, dt)
     e_a, g_a = _zoh(A, B, (1.0 - f) * dt)
     _, g_b = _zoh(A, B, f * dt)
-    g0 = g_a
-    g1 = e_a @ g_b
-    num0, den = signal.ss2tf(phi, g0, C, np.zeros((1, 1)))
-    num1, _ = signal.ss2tf(phi, g1, C, np.zeros((1, 1)))
+    num0, den = signal.ss2tf(phi, g_a, C[None, :], np.zeros((1, 1)))
+    num1, _ = signal.ss2tf(phi, e_a @ g_b, C[None, :], np.zeros((1, 1)))
     a = np.asarray(den, dtype=np.float64).ravel()
     bpoly = np.zeros(n + 2 + i)
     bpoly[i : i + n + 1] += np.asarray(num0).ravel()
@@ -112,10 +110,8 @@ def cost_lfilter(model: LowerLevelModel, runs: Sequence[Run], penalty: float = 1
             cache[r.dt] = filter_coefficients(model, r.dt)
         b, a = cache[r.dt]
         y = signal.lfilter(b, a, r.command)
-        # Divergence as in the Rust core (|y| > 1e6 counts as unstable).
         if not np.all(np.abs(y) < 1e6):
             return penalty
         e = y - r.a
-        m = float(np.mean(e * e))
-        total += m
+        total += float(np.mean(e * e))
     return total / len(runs)

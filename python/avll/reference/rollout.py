@@ -50,6 +50,7 @@ import scipy.linalg
 
 from ..data import Run
 from ..models import FirstOrderLag, LowerLevelModel, Proposed, SecondOrder, UpperLevel
+from .stability import stability_code
 
 __all__ = [
     "DIVERGED",
@@ -110,8 +111,11 @@ def first_order_lag_plant(model: FirstOrderLag) -> LinearPlant:
     )
 
 
-def _second_order_observable(n1: float, n0: float, m2: float, m3: float) -> LinearPlant:
-    """Observable canonical form of ``(n1 s + n0) / (m2 s^2 + m3 s + 1)``.
+def _second_order_observable(
+    n1: float, n0: float, m2: float, m3: float, Td: float, K: float
+) -> LinearPlant:
+    """Observable canonical form of ``(n1 s + n0) / (m2 s^2 + m3 s + 1)`` (dead time
+    ``Td``, inner feedback gain ``K``).
 
     Dividing by ``m2``: ``(b1 s + b0)/(s^2 + a1 s + a0)`` with ``b = n/m2``,
     ``a1 = m3/m2``, ``a0 = 1/m2``; then ``x1' = -a1 x1 + x2 + b1 w``,
@@ -123,23 +127,21 @@ def _second_order_observable(n1: float, n0: float, m2: float, m3: float) -> Line
         A=np.array([[-a1, 1.0], [-a0, 0.0]]),
         B=np.array([b1, b0]),
         C=np.array([1.0, 0.0]),
-        Td=0.0,
-        K=0.0,
+        Td=Td,
+        K=K,
         dc=n0,
     )
 
 
 def second_order_plant(model: SecondOrder) -> LinearPlant:
     """Eq. 2 with ``m1 = 0``: ``K0 e^{-Td s} / (m2 s^2 + m3 s + 1)``, no inner feedback."""
-    p = _second_order_observable(0.0, model.K0, model.m2, model.m3)
-    return LinearPlant(p.A, p.B, p.C, Td=model.Td, K=0.0, dc=p.dc)
+    return _second_order_observable(0.0, model.K0, model.m2, model.m3, model.Td, 0.0)
 
 
 def proposed_plant(model: Proposed) -> LinearPlant:
     """Eqs. 2 and 5: ``G = (m1 s + K0) e^{-Td s} / (m2 s^2 + m3 s + 1)`` inside the
     inner feedback ``u_ref = u + K y``."""
-    p = _second_order_observable(model.m1, model.K0, model.m2, model.m3)
-    return LinearPlant(p.A, p.B, p.C, Td=model.Td, K=model.K, dc=p.dc)
+    return _second_order_observable(model.m1, model.K0, model.m2, model.m3, model.Td, model.K)
 
 
 def plant(model: LowerLevelModel) -> LinearPlant:
@@ -379,23 +381,25 @@ def simulate(model: LowerLevelModel, command: Any, dt: float, *, init: str = "re
 # ---------------------------------------------------------------------------
 
 
-def closed_loop(
-    model: LowerLevelModel,
-    lead_x: Any,
-    lead_v: Any,
-    dt: float,
-    upper: UpperLevel,
-    *,
-    v0: float,
-    x0: float,
-) -> dict[str, np.ndarray]:
-    """One follower behind a recorded leader. The state (model states, speed,
-    position) is advanced exactly over each interval; the command is the upper law
-    evaluated at the samples."""
+def _leader(lead_x: Any, lead_v: Any) -> tuple[np.ndarray, np.ndarray]:
     lx = _series("lead_x", lead_x)
     lv = _series("lead_v", lead_v)
     if lx.size != lv.size:
         raise ValueError(f"lead_v: has length {lv.size}, lead_x has {lx.size}")
+    return lx, lv
+
+
+def _follow(
+    model: LowerLevelModel,
+    lx: np.ndarray,
+    lv: np.ndarray,
+    dt: float,
+    upper: UpperLevel,
+    v0: float,
+    x0: float,
+) -> dict[str, np.ndarray]:
+    """:func:`closed_loop` behind checked leader series (a diverged platoon follower,
+    the next one's leader, may hold ``inf``/``nan``)."""
     p = plant(model)
     st = _Stepper(p, dt, ("v", "x"))
     z, hist = _start(p, st, "rest", 0.0, (v0, x0))
@@ -410,6 +414,23 @@ def closed_loop(
     return {"a": a, "v": v, "x": x, "command": cmd}
 
 
+def closed_loop(
+    model: LowerLevelModel,
+    lead_x: Any,
+    lead_v: Any,
+    dt: float,
+    upper: UpperLevel,
+    *,
+    v0: float,
+    x0: float,
+) -> dict[str, np.ndarray]:
+    """One follower behind a recorded leader. The state (model states, speed,
+    position) is advanced exactly over each interval; the command is the upper law
+    evaluated at the samples."""
+    lx, lv = _leader(lead_x, lead_v)
+    return _follow(model, lx, lv, dt, upper, v0, x0)
+
+
 def platoon(
     model: LowerLevelModel,
     lead_x: Any,
@@ -422,44 +443,34 @@ def platoon(
     (follower, sample). Every follower starts at the leader's initial speed, at the
     equilibrium gap ``Gmin + Tg v0`` behind its predecessor, lower level at rest.
     Follower ``k``'s command at sample ``n`` uses its predecessor's position and
-    speed at sample ``n``."""
-    lx = _series("lead_x", lead_x)
-    lv = _series("lead_v", lead_v)
-    if lx.size != lv.size:
-        raise ValueError(f"lead_v: has length {lv.size}, lead_x has {lx.size}")
+    speed at sample ``n`` (so the followers are simulated car by car)."""
+    lx, lv = _leader(lead_x, lead_v)
     if followers < 1:
         raise ValueError(f"followers: must be >= 1, got {followers}")
-    p = plant(model)
-    st = _Stepper(p, dt, ("v", "x"))
-    v_start = float(lv[0])
-    gap = upper.Gmin + upper.Tg * v_start
-    states, hists = [], []
+    gap = upper.Gmin + upper.Tg * float(lv[0])
+    cars = [{"x": lx, "v": lv}]
     for k in range(followers):
-        z, hist = _start(p, st, "rest", 0.0, (v_start, float(lx[0]) - (k + 1) * gap))
-        states.append(z)
-        hists.append(hist)
-    T = lx.size
-    a, v, x, cmd = (np.empty((followers, T)) for _ in range(4))
-    u_refs: list[list[float]] = [[] for _ in range(followers)]
-    for n in range(T):
-        ahead_x, ahead_v = lx[n], lv[n]
-        for k in range(followers):
-            z = states[k]
-            y, v_n, x_n = float(st.C @ z), z[st.m], z[st.m + 1]
-            a_cmd = upper.kg * (ahead_x - x_n - upper.Tg * v_n - upper.Gmin) + upper.kv * (
-                ahead_v - v_n
-            )
-            a[k, n], v[k, n], x[k, n], cmd[k, n] = y, v_n, x_n, a_cmd
-            u_refs[k].append(a_cmd + p.K * y)
-            ahead_x, ahead_v = x_n, v_n
-        for k in range(followers):
-            states[k] = st.advance(states[k], *st.delayed(u_refs[k], n, hists[k]))
-    return {"a": a, "v": v, "x": x, "command": cmd}
+        x0 = float(lx[0]) - (k + 1) * gap
+        cars.append(_follow(model, cars[-1]["x"], cars[-1]["v"], dt, upper, float(lv[0]), x0))
+    return {key: np.array([car[key] for car in cars[1:]]) for key in ("a", "v", "x", "command")}
 
 
 # ---------------------------------------------------------------------------
 # Calibration cost (paper Eq. 6).
 # ---------------------------------------------------------------------------
+
+
+def _interval_maps(
+    p: LinearPlant, dt: float
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """``i`` and ``Phi, G0, G1`` of one interval of the rational part,
+    ``x[n+1] = Phi x[n] + G0 u_ref[n-i] + G1 u_ref[n-i-1]``: ``Phi = Phi_rest Phi_first``,
+    ``G0 = Gamma_rest``, ``G1 = Phi_rest Gamma_first`` (the hold maps of the convention)."""
+    _check_dt(dt)
+    i, f = split_delay(p.Td, dt)
+    phi_f, gam_f = hold_map(p.A, p.B, f * dt)
+    phi_r, gam_r = hold_map(p.A, p.B, (1.0 - f) * dt)
+    return i, phi_r @ phi_f, gam_r, phi_r @ gam_f
 
 
 def lower_level_stable(model: LowerLevelModel, dt: float) -> bool:
@@ -474,14 +485,10 @@ def lower_level_spectral_radius(model: LowerLevelModel, dt: float) -> float:
     """Spectral radius of the sampled lower level's autonomous (``u = 0``) state map.
 
     The state is the model state plus the delay line ``u_ref[n-1] ... u_ref[n-i-1]``;
-    one step is ``x' = Phi x + G0 u_ref[n-i] + G1 u_ref[n-i-1]`` with the hold maps
-    of the convention and ``u_ref[n] = K y[n] = K C x[n]``."""
+    one step is ``x' = Phi x + G0 u_ref[n-i] + G1 u_ref[n-i-1]`` (:func:`_interval_maps`)
+    with ``u_ref[n] = K y[n] = K C x[n]``."""
     p = plant(model)
-    _check_dt(dt)
-    i, f = split_delay(p.Td, dt)
-    phi_f, gam_f = hold_map(p.A, p.B, f * dt)
-    phi_r, gam_r = hold_map(p.A, p.B, (1.0 - f) * dt)
-    phi, g0, g1 = phi_r @ phi_f, gam_r, phi_r @ gam_f
+    i, phi, g0, g1 = _interval_maps(p, dt)
     m = p.A.shape[0]
     size = m + i + 1
     M = np.zeros((size, size))
@@ -529,18 +536,14 @@ def run_cost(
     wa, wv, wx = weights
     if not lower_level_stable(model, run.dt):
         return math.inf
-    if closed_loop_:
-        from .stability import stability_code
-
-        law0 = upper if upper is not None else run.upper
-        if law0 is not None and stability_code(model, law0.kg, law0.Tg, law0.kv,
-                                                pade_order=CLOSED_LOOP_PADE) == 0:
+    law = upper if upper is not None else run.upper
+    if closed_loop_ and law is not None:
+        if stability_code(model, law.kg, law.Tg, law.kv, pade_order=CLOSED_LOOP_PADE) == 0:
             return math.inf
     v0 = float(run.v[0]) if run.v is not None else 0.0
     x0 = float(run.x[0]) if run.x is not None else 0.0
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging follower is inf here
         if closed_loop_:
-            law = upper if upper is not None else run.upper
             if law is None or run.lead_x is None or run.lead_v is None:
                 raise ValueError(f"run {run.run_id!r}: closed loop needs the leader and the law")
             tr = closed_loop(model, run.lead_x, run.lead_v, run.dt, law, v0=v0, x0=x0)
@@ -583,21 +586,16 @@ def discrete_transfer_function(model: LowerLevelModel, dt: float) -> tuple[np.nd
     open-loop response at rest under the convention above, dead time (fractional
     part included) and inner feedback included.
 
-    Over one interval ``x[n+1] = Phi x[n] + G0 u_ref[n-i] + G1 u_ref[n-i-1]`` with
-    ``Phi = Phi_rest Phi_first``, ``G0 = Gamma_rest``, ``G1 = Phi_rest Gamma_first``
-    (the modified z-transform), so the rational part is
+    Over one interval ``x[n+1] = Phi x[n] + G0 u_ref[n-i] + G1 u_ref[n-i-1]``
+    (:func:`_interval_maps`; the modified z-transform), so the rational part is
     ``Gd(z) = z^-i (N0(z) + z^-1 N1(z)) / D(z)`` and the inner loop gives
     ``Y = Gd (U + K Y)``, i.e. ``Y/U = Gd_num / (D - K Gd_num)``.
     """
     import scipy.signal
 
     p = plant(model)
-    _check_dt(dt)
-    i, f = split_delay(p.Td, dt)
-    phi_f, gam_f = hold_map(p.A, p.B, f * dt)
-    phi_r, gam_r = hold_map(p.A, p.B, (1.0 - f) * dt)
-    phi = phi_r @ phi_f
-    gains = np.column_stack([gam_r, phi_r @ gam_f])
+    i, phi, g0, g1 = _interval_maps(p, dt)
+    gains = np.column_stack([g0, g1])
     m = p.A.shape[0]
     num0, den = scipy.signal.ss2tf(phi, gains, p.C[None, :], np.zeros((1, 2)), input=0)
     num1, _ = scipy.signal.ss2tf(phi, gains, p.C[None, :], np.zeros((1, 2)), input=1)

@@ -46,8 +46,7 @@ def pade_den(order: int, td: float) -> np.ndarray:
 
 def _reflect(p: np.ndarray) -> np.ndarray:
     """p(-s) for p highest first."""
-    deg = len(p) - 1
-    return p * np.array([(-1.0) ** (deg - i) for i in range(deg + 1)])
+    return p * (-1.0) ** np.arange(len(p) - 1, -1, -1)
 
 
 def closed_loop_polys(
@@ -69,9 +68,8 @@ def string_poly(n: np.ndarray, d: np.ndarray) -> np.ndarray:
     """P(x) (highest first in x = ω²) from D(s)D(−s) − N(s)N(−s) at s² = −x."""
     e: np.ndarray = np.polysub(np.polymul(d, _reflect(d)), np.polymul(n, _reflect(n)))
     # an even polynomial in s: keep the even powers, s^{2k} -> (-x)^k
-    e = e[::-1]  # ascending in s
-    asc = np.array([e[2 * k] * (-1.0) ** k for k in range((len(e) + 1) // 2)])
-    return asc[::-1]
+    even = e[::-1][::2]  # ascending in s, even powers
+    return (even * (-1.0) ** np.arange(len(even)))[::-1]
 
 
 def _string_from_roots(r_desc: np.ndarray, roots: np.ndarray) -> bool:
