@@ -99,7 +99,8 @@ class StructureStep:
 
     def to_dict(self) -> dict[str, Any]:
         """Strict-JSON-ready fields (non-finite numbers as None)."""
-        from .openacc import _fin as f
+        def f(x: float) -> float | None:
+            return float(x) if math.isfinite(x) else None
 
         return {"campaign": self.campaign, "car": self.car, "setting": self.setting,
                 "before": list(self.before), "candidate": self.candidate,
