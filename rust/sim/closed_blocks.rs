@@ -36,12 +36,25 @@
 //! blocks a dead time later). So the blocks are software-pipelined (stage 1 of the
 //! next block is issued before stage 2 of this one, which needs a dead time of at
 //! least two blocks), each block reads the line as the two whole blocks of references
-//! its outputs lie in (loads that match earlier stores, which the CPU forwards), the
-//! divergence test runs lane by lane in registers, and the speed's and the position's
-//! chains are written in assembly so that the compiler cannot merge them.
+//! its outputs lie in (loads that match earlier stores, which the CPU forwards), or,
+//! when those lie three or four blocks back (dead times of 8 to 15 samples), from the
+//! last four blocks of references kept in registers; the divergence test runs lane by
+//! lane in registers (the speed once per chunk); the speed's and the position's
+//! running values are scalar additions, each lane's value taken as soon as it is
+//! made.
+//!
+//! The loop's length in blocks is set by the first sample that reads the newest
+//! block of references: a vector waits for its slowest lane. When only sample 3
+//! reads it (`(i + 1)` a multiple of four: 11 and 15 samples, the latter the paper's
+//! proposed model at 20 Hz), samples 0 to 2 are computed from the older block alone
+//! and sample 3's terms apart, and the loop spans one block more (measured on an
+//! AMD Zen 5: 15 samples went from 35 to 32 cycles per block, 11 from 49 to 36).
 //!
 //! Applies to the second-order models with a dead time of at least eight samples on
-//! a CPU with FMA and AVX2; the others step through the kernel's loop.
+//! a CPU with FMA and AVX2. On a CPU with AVX-512VL the same instructions are compiled
+//! with its 32 vector registers (the loop's constants and pipelined values no longer
+//! spill to the stack); the results are the same bit for bit. The other models step
+//! through the kernel's loop.
 
 use super::chain::NoEffects;
 use super::kernel::{Record, Stepper, BLOCK};
@@ -79,17 +92,57 @@ pub fn closed_blocks<
     lead_v: &[f64],
     rec: &mut Record<'_, true, U>,
 ) -> bool {
+    closed_blocks_with(st, up, lead_x, lead_v, rec, avx512())
+}
+
+/// [`closed_blocks`], compiled for AVX-512VL when `wide` (and the CPU has it) and
+/// for AVX2 otherwise.
+fn closed_blocks_with<
+    const M: usize,
+    const N: usize,
+    const D: bool,
+    const F: bool,
+    const U: bool,
+>(
+    st: &mut Stepper<M, N, D, F, NoEffects>,
+    up: &Upper,
+    lead_x: &[f64],
+    lead_v: &[f64],
+    rec: &mut Record<'_, true, U>,
+    wide: bool,
+) -> bool {
     #[cfg(target_arch = "x86_64")]
     if closed_blocks_apply::<M, N, F>(&st.plant) {
-        // SAFETY: the CPU has FMA and AVX2 (`closed_blocks_apply` checked it).
         // The offset of a block's first `w1` in its block of references.
         let o = (st.plant.delay + 1).wrapping_neg() % BLOCK;
+        // How many blocks back a block's first line output lies (3 or 4: the line
+        // read from registers; further back, from memory).
+        let back = (st.plant.delay + 1).div_ceil(BLOCK);
+        macro_rules! go {
+            ($f:ident, $r:literal) => {
+                match o {
+                    0 => $f::<M, N, D, F, U, 0, $r>(st, up, lead_x, lead_v, rec),
+                    1 => $f::<M, N, D, F, U, 1, $r>(st, up, lead_x, lead_v, rec),
+                    2 => $f::<M, N, D, F, U, 2, $r>(st, up, lead_x, lead_v, rec),
+                    _ => $f::<M, N, D, F, U, 3, $r>(st, up, lead_x, lead_v, rec),
+                }
+            };
+            ($f:ident) => {
+                match back {
+                    3 => go!($f, 3),
+                    4 => go!($f, 4),
+                    _ => go!($f, 0),
+                }
+            };
+        }
+        // The same instructions either way; AVX-512VL only gives the compiler 32
+        // vector registers instead of 16 (no spills in the loop).
+        // SAFETY: `closed_blocks_apply` checked FMA and AVX2, `avx512` AVX-512.
         return unsafe {
-            match o {
-                0 => closed_avx2::<M, N, D, F, U, 0>(st, up, lead_x, lead_v, rec),
-                1 => closed_avx2::<M, N, D, F, U, 1>(st, up, lead_x, lead_v, rec),
-                2 => closed_avx2::<M, N, D, F, U, 2>(st, up, lead_x, lead_v, rec),
-                _ => closed_avx2::<M, N, D, F, U, 3>(st, up, lead_x, lead_v, rec),
+            if wide && avx512() {
+                go!(closed_avx512)
+            } else {
+                go!(closed_avx2)
             }
         };
     }
@@ -97,36 +150,34 @@ pub fn closed_blocks<
     super::kernel::run(st, lead_x.len(), law, rec)
 }
 
-/// [`closed_blocks`] in AVX2 intrinsics (see the module documentation). A lane's
-/// `_mm256_fmadd_pd(a, b, c)` is the kernel's `a.mul_add(b, c)` (`madd::<true>`),
-/// and Rust contracts nothing else, so each lane rounds as the kernel does.
-///
-/// `O` is the offset of a block's first `w1` in its block of references,
-/// `(-(i + 1)) mod 4`.
-///
-/// # Safety
-/// The CPU must support FMA and AVX2; `M == 2`, `N == 4`, a dead time of at least
-/// `2 BLOCK` samples.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn closed_avx2<
-    const M: usize,
-    const N: usize,
-    const D: bool,
-    const F: bool,
-    const U: bool,
-    const O: usize,
->(
-    st: &mut Stepper<M, N, D, F, NoEffects>,
-    up: &Upper,
-    lead_x: &[f64],
-    lead_v: &[f64],
-    rec: &mut Record<'_, true, U>,
-) -> bool {
+/// Defines `$name`, the block form in AVX2 intrinsics compiled with the target
+/// features `$features` (see [`closed_avx2`]): the same body twice, because an
+/// intrinsic is inlined only into a function compiled with its features.
+macro_rules! closed_simd {
+    ($(#[$doc:meta])* $name:ident, $features:literal) => {
+        $(#[$doc])*
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        unsafe fn $name<
+            const M: usize,
+            const N: usize,
+            const D: bool,
+            const F: bool,
+            const U: bool,
+            const O: usize,
+            const R: usize,
+        >(
+            st: &mut Stepper<M, N, D, F, NoEffects>,
+            up: &Upper,
+            lead_x: &[f64],
+            lead_v: &[f64],
+            rec: &mut Record<'_, true, U>,
+        ) -> bool {
     use super::kernel::{Sink, CHUNK, DIVERGED};
     use std::arch::x86_64::*;
     debug_assert!(M == 2 && N == 4 && st.plant.delay >= 2 * BLOCK);
     let len = lead_x.len().min(rec.capacity());
+    let split: bool = O == 0 && R != 0;
     let (lead_x, lead_v) = (&lead_x[..len], &lead_v[..len]);
     let p = st.plant;
     let i = p.delay;
@@ -152,9 +203,12 @@ unsafe fn closed_avx2<
     let ldiag = _mm_set_pd(p.phi[1 % N][1 % N], p.phi[0][0]);
     let loff = _mm_set_pd(p.phi[1 % N][0], p.phi[0][1 % N]);
     let (kg, kv, tg, gmin, k) = (c(up.kg), c(up.kv), c(up.tg), c(up.gmin), c(p.k));
+    // Each row's input maps side by side (sample 3's line terms when split).
+    let g0r = _mm256_setr_pd(p.g0[0], p.g0[1 % N], p.g0[2 % N], p.g0[3 % N]);
+    let g1r = _mm256_setr_pd(p.g1[0], p.g1[1 % N], p.g1[2 % N], p.g1[3 % N]);
     let inner = p.k != 0.0;
     let mut zc = _mm_set_pd(st.x[1 % N], st.x[0]);
-    let (mut v, mut pos) = (st.x[s], st.x[q]);
+    let (mut v, mut pos) = (_mm_set_sd(st.x[s]), _mm_set_sd(st.x[q]));
     let lp = line.as_mut_ptr();
     let (plx, plv) = (lead_x.as_ptr(), lead_v.as_ptr());
     let (pa, pv, px, pu) = (
@@ -177,14 +231,28 @@ unsafe fn closed_avx2<
     // speed increments and the position increments' input terms.
     // SAFETY (the line): `base` and `base + BLOCK` (masked) are multiples of BLOCK
     // below `cap`, so each load reads four slots of the line.
-    let stage1 = |n0: usize, zc: &mut __m128d| {
+    let load = |n0: usize| {
+        let base = (n0.wrapping_sub(i + 1) & mask) & !(BLOCK - 1);
+        (
+            _mm256_loadu_pd(lp.add(base)),
+            _mm256_loadu_pd(lp.add((base + BLOCK) & mask)),
+        )
+    };
+    let stage1 = |(ra, rb): (__m256d, __m256d), zc: &mut __m128d| {
         // w1[j] = u_ref[n0+j-i-1], w0[j] = u_ref[n0+j-i]: written before the block,
         // read as the two whole blocks of references they lie in (each load then
         // matches one earlier store, which the CPU forwards) and aligned in registers.
-        let base = (n0.wrapping_sub(i + 1) & mask) & !(BLOCK - 1);
-        let ra = _mm256_loadu_pd(lp.add(base));
-        let rb = _mm256_loadu_pd(lp.add((base + BLOCK) & mask));
-        let (w1, w0) = align::<O>(ra, rb);
+        // With O = 0 and the line in registers, only sample 3 reads the newer block
+        // (`w0[3]`, the first reference of `rb`): samples 0 to 2 are computed from
+        // `ra` alone (lane 3 of the vectors below is then not used) and sample 3
+        // apart, so that the newer block's references are waited for by the last
+        // step and the next block only (the loop the dead time closes then spans
+        // one block more).
+        let (w1, w0) = if split {
+            (ra, _mm256_permute4x64_pd::<0b00_11_10_01>(ra))
+        } else {
+            align::<O>(ra, rb)
+        };
         // The modes' input terms, then their chains, both modes per register.
         let tz0 = _mm256_fmadd_pd(g1[0], w1, _mm256_mul_pd(g0[0], w0));
         let tz1 = _mm256_fmadd_pd(g1[1], w1, _mm256_mul_pd(g0[1], w0));
@@ -194,7 +262,17 @@ unsafe fn closed_avx2<
         let z1 = step(z0, _mm256_castpd256_pd128(a));
         let z2 = step(z1, _mm256_castpd256_pd128(b));
         let z3 = step(z2, _mm256_extractf128_pd::<1>(a));
-        *zc = step(z3, _mm256_extractf128_pd::<1>(b));
+        // Sample 3's line terms of the four rows (modes, speed, position).
+        let q = _mm256_fmadd_pd(
+            g1r,
+            _mm256_permute4x64_pd::<0b11_11_11_11>(ra),
+            _mm256_mul_pd(g0r, _mm256_broadcastsd_pd(_mm256_castpd256_pd128(rb))),
+        );
+        *zc = if split {
+            step(z3, _mm256_castpd256_pd128(q))
+        } else {
+            step(z3, _mm256_extractf128_pd::<1>(b))
+        };
         let e = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(z0), z2);
         let o = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(z1), z3);
         let m0 = _mm256_unpacklo_pd(e, o); // mode 0 at the four samples
@@ -204,20 +282,38 @@ unsafe fn closed_avx2<
         let tv = _mm256_fmadd_pd(g1[2], w1, _mm256_mul_pd(g0[2], w0));
         let tv = _mm256_fmadd_pd(pv1, m1, _mm256_fmadd_pd(pv0, m0, tv));
         let tp = _mm256_fmadd_pd(g1[3], w1, _mm256_mul_pd(g0[3], w0));
-        [m0, m1, y, tv, tp]
+        [m0, m1, y, tv, tp, q, _mm256_castpd128_pd256(z3)]
     };
     // Stage 2 of the block at `n0`: the speed's chain, the position increments and
     // chain, the upper law, the references into the line, the outputs.
     // SAFETY: `(n0 & mask) + 4 <= cap` (`n0` and `cap` are multiples of BLOCK), and
     // `n0 + 4 <= len`, the length of the leader slices and at most that of the
     // outputs (`len <= rec.capacity()`).
-    let stage2 = |[m0, m1, y, tv, tp]: [__m256d; 5], v: &mut f64, pos: &mut f64| {
-        let (vs, v3) = chain(*v, tv);
-        *v = add(v3, lane3(tv));
+    let stage2 = |[m0, m1, y, tv, tp, q, z3]: [__m256d; 7], v: &mut __m128d, pos: &mut __m128d| {
+        let (vs, v3, tvh) = chains(*v, tv);
         let tpv = _mm256_fmadd_pd(pxv, vs, tp);
         let tp = _mm256_fmadd_pd(px1, m1, _mm256_fmadd_pd(px0, m0, tpv));
-        let (ps, p3) = chain(*pos, tp);
-        *pos = add(p3, lane3(tp));
+        let (ps, p3, tph) = chains(*pos, tp);
+        // The increments of sample 3 into the next block's speed and position.
+        if split {
+            // Lane 3 of `tv` and `tp` from sample 3's line terms, as the vectors do it.
+            let z3 = _mm256_castpd256_pd128(z3);
+            let z31 = _mm_permute_pd::<1>(z3);
+            let ql = _mm256_extractf128_pd::<1>(q);
+            let lo = |x: __m256d| _mm256_castpd256_pd128(x);
+            let tv3 = _mm_fmadd_sd(lo(pv1), z31, _mm_fmadd_sd(lo(pv0), z3, ql));
+            let tp3 = _mm_fmadd_sd(
+                lo(pxv),
+                v3,
+                _mm_permute_pd::<1>(ql),
+            );
+            let tp3 = _mm_fmadd_sd(lo(px1), z31, _mm_fmadd_sd(lo(px0), z3, tp3));
+            *v = _mm_add_sd(v3, tv3);
+            *pos = _mm_add_sd(p3, tp3);
+        } else {
+            *v = _mm_add_sd(v3, _mm_permute_pd::<1>(tvh));
+            *pos = _mm_add_sd(p3, _mm_permute_pd::<1>(tph));
+        }
         [vs, ps, y]
     };
     let law = |n0: usize, [vs, ps, y]: [__m256d; 3]| {
@@ -245,6 +341,7 @@ unsafe fn closed_avx2<
         if U {
             _mm256_storeu_pd(pu.add(n0), u);
         }
+        r
     };
     // Software-pipelined: stage 1 of the next block is issued before stage 2 of this
     // one (it reads the line up to `u_ref[n0 + 7 - i]`, written before this block
@@ -252,29 +349,41 @@ unsafe fn closed_avx2<
     let end = len / BLOCK * BLOCK;
     let mut from = 0;
     let mut n0 = 0;
-    let mut cur = stage1(0, &mut zc);
-    let (sign, big, inf) = (c(-0.0), c(DIVERGED), c(f64::INFINITY));
+    let mut cur = stage1(load(0), &mut zc);
+    // The last four blocks of references (h[k]: the block k + 1 before the current),
+    // when a block's line outputs lie 3 or 4 blocks back: read from registers.
+    let mut h: [__m256d; 4] = std::array::from_fn(|k| {
+        _mm256_loadu_pd(lp.add((BLOCK * (k + 1)).wrapping_neg() & mask))
+    });
+    let (sign, big) = (c(-0.0), c(DIVERGED));
     let mut ok = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
     while n0 < end {
         let next = if n0 + BLOCK < end {
-            stage1(n0 + BLOCK, &mut zc)
+            let refs = match R {
+                3 => (h[1], h[0]),
+                4 => (h[2], h[1]),
+                _ => load(n0 + BLOCK),
+            };
+            stage1(refs, &mut zc)
         } else {
             cur
         };
         let done = stage2(cur, &mut v, &mut pos);
-        // The recorder's divergence test (`|a| < DIVERGED`, a finite speed), lane by
-        // lane in registers: the outputs are scanned only when a sample failed it.
-        let [vs, _, y] = done;
-        let good = _mm256_and_pd(
+        // The recorder's divergence test (`|a| < DIVERGED`, a finite speed): `|a|`
+        // lane by lane in registers, the speed once per chunk (a speed that is not
+        // finite stays so: the next is `v + t`), and the outputs scanned only when
+        // a sample failed it.
+        let y = done[2];
+        ok = _mm256_and_pd(
+            ok,
             _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), big),
-            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, vs), inf),
         );
-        ok = _mm256_and_pd(ok, good);
-        law(n0, done);
+        let r = law(n0, done);
+        h = [r, h[0], h[1], h[2]];
         cur = next;
         n0 += BLOCK;
         if n0.is_multiple_of(CHUNK) {
-            if _mm256_movemask_pd(ok) == 0b1111 {
+            if _mm256_movemask_pd(ok) == 0b1111 && _mm_cvtsd_f64(v).is_finite() {
                 rec.written = n0;
             } else if !rec.proceed(from, n0) {
                 return false;
@@ -282,7 +391,11 @@ unsafe fn closed_avx2<
             from = n0;
         }
     }
-    st.x = state::<N>(zc, v, pos);
+    st.x = state::<N>(
+        zc,
+        _mm_cvtsd_f64(v),
+        _mm_cvtsd_f64(pos),
+    );
     st.line_in(&line, end);
     // The run's last few samples (fewer than a block): the kernel itself.
     for n in end..len {
@@ -293,14 +406,74 @@ unsafe fn closed_avx2<
     }
     from >= len || rec.proceed(from, len)
 }
+    };
+}
 
-/// Lane 3 of `t`.
+closed_simd!(
+    /// [`closed_blocks`] in AVX2 intrinsics (see the module documentation). A lane's
+    /// `_mm256_fmadd_pd(a, b, c)` is the kernel's `a.mul_add(b, c)` (`madd::<true>`),
+    /// and Rust contracts nothing else, so each lane rounds as the kernel does.
+    ///
+    /// `O` is the offset of a block's first `w1` in its block of references,
+    /// `(-(i + 1)) mod 4`.
+    ///
+    /// # Safety
+    /// The CPU must support FMA and AVX2; `M == 2`, `N == 4`, a dead time of at least
+    /// `2 BLOCK` samples.
+    closed_avx2,
+    "avx2,fma"
+);
+
+closed_simd!(
+    /// [`closed_avx2`] compiled with AVX-512VL: the same instructions (so the same
+    /// results bit for bit), with 32 vector registers to hold them instead of 16.
+    ///
+    /// # Safety
+    /// As [`closed_avx2`], and the CPU must support AVX-512F and AVX-512VL.
+    closed_avx512,
+    "avx2,fma,avx512f,avx512vl"
+);
+
+/// Whether the CPU has AVX-512F and AVX-512VL.
+fn avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// An integrator's running value over a block: `([s, s1, s2, s3], s3, [t2, t3])`
+/// with `s` in lane 0, `s1 = s + t0`, `s2 = s1 + t1`, `s3 = s2 + t2` (each the
+/// kernel's one addition, in scalar registers: no lane waits for a later one's
+/// chain), and the upper half of `t` for the step to the next block.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn lane3(t: std::arch::x86_64::__m256d) -> f64 {
+unsafe fn chains(
+    s: std::arch::x86_64::__m128d,
+    t: std::arch::x86_64::__m256d,
+) -> (
+    std::arch::x86_64::__m256d,
+    std::arch::x86_64::__m128d,
+    std::arch::x86_64::__m128d,
+) {
     use std::arch::x86_64::*;
-    let h = _mm256_extractf128_pd::<1>(t);
-    _mm_cvtsd_f64(_mm_unpackhi_pd(h, h))
+    let tl = _mm256_castpd256_pd128(t);
+    let th = _mm256_extractf128_pd::<1>(t);
+    let s1 = _mm_add_sd(s, tl);
+    let s2 = _mm_add_sd(s1, _mm_permute_pd::<1>(tl));
+    let s3 = _mm_add_sd(s2, th);
+    let lo = _mm_unpacklo_pd(s, s1);
+    let hi = _mm_unpacklo_pd(s2, s3);
+    (
+        _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(lo), hi),
+        s3,
+        th,
+    )
 }
 
 /// `(w1, w0)`: lanes `O..O + 4` and `O + 1..O + 5` of the eight references `[a, b]`.
@@ -323,60 +496,6 @@ unsafe fn align<const O: usize>(
         // [a3 b0 b1 b2], [b0 b1 b2 b3]
         _ => (_mm256_shuffle_pd::<0b0101>(mid, b), b),
     }
-}
-
-/// `[s, s + t0, (s + t0) + t1, ((s + t0) + t1) + t2]` (an integrator's running value
-/// over three steps, each the kernel's one addition: `vaddsd` is the IEEE addition
-/// of `+`) and its last element.
-///
-/// Written in assembly so that the compiler cannot merge the speed's and the
-/// position's chains: left to itself, LLVM packs the two running values into one
-/// register between blocks, which makes the speed's next chain wait for the
-/// position's (measured: about twice the time per block).
-#[cfg(target_arch = "x86_64")]
-#[inline]
-#[target_feature(enable = "avx2")]
-unsafe fn chain(s: f64, t: std::arch::x86_64::__m256d) -> (std::arch::x86_64::__m256d, f64) {
-    let (out, s3): (std::arch::x86_64::__m256d, f64);
-    // SAFETY: register-only AVX instructions (the callers run with AVX2 enabled).
-    std::arch::asm!(
-        "vaddsd {s1}, {s}, {t:x}",
-        "vpermilpd {q}, {t:x}, 1",
-        "vaddsd {s2}, {s1}, {q}",
-        "vextractf128 {h}, {t}, 1",
-        "vaddsd {s3}, {s2}, {h}",
-        "vunpcklpd {s1}, {s}, {s1}",
-        "vunpcklpd {s2}, {s2}, {s3}",
-        "vinsertf128 {out}, {s1:y}, {s2}, 1",
-        s = in(xmm_reg) s,
-        t = in(ymm_reg) t,
-        s1 = out(xmm_reg) _,
-        s2 = out(xmm_reg) _,
-        q = out(xmm_reg) _,
-        h = out(xmm_reg) _,
-        s3 = out(xmm_reg) s3,
-        out = out(ymm_reg) out,
-        options(pure, nomem, nostack, preserves_flags)
-    );
-    (out, s3)
-}
-
-/// `a + b` (one `vaddsd`) that the compiler cannot pair with another addition (see
-/// [`chain`]).
-#[cfg(target_arch = "x86_64")]
-#[inline]
-#[target_feature(enable = "avx")]
-unsafe fn add(a: f64, b: f64) -> f64 {
-    let r: f64;
-    // SAFETY: a register-only AVX instruction.
-    std::arch::asm!(
-        "vaddsd {r}, {a}, {b}",
-        r = lateout(xmm_reg) r,
-        a = in(xmm_reg) a,
-        b = in(xmm_reg) b,
-        options(pure, nomem, nostack, preserves_flags)
-    );
-    r
 }
 
 /// The kernel's state vector from the two modes, the speed and the position.
@@ -417,7 +536,7 @@ mod tests {
     /// model order and state size) and asserts every output, the samples written and
     /// the final stepper bit-identical.
     macro_rules! compare {
-        ($m:literal, $n:literal, $d:expr, $f:literal, $pl:expr, $lin:expr, $up:expr, $len:expr, $u:literal) => {{
+        ($m:literal, $n:literal, $d:expr, $f:literal, $pl:expr, $lin:expr, $up:expr, $len:expr, $u:literal, $wide:expr) => {{
             let pl: Plant<$m, $n> = $pl;
             let (lx, lv) = leader($len);
             let s = start($lin, Init::Rest, 0.0).unwrap();
@@ -474,7 +593,7 @@ mod tests {
                     u: if $u { &mut u[..] } else { &mut [] },
                     written: 0,
                 };
-                d2 = closed_blocks(&mut s2, &$up, &lx, &lv, &mut rec);
+                d2 = closed_blocks_with(&mut s2, &$up, &lx, &lv, &mut rec, $wide);
                 w2 = rec.written;
             }
             assert_eq!((w1, d1), (w2, d2), "written, completed");
@@ -535,6 +654,12 @@ mod tests {
             (lin(0.5, 1.0, 0.3, 1.4, 0.47, 0.05), true),
             (lin(0.5, 1.0, 0.3, 1.4, 0.52, 0.05), true),
             (lin(0.5, 1.0, 0.3, 1.4, 0.57, 0.05), true),
+            // 12, 13, 14 and 16: the line four blocks back in registers at every
+            // offset, and the first dead time read from memory.
+            (lin(0.5, 1.0, 0.3, 1.4, 0.62, 0.05), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.67, -0.1), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.72, 0.05), true),
+            (lin(0.5, 1.0, 0.3, 1.4, 0.82, 0.05), true),
             (lin(0.5, 1.0, 0.3, 1.4, 0.3, 0.1), false),
             (lin(0.5, 1.0, 0.3, 1.4, 0.12, 0.1), false),
         ];
@@ -554,19 +679,22 @@ mod tests {
             },
         ];
         let mut diverged = 0;
-        for (lin, blocks) in &models {
-            for up in &ups {
-                for len in [0, 1, 3, 4, 5, 63, 64, 65, 67, 130, 1001, 3000] {
-                    let pl =
-                        Plant::<2, 4>::new(lin, Integrators::SpeedPosition, 0.05, true).unwrap();
-                    assert_eq!(closed_blocks_apply::<2, 4, true>(&pl), *blocks);
-                    diverged += if pl.diag {
-                        compare!(2, 4, true, true, pl, lin, up, len, true)
-                            + compare!(2, 4, true, true, pl, lin, up, len, false)
-                    } else {
-                        compare!(2, 4, false, true, pl, lin, up, len, true)
-                            + compare!(2, 4, false, true, pl, lin, up, len, false)
-                    };
+        // AVX2 and (where the CPU has it) AVX-512VL.
+        for wide in [false, true] {
+            for (lin, blocks) in &models {
+                for up in &ups {
+                    for len in [0, 1, 3, 4, 5, 63, 64, 65, 67, 130, 1001, 3000] {
+                        let pl = Plant::<2, 4>::new(lin, Integrators::SpeedPosition, 0.05, true)
+                            .unwrap();
+                        assert_eq!(closed_blocks_apply::<2, 4, true>(&pl), *blocks);
+                        diverged += if pl.diag {
+                            compare!(2, 4, true, true, pl, lin, up, len, true, wide)
+                                + compare!(2, 4, true, true, pl, lin, up, len, false, wide)
+                        } else {
+                            compare!(2, 4, false, true, pl, lin, up, len, true, wide)
+                                + compare!(2, 4, false, true, pl, lin, up, len, false, wide)
+                        };
+                    }
                 }
             }
         }
@@ -575,6 +703,6 @@ mod tests {
         let fo = lin(0.0, 1.0, 0.0, 0.45, 0.33, 0.0);
         let pl = Plant::<1, 3>::new(&fo, Integrators::SpeedPosition, 0.05, false).unwrap();
         assert!(!closed_blocks_apply::<1, 3, true>(&pl));
-        compare!(1, 3, true, true, pl, &fo, &ups[0], 300, true);
+        compare!(1, 3, true, true, pl, &fo, &ups[0], 300, true, false);
     }
 }
