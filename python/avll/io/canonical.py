@@ -350,27 +350,11 @@ def _load_canonical(path: Path, command_kind: str | None) -> list[Run]:
                 upper = UpperLevel(**info["upper"])
             except (TypeError, ValueError) as e:
                 raise DataError(f"{sidecar_path(path)}: run {rid!r} upper: {e}") from None
-        runs.append(
-            Run(
-                run_id=rid,
-                t=t,
-                a=cols["a"][idx],
-                command_kind=kind,
-                command=cols["command"][idx] if "command" in cols else None,
-                v=cols["v"][idx] if "v" in cols else None,
-                x=cols["x"][idx] if "x" in cols else None,
-                lead_x=cols["lead_x"][idx] if "lead_x" in cols else None,
-                lead_v=cols["lead_v"][idx] if "lead_v" in cols else None,
-                lead_a=cols["lead_a"][idx] if "lead_a" in cols else None,
-                exo={c[4:]: cols[c][idx] for c in exo_cols},
-                upper=upper,
-                meta={
-                    **info.get("meta", {}),
-                    "source": str(path),
-                    "first_line": int(idx[0] + line0),
-                },
-            )
-        )
+        optional = {c: cols[c][idx] if c in cols else None for c in OPTIONAL}
+        runs.append(Run(run_id=rid, t=t, a=cols["a"][idx], command_kind=kind,
+                        exo={c[4:]: cols[c][idx] for c in exo_cols}, upper=upper,
+                        meta={**info.get("meta", {}), "source": str(path),
+                              "first_line": int(idx[0] + line0)}, **optional))
     return runs
 
 
@@ -420,29 +404,14 @@ def write_runs(runs: Sequence[Run], path: str | Path) -> Path:
             d[f"exo_{k}"] = r.exo[k]
         frames.append(pd.DataFrame(d))
     df = pd.concat(frames, ignore_index=True)
-    side = {
-        "command_kind": runs[0].command_kind,
-        "runs": {
-            r.run_id: {
-                **(
-                    {
-                        "upper": dict(
-                            zip(
-                                ("kg", "kv", "Tg", "Gmin"), r.upper.to_array().tolist(), strict=True
-                            )
-                        )
-                    }
-                    if r.upper is not None
-                    else {}
-                ),
-                "meta": _jsonable(
-                    {k: v for k, v in r.meta.items() if k not in ("source", "first_line")}
-                ),
-            }
-            for r in runs
-        },
-    }
-    text = _atomic.dumps(side, indent=1)
+    per_run: dict[str, Any] = {}
+    for r in runs:
+        entry = per_run[r.run_id] = {}
+        if r.upper is not None:
+            entry["upper"] = dict(zip(_UPPER_KEYS, r.upper.to_array().tolist(), strict=True))
+        entry["meta"] = _jsonable({k: v for k, v in r.meta.items()
+                                   if k not in ("source", "first_line")})
+    text = _atomic.dumps({"command_kind": runs[0].command_kind, "runs": per_run}, indent=1)
     # both files to temporary names first, renamed together with Ctrl-C deferred
     with _atomic.atomic_paths(path, sidecar_path(path)) as (tmp_data, tmp_side):
         if path.suffix.lower() in (".parquet", ".pq"):

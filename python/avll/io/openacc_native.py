@@ -156,7 +156,8 @@ import csv
 import datetime as _dt
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections import Counter, defaultdict
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -242,7 +243,6 @@ _VEH_COL = re.compile(r"^(Speed|E|N|U|Lon|Lat|Alt|VE|VN|VU|Driver)(\d+)$", re.IG
 _PAIR_COL = re.compile(r"^(IVS|Eff_distance|Rel_Speed)(\d+)$", re.IGNORECASE)
 _VEH_KEYS = {"speed": "speed", "e": "E", "n": "N", "u": "U", "lon": "lon", "lat": "lat",
              "alt": "alt", "ve": "VE", "vn": "VN", "vu": "VU", "driver": "driver"}
-_PAIR_KEYS = {"ivs": "ivs", "eff_distance": "eff_distance", "rel_speed": "rel_speed"}
 _DRIVER = {"acc": 1, "human": 0}
 
 
@@ -446,7 +446,7 @@ def read_openacc_native(path: str | Path) -> NativeFile:
                 raise DataError(
                     f"{_loc(path, c, line=HEADER_LINES)}: spacing between vehicles {k} and "
                     f"{k + 1} but Number_of_vehicles (line 3) is {n}: wrong vehicle count")
-            pair_cols.setdefault(_PAIR_KEYS[mi[1].lower()], {})[k] = j
+            pair_cols.setdefault(mi[1].lower(), {})[k] = j
         else:
             raise DataError(f"{_loc(path, c, line=HEADER_LINES)}: unknown column (expected "
                             "Time and, per vehicle <i>, Speed, E, N, U, Lon, Lat, Alt, VE, VN, "
@@ -578,9 +578,14 @@ def _check_spacing(path: Path, column: str, g: np.ndarray) -> None:
 # ---------------------------------------------------------------------------
 
 
-def _across(breaks: np.ndarray | None, a: int, b: int) -> bool:
-    """Whether a hole ``a:b`` (with its two neighbours) spans a time break."""
-    return breaks is not None and bool(breaks[a:b + 1].any())
+def _holes(mask: np.ndarray, max_samples: int,
+           breaks: np.ndarray | None) -> Iterator[tuple[int, int]]:
+    """The interior runs ``a:b`` of ``mask`` of at most ``max_samples`` samples that
+    (with their two neighbours) span no time break."""
+    for a, b in contiguous(mask):
+        if (0 < a and b < mask.shape[0] and b - a <= max_samples
+                and not (breaks is not None and breaks[a:b + 1].any())):
+            yield a, b
 
 
 def _bridge(x: np.ndarray, max_samples: int,
@@ -590,10 +595,7 @@ def _bridge(x: np.ndarray, max_samples: int,
     of cells filled."""
     out = x.copy()
     filled = 0
-    fin = np.isfinite(out)
-    for a, b in contiguous(~fin):
-        if a == 0 or b == out.shape[0] or b - a > max_samples or _across(breaks, a, b):
-            continue
+    for a, b in _holes(~np.isfinite(out), max_samples, breaks):
         out[a:b] = np.interp(np.arange(a, b), [a - 1, b], [out[a - 1], out[b]])
         filled += b - a
     return out, filled
@@ -622,10 +624,7 @@ def _bridge_vehicle(v: np.ndarray, e: np.ndarray, n: np.ndarray, alt: np.ndarray
     positions are then put on that chord in proportion to the integrated speed.
     Returns the number of samples filled."""
     filled = 0
-    hole = ~np.isfinite(v)
-    for a, b in contiguous(hole):
-        if a == 0 or b == v.shape[0] or b - a > max_samples or _across(breaks, a, b):
-            continue
+    for a, b in _holes(~np.isfinite(v), max_samples, breaks):
         ends = (a - 1, b)
         if not all(np.isfinite(q[j]) for q in (v, e, n) for j in ends):
             continue
@@ -652,9 +651,7 @@ def _short_runs(bad: np.ndarray, ok_sides: np.ndarray, max_samples: int,
     ``ok_sides`` mask holds over the run and its two neighbours (not across a time
     break)."""
     out = np.zeros(bad.shape[0], dtype=bool)
-    for a, b in contiguous(bad):
-        if a == 0 or b == bad.shape[0] or b - a > max_samples or _across(breaks, a, b):
-            continue
+    for a, b in _holes(bad, max_samples, breaks):
         if ok_sides[a - 1:b + 1].all():
             out[a:b] = True
     return out
@@ -803,11 +800,6 @@ def grade_from_altitude(s: np.ndarray, alt: np.ndarray, window: float = 30.0,
         return np.full_like(s, float(k))
     g = signal.savgol_filter(grid_alt, win, 2, deriv=1, delta=step, mode="interp")
     return np.interp(s, centre, g)
-
-
-# ---------------------------------------------------------------------------
-# Runs
-# ---------------------------------------------------------------------------
 
 
 def _as_set(name: str, value: Any, norm: Any) -> set[Any] | None:
@@ -1115,7 +1107,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                    min_duration: float, accel_cutoff: float | str, grade: bool,
                    grade_window: float, require_predecessor: bool, skipped: list[_Skip],
                    camp: _Campaign, stretches: list[dict[str, Any]],
-                   time_acc: dict[str, float], file_info: dict[str, Any],
+                   time_acc: defaultdict[str, float], file_info: dict[str, Any],
                    followers: list[dict[str, Any]]) -> list[Run]:
     path = nf.path
     t = nf.t
@@ -1179,24 +1171,30 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
             if pe:
                 pools[src] = (np.concatenate(pe), np.concatenate(pn), np.concatenate(pa))
     runs: list[Run] = []
+
+    def skip(fol: dict[str, Any], why: str, key: str, secs: float) -> None:
+        """A follower without any stretch: the whole file's time, for ``key``."""
+        i, car = fol["follower"], fol["car"]
+        skipped.append(_Skip(str(path), i, car, why))
+        fol["time_s"][key] += secs
+        stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
+                          "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
+                          "reason": why, "duration_s": secs, "run_id": None})
+
     for i in sorted(nf.vehicles):
         if i == 1:
             continue
         car = nf.name(i)
         lead = i - 1
         ftime = float(np.isfinite(sig[i]["speed"]).sum() * dt)
-        ft: dict[str, float] = {}
+        ft: defaultdict[str, float] = defaultdict(float)
         fol: dict[str, Any] = {"file": str(path), "follower": i, "car": car,
                                "lead_car": nf.name(lead), "setting": nf.setting,
                                "acc_header": nf.acc, "time_s": ft, "runs": []}
         followers.append(fol)
         if lead not in nf.vehicles:
-            why = f"predecessor vehicle {lead} ({nf.name(lead)}) has no columns"
-            skipped.append(_Skip(str(path), i, car, why))
-            ft["no_predecessor"] = ft.get("no_predecessor", 0.0) + ftime
-            stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
-                              "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
-                              "reason": why, "duration_s": ftime, "run_id": None})
+            skip(fol, f"predecessor vehicle {lead} ({nf.name(lead)}) has no columns",
+                 "no_predecessor", ftime)
             if not require_predecessor:
                 runs += _solo_run(nf, rid_stem, i, sig, dt, min_duration, cutoff, grade,
                                   grade_window)
@@ -1210,12 +1208,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                 notes.append(f"{who} (vehicle {k}): {glitches[k]} E/N samples dropped as "
                              f"glitches (both steps off the speed by > {GLITCH_TOL:g} m/s)")
         if lead not in ivs_raw:
-            why = f"no spacing column {gcol}"
-            skipped.append(_Skip(str(path), i, car, why))
-            ft["no_spacing"] = ft.get("no_spacing", 0.0) + ftime
-            stretches.append({"file": str(path), "follower": i, "car": car, "kept": False,
-                              "acc": None, "t_start": float(t[0]), "t_end": float(t[-1]),
-                              "reason": why, "duration_s": ftime, "run_id": None})
+            skip(fol, f"no spacing column {gcol}", "no_spacing", ftime)
             continue
         ivs_l = ivs_raw[lead]
         both = np.isfinite(ivs_l) & np.isfinite(dist)
@@ -1301,14 +1294,13 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
                    "duration_s": round((b - a - 1) * dt, 3)}
             if v >= 10:
                 code = v - 10
-                ft[_DROP_KEY[code]] = ft.get(_DROP_KEY[code], 0.0) + secs
+                ft[_DROP_KEY[code]] += secs
                 if code == 1 and not fpresent[a:b].any():
                     continue  # the follower itself not recorded: not follower time
                 stretches.append({**rec, "kept": False, "acc": None, "run_id": None,
                                   "reason": _DROP[code]})
             elif (a, b, v) not in keep_segs:
-                sk = f"short_{_KEEP_KEY[v]}"
-                ft[sk] = ft.get(sk, 0.0) + secs
+                ft[f"short_{_KEEP_KEY[v]}"] += secs
                 stretches.append({**rec, "kept": False, "acc": _ACC_META[v], "run_id": None,
                                   "reason": f"shorter than min_duration {min_duration:g} s"})
         if not keep_segs:
@@ -1340,8 +1332,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         for si, (a0, b0, v_state) in enumerate(keep_segs, start=1):
             rid = f"{rid_stem}/v{lead}-v{i}" + (f"/s{si}" if len(keep_segs) > 1 else "")
             dur = (b0 - a0 - 1) * dt
-            ft[_KEEP_KEY[v_state]] = (ft.get(_KEEP_KEY[v_state], 0.0)
-                                            + float(fpresent[a0:b0].sum() * dt))
+            ft[_KEEP_KEY[v_state]] += float(fpresent[a0:b0].sum() * dt)
             stretches.append({"file": str(path), "follower": i, "car": car,
                               "t_start": float(t[a0]), "t_end": float(t[b0 - 1]),
                               "duration_s": round(dur, 3), "kept": True,
@@ -1407,7 +1398,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
         if fol["file"] != str(path):
             continue
         for k, v in fol["time_s"].items():
-            time_acc[k] = time_acc.get(k, 0.0) + v
+            time_acc[k] += v
         fol["time_s"] = {k: round(v, 3) for k, v in fol["time_s"].items()}
     return runs
 
@@ -1559,15 +1550,13 @@ def openacc_native_report(
             raise DataError(f"{path}: is the campaign's {kind}, not a data file (give a data "
                             "file or the campaign folder)")
         files = [path]
-    stems: dict[str, int] = {}
-    for f in files:
-        stems[f.stem] = stems.get(f.stem, 0) + 1
+    stems = Counter(f.stem for f in files)
     runs: list[Run] = []
     skipped: list[_Skip] = []
     foreign: list[str] = []
     stretches: list[dict[str, Any]] = []
     followers: list[dict[str, Any]] = []
-    time_all: dict[str, float] = {}
+    time_all: defaultdict[str, float] = defaultdict(float)
     by_file: dict[str, dict[str, float]] = {}
     cutoffs: dict[str, Any] = {}
     side: dict[Path, list[tuple[Path, str]]] = {}
@@ -1579,7 +1568,7 @@ def openacc_native_report(
         nf = read_openacc_native(f)
         camp = _campaign_for(f, root, side, cache)
         rid_stem = f.stem if stems[f.stem] == 1 else f"{f.parent.name}/{f.stem}"
-        tf: dict[str, float] = {}
+        tf: defaultdict[str, float] = defaultdict(float)
         info: dict[str, Any] = {}
         runs += _follower_runs(nf, rid_stem, bridge=bridge, bridge_kinematic=bridge_kinematic,
                                min_duration=min_duration, accel_cutoff=accel_cutoff,
@@ -1590,7 +1579,7 @@ def openacc_native_report(
         by_file[str(f)] = {k: round(v, 3) for k, v in tf.items()}
         cutoffs[str(f)] = info
         for k, v in tf.items():
-            time_all[k] = time_all.get(k, 0.0) + v
+            time_all[k] += v
     report: dict[str, Any] = {"files": [str(f) for f in files if str(f) not in foreign],
                               "not_native": foreign, "non_data": non_data,
                               "skipped": [vars(s) for s in skipped],
