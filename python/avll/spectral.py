@@ -143,6 +143,15 @@ def _check_band(band: Sequence[float], dt: float) -> tuple[float, float]:
     return lo, hi
 
 
+def _parse_band(band: Any, dt: float) -> tuple[float, float]:
+    """:func:`_check_band`, with a malformed ``band`` a ``ValueError`` too."""
+    try:
+        lo, hi = (float(b) for b in band)
+    except (TypeError, ValueError):
+        raise ValueError(f"band: expected (low, high) in Hz, got {band!r}") from None
+    return _check_band((lo, hi), dt)
+
+
 def bandpass(x: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
              trim: float = TRIM) -> np.ndarray:
     """``x`` detrended (straight line), band-passed by a zero-phase 2nd-order
@@ -235,8 +244,7 @@ def _lag(res: BandGain, dt: float, max_lag: float) -> int:
     if not np.any(wt > 0):
         return 0
     a = np.vstack([w, np.ones_like(w)]).T * wt[:, None]
-    slope = float(np.linalg.lstsq(a, ph * wt, rcond=None)[0][0])
-    tau = -slope
+    tau = -float(np.linalg.lstsq(a, ph * wt, rcond=None)[0][0])
     if not (math.isfinite(tau) and 0 < tau <= max_lag):
         return 0
     return int(round(tau / dt))
@@ -271,12 +279,7 @@ def h1_band_gain(
     if x.shape != y.shape:
         raise ValueError(f"lead_v, v: different lengths ({x.shape[0]} and {y.shape[0]})")
     dt = check_number(dt, "dt", positive=True)
-    try:
-        lo, hi = (float(b) for b in band)
-    except (TypeError, ValueError):
-        raise ValueError(f"band: expected (low, high) in Hz, got {band!r}") from None
-    if not (0 < lo < hi < 0.5 / dt):
-        raise ValueError(f"band: need 0 < low < high < {0.5 / dt:g} Hz, got ({lo:g}, {hi:g})")
+    lo, hi = _parse_band(band, dt)
     try:
         lvl = float(level)
     except (TypeError, ValueError):
@@ -327,7 +330,7 @@ def _fine_weights(x: np.ndarray, dt: float, f: np.ndarray, lo: float, hi: float
 
 
 def _h1(x: np.ndarray, y: np.ndarray, dt: float, n: int, lo: float, hi: float,
-        level: float, min_excitation: float, fine: bool = True) -> BandGain:
+        level: float, min_excitation: float) -> BandGain:
     step = n // 2
     m = x.shape[0]
     k = 1 + (m - n) // step if m >= n else 0
@@ -344,8 +347,7 @@ def _h1(x: np.ndarray, y: np.ndarray, dt: float, n: int, lo: float, hi: float,
             f"record of {m * dt:g} s gives {k} Welch segment(s) of {n * dt:g} s "
             f"(needs >= {MIN_SEGMENTS}, i.e. >= {need:g} s, to resolve the band's low edge "
             f"{lo:g} Hz with averaging)"), ci_reason="no estimate", **empty)
-    fx = _segments(x, n, step)
-    fy = _segments(y, n, step)
+    fx, fy = _segments(x, n, step), _segments(y, n, step)
     f = np.fft.rfftfreq(n, dt)
     sel = (f >= lo - 1e-9) & (f <= hi + 1e-9)
     fx, fy, f = fx[:, sel], fy[:, sel], f[sel]
@@ -365,17 +367,14 @@ def _h1(x: np.ndarray, y: np.ndarray, dt: float, n: int, lo: float, hi: float,
     h = np.where(ok, sxy / np.where(ok, sxx, 1.0), 0.0)
     coh = np.where(ok & (syy > 0), np.abs(sxy) ** 2 / np.where(ok & (syy > 0), sxx * syy, 1.0),
                    0.0)
-    wts = _fine_weights(x, dt, f, lo, hi) if fine else sxx / np.sum(sxx)
+    wts = _fine_weights(x, dt, f, lo, hi)
     h2 = np.abs(h) ** 2
     g2 = float(np.sum(wts * h2))
     gain = math.sqrt(g2)
-    coherence = float(np.sum(wts * coh))
     nd = welch_effective_averages(k, n, step)
     ci: tuple[float, float] | None = None
-    ci_reason = None
-    if g2 <= 0:
-        ci_reason = "the band gain is 0"
-    else:
+    ci_reason = "the band gain is 0" if g2 <= 0 else None
+    if g2 > 0:
         c = np.clip(coh, 1e-6, 1.0)
         # var |H|^2 = 4 |H|^2 var|H| = 2 |H|^4 (1 - g) / (nd g)
         sd = np.sqrt(2.0 * h2 * h2 * (1.0 - c) / (nd * c)) * wts
@@ -388,5 +387,5 @@ def _h1(x: np.ndarray, y: np.ndarray, dt: float, n: int, lo: float, hi: float,
 
         z = float(norm.ppf(0.5 + 0.5 * float(level)))
         ci = (gain * math.exp(-z * s_log), gain * math.exp(z * s_log))
-    return BandGain(gain, ci, coherence, excitation=excitation, ci_reason=ci_reason,
+    return BandGain(gain, ci, float(np.sum(wts * coh)), excitation=excitation, ci_reason=ci_reason,
                     freqs=f, h=h, coh=coh, sxx=sxx, **empty)

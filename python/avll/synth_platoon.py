@@ -103,6 +103,7 @@ from .effects import Effect, Grade, WithEffects
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import TABLE_II_PARAMS
 from .rollout import Trajectory, closed_loop
+from .spectral import DEFAULT_BAND, _parse_band
 from .synth import _ar1
 
 __all__ = [
@@ -126,9 +127,6 @@ __all__ = [
     "SelectionCheck",
     "validate_selection",
 ]
-
-DEFAULT_BAND: tuple[float, float] = (0.02, 0.2)
-
 
 @dataclass(frozen=True)
 class Equipment:
@@ -490,12 +488,7 @@ def synth_platoon(
     sub = int(round(sub))
     if duration < 20 * dt:
         raise ValueError(f"duration: must be >= 20 dt, got {duration:g} s")
-    try:
-        lo, hi = (float(b) for b in band)
-    except (TypeError, ValueError):
-        raise ValueError(f"band: expected (low, high) in Hz, got {band!r}") from None
-    if not (0 < lo < hi < 0.5 / dt):
-        raise ValueError(f"band: need 0 < low < high < {0.5 / dt:g} Hz, got ({lo:g}, {hi:g})")
+    lo, hi = _parse_band(band, dt)
     if isinstance(equipment, str):
         if equipment not in EQUIPMENT:
             raise ValueError(f"equipment: unknown {equipment!r}; known: {', '.join(EQUIPMENT)}")
@@ -601,16 +594,19 @@ def synth_platoon(
     return SynthPlatoon(runs, truth, t, v_true, x_true, settings)
 
 
+def _mean(xs: Any) -> float | None:
+    return float(np.mean(xs)) if len(xs) else None
+
+
+def _median(xs: Any) -> float | None:
+    return float(np.median(xs)) if len(xs) else None
+
+
 def _summary(err: list[float], inside: list[bool], missing: int) -> dict[str, Any]:
     e = np.asarray(err, dtype=float)
-    if not e.size:
-        return {"n": 0, "missing": missing, "median_error": None, "mean_error": None,
-                "median_abs_error": None, "within_10pct": None, "coverage": None}
-    return {"n": int(e.size), "missing": int(missing),
-            "median_error": float(np.median(e)), "mean_error": float(np.mean(e)),
-            "median_abs_error": float(np.median(np.abs(e))),
-            "within_10pct": float(np.mean(np.abs(e) <= 0.10)),
-            "coverage": float(np.mean(inside)) if inside else None}
+    return {"n": int(e.size), "missing": int(missing), "median_error": _median(e),
+            "mean_error": _mean(e), "median_abs_error": _median(np.abs(e)),
+            "within_10pct": _mean(np.abs(e) <= 0.10), "coverage": _mean(inside)}
 
 
 def validate_amplification(
@@ -639,17 +635,15 @@ def validate_amplification(
         pl = synth_platoon(cars, seed=int(s), band=band, **platoon)
         for j, (r, tr) in enumerate(zip(pl.runs, pl.truth, strict=True)):
             assert r.v is not None and r.lead_v is not None
-            truth = tr["band_gain"]
             ratio = amplification(r.v, r.lead_v, r.dt, band)[0]
             lo, hi = bootstrap_ci(bandpass(r.v, r.dt, band), bandpass(r.lead_v, r.dt, band),
                                   r.dt, n=n_boot, seed=[int(s), j])
             g = h1_band_gain(r.lead_v, r.v, r.dt, band)
-            row = {"seed": int(s), "car": r.meta["car"], "model": tr["model"],
-                   "truth": truth, "rms_ratio": ratio, "rms_ratio_ci": [lo, hi],
-                   "h1": g.gain, "h1_ci": None if g.ci is None else list(g.ci),
-                   "coherence": g.coherence, "h1_reason": g.reason,
-                   "rms_ratio_true": tr["rms_ratio_true"]}
-            rows.append(row)
+            rows.append({"seed": int(s), "car": r.meta["car"], "model": tr["model"],
+                         "truth": tr["band_gain"], "rms_ratio": ratio, "rms_ratio_ci": [lo, hi],
+                         "h1": g.gain, "h1_ci": None if g.ci is None else list(g.ci),
+                         "coherence": g.coherence, "h1_reason": g.reason,
+                         "rms_ratio_true": tr["rms_ratio_true"]})
     out: dict[str, Any] = {"rows": rows}
     for key in ("rms_ratio", "h1"):
         ok = [r for r in rows if r[key] is not None and math.isfinite(r[key])]
@@ -657,8 +651,8 @@ def validate_amplification(
         out[key] = _summary([r[key] / r["truth"] - 1.0 for r in ok],
                             [bool(ci[0] <= truth <= ci[1]) for ci, truth in cis],
                             len(rows) - len(ok))
-    coh = [r["coherence"] for r in rows if r["coherence"] is not None]
-    out["h1"]["median_coherence"] = float(np.median(coh)) if coh else None
+    out["h1"]["median_coherence"] = _median([r["coherence"] for r in rows
+                                             if r["coherence"] is not None])
     return out
 
 
@@ -738,10 +732,10 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
                                "resamples": int(n), "level": opts.level,
                                "refit": opts.refit, "polish": bool(opts.polish),
                                "ftol": float(opts.ftol),
-                               "block_factor": float(opts.block_factor)}
-    wid = [r["widening"] for r in rows if math.isfinite(r["widening"])]
-    summary["median_widening"] = float(np.median(wid)) if wid else None
-    summary["median_block_s"] = float(np.median([r["block_s"] for r in rows]))
+                               "block_factor": float(opts.block_factor),
+                               "median_widening": _median([r["widening"] for r in rows
+                                                           if math.isfinite(r["widening"])]),
+                               "median_block_s": float(np.median([r["block_s"] for r in rows]))}
     slow = [r for r in rows if r["gap_loop_slow"]]
     # the data, not the optimiser: such a fit costs less than the true parameters
     summary["gap_loop_slow"] = len(slow)
@@ -756,26 +750,21 @@ def validate_intervals(seeds: Sequence[int], cars: int = 6, *, n: int = 200,
         err_all = np.array([x["error"] for x in d_all])
         # an estimate whose closed loop is locally unstable has no amplification (NaN)
         err = err_all[np.isfinite(err_all)]
+        # how far the truth lies outside, in interval widths (0 inside)
+        miss = [max(x["low"] - x["truth"], x["truth"] - x["high"], 0.0)
+                / max(x["high"] - x["low"], 1e-300) for x in d if not x["inside"]]
         summary[key] = {
-            "coverage": float(np.mean([x["inside"] for x in d])) if d else None,
-            "coverage_all": float(np.mean([x["inside"] is not False for x in d_all]))
-            if d_all else None,
-            "undetermined": float(np.mean([not x["determined"] for x in d_all]))
-            if d_all else None,
-            "within_10pct": float(np.mean(np.abs(err_all) <= 0.10)) if d_all else None,
+            "coverage": _mean([x["inside"] for x in d]),
+            "coverage_all": _mean([x["inside"] is not False for x in d_all]),
+            "undetermined": _mean([not x["determined"] for x in d_all]),
+            "within_10pct": _mean(np.abs(err_all) <= 0.10),
             "no_estimate": int(np.sum(~np.isfinite(err_all))),
-            "mean_error": float(np.mean(err)) if err.size else None,
-            "median_abs_error": float(np.median(np.abs(err))) if err.size else None,
-            "median_rel_width": float(np.median([x["rel_width"] for x in d])) if d else None,
-            "uncorrected_coverage": float(np.mean([x["uncorrected"]["inside"]
-                                                   for x in d])) if d else None,
-            "uncorrected_median_rel_width": float(np.median(
-                [x["uncorrected"]["rel_width"] for x in d])) if d else None,
-            # how far the truth lies outside, in interval widths (0 inside)
-            "median_miss_in_widths": float(np.median([
-                max(x["low"] - x["truth"], x["truth"] - x["high"], 0.0)
-                / max(x["high"] - x["low"], 1e-300) for x in d if not x["inside"]]))
-            if any(not x["inside"] for x in d) else 0.0,
+            "mean_error": _mean(err),
+            "median_abs_error": _median(np.abs(err)),
+            "median_rel_width": _median([x["rel_width"] for x in d]),
+            "uncorrected_coverage": _mean([x["uncorrected"]["inside"] for x in d]),
+            "uncorrected_median_rel_width": _median([x["uncorrected"]["rel_width"] for x in d]),
+            "median_miss_in_widths": float(np.median(miss)) if miss else 0.0,
             # (estimate - truth) / half-width x z: a standard deviation of one is nominal
             "standardised_error_sd": float(np.std([
                 (x["estimate"] - x["truth"]) / max((x["high"] - x["low"]) / 2.0, 1e-300) * zq
@@ -858,15 +847,20 @@ class StructureCheck:
     settings: dict[str, Any]
 
 
-def _structure_summary(amp: np.ndarray, truth: np.ndarray, tg: np.ndarray, tg_true: np.ndarray,
-                       held: np.ndarray, held_base: np.ndarray) -> StructureSummary:
-    e, g = amp / truth - 1.0, tg / tg_true - 1.0
-    return StructureSummary(
-        n=int(e.size), mean_error=float(np.mean(e)), median_error=float(np.median(e)),
-        within_5pct=float(np.mean(np.abs(e) <= 0.05)), underestimated=float(np.mean(e < 0)),
-        time_gap_median_error=float(np.median(g)),
-        time_gap_median_abs_error=float(np.median(np.abs(g))),
-        heldout_change=float(np.median(held / held_base - 1.0)))
+def _errors(e: np.ndarray, g: np.ndarray) -> dict[str, Any]:
+    """The fields :class:`StructureSummary` and :class:`SelectionSummary` share, of the
+    amplification's errors ``e`` and the time gap's ``g`` (NaN when there are none)."""
+    def stat(f: Any, x: np.ndarray) -> float:
+        return float(f(x)) if x.size else math.nan
+
+    return {"n": int(e.size), "mean_error": stat(np.mean, e), "median_error": stat(np.median, e),
+            "within_5pct": stat(np.mean, np.abs(e) <= 0.05),
+            "underestimated": stat(np.mean, e < 0), "time_gap_median_error": stat(np.median, g),
+            "time_gap_median_abs_error": stat(np.median, np.abs(g))}
+
+
+def _col(rows: Sequence[Any], name: str) -> np.ndarray:
+    return np.array([getattr(r, name) for r in rows], dtype=float)
 
 
 def _head(run: Run, k: int) -> Run:
@@ -955,14 +949,14 @@ def validate_structure(
                                      float(tr["time_gap_effective"]), b[0], b[1], b[2], b[3],
                                      c[0], c[1], c[2], c[3], c[4]))  # fmt: skip
 
-    def col(name: str) -> np.ndarray:
-        return np.array([getattr(r, name) for r in rows], dtype=float)
+    def summary(amp: str, tg: str, held: str) -> StructureSummary:
+        return StructureSummary(**_errors(_col(rows, amp) / _col(rows, "band_gain") - 1.0,
+                                          _col(rows, tg) / _col(rows, "time_gap") - 1.0),
+                                heldout_change=float(np.median(
+                                    _col(rows, held) / _col(rows, "base_heldout") - 1.0)))
 
-    truth, tg = col("band_gain"), col("time_gap")
-    base = _structure_summary(col("base_amplification"), truth, col("base_time_gap"), tg,
-                              col("base_heldout"), col("base_heldout"))
-    cand = _structure_summary(col("amplification"), truth, col("time_gap_fit"), tg,
-                              col("heldout"), col("base_heldout"))
+    base = summary("base_amplification", "base_time_gap", "base_heldout")
+    cand = summary("amplification", "time_gap_fit", "heldout")
     settings = {"seeds": [int(s) for s in seeds], "cars": cars, "model": model,
                 "hidden": None if hidden is None else hidden.__dict__.copy(),
                 "candidates": names, "heldout": heldout, "max_generations": max_generations,
@@ -1049,22 +1043,6 @@ class SelectionCheck:
     settings: dict[str, Any]
 
 
-def _sel_summary(amp: np.ndarray, truth: np.ndarray, tg: np.ndarray, tg_true: np.ndarray
-                 ) -> SelectionSummary:
-    ok = np.isfinite(amp)
-    e = amp[ok] / truth[ok] - 1.0
-    g = tg / tg_true - 1.0
-    g = g[np.isfinite(g)]
-    nan = math.nan
-    return SelectionSummary(
-        n=int(e.size), mean_error=float(np.mean(e)) if e.size else nan,
-        median_error=float(np.median(e)) if e.size else nan,
-        within_5pct=float(np.mean(np.abs(e) <= 0.05)) if e.size else nan,
-        underestimated=float(np.mean(e < 0)) if e.size else nan,
-        time_gap_median_error=float(np.median(g)) if g.size else nan,
-        time_gap_median_abs_error=float(np.median(np.abs(g))) if g.size else nan)
-
-
 def _num(x: Any) -> float:
     return math.nan if x is None else float(x)
 
@@ -1122,12 +1100,14 @@ def validate_selection(
                                      _num(c["amplification_predicted_oos"]),
                                      _num(c["time_gap_effective_oos"]), effs))
 
-    def col(name: str) -> np.ndarray:
-        return np.array([getattr(r, name) for r in rows], dtype=float)
+    def summary(amp: str, tg: str) -> SelectionSummary:
+        a, g = _col(rows, amp), _col(rows, tg) / _col(rows, "time_gap") - 1.0
+        ok = np.isfinite(a)
+        return SelectionSummary(**_errors(a[ok] / _col(rows, "band_gain")[ok] - 1.0,
+                                          g[np.isfinite(g)]))
 
-    truth_g, tg = col("band_gain"), col("time_gap")
-    base = _sel_summary(col("base_amplification"), truth_g, col("base_time_gap"), tg)
-    final = _sel_summary(col("amplification"), truth_g, col("time_gap_fit"), tg)
+    base = summary("base_amplification", "base_time_gap")
+    final = summary("amplification", "time_gap_fit")
     settings = {"seeds": [int(x) for x in seeds], "cars": cars, "files": files,
                 "model": model, "hidden": None if hidden is None else hidden.__dict__.copy(),
                 "candidates": None if candidates is None else list(candidates),

@@ -219,15 +219,11 @@ class Intervals:
         if isinstance(bf, bool) or not isinstance(bf, (int, float)) or not (
                 math.isfinite(bf) and bf > 0):
             raise ValueError(f"block_factor: must be a number > 0, got {bf!r}")
-        if self.method not in _METHODS:
-            raise ValueError(f"method: must be one of {', '.join(_METHODS)}, got "
-                             f"{self.method!r}")
-        if self.correction not in CORRECTIONS:
-            raise ValueError(f"correction: must be one of {', '.join(CORRECTIONS)}, got "
-                             f"{self.correction!r}")
-        if self.refit not in REFITS:
-            raise ValueError(f"refit: must be one of {', '.join(REFITS)}, got "
-                             f"{self.refit!r}")
+        for name, choices in (("method", _METHODS), ("correction", CORRECTIONS),
+                              ("refit", REFITS)):
+            if getattr(self, name) not in choices:
+                raise ValueError(f"{name}: must be one of {', '.join(choices)}, got "
+                                 f"{getattr(self, name)!r}")
         check_int(self.budget, "budget", min=0)
         if not (isinstance(self.ftol, (int, float)) and not isinstance(self.ftol, bool)
                 and 0 <= self.ftol < 1):
@@ -420,6 +416,13 @@ def _linear_columns(cls: Any, x: np.ndarray) -> dict[str, np.ndarray]:
             for k, v in m.linear().items()}
 
 
+def _lower_combinations(cls: Any, x: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`dc_gain` and :func:`low_frequency_delay` of every row of ``x`` (the
+    model's parameters first)."""
+    lin = _linear_columns(cls, x[:, :len(cls.param_names())])
+    return {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
+
+
 def dc_gain(lin: Mapping[str, np.ndarray]) -> np.ndarray:
     """Static gain ``b0 / (1 - K b0)`` of the lower level."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -495,8 +498,6 @@ class Uncertainty:
 
     # -- intervals --------------------------------------------------------------
     def _q(self, v: np.ndarray, estimate: float) -> tuple[float, float]:
-        """The symmetric interval at ``level`` of samples ``v`` about ``estimate``
-        (:func:`symmetric_interval`)."""
         return symmetric_interval(float(estimate), v, self.level)
 
     def _param_interval(self, j: int) -> tuple[float, float]:
@@ -767,16 +768,12 @@ class Uncertainty:
         if self.refits is None or self.widening == 1.0:
             return self
         out = self._raw()
-        cls_comb: dict[str, np.ndarray] = {}
         if self.combinations:
             from .models import model_class
 
-            cls = model_class(self.model)
-            lin = _linear_columns(cls, self.refits[:, :len(cls.param_names())])
-            full = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
-            cls_comb = {n: full[n] for n in self.combinations if n in full}
-        out = out.with_combinations(**{n: (self.combination_estimates[n], v)
-                                       for n, v in cls_comb.items()})
+            full = _lower_combinations(model_class(self.model), self.refits)
+            out = out.with_combinations(**{n: (self.combination_estimates[n], full[n])
+                                           for n in self.combinations if n in full})
         if "time_gap_effective" in self.combinations and self.mean_speed is not None:
             out = out.with_combinations(time_gap_effective=out.time_gap_effective())
         return out
@@ -786,21 +783,18 @@ class Uncertainty:
         codes; the combinations left as they are (:meth:`uncorrected` recomputes them).
         What the quantities widened in their own units are computed from."""
         assert self.refits is not None
-        up = dict(self.upper)
-        for n in up:
-            if n in self.names:
-                up[n] = self.refits[:, self.names.index(n)].copy()
+        up = {n: self.refits[:, self.names.index(n)].copy() if n in self.names else v
+              for n, v in self.upper.items()}
         return replace(self, samples=self.refits, upper=up, widening=1.0, string_codes=None,
                        string_code_estimate=None, string_certified=None)
 
     def with_combinations(self, **more: tuple[float, np.ndarray]) -> Uncertainty:
         """A copy with more combinations (name -> (estimate, samples))."""
-        comb = dict(self.combinations)
-        est = dict(self.combination_estimates)
-        for n, (e, v) in more.items():
-            comb[n] = np.asarray(v, dtype=np.float64)
-            est[n] = float(e)
-        return replace(self, combinations=comb, combination_estimates=est)
+        return replace(
+            self, combinations={**self.combinations, **{
+                n: np.asarray(v, dtype=np.float64) for n, (_, v) in more.items()}},
+            combination_estimates={**self.combination_estimates,
+                                   **{n: float(e) for n, (e, _) in more.items()}})
 
     # -- output ---------------------------------------------------------------------
     def report(self, min_correl: float = MIN_CORREL) -> str:
@@ -902,9 +896,7 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
     names = list(dict.fromkeys(n for u in items for n in u.names))
     comb = list(dict.fromkeys(n for u in items for n in u.combinations))
     nc, npar = len(items), len(names)
-    val = np.full((nc, npar), np.nan)
-    lo = np.full((nc, npar), np.nan)
-    hi = np.full((nc, npar), np.nan)
+    val, lo, hi = (np.full((nc, npar), np.nan) for _ in range(3))
     ok = np.zeros((nc, npar), dtype=bool)
     cor = np.full((nc, npar, npar), np.nan)
     cv = {n: np.full((nc, 3), np.nan) for n in comb}
@@ -989,12 +981,10 @@ def _polish(prob: Any, subsets: Sequence[Sequence[int]], x0: np.ndarray, opts: I
         step=float(opts.step), ftol=float(opts.ftol), method=opts.refit,
         threads=int(threads), **prob.kw)
     x = x0.copy()
-    f = np.full(len(subsets), np.nan)
-    given = np.full(len(subsets), np.nan)
+    given = np.array([float(raw["f_full"]) for raw in raws])
+    f = given.copy()
     evals = np.zeros(len(subsets), dtype=np.int64)
     for k, raw in enumerate(raws):
-        given[k] = float(raw["f_full"])
-        f[k] = given[k]
         if bool(np.asarray(raw["done"])[0]):
             fk = float(np.asarray(raw["f"])[0])
             evals[k] = int(np.asarray(raw["evaluations"])[0])
@@ -1010,8 +1000,7 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
     weights (n x atoms), the block and atom lengths (s)."""
     uniq = sorted(set(int(i) for i in sub))
     runs = [prob.rs.runs[i] for i in uniq]
-    dts = {float(r.dt) for r in runs}
-    dt = max(dts)
+    dt = max(float(r.dt) for r in runs)
     if opts.method == "runs" and len(uniq) < 2:
         raise ValueError("intervals: method='runs' needs a problem with at least two "
                          "distinct runs; use method='blocks'")
@@ -1024,30 +1013,23 @@ def _plan(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals, seed: 
         res = _score_series(prob, uniq, runs, x0, threads)
         block = block_length(res, dt, MIN_BLOCK, shortest / 3.0, opts.block_factor)
     rng = np.random.default_rng([int(seed), int(k)])
-    atoms, counts = [], []
-    for r in runs:
-        a = max(1, int(round(block / ATOMS_PER_BLOCK / float(r.dt))))
-        atoms.append(a)
-        counts.append(-(-len(r) // a))
-    total = int(sum(counts))
+    atoms = [max(1, int(round(block / ATOMS_PER_BLOCK / float(r.dt)))) for r in runs]
+    counts = [-(-len(r) // a) for r, a in zip(runs, atoms, strict=True)]
+    starts = np.concatenate([[0], np.cumsum(counts)]).astype(int)
     n = int(opts.n)
-    w = np.zeros((n, total))
+    w = np.zeros((n, int(starts[-1])))
     if opts.method == "runs":
         draws = rng.integers(0, len(uniq), size=(n, len(uniq)))
         mult = np.stack([np.bincount(d, minlength=len(uniq)) for d in draws]).astype(float)
-        start = 0
-        for j, c in enumerate(counts):
-            w[:, start : start + c] = mult[:, j : j + 1]
-            start += c
+        for j in range(len(counts)):
+            w[:, starts[j] : starts[j + 1]] = mult[:, j : j + 1]
     else:
-        start = 0
-        for c in counts:
+        for c, start in zip(counts, starts, strict=False):
             nb = -(-c // ATOMS_PER_BLOCK)
             s = rng.integers(0, c, size=(n, nb))
             idx = (s[:, :, None] + np.arange(ATOMS_PER_BLOCK)[None, None, :]) % c
             rows = np.repeat(np.arange(n), nb * ATOMS_PER_BLOCK)
             np.add.at(w, (rows, start + idx.ravel()), 1.0)
-            start += c
     atom_s = float(np.mean([a * float(r.dt) for a, r in zip(atoms, runs, strict=True)]))
     return uniq, atoms, np.ascontiguousarray(w), float(block), atom_s
 
@@ -1223,7 +1205,6 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         keep = np.isfinite(costs)
         xs, costs = xs[keep], costs[keep]
         runs = [prob.rs.runs[i] for i in plan[0]]
-        bounds = prob.box
         record_s = float(sum(len(r) * float(r.dt) for r in runs))
         # effective independent pieces: blocks of the record, or whole runs
         blocks = float(len(runs)) if opts.method == "runs" else record_s / plan[3]
@@ -1231,23 +1212,20 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         fac = (1.0 if opts.correction == "none" else
                small_sample_scale(blocks, fitted, float(opts.level)))
         refits = xs
-        xs = widen(refits, x0[k], [bounds[n] for n in prob.names], fac) if fac != 1.0 \
+        xs = widen(refits, x0[k], [prob.box[n] for n in prob.names], fac) if fac != 1.0 \
             else refits.copy()
         run0 = runs[0]
         up = _upper_columns(prob, run0, xs)
         up0 = {n: float(v[0]) for n, v in _upper_columns(prob, run0, x0[k][None, :]).items()}
         vs = [r.v for r in runs if r.v is not None]
         vbar = float(np.mean(np.concatenate(vs))) if vs else None
-        nm = len(cls.param_names())
         # the combinations of the refits, widened as quantities of their own
-        lin = _linear_columns(cls, np.vstack([x0[k][None, :nm], refits[:, :nm]]))
-        comb = {"dc_gain": dc_gain(lin), "low_frequency_delay": low_frequency_delay(lin)}
         comb = {n: np.concatenate([v[:1], widen_values(float(v[0]), v[1:], fac)])
-                for n, v in comb.items()}
+                for n, v in _lower_combinations(cls, np.vstack([x0[k][None, :], refits])).items()}
         u = Uncertainty(
             model=prob.cls.name, effects=tuple(prob.effects), names=tuple(prob.names),
             estimate=x0[k].copy(), samples=xs, costs=costs, level=float(opts.level),
-            method=opts.method, block_s=plan[3], atom_s=plan[4], bounds=bounds, upper=up,
+            method=opts.method, block_s=plan[3], atom_s=plan[4], bounds=prob.box, upper=up,
             upper_estimate=up0, mean_speed=vbar,
             combinations={n: v[1:] for n, v in comb.items()},
             combination_estimates={n: float(v[0]) for n, v in comb.items()},
@@ -1279,13 +1257,12 @@ def _stopped(prob: Any, sub: Sequence[int], x0: np.ndarray, opts: Intervals,
              cost: float) -> Uncertainty:
     """The uncertainty of a problem whose polish a Ctrl-C stopped: no resample refit."""
     d = len(prob.names)
-    bounds = prob.box
-    run0 = prob.rs.runs[int(sub[0])]
-    up0 = {n: float(v[0]) for n, v in _upper_columns(prob, run0, x0[None, :]).items()}
+    up0 = {n: float(v[0]) for n, v in
+           _upper_columns(prob, prob.rs.runs[int(sub[0])], x0[None, :]).items()}
     return Uncertainty(
         model=prob.cls.name, effects=tuple(prob.effects), names=tuple(prob.names),
         estimate=x0.copy(), samples=np.empty((0, d)), costs=np.empty(0),
         level=float(opts.level), method=opts.method, block_s=math.nan, atom_s=math.nan,
-        bounds=bounds, upper={n: np.empty(0) for n in up0}, upper_estimate=up0,
+        bounds=prob.box, upper={n: np.empty(0) for n in up0}, upper_estimate=up0,
         mean_speed=None, interrupted=True, refits=np.empty((0, d)), cost_given=cost,
         cost_estimate=cost)
