@@ -166,15 +166,12 @@ def _params(scenario: str, overrides: Mapping[str, Any] | None) -> dict[str, Any
     for k, v in p.items():
         if k == "gear_up":
             p[k] = tuple(float(check_number(x, "gear_up", positive=True)) for x in v)
-        elif k == "ar1_phi":
-            p[k] = float(check_number(v, k, nonneg=True))
-            if not p[k] < 1:
-                raise ValueError(f"ar1_phi: must be in [0, 1), got {v}")
-        elif k in ("mass", "drive_lag", "brake_lag", "driveline_wn", "driveline_zeta",
-                   "f_grip", "shift_time"):  # fmt: skip
-            p[k] = float(check_number(v, k, positive=True))
-        else:
-            p[k] = float(check_number(v, k, nonneg=True))
+            continue
+        pos = k in ("mass", "drive_lag", "brake_lag", "driveline_wn", "driveline_zeta", "f_grip",
+                    "shift_time")
+        p[k] = check_number(v, k, positive=pos, nonneg=not pos)
+        if k == "ar1_phi" and not p[k] < 1:
+            raise ValueError(f"ar1_phi: must be in [0, 1), got {v}")
     return p
 
 

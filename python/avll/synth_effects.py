@@ -242,9 +242,7 @@ def paper_experiment_effects(
         tr = _truth_rollout(model, effs, lx, lv, dt, upper, lx[0] - GMIN, phase)
         a, v, x = _measured(rng, tr["a"], tr["v"], tr["x"], noise_a, noise_v, noise_x,
                             quantization_a)
-        exo: dict[str, Any] = {}
-        if "grade" in effs:
-            exo["grade"] = tr["grade"]
+        exo: dict[str, Any] = {"grade": tr["grade"]} if "grade" in effs else {}
         for name in extra_exo:
             # A smooth irrelevant signal: filtered noise.
             w = rng.normal(size=t.size)

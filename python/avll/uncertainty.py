@@ -55,10 +55,9 @@ Levenberg-Marquardt refit takes at most :data:`LM_BUDGET_PER_PARAM` ``d`` rollou
 optimum gives the full bootstrap's accuracy, with blocks of dependent data too).
 Chosen on the development seeds of the synthetic platoons: the intervals hold the
 truth as often as with refits run to convergence, at a fraction of their rollouts;
-all resamples in
-parallel in Rust, one after the other problem, seeded (the multiplicities are drawn
-from ``numpy.random.default_rng([seed, problem])``: the same result for any thread
-count), with progress and Ctrl-C.
+all resamples in parallel in Rust, one after the other problem, seeded (the
+multiplicities are drawn from ``numpy.random.default_rng([seed, problem])``: the same
+result for any thread count), with progress and Ctrl-C.
 
 **Small-sample correction.** The refits are fitted to resamples of the *fitted*
 residuals, which a fit of ``p`` parameters to a record of only ``G`` effective blocks
@@ -177,9 +176,8 @@ class Intervals:
     ``"blocks"`` (moving blocks over time within each run) or ``"runs"`` (whole runs);
     ``budget`` rollouts per refit at most (0: :data:`LM_BUDGET_PER_PARAM` ``d`` for
     ``"lm"`` refits, ``200 d`` for ``"simplex"`` ones and for the polish; a refit stops
-    earlier when its cost stalls); ``step`` the initial simplex step in unit coordinates (simplex
-    refits);
-    ``seed`` of the multiplicities (``None``: the calibration's); ``correction``
+    earlier when its cost stalls); ``step`` the initial simplex step in unit coordinates
+    (simplex refits); ``seed`` of the multiplicities (``None``: the calibration's); ``correction``
     ``"dof"`` (the resampled deviations widened for the parameters fitted on few
     effective blocks, :func:`small_sample_scale`) or ``"none"`` (the plain percentile
     bootstrap, known to be too narrow here); ``polish`` refits the GA's optimum on the
@@ -1142,9 +1140,8 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
     """The uncertainty stage for the problems ``subsets`` (run positions, repeats
     count) of the calibration problem ``prob`` with full-data optima ``x0s``: one
     :class:`Uncertainty` per problem, each centred on its polished optimum
-    (:attr:`Intervals.polish`; ``Uncertainty.estimate``). Used by
-    :func:`avll.calibrate`. ``refit``
-    replaces the refits in this process: ``refit(subsets, x0, atoms, weights, opts,
+    (:attr:`Intervals.polish`; ``Uncertainty.estimate``). Used by :func:`avll.calibrate`.
+    ``refit`` replaces the refits in this process: ``refit(subsets, x0, atoms, weights, opts,
     threads)`` returns what :func:`avll._core.refit_resamples` returns for the same
     multiplicities (drawn here), e.g. as ``dask.distributed`` tasks
     (:func:`avll.maps.bootstrap_distributed`)."""
