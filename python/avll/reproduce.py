@@ -27,7 +27,7 @@ import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -227,9 +227,7 @@ def run_diagnosis(
 
     res = effect_loop(model, list(cal), list(val), seed=seed, baseline=baseline,
                       max_effects=max_effects, progress=resolve_mode(progress) != "none")
-    d = res.to_dict()
-    d["available"] = True
-    return d
+    return {**res.to_dict(), "available": True}
 
 
 # ---------------------------------------------------------------------------
@@ -237,19 +235,8 @@ def run_diagnosis(
 # ---------------------------------------------------------------------------
 
 
-@dataclass
-class _Data:
-    name: str
-    runs: list[Run]
-    cal: list[Run]
-    val: list[Run]
-    description: str
-    calibrate_kwargs: dict[str, Any] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    paper_split: bool = False
-
-
-def _synthetic(seed: int, settings: Settings) -> _Data:
+def _synthetic(seed: int, settings: Settings) -> tuple[list[Run], list[Run], list[Run], str]:
+    """The runs of the synthetic experiment, the paper's split and their description."""
     from .calibration import split_runs
     from .synth import paper_experiment
 
@@ -261,7 +248,7 @@ def _synthetic(seed: int, settings: Settings) -> _Data:
             f"lower level is the paper's proposed model (Table II); sensor noise σ = "
             f"{n['a']} m/s² (acceleration, quantised to {n['quant_a']} m/s²), {n['v']} m/s, "
             f"{n['x']} m. Calibration runs 3, 4, 5, 9, 10, 11, 15, 16, 17, 19 as in the paper.")
-    return _Data("synthetic", runs, cal, val, desc, {}, [], True)
+    return runs, cal, val, desc
 
 
 def _stab_json(st: dict[str, Any]) -> dict[str, Any]:
@@ -314,24 +301,37 @@ def reproduce(
         raise ValueError(f"data: expected synthetic, carma or openacc-astazero, got {data!r}")
     seed = check_seed(seed)
     threads = check_threads(threads)
-    if data != "synthetic":
-        _data_dir(data, data_path)  # a missing folder is an error before anything starts
+    # a missing folder is an error before anything starts
+    path = None if data == "synthetic" else _data_dir(data, data_path)
     final = Path(out)
     # built in a hidden staging folder, committed as a unit (MANIFEST.json last): an
     # interrupted run leaves the folder as it was (see avll._atomic)
     with _atomic.output_dir(final, meta={"command": "avll reproduce", "data": data,
                                          "seed": seed}) as outd:
-        summary = _reproduce_in(outd, final, data, data_path, settings, seed, threads,
-                                progress, json_path, log)
+        summary = _reproduce_in(outd, final, data, path, settings, seed, threads, progress,
+                                json_path, log)
     if json_path is not None:
         _atomic.write_json(json_path, _atomic.json_safe(summary), default=str)
     return summary
 
 
-def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | None,
-                  settings: Settings, seed: int, threads: int, progress: bool | str,
-                  json_path: str | Path | None, log: Callable[[str], None] | None
-                  ) -> dict[str, Any]:
+def _stability(models: dict[str, LowerLevelModel], settings: Settings, threads: int,
+               progress: bool | str) -> dict[str, dict[str, Any]]:
+    """:func:`stability_summary` of each model (map bars only for a big grid)."""
+    kg, tg, kv = settings.axes()
+    big = kg.size * tg.size * kv.size >= 2_000_000
+    return {m: stability_summary(models[m], settings, threads=threads,
+                                 progress=progress if big else False) for m in MODELS}
+
+
+def _no_diagnosis(reason: str = "disabled by the settings") -> dict[str, Any]:
+    return {"available": False, "reason": reason, "base_model": "proposed", "steps": [],
+            "effects": []}
+
+
+def _reproduce_in(outd: Path, final: Path, data: str, path: Path | None, settings: Settings,
+                  seed: int, threads: int, progress: bool | str, json_path: str | Path | None,
+                  log: Callable[[str], None] | None) -> dict[str, Any]:
     from . import PAPER_TABLE_II
     from .calibration import paper_workflow
 
@@ -339,23 +339,19 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
     t_start = time.perf_counter()
     stages = _Stages(progress, 6 + (1 if settings.diagnosis else 0))
     say = log or stages.write
-    if data != "synthetic":
-        from .studies import fielddata as field_study  # the field-data studies
-
-        try:
-            return _reproduce_field(field_study, outd, data, data_path, settings, seed,
-                                    threads, progress, json_path, shown_json, stages, say,
-                                    t_start)
-        finally:
-            stages.close()
     try:
+        if path is not None:
+            from .studies import fielddata
+
+            return _reproduce_field(fielddata, outd, data, path, settings, seed, threads,
+                                    progress, json_path, shown_json, stages, t_start)
         with stages.stage("data"):
-            d = _synthetic(seed, settings)
+            runs, cal, val, desc = _synthetic(seed, settings)
         with stages.stage("calibration (Tables II-IV)"):
             wf = paper_workflow(
-                d.runs, cal_runs=[r.run_id for r in d.cal], seed=seed, threads=threads,
+                runs, cal_runs=[r.run_id for r in cal], seed=seed, threads=threads,
                 progress=progress, max_generations=settings.max_generations,
-                starts=settings.starts, **d.calibrate_kwargs,
+                starts=settings.starts,
             )
             if wf.interrupted:
                 raise KeyboardInterrupt
@@ -364,41 +360,33 @@ def _reproduce_in(outd: Path, final: Path, data: str, data_path: str | Path | No
             for m in MODELS))
         with stages.stage("figures 3-4"):
             figs: dict[str, str] = {}
-            if d.paper_split:
-                picks = {"fig3": "17", "fig4": "6"}
-            else:
-                picks = {"fig3": d.cal[0].run_id, "fig4": d.val[0].run_id}
-            for key, rid in picks.items():
-                fig = wf.plot(rid)
-                fn = f"{key}_run_{rid.replace('/', '_')}.png"
-                _atomic.savefig(fig, outd / fn, dpi=110)
-                figs[key] = fn
+            for key, rid in (("fig3", "17"), ("fig4", "6")):
+                figs[key] = f"{key}_run_{rid}.png"
+                _atomic.savefig(wf.plot(rid), outd / figs[key], dpi=110)
         stab: dict[str, dict[str, dict[str, Any]]] = {}
-        kg, tg, kv = settings.axes()
-        big = kg.size * tg.size * kv.size >= 2_000_000
-        for which, models in (("table2", {m: PAPER_TABLE_II[m] for m in MODELS}),
-                              ("calibrated", {m: wf.results[m].model for m in MODELS})):
-            with stages.stage(f"stability ({'Table II' if which == 'table2' else 'calibrated'})"):
-                stab[which] = {m: stability_summary(models[m], settings, threads=threads,
-                                                    progress=progress if big else False)
-                               for m in MODELS}
+        for which, label, models in (
+            ("table2", "Table II", {m: PAPER_TABLE_II[m] for m in MODELS}),
+            ("calibrated", "calibrated", {m: wf.results[m].model for m in MODELS}),
+        ):
+            with stages.stage(f"stability ({label})"):
+                stab[which] = _stability(models, settings, threads, progress)
                 say(f"stability ({which}): " + ", ".join(
                     f"{m} kv* {fmt(stab[which][m]['kv_threshold'])} "
                     f"Tg_min {fmt(stab[which][m]['min_tg'])}" for m in MODELS))
                 figs.update(_stability_figures(outd, which, models, stab[which], settings))
-        diag: dict[str, Any] = {"available": False, "reason": "disabled by the settings",
-                                "base_model": "proposed", "steps": [], "effects": []}
+        diag = _no_diagnosis()
         if settings.diagnosis:
             with stages.stage("diagnosis (residual loop)"):
-                diag = run_diagnosis("proposed", wf.results["proposed"].model, d.cal, d.val,
+                diag = run_diagnosis("proposed", wf.results["proposed"].model, cal, val,
                                      seed=seed, max_effects=settings.max_effects,
                                      progress=progress)
         with stages.stage("report"):
             runtime = time.perf_counter() - t_start
-            summary = _summary(d, wf, stab, diag, settings, seed, stages.times, runtime)
+            summary = _summary(runs, cal, val, desc, wf, stab, diag, settings, seed,
+                               stages.times, runtime)
             summary["files"] = {"report_md": "report.md", "report_html": "report.html",
                                 "figures": figs, "summary_json": shown_json}
-            _write_report(outd, d, wf, stab, diag, settings, summary, figs)
+            _write_report(outd, desc, diag, settings, summary, figs)
             if json_path is None:
                 _atomic.write_json(outd / "summary.json", _atomic.json_safe(summary))
     finally:
@@ -432,14 +420,12 @@ def _field_diag_runs(F: Any, name: str, st: Any) -> tuple[str, list[Run], list[R
     return f"AstaZero pair {pair}", mine[:1], mine[1:]
 
 
-def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
-                     settings: Settings, seed: int, threads: int, progress: bool | str,
-                     json_path: str | Path | None, shown_json: str, stages: _Stages,
-                     say: Callable[[str], None], t_start: float) -> dict[str, Any]:
+def _reproduce_field(F: Any, outd: Path, name: str, p: Path, settings: Settings, seed: int,
+                     threads: int, progress: bool | str, json_path: str | Path | None,
+                     shown_json: str, stages: _Stages, t_start: float) -> dict[str, Any]:
     """The measured-data variant (see :func:`reproduce`), on :mod:`avll.fielddata`."""
     from . import PAPER_TABLE_II
 
-    p = _data_dir(name, path)
     stages.set_total(3 + (1 if settings.diagnosis else 0))
     with stages.stage(f"{name} study (calibration, validation)"):
         fn = F.carma_study if name == "carma" else F.astazero_study
@@ -449,16 +435,11 @@ def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
         st = fn(p, seed=seed, threads=threads, progress=progress, **kw)
         saved = st.save(outd / "fielddata")
     figs = {f"field_{k}": f"fielddata/{st.name}_{k}.png" for k in st.figures}
-    stab: dict[str, dict[str, Any]] = {}
     with stages.stage("stability (Table II)"):
-        kg, tg, kv = settings.axes()
-        big = kg.size * tg.size * kv.size >= 2_000_000
         models = {m: PAPER_TABLE_II[m] for m in MODELS}
-        stab = {m: stability_summary(models[m], settings, threads=threads,
-                                     progress=progress if big else False) for m in MODELS}
+        stab = _stability(models, settings, threads, progress)
         figs.update(_stability_figures(outd, "table2", models, stab, settings))
-    diag: dict[str, Any] = {"available": False, "reason": "disabled by the settings",
-                            "base_model": "proposed", "steps": [], "effects": []}
+    diag = _no_diagnosis()
     diag_label = ""
     if settings.diagnosis:
         with stages.stage("diagnosis (residual loop)"):
@@ -469,47 +450,35 @@ def _reproduce_field(F: Any, outd: Path, name: str, path: str | Path | None,
                 diag["runs"] = {"label": diag_label, "cal": [r.run_id for r in cal],
                                 "val": [r.run_id for r in val]}
             else:
-                diag = {**diag, "reason": "no vehicle with calibration and validation runs"}
+                diag = _no_diagnosis("no vehicle with calibration and validation runs")
     with stages.stage("report"):
+        from . import __version__
+
         runtime = time.perf_counter() - t_start
         models_json, which_study = _paper_objective(st.summary)
         calib = {m: {"params": e.get("params", {}), "cal_mse": e.get("cal_mse"),
                      "val_mse": e.get("val_mse"), "per_run_mse": e.get("per_run_mse", {})}
                  for m, e in models_json.items()}
         st2 = {m: _stab_json(stab[m]) for m in MODELS}
-        notes = _field_notes(name)
         summary: dict[str, Any] = {
-            "data": {"name": name, "path": str(p), "notes": notes,
+            "data": {"name": name, "path": str(p), "notes": _field_notes(name),
                      "study": {k: v for k, v in st.summary.items()
                                if k not in ("models", "vehicles", "studies")}},
             "seed": seed,
-            "settings": {k: (list(v) if isinstance(v, tuple) else v)
-                         for k, v in asdict(settings).items()},
+            "settings": _settings_json(settings),
             "calibration": calib,
             "calibration_study": which_study,
             "field_study": st.summary,
             "stability": st2,
             "stability_ratios": _capacity_ratios(st2),
             "stability_calibrated": None,
-            "diagnosis": diag,
-            "paper": PAPER,
-            "ranking": {
-                "cal": sorted((m for m in calib if calib[m]["cal_mse"] is not None),
-                              key=lambda m: calib[m]["cal_mse"]),
-                "val": sorted((m for m in calib if calib[m]["val_mse"] is not None),
-                              key=lambda m: calib[m]["val_mse"]),
-                "paper": ["proposed", "second", "first"],
-            },
-            "timing_s": {**{k: round(v, 2) for k, v in stages.times.items()},
-                         "total": round(runtime, 2)},
+            **_summary_tail(calib, diag, stages.times, runtime),
+            "avll_version": __version__,
+            "files": {"report_md": "report.md", "report_html": "report.html",
+                      "figures": figs, "summary_json": shown_json,
+                      "field_study": [str(x.relative_to(outd)) for x in saved]},
         }
-        from . import __version__
-
-        summary["avll_version"] = __version__
-        summary["files"] = {"report_md": "report.md", "report_html": "report.html",
-                            "figures": figs, "summary_json": shown_json,
-                            "field_study": [str(x.relative_to(outd)) for x in saved]}
-        _write_field_report(outd, name, st, stab, diag, diag_label, settings, summary, figs)
+        _write_field_report(outd, name, st, diag, diag_label, settings, summary, figs)
         if json_path is None:
             _atomic.write_json(outd / "summary.json", _atomic.json_safe(summary), default=str)
     return summary
@@ -561,74 +530,76 @@ def _field_notes(name: str) -> list[str]:
 
 def _stability_figures(outd: Path, which: str, models: dict[str, LowerLevelModel],
                        st: dict[str, dict[str, Any]], settings: Settings) -> dict[str, str]:
+    """Figs. 5-8 of ``which`` (``table2`` or ``calibrated``): their keys and file names."""
     from . import stability as S
 
     kg, tg, kv = settings.axes()
-    idx = [int(np.argmin(np.abs(kv - v))) for v in settings.panels]
-    idx = sorted(set(idx))
-    tag = "table2" if which == "table2" else "calibrated"
+    idx = sorted({int(np.argmin(np.abs(kv - v))) for v in settings.panels})
     src = "Table II" if which == "table2" else "calibrated"
     out: dict[str, str] = {}
     for fig_no, pair in ((5, ("proposed", "second")), (7, ("proposed", "first"))):
         labels = [f"{_NAMES[m]}, {src}" for m in pair]
+        ms = [models[m] for m in pair]
         # the kg grid is log-spaced: plotting draws it on a log axis
-        f = S.plot_regions([models[m] for m in pair], kg, tg, [float(kv[i]) for i in idx],
-                           settings.pade_order,
+        f = S.plot_regions(ms, kg, tg, [float(kv[i]) for i in idx], settings.pade_order,
                            maps=[st[m]["codes"][:, :, idx] for m in pair], labels=labels)
-        fn = f"fig{fig_no}_regions_{tag}.png"
+        out[f"fig{fig_no}_{which}"] = fn = f"fig{fig_no}_regions_{which}.png"
         _atomic.savefig(f, outd / fn, dpi=100)
-        out[f"fig{fig_no}_{tag}"] = fn
-        f = S.plot_thresholds([models[m] for m in pair], [st[m]["thresholds"] for m in pair],
-                              labels=labels)
-        fn = f"fig{fig_no + 1}_thresholds_{tag}.png"
+        f = S.plot_thresholds(ms, [st[m]["thresholds"] for m in pair], labels=labels)
+        out[f"fig{fig_no + 1}_{which}"] = fn = f"fig{fig_no + 1}_thresholds_{which}.png"
         _atomic.savefig(f, outd / fn, dpi=100)
-        out[f"fig{fig_no + 1}_{tag}"] = fn
     return out
 
 
-def _summary(d: _Data, wf: Any, stab: dict[str, Any], diag: dict[str, Any], settings: Settings,
-             seed: int, times: dict[str, float], runtime: float) -> dict[str, Any]:
+def _settings_json(settings: Settings) -> dict[str, Any]:
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(settings).items()}
+
+
+def _summary_tail(calib: dict[str, dict[str, Any]], diag: dict[str, Any],
+                  times: dict[str, float], runtime: float) -> dict[str, Any]:
+    """The summary's diagnosis, paper numbers, rankings (best first) and timing."""
+
+    def rank(key: str) -> list[str]:
+        return sorted((m for m in calib if calib[m][key] is not None),
+                      key=lambda m: calib[m][key])
+
+    return {
+        "diagnosis": diag,
+        "paper": PAPER,
+        "ranking": {"cal": rank("cal_mse"), "val": rank("val_mse"),
+                    "paper": ["proposed", "second", "first"]},
+        "timing_s": {**{k: round(v, 2) for k, v in times.items()}, "total": round(runtime, 2)},
+    }
+
+
+def _summary(runs: list[Run], cal_runs: list[Run], val_runs: list[Run], desc: str, wf: Any,
+             stab: dict[str, Any], diag: dict[str, Any], settings: Settings, seed: int,
+             times: dict[str, float], runtime: float) -> dict[str, Any]:
     from . import __version__
 
     avg = wf.averages()
     cal = {}
     for m in MODELS:
         r = wf.results[m]
-        cal[m] = {
-            "params": r.params,
-            "cal_mse": float(r.cost),
-            "val_mse": float(avg.loc[m, "val_mse"]),
-            "per_run_cal_mse": r.per_run_mse,
-            "per_run_val_mse": wf.val_mse[m],
-            "at_bound": list(r.at_bound),
-            "generations": r.generations,
-            "evaluations": r.evaluations,
-        }
+        cal[m] = {"params": r.params, "cal_mse": float(r.cost),
+                  "val_mse": float(avg.loc[m, "val_mse"]), "per_run_cal_mse": r.per_run_mse,
+                  "per_run_val_mse": wf.val_mse[m], "at_bound": list(r.at_bound),
+                  "generations": r.generations, "evaluations": r.evaluations}
     st2 = {m: _stab_json(stab["table2"][m]) for m in MODELS}
     stc = {m: _stab_json(stab["calibrated"][m]) for m in MODELS}
     return {
         "avll_version": __version__,
-        "data": {"name": d.name, "description": d.description, "notes": d.notes,
-                 "runs": len(d.runs), "cal_runs": [r.run_id for r in d.cal],
-                 "val_runs": [r.run_id for r in d.val], **{
-                     k: (list(v) if isinstance(v, tuple) else v)
-                     for k, v in d.calibrate_kwargs.items()}},
+        "data": {"name": "synthetic", "description": desc, "notes": [], "runs": len(runs),
+                 "cal_runs": [r.run_id for r in cal_runs],
+                 "val_runs": [r.run_id for r in val_runs]},
         "seed": seed,
-        "settings": {k: (list(v) if isinstance(v, tuple) else v)
-                     for k, v in asdict(settings).items()},
+        "settings": _settings_json(settings),
         "calibration": cal,
         "stability": st2,
         "stability_ratios": _capacity_ratios(st2),
         "stability_calibrated": stc,
         "stability_calibrated_ratios": _capacity_ratios(stc),
-        "diagnosis": diag,
-        "paper": PAPER,
-        "ranking": {
-            "cal": sorted(MODELS, key=lambda m: cal[m]["cal_mse"]),
-            "val": sorted(MODELS, key=lambda m: cal[m]["val_mse"]),
-            "paper": ["proposed", "second", "first"],
-        },
-        "timing_s": {**{k: round(v, 2) for k, v in times.items()}, "total": round(runtime, 2)},
+        **_summary_tail(cal, diag, times, runtime),
     }
 
 
@@ -660,25 +631,19 @@ _WHY = (
 )
 
 
-def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dict[str, Any],
-                  settings: Settings, summary: dict[str, Any], figs: dict[str, str]) -> None:
+def _run_time(tm: dict[str, float]) -> str:
+    return f"Total run time {tm['total']:.0f} s (" + ", ".join(
+        f"{k} {v:.1f} s" for k, v in tm.items() if k != "total") + ")"
+
+
+def _write_report(outd: Path, desc: str, diag: dict[str, Any], settings: Settings,
+                  summary: dict[str, Any], figs: dict[str, str]) -> None:
     rep = Report("avll reproduce — Liu et al., lower-level controller of automated vehicles")
     cal = summary["calibration"]
-    tm = summary["timing_s"]
-    rep.para(f"Data: {d.description}")
-    for n in d.notes:
-        rep.para(f"*Note:* {n}")
-    rep.para(f"Total run time {tm['total']:.0f} s (" + ", ".join(
-        f"{k} {v:.1f} s" for k, v in tm.items() if k != "total") + f"); avll "
-        f"{summary['avll_version']}, seed {summary['seed']}.")
-    if d.name == "synthetic":
-        rep.para(_WHY)
-    else:
-        rep.para("**Comparability.** These are measured data from other vehicles, another "
-                 "controller and another experiment than the paper's; the paper's numbers "
-                 "are shown for orientation only. Comparable: the ranking of the models and "
-                 "the ratios of their errors; the Section IV numbers with Table II's "
-                 "parameters (data-independent) must agree with the paper.")
+    rep.para(f"Data: {desc}")
+    rep.para(f"{_run_time(summary['timing_s'])}; avll {summary['avll_version']}, seed "
+             f"{summary['seed']}.")
+    rep.para(_WHY)
 
     # --- Table II
     rep.heading("Table II — calibrated parameters")
@@ -698,29 +663,22 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
                  ("difference", _DIFF)])
 
     # --- Tables III / IV
-    for key, title, runs_key in (("cal_mse", "Table III — calibration MSE (m/s²)²", "cal_runs"),
-                                 ("val_mse", "Table IV — validation MSE (m/s²)²", "val_runs")):
+    for key, title, runs_key, per in (
+        ("cal_mse", "Table III — calibration MSE (m/s²)²", "cal_runs", "per_run_cal_mse"),
+        ("val_mse", "Table IV — validation MSE (m/s²)²", "val_runs", "per_run_val_mse"),
+    ):
         rep.heading(title)
-        per = "per_run_cal_mse" if key == "cal_mse" else "per_run_val_mse"
         ids = list(cal["proposed"][per])
-        if d.paper_split:
-            rows = []
-            for m in ("proposed", "second", "first"):
-                rows.append([f"{_NAMES[m]} — paper"] + [_p2(PAPER[runs_key][m].get(i)) for i in ids]
-                            + [PAPER[key][m]])
-                rows.append([f"{_NAMES[m]} — avll"] + [cal[m][per].get(i) for i in ids]
-                            + [cal[m][key]])
-            rep.table(["run", *ids, "average"], rows)
-            rep.columns([("run", "model and source, then one column per run id: that "
-                          "run's MSE of the acceleration in (m/s²)² (the paper prints two "
-                          "decimals)"), ("average", "mean over the runs, (m/s²)²")])
-        else:
-            rows = [[_NAMES[m]] + [cal[m][per].get(i) for i in ids] + [cal[m][key]]
-                    for m in ("proposed", "second", "first")]
-            rep.table(["run (avll)", *ids, "average"], rows)
-            rep.columns([("run (avll)", "model, then one column per run id: that run's "
-                          "MSE of the acceleration in (m/s²)²"),
-                         ("average", "mean over the runs, (m/s²)²")])
+        rows = []
+        for m in ("proposed", "second", "first"):
+            rows.append([f"{_NAMES[m]} — paper"] + [_p2(PAPER[runs_key][m].get(i)) for i in ids]
+                        + [PAPER[key][m]])
+            rows.append([f"{_NAMES[m]} — avll"] + [cal[m][per].get(i) for i in ids]
+                        + [cal[m][key]])
+        rep.table(["run", *ids, "average"], rows)
+        rep.columns([("run", "model and source, then one column per run id: that "
+                      "run's MSE of the acceleration in (m/s²)² (the paper prints two "
+                      "decimals)"), ("average", "mean over the runs, (m/s²)²")])
         rows = [[_NAMES[m], PAPER[key][m], cal[m][key], diff(cal[m][key], PAPER[key][m])]
                 for m in ("proposed", "second", "first")]
         rep.table(["average", "paper", "avll", "difference"], rows)
@@ -745,16 +703,12 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
     rep.para(f"Ranking (best first) — paper: {' < '.join(rk['paper'])}; avll calibration: "
              f"{' < '.join(rk['cal'])}; avll validation: {' < '.join(rk['val'])}. "
              f"**{'Same ranking as the paper.' if ok else 'The ranking differs from the paper.'}**"
-             + (" The ratios are larger here because the synthetic data contain no error "
-                "common to all models: the proposed model is exact up to the noise."
-                if d.name == "synthetic" else ""))
+             " The ratios are larger here because the synthetic data contain no error "
+             "common to all models: the proposed model is exact up to the noise.")
 
-    rep.heading("Figs. 3–4 — " + ("synthetic" if d.name == "synthetic" else "measured")
-                + " and simulated acceleration")
-    lab3 = "run 17 (calibration), as the paper's Fig. 3" if d.paper_split else "a calibration run"
-    lab4 = "run 6 (validation), as the paper's Fig. 4" if d.paper_split else "a validation run"
-    rep.figure(figs["fig3"], f"Fig. 3: {lab3}")
-    rep.figure(figs["fig4"], f"Fig. 4: {lab4}")
+    rep.heading("Figs. 3–4 — synthetic and simulated acceleration")
+    rep.figure(figs["fig3"], "Fig. 3: run 17 (calibration), as the paper's Fig. 3")
+    rep.figure(figs["fig4"], "Fig. 4: run 6 (validation), as the paper's Fig. 4")
 
     # --- Section IV
     kg, tg, kv = settings.axes()
@@ -763,45 +717,39 @@ def _write_report(outd: Path, d: _Data, wf: Any, stab: dict[str, Any], diag: dic
             f"0..{settings.kv_max:g} step {settings.kv_step:g} ({kv.size}), Padé order "
             f"{settings.pade_order}; kv threshold by bisection to {settings.kv_tol:g} on a Tg "
             f"step of {settings.kv_tg_step:g} s; capacity q = 3600/(Tg + 7/30) veh/h")
-    for which, title in (("table2", "Section IV with the paper's Table II parameters"),
-                         ("calibrated", "Section IV with the parameters calibrated here")):
-        st = summary["stability" if which == "table2" else "stability_calibrated"]
-        ratios = summary["stability_ratios" if which == "table2" else
-                         "stability_calibrated_ratios"]
+    sections = (
+        ("table2", "stability", "Section IV with the paper's Table II parameters", "Table II",
+         "These numbers depend only on Table II and the method, not on the data: they must "
+         "agree with the paper's. Grid: " + grid + ".",
+         "Near the kv threshold only very small kg are stable, so a threshold read off a "
+         "grid depends on the grid's smallest kg (given above); the minimum Tg values are "
+         "the smallest stable values on the grid's Tg step, not the exact boundaries "
+         "(avll.min_stable_tg computes those). The capacity constants 7 m / 30 m/s are "
+         "inferred from the paper's numbers (it does not state them). See the stability "
+         "guide of the documentation."),
+        ("calibrated", "stability_calibrated", "Section IV with the parameters calibrated here",
+         "calibrated",
+         "The same analysis with the models calibrated above. On the synthetic data the true "
+         "model is Table II's proposed model, so the calibrated proposed model should come "
+         "close to its numbers where the data identify what matters; the second- and "
+         "first-order fits approximate the proposed model, not the paper's vehicle.",
+         _calibrated_comment(summary)),
+    )
+    for which, key, title, src, intro, outro in sections:
         rep.heading(title)
-        if which == "table2":
-            rep.para("These numbers depend only on Table II and the method, not on the data: "
-                     "they must agree with the paper's. Grid: " + grid + ".")
-        else:
-            rep.para("The same analysis with the models calibrated above. "
-                     + ("On the synthetic data the true model is Table II's proposed model, so "
-                        "the calibrated proposed model should come close to its numbers "
-                        "where the data identify what matters; the second- and first-order "
-                        "fits approximate the proposed model, not the paper's vehicle."
-                        if d.name == "synthetic" else
-                        "The paper's numbers are shown for orientation only."))
-        _section4(rep, st, ratios, settings)
-        if which == "table2":
-            rep.para("Near the kv threshold only very small kg are stable, so a threshold "
-                     "read off a grid depends on the grid's smallest kg (given above); the "
-                     "minimum Tg values are the smallest stable values on the grid's Tg "
-                     "step, not the exact boundaries (avll.min_stable_tg computes those). "
-                     "The capacity constants 7 m / 30 m/s are inferred from the paper's "
-                     "numbers (it does not state them). See the stability guide of the "
-                     "documentation.")
-        else:
-            rep.para(_calibrated_comment(summary))
-        tag = which
-        rep.figure(figs[f"fig5_{tag}"], "Fig. 5: stable regions, proposed vs second-order "
-                   f"({'Table II' if which == 'table2' else 'calibrated'} parameters)")
-        rep.figure(figs[f"fig6_{tag}"], "Fig. 6: thresholds of kg and Tg against kv, proposed "
-                   "vs second-order")
-        rep.figure(figs[f"fig7_{tag}"], "Fig. 7: stable regions, proposed vs first-order lag")
-        rep.figure(figs[f"fig8_{tag}"], "Fig. 8: thresholds against kv, proposed vs "
+        rep.para(intro)
+        _section4(rep, summary[key], summary[f"{key}_ratios"], settings)
+        rep.para(outro)
+        rep.figure(figs[f"fig5_{which}"], "Fig. 5: stable regions, proposed vs second-order "
+                   f"({src} parameters)")
+        rep.figure(figs[f"fig6_{which}"], "Fig. 6: thresholds of kg and Tg against kv, "
+                   "proposed vs second-order")
+        rep.figure(figs[f"fig7_{which}"], "Fig. 7: stable regions, proposed vs first-order lag")
+        rep.figure(figs[f"fig8_{which}"], "Fig. 8: thresholds against kv, proposed vs "
                    "first-order lag (open markers: the value is the grid's edge, the true "
                    "threshold lies at or beyond it)")
 
-    _diag_section(rep, diag, d.name == "synthetic")
+    _diag_section(rep, diag, True)
 
     rep.heading("Settings")
     rep.bullets([
@@ -833,20 +781,15 @@ def _machine() -> str:
 def _section4(rep: Report, st: dict[str, Any], ratios: dict[str, Any],
               settings: Settings) -> None:
     rows = []
-    for m in ("second", "proposed", "first"):
-        s = st[m]
-        rows.append([f"kv threshold, {_NAMES[m]} (1/s)", PAPER["kv_threshold"][m],
-                     s["kv_threshold"] if s["kv_threshold"] is not None else
-                     f"none ≤ {settings.kv_max:g}", diff(s["kv_threshold"],
-                                                        PAPER["kv_threshold"][m], 2)])
-    for m in ("second", "proposed", "first"):
-        s = st[m]
-        rows.append([f"min stable Tg, {_NAMES[m]} (s)", PAPER["min_tg"][m], s["min_tg"],
-                     diff(s["min_tg"], PAPER["min_tg"][m], 2)])
-    for m in ("second", "proposed", "first"):
-        s = st[m]
-        rows.append([f"capacity, {_NAMES[m]} (veh/h)", PAPER["capacity"][m],
-                     s["capacity"], diff(s["capacity"], PAPER["capacity"][m], 3)])
+    for key, what, unit, digits in (("kv_threshold", "kv threshold", "1/s", 2),
+                                    ("min_tg", "min stable Tg", "s", 2),
+                                    ("capacity", "capacity", "veh/h", 3)):
+        for m in ("second", "proposed", "first"):
+            ours, paper = st[m][key], PAPER[key][m]
+            none = key == "kv_threshold" and ours is None
+            rows.append([f"{what}, {_NAMES[m]} ({unit})", paper,
+                         f"none ≤ {settings.kv_max:g}" if none else ours,
+                         diff(ours, paper, digits)])
     for key, lab in (("capacity_proposed_vs_second_pct",
                       "capacity of proposed vs second-order (% lower)"),
                      ("capacity_first_vs_proposed_pct",
@@ -873,15 +816,12 @@ def _diag_section(rep: Report, diag: dict[str, Any], synthetic: bool, label: str
              + (" On the synthetic data the true model is the proposed model without any "
                 "effect, so *none* is the right answer; an accepted effect would be a false "
                 "positive." if synthetic else ""))
-    rows = []
-    for s in diag.get("steps", []):
-        rows.append([s.get("effect"), s.get("cal_mse_before"), s.get("cal_mse_after"),
-                     s.get("val_mse_before"), s.get("val_mse_after"),
-                     s.get("fold_selection"), s.get("p_value")])
-    for t in diag.get("trials", []):
-        if not t.get("passed"):
-            rows.append([f"{t.get('effect')} (not accepted)", None, None, None, None,
-                         t.get("fold_selection"), t.get("p_value")])
+    keys = ("effect", "cal_mse_before", "cal_mse_after", "val_mse_before", "val_mse_after",
+            "fold_selection", "p_value")
+    rows = [[s.get(k) for k in keys] for s in diag.get("steps", [])]
+    rows += [[f"{t.get('effect')} (not accepted)", None, None, None, None,
+              t.get("fold_selection"), t.get("p_value")]
+             for t in diag.get("trials", []) if not t.get("passed")]
     if rows:
         rep.table(["effect", "cal MSE before", "cal MSE after", "val MSE before",
                    "val MSE after", "fold selection", "p"], rows)
@@ -921,14 +861,10 @@ def _diag_section(rep: Report, diag: dict[str, Any], synthetic: bool, label: str
         rep.columns(cols)
 
 
-def _write_field_report(outd: Path, name: str, st: Any, stab: dict[str, Any],
-                        diag: dict[str, Any], diag_label: str, settings: Settings,
-                        summary: dict[str, Any], figs: dict[str, str]) -> None:
+def _write_field_report(outd: Path, name: str, st: Any, diag: dict[str, Any], diag_label: str,
+                        settings: Settings, summary: dict[str, Any], figs: dict[str, str]) -> None:
     rep = Report(f"avll reproduce on measured data: {name}")
-    tm = summary["timing_s"]
-    rep.para(f"Data: `{summary['data']['path']}` ({name}). Total run time "
-             f"{tm['total']:.0f} s (" + ", ".join(f"{k} {v:.1f} s" for k, v in tm.items()
-                                                  if k != "total") + ").")
+    rep.para(f"Data: `{summary['data']['path']}` ({name}). {_run_time(summary['timing_s'])}.")
     for n in summary["data"]["notes"]:
         rep.para(f"*Note:* {n}")
     rep.para("**Comparability.** Other vehicles, controllers and experiments than the "
@@ -938,11 +874,9 @@ def _write_field_report(outd: Path, name: str, st: Any, stab: dict[str, Any],
     rep.para(f"Objective: acceleration MSE (the paper's Eq. 6), study part "
              f"`{summary['calibration_study']}`; averages over the vehicles.")
     cal = summary["calibration"]
-    rows = []
-    for m in ("proposed", "second", "first"):
-        c = cal.get(m, {})
-        rows.append([_NAMES[m], PAPER["cal_mse"][m], c.get("cal_mse"), PAPER["val_mse"][m],
-                     c.get("val_mse")])
+    rows = [[_NAMES[m], PAPER["cal_mse"][m], cal.get(m, {}).get("cal_mse"),
+             PAPER["val_mse"][m], cal.get(m, {}).get("val_mse")]
+            for m in ("proposed", "second", "first")]
     rep.table(["model (average over vehicles)", "paper cal MSE", "avll cal MSE",
                "paper val MSE", "avll val MSE"], rows)
     rk = summary["ranking"]
