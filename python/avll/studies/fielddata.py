@@ -34,7 +34,6 @@ the upper-level gains refitted, since the paper gives none for these cars).
 
 from __future__ import annotations
 
-import math
 import re
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -52,6 +51,7 @@ from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODEL_LABELS
 from ..paper import MODELS as _MODELS
 from ..rollout import batch_cost, closed_loop, simulate_full
+from ..uncertainty import _finite_or_none as _finite
 
 __all__ = [
     "Study",
@@ -96,7 +96,6 @@ CARMA_CAL_FILES: tuple[str, ...] = ("data5", "data9")
 
 #: Table row names of the models ("First-order lag", ...: the paper's short labels).
 _LABEL = {m: lab.capitalize() for m, lab in MODEL_LABELS.items()}
-#: Placeholder upper law of runs without one (every gain is calibrated).
 
 
 @dataclass
@@ -140,10 +139,6 @@ class Study:
             names.append(f"{self.name}_report.txt")
             _atomic.write_text(st / names[-1], self.text + "\n")
         return [d / n for n in names]
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
 
 
 # ---------------------------------------------------------------------------
@@ -273,13 +268,7 @@ def _fit_groups(
     out: dict[str, _Fit] = {}
     xs: dict[str, tuple[np.ndarray, CalibrationResult | None]]
     if fit:
-        pool: list[Run] = []
-        seen: set[str] = set()
-        for g in names:
-            for r in groups[g][0]:
-                if r.run_id not in seen:
-                    seen.add(r.run_id)
-                    pool.append(r)
+        pool = list({r.run_id: r for g in names for r in groups[g][0]}.values())
         subsets = [[r.run_id for r in groups[g][0]] for g in names]
         if fixed is not None:
             bounds = {k: (v, v) for k, v in fixed.to_dict().items()}
@@ -302,11 +291,10 @@ def _fit_groups(
         n = len(cls.param_names())
         params = {**cls.from_array(x[:n]).to_dict(),
                   **{_UPPER[i]: float(x[n + j]) for j, i in enumerate(free)}}  # fmt: skip
+        state = ((bool(cr.interrupted), tuple(cr.at_bound), int(cr.generations), str(cr.stop))
+                 if cr is not None else (False, (), 0, "not fitted"))
         out[g] = _Fit(params, x, float(np.mean(list(cal_o.values()))), cal_m, val_m, cal_o, val_o,
-                      bool(cr.interrupted) if cr is not None else False,
-                      tuple(cr.at_bound) if cr is not None else (),
-                      int(cr.generations) if cr is not None else 0,
-                      str(cr.stop) if cr is not None else "not fitted")  # fmt: skip
+                      *state)
     return out
 
 
@@ -316,8 +304,7 @@ def _model(name: str, params: Mapping[str, float]) -> LowerLevelModel:
 
 
 def _mean(d: Mapping[str, float]) -> float:
-    v = [x for x in d.values()]
-    return float(np.mean(v)) if v else float("nan")
+    return float(np.mean(list(d.values()))) if d else float("nan")
 
 
 def _contract(fits: Mapping[str, _Fit]) -> dict[str, Any]:
@@ -600,10 +587,6 @@ def _pair_of(r: Run) -> str:
     return str(r.run_id).split("/")[-1]
 
 
-def _stem_of(r: Run) -> str:
-    return str(r.run_id).split("/")[0]
-
-
 def astazero_study(
     path: str | Path,
     *,
@@ -640,24 +623,21 @@ def astazero_study(
     for m in models:
         model_class(m)
     runs = read_astazero_pairs(path)
-    stems = list(dict.fromkeys(_stem_of(r) for r in runs))
+    stems = list(dict.fromkeys(_file_of(r) for r in runs))
     cal_stem = cal_file or stems[0]
     if cal_stem not in stems:
         raise ValueError(f"cal_file: {cal_stem!r} not in the data ({', '.join(stems)})")
-    pairs = list(dict.fromkeys(_pair_of(r) for r in runs if _stem_of(r) == cal_stem))
+    pairs = list(dict.fromkeys(_pair_of(r) for r in runs if _file_of(r) == cal_stem))
     groups: dict[str, tuple[list[Run], list[Run]]] = {}
     mismatched: list[str] = []
     for p in pairs:
-        cal = [r for r in runs if _pair_of(r) == p and _stem_of(r) == cal_stem]
+        cal = [r for r in runs if _pair_of(r) == p and _file_of(r) == cal_stem]
+        types = (cal[0].meta.get("type"), cal[0].meta.get("lead_type"))
         val = []
         for r in runs:
-            if _pair_of(r) != p or _stem_of(r) == cal_stem:
+            if _pair_of(r) != p or _file_of(r) == cal_stem:
                 continue
-            same = (r.meta.get("type"), r.meta.get("lead_type")) == (
-                cal[0].meta.get("type"),
-                cal[0].meta.get("lead_type"),
-            )
-            if same:
+            if (r.meta.get("type"), r.meta.get("lead_type")) == types:
                 val.append(r)
             else:
                 mismatched.append(r.run_id)

@@ -123,6 +123,7 @@ from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_STARTS, GA_OPTIONS, UPPER_PL
 from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODELS as _MODELS
+from ..report import md_table
 from ..rollout import closed_loop
 from ..spectral import (
     DEFAULT_BAND,
@@ -588,7 +589,6 @@ def openacc_study(
     max_generations = GA_OPTIONS["max_generations"] if max_generations is None else max_generations
     pop_size = GA_OPTIONS["pop_size"] if pop_size is None else pop_size
     starts = DEFAULT_STARTS if starts is None else starts
-    model_class(model)
     models = list(dict.fromkeys([model, *models]))
     for m in models:
         model_class(m)
@@ -1049,8 +1049,7 @@ def _h1_entry(r: Run, band: Sequence[float], short: str | None,
     out: dict[str, Any] = {"amplification_measured_h1": None,
                            "amplification_measured_h1_ci": None, "coherence": None}
     if short is not None:
-        for k in out:
-            reasons[k] = short
+        reasons.update(dict.fromkeys(out, short))
         return out
     assert r.v is not None and r.lead_v is not None
     g = h1_band_gain(r.lead_v, r.v, r.dt, band)
@@ -1211,16 +1210,15 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
     to compare with the measured RMS ratio), ``time_gap_effective_oos`` (its
     ``Tg + Gmin / v̄`` at this run's mean speed), their errors and ``_ci`` (None
     with a reason), ``oos_files`` and ``oos_params``; each None with a ``_reason``."""
-    keys = ("amplification_predicted_oos", "amplification_replay_oos", "time_gap_effective_oos")
-    e: dict[str, Any] = {k: None for k in keys}
-    e.update({"amplification_predicted_oos_ci": None, "time_gap_effective_oos_ci": None,
-              "amplification_predicted_oos_error": None,
-              "amplification_replay_oos_error": None, "oos_files": [], "oos_params": None})
+    keys = ("amplification_predicted_oos", "amplification_replay_oos", "time_gap_effective_oos",
+            "amplification_predicted_oos_ci", "time_gap_effective_oos_ci")
+    e: dict[str, Any] = {**dict.fromkeys((*keys, "amplification_predicted_oos_error",
+                                          "amplification_replay_oos_error")),
+                         "oos_files": [], "oos_params": None}
     why = ("out-of-sample step not run (out_of_sample=False)" if plan is None
            else plan["reasons"][i])
     if why is not None:
-        for k in (*keys, "amplification_predicted_oos_ci", "time_gap_effective_oos_ci"):
-            e[f"{k}_reason"] = why
+        e.update({f"{k}_reason": why for k in keys})
         return e
     assert plan is not None
     k = plan["problem"][i]
@@ -1270,29 +1268,20 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
     return e
 
 
-def _closed_loop_of(name: str, fit: Any) -> tuple[Any, UpperLevel, tuple[str, ...]]:
-    """The closed loop a calibration describes: the follower (the lower-level model,
-    or an :class:`avll.WithEffects` when the calibration carries structures), the
-    upper law and the names of the effects the model carries (empty for the base
-    model). The one place the study turns a calibration into the model it predicts
-    with."""
-    params = dict(fit.params)
-    effects: tuple[str, ...] = ()
-    model: Any = _model_of(name, params)
-    if getattr(fit, "with_effects", None) is not None and fit.with_effects.effect_names:
-        effects = tuple(fit.with_effects.effect_names)
-        model = fit.with_effects
-    return model, _upper_of(params), effects
-
-
 def _predict(name: str, fit: Any, r: Run, band: Sequence[float], short: str | None
              ) -> tuple[tuple[str, ...], int, float, float, float | None]:
-    """A calibration's predictions for run ``r``: the effects its model carries, the
-    stability code (:func:`_stability_code`), the band amplification of ``|H|`` (NaN
-    when locally unstable or ``short``) and of the replay (NaN when ``short``), and the
-    effective time gap at ``r``'s mean speed (None when not finite)."""
+    """A calibration's predictions for run ``r``: the effects its model carries (empty:
+    the base model), the stability code (:func:`_stability_code`), the band
+    amplification of ``|H|`` (NaN when locally unstable or ``short``) and of the replay
+    (NaN when ``short``), and the effective time gap at ``r``'s mean speed (None when
+    not finite). The one place the study turns a calibration into the closed loop it
+    predicts with: the lower-level model, or an :class:`avll.WithEffects` when the
+    calibration carries structures, behind the calibrated upper law."""
     assert r.lead_v is not None and r.v is not None
-    mod, up, effs = _closed_loop_of(name, fit)
+    mod: Any = _model_of(name, fit.params)
+    up, effs = _upper_of(fit.params), ()
+    if getattr(fit, "with_effects", None) is not None and fit.with_effects.effect_names:
+        mod, effs = fit.with_effects, tuple(fit.with_effects.effect_names)
     code = _stability_code(mod, up, float(np.mean(r.lead_v)))
     a_h = (predicted_amplification(mod, up, r.lead_v, r.dt, band)
            if code and short is None else math.nan)
@@ -1344,8 +1333,7 @@ def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
     e: dict[str, Any] = dict.fromkeys(keys)
     u = getattr(fit, "uncertainty", None)
     if u is None:
-        for k in keys:
-            e[f"{k}_reason"] = INTERVALS_OFF
+        e.update({f"{k}_reason": INTERVALS_OFF for k in keys})
         return e
     assert r.v is not None and r.lead_v is not None
     ok = np.isfinite(u.samples).all(axis=1)
@@ -1353,8 +1341,7 @@ def _interval_entry(fit: Any, r: Run, band: Sequence[float], short: str | None,
         why = ("undetermined: the record holds fewer effective blocks than fitted "
                f"parameters ({u.blocks:.1f} blocks, {u.fitted} parameters)"
                if not math.isfinite(u.widening) else "no resample could be refit")
-        for k in keys:
-            e[f"{k}_reason"] = why
+        e.update({f"{k}_reason": why for k in keys})
         return e
     tge0, tge = u.time_gap_effective(float(np.mean(r.v)))
     e[f"time_gap_effective{sfx}_ci"] = _ci(tge0, tge, u.level)
@@ -1514,28 +1501,23 @@ def _oos_lines(s: Mapping[str, Any]) -> list[str]:
         "held-out run's predecessor spectrum is compared with the H1 cross-spectral band "
         "gain (95 % analytic interval); a model's replay with the band RMS ratio (95 % "
         f"block-bootstrap interval). The predictions' intervals: {o['interval_method']}.",
-        "",
-        "| cars | comparison | n | mean error (bias) | median abs error | within 10 % | "
-        "inside the measured 95 % interval | measured inside the predicted 95 % interval | "
-        "under-estimated |",
-        "|---|---|---|---|---|---|---|---|---|"]
+        ""]
     labels = (("oos_H_vs_h1", "out of sample: abs H vs H1"),
               ("in_sample_H_vs_h1", "in-sample: abs H vs H1"),
               ("oos_replay_vs_ratio", "out of sample: replay vs RMS ratio"),
               ("in_sample_replay_vs_ratio", "in-sample: replay vs RMS ratio"))
-    for grp in ("acc", "human"):
-        for key, lab in labels:
-            d = o[grp][key]
-            if not d["n"]:
-                continue
-            share = (f"{d['inside_measured_ci_count']} of {d['n_with_interval']}"
-                     if d["n_with_interval"] else "–")
-            pshare = (f"{d['measured_inside_predicted_ci_count']} of "
-                      f"{d['n_with_prediction_interval']}"
-                      if d.get("n_with_prediction_interval") else "–")
-            lines.append(f"| {grp} | {lab} | {d['n']} | {_f(d['mean_error'], 3)} | "
-                         f"{_f(d['median_abs_error'], 3)} | {d['within_10pct_count']} | "
-                         f"{share} | {pshare} | {d['underestimated']} |")
+    rows = [[grp, lab, d["n"], _f(d["mean_error"], 3), _f(d["median_abs_error"], 3),
+             d["within_10pct_count"],
+             f"{d['inside_measured_ci_count']} of {d['n_with_interval']}"
+             if d["n_with_interval"] else "–",
+             f"{d['measured_inside_predicted_ci_count']} of {d['n_with_prediction_interval']}"
+             if d.get("n_with_prediction_interval") else "–", d["underestimated"]]
+            for grp in ("acc", "human") for key, lab in labels
+            for d in (o[grp][key],) if d["n"]]
+    lines.append(md_table(
+        ["cars", "comparison", "n", "mean error (bias)", "median abs error", "within 10 %",
+         "inside the measured 95 % interval", "measured inside the predicted 95 % interval",
+         "under-estimated"], rows))
     tl = (("time_gap_effective_oos_vs_headway_measured", "out of sample vs the measured "
            "headway (median gap / speed, no model)"),
           ("time_gap_effective_in_sample_vs_headway_measured", "in-sample vs the measured "
@@ -1739,12 +1721,10 @@ def _tables(cars: Sequence[Mapping[str, Any]], models: Sequence[str], main: str,
     order_df = pd.DataFrame(order["checks"]) if order["checks"] else pd.DataFrame(
         columns=["campaign", "car", "longer", "shorter", "rank_longer", "rank_shorter",
                  "value_longer", "value_shorter", "held"])
-    comp = []
-    for m in models:
-        for key, lab in (("amplification_H", "|H(jw)|"), ("amplification_replay", "replay")):
-            for grp in ("acc", "human"):
-                d = comparison[m][f"{key}_{grp}"]
-                comp.append({"model": m, "prediction": lab, "cars": grp, **d})
+    comp = [{"model": m, "prediction": lab, "cars": grp, **comparison[m][f"{key}_{grp}"]}
+            for m in models
+            for key, lab in (("amplification_H", "|H(jw)|"), ("amplification_replay", "replay"))
+            for grp in ("acc", "human")]
     return {"cars": cars_df, "models": pd.DataFrame(per_model), "tg_by_car_setting": tg,
             "setting_order": order_df, "model_comparison": pd.DataFrame(comp),
             "files": pd.DataFrame([{**f, "file": Path(f["file"]).stem} for f in files])}
@@ -1764,14 +1744,9 @@ def _f(x: Any, nd: int = 2) -> str:
 
 
 def _md_table(df: Any, floatfmt: int = 3) -> str:
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(str(c) for c in cols) + " |",
-             "|" + "|".join("---" for _ in cols) + "|"]
-    for _, row in df.iterrows():
-        cells = [_f(row[c], floatfmt) if isinstance(row[c], (float, np.floating)) else str(row[c])
-                 for c in cols]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return md_table([str(c) for c in df.columns], [
+        [_f(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v) for v in row]
+        for _, row in df.iterrows()])
 
 
 def _findings(s: Mapping[str, Any]) -> list[str]:
@@ -1854,18 +1829,17 @@ def _findings(s: Mapping[str, Any]) -> list[str]:
 def _overview_lines(ov: Sequence[Mapping[str, Any]]) -> list[str]:
     if not ov:
         return ["No car."]
-    lines = ["| campaign | car | settings (order) | ACC state of the runs studied | runs "
-             "studied (s) | left out / dropped (s) | reasons |", "|---|---|---|---|---|---|---|"]
-    for o in ov:
-        sets = ", ".join(f"{d['setting'] if d['setting'] is not None else 'none'} "
-                         f"({d['setting_rank'] if d['setting_rank'] is not None else '–'})"
-                         for d in o["settings"]) or "–"
-        acc = ", ".join(f"{k} {v}" for k, v in o["acc"].items()) or "–"
-        why = "; ".join(f"{r} ({n})" for r, n in o["reasons_left_out"].items()) or "–"
-        lines.append(f"| {o['campaign'] or '–'} | {o['car']} | {sets} | {acc} | "
-                     f"{o['runs_studied']} ({o['seconds_studied']:.0f}) | "
-                     f"{o['runs_left_out']} ({o['seconds_left_out']:.0f}) | {why} |")
-    return lines
+    rows = [[o["campaign"] or "–", o["car"],
+             ", ".join(f"{d['setting'] if d['setting'] is not None else 'none'} "
+                       f"({d['setting_rank'] if d['setting_rank'] is not None else '–'})"
+                       for d in o["settings"]) or "–",
+             ", ".join(f"{k} {v}" for k, v in o["acc"].items()) or "–",
+             f"{o['runs_studied']} ({o['seconds_studied']:.0f})",
+             f"{o['runs_left_out']} ({o['seconds_left_out']:.0f})",
+             "; ".join(f"{r} ({n})" for r, n in o["reasons_left_out"].items()) or "–"]
+            for o in ov]
+    return [md_table(["campaign", "car", "settings (order)", "ACC state of the runs studied",
+                      "runs studied (s)", "left out / dropped (s)", "reasons"], rows)]
 
 
 def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
@@ -1960,31 +1934,26 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
               "bootstrap interval (for abs H against the H1 gain, like with like, see "
               "'Out of sample').", ""]
     best = comp["best"]
-    lines.append("| model | prediction | cars | n | median abs error | mean error | "
-                 "within 10 % | inside CI | under-estimated | corr(error, measured) |")
-    lines.append("|---|---|---|---|---|---|---|---|---|---|")
-    for m in s["models"]:
-        for key, lab in (("amplification_H", "abs H(jω)"), ("amplification_replay", "replay")):
-            for grp in ("acc", "human"):
-                d = comp[m][f"{key}_{grp}"]
-                if not d["n"]:
-                    continue
-                lines.append(f"| {m} | {lab} | {grp} | {d['n']} | "
-                             f"{_f(d['median_abs_error'], 3)} | {_f(d['mean_error'], 3)} | "
-                             f"{d['within_10pct']} | {d['inside_ci']} | "
-                             f"{d['underestimated']} | {_f(d['corr_error_vs_measured'])} |")
+    lines.append(md_table(
+        ["model", "prediction", "cars", "n", "median abs error", "mean error", "within 10 %",
+         "inside CI", "under-estimated", "corr(error, measured)"],
+        [[m, lab, grp, d["n"], _f(d["median_abs_error"], 3), _f(d["mean_error"], 3),
+          d["within_10pct"], d["inside_ci"], d["underestimated"],
+          _f(d["corr_error_vs_measured"])]
+         for m in s["models"]
+         for key, lab in (("amplification_H", "abs H(jω)"), ("amplification_replay", "replay"))
+         for grp in ("acc", "human") for d in (comp[m][f"{key}_{grp}"],) if d["n"]]))
     lines += ["", "String stability per car (ACC cars with a measured amplification; "
-              "measured string-unstable: CI above 1, stable: CI below 1):", "",
-              "| model | measured unstable | model says unstable there | measured stable | "
-              "model says stable there | undecided | model string-unstable (all ACC cars) | "
-              "model locally unstable |", "|---|---|---|---|---|---|---|---|"]
-    for m in s["models"]:
-        q = comp[m]["string_stability"]
-        lines.append(f"| {m} | {q['measured_unstable']} | "
-                     f"{q['model_unstable_where_measured_unstable']} | {q['measured_stable']} | "
-                     f"{q['model_stable_where_measured_stable']} | {q['undecided']} | "
-                     f"{q['model_string_unstable_all']} of {q['cars_acc']} | "
-                     f"{q['model_locally_unstable_all']} |")
+              "measured string-unstable: CI above 1, stable: CI below 1):", ""]
+    lines.append(md_table(
+        ["model", "measured unstable", "model says unstable there", "measured stable",
+         "model says stable there", "undecided", "model string-unstable (all ACC cars)",
+         "model locally unstable"],
+        [[m, q["measured_unstable"], q["model_unstable_where_measured_unstable"],
+          q["measured_stable"], q["model_stable_where_measured_stable"], q["undecided"],
+          f"{q['model_string_unstable_all']} of {q['cars_acc']}",
+          q["model_locally_unstable_all"]]
+         for m in s["models"] for q in (comp[m]["string_stability"],)]))
     lines += ["", f"Best predictor of the measured amplification (smallest median absolute "
               f"error over the ACC cars): from abs H(jω): **{best['amplification_H']}**; by "
               f"replay: **{best['amplification_replay']}**.", ""]

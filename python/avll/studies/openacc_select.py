@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from ..data import Run
+from ..uncertainty import _finite_or_none as _fin
 
 __all__ = [
     "CANDIDATES",
@@ -99,14 +100,11 @@ class StructureStep:
 
     def to_dict(self) -> dict[str, Any]:
         """Strict-JSON-ready fields (non-finite numbers as None)."""
-        def f(x: float) -> float | None:
-            return float(x) if math.isfinite(x) else None
-
         return {"campaign": self.campaign, "car": self.car, "setting": self.setting,
                 "before": list(self.before), "candidate": self.candidate,
-                "files": list(self.files), "fold_gains": [f(g) for g in self.fold_gains],
-                "gain": f(self.gain), "p_value": f(self.p_value),
-                "ci": [f(self.ci[0]), f(self.ci[1])], "passes": self.passes,
+                "files": list(self.files), "fold_gains": [_fin(g) for g in self.fold_gains],
+                "gain": _fin(self.gain), "p_value": _fin(self.p_value),
+                "ci": [_fin(self.ci[0]), _fin(self.ci[1])], "passes": self.passes,
                 "accepted": self.accepted}
 
 

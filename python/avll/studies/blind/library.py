@@ -48,11 +48,11 @@ def table() -> list[str]:
         first = res.diagnoses[0].ranked[0].effect if res.diagnoses[0].ranked else "—"
         rec = []
         for s in res.steps:
-            exp = expected_params(s.effect) if s.effect in effs or s.effect in (
-                "asymmetric", "saturation", "grade") else {}
-            gen = effs.get(s.effect) or {}
             if s.effect in effs:
-                exp = expected_params(s.effect, gen)
+                exp = expected_params(s.effect, effs[s.effect] or {})
+            else:
+                exp = expected_params(s.effect) if s.effect in (
+                    "asymmetric", "saturation", "grade") else {}
             bound = {a.param.split(".", 1)[1] for a in s.at_bound
                      if a.param.startswith(s.effect + ".")}  # fmt: skip
             rec.append(", ".join(

@@ -7,9 +7,8 @@ load polynomial, a terrain profile, delay jitter, a lagging and biased
 accelerometer, coloured noise). For each scenario the current loop
 (:func:`avll.diagnose.effect_loop`, base ``second``, loop seed 1, data seed 0)
 calibrates on runs 1, 3, 8, 15, validates on 12, 19, and the final model is scored
-on runs 5, 21, which nothing in the loop sees (passed as ``test_runs=`` when the
-loop has that keyword, and in any case scored here with
-:func:`avll.diagnose.run_mse`). Reported: the first-ranked candidate, the accepted
+on runs 5, 21, which nothing in the loop sees (passed as ``test_runs=`` and scored
+here with :func:`avll.diagnose.run_mse`). Reported: the first-ranked candidate, the accepted
 effects and their parameters (``@bound`` when a parameter sits at a calibration
 bound), whether an acceptable effect was found (:data:`avll.synth_blind.ACCEPTABLE`;
 ``n/a`` when none of the acceptable effects is in this library's registry, ``—`` for
@@ -27,7 +26,6 @@ gains on the validation and the untouched test runs.
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import sys
 import time
@@ -43,40 +41,20 @@ BASE = "second"
 DATA_SEED = 0
 LOOP_SEED = 1
 N_CAL, N_VAL = 4, 2
-#: A small GA budget, used when the loop exposes these keywords.
+#: A small GA budget.
 BUDGET = {"max_generations": 150, "starts": 1}
 
 
 def loop_kwargs(test_runs: list[Any]) -> tuple[dict[str, Any], list[str]]:
-    """Keywords for :func:`effect_loop` that this version of the loop accepts, and
-    notes on what was not available."""
-    params = inspect.signature(effect_loop).parameters
-    kw: dict[str, Any] = {"seed": LOOP_SEED}
-    notes = []
-    if "test_runs" in params:
-        kw["test_runs"] = test_runs
-    else:
-        notes.append("the loop has no `test_runs=`: the test runs are scored here only")
-    budget = {k: v for k, v in BUDGET.items() if k in params}
-    if budget:
-        kw.update(budget)
-        notes.append("GA budget per fit: " + ", ".join(f"{k}={v}" for k, v in budget.items()))
-    else:
-        notes.append("the loop exposes no GA budget: its default budget was used")
-    return kw, notes
+    """Keywords for :func:`effect_loop`, and notes on the budget they set."""
+    return ({"seed": LOOP_SEED, "test_runs": test_runs, **BUDGET},
+            ["GA budget per fit: " + ", ".join(f"{k}={v}" for k, v in BUDGET.items())])
 
 
 def _at_bound(effect: str, params: dict[str, float]) -> list[str]:
-    cls = EFFECTS.get(effect)
-    if cls is None:
-        return []
-    out = []
-    for (name, val), (lo, hi) in zip(params.items(), cls.bounds, strict=False):
-        if math.isclose(val, lo, rel_tol=1e-3, abs_tol=1e-9) or math.isclose(
-            val, hi, rel_tol=1e-3, abs_tol=1e-9
-        ):
-            out.append(name)
-    return out
+    bounds = EFFECTS[effect].bounds if effect in EFFECTS else ()
+    return [name for (name, val), (lo, hi) in zip(params.items(), bounds, strict=False)
+            if any(math.isclose(val, b, rel_tol=1e-3, abs_tol=1e-9) for b in (lo, hi))]
 
 
 def _gain(before: float, after: float) -> float:
@@ -102,10 +80,8 @@ def run_case(scenario: str) -> dict[str, Any]:
         hit = any(e in available for e in added)
     false_add = [e for e in added if e not in acceptable]
     ranked = res.diagnoses[0].ranked if res.diagnoses else []
-    val_before = float(np.mean(run_mse(res.baseline, val)))
-    val_after = float(np.mean(run_mse(res.final, val)))
-    test_before = float(np.mean(run_mse(res.baseline, test)))
-    test_after = float(np.mean(run_mse(res.final, test)))
+    (val_before, val_after), (test_before, test_after) = (
+        [float(np.mean(run_mse(m, rs))) for m in (res.baseline, res.final)] for rs in (val, test))
     truth = runs[0].meta["truth"]
     flags = sorted({f.kind for f in res.flags})
     unexplained = res.unexplained or {}

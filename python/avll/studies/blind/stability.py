@@ -86,10 +86,7 @@ def case(scenario: str) -> list[str]:
     ]
     for who, r in (("baseline", rb), ("final", rf)):
         for e in r.linear:
-            if who == "final" and e.label == "base":
-                label = "base part only"
-            else:
-                label = e.label
+            label = "base part only" if who == "final" and e.label == "base" else e.label
             lines.append(f"| {who} | {label} | {_f(e.code, 'd')} | {_f(e.gain_at_omega, '.4g')} | "
                          f"{_f(e.tg_min_at_gains, '.3f')} | {_f(e.min_stable_tg, '.3f')} | "
                          f"{_f(e.kv_threshold, '.4f')} |")  # fmt: skip
