@@ -80,16 +80,12 @@ MAX_HEADER_BYTES = 1_000_000
 MAX_PARQUET_FOOTER = 64 * 2**20
 
 
+_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+          (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a device"), (stat.S_ISBLK, "a device"))
+
+
 def _file_kind(mode: int) -> str:
-    if stat.S_ISDIR(mode):
-        return "a folder"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO (named pipe)"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "a device"
-    return "not a regular file"
+    return next((kind for test, kind in _KINDS if test(mode)), "not a regular file")
 
 
 def stat_path(path: str | Path, what: str = "file or folder") -> os.stat_result:
@@ -382,31 +378,28 @@ def check_time(t: np.ndarray, path: str | Path, column: str = "t", *,
     if t.shape[0] < 2:
         raise DataError(f"{where(path, column)}: needs at least 2 samples, got {t.shape[0]}")
     d = np.diff(t)
-
-    def row(i: int) -> int:
-        return int(rows[i]) if rows is not None else i
-
     dup = np.flatnonzero(d == 0)
     back = np.flatnonzero(d < 0)
     if back.size and (not dup.size or back[0] < dup[0]):
         i = int(back[0]) + 1
         raise DataError(
-            f"{where(path, column, row(i))}: time goes backwards "
+            f"{where(path, column, _row(rows, i))}: time goes backwards "
             f"({float(t[i - 1]):.10g} then {float(t[i]):.10g}); "
             f"{back.size} such rows; sort the file or use a loader that sorts")
     if dup.size:
         i = int(dup[0]) + 1
-        raise DataError(f"{where(path, column, row(i))}: duplicated time {float(t[i]):.10g} "
-                        f"(also at row {row(i - 1)}); {dup.size} duplicates")
+        raise DataError(f"{where(path, column, _row(rows, i))}: duplicated time "
+                        f"{float(t[i]):.10g} (also at row {_row(rows, i - 1)}); {dup.size} "
+                        "duplicates")
     dt = float(np.median(d))
     if uniform:
         off = np.flatnonzero(np.abs(d - dt) > rtol * dt + 1e-12)
         if off.size:
             i = int(off[0]) + 1
             raise DataError(
-                f"{where(path, column, row(i))}: non-uniform sampling: step {d[i - 1]:.6g} s "
-                f"where the median step is {dt:.6g} s (tolerance {rtol:g} relative; "
-                f"{off.size} such steps); resample with dt=... or fix the file")
+                f"{where(path, column, _row(rows, i))}: non-uniform sampling: step "
+                f"{d[i - 1]:.6g} s where the median step is {dt:.6g} s (tolerance {rtol:g} "
+                f"relative; {off.size} such steps); resample with dt=... or fix the file")
     return dt
 
 
@@ -434,24 +427,27 @@ def _first(mask: np.ndarray) -> int | None:
 
 
 def _range_check(x: np.ndarray, path: str | Path, column: str, kind: str,
-                 rows: np.ndarray | None, hint: str, what: str | None = None) -> None:
-    """Hard limit (DataError with ``hint``) then plausible range (warning)."""
-    rg = RANGES[kind]
-    what = what or kind
+                 rows: np.ndarray | None, hint: str, *, rg: Range | None = None,
+                 header_lines: int = 1) -> None:
+    """Hard limit (DataError with ``hint``) then plausible range (warning) of a
+    ``kind`` of signal: the range ``rg``, by default ``RANGES[kind]``."""
+    rg = RANGES[kind] if rg is None else rg
     unit = f" {rg.unit}" if rg.unit else ""
     fin = np.where(np.isfinite(x), x, 0.0)
+
+    def at(i: int) -> str:
+        return where(path, column, _row(rows, i), header_lines=header_lines)
+
     i = _first(np.abs(fin) > rg.hard)
     if i is not None:
-        raise DataError(f"{where(path, column, _row(rows, i))}: {what} {x[i]:.4g}{unit} is "
-                        f"implausible (|{what}| > {rg.hard:g}{unit}); {hint}")
+        raise DataError(f"{at(i)}: {kind} {x[i]:.4g}{unit} is implausible "
+                        f"(|{kind}| > {rg.hard:g}{unit}); {hint}")
     out = (fin < rg.lo) | (fin > rg.hi)
     i = _first(out)
     if i is not None:
         n = int(out.sum())
-        plausibility_warning(
-            f"{where(path, column, _row(rows, i))}: {what} {x[i]:.4g}{unit} is outside the "
-            f"plausible range {rg.lo:g}..{rg.hi:g}{unit}"
-            + (f" ({n} such rows)" if n > 1 else ""))
+        plausibility_warning(f"{at(i)}: {kind} {x[i]:.4g}{unit} is outside the plausible range "
+                             f"{rg.lo:g}..{rg.hi:g}{unit}" + (f" ({n} such rows)" if n > 1 else ""))
 
 
 def check_speed_units(v: np.ndarray, path: str | Path, column: str, *, dt: float | None = None,

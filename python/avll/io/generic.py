@@ -99,22 +99,19 @@ def _load_generic(path: Path, mapping: Mapping[str, str] | None, command_kind: s
         if c.startswith("exo_") and c not in mp and c not in mp.values():
             mp[c] = c
     require_columns(df, path, [mp.get("t", "t"), mp.get("a", "a")])
-    missing = [v for v in mp.values() if v not in df.columns]
-    if missing:
-        require_columns(df, path, missing)
+    require_columns(df, path, list(mp.values()))
     has_cmd = "command" in mp
     if has_cmd and command_kind is None:
         raise ValueError(f"command_kind: {path} has a command column ({mp['command']!r}); "
                          "say whether it is an 'acceleration' or a 'speed'")
     kind = command_kind or "acceleration"
-    allow_empty = dt is not None
     data: dict[str, np.ndarray] = {}
     for k, c in mp.items():
         if k == "run":
             continue
-        arr = numeric_column(df, path, c, allow_empty=allow_empty and k != "t")
-        bad = np.flatnonzero(np.isinf(arr) | (np.isnan(arr) if not allow_empty or k == "t"
-                                              else np.zeros(arr.shape, dtype=bool)))
+        no_nan = dt is None or k == "t"  # resampling treats empty cells as missing samples
+        arr = numeric_column(df, path, c, allow_empty=not no_nan)
+        bad = np.flatnonzero(np.isinf(arr) | (np.isnan(arr) & no_nan))
         if bad.size:
             raise DataError(f"{where(path, c, int(bad[0]))}: value is {arr[bad[0]]} "
                             "(NaN and inf are not allowed)")

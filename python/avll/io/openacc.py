@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from ..data import DataError, Run
 from ._common import (
@@ -106,16 +107,12 @@ def _labels(path: Path | None, stem: str) -> dict[str, float]:
     hit = np.flatnonzero(df["File"].astype(str).str.strip().to_numpy() == stem)
     if not hit.size:
         raise DataError(f"{where(path, 'File')}: no row for {stem!r}")
-    r = int(hit[0])
-    out = {}
-    for c in df.columns[1:]:
-        val = numeric_column(df.iloc[[r]].reset_index(drop=True), path, c)[0]
-        out[c] = float(val)
-    return out
+    row = df.iloc[[int(hit[0])]].reset_index(drop=True)
+    return {c: float(numeric_column(row, path, c)[0]) for c in df.columns[1:]}
 
 
-def _read_numeric(path: Path, cols: Sequence[str]) -> tuple[dict[str, np.ndarray], float]:
-    df = read_table(path)
+def _read_numeric(path: Path, df: pd.DataFrame,
+                  cols: Sequence[str]) -> tuple[dict[str, np.ndarray], float]:
     require_columns(df, path, cols)
     data = {c: numeric_column(df, path, c) for c in cols}
     for c in cols:
@@ -125,18 +122,17 @@ def _read_numeric(path: Path, cols: Sequence[str]) -> tuple[dict[str, np.ndarray
     return data, dt
 
 
-def _platoon(path: Path, slope: Any, labels: Path | None, offset: float,
+def _platoon(path: Path, df: pd.DataFrame, slope: Any, labels: Path | None, offset: float,
              lap: float | None) -> list[Run]:
     stem = path.stem
-    df_cols = read_table(path).columns
     nveh = 1
-    while f"X{nveh + 1}" in df_cols:
+    while f"X{nveh + 1}" in df.columns:
         nveh += 1
     if nveh < 2:
         raise DataError(f"{where(path, 'X2')}: missing column: a platoon file needs X1..Xn")
     cols = ["Time"] + [f"{p}{i}" for p in ("X", "SpeedDoppler", "Accel")
                        for i in range(1, nveh + 1)] + [f"Spacing{i}" for i in range(2, nveh + 1)]
-    d, dt = _read_numeric(path, cols)
+    d, dt = _read_numeric(path, df, cols)
     for i in range(1, nveh + 1):
         check_signal("position", d[f"X{i}"], path, f"X{i}", dt=dt)
         check_speed_units(d[f"SpeedDoppler{i}"], path, f"SpeedDoppler{i}", dt=dt,
@@ -146,8 +142,7 @@ def _platoon(path: Path, slope: Any, labels: Path | None, offset: float,
     runs = []
     t = d["Time"]
     for i in range(2, nveh + 1):
-        need = [f"length{i - 1}", f"length{i}"]
-        for c in need:
+        for c in (f"length{i - 1}", f"length{i}"):
             if c not in lab:
                 raise DataError(f"{where(labels or 'Labels.csv', c)}: missing column "
                                 f"(needed for {stem})")
@@ -178,7 +173,7 @@ def _platoon(path: Path, slope: Any, labels: Path | None, offset: float,
     return runs
 
 
-def _freeflow(path: Path, slope: Any, parts: Path | None, offset: float,
+def _freeflow(path: Path, df: pd.DataFrame, slope: Any, parts: Path | None, offset: float,
               lap: float | None) -> list[Run]:
     stem = path.stem
     m = _FF_NAME.match(stem)
@@ -202,7 +197,7 @@ def _freeflow(path: Path, slope: Any, parts: Path | None, offset: float,
     if abs(vset * 3.6 - float(m["kmh"])) > 1.0:
         raise DataError(f"{where(parts, 'setSpd_mps', r)}: set speed {vset:g} m/s does not match "
                         f"the file name's V{m['kmh']} km/h")
-    d, dt = _read_numeric(path, ["Time", "X1", "SpeedDoppler1", "Accel1"])
+    d, dt = _read_numeric(path, df, ["Time", "X1", "SpeedDoppler1", "Accel1"])
     check_signal("position", d["X1"], path, "X1")
     check_speed_units(d["SpeedDoppler1"], path, "SpeedDoppler1", dt=dt, a=d["Accel1"])
     check_accel_units(d["Accel1"], path, "Accel1")
@@ -277,15 +272,15 @@ def load_openacc_astazero(
     for f in files:
         head = read_table(f)
         require_columns(head, f, ["Time", "X1", "SpeedDoppler1", "Accel1"])
-        cols = head.columns
         sl_path = _find(f, "Slope.csv", slope) if grade else None
         if grade and sl_path is None:
             raise DataError(f"Slope.csv: not found beside {f} (pass slope=PATH or grade=False)")
         sl = load_slope(sl_path) if sl_path is not None else None
-        if "X2" in cols:
-            runs += _platoon(f, sl, _find(f, "Labels.csv", labels), grade_offset, lap_length)
+        if "X2" in head.columns:
+            runs += _platoon(f, head, sl, _find(f, "Labels.csv", labels), grade_offset,
+                             lap_length)
         else:
-            runs += _freeflow(f, sl, _find(f, "FreeFlowStableParts.csv", stable_parts),
+            runs += _freeflow(f, head, sl, _find(f, "FreeFlowStableParts.csv", stable_parts),
                               grade_offset, lap_length)
     if command_kind is not None:
         runs = [r for r in runs if r.command_kind == command_kind]

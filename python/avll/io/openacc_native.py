@@ -166,10 +166,11 @@ import numpy as np
 
 from ..data import DataError, Run
 from ._common import (
+    Range,
+    _range_check,
     check_speed_units,
     check_time,
     contiguous,
-    plausibility_warning,
     walk_files,
     where,
 )
@@ -222,10 +223,10 @@ FAR_HEADWAY = 3.0
 #: A spacing below this (m) is not a measurable following distance (bumpers overlap
 #: by more than the GNSS error): split out.
 MIN_GAP = -5.0
-#: Spacings outside this range (m) give a :class:`avll.PlausibilityWarning`; a
-#: magnitude above ``SPACING_HARD`` is an error.
-SPACING_RANGE = (-5.0, 1000.0)
-SPACING_HARD = 1e8
+#: Spacings outside -5..1000 m give a :class:`avll.PlausibilityWarning` naming the
+#: first row (as the canonical loader does for positions); a magnitude above 1e8 m is
+#: an error.
+SPACING_RANGE = Range(-5.0, 1000.0, 1e8, "m")
 #: Bounds (Hz) of the acceleration cut-off chosen from the spectrum.
 CUTOFF_RANGE = (0.5, 1.5)
 #: Gap settings of the ACC by rank within a campaign (larger = longer time gap), in
@@ -514,7 +515,8 @@ def read_openacc_native(path: str | Path) -> NativeFile:
         if "E" in v:
             _speed_vs_track(path, k, sp, v["E"], v["N"], dt)
     for k, g in ivs.items():
-        _check_spacing(path, f"IVS{k}", g)
+        _range_check(g, path, f"IVS{k}", "spacing", None, "wrong unit or column?",
+                     rg=SPACING_RANGE, header_lines=HEADER_LINES)
     return NativeFile(path=path, date=h["date"], listed=h["listed"],
                       names=h["listed"][:n], n_vehicles=n, acc=h["acc"], setting=h["setting"],
                       t=t, vehicles=vehicles, ivs=ivs, notes=notes, drivers=drivers,
@@ -553,24 +555,6 @@ def _speed_vs_track(path: Path, k: int, v: np.ndarray, e: np.ndarray, n: np.ndar
             raise DataError(f"{_loc(path, f'Speed{k}')}: speed looks like {unit}, not m/s: it is "
                             f"{k_ratio:.3g} x the speed of the vehicle's own E{k}/N{k} track "
                             f"(median over {int(ok.sum())} moving steps); convert to m/s")
-
-
-def _check_spacing(path: Path, column: str, g: np.ndarray) -> None:
-    """Spacings beyond ``SPACING_HARD`` are an error, outside ``SPACING_RANGE`` a
-    :class:`avll.PlausibilityWarning` naming the first row (as the canonical loader
-    does for positions)."""
-    fin = np.where(np.isfinite(g), g, 0.0)
-    big = np.flatnonzero(np.abs(fin) > SPACING_HARD)
-    if big.size:
-        raise DataError(f"{_loc(path, column, int(big[0]))}: spacing {g[big[0]]:.4g} m is "
-                        f"implausible (|spacing| > {SPACING_HARD:g} m); wrong unit or column?")
-    lo, hi = SPACING_RANGE
-    out = np.flatnonzero((fin < lo) | (fin > hi))
-    if out.size:
-        plausibility_warning(
-            f"{_loc(path, column, int(out[0]))}: spacing {g[out[0]]:.4g} m is outside the "
-            f"plausible range {lo:g}..{hi:g} m" + (f" ({out.size} such rows)"
-                                                   if out.size > 1 else ""))
 
 
 # ---------------------------------------------------------------------------
