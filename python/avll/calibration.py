@@ -240,9 +240,6 @@ class _Packs:
 
     def __init__(self) -> None:
         self._packed: dict[Any, RunSet] = {}
-        #: How many run sets were built and how many calls reused one.
-        self.built = 0
-        self.reused = 0
 
     def get(self, runs: RunSet | Sequence[Run]) -> RunSet:
         """The run set of ``runs``, built on the first request only."""
@@ -250,16 +247,10 @@ class _Packs:
             return runs
         if not isinstance(runs, (list, tuple)):
             return RunSet(runs)  # names a wrong type; an iterator is used once
-        runs = list(runs)
         key = tuple(id(r) for r in runs)
-        hit = self._packed.get(key)
-        if hit is not None:
-            self.reused += 1
-            return hit
-        rs = RunSet(runs)
-        self.built += 1
-        self._packed[key] = rs
-        return rs
+        if key not in self._packed:
+            self._packed[key] = RunSet(runs)
+        return self._packed[key]
 
 
 def _split_model(model: Any, effects: Sequence[str]) -> tuple[type[LowerLevelModel],
@@ -406,19 +397,15 @@ def start_row(result: CalibrationResult, effects: Sequence[str] = ()) -> np.ndar
         if e not in EFFECTS:
             raise ValueError(f"effects: unknown effect {e!r}; known: {', '.join(EFFECTS)}")
     names = canonical(list(dict.fromkeys([*have, *effects])))
-    n_model = len(result.model.param_names())
-    n_upper = len(result.upper)
-    own: dict[str, np.ndarray] = {}
-    o = n_model
+    n_model, n_upper = len(result.model.param_names()), len(result.upper)
+    own, o = {}, n_model
     for e in have:
         k = len(EFFECTS[e].param_names())
-        own[e] = x[o:o + k]
-        o += k
-    parts = [x[:n_model]]
-    for e in names:
-        parts.append(own[e] if e in own else np.asarray(EFFECTS[e].neutral, dtype=np.float64))
-    parts.append(x[len(x) - n_upper:] if n_upper else np.zeros(0))
-    return np.concatenate(parts)
+        own[e], o = x[o:o + k], o + k
+    return np.concatenate([x[:n_model],
+                           *(own.get(e, np.asarray(EFFECTS[e].neutral, dtype=np.float64))
+                             for e in names),
+                           x[len(x) - n_upper:] if n_upper else np.zeros(0)])  # fmt: skip
 
 
 class _Bar:
@@ -426,11 +413,10 @@ class _Bar:
     :class:`avll.progress.Progress` stage that ends at 100 % when the search finishes,
     even when it converged before its generation budget."""
 
-    def __init__(self, enabled: Any, total: int, desc: str, problems: int) -> None:
+    def __init__(self, enabled: Any, total: int, desc: str) -> None:
         from .progress import Progress
 
         self.bar = Progress(total, desc or "calibrate", unit="gen", mode=enabled)
-        self.problems = problems
         self.seen: dict[int, int] = {}
 
     def __call__(self, info: dict[str, Any]) -> None:
@@ -443,9 +429,8 @@ class _Bar:
         self.bar.close(complete=complete)
 
 
-def _result(
-    prob: _Problem, raw: dict[str, Any], runs: Sequence[Run], seed: int, per_run: np.ndarray
-) -> CalibrationResult:
+def _result(prob: _Problem, raw: Mapping[str, Any], runs: Sequence[Run], seed: int,
+            per_run: np.ndarray, start_costs: tuple[float, ...] = ()) -> CalibrationResult:
     x = np.asarray(raw["x"], dtype=np.float64)
     n_model = len(prob.cls.param_names())
     model = prob.cls.from_array(x[:n_model])
@@ -482,6 +467,7 @@ def _result(
         bounds=prob.box,
         upper=upper,
         at_bound=at_bound,
+        start_costs=start_costs,
         with_effects=with_effects,
         x=x,
     )
@@ -514,7 +500,7 @@ def _run(
     if callable(progress):
         bar = progress
     else:
-        bar = _Bar(progress, n_problems * ga["max_generations"], desc, n_problems)
+        bar = _Bar(progress, n_problems * ga["max_generations"], desc)
     done = False
     try:
         ga["seed"] = int(seed)
@@ -667,14 +653,10 @@ def _calibrate(
     )  # fmt: skip
     # The starts run in turn: those after the first that reached the target (or after
     # a Ctrl-C) did not run and are not in ``raws``.
-    best = min(range(len(raws)), key=lambda j: (raws[j]["f"], j))
-    _check_finite_fit(prob, raws[best], "")
-    raw = dict(raws[best])
-    raw["evaluations"] = sum(int(r["evaluations"]) for r in raws)
-    raw["interrupted"] = any(bool(r["interrupted"]) for r in raws)
+    best, raw = _best(prob, raws, "")
     start_seed = int(seed) if n == 1 else _core.derive_seed(int(seed), best)
-    res = _result(prob, raw, prob.rs.runs, start_seed, _per_run(raw, len(prob.rs)))
-    res = replace(res, start_costs=tuple(float(r["f"]) for r in raws))
+    res = _result(prob, raw, prob.rs.runs, start_seed, _per_run(raw, len(prob.rs)),
+                  _costs(raws))
     if iopts is None or res.interrupted:
         return res
     return _with_uncertainty(prob, [all_runs], [res], iopts, seed, threads, progress)[0]
@@ -707,8 +689,8 @@ def _polished(prob: _Problem, sub: Sequence[int], res: CalibrationResult, x: np.
     raw = {"x": x, "f": cost, "f_ga": res.cost_ga, "generations": res.generations,
            "evaluations": res.evaluations, "interrupted": res.interrupted, "stop": res.stop,
            "history": res.history}
-    new = _result(prob, raw, [prob.rs.runs[i] for i in uniq], res.seed, per_run[uniq])
-    return replace(new, start_costs=res.start_costs)
+    return _result(prob, raw, [prob.rs.runs[i] for i in uniq], res.seed, per_run[uniq],
+                   res.start_costs)
 
 
 def _per_run(raw: Mapping[str, Any], n_runs: int) -> np.ndarray:
@@ -719,11 +701,25 @@ def _per_run(raw: Mapping[str, Any], n_runs: int) -> np.ndarray:
     return out
 
 
-def _check_finite_fit(prob: _Problem, raw: dict[str, Any], where: str) -> None:
-    """A best cost of inf (or NaN) is no fit: a ValueError that says why it may be."""
-    f = float(raw["f"])
-    if math.isfinite(f):
-        return
+def _best(prob: _Problem, group: Sequence[dict[str, Any]], where: str
+          ) -> tuple[int, dict[str, Any]]:
+    """The best start of ``group`` (the first of the lowest cost) with the evaluations
+    of them all and whether any was interrupted; a best cost of inf (or NaN) is no fit:
+    a ValueError that says why it may be."""
+    j = min(range(len(group)), key=lambda i: (group[i]["f"], i))
+    raw = dict(group[j])
+    if not math.isfinite(float(raw["f"])):
+        _no_fit(prob, raw, where)
+    raw["evaluations"] = sum(int(r["evaluations"]) for r in group)
+    raw["interrupted"] = any(bool(r["interrupted"]) for r in group)
+    return j, raw
+
+
+def _costs(group: Sequence[Mapping[str, Any]]) -> tuple[float, ...]:
+    return tuple(float(r["f"]) for r in group)
+
+
+def _no_fit(prob: _Problem, raw: dict[str, Any], where: str) -> None:
     how = "interrupted before any finite cost was found; " if raw.get("interrupted") else ""
     raise ValueError(
         f"runs: the calibration of {prob.cls.name!r}{where} found no parameter set with a "
@@ -814,16 +810,12 @@ def calibrate_many(
     out = []
     for k, sub in enumerate(idx):
         group = raws[k * n_st : (k + 1) * n_st]
-        j = min(range(n_st), key=lambda i: (group[i]["f"], i))
-        _check_finite_fit(prob, group[j], f" (problem {k})")
-        raw = dict(group[j])
-        raw["evaluations"] = sum(int(r["evaluations"]) for r in group)
-        raw["interrupted"] = any(bool(r["interrupted"]) for r in group)
+        j, raw = _best(prob, group, f" (problem {k})")
         uniq = sorted(set(sub))
         rs = [prob.rs.runs[i] for i in uniq]
         per_run = _per_run(raw, len(prob.rs))[uniq]
-        res = _result(prob, raw, rs, _core.derive_seed(int(seed), k * n_st + j), per_run)
-        out.append(replace(res, start_costs=tuple(float(r["f"]) for r in group)))
+        out.append(_result(prob, raw, rs, _core.derive_seed(int(seed), k * n_st + j), per_run,
+                           _costs(group)))
     if iopts is None or any(r.interrupted for r in out):
         return out
     return _with_uncertainty(prob, idx, out, iopts, seed, threads, progress)
@@ -964,6 +956,10 @@ def split_runs(
     return cal, val
 
 
+def _average(d: Mapping[str, float]) -> float:
+    return float(np.mean(list(d.values()))) if d else float("nan")
+
+
 @dataclass(frozen=True)
 class Workflow:
     """Calibration of several models on ``cal`` runs and their validation on ``val``
@@ -1000,25 +996,15 @@ class Workflow:
         rows = {}
         for m, r in self.results.items():
             d = r.per_run_mse if which == "cal" else self.val_mse[m]
-            rows[_LABELS.get(m, m)] = {
-                **d,
-                "Average": float(np.mean(list(d.values()))) if d else float("nan"),
-            }
+            rows[_LABELS.get(m, m)] = {**d, "Average": _average(d)}
         return pd.DataFrame(rows).T
 
     def averages(self) -> Any:
         """Average calibration and validation MSE per model."""
         import pandas as pd
 
-        return pd.DataFrame(
-            {
-                "cal_mse": {m: r.cost for m, r in self.results.items()},
-                "val_mse": {
-                    m: float(np.mean(list(v.values()))) if v else float("nan")
-                    for m, v in self.val_mse.items()
-                },
-            }
-        )
+        return pd.DataFrame({"cal_mse": {m: r.cost for m, r in self.results.items()},
+                             "val_mse": {m: _average(v) for m, v in self.val_mse.items()}})
 
     def to_text(self) -> str:
         """The tables as plain text."""
@@ -1051,7 +1037,7 @@ class Workflow:
             models[m] = {
                 "params": r.params,
                 "cal_mse": r.cost,
-                "val_mse": float(np.mean(list(v.values()))) if v else None,
+                "val_mse": _average(v) if v else None,
                 "per_run_mse": {**r.per_run_mse, **v},
                 "cal_runs": [x.run_id for x in self.cal],
                 "val_runs": [x.run_id for x in self.val],
@@ -1120,27 +1106,20 @@ def paper_workflow(
     val_mse: dict[str, dict[str, float]] = {}
     # The calibration runs and the validation runs are each packed once for all models.
     packs = _Packs()
-    cost_kw = {
-        "weights": tuple(kwargs.get("weights", (1.0, 0.0, 0.0))),
-        "init": kwargs.get("init", "rest"),
-        "closed_loop": bool(kwargs.get("closed_loop", False)),
-    }
-    free = [_upper_index(u) for u in kwargs.get("upper_free", ())]
-    names = ("closed_loop", "upper_free", "weights", "init", "initial", "target", "starts")
-    opts = {k: kwargs.pop(k) for k in names if k in kwargs}
+    opts: dict[str, Any] = {"closed_loop": False, "upper_free": (), "weights": (1.0, 0.0, 0.0),
+                            "init": "rest", "initial": None, "target": None,
+                            "starts": DEFAULT_STARTS}  # fmt: skip
+    opts.update({k: kwargs.pop(k) for k in list(opts) if k in kwargs})
+    free = [_upper_index(u) for u in opts["upper_free"]]
     for m in models:
         cls = model_class(m)
-        res = _calibrate(
-            cls, cal, seed=seed, threads=threads, progress=progress,
-            bounds=bounds_by_model.get(cls.name),
-            closed_loop=opts.get("closed_loop", False), upper_free=opts.get("upper_free", ()),
-            weights=opts.get("weights", (1.0, 0.0, 0.0)), init=opts.get("init", "rest"),
-            initial=opts.get("initial"), target=opts.get("target"),
-            starts=opts.get("starts", DEFAULT_STARTS), ga_options=kwargs, packs=packs,
-        )  # fmt: skip
+        res = _calibrate(cls, cal, seed=seed, threads=threads, progress=progress,
+                         bounds=bounds_by_model.get(cls.name), ga_options=kwargs, packs=packs,
+                         **opts)  # fmt: skip
         results[cls.name] = res
         if val:
-            kw = packs.get(val).cost_kw(upper_free=free, **cost_kw)
+            kw = packs.get(val).cost_kw(weights=tuple(opts["weights"]), init=opts["init"],
+                                        closed_loop=bool(opts["closed_loop"]), upper_free=free)
             row = np.ascontiguousarray(np.array(list(res.params.values()), dtype=np.float64))
             c = _core.batch_cost(cls.name, row[None, :], threads=check_threads(threads), **kw)[0]
             val_mse[cls.name] = {r.run_id: float(x) for r, x in zip(val, c, strict=True)}
@@ -1148,5 +1127,4 @@ def paper_workflow(
             val_mse[cls.name] = {}
         if res.interrupted:
             break
-    return Workflow(results, cal, val, val_mse, bool(opts.get("closed_loop", False)),
-                    str(opts.get("init", "rest")))  # fmt: skip
+    return Workflow(results, cal, val, val_mse, bool(opts["closed_loop"]), str(opts["init"]))

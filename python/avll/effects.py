@@ -67,7 +67,6 @@ speed.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import astuple, dataclass, fields
 from typing import Any, ClassVar
@@ -75,7 +74,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import _core
-from .models import LowerLevelModel, model_class
+from .models import LowerLevelModel, _check, model_class
 
 __all__ = [
     "Effect",
@@ -101,13 +100,6 @@ __all__ = [
     "equivalent_model",
     "exo_needs",
 ]
-
-
-def _num(name: str, value: float) -> None:
-    if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
-        raise ValueError(f"{name}: must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name}: must be finite, got {value}")
 
 
 #: The Rust registry by name (canonical order), as ``_core.effect_info()`` gives it.
@@ -146,6 +138,9 @@ class Effect:
     excludes: ClassVar[str | None] = None
     signature: ClassVar[str] = "linear"
     trials: ClassVar[tuple[dict[str, float], ...]] = ()
+    #: The parameters that must be > 0 and those that must be >= 0.
+    positive: ClassVar[tuple[str, ...]] = ()
+    nonneg: ClassVar[tuple[str, ...]] = ()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -165,7 +160,11 @@ class Effect:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            _num(f"{self.name}.{f.name}", getattr(self, f.name))
+            _check(f"{self.name}.{f.name}", getattr(self, f.name))
+        for p in self.positive:
+            _check(f"{self.name}.{p}", getattr(self, p), positive=True)
+        for p in self.nonneg:
+            _check(f"{self.name}.{p}", getattr(self, p), nonneg=True)
 
     @classmethod
     def param_names(cls) -> tuple[str, ...]:
@@ -191,16 +190,6 @@ class Effect:
         return {n: float(v) for n, v in zip(self.param_names(), astuple(self), strict=True)}
 
 
-def _positive(name: str, x: float) -> None:
-    if not x > 0:
-        raise ValueError(f"{name}: must be > 0, got {x}")
-
-
-def _nonneg(name: str, x: float) -> None:
-    if not x >= 0:
-        raise ValueError(f"{name}: must be >= 0, got {x}")
-
-
 @dataclass(frozen=True)
 class Delay(Effect):
     """Extra command transport delay ``tau`` (s), outside the inner loop."""
@@ -210,10 +199,7 @@ class Delay(Effect):
     signature: ClassVar[str] = "setting"
     trials: ClassVar[tuple[dict[str, float], ...]] = tuple(
         {"tau": t} for t in (0.05, 0.1, 0.2, 0.35, 0.5, 0.8))
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _nonneg("delay.tau", self.tau)
+    nonneg: ClassVar[tuple[str, ...]] = ("tau",)
 
 
 @dataclass(frozen=True)
@@ -223,10 +209,7 @@ class RateLimit(Effect):
     j_max: float = 30.0
     name: ClassVar[str] = "rate_limit"
     signature: ClassVar[str] = "setting"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive("rate_limit.j_max", self.j_max)
+    positive: ClassVar[tuple[str, ...]] = ("j_max",)
 
 
 @dataclass(frozen=True)
@@ -236,10 +219,7 @@ class Deadband(Effect):
     delta: float = 0.0
     name: ClassVar[str] = "deadband"
     signature: ClassVar[str] = "setting"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _nonneg("deadband.delta", self.delta)
+    nonneg: ClassVar[tuple[str, ...]] = ("delta",)
 
 
 @dataclass(frozen=True)
@@ -251,11 +231,7 @@ class Asymmetric(Effect):
     name: ClassVar[str] = "asymmetric"
     fixed: ClassVar[dict[str, dict[str, float]]] = {"speed": {"kb": 1.0}}
     trials: ClassVar[tuple[dict[str, float], ...]] = ({"kb": 0.8, "rb": 1.25},)
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive("asymmetric.kb", self.kb)
-        _positive("asymmetric.rb", self.rb)
+    positive: ClassVar[tuple[str, ...]] = ("kb", "rb")
 
 
 @dataclass(frozen=True)
@@ -266,11 +242,7 @@ class Saturation(Effect):
     d_max: float = 10.0
     name: ClassVar[str] = "saturation"
     signature: ClassVar[str] = "each"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive("saturation.a_max", self.a_max)
-        _positive("saturation.d_max", self.d_max)
+    positive: ClassVar[tuple[str, ...]] = ("a_max", "d_max")
 
 
 @dataclass(frozen=True)
@@ -314,11 +286,7 @@ class RoadLoad(Effect):
     c1: float = 0.0
     c2: float = 0.0
     name: ClassVar[str] = "road_load"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for f in ("c0", "c1", "c2"):
-            _nonneg(f"road_load.{f}", getattr(self, f))
+    nonneg: ClassVar[tuple[str, ...]] = ("c0", "c1", "c2")
 
 
 @dataclass(frozen=True)
@@ -340,11 +308,7 @@ class PowerLimit(Effect):
     p: float = 500.0
     v_b: float = 0.5
     name: ClassVar[str] = "power_limit"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive("power_limit.p", self.p)
-        _positive("power_limit.v_b", self.v_b)
+    positive: ClassVar[tuple[str, ...]] = ("p", "v_b")
 
 
 @dataclass(frozen=True)
@@ -365,10 +329,7 @@ class Sensor(Effect):
     tau: float = 0.0
     bias: float = 0.0
     name: ClassVar[str] = "sensor"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _nonneg("sensor.tau", self.tau)
+    nonneg: ClassVar[tuple[str, ...]] = ("tau",)
 
 
 @dataclass(frozen=True)
@@ -386,10 +347,7 @@ class Perception(Effect):
     signature: ClassVar[str] = "setting"
     trials: ClassVar[tuple[dict[str, float], ...]] = tuple(
         {"tau": t} for t in (0.1, 0.2, 0.35, 0.5, 0.8))
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _nonneg("perception.tau", self.tau)
+    nonneg: ClassVar[tuple[str, ...]] = ("tau",)
 
 
 @dataclass(frozen=True)
@@ -424,11 +382,7 @@ class Closing(Effect):
     rg: float = 1.0
     rv: float = 1.0
     name: ClassVar[str] = "closing"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _nonneg("closing.rg", self.rg)
-        _nonneg("closing.rv", self.rv)
+    nonneg: ClassVar[tuple[str, ...]] = ("rg", "rv")
 
 
 @dataclass(frozen=True)
@@ -448,10 +402,7 @@ class Feedforward(Effect):
     # trial setting of both.
     signature: ClassVar[str] = "scaled"
     trials: ClassVar[tuple[dict[str, float], ...]] = ({"ka": 0.5, "tau": 0.8},)
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive("feedforward.tau", self.tau)
+    positive: ClassVar[tuple[str, ...]] = ("tau",)
 
 
 @dataclass(frozen=True)
@@ -471,12 +422,7 @@ class Comfort(Effect):
     signature: ClassVar[str] = "each"
     trials: ClassVar[tuple[dict[str, float], ...]] = (
         {"a_max": 1.0, "d_max": 1.5, "j_max": 2.5},)
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive("comfort.a_max", self.a_max)
-        _positive("comfort.d_max", self.d_max)
-        _positive("comfort.j_max", self.j_max)
+    positive: ClassVar[tuple[str, ...]] = ("a_max", "d_max", "j_max")
 
 
 def _registry() -> dict[str, type[Effect]]:

@@ -53,6 +53,13 @@ class LowerLevelModel(ABC):
     """
 
     name: ClassVar[str] = ""
+    #: The parameters that must be > 0 and those that must be >= 0.
+    positive: ClassVar[tuple[str, ...]] = ()
+    nonneg: ClassVar[tuple[str, ...]] = ()
+
+    def __post_init__(self) -> None:
+        for n in _names(type(self)):
+            _check(n, getattr(self, n), positive=n in self.positive, nonneg=n in self.nonneg)
 
     @classmethod
     def param_names(cls) -> tuple[str, ...]:
@@ -128,9 +135,7 @@ class FirstOrderLag(LowerLevelModel):
 
     Td: float
     name: ClassVar[str] = "first"
-
-    def __post_init__(self) -> None:
-        _check("Td", self.Td, positive=True)
+    positive: ClassVar[tuple[str, ...]] = ("Td",)
 
     def linear(self) -> dict[str, float]:
         """``1/(Td s + 1)``: no dead time, the lag time constant as ``a1``."""
@@ -147,12 +152,8 @@ class SecondOrder(LowerLevelModel):
     m3: float
     Td: float
     name: ClassVar[str] = "second"
-
-    def __post_init__(self) -> None:
-        _check("K0", self.K0)
-        _check("m2", self.m2, positive=True)
-        _check("m3", self.m3)
-        _check("Td", self.Td, nonneg=True)
+    positive: ClassVar[tuple[str, ...]] = ("m2",)
+    nonneg: ClassVar[tuple[str, ...]] = ("Td",)
 
     def linear(self) -> dict[str, float]:
         """``K0 e^{-Td s}/(m2 s^2 + m3 s + 1)`` in the common form (``K = 0``)."""
@@ -171,26 +172,14 @@ class Proposed(LowerLevelModel):
     Td: float
     K: float
     name: ClassVar[str] = "proposed"
-
-    def __post_init__(self) -> None:
-        _check("m1", self.m1)
-        _check("m2", self.m2, positive=True)
-        _check("m3", self.m3)
-        _check("K0", self.K0)
-        _check("Td", self.Td, nonneg=True)
-        _check("K", self.K)
+    positive: ClassVar[tuple[str, ...]] = ("m2",)
+    nonneg: ClassVar[tuple[str, ...]] = ("Td",)
 
     def linear(self) -> dict[str, float]:
         """The paper's parameters in the common form: ``b1 = m1, b0 = K0, a2 = m2,
         a1 = m3``."""
-        return {
-            "b1": self.m1,
-            "b0": self.K0,
-            "a2": self.m2,
-            "a1": self.m3,
-            "Td": self.Td,
-            "K": self.K,
-        }
+        return {"b1": self.m1, "b0": self.K0, "a2": self.m2, "a1": self.m3, "Td": self.Td,
+                "K": self.K}
 
 
 @dataclass(frozen=True)

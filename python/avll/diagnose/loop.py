@@ -231,27 +231,17 @@ class Step:
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict (the ``avll diagnose`` JSON contract)."""
-        d: dict[str, Any] = {
-            "effect": self.effect,
-            "params": self.params,
-            "model": self.model.name,
-            "cal_mse_before": _mean(self.cal_before),
-            "cal_mse_after": _mean(self.cal_after),
-            "cal_mse_before_per_run": self.cal_before,
-            "cal_mse_after_per_run": self.cal_after,
-        }
-        if self.val_before:
-            d.update(val_mse_before=_mean(self.val_before), val_mse_after=_mean(self.val_after),
-                     val_mse_before_per_run=self.val_before,
-                     val_mse_after_per_run=self.val_after)  # fmt: skip
-        else:
-            d.update(val_mse_before=None, val_mse_after=None,
-                     val_note="no validation runs given")  # fmt: skip
-        if self.test_before:
-            d.update(test_mse_before=_mean(self.test_before),
-                     test_mse_after=_mean(self.test_after),
-                     test_mse_before_per_run=self.test_before,
-                     test_mse_after_per_run=self.test_after)  # fmt: skip
+        d: dict[str, Any] = {"effect": self.effect, "params": self.params,
+                             "model": self.model.name}
+        for sp, b, a in (("cal", self.cal_before, self.cal_after),
+                         ("val", self.val_before, self.val_after),
+                         ("test", self.test_before, self.test_after)):  # fmt: skip
+            if b or sp == "cal":
+                d.update({f"{sp}_mse_before": _mean(b), f"{sp}_mse_after": _mean(a),
+                          f"{sp}_mse_before_per_run": b, f"{sp}_mse_after_per_run": a})
+            elif sp == "val":
+                d.update(val_mse_before=None, val_mse_after=None,
+                         val_note="no validation runs given")  # fmt: skip
         cv = self.cv.cv_dict() | {"folds": self.cv.folds, "fold_kind": self.cv.fold_kind}
         d.update(fold_selection=self.fold_selection, p_value=self.p_value, cv=cv,
                  at_bound=_plain(self.at_bound), flags=list(self.flags))  # fmt: skip
@@ -357,10 +347,8 @@ def make_folds(
     else:
         perm = np.random.default_rng([int(seed) % 2**63, 13]).permutation(len(runs))
         groups = [sorted(int(i) for i in g) for g in np.array_split(perm, k)]
-    out = []
-    for g in groups:
-        out.append(([r for i, r in enumerate(runs) if i not in g], [runs[i] for i in g]))
-    return out, "runs"
+    return [([r for i, r in enumerate(runs) if i not in g], [runs[i] for i in g])
+            for g in groups], "runs"  # fmt: skip
 
 
 def _sub(seed: int, *ks: int) -> int:
@@ -607,9 +595,8 @@ def effect_loop(
     flags: list[Flag] = []
     b_at = at_bound(out_base, base_upper if upper_free else None, kind)
     if b_at:
-        names = tuple(a.param for a in b_at)
-        flags.append(Flag("at_bound", 0, None, "baseline parameters at a bound of the search "
-                          "box: " + ", ".join(names), names))  # fmt: skip
+        flags.append(_at_bound_flag(b_at, 0, None, "baseline parameters at a bound of the "
+                                    "search box: "))  # fmt: skip
     for k, s in enumerate(steps, 1):
         t0, t1 = mse(prev, test_set, prev_up), mse(s.model, test_set, s.upper)
         new_flags = []
@@ -632,9 +619,8 @@ def effect_loop(
                                       f"test gain {tg:.1%} is less than {FAR_SMALLER:.0%} of "
                                       f"the {refname} gain {ref:.1%}"))  # fmt: skip
         if s.at_bound:
-            names = tuple(a.param for a in s.at_bound)
-            new_flags.append(Flag("at_bound", k, s.effect, "at a bound of the search box (not "
-                                  "an estimate): " + ", ".join(names), names))  # fmt: skip
+            new_flags.append(_at_bound_flag(s.at_bound, k, s.effect, "at a bound of the search "
+                                            "box (not an estimate): "))  # fmt: skip
         flags += new_flags
         done.append(replace(s, test_before=t0, test_after=t1,
                             flags=tuple(f.kind for f in new_flags)))  # fmt: skip
@@ -669,6 +655,11 @@ def effect_loop(
                       baseline_mse=base_mse, baseline_at_bound=b_at, baseline_upper=base_upper,
                       unexplained=unexplained, flags=flags, init=init,
                       closed_loop=closed)  # fmt: skip
+
+
+def _at_bound_flag(ats: Sequence[AtBound], step: int, effect: str | None, text: str) -> Flag:
+    names = tuple(a.param for a in ats)
+    return Flag("at_bound", step, effect, text + ", ".join(names), names)
 
 
 def _fold_hint(

@@ -120,7 +120,6 @@ def stability_section(result: LoopResult, v0: float = 15.0) -> dict[str, Any] | 
 
 
 def _stability_report(rep: Any, sec: dict[str, Any], stage: Path) -> None:
-
     from .. import _atomic
 
     base, final = sec["baseline"], sec["final"]
@@ -156,6 +155,18 @@ def _stability_report(rep: Any, sec: dict[str, Any], stage: Path) -> None:
     _atomic.savefig(fig, stage / "stability.png", dpi=90)
     rep.figure("stability.png", "Final model: amplification per car (1) against the "
                "leader's amplitude (m/s)")
+
+
+#: What the report says of each flag of a step.
+_FLAG_WORDS = {
+    "test_gain_not_held": "**The gain does not hold on the test runs.**",
+    "test_gain_far_smaller": "**The test gain is far smaller than the validation (or "
+                             "cross-validated) gain.**",
+    "validation_gain_not_held": "**The validation error does not fall.**",
+    "validation_gain_far_smaller": "**The validation gain is far smaller than the "
+                                   "cross-validated gain.**",
+    "at_bound": "Some parameters are at a bound of the search box.",
+}
 
 
 def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll diagnosis",
@@ -219,32 +230,17 @@ def write_report(result: LoopResult, out_dir: str | Path, title: str = "avll dia
                  f"(block-bootstrap 95 % interval {_pct(lo)} to {_pct(hi)}, p = "
                  f"{s.p_value:.2g}; t-test with {cv.test.n_eff:.0f} effective of "
                  f"{cv.test.n:.0f} samples: p = {cv.test.p_value:.2g}).")
-        rows = [["calibration", _num(_mean(s.cal_before)), _num(_mean(s.cal_after)),
-                 _pct(_gain(s.cal_before, s.cal_after))]]
-        if s.val_before:
-            rows.append(["validation", _num(_mean(s.val_before)), _num(_mean(s.val_after)),
-                         _pct(_gain(s.val_before, s.val_after))])
-        if s.test_before:
-            rows.append(["test", _num(_mean(s.test_before)), _num(_mean(s.test_after)),
-                         _pct(_gain(s.test_before, s.test_after))])
-        rep.table(["set", "MSE before (m/s²)²", "MSE after (m/s²)²", "gain"], rows)
-        words = {"test_gain_not_held": "**The gain does not hold on the test runs.**",
-                 "test_gain_far_smaller": "**The test gain is far smaller than the "
-                                          "validation (or cross-validated) gain.**",
-                 "validation_gain_not_held": "**The validation error does not fall.**",
-                 "validation_gain_far_smaller": "**The validation gain is far smaller than "
-                                                "the cross-validated gain.**",
-                 "at_bound": "Some parameters are at a bound of the search box."}
+        sets = [(n, b, a) for n, b, a in (("calibration", s.cal_before, s.cal_after),
+                                          ("validation", s.val_before, s.val_after),
+                                          ("test", s.test_before, s.test_after))
+                if b or n == "calibration"]  # fmt: skip
+        rep.table(["set", "MSE before (m/s²)²", "MSE after (m/s²)²", "gain"],
+                  [[n, _num(_mean(b)), _num(_mean(a)), _pct(_gain(b, a))] for n, b, a in sets])
         for fl in s.flags:
-            rep.para(words.get(fl, fl))
-        rep.code(mse_table({"before": s.cal_before, "after": s.cal_after},
-                           "Calibration MSE of acceleration"))
-        if s.val_before:
-            rep.code(mse_table({"before": s.val_before, "after": s.val_after},
-                               "Validation MSE of acceleration"))
-        if s.test_before:
-            rep.code(mse_table({"before": s.test_before, "after": s.test_after},
-                               "Test MSE of acceleration"))
+            rep.para(_FLAG_WORDS.get(fl, fl))
+        for n, b, a in sets:
+            rep.code(mse_table({"before": b, "after": a},
+                               f"{n.capitalize()} MSE of acceleration"))
     if result.trials:
         rep.heading("Every cross-validated candidate")
         rep.table(["iteration", "effect", "fold selection", "pooled gain", "p", "decision"],

@@ -27,7 +27,7 @@ which effects to cross-validate; it does not accept anything by itself.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -95,10 +95,7 @@ class Diagnosis:
             "lag1_autocorrelation": self.lag1,
             "n_eff": self.n_eff,
             "xcorr_best_lag_s": self.best_lag,
-            "signals": [
-                {"signal": s.signal, "explained": s.explained, "p_value": s.p_value}
-                for s in self.signals
-            ],
+            "signals": [s.to_dict() for s in self.signals],
             "candidates": [
                 {"effect": c.effect, "explained": c.explained, "val_explained": c.val_explained,
                  "F": c.F, "df": c.df, "p_value": c.p_value, "hint": c.hint,
@@ -106,7 +103,6 @@ class Diagnosis:
                 for c in self.candidates
             ],  # fmt: skip
         }
-
 
 
 def _signals(run: Run, sim: np.ndarray) -> dict[str, np.ndarray]:
@@ -132,7 +128,6 @@ def _signals(run: Run, sim: np.ndarray) -> dict[str, np.ndarray]:
     for k, v in run.exo.items():
         out[f"exo_{k}"] = v
     return out
-
 
 
 def _commands(runs: Sequence[Run], sims: list[np.ndarray]) -> list[np.ndarray]:
@@ -276,19 +271,12 @@ def offered(
         if n not in EFFECTS:
             raise ValueError(f"candidates: unknown effect {n!r}; known: {', '.join(EFFECTS)}")
     kind = runs[0].command_kind if runs else "acceleration"
-    out = []
-    for n in names:
-        cls = EFFECTS[n]
-        if n in model.effect_names or (getattr(cls, "accel_only", False) and kind == "speed"):
-            continue
-        if cls.level == "upper" and not closed:
-            continue
-        if cls.excludes in model.effect_names:  # not identifiable together
-            continue
-        if cls.exo is not None and not all(cls.exo in r.exo for r in runs):
-            continue
-        out.append(n)
-    return out
+    have = model.effect_names
+    return [n for n, cls in ((n, EFFECTS[n]) for n in names)
+            if n not in have and not (cls.accel_only and kind == "speed")
+            and (cls.level != "upper" or closed)
+            and cls.excludes not in have  # not identifiable together
+            and (cls.exo is None or all(cls.exo in r.exo for r in runs))]
 
 
 def diagnose(
@@ -330,12 +318,9 @@ def diagnose(
         speed_rms = float(np.sqrt(np.mean(np.concatenate(evs) ** 2)))
     # Spectrum and autocorrelation (of the longest run's residual, averaged over runs).
     nper = int(min(512, min(len(x) for x in res)))
-    freqs, psds = [], []
-    for r, x in zip(runs, res, strict=True):
-        fq, pp = signal.welch(x - x.mean(), fs=1.0 / r.dt, nperseg=nper)
-        freqs.append(fq)
-        psds.append(pp)
-    freq, psd = freqs[0], np.mean([p for p in psds if p.size == psds[0].size], axis=0)
+    psds = [signal.welch(x - x.mean(), fs=1.0 / r.dt, nperseg=nper)
+            for r, x in zip(runs, res, strict=True)]
+    freq, psd = psds[0][0], np.mean([p for _, p in psds if p.size == psds[0][1].size], axis=0)
     maxlag = int(min(200, nper - 1))  # every run has at least nper samples
     ac = np.zeros(maxlag + 1)
     for x in res:
@@ -365,9 +350,7 @@ def diagnose(
     deps = []
     for k in names:
         x = np.concatenate([s[k] for s in sig_runs])
-        d = _binned(x, e, np.cumsum([len(r) for r in runs])[:-1])
-        deps.append(SignalDependence(k, d.centers, d.means, d.half_width, d.counts,
-                                     d.explained, d.p_value))  # fmt: skip
+        deps.append(replace(_binned(x, e, np.cumsum([len(r) for r in runs])[:-1]), signal=k))
     # Candidate effects: the score test by simulation.
     kind = runs[0].command_kind
     allowed = offered(model, [*runs, *val_runs], candidates, closed=closed)
@@ -451,8 +434,6 @@ def _hint(
     for (lo, hi), p in zip(cls.bounds, cls.param_names(), strict=True):
         out[p] = float(np.clip(out[p], lo, hi))
     return out
-
-
 
 
 def residual_structure(

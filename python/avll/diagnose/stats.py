@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -105,8 +105,7 @@ def _ess(res: Sequence[np.ndarray]) -> float:
     if acov[0] <= 0:
         return float(n)
     rho = acov / acov[0]
-    tau = 1.0  # 1 + 2 sum_{k>=1} rho_k = -1 + 2 sum_m Gamma_m
-    total = 0.0
+    total = 0.0  # 1 + 2 sum_{k>=1} rho_k = -1 + 2 sum_m Gamma_m
     for m in range(maxlag // 2):
         g = rho[2 * m] + rho[2 * m + 1]
         if g <= 0:
@@ -114,7 +113,6 @@ def _ess(res: Sequence[np.ndarray]) -> float:
         total += g
     tau = max(2 * total - 1.0, 1.0)
     return max(float(n) / tau, 10.0)
-
 
 
 def effective_sample_size(res: Sequence[np.ndarray]) -> float:
@@ -163,7 +161,6 @@ def _binned(x: np.ndarray, e: np.ndarray, cuts: np.ndarray, nbins: int = 10) -> 
     return SignalDependence("", centers, means, hw, counts, explained, p)
 
 
-
 def binned_dependence(
     signal: str, x: np.ndarray, e: np.ndarray, lengths: Sequence[int], nbins: int = 10
 ) -> SignalDependence:
@@ -173,8 +170,7 @@ def binned_dependence(
     effective sample size of the residual with the bin means removed."""
     cuts = np.cumsum(list(lengths))[:-1]
     d = _binned(np.asarray(x, dtype=np.float64), np.asarray(e, dtype=np.float64), cuts, nbins)
-    return SignalDependence(signal, d.centers, d.means, d.half_width, d.counts, d.explained,
-                            d.p_value)  # fmt: skip
+    return replace(d, signal=signal)
 
 
 def loss_difference_test(
@@ -270,5 +266,3 @@ def _lstsq(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     beta = beta / sc
     r = y - X @ beta
     return beta, float(r @ r)
-
-
