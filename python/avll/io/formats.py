@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ..data import Run
-from ._common import strict_warnings
+from ._common import with_strict
 from .carma import load_carma
 from .generic import load_generic
 from .openacc import load_openacc_astazero
@@ -30,20 +30,13 @@ __all__ = ["LOADERS", "load_format"]
 def _resampling(loader: Callable[..., list[Run]]) -> Callable[..., list[Run]]:
     @functools.wraps(loader)
     def wrapped(path: str | Path, command_kind: str | None = None, *,
-                dt: float | None = None, max_gap: float | None = None,
-                strict: bool = False, **kw: Any) -> list[Run]:
-        if not isinstance(strict, bool):
-            raise TypeError(f"strict: must be True or False, got {strict!r}")
-        with strict_warnings(strict):
-            runs = loader(path, command_kind=command_kind, **kw)
-            if dt is None:
-                return runs
-            out: list[Run] = []
-            for r in runs:
-                out += resample_run(r, dt, max_gap=max_gap)
-            return out
+                dt: float | None = None, max_gap: float | None = None, **kw: Any) -> list[Run]:
+        runs = loader(path, command_kind=command_kind, **kw)
+        if dt is None:
+            return runs
+        return [s for r in runs for s in resample_run(r, dt, max_gap=max_gap)]
 
-    return wrapped
+    return with_strict(wrapped)
 
 
 #: format name -> loader(path, command_kind=None, *, dt=None, max_gap=None, **options)
