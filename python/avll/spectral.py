@@ -60,7 +60,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -129,11 +129,9 @@ class BandGain:
 
     def to_dict(self) -> dict[str, Any]:
         """The scalar fields (JSON-ready; ``None`` where not estimated)."""
-        return {"gain": self.gain, "ci": None if self.ci is None else list(self.ci),
-                "coherence": self.coherence, "n_segments": self.n_segments,
-                "n_effective": self.n_effective, "segment_s": self.segment_s,
-                "excitation": self.excitation, "reason": self.reason,
-                "ci_reason": self.ci_reason, "lag_s": self.lag_s, "method": self.method}
+        out = {f.name: getattr(self, f.name) for f in fields(self)
+               if f.name not in ("freqs", "h", "coh", "sxx")}
+        return {**out, "ci": None if self.ci is None else list(self.ci)}
 
 
 def _check_band(band: Sequence[float], dt: float) -> tuple[float, float]:

@@ -409,8 +409,7 @@ def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt:
 
     v_mean = float(np.mean(v_true))
     lin_model = WithEffects(car.model, car.effects)
-    n = lead_v_true.size
-    f = np.fft.rfftfreq(n, dt)
+    f = np.fft.rfftfreq(lead_v_true.size, dt)
     lo, hi = (float(b) for b in band)
     fb = f[(f >= lo) & (f <= hi)]
     hid = car.hidden
@@ -943,11 +942,10 @@ def validate_structure(
                             m.upper_linear(up, v=vbar)["Tg_eq"] + up.Gmin / vbar, c.cost, h,
                             {k2: v for k2, v in c.params.items() if "." in k2}))
             fits[key] = out
-        for j, (r, tr) in enumerate(zip(pl.runs, pl.truth, strict=True)):
-            b, c = fits["base"][j], fits["candidates"][j]
+        for r, tr, b, c in zip(pl.runs, pl.truth, fits["base"], fits["candidates"], strict=True):
             rows.append(StructureRow(int(s), str(r.meta["car"]), float(tr["band_gain"]),
                                      float(tr["time_gap_effective"]), b[0], b[1], b[2], b[3],
-                                     c[0], c[1], c[2], c[3], c[4]))  # fmt: skip
+                                     c[0], c[1], c[2], c[3], c[4]))
 
     def summary(amp: str, tg: str, held: str) -> StructureSummary:
         return StructureSummary(**_errors(_col(rows, amp) / _col(rows, "band_gain") - 1.0,

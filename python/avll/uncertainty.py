@@ -274,8 +274,7 @@ def _politis_white(x: np.ndarray) -> float:
     n = x.size
     x = x - x.mean()
     kn = max(5, int(math.ceil(math.sqrt(math.log10(n)))))
-    mmax = int(math.ceil(math.sqrt(n))) + kn
-    mmax = min(mmax, n - 1)
+    mmax = min(int(math.ceil(math.sqrt(n))) + kn, n - 1)
     # the autocovariances up to mmax by FFT
     f = np.fft.rfft(x, 2 * n)
     acov = np.fft.irfft(f * np.conj(f))[: mmax + 1] / n
@@ -356,18 +355,14 @@ def widen(samples: np.ndarray, estimate: np.ndarray,
     out = x.copy()
     if not factor >= 1.0:
         raise ValueError(f"factor: must be >= 1, got {factor!r}")
-    if math.isinf(factor):
-        for j, (lo, hi, _) in enumerate(bounds):
-            if hi != lo:
-                out[:, j] = np.nan
-        return out
     for j, (lo, hi, sc) in enumerate(bounds):
         if hi == lo:
             continue
-        z = _unit(x[:, j], lo, hi, sc)
+        if math.isinf(factor):
+            out[:, j] = np.nan
+            continue
         z0 = float(_unit(np.array([estimate[j]], dtype=np.float64), lo, hi, sc)[0])
-        dev = z - z0
-        zw = z0 + factor * dev
+        zw = z0 + factor * (_unit(x[:, j], lo, hi, sc) - z0)
         out[:, j] = _from_unit(np.clip(zw, 0.0, 1.0), lo, hi, sc)
         out[~np.isfinite(x[:, j]), j] = np.nan
     return out
@@ -534,10 +529,8 @@ class Uncertainty:
         import pandas as pd
 
         iv, ver = self.intervals, self.verdicts()
-        est = dict(zip(self.names, self.estimate, strict=True))
-        est.update(self.combination_estimates)
-        cols = {n: self.samples[:, j] for j, n in enumerate(self.names)}
-        cols.update(self.combinations)
+        est = {**dict(zip(self.names, self.estimate, strict=True)), **self.combination_estimates}
+        cols = {**{n: self.samples[:, j] for j, n in enumerate(self.names)}, **self.combinations}
         med = {n: float(np.nanmedian(v)) if np.isfinite(v).any() else math.nan
                for n, v in cols.items()}
         names = list(cols)
@@ -907,8 +900,8 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
             val[i, pos[j]] = u.estimate[j]
             lo[i, pos[j]], hi[i, pos[j]] = iv[n]
             ok[i, pos[j]] = ver[n] == "identified"
-            for k2 in range(len(u.names)):
-                cor[i, pos[j], pos[k2]] = c[j, k2] if c.size else np.nan
+        if c.size:
+            cor[i][np.ix_(pos, pos)] = c
         for n in u.combinations:
             cv[n][i] = (u.combination_estimates.get(n, np.nan), *iv[n])
             cid[n][i] = ver[n] == "identified"
@@ -1157,6 +1150,8 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
             _sigint.clear()
             return [_stopped(prob, s, x0[k], opts, f_given[k]) for k, s in enumerate(subsets)]
     plans = [_plan(prob, s, x0[k], opts, seed, k, threads) for k, s in enumerate(subsets)]
+    problems = [[int(i) for i in s] for s in subsets]
+    atoms, weights = [p[1] for p in plans], [p[2] for p in plans]
     # the refits' own budget (the polish above kept the options' one)
     ropts = replace(opts, budget=refit_budget(opts, x0.shape[1]))
     bar: Any = None
@@ -1176,15 +1171,13 @@ def estimate(prob: Any, subsets: Sequence[Sequence[int]], x0s: Sequence[np.ndarr
         if refit is None:
             raws = _core.refit_resamples(
                 prob.cls.name, lower_bounds=prob.lower, upper_bounds=prob.upper,
-                scale=prob.scale, problems=[[int(i) for i in s] for s in subsets], x0=x0,
-                atoms=[p[1] for p in plans], resample_weights=[p[2] for p in plans],
-                budget=ropts.budget, step=float(opts.step), ftol=float(opts.ftol),
-                method=opts.refit,
+                scale=prob.scale, problems=problems, x0=x0, atoms=atoms,
+                resample_weights=weights, budget=ropts.budget, step=float(opts.step),
+                ftol=float(opts.ftol), method=opts.refit,
                 progress=cb if (callable(progress) or bar.mode != "none") else None,
                 threads=int(threads), **prob.kw)
         else:
-            raws = refit([[int(i) for i in s] for s in subsets], x0, [p[1] for p in plans],
-                         [p[2] for p in plans], ropts, threads)
+            raws = refit(problems, x0, atoms, weights, ropts, threads)
         done = not any(bool(r["interrupted"]) for r in raws)
         if not done:
             _sigint.clear()
