@@ -89,8 +89,6 @@ def read_runs(
     ``strict=True`` turns every :class:`avll.DataWarning` (implausible values,
     sidecar entries for runs not in the data) into a :class:`avll.DataError`.
     """
-    if not isinstance(strict, bool):
-        raise TypeError(f"strict: must be True or False, got {strict!r}")
     with strict_warnings(strict):
         return _read_runs(path, command_kind, format, **options)
 

@@ -217,7 +217,10 @@ def strict_warnings(strict: bool = True) -> Iterator[None]:
     """Within the block, every :class:`avll.DataWarning` (plausibility, sidecar
     mismatches) raises a :class:`DataError` with the same message (``strict``), or is
     held back and issued when the block ends normally: a load that fails with an
-    error does not also print the warnings that led up to it."""
+    error does not also print the warnings that led up to it. A ``strict`` that is not a
+    bool is a ``TypeError``."""
+    if not isinstance(strict, bool):
+        raise TypeError(f"strict: must be True or False, got {strict!r}")
     if not strict:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", DataWarning)
@@ -238,8 +241,6 @@ def with_strict(loader: Callable[..., list[Run]]) -> Callable[..., list[Run]]:
 
     @functools.wraps(loader)
     def wrapped(*args: Any, strict: bool = False, **kw: Any) -> list[Run]:
-        if not isinstance(strict, bool):
-            raise TypeError(f"strict: must be True or False, got {strict!r}")
         with strict_warnings(strict):
             return loader(*args, **kw)
 

@@ -267,11 +267,10 @@ def load_canonical(path: Path, command_kind: str | None = None, *,
                    strict: bool = False) -> list[Run]:
     """Reads runs in the canonical long format (see the module doc). ``strict=True``
     turns plausibility and sidecar warnings into :class:`DataError`."""
-    if not isinstance(strict, bool):
-        raise TypeError(f"strict: must be True or False, got {strict!r}")
-    if command_kind is not None and command_kind not in COMMAND_KINDS:
-        raise ValueError(f"command_kind: must be one of {COMMAND_KINDS}, got {command_kind!r}")
     with strict_warnings(strict):
+        if command_kind is not None and command_kind not in COMMAND_KINDS:
+            raise ValueError(f"command_kind: must be one of {COMMAND_KINDS}, got "
+                             f"{command_kind!r}")
         return _load_canonical(Path(path), command_kind)
 
 

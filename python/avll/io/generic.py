@@ -65,8 +65,6 @@ def load_generic(
     Raises :class:`avll.DataError` naming the file, column and row for bad input;
     ``strict=True`` turns plausibility warnings into errors.
     """
-    if not isinstance(strict, bool):
-        raise TypeError(f"strict: must be True or False, got {strict!r}")
     with strict_warnings(strict):
         return _load_generic(Path(path), mapping, command_kind, dt, max_gap, time_tol,
                              min_samples)
