@@ -1,27 +1,18 @@
 """Atomic outputs: every file the library writes goes through this module.
 
-Files
-    :func:`atomic_path` yields a temporary name in the destination's folder
-    (``.<name>.tmp-XXXXXX<suffix>``, so writers that look at the suffix still work);
-    when the block ends normally the file is flushed to disk (``fsync``) and renamed
-    onto the destination with ``os.replace`` (atomic on POSIX and Windows), otherwise
-    (an error, Ctrl-C) it is removed. A reader therefore sees the old file or the
-    complete new one, never a truncated one. :func:`write_text`, :func:`write_bytes`,
-    :func:`write_json` (strict JSON: ``allow_nan=False``), :func:`savefig`,
-    :func:`to_csv` and :func:`to_parquet` are the writers built on it.
+Files: :func:`atomic_path` yields a temporary name beside the destination
+(``.<name>.tmp-XXXXXX<suffix>``: writers that look at the suffix still work), flushed to
+disk and renamed onto it (``os.replace``) when the block ends normally, removed otherwise
+(an error, Ctrl-C): a reader sees the old file or the complete new one, never a truncated
+one. :func:`write_text`, :func:`write_bytes`, :func:`write_json` (strict JSON),
+:func:`savefig`, :func:`to_csv` and :func:`to_parquet` are built on it.
 
-Folders
-    :func:`output_dir` builds a folder of outputs (a report with its figures, a
-    reproduction) in a hidden temporary folder inside it (``.avll-tmp-XXXXXX``: the same
-    file system, writable wherever the folder is) and commits it when the block ends:
-    the old ``MANIFEST.json`` is removed first, every new file is moved in with
-    ``os.replace``, files listed in the old manifest that the new run did not write
-    are removed, and the new ``MANIFEST.json`` (file names, sizes, SHA-256) is written
-    last. Ctrl-C is deferred for the few milliseconds of the commit. Interrupted
-    before the commit, the folder is exactly as it was (a finished earlier run stays
-    complete and consistent); files the user put in the folder are never touched.
-    :func:`read_manifest` is the check a reader runs: it fails unless the manifest is
-    there and every file matches it.
+Folders: :func:`output_dir` stages a folder of outputs in a hidden folder inside it
+(``.avll-tmp-XXXXXX``) and commits it when the block ends, Ctrl-C deferred: the old
+``MANIFEST.json`` is removed first, every new file moved in, files of the old manifest
+the new run did not write removed, and the new manifest (names, sizes, SHA-256) written
+last. Interrupted before the commit, the folder is as it was; files the user put there
+are never touched. :func:`read_manifest` checks a folder against its manifest.
 """
 
 from __future__ import annotations
@@ -41,24 +32,9 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
-    "MANIFEST",
-    "atomic_path",
-    "atomic_paths",
-    "write_text",
-    "write_bytes",
-    "write_json",
-    "json_safe",
-    "dumps",
-    "savefig",
-    "figure_dpi",
-    "figure_bytes",
-    "to_csv",
-    "to_parquet",
-    "output_dir",
-    "output_group",
-    "read_manifest",
-    "same_file",
-    "check_not_inputs",
+    "MANIFEST", "atomic_path", "atomic_paths", "write_text", "write_bytes", "write_json",
+    "json_safe", "dumps", "savefig", "figure_dpi", "figure_bytes", "to_csv", "to_parquet",
+    "output_dir", "output_group", "read_manifest", "same_file", "check_not_inputs",
     "deferred_sigint",
 ]
 
@@ -296,13 +272,9 @@ def _sha256(path: Path) -> str:
 
 
 def _files(root: Path) -> list[str]:
-    out = []
-    for p in root.rglob("*"):
-        rel = p.relative_to(root)
-        if p.is_file() and p.name != MANIFEST and not any(
-                part.startswith(STAGING_PREFIX) for part in rel.parts):
-            out.append(str(rel).replace(os.sep, "/"))
-    return sorted(out)
+    rels = [p.relative_to(root) for p in root.rglob("*") if p.is_file() and p.name != MANIFEST]
+    return sorted(str(r).replace(os.sep, "/") for r in rels
+                  if not any(part.startswith(STAGING_PREFIX) for part in r.parts))
 
 
 def _old_manifest_files(dest: Path) -> list[str]:
@@ -495,6 +467,3 @@ def check_not_inputs(outputs: Sequence[tuple[str, Any]], inputs: Sequence[tuple[
             if same_file(op, ip):
                 raise ValueError(f"{olab}: {op} is the input {ilab} ({ip}); writing it would "
                                  "replace the input: choose another output name")
-            if ip.is_dir() and op.resolve() == ip.resolve():
-                raise ValueError(f"{olab}: {op} is the input folder {ilab}; choose another "
-                                 "output folder")

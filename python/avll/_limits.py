@@ -1,24 +1,17 @@
-"""Argument guards shared by every public function: integer arguments, the thread
-bound, seeds, and the memory estimate checked before a call allocates in
-proportion to its inputs.
+"""Argument guards shared by every public function: integers, the thread bound, seeds,
+and the memory estimate checked before a call allocates in proportion to its inputs.
 
-Threads
-    ``threads`` must be an integer (``bool`` and floats such as ``1.5`` are a
-    ``TypeError``), ``>= 0`` (0 = all cores) and at most
-    ``avll._core.max_threads()`` = ``THREADS_PER_CORE`` (4) x the cores available to
-    the process. The Rust core applies the same bound (``rust/parallel.rs``), so a
-    request for ``10**6`` threads fails at once, before any thread is started.
+Threads: an integer (``bool`` and ``1.5`` are a ``TypeError``), ``>= 0`` (0: all cores)
+and at most ``avll._core.max_threads()`` = ``THREADS_PER_CORE`` (4) x the cores available
+to the process, the bound the Rust core applies too (``rust/parallel.rs``): a request
+for ``10**6`` threads fails at once.
 
-Memory
-    :func:`check_memory` compares a call's estimated peak allocation with what the
-    process can still get: the smallest of ``MemAvailable`` (``/proc/meminfo``, or
-    ``os.sysconf`` elsewhere), the cgroup limit (``memory.max - memory.current``) and
-    the ``RLIMIT_AS`` / ``RLIMIT_DATA`` soft limits minus the process's current
-    address space / data size. A request above :data:`MEMORY_FRACTION` of that is
-    refused with a ``ValueError`` that says how much is needed and how to split the
-    work; the allocation in Rust (which would abort the process) never happens.
-    Calls needing less than :data:`SMALL` bytes are not checked (no file reads on the
-    fast path).
+Memory: :func:`check_memory` refuses (``ValueError``: how much is needed, how to split
+the work) a call whose estimated peak allocation exceeds :data:`MEMORY_FRACTION` of what
+the process can still get: the smallest of ``MemAvailable`` (``/proc/meminfo``, or
+``os.sysconf``), the cgroup limit and the ``RLIMIT_AS`` / ``RLIMIT_DATA`` soft limits
+less what is in use; the allocation in Rust (which would abort) never happens. Calls
+under :data:`SMALL` bytes are not checked (no file reads on the fast path).
 """
 
 from __future__ import annotations
@@ -31,16 +24,8 @@ from typing import Any
 from . import _core
 
 __all__ = [
-    "SMALL",
-    "MEMORY_FRACTION",
-    "SEED_MAX",
-    "check_int",
-    "check_number",
-    "check_threads",
-    "check_seed",
-    "available_memory",
-    "check_memory",
-    "fmt_bytes",
+    "SMALL", "MEMORY_FRACTION", "SEED_MAX", "check_int", "check_number", "check_threads",
+    "check_seed", "available_memory", "check_memory", "fmt_bytes",
 ]
 
 #: Allocations below this many bytes are not checked.

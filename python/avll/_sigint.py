@@ -75,9 +75,8 @@ console = False
 
 def quiet_exit(signum: int, frame: FrameType | None) -> None:
     """SIGINT handler of the ``avll`` command's first and last moments (importing the
-    package; after the command's outputs are committed): nothing is half written then,
-    so it flushes stdout, prints one line and exits with 130 at once, without a
-    traceback and without ending the process by the signal."""
+    package; after the outputs are committed), when nothing is half written: flushes
+    stdout, prints one line and exits with 130 at once, without a traceback."""
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):  # a closed pipe: nothing left to say there
             stream.flush()
@@ -87,8 +86,7 @@ def quiet_exit(signum: int, frame: FrameType | None) -> None:
 
 
 def _is_console(argv: list[str], orig: list[str]) -> bool:
-    """Whether this process is the ``avll`` command (the console script, or
-    ``python -m avll`` / ``python -m avll.cli``)."""
+    """Whether this process is the ``avll`` command (console script or ``python -m``)."""
     if argv and os.path.basename(argv[0]).removesuffix(".exe") == "avll":
         return True
     pairs = zip(orig[:-1], orig[1:], strict=True)
@@ -110,30 +108,24 @@ def at_startup() -> None:
         console = True
 
 
-#: The ``sys.unraisablehook`` the command replaced (:func:`command_starts`), if any.
 _previous_hook: Callable[[Any], object] | None = None
 
 
 def _quiet_unraisable(u: Any) -> None:
-    """``sys.unraisablehook`` of the ``avll`` command while it runs: a
-    ``KeyboardInterrupt`` that Python could not raise (it landed in a weakref callback or
-    a ``__del__``, e.g. importlib's module-lock callback during an import) is latched by
-    :func:`handler` and delivered by :func:`check` (at the next progress update, and
-    before the command commits its outputs); Python would print it as "Exception
-    ignored" with a traceback, for an interruption the command reports in one line.
-    Anything else goes to the hook it replaced."""
+    """``sys.unraisablehook`` while the command runs: a ``KeyboardInterrupt`` Python
+    could not raise (in a weakref callback or a ``__del__``) is latched and delivered by
+    :func:`check`, not printed as "Exception ignored"; anything else goes to the hook it
+    replaced."""
     if u.exc_type is KeyboardInterrupt and _pending:
         return
     (_previous_hook or sys.__unraisablehook__)(u)
 
 
 def command_starts() -> None:
-    """The command runs: a Ctrl-C raises ``KeyboardInterrupt`` again (the command handles
-    it itself and commits or removes its outputs), through :func:`handler`, which also
-    latches it: a library that turns the ``KeyboardInterrupt`` into another error (a C++
-    extension converting arguments, say) still leaves :func:`interrupted` true, so the
-    command reports the interruption, not that error; one Python had to ignore is not
-    printed (:func:`_quiet_unraisable`)."""
+    """The command runs: a Ctrl-C raises ``KeyboardInterrupt`` through :func:`handler`,
+    which latches it, so a library that turns it into another error still leaves
+    :func:`interrupted` true (the command reports the interruption, not that error); one
+    Python had to ignore is not printed (:func:`_quiet_unraisable`)."""
     global _previous_hook
     if console and signal.getsignal(signal.SIGINT) is quiet_exit:
         clear()
@@ -144,7 +136,6 @@ def command_starts() -> None:
 
 
 def _restore_unraisable() -> None:
-    """Puts back the ``sys.unraisablehook`` :func:`command_starts` replaced."""
     global _previous_hook
     if sys.unraisablehook is _quiet_unraisable and _previous_hook is not None:
         sys.unraisablehook = _previous_hook
@@ -157,13 +148,10 @@ def interrupted() -> bool:
 
 
 def command_ends() -> None:
-    """The command is done (outputs committed or removed): a Ctrl-C from now until the
-    interpreter shuts down is :func:`quiet_exit` (one line, exit 130), not a signal exit.
-    Once it shuts down (``atexit``), SIGINT is ignored: while it finalizes, CPython puts
-    the operating system's default action back for a signal that has a Python handler
-    (not for an ignored one), so a Ctrl-C in that last instant would otherwise end the
-    process by the signal, without a word; ignored, the process exits with the
-    command's code."""
+    """The command is done (outputs committed or removed): a Ctrl-C is now
+    :func:`quiet_exit` (one line, exit 130), and ignored once the interpreter shuts down
+    (``atexit``): CPython then restores the default action of a signal with a Python
+    handler (not of an ignored one), which would end the process by the signal."""
     if console and threading.current_thread() is threading.main_thread():
         import atexit
 

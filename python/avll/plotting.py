@@ -17,37 +17,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .defaults import (
-    CLASS_COLORS,
-    CLASS_LABELS,
-    MEASURED_COLOR,
-    MODEL_COLORS,
-    MODEL_LINESTYLES,
-)
+from .defaults import CLASS_COLORS, CLASS_LABELS, MEASURED_COLOR, MODEL_COLORS, MODEL_LINESTYLES
 from .paper import MODEL_LABELS
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
 __all__ = [
-    "model_color",
-    "model_label",
-    "model_linestyle",
-    "data_label",
-    "is_log_spaced",
-    "regions",
-    "classes",
-    "thresholds",
-    "traces",
-    "convergence",
-    "measured_vs_simulated",
-    "amplification_per_car",
-    "time_gap_per_car",
-    "residual_diagnosis",
-    "signal_axis_label",
-    "residual_unexplained",
-    "amplitude_amplification",
-    "boundaries",
+    "model_color", "model_label", "model_linestyle", "data_label", "is_log_spaced", "regions",
+    "classes", "thresholds", "traces", "convergence", "measured_vs_simulated",
+    "amplification_per_car", "time_gap_per_car", "residual_diagnosis", "signal_axis_label",
+    "residual_unexplained", "amplitude_amplification", "boundaries",
 ]
 
 #: Resolution in dots per inch of the PNG figures the ``avll`` commands write (their
@@ -90,21 +70,26 @@ def is_log_spaced(x: Any) -> bool:
     return bool(np.allclose(r, r[0], rtol=1e-6) and not np.allclose(d, d[0], rtol=1e-6))
 
 
-def _new(nrow: int = 1, ncol: int = 1, size: tuple[float, float] = (6.0, 4.0)) -> tuple[
-        Figure, Any]:
+def _new(nrow: int, ncol: int, size: tuple[float, float]) -> tuple[Figure, list[Any]]:
+    """A figure of ``nrow`` x ``ncol`` panels of ``size`` each; the axes row by row."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(size[0] * ncol, size[1] * nrow), layout="constrained")
-    axes = fig.subplots(nrow, ncol, squeeze=False)
-    return fig, axes
+    return fig, list(fig.subplots(nrow, ncol, squeeze=False).ravel())
+
+
+def _names_labels(models: Sequence[Any], labels: Sequence[str] | None
+                  ) -> tuple[list[str], list[str]]:
+    """The models' names and their legend labels (``labels``, or :func:`model_label`)."""
+    names = [getattr(m, "name", str(m)) for m in models]
+    return names, list(labels) if labels is not None else [model_label(n) for n in names]
 
 
 def _kv_panels(kg: np.ndarray, kvs: np.ndarray) -> tuple[Figure, list[Any]]:
     """A figure of one kg-Tg panel per kv (three a row, spare panels hidden), each
     titled and labelled, its kg axis log-scaled when the kg grid is log-spaced."""
     ncol = min(kvs.size, 3)
-    fig, axes = _new((kvs.size + ncol - 1) // ncol, ncol, (4.2, 3.6))
-    panels = list(axes.ravel())
+    fig, panels = _new((kvs.size + ncol - 1) // ncol, ncol, (4.2, 3.6))
     log = is_log_spaced(kg)
     for ax, kv in zip(panels, kvs, strict=False):
         if log:
@@ -130,8 +115,7 @@ def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Any,
 
     kg, tg = np.asarray(kg, dtype=float), np.asarray(tg, dtype=float)
     kvs = np.atleast_1d(np.asarray(kv_values, dtype=float))
-    names = [getattr(m, "name", str(m)) for m in models]
-    labs = list(labels) if labels is not None else [model_label(n) for n in names]
+    names, labs = _names_labels(models, labels)
     fig, panels = _kv_panels(kg, kvs)
     for j, ax in enumerate(panels):
         any_stable = False
@@ -192,10 +176,8 @@ def thresholds(models: Sequence[Any], ths: Sequence[Any], *,
     beyond it. A kg axis is logarithmic when the thresholds span more than a decade."""
     from matplotlib.lines import Line2D
 
-    fig, axes = _new(1, 2, (4.6, 3.8))
-    a1, a2 = axes[0]
-    names = [getattr(m, "name", str(m)) for m in models]
-    labs = list(labels) if labels is not None else [model_label(n) for n in names]
+    fig, (a1, a2) = _new(1, 2, (4.6, 3.8))
+    names, labs = _names_labels(models, labels)
     any_edge = False
     for i, (nm, lab, th) in enumerate(zip(names, labs, ths, strict=True)):
         c = model_color(nm, i)
@@ -232,8 +214,7 @@ def traces(t: Any, measured: Any, simulated: Mapping[str, Any], *, data: str = "
            command: Any = None) -> Figure:
     """A recorded (``data``: ``"measured"`` or ``"synthetic"``) trace against the
     models' simulations (paper Figs. 3-4); ``command`` adds the command input."""
-    fig, axes = _new(1, 1, (8.0, 3.5))
-    ax = axes[0][0]
+    fig, (ax,) = _new(1, 1, (8.0, 3.5))
     if measured is not None:
         ax.plot(t, measured, color=MEASURED_COLOR, lw=1.0, label=data)
     if command is not None:
@@ -249,8 +230,7 @@ def traces(t: Any, measured: Any, simulated: Mapping[str, Any], *, data: str = "
 
 def convergence(history: Any, *, model: str = "", title: str = "") -> Figure:
     """Best cost against GA generation (log scale when positive)."""
-    fig, axes = _new(1, 1, (5.0, 3.5))
-    ax = axes[0][0]
+    fig, (ax,) = _new(1, 1, (5.0, 3.5))
     h = np.asarray(history, dtype=float)
     ax.plot(np.arange(1, h.size + 1), h, color=model_color(model), label=model_label(model)
             if model else "best cost")
@@ -298,7 +278,6 @@ def amplification_per_car(cars: Sequence[Mapping[str, Any]], models: Sequence[st
     predecessor's speed oscillations, per car, from ``|H(jω)|`` and by replay (the OpenACC
     study's ``cars`` entries); cars under human control are crosses."""
     fig, axes = _new(1, 2, (5.5, 5.0))
-    axes = axes[0]
     axes[1].sharex(axes[0])
     axes[1].sharey(axes[0])
     meas = [c for c in cars if c["amplification_measured"] is not None]
@@ -354,8 +333,7 @@ def time_gap_per_car(cars: Sequence[Mapping[str, Any]], model: str) -> Figure:
     several campaigns a car model has one column per campaign; settings other than
     L/M/S (e.g. ``min``, ``shortest``) get a colour each, placed by their order
     (``setting_rank``) within the column."""
-    fig, axes = _new(1, 1, (11.0, 4.5))
-    ax = axes[0][0]
+    fig, (ax,) = _new(1, 1, (11.0, 4.5))
     multi = len({c.get("campaign", "") for c in cars}) > 1
 
     def col_name(c: Mapping[str, Any]) -> str:
@@ -401,7 +379,7 @@ def residual_diagnosis(d: Any) -> list[tuple[str, Figure]]:
     n = len(d.signals)
     cols = 3
     fig, axes = _new((n + cols - 1) // cols or 1, cols, (4.0, 3.0))
-    for ax, s in zip(axes.ravel(), d.signals, strict=False):
+    for ax, s in zip(axes, d.signals, strict=False):
         ok = s.counts > 0
         ax.errorbar(s.centers[ok], s.means[ok], yerr=s.half_width[ok], fmt="o-", capsize=3,
                     color=MEASURED_COLOR)
@@ -410,10 +388,9 @@ def residual_diagnosis(d: Any) -> list[tuple[str, Figure]]:
                      fontsize=9)  # fmt: skip
         ax.set_xlabel(signal_axis_label(s.signal), fontsize=8)
         ax.set_ylabel("residual (m/s²)", fontsize=8)
-    for ax in axes.ravel()[n:]:
+    for ax in axes[n:]:
         ax.set_visible(False)
-    fig2, axes2 = _new(1, 3, (4.3, 3.2))
-    ax0, ax1, ax2 = axes2[0]
+    fig2, (ax0, ax1, ax2) = _new(1, 3, (4.3, 3.2))
     ax0.semilogy(d.freq[1:], d.psd[1:], color=MEASURED_COLOR)
     ax0.set(xlabel="frequency (Hz)", ylabel="(m/s²)²/Hz", title="residual PSD")
     dt = d.xcorr_lags[1] - d.xcorr_lags[0] if d.xcorr_lags.size > 1 else 1.0
@@ -451,7 +428,7 @@ def residual_unexplained(unexplained: Mapping[str, Any]) -> Figure:
     "keeps structure" colour and say so."""
     sigs = list(unexplained.get("signals", []))
     fig, axes = _new(1, max(len(sigs), 1), (4.0, 3.2))
-    for ax, s in zip(axes.ravel(), sigs, strict=False):
+    for ax, s in zip(axes, sigs, strict=False):
         c, m, h = (np.asarray(s[k], dtype=float) for k in ("centers", "means", "half_width"))
         ok = np.isfinite(c) & np.isfinite(m)
         ax.errorbar(c[ok], m[ok], yerr=h[ok], fmt="o-", capsize=3,
@@ -470,8 +447,7 @@ def amplitude_amplification(res: Any) -> Figure:
     amplification per car against the disturbance amplitude (with the linearised
     ``|H(jω)|``), and the speed amplitude along the platoon relative to the
     leader's."""
-    fig, axes = _new(1, 2, (5.0, 4.0))
-    ax1, ax2 = axes[0]
+    fig, (ax1, ax2) = _new(1, 2, (5.0, 4.0))
     n_cars = res.amplification.shape[1]
     for i in range(n_cars):
         ax1.plot(res.amplitudes, res.amplification[:, i], "o-", ms=3, label=f"car {i + 1}")
@@ -505,8 +481,7 @@ def boundaries(bounds: Sequence[Any], labels: Sequence[str] | None = None) -> Fi
     if not bs or not all(hasattr(b, "dims") and len(b.dims) == 2 for b in bs):
         raise ValueError("boundaries: expected 2-D DataArrays from avll.boundary")
     fig, axes = _new(1, len(bs), (4.6, 3.6))
-    for i, b in enumerate(bs):
-        ax = axes[0][i]
+    for i, (ax, b) in enumerate(zip(axes, bs, strict=True)):
         x, c = b.dims
         for j, cv in enumerate(b[c].values):
             ax.plot(b[x].values, b.values[:, j], label=f"{c} = {cv:g}")

@@ -70,7 +70,6 @@ def messages(prefix: str, progress: Any, file: TextIO | None = None) -> Callable
 
 
 def _emit(line: str, bar: bool, file: TextIO | None) -> None:
-    """Prints ``line`` on ``file`` (default stderr), above any tqdm bar when ``bar``."""
     out = sys.stderr if file is None else file
     if bar:
         from tqdm.auto import tqdm
@@ -110,8 +109,6 @@ class Progress:
         elif self.mode == "log":
             self._log("started")
 
-    # -- display --------------------------------------------------------------------
-
     def _out(self) -> TextIO:
         return sys.stderr if self.file is None else self.file
 
@@ -124,8 +121,6 @@ class Progress:
               f"{el:.1f} s{extra}", file=self._out(), flush=True)
         self.lines += 1
         self._last = time.perf_counter()
-
-    # -- updates --------------------------------------------------------------------
 
     def advance_to(self, n: float) -> None:
         """Sets the count to ``n`` (clamped to ``[current, total]``: never backwards,
@@ -197,12 +192,11 @@ class Progress:
 
 
 def _num(x: float) -> float | int:
-    """``x`` as an ``int`` when it is whole (tqdm shows ``7`` rather than ``7.0``)."""
+    """``x`` as an ``int`` when whole (tqdm shows ``7``, not ``7.0``)."""
     return int(x) if x.is_integer() else x
 
 
 def _count(x: float) -> str:
-    """A count as an integer (``7308400``, never ``7.3084e+06``); a fractional amount
-    with 4 significant digits."""
+    """A count as an integer (never ``7.3084e+06``), a fractional one to 4 digits."""
     v = float(x)
     return str(int(v)) if v.is_integer() else f"{v:.4g}"

@@ -2,19 +2,11 @@
 ``register(subparsers)`` listed in ``_COMMANDS``), the options they share in
 :mod:`avll.cli._common`.
 
-Shared behaviour of every sub-command (see docs/guarantees.md):
-
-* errors in the input (``ValueError``, ``TypeError``, ``OSError``, ``MemoryError``) end
-  the command with a one-line message on stderr and exit code 2, without a traceback;
-  Ctrl-C exits with 130;
-* warnings about the data (:class:`avll.DataWarning`, e.g. implausible values) are
-  printed as one line each; ``--strict`` turns them into errors (exit 2);
-* every output path is checked before any computation: it can be written (its
-  nearest existing folder is writable, a file is not a folder and the reverse), it is
-  not one of the command's inputs (no command writes over its input) and not another
-  output. A sub-command names its paths with :func:`avll.cli._common.declare_io`;
-* progress goes to stderr: a bar on a terminal, a few plain log lines otherwise
-  (``--progress``), nothing with ``-q``.
+Every sub-command (see docs/guarantees.md): errors in the input (``ValueError``,
+``TypeError``, ``OSError``, ``MemoryError``) end it with one line on stderr and exit
+code 2, Ctrl-C with 130; warnings about the data are one line each (``--strict``: errors);
+every output path is checked before any computation (:func:`avll.cli._common.check_io`);
+progress goes to stderr (``--progress``, ``-q``).
 """
 
 from __future__ import annotations
@@ -31,8 +23,7 @@ from typing import Any
 
 from .. import _sigint
 
-# "module:function" registering one or more sub-commands, in help order: one module
-# per command in this package.
+# "module:function" registering sub-commands, in help order
 _COMMANDS = [
     "avll.cli.simulate:register",
     "avll.cli.synth:register",
@@ -88,7 +79,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
-    """``parser`` and every sub-command parser below it."""
     out = [parser]
     for a in parser._actions:
         if isinstance(a, argparse._SubParsersAction):

@@ -1,15 +1,9 @@
-"""Options shared by the ``avll`` sub-commands, defined once.
-
-* model selection: ``--models M[,M...]`` (comma-separated and/or repeated) on the
-  commands that take several models; commands about one model take ``--model M``
-  (one meaning everywhere: a single model).
-* run selection: ``--cal-runs`` -- run ids or glob patterns (``data5/*``), comma
-  separated (:func:`select_runs`);
-* ``--seed``, ``--threads``, ``--json PATH``;
-* ``--progress {auto,bar,log,none}`` and ``-q/--quiet`` (= ``--progress none``), see
-  :mod:`avll.progress`;
-* input and output paths: a command declares them with :func:`declare_io`; the
-  ``avll`` entry point checks them all before any computation (:func:`check_io`).
+"""Options shared by the ``avll`` sub-commands, defined once: ``--models M[,M...]``
+(several models, comma-separated and/or repeated; ``--model M`` is always one),
+``--cal-runs`` (run ids or glob patterns, :func:`select_runs`), ``--seed``,
+``--threads``, ``--json PATH``, ``--progress``/``-q`` (:mod:`avll.progress`); the input
+and output paths a command declares (:func:`declare_io`) are checked before any
+computation (:func:`check_io`).
 """
 
 from __future__ import annotations
@@ -44,8 +38,7 @@ def parse_list(opt: str, text: str) -> list[str]:
 
 
 class _Models(argparse.Action):
-    """``--models a,b --models c``: names accumulated, checked against the known
-    models."""
+    """``--models a,b --models c``: known model names, accumulated."""
 
     def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace,
                  values: Any, option_string: str | None = None) -> None:
@@ -61,8 +54,7 @@ class _Models(argparse.Action):
 
 def add_models(p: argparse.ArgumentParser, default: Sequence[str], *,
                what: str = "models") -> None:
-    """``--models``: several models; ``models_of`` gives the selection or ``default``.
-    (``--model`` is always one model, see :func:`add_model`.)"""
+    """``--models``: several models; ``models_of`` gives the selection or ``default``."""
     p.add_argument("--models", dest="models", action=_Models, default=None,
                    metavar="M[,M...]",
                    help=f"{what}, comma-separated or repeated, from {', '.join(MODEL_NAMES)} "
@@ -106,20 +98,19 @@ def select_runs(run_ids: Sequence[str], text: str, opt: str = "--cal-runs") -> l
 
 
 def add_seed(p: argparse.ArgumentParser, what: str = "GA") -> None:
-    """``--seed N`` (default 0)."""
     p.add_argument("--seed", type=int, default=0,
                    help=f"seed of the {what}; the same seed gives the same result on any "
                    "number of threads (default: 0)")
 
 
 def add_threads(p: argparse.ArgumentParser) -> None:
-    """``--threads N`` (default 0: all cores)."""
     p.add_argument("--threads", type=int, default=0,
                    help="worker threads (default: 0, all cores)")
 
 
 class _Count(argparse.Action):
-    """An integer option (``>= minimum``)."""
+    """An integer option ``>= minimum``; a ``ValueError`` (one line, exit code 2)
+    otherwise."""
 
     def __init__(self, *a: Any, minimum: int = 1, **k: Any) -> None:
         super().__init__(*a, **k)
@@ -128,7 +119,6 @@ class _Count(argparse.Action):
     def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace,
                  values: Any, option_string: str | None = None) -> None:
         name = self.option_strings[0]
-        # ValueError: the avll entry point reports it in one line with exit code 2
         try:
             n = int(str(values))
         except ValueError:
@@ -163,7 +153,6 @@ def add_json(p: argparse.ArgumentParser, what: str, default: str = "not written"
 
 
 def add_progress(p: argparse.ArgumentParser) -> None:
-    """``--progress {auto,bar,log,none}`` and ``-q/--quiet``."""
     from ..progress import MODES
 
     p.add_argument("--progress", choices=MODES, default="auto",
@@ -174,7 +163,6 @@ def add_progress(p: argparse.ArgumentParser) -> None:
 
 
 def add_format(p: argparse.ArgumentParser, default: str = "canonical") -> None:
-    """``--format``: the loader of the data."""
     p.add_argument("--format", default=default, choices=FORMAT_NAMES,
                    help="loader of the data: canonical CSV/Parquet, generic, carma (a file "
                    "or folder), openacc-astazero (a file or folder; platoon pairs run in "
@@ -183,15 +171,14 @@ def add_format(p: argparse.ArgumentParser, default: str = "canonical") -> None:
 
 
 def add_command_kind(p: argparse.ArgumentParser) -> None:
-    """``--command-kind {acceleration,speed}``."""
     p.add_argument("--command-kind", choices=("acceleration", "speed"), default=None,
                    help="kind of the recorded command (default: from the file's sidecar "
                    "or the loader)")
 
 
 def add_astazero_options(p: argparse.ArgumentParser) -> None:
-    """Adds ``--slope FILE``, ``--no-grade`` and ``--lap-length M`` (the AstaZero
-    loader's ``slope``, ``grade=False`` and ``lap_length``) to a command."""
+    """``--slope FILE``, ``--no-grade`` and ``--lap-length M``: the AstaZero loader's
+    ``slope``, ``grade=False`` and ``lap_length``."""
     g = p.add_argument_group("OpenACC AstaZero (--format openacc-astazero)")
     g.add_argument("--slope", default=None, metavar="FILE",
                    help="road-grade profile Slope.csv (default: found beside the data, in "
@@ -256,7 +243,6 @@ FIGURE_FORMATS: tuple[str, ...] = ("png", "svg", "pdf")
 
 
 def add_dpi(p: argparse.ArgumentParser) -> None:
-    """``--dpi N``: resolution of the raster (PNG) figures a command writes."""
     from ..plotting import DEFAULT_DPI
 
     p.add_argument("--dpi", action=_Count, minimum=10, default=DEFAULT_DPI, metavar="N",
@@ -274,8 +260,7 @@ def check_figure_path(label: str, path: str | os.PathLike[str]) -> None:
 
 
 def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
-    """Every file an input names: the path itself, its canonical sidecar
-    (``X.meta.json``) and, for a folder, every file below it (the loaders read them)."""
+    """An input, its sidecar (``X.meta.json``) and every file below it (a folder)."""
     out: list[tuple[str, Any]] = [(label, path)]
     if path is None:
         return out
@@ -293,7 +278,7 @@ def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
 
 
 def _manifest_command(folder: Path) -> str | None:
-    """The ``command`` recorded in ``folder``'s MANIFEST.json (None: no manifest)."""
+    """The ``command`` in ``folder``'s MANIFEST.json (None: no manifest)."""
     import json
 
     from .._atomic import MANIFEST
@@ -310,9 +295,8 @@ def _manifest_command(folder: Path) -> str | None:
 
 
 def check_not_foreign(label: str, folder: Path, command: str, overwrite: bool) -> None:
-    """A ``ValueError`` naming ``label`` when ``folder`` holds the manifest of another
-    command than ``command`` (``avll X`` writes only over its own folders) and
-    ``overwrite`` is not set."""
+    """A ``ValueError`` naming ``label`` when ``folder`` holds another command's output
+    (``avll X`` writes only over its own folders) and ``overwrite`` is not set."""
     other = _manifest_command(folder)
     if other is None or overwrite or command in other.split():
         return
@@ -398,12 +382,10 @@ def _degenerate(r: Any) -> str | None:
     n = len(r)
     if n < MIN_SAMPLES:
         return f"too short: {n} samples (at least {MIN_SAMPLES} needed)"
-    drive = r.command if r.command is not None else r.lead_v
     name = "command" if r.command is not None else "lead_v"
-    a = np.asarray(r.a, dtype=float)
-    if drive is None:
+    if getattr(r, name) is None:
         return None
-    d = np.asarray(drive, dtype=float)
+    a, d = np.asarray(r.a, dtype=float), np.asarray(getattr(r, name), dtype=float)
     if not (np.any(a) or np.any(d)):
         return f"{name} and a are all zero: nothing to fit"
     if np.ptp(d) == 0 and np.ptp(a) == 0:

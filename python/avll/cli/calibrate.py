@@ -129,10 +129,9 @@ def _cmd(args: argparse.Namespace) -> int:
     models = models_of(args)
     weights = _weights(args.weights)
     runs, closed, free, init = load_runs(args)
-    cal_runs: Any = None
-    if args.cal_runs is not None:
-        cal_runs = ("paper" if args.cal_runs == "paper"
-                    else select_runs([r.run_id for r in runs], args.cal_runs))
+    cal_runs: Any = args.cal_runs
+    if cal_runs not in (None, "paper"):
+        cal_runs = select_runs([r.run_id for r in runs], cal_runs)
     wf = paper_workflow(
         runs, cal_runs=cal_runs, models=models, seed=args.seed, threads=args.threads,
         progress=args.progress, closed_loop=closed, upper_free=free, init=init,

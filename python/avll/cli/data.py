@@ -17,12 +17,6 @@ from typing import Any
 from ._common import add_json, add_progress, declare_io
 
 
-def _names() -> tuple[str, ...]:
-    from ..datasets import names
-
-    return names()
-
-
 def _write_json(path: str | None, obj: Any) -> None:
     if path:
         from .. import _atomic
@@ -87,6 +81,9 @@ def _fetch(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Registers ``avll data`` and its commands ``list``, ``info`` and ``fetch``."""
+    from ..datasets import names
+
+    known = names()
     p = sub.add_parser(
         "data", help="the field data by name: list, describe, fetch (checked by SHA-256)",
         description="Field data by name: where each dataset comes from, its licence and "
@@ -103,8 +100,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     q = cmds.add_parser("info", help="origin, licence, citation and files of one dataset",
                         description="Origin, URLs, licence, citation and every file (size, "
                         "SHA-256) of one dataset.")
-    q.add_argument("name", metavar="NAME", choices=_names(),
-                   help=f"the dataset (required): {', '.join(_names())}")
+    q.add_argument("name", metavar="NAME", choices=known,
+                   help=f"the dataset (required): {', '.join(known)}")
     add_json(q, "the dataset's description")
     declare_io(q, files=("json",))
     q.set_defaults(func=_info)
@@ -115,8 +112,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "check every file's SHA-256 (files already there with the right hash are not "
         "downloaded again) and print the folder. A failed or wrong download leaves no "
         "partial file. Proxies: the usual HTTPS_PROXY/HTTP_PROXY/NO_PROXY variables.")
-    q.add_argument("name", metavar="NAME", choices=_names(),
-                   help=f"the dataset (required): {', '.join(_names())}")
+    q.add_argument("name", metavar="NAME", choices=known,
+                   help=f"the dataset (required): {', '.join(known)}")
     q.add_argument("--dest", default=None, metavar="DIR",
                    help="folder to fill (default: $AVLL_DATA_DIR/NAME, or the per-user "
                    "cache folder's avll/NAME)")

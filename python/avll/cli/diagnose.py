@@ -1,11 +1,6 @@
 """``avll diagnose``: the residual diagnosis and the cross-validated add-effect loop
-(:func:`avll.diagnose.effect_loop`) on measured or synthetic runs.
-
-Registration needs no heavy import (the loop, scipy and the loaders are imported when
-the command runs), so ``avll --help`` and ``avll diagnose --help`` stay fast; the
-options are the shared ones of :mod:`avll.cli._common`.
-
-The command's contract (scripts depend on it)::
+(:func:`avll.diagnose.effect_loop`) on measured or synthetic runs. Registration imports
+nothing heavy. The command's contract (scripts depend on it)::
 
     avll diagnose DATA --command-kind ... --model ... --cal-runs ... [--val-runs ...]
         [--test-runs ...] --seed N --json OUT.json [--report DIR]
@@ -33,6 +28,7 @@ from ._common import (
     astazero_options,
     check_informative,
     declare_io,
+    parse_list,
     select_runs,
 )
 
@@ -64,8 +60,8 @@ _SPLITS = (
 
 
 def _pick(opt: str, text: str | None, runs: Sequence[Run]) -> list[Run]:
-    """The runs ``text`` selects (ids or glob patterns, in the file's order); a
-    ``ValueError`` naming ``opt`` for an unknown id or a pattern matching nothing."""
+    """The runs ``text`` selects, in the file's order; a ``ValueError`` naming ``opt``
+    for an unknown id or a pattern matching nothing."""
     if text is None:
         return []
     known = [r.run_id for r in runs]
@@ -89,7 +85,6 @@ def _cmd(args: argparse.Namespace) -> int:
     cands = None
     if args.candidates is not None:
         from ..effects import EFFECTS
-        from ._common import parse_list
 
         cands = parse_list("--candidates", args.candidates)
         unknown = [c for c in cands if c not in EFFECTS]
@@ -103,8 +98,7 @@ def _cmd(args: argparse.Namespace) -> int:
     test = _pick("--test-runs", args.test_runs, runs)
     splits = {"--cal-runs": cal, "--test-runs": test}
     if args.val_runs is not None:
-        val = _pick("--val-runs", args.val_runs, runs)
-        splits["--val-runs"] = val
+        val = splits["--val-runs"] = _pick("--val-runs", args.val_runs, runs)
     else:
         taken = {r.run_id for r in (*cal, *test)}
         val = [r for r in runs if r.run_id not in taken]
@@ -116,8 +110,7 @@ def _cmd(args: argparse.Namespace) -> int:
     res = effect_loop(args.model, cal, val, test_runs=test, seed=args.seed, init=args.init,
                       folds=args.folds, min_gain=args.min_gain,
                       max_effects=args.max_effects, max_generations=args.max_generations,
-                      starts=args.starts,
-                      candidates=cands, threads=args.threads,
+                      starts=args.starts, candidates=cands, threads=args.threads,
                       progress=args.progress)  # fmt: skip
     d = res.to_dict()
     _atomic.write_json(args.json, _atomic.json_safe(d))

@@ -17,8 +17,6 @@ from ..paper import SECTION_IV_GRID
 from ..report import num
 from ._common import add_json, add_models, add_progress, add_threads, declare_io, models_of
 
-_DEFAULT_MODELS = ("second", "proposed")
-
 
 def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
     try:
@@ -76,6 +74,7 @@ def models_from_json(path: str | Path, names: Sequence[str] | None = None) -> di
 
 def _cmd(args: argparse.Namespace) -> int:
     from .. import PAPER_TABLE_II
+    from ..plotting import model_label
     from ..stability import (
         capacity,
         kv_supremum,
@@ -93,8 +92,6 @@ def _cmd(args: argparse.Namespace) -> int:
     else:
         models = [PAPER_TABLE_II[n] for n in models_of(args)]
         source = "Table II"
-    from ..plotting import model_label
-
     labels = [f"{model_label(m.name)}, {source}" for m in models]
     kg = _range(args.kg, "kg", log=args.kg_log)
     tg = _range(args.tg, "tg")
@@ -270,7 +267,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(--from, what avll calibrate --json writes); prints the thresholds, writes the "
         "region figure and optionally the thresholds figure and JSON.",
     )
-    add_models(p, _DEFAULT_MODELS)
+    add_models(p, ("second", "proposed"))
     p.add_argument("--from", dest="source", default=None, metavar="CAL.json",
                    help="map the calibrated models of this JSON (avll calibrate --json) "
                    "instead of Table II; --models then picks among them (default: Table "

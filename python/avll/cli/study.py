@@ -33,8 +33,6 @@ def _openacc(args: argparse.Namespace) -> int:
     from ..studies.openacc import _check_band, openacc_study
 
     log = messages("avll study openacc", args.progress)
-
-    models = models_of(args)
     try:  # (also a ValueError for more or fewer than two numbers)
         lo, hi = map(float, args.band.split(","))
     except ValueError:
@@ -45,7 +43,7 @@ def _openacc(args: argparse.Namespace) -> int:
     load: dict[str, Any] = {
         key: [v.strip() for v in val.split(",") if v.strip()]
         for key in ("setting", "car", "track") if (val := getattr(args, key)) is not None}
-    st = openacc_study(args.path, model=args.model, models=models, seed=args.seed,
+    st = openacc_study(args.path, model=args.model, models=models_of(args), seed=args.seed,
                        threads=args.threads, progress=args.progress, log=log,
                        max_generations=args.max_generations, pop_size=args.pop_size,
                        starts=args.starts, band=(lo, hi), n_boot=args.bootstrap,
@@ -80,10 +78,8 @@ def _structures(text: str) -> Any:
     from ..effects import EFFECTS
 
     t = text.strip().lower()
-    if t == "auto":
-        return True
-    if t == "none":
-        return False
+    if t in ("auto", "none"):
+        return t == "auto"
     names = [n.strip() for n in text.split(",") if n.strip()]
     bad = [n for n in names if n not in EFFECTS]
     if bad or not names:
