@@ -480,15 +480,11 @@ def check_speed_units(v: np.ndarray, path: str | Path, column: str, *, dt: float
 def _unit_slopes(v: np.ndarray, path: str | Path, column: str, dt: float,
                  a: np.ndarray | None, x: np.ndarray | None) -> None:
     checks = []
-    if a is not None:
-        with np.errstate(all="ignore"):
-            dv = np.gradient(v, dt)
-        checks.append(("acceleration", 1e-3, *_slope(dv, a)))
-    if x is not None:
-        with np.errstate(all="ignore"):
-            dx = np.gradient(x, dt)
-        k, r2 = _slope(v, dx)
-        checks.append(("position derivative", 1e3, k, r2))
+    with np.errstate(all="ignore"):
+        if a is not None:
+            checks.append(("acceleration", 1e-3, *_slope(np.gradient(v, dt), a)))
+        if x is not None:
+            checks.append(("position derivative", 1e3, *_slope(v, np.gradient(x, dt))))
     for what, ms, k, r2 in checks:
         if not np.isfinite(k) or r2 < 0.5:
             continue
