@@ -514,7 +514,8 @@ def carma_study(
                 "val_runs": {g: [r.run_id for r in v] for g, (_, v) in groups.items()},
             }
             if figures:
-                figs[key] = _carma_figure(fits, groups, rg, obj)
+                figs[key] = _figure(fits, groups, f"CARMA {rg}: measured vs simulated, "
+                                    f"fitted on {obj}", rg)
     main = studies.get("cruise", studies.get(next(iter(studies), ""), {}))
     main = main.get("acceleration", next(iter(main.values()), {})) if main else {}
     summary = {
@@ -547,35 +548,6 @@ def carma_study(
     if out is not None:
         st.save(out)
     return st
-
-
-def _carma_figure(
-    fits: Mapping[str, Mapping[str, _Fit]],
-    groups: Mapping[str, tuple[list[Run], list[Run]]],
-    regime: str,
-    objective: str,
-) -> Any:
-    from ..plotting import measured_vs_simulated
-
-    rows = []
-    for g, (cal, val) in groups.items():
-        run = val[0] if val else cal[0]
-        n = len(run) if regime == "launch" else min(len(run), round(120.0 / run.dt))
-        assert run.v is not None and run.command is not None
-        sims = {m: simulate_full(_model(m, per[g].params), run.command, run.dt,
-                                 command_kind="speed", init="steady")
-                for m, per in fits.items() if g in per}  # fmt: skip
-        rows.append({
-            "name": g, "title": f"{run.run_id} ({'validation' if val else 'calibration'})",
-            "t": run.t[:n] - run.t[0],
-            "left": {"ylabel": "speed (m/s)", "measured": run.v[:n],
-                     "reference": ("command", run.command[:n]),
-                     "simulated": {m: tr.v[:n] for m, tr in sims.items()}},
-            "right": {"ylabel": "accel. (m/s²)", "measured": run.a[:n],
-                      "simulated": {m: tr.a[:n] for m, tr in sims.items()}},
-        })  # fmt: skip
-    return measured_vs_simulated(rows, xlabel="time in run (s)", title=f"CARMA {regime}: "
-                                 f"measured vs simulated, fitted on {objective}")
 
 
 # ---------------------------------------------------------------------------
@@ -676,7 +648,8 @@ def astazero_study(
             },
         }
         if figures:
-            figs[key] = _astazero_figure(fits, groups, obj)
+            figs[key] = _figure(fits, groups, "AstaZero closed loop: measured vs simulated, "
+                                f"fitted on {obj}")
     main = studies.get("mixed", next(iter(studies.values()), {}))
     summary = {
         "study": "openacc-astazero",
@@ -707,33 +680,49 @@ def astazero_study(
     return st
 
 
-def _astazero_figure(
+def _figure(
     fits: Mapping[str, Mapping[str, _Fit]],
     groups: Mapping[str, tuple[list[Run], list[Run]]],
-    objective: str,
+    title: str,
+    carma_regime: str | None = None,
 ) -> Any:
+    """Measured vs simulated on each group's first validation run (else its first
+    calibration run): with ``carma_regime`` CARMA's speed loop driven by the command
+    (a launch whole, a cruise's first 120 s), else AstaZero's closed loop behind the
+    predecessor (100-300 s)."""
     from ..plotting import measured_vs_simulated
 
     rows = []
     for g, (cal, val) in groups.items():
         run = val[0] if val else cal[0]
-        lo, hi = round(100 / run.dt), min(len(run), round(300 / run.dt))
-        assert run.v is not None and run.x is not None and run.lead_x is not None
-        assert run.lead_v is not None
-        sims = {}
-        for m, per in fits.items():
-            f = per[g]
-            up = UpperLevel(*(f.params[k] for k in _UPPER))
-            sims[m] = closed_loop(_model(m, f.params), run.lead_x, run.lead_v, run.dt, up,
-                                  v0=float(run.v[0]), x0=float(run.x[0]))  # fmt: skip
+        assert run.v is not None
+        if carma_regime is not None:
+            assert run.command is not None
+            lo, hi = 0, (len(run) if carma_regime == "launch"
+                         else min(len(run), round(120.0 / run.dt)))
+            sims = {m: simulate_full(_model(m, per[g].params), run.command, run.dt,
+                                     command_kind="speed", init="steady")
+                    for m, per in fits.items() if g in per}  # fmt: skip
+            t, ref = run.t[lo:hi] - run.t[0], ("command", run.command[lo:hi])
+            right = {"ylabel": "accel. (m/s²)", "measured": run.a[lo:hi],
+                     "simulated": {m: tr.a[lo:hi] for m, tr in sims.items()}}
+        else:
+            assert run.x is not None and run.lead_x is not None and run.lead_v is not None
+            lo, hi = round(100 / run.dt), min(len(run), round(300 / run.dt))
+            sims = {m: closed_loop(_model(m, per[g].params), run.lead_x, run.lead_v, run.dt,
+                                   UpperLevel(*(per[g].params[k] for k in _UPPER)),
+                                   v0=float(run.v[0]), x0=float(run.x[0]))
+                    for m, per in fits.items()}  # fmt: skip
+            t, ref = run.t[lo:hi], ("predecessor", run.lead_v[lo:hi])
+            right = {"ylabel": "gap (m)", "measured": (run.lead_x - run.x)[lo:hi],
+                     "simulated": {m: (run.lead_x - tr.x)[lo:hi] for m, tr in sims.items()}}
         rows.append({
             "name": g, "title": f"{run.run_id} ({'validation' if val else 'calibration'})",
-            "t": run.t[lo:hi],
-            "left": {"ylabel": "speed (m/s)", "measured": run.v[lo:hi],
-                     "reference": ("predecessor", run.lead_v[lo:hi]),
+            "t": t,
+            "left": {"ylabel": "speed (m/s)", "measured": run.v[lo:hi], "reference": ref,
                      "simulated": {m: tr.v[lo:hi] for m, tr in sims.items()}},
-            "right": {"ylabel": "gap (m)", "measured": (run.lead_x - run.x)[lo:hi],
-                      "simulated": {m: (run.lead_x - tr.x)[lo:hi] for m, tr in sims.items()}},
+            "right": right,
         })  # fmt: skip
-    return measured_vs_simulated(rows, title="AstaZero closed loop: measured vs simulated, "
-                                 f"fitted on {objective}")
+    if carma_regime is not None:
+        return measured_vs_simulated(rows, xlabel="time in run (s)", title=title)
+    return measured_vs_simulated(rows, title=title)

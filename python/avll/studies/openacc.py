@@ -494,15 +494,6 @@ def _acc_label(acc: bool | None) -> str:
     return {True: "ACC", False: "human", None: "unknown"}[acc]
 
 
-def _load(path: str | Path, load_options: Mapping[str, Any]
-          ) -> tuple[list[Run], dict[str, Any]]:
-    """The runs and the loader's report (:func:`~avll.io.openacc_native.openacc_native_report`)."""
-    from ..io.openacc_native import openacc_native_report
-
-    runs, report = openacc_native_report(path, **load_options)
-    return list(runs), dict(report or {})
-
-
 def _loader_dropped(report: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The stretches the loader dropped, with its reasons: the entries of the
     report's ``stretches`` not marked kept, and of ``dropped`` / ``skipped``, each
@@ -605,8 +596,11 @@ def openacc_study(
         raise ValueError(f"block: must be > 0 s, got {block!r}")
     root: str | Path | None
     if isinstance(path, (str, Path)):
+        from ..io.openacc_native import openacc_native_report
+
         say(f"loading {path}")
-        loaded, load_report = _load(path, load_options)
+        loaded, load_report = openacc_native_report(path, **load_options)
+        loaded, load_report = list(loaded), dict(load_report or {})
         root, data = path, str(path)
     else:
         if load_options:
