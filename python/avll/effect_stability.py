@@ -564,14 +564,13 @@ def effect_stability(
     # Frequency.
     if period == "peak":
         grid = np.linspace(2 * math.pi / 60.0, 2 * math.pi / 4.0, 400)
-        lin = None
         for m in (model, base):
             try:
                 lin = np.abs(frequency_response(m, upper, grid, v=v0))
+                break
             except ValueError:
-                continue
-            break
-        if lin is None:
+                pass
+        else:
             raise ValueError("period: 'peak' needs a linearisable model; give a period in s")
         omega = float(grid[int(np.argmax(lin))])
     elif isinstance(period, str):

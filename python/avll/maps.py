@@ -106,9 +106,8 @@ def _map_block(
     """One chunk of a map, by the Rust kernel (a Dask block function)."""
     loc = block_info[None]["array-location"]
     # copies: arrays that travelled through a distributed scheduler may be unaligned
-    k = np.array(kg[loc[0][0] : loc[0][1]], dtype=np.float64)
-    t = np.array(tg[loc[1][0] : loc[1][1]], dtype=np.float64)
-    v = np.array(kv[loc[2][0] : loc[2][1]], dtype=np.float64)
+    k, t, v = (np.array(a[lo:hi], dtype=np.float64)
+               for a, (lo, hi) in zip((kg, tg, kv), loc, strict=True))
     # checked where the chunk is computed (a worker may have less memory than the client)
     _block_memory(f"map_dataset: a chunk of {k.size} kg x {t.size} Tg x {v.size} kv",
                   float(k.size) * t.size * v.size, order, _CHUNK_HINT)
@@ -304,39 +303,36 @@ def write_map(data: Any, path: str | os.PathLike[str], format: str | None = None
     else:
         raise ValueError(f"data: expected an xarray DataArray or Dataset, got {type(data)}")
     parent = os.path.dirname(os.path.abspath(p)) or "."
-    if fmt == "zarr":
-        if os.path.exists(p) and not os.path.isdir(p):
-            raise ValueError(f"path: {p} exists and is not a folder (a Zarr store is one)")
-        tmp: str | None = None
-        try:
-            # a Ctrl-C during mkdtemp is raised when the block ends, with tmp known
-            with _atomic.deferred_sigint():
+    is_zarr = fmt == "zarr"
+    if is_zarr and os.path.exists(p) and not os.path.isdir(p):
+        raise ValueError(f"path: {p} exists and is not a folder (a Zarr store is one)")
+    tmp: str | None = None
+    try:
+        # a Ctrl-C while the temporary name is made is raised when the block ends, with
+        # tmp known
+        with _atomic.deferred_sigint():
+            if is_zarr:
                 tmp = tempfile.mkdtemp(prefix=".avll-", suffix=".zarr", dir=parent)
+            else:
+                fd, tmp = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
+                os.close(fd)
+        if is_zarr:
             _to_zarr(ds, tmp)
             _mark_complete(tmp, ds)
+        else:
+            ds.to_netcdf(tmp, engine="h5netcdf")
+        with _atomic.deferred_sigint():
+            if is_zarr and os.path.isdir(p):
+                shutil.rmtree(p)
+            os.replace(tmp, p)
+    except BaseException:
+        if tmp is not None:
             with _atomic.deferred_sigint():
-                if os.path.isdir(p):
-                    shutil.rmtree(p)
-                os.replace(tmp, p)
-        except BaseException:
-            if tmp is not None:
-                with _atomic.deferred_sigint():
+                if is_zarr:
                     _remove_tree(tmp)
-            raise
-    else:
-        tmp_nc: str | None = None
-        try:
-            with _atomic.deferred_sigint():
-                fd, tmp_nc = tempfile.mkstemp(prefix=".avll-", suffix=".nc", dir=parent)
-                os.close(fd)
-            ds.to_netcdf(tmp_nc, engine="h5netcdf")
-            os.replace(tmp_nc, p)
-        except BaseException:
-            if tmp_nc is not None:
-                with _atomic.deferred_sigint():
-                    if os.path.exists(tmp_nc):
-                        os.unlink(tmp_nc)
-            raise
+                elif os.path.exists(tmp):
+                    os.unlink(tmp)
+        raise
     return p
 
 
@@ -805,8 +801,8 @@ def bootstrap_distributed(
                     key: np.concatenate([np.asarray(p[key]) for p in parts])
                     for key in ("x", "f", "f_x0", "evaluations", "done")}
                 merged["f_full"] = parts[0]["f_full"]
-                merged["rollouts"] = int(sum(int(p["rollouts"]) for p in parts))
-                merged["cache_hits"] = int(sum(int(p["cache_hits"]) for p in parts))
+                merged.update({k: int(sum(int(p[k]) for p in parts))
+                               for k in ("rollouts", "cache_hits")})
                 merged["interrupted"] = False
                 out.append(merged)
         return out

@@ -118,34 +118,28 @@ SETTINGS: dict[str, Settings] = {
 
 
 class _Stages:
-    """The reproduction's stages as one :class:`avll.progress.Progress` (one step per
-    stage), with the time spent in each."""
+    """The reproduction's stages as one :class:`avll.progress.Progress` (``bar``, one step
+    per stage), with the time spent in each."""
 
     def __init__(self, enabled: Any, total: int) -> None:
         from .progress import Progress
 
         self.times: dict[str, float] = {}
-        self._bar = Progress(total, "avll reproduce", unit="stage", mode=enabled)
-
-    def set_total(self, total: int) -> None:
-        self._bar.set_total(total)
-
-    def write(self, msg: str) -> None:
-        self._bar.write(msg)
+        self.bar = Progress(total, "avll reproduce", unit="stage", mode=enabled)
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
-        self._bar.set_description(f"avll reproduce: {name}")
+        self.bar.set_description(f"avll reproduce: {name}")
         t0 = time.perf_counter()
         try:
             yield
         finally:
             self.times[name] = self.times.get(name, 0.0) + time.perf_counter() - t0
-        self._bar.update(1)
+        self.bar.update(1)
 
     def close(self) -> None:
         # complete when every stage ran; otherwise (an error, Ctrl-C) where it stopped
-        self._bar.close(complete=self._bar.n >= self._bar.total)
+        self.bar.close(complete=self.bar.n >= self.bar.total)
 
 
 # ---------------------------------------------------------------------------
@@ -338,7 +332,7 @@ def _reproduce_in(outd: Path, final: Path, data: str, path: Path | None, setting
     shown_json = str(json_path) if json_path is not None else str(final / "summary.json")
     t_start = time.perf_counter()
     stages = _Stages(progress, 6 + (1 if settings.diagnosis else 0))
-    say = log or stages.write
+    say = log or stages.bar.write
     try:
         if path is not None:
             from .studies import fielddata
@@ -426,12 +420,11 @@ def _reproduce_field(F: Any, outd: Path, name: str, p: Path, settings: Settings,
     """The measured-data variant (see :func:`reproduce`), on :mod:`avll.fielddata`."""
     from . import PAPER_TABLE_II
 
-    stages.set_total(3 + (1 if settings.diagnosis else 0))
+    stages.bar.set_total(3 + (1 if settings.diagnosis else 0))
     with stages.stage(f"{name} study (calibration, validation)"):
         fn = F.carma_study if name == "carma" else F.astazero_study
-        kw: dict[str, Any] = {}
-        if settings.field_max_generations is not None:
-            kw["max_generations"] = settings.field_max_generations
+        gens = settings.field_max_generations
+        kw = {} if gens is None else {"max_generations": gens}
         st = fn(p, seed=seed, threads=threads, progress=progress, **kw)
         saved = st.save(outd / "fielddata")
     figs = {f"field_{k}": f"fielddata/{st.name}_{k}.png" for k in st.figures}
@@ -841,24 +834,18 @@ def _diag_section(rep: Report, diag: dict[str, Any], synthetic: bool, label: str
     ds = diag.get("diagnoses", [])
     if ds and ds[0].get("candidates"):
         cands = ds[0]["candidates"]
-
-        def finite(x: Any) -> bool:
-            return isinstance(x, (int, float)) and math.isfinite(x)
-
         # the loop diagnoses the calibration runs only: no held-out column then
-        held = any(finite(c.get("val_explained")) for c in cands)
-        head = ["candidate (first diagnosis)", "explained", "p"] + (["val explained"]
-                                                                   if held else [])
-        rep.table(head, [[c.get("effect"), c.get("explained"), c.get("p_value")]
-                         + ([c.get("val_explained")] if held else []) for c in cands])
-        cols = [("candidate", "an effect whose signature was tested in the residuals"),
-                ("explained", "fraction of the calibration residuals' variance its "
-                 "signature explains (0-1)"),
-                ("p", "p-value of that fit (dimensionless, Bonferroni-corrected when the "
-                 "loop says so)")]
-        if held:
-            cols.append(("val explained", "the same fraction on the held-out runs (0-1)"))
-        rep.columns(cols)
+        n = 4 if any(isinstance(x := c.get("val_explained"), (int, float)) and math.isfinite(x)
+                     for c in cands) else 3
+        keys = ("effect", "explained", "p_value", "val_explained")[:n]
+        rep.table(["candidate (first diagnosis)", "explained", "p", "val explained"][:n],
+                  [[c.get(k) for k in keys] for c in cands])
+        rep.columns([("candidate", "an effect whose signature was tested in the residuals"),
+                     ("explained", "fraction of the calibration residuals' variance its "
+                      "signature explains (0-1)"),
+                     ("p", "p-value of that fit (dimensionless, Bonferroni-corrected when the "
+                      "loop says so)"),
+                     ("val explained", "the same fraction on the held-out runs (0-1)")][:n])
 
 
 def _write_field_report(outd: Path, name: str, st: Any, diag: dict[str, Any], diag_label: str,

@@ -146,10 +146,9 @@ def _axis(name: str, x: Any) -> np.ndarray:
 
 
 def _order(pade_order: int) -> int:
-    if isinstance(pade_order, (bool, str, bytes)) or not isinstance(pade_order, (int, float,
-                                                                               np.number)):
-        raise ValueError(f"pade_order: must be an integer, got {pade_order!r}")
-    if not np.isfinite(pade_order) or int(pade_order) != pade_order:
+    if (isinstance(pade_order, (bool, str, bytes))
+            or not isinstance(pade_order, (int, float, np.number))
+            or not np.isfinite(pade_order) or int(pade_order) != pade_order):
         raise ValueError(f"pade_order: must be an integer, got {pade_order!r}")
     if not 1 <= int(pade_order) <= PADE_MAX_ORDER:
         raise ValueError(f"pade_order: must be in 1..{PADE_MAX_ORDER}, got {pade_order}")
@@ -809,10 +808,8 @@ def min_stable_tg(
     of the exact test (an upper bound of the infimum the search could not improve);
     the tests check it against dense grids.
     """
-    return _extremum(
-        model, "tg_min", ("kg", kg_range), ("kv", kv_range), ("tg", tg_range), pade_order,
-        n_scan, n_grid, threads,
-    )
+    return _extremum(model, "tg_min", ("kg", kg_range), ("kv", kv_range), ("tg", tg_range),
+                     pade_order, n_scan, n_grid, threads)
 
 
 def kv_supremum(
@@ -831,10 +828,8 @@ def kv_supremum(
     ``kv_range``), and where it is approached. Same method as :func:`min_stable_tg`
     (outer search over Tg, inner over kg, of the boundary ``kv_max(kg, Tg)``). Unlike
     :func:`kv_threshold` it does not depend on a grid."""
-    return _extremum(
-        model, "kv_max", ("kg", kg_range), ("tg", tg_range), ("kv", kv_range), pade_order,
-        n_scan, n_grid, threads,
-    )
+    return _extremum(model, "kv_max", ("kg", kg_range), ("tg", tg_range), ("kv", kv_range),
+                     pade_order, n_scan, n_grid, threads)
 
 
 def pade_error_map(
