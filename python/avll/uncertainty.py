@@ -518,9 +518,7 @@ class Uncertainty:
     def intervals(self) -> dict[str, tuple[float, float]]:
         """Symmetric intervals at ``level`` (:func:`symmetric_interval`): parameters
         (in unit coordinates, clipped to the box), then combinations."""
-        out = {n: self._param_interval(j) for j, n in enumerate(self.names)}
-        out.update({n: self.interval(n) for n in self.combinations})
-        return out
+        return {n: self.interval(n) for n in (*self.names, *self.combinations)}
 
     def ci(self) -> Any:
         """A DataFrame: rows the parameters and combinations, columns ``estimate``,
