@@ -206,17 +206,8 @@ def read_astazero_pairs(path: str | Path, **options: Any) -> list[Run]:
 # ---------------------------------------------------------------------------
 
 
-def _mse(
-    model: str,
-    x: np.ndarray,
-    runs: Sequence[Run],
-    weights: tuple[float, float, float],
-    *,
-    init: str,
-    closed: bool,
-    free: Sequence[int],
-    threads: int,
-) -> dict[str, float]:
+def _mse(model: str, x: np.ndarray, runs: Sequence[Run], weights: tuple[float, float, float],
+         *, init: str, closed: bool, free: Sequence[int], threads: int) -> dict[str, float]:
     if not runs:
         return {}
     p = np.asarray(x, dtype=np.float64)[None, :]
@@ -243,22 +234,12 @@ class _Fit:
     stop: str = ""
 
 
-def _fit_groups(
-    model: str,
-    groups: Mapping[str, tuple[list[Run], list[Run]]],
-    *,
-    weights: tuple[float, float, float],
-    init: str,
-    closed: bool,
-    metrics: Sequence[str],
-    seed: int,
-    threads: int,
-    progress: bool | Callable[[dict[str, Any]], Any],
-    fixed: LowerLevelModel | None = None,
-    fit: bool = True,
-    bounds: Mapping[str, Any] | None = None,
-    **ga: Any,
-) -> dict[str, _Fit]:
+def _fit_groups(model: str, groups: Mapping[str, tuple[list[Run], list[Run]]], *,
+                weights: tuple[float, float, float], init: str, closed: bool,
+                metrics: Sequence[str], seed: int, threads: int,
+                progress: bool | Callable[[dict[str, Any]], Any],
+                fixed: LowerLevelModel | None = None, fit: bool = True,
+                bounds: Mapping[str, Any] | None = None, **ga: Any) -> dict[str, _Fit]:
     """Calibrates ``model`` per group (one GA problem per group, all in one parallel
     call) on the group's calibration runs and evaluates it on both sets. ``fixed``
     fixes the lower level (only the upper gains are free); ``fit=False`` evaluates
@@ -311,18 +292,12 @@ def _contract(fits: Mapping[str, _Fit]) -> dict[str, Any]:
     """``{"params", "cal_mse", "val_mse", "per_run_mse"}`` of one model over groups:
     the per-group entries and the average over groups."""
     per_group: dict[str, dict[str, Any]] = {
-        g: {
-            "params": f.params,
-            "cal_mse": _finite(f.cost),
+        g: {"params": f.params, "cal_mse": _finite(f.cost),
             "val_mse": _finite(_mean(f.val_obj)) if f.val_obj else None,
             "per_run_mse": {k: _finite(v) for k, v in {**f.cal_obj, **f.val_obj}.items()},
-            "at_bound": list(f.at_bound),
-            "generations": f.generations,
-            "stop": f.stop,
-            "interrupted": f.interrupted,
-        }
-        for g, f in fits.items()
-    }
+            "at_bound": list(f.at_bound), "generations": f.generations, "stop": f.stop,
+            "interrupted": f.interrupted}
+        for g, f in fits.items()}
     cal = [f.cost for f in fits.values()]
     val = [_mean(f.val_obj) for f in fits.values() if f.val_obj]
     return {
@@ -472,9 +447,8 @@ def carma_study(
     if not cal_set & set(files):
         raise ValueError(f"cal_files: none of {sorted(cal_set)} in the data ({', '.join(files)})")
     vehicles = list(dict.fromkeys(_vehicle_of(r) for r in runs))
-    ga: dict[str, Any] = dict(
-        max_generations=max_generations, stall_generations=stall_generations, starts=starts
-    )
+    ga: dict[str, Any] = dict(max_generations=max_generations,
+                              stall_generations=stall_generations, starts=starts)
     tables: dict[str, Any] = {}
     figs: dict[str, Any] = {}
     studies: dict[str, Any] = {}
@@ -519,27 +493,14 @@ def carma_study(
     main = studies.get("cruise", studies.get(next(iter(studies), ""), {}))
     main = main.get("acceleration", next(iter(main.values()), {})) if main else {}
     summary = {
-        "study": "carma",
-        "interrupted": interrupted,
-        "data": str(path),
-        "split": {
-            "cal_files": sorted(cal_set),
-            "val_files": [f for f in files if f not in cal_set],
-        },
-        "init": "steady",
-        "handover_speed": HANDOVER_SPEED,
-        "ga": ga,
-        "seed": seed,
+        "study": "carma", "interrupted": interrupted, "data": str(path),
+        "split": {"cal_files": sorted(cal_set),
+                  "val_files": [f for f in files if f not in cal_set]},
+        "init": "steady", "handover_speed": HANDOVER_SPEED, "ga": ga, "seed": seed,
         "runs": {"launch": [r.run_id for r in launch], "cruise": [r.run_id for r in cruise]},
         "models": main.get("models", {}),
-        "vehicles": {
-            v: {
-                "models": {
-                    m: e["groups"][v] for m, e in main.get("models", {}).items() if v in e["groups"]
-                }
-            }  # fmt: skip
-            for v in vehicles
-        },
+        "vehicles": {v: {"models": {m: e["groups"][v] for m, e in main.get("models", {}).items()
+                                    if v in e["groups"]}} for v in vehicles},
         "studies": studies,
     }
     st = Study("carma", tables, figs, summary, "\n".join(text),
@@ -614,9 +575,8 @@ def astazero_study(
             else:
                 mismatched.append(r.run_id)
         groups[p] = (cal, val)
-    ga: dict[str, Any] = dict(
-        max_generations=max_generations, stall_generations=stall_generations, starts=starts
-    )
+    ga: dict[str, Any] = dict(max_generations=max_generations,
+                              stall_generations=stall_generations, starts=starts)
     tables: dict[str, Any] = {}
     figs: dict[str, Any] = {}
     studies: dict[str, Any] = {}
@@ -635,41 +595,26 @@ def astazero_study(
                 base[f"Table II {m} (upper refitted)"] = _fit_groups(
                     m, groups, seed=seed + 1000 * k + 500, progress=False,
                     fixed=PAPER_TABLE_II[m], **kw)  # fmt: skip
-        key = obj
-        _tables(key, f"== AstaZero closed loop, objective {obj} (wa, wv, wx) = {w} ==", "pair",
+        _tables(obj, f"== AstaZero closed loop, objective {obj} (wa, wv, wx) = {w} ==", "pair",
                 fits, base, ("a", "v", "x"), tables, text)
         studies[obj] = {
-            "weights": list(w),
-            "models": {m: _contract(f) for m, f in fits.items()},
-            "table_ii_upper_refitted": {
-                m: _contract(base[f"Table II {m} (upper refitted)"])
-                for m in models
-                if f"Table II {m} (upper refitted)" in base
-            },
-        }
+            "weights": list(w), "models": {m: _contract(f) for m, f in fits.items()},
+            "table_ii_upper_refitted": {m: _contract(base[f"Table II {m} (upper refitted)"])
+                                        for m in models
+                                        if f"Table II {m} (upper refitted)" in base}}
         if figures:
-            figs[key] = _figure(fits, groups, "AstaZero closed loop: measured vs simulated, "
+            figs[obj] = _figure(fits, groups, "AstaZero closed loop: measured vs simulated, "
                                 f"fitted on {obj}")
     main = studies.get("mixed", next(iter(studies.values()), {}))
     summary = {
-        "study": "openacc-astazero",
-        "interrupted": interrupted,
-        "data": str(path),
-        "split": {
-            "cal_file": cal_stem,
-            "val_files": [s for s in stems if s != cal_stem],
-            "type_mismatch_excluded": mismatched,
-        },  # fmt: skip
-        "closed_loop": True,
-        "upper_free": list(_UPPER),
-        "init": "rest (lower level), measured v0, x0",
-        "ga": ga,
-        "seed": seed,
+        "study": "openacc-astazero", "interrupted": interrupted, "data": str(path),
+        "split": {"cal_file": cal_stem, "val_files": [s for s in stems if s != cal_stem],
+                  "type_mismatch_excluded": mismatched},
+        "closed_loop": True, "upper_free": list(_UPPER),
+        "init": "rest (lower level), measured v0, x0", "ga": ga, "seed": seed,
         "models": main.get("models", {}),
-        "vehicles": {
-            p: {"models": {m: e["groups"][p] for m, e in main.get("models", {}).items()}}
-            for p in groups
-        },
+        "vehicles": {p: {"models": {m: e["groups"][p] for m, e in main.get("models", {}).items()}}
+                     for p in groups},
         "studies": studies,
     }
     st = Study("astazero", tables, figs, summary, "\n".join(text), time.perf_counter() - t0,
@@ -680,12 +625,9 @@ def astazero_study(
     return st
 
 
-def _figure(
-    fits: Mapping[str, Mapping[str, _Fit]],
-    groups: Mapping[str, tuple[list[Run], list[Run]]],
-    title: str,
-    carma_regime: str | None = None,
-) -> Any:
+def _figure(fits: Mapping[str, Mapping[str, _Fit]],
+            groups: Mapping[str, tuple[list[Run], list[Run]]], title: str,
+            carma_regime: str | None = None) -> Any:
     """Measured vs simulated on each group's first validation run (else its first
     calibration run): with ``carma_regime`` CARMA's speed loop driven by the command
     (a launch whole, a cruise's first 120 s), else AstaZero's closed loop behind the
