@@ -23,18 +23,9 @@ from typing import Any
 
 from .. import _sigint
 
-# "module:function" registering sub-commands, in help order
-_COMMANDS = [
-    "avll.cli.simulate:register",
-    "avll.cli.synth:register",
-    "avll.cli.load:register",
-    "avll.cli.diagnose:register",
-    "avll.cli.calibrate:register",
-    "avll.cli.stability_map:register",
-    "avll.cli.reproduce:register",
-    "avll.cli.study:register",
-    "avll.cli.data:register",
-]
+# the sub-command modules of this package, each with a register(subparsers), in help order
+_COMMANDS = ("simulate", "synth", "load", "diagnose", "calibrate", "stability_map", "reproduce",
+             "study", "data")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,9 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"avll {__version__}",
                         help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for spec in _COMMANDS:
-        mod, fn = spec.split(":")
-        getattr(importlib.import_module(mod), fn)(sub)
+    for name in _COMMANDS:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
     from ._common import add_dpi
 
     for p in _all_parsers(parser):

@@ -277,32 +277,27 @@ def _input_files(label: str, path: Any) -> list[tuple[str, Any]]:
     return out
 
 
-def _manifest_command(folder: Path) -> str | None:
-    """The ``command`` in ``folder``'s MANIFEST.json (None: no manifest)."""
+def check_not_foreign(label: str, folder: Path, command: str, overwrite: bool) -> None:
+    """A ``ValueError`` naming ``label`` when ``folder`` holds another command's output
+    (the ``command`` of its MANIFEST.json: ``avll X`` writes only over its own folders)
+    and ``overwrite`` is not set."""
     import json
 
     from .._atomic import MANIFEST
 
     mp = folder / MANIFEST
-    if not mp.is_file():
-        return None
+    if overwrite or not mp.is_file():
+        return
     try:
         doc = json.loads(mp.read_text(encoding="utf-8"))
+        cmd = doc.get("command") if isinstance(doc, dict) else None
+        other = str(cmd) if cmd else "an unknown command"
     except (OSError, ValueError):
-        return "an unreadable manifest"
-    cmd = doc.get("command") if isinstance(doc, dict) else None
-    return str(cmd) if cmd else "an unknown command"
-
-
-def check_not_foreign(label: str, folder: Path, command: str, overwrite: bool) -> None:
-    """A ``ValueError`` naming ``label`` when ``folder`` holds another command's output
-    (``avll X`` writes only over its own folders) and ``overwrite`` is not set."""
-    other = _manifest_command(folder)
-    if other is None or overwrite or command in other.split():
-        return
-    raise ValueError(f"{label}: {folder} holds the output of {other!r} (its MANIFEST.json); "
-                     "writing there would replace it: choose another folder, or pass "
-                     "--overwrite")
+        other = "an unreadable manifest"
+    if command not in other.split():
+        raise ValueError(f"{label}: {folder} holds the output of {other!r} (its "
+                         "MANIFEST.json); writing there would replace it: choose another "
+                         "folder, or pass --overwrite")
 
 
 def _label(dest: str, positional: Sequence[str]) -> str:

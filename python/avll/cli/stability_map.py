@@ -163,24 +163,22 @@ def _cmd(args: argparse.Namespace) -> int:
         figs.append((args.out, fig))
     if args.thresholds_out:
         figs.append((args.thresholds_out, plot_thresholds(models, ths, labels=labels)))
-    doc: dict[str, Any] | None = None
-    if args.json:
-        doc = {
-            "source": {"kind": "calibration" if args.source else "paper_table_ii",
-                       "path": str(args.source) if args.source else None},
-            "grid": {"kg": [float(kg[0]), float(kg[-1]), kg.size, "log" if args.kg_log else "lin"],
-                     "tg": [float(tg[0]), float(tg[-1]), tg.size],
-                     "kv": [float(kv[0]), float(kv[-1]), kv.size],
-                     "pade_order": args.pade_order},
-            "capacity": {"formula": "3600 / (Tg + length / speed)", "length": args.length,
-                         "speed": args.speed},
-            "models": {m.name: {"params": m.to_dict(), **th.to_dict(),
-                                "capacity_at_min_tg": None if math.isnan(th.tg_min_overall)
-                                else float(capacity(th.tg_min_overall, args.length, args.speed))}
-                       for m, th in zip(models, ths, strict=True)},
-        }
-        if exact:
-            doc["exact"] = exact
+    doc: dict[str, Any] = {
+        "source": {"kind": "calibration" if args.source else "paper_table_ii",
+                   "path": str(args.source) if args.source else None},
+        "grid": {"kg": [float(kg[0]), float(kg[-1]), kg.size, "log" if args.kg_log else "lin"],
+                 "tg": [float(tg[0]), float(tg[-1]), tg.size],
+                 "kv": [float(kv[0]), float(kv[-1]), kv.size],
+                 "pade_order": args.pade_order},
+        "capacity": {"formula": "3600 / (Tg + length / speed)", "length": args.length,
+                     "speed": args.speed},
+        "models": {m.name: {"params": m.to_dict(), **th.to_dict(),
+                            "capacity_at_min_tg": None if math.isnan(th.tg_min_overall)
+                            else float(capacity(th.tg_min_overall, args.length, args.speed))}
+                   for m, th in zip(models, ths, strict=True)},
+    }
+    if exact:
+        doc["exact"] = exact
     _commit_outputs(figs, args.json, doc)
     for path, _ in figs:
         print(f"figure written to {path}")
@@ -235,7 +233,7 @@ def _panel_indices(maps: Sequence[np.ndarray], n_kv: int, panels: int) -> np.nda
 
 
 def _commit_outputs(figs: Sequence[tuple[str, Any]], json_path: str | None,
-                    doc: dict[str, Any] | None) -> None:
+                    doc: dict[str, Any]) -> None:
     """Writes the figures, then the JSON with the figures' sizes and SHA-256 (its
     manifest of the run's outputs). The ``avll`` command commits them as one unit
     (:func:`avll._atomic.output_group`): an interrupted run leaves the old files, never
@@ -250,7 +248,7 @@ def _commit_outputs(figs: Sequence[tuple[str, Any]], json_path: str | None,
                                     dpi=120)
         _atomic.write_bytes(path, data)
         made[str(path)] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-    if json_path and doc is not None:
+    if json_path:
         doc["outputs"] = made
         _atomic.write_json(json_path, doc)
 

@@ -12,13 +12,8 @@ def _cmd(args: argparse.Namespace) -> int:
     from ..io import write_runs
     from ..synth import paper_experiment
 
-    runs = paper_experiment(
-        PAPER_TABLE_II[args.model],
-        seed=args.seed,
-        duration=args.duration,
-        noise_a=args.noise_a,
-        quantization_a=args.quantization,
-    )
+    runs = paper_experiment(PAPER_TABLE_II[args.model], seed=args.seed, duration=args.duration,
+                            noise_a=args.noise_a, quantization_a=args.quantization)
     path = write_runs(runs, args.out)
     n = sum(len(r) for r in runs)
     print(f"wrote {len(runs)} runs ({n} samples, model {args.model}, seed {args.seed}) to {path}")
