@@ -698,20 +698,14 @@ def openacc_study(
             chk["why"] = _why_not(chk, cars)
     comparison = _comparison(cars, models)
     summary: dict[str, Any] = {
-        "study": "openacc",
-        "data": data,
-        "model": model,
-        "models": models,
-        "seed": int(seed),
+        "study": "openacc", "data": data, "model": model, "models": models, "seed": int(seed),
         "ga": {"max_generations": int(max_generations), "pop_size": int(pop_size),
                "starts": int(starts)},
-        "objective_weights": list(WEIGHTS),
-        "bounds": {"Gmin": [0.0, float(gmin_max)]},
+        "objective_weights": list(WEIGHTS), "bounds": {"Gmin": [0.0, float(gmin_max)]},
         "band_hz": [float(band[0]), float(band[1])],
         "trim_s": TRIM, "bootstrap": {"n": int(n_boot), "block_s": float(block),
                                       "level": 0.95, "min_blocks": MIN_BLOCKS},
-        "min_excitation_m_s": MIN_EXCITATION,
-        "acc_unknown": acc_unknown,
+        "min_excitation_m_s": MIN_EXCITATION, "acc_unknown": acc_unknown,
         "campaigns": sorted({c["campaign"] for c in cars}),
         "cars": [_public(c) for c in cars],
         "setting_order": {**order,
@@ -738,8 +732,7 @@ def openacc_study(
         "out_of_sample": _oos_summary(cars, out_of_sample),
         "structure_selection": _selection_summary(cars, selection, structures),
         "car_overview": _car_overview(cars, left_out, dropped),
-        "left_out": left_out,
-        "dropped_by_loader": dropped,
+        "left_out": left_out, "dropped_by_loader": dropped,
         "skipped": load_report.get("skipped", []),
         "non_data_files": [str(e.get("file", e)) if isinstance(e, Mapping) else str(e)
                            for e in load_report.get("non_data") or []],

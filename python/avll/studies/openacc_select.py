@@ -216,8 +216,21 @@ def select_structures(
             loss[i] = heldout_loss(model, fits[k], (), runs[i], weights, threads)
     active = {g: True for g in gkeys}
     steps: list[StructureStep] = []
-    n_problems = 0
-    calls = 0
+    n_problems = calls = 0
+
+    def folds(effects: Sequence[str], ks: list[int], starts: list[list[Any]], seed_k: int
+              ) -> list[Any]:
+        """One calibration of the folds ``ks`` with ``effects`` from ``starts``."""
+        nonlocal n_problems, calls
+        res = calibrate(model, runs, effects=list(effects), subsets=[subsets[k] for k in ks],
+                        initial_per_problem=starts, seed=seed_k, threads=threads, starts=1,
+                        **calibrate_kw)  # fmt: skip
+        calls += 1
+        n_problems += len(ks)
+        if any(r.interrupted for r in res):
+            raise KeyboardInterrupt
+        return res
+
     for rnd in range(int(max_structures)):
         by_set: dict[tuple[str, ...], list[Any]] = {}
         for g in gkeys:
@@ -236,15 +249,8 @@ def select_structures(
             # the extra search it gets
             say(f"structures, round {rnd + 1}: {'+'.join(cur) or 'base'} (control) on "
                 f"{len(ks)} folds")
-            ctrl = calibrate(
-                model, runs, effects=list(cur), subsets=[subsets[k] for k in ks],
-                initial_per_problem=[[fits[k].x] for k in ks],
-                seed=int(seed) + 104729 * (rnd + 1) + 7 * len(candidates), threads=threads,
-                starts=1, **calibrate_kw)  # fmt: skip
-            calls += 1
-            n_problems += len(ks)
-            if any(r.interrupted for r in ctrl):
-                raise KeyboardInterrupt
+            ctrl = folds(cur, ks, [[fits[k].x] for k in ks],
+                         int(seed) + 104729 * (rnd + 1) + 7 * len(candidates))
             for k, f in zip(ks, ctrl, strict=True):
                 for i in held[k]:
                     loss[i] = heldout_loss(model, f, cur, runs[i], weights, threads)
@@ -257,15 +263,8 @@ def select_structures(
                     continue
                 say(f"structures, round {rnd + 1}: {'+'.join(cur) or 'base'} + {c} on "
                     f"{len(ks)} folds ({len(gs)} car-settings)")
-                res = calibrate(
-                    model, runs, effects=list(new), subsets=[subsets[k] for k in ks],
-                    initial_per_problem=[[start_row(fits[k], [c])] for k in ks],
-                    seed=int(seed) + 104729 * (rnd + 1) + 7 * list(candidates).index(c),
-                    threads=threads, starts=1, **calibrate_kw)  # fmt: skip
-                calls += 1
-                n_problems += len(ks)
-                if any(r.interrupted for r in res):
-                    raise KeyboardInterrupt
+                res = folds(new, ks, [[start_row(fits[k], [c])] for k in ks],
+                            int(seed) + 104729 * (rnd + 1) + 7 * list(candidates).index(c))
                 fk = dict(zip(ks, res, strict=True))
                 for g in gs:
                     before, after, gains, files = [], [], [], []

@@ -78,36 +78,25 @@ def run_case(scenario: str) -> dict[str, Any]:
         hit = "n/a"
     else:
         hit = any(e in available for e in added)
-    false_add = [e for e in added if e not in acceptable]
     ranked = res.diagnoses[0].ranked if res.diagnoses else []
-    (val_before, val_after), (test_before, test_after) = (
-        [float(np.mean(run_mse(m, rs))) for m in (res.baseline, res.final)] for rs in (val, test))
-    truth = runs[0].meta["truth"]
-    flags = sorted({f.kind for f in res.flags})
+    val_mse, test_mse = ([float(np.mean(run_mse(m, rs))) for m in (res.baseline, res.final)]
+                         for rs in (val, test))
     unexplained = res.unexplained or {}
     return {
-        "scenario": scenario,
-        "acceptable": list(acceptable),
-        "available": available,
-        "ranked_first": ranked[0].effect if ranked else None,
-        "added": added,
+        "scenario": scenario, "acceptable": list(acceptable), "available": available,
+        "ranked_first": ranked[0].effect if ranked else None, "added": added,
         "params": {s.effect: s.params for s in res.steps},
         "at_bound": {s.effect: _at_bound(s.effect, s.params) for s in res.steps},
-        "hit": hit,
-        "false_additions": false_add,
-        "val_mse": [val_before, val_after],
-        "test_mse": [test_before, test_after],
-        "val_gain": _gain(val_before, val_after),
-        "test_gain": _gain(test_before, test_after),
+        "hit": hit, "false_additions": [e for e in added if e not in acceptable],
+        "val_mse": val_mse, "test_mse": test_mse,
+        "val_gain": _gain(*val_mse), "test_gain": _gain(*test_mse),
         "limited_share": float(np.mean([r.meta["truth"]["limited_share"] for r in runs])),
         "shift_cut_share": float(np.mean([r.meta["truth"]["shift_cut_share"] for r in runs])),
-        "overrides": SCENARIOS[scenario],
-        "notes": notes,
-        "flags": flags,
+        "overrides": SCENARIOS[scenario], "notes": notes,
+        "flags": sorted({f.kind for f in res.flags}),
         "structure_found": unexplained.get("structure_found"),
         "unexplained_share": unexplained.get("unexplained_share"),
-        "seconds": elapsed,
-        "truth_params": truth["params"],
+        "seconds": elapsed, "truth_params": runs[0].meta["truth"]["params"],
     }
 
 
