@@ -243,11 +243,8 @@ def _match_sidecar(path: Path, per_run: dict[str, Any], order: Sequence[str]) ->
     unknown = [k for k in per_run if k not in ids]
     if not unknown:
         return
-    by_num: dict[float, str] = {}
-    for rid in order:
-        f = _as_number(rid)
-        if f is not None:
-            by_num.setdefault(f, rid)
+    # the first run of each number (reversed: the first one is written last)
+    by_num = {f: rid for rid in reversed(order) if (f := _as_number(rid)) is not None}
     sc = sidecar_path(path)
     for k in unknown:
         f = _as_number(k)

@@ -70,14 +70,8 @@ def carma_vehicles(columns: Sequence[str]) -> list[str]:
     """The vehicle prefixes of a CARMA file: every ``<V>`` with at least one
     ``<V>_<field>`` column of :data:`CARMA_FIELDS`, in column order (so a vehicle with a
     missing column is reported, not silently skipped)."""
-    out: list[str] = []
-    for c in columns:
-        for f in CARMA_FIELDS:
-            if c.endswith("_" + f) and len(c) > len(f) + 1:
-                v = c[: -len(f) - 1]
-                if v not in out:
-                    out.append(v)
-    return out
+    return list(dict.fromkeys(c[: -len(f) - 1] for c in columns for f in CARMA_FIELDS
+                              if c.endswith("_" + f) and len(c) > len(f) + 1))
 
 
 def _quantum(a: np.ndarray, share: float = 0.9) -> float:
@@ -387,11 +381,7 @@ def load_carma(
 def carma_report(runs: Sequence[Run]) -> pd.DataFrame:
     """Per vehicle and file: stretches kept, their total duration, samples bridged,
     stretches dropped as too short."""
-    seen: dict[str, Any] = {}
-    for r in runs:
-        rep = r.meta.get("file_report")
-        if rep is not None:
-            seen[rep["file"]] = rep
+    seen = {rep["file"]: rep for r in runs if (rep := r.meta.get("file_report")) is not None}
     recs = []
     for f, rep in seen.items():
         for veh, v in rep["vehicles"].items():

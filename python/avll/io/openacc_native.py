@@ -763,9 +763,8 @@ def grade_from_altitude(s: np.ndarray, alt: np.ndarray, window: float = 30.0,
 
         pe, pn, pa = (np.asarray(q, dtype=np.float64) for q in pool)
         keep = np.isfinite(pe) & np.isfinite(pn) & np.isfinite(pa)
-        if keep.any() and np.isfinite(np.asarray(e, dtype=np.float64)).sum() >= 2:
-            e = np.asarray(e, dtype=np.float64)
-            n = np.asarray(n, dtype=np.float64)
+        e, n = np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64)
+        if keep.any() and np.isfinite(e).sum() >= 2:
             okp = np.isfinite(s) & np.isfinite(e) & np.isfinite(n)
             su, first = np.unique(s[okp], return_index=True)
             ce = np.interp(centre, su, e[okp][first])
