@@ -1156,7 +1156,7 @@ def _follower_runs(nf: NativeFile, rid_stem: str, *, bridge: float, bridge_kinem
     runs: list[Run] = []
 
     def skip(fol: dict[str, Any], why: str, key: str, secs: float) -> None:
-        """A follower without any stretch: the whole file's time, for ``key``."""
+        """A follower skipped for ``why``: its recorded time ``secs`` counted as ``key``."""
         i, car = fol["follower"], fol["car"]
         skipped.append(_Skip(str(path), i, car, why))
         fol["time_s"][key] += secs
