@@ -61,12 +61,6 @@ DIMS = ("kg", "Tg", "kv")
 _DIM_ALIASES = {"kg": "kg", "Tg": "Tg", "tg": "Tg", "kv": "kv"}
 
 
-def _map_attrs(model: LowerLevelModel, pade_order: int | None) -> dict[str, Any]:
-    return {**S._attrs(model, pade_order), "codes": S.CODE_MEANINGS,
-            "code_local_unstable": S.LOCAL_UNSTABLE, "code_string_unstable": S.STRING_UNSTABLE,
-            "code_stable": S.STABLE}
-
-
 def _chunk_sizes(chunks: Mapping[str, int], shape: tuple[int, int, int]) -> tuple[int, ...]:
     if not isinstance(chunks, Mapping):
         raise ValueError(f"chunks: expected a dict of dim -> chunk length, got {chunks!r}")
@@ -141,11 +135,8 @@ def map_dataset(
     Dask-backed and nothing is computed until it is needed: every chunk is computed
     by the Rust kernel with ``threads`` threads (default 1 per chunk, so the
     scheduler's workers give the parallelism) on the current Dask scheduler or
-    client. :func:`write_map` then streams it to a Zarr store with memory bounded by
-    the chunks in flight, and marks the store complete once every chunk is written
-    (:func:`open_map` refuses a store without the mark; a plain ``.to_zarr`` writes
-    none, so its interrupted output would read as a map with zeros in the holes). The
-    codes are the same as the eager map's, bit for bit.
+    client; :func:`write_map` streams it to a Zarr store chunk by chunk (not
+    ``.to_zarr``: see there). The codes are the same as the eager map's, bit for bit.
     """
     import xarray as xr
 
@@ -153,7 +144,9 @@ def map_dataset(
     order = S._pade_arg(pade_order)
     name, p = S._model(model)
     coords = {"kg": kg_a, "Tg": tg_a, "kv": kv_a}
-    attrs = _map_attrs(model, pade_order)
+    attrs = {**S._attrs(model, pade_order), "codes": S.CODE_MEANINGS,
+             "code_local_unstable": S.LOCAL_UNSTABLE,
+             "code_string_unstable": S.STRING_UNSTABLE, "code_stable": S.STABLE}
     budget = check_int(budget, "budget", min=1)
     if chunks is None:
         th = check_threads(0 if threads is None else threads)

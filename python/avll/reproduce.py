@@ -224,11 +224,6 @@ def run_diagnosis(
     return {**res.to_dict(), "available": True}
 
 
-# ---------------------------------------------------------------------------
-# Data
-# ---------------------------------------------------------------------------
-
-
 def _synthetic(seed: int, settings: Settings) -> tuple[list[Run], list[Run], list[Run], str]:
     """The runs of the synthetic experiment, the paper's split and their description."""
     from .calibration import split_runs
@@ -247,14 +242,9 @@ def _synthetic(seed: int, settings: Settings) -> tuple[list[Run], list[Run], lis
 
 def _stab_json(st: dict[str, Any]) -> dict[str, Any]:
     th = st["thresholds"]
-    return {
-        "kv_threshold": st["kv_threshold"],
-        "min_tg": st["min_tg"],
-        "capacity": st["capacity"],
-        "kv_last_stable_on_grid": st["kv_last_stable_on_grid"],
-        "stable_share": st["stable_share"],
-        "thresholds": {"kv": th.kv, "kg_max": th.kg_max, "tg_min": th.tg_min},
-    }
+    keys = ("kv_threshold", "min_tg", "capacity", "kv_last_stable_on_grid", "stable_share")
+    return {**{k: st[k] for k in keys},
+            "thresholds": {"kv": th.kv, "kg_max": th.kg_max, "tg_min": th.tg_min}}
 
 
 def reproduce(
@@ -681,13 +671,11 @@ def _write_report(outd: Path, desc: str, diag: dict[str, Any], settings: Setting
     rep.heading("Comparable: ranking and ratios of the MSEs")
     rows = []
     for key, lab in (("cal_mse", "calibration"), ("val_mse", "validation")):
-        for m in ("second", "first"):
-            pr = PAPER[key][m] / PAPER[key]["proposed"]
-            ours = cal[m][key] / cal["proposed"][key] if cal["proposed"][key] > 0 else None
-            rows.append([f"{lab}: {_NAMES[m]} / proposed", pr, ours])
-        pr = PAPER[key]["first"] / PAPER[key]["second"]
-        ours = cal["first"][key] / cal["second"][key] if cal["second"][key] > 0 else None
-        rows.append([f"{lab}: first-order / second-order", pr, ours])
+        for a, b, what in (("second", "proposed", f"{_NAMES['second']} / proposed"),
+                           ("first", "proposed", f"{_NAMES['first']} / proposed"),
+                           ("first", "second", "first-order / second-order")):
+            rows.append([f"{lab}: {what}", PAPER[key][a] / PAPER[key][b],
+                         cal[a][key] / cal[b][key] if cal[b][key] > 0 else None])
     rep.table(["ratio of average MSEs", "paper", "avll"], rows)
     rep.columns([("paper", "ratio of the paper's average MSEs (dimensionless)"),
                  ("avll", "the same ratio here (dimensionless)")])
@@ -837,9 +825,9 @@ def _diag_section(rep: Report, diag: dict[str, Any], synthetic: bool, label: str
         # the loop diagnoses the calibration runs only: no held-out column then
         n = 4 if any(isinstance(x := c.get("val_explained"), (int, float)) and math.isfinite(x)
                      for c in cands) else 3
-        keys = ("effect", "explained", "p_value", "val_explained")[:n]
+        fields = ("effect", "explained", "p_value", "val_explained")[:n]
         rep.table(["candidate (first diagnosis)", "explained", "p", "val explained"][:n],
-                  [[c.get(k) for k in keys] for c in cands])
+                  [[c.get(k) for k in fields] for c in cands])
         rep.columns([("candidate", "an effect whose signature was tested in the residuals"),
                      ("explained", "fraction of the calibration residuals' variance its "
                       "signature explains (0-1)"),

@@ -629,8 +629,7 @@ def boundary(
             raise ValueError(f"{a.lower()}: needed for {which!r}")
     if given[axis] is not None:
         raise ValueError(f"{ax_name}: is the searched axis of {which!r}; use search_range")
-    u = _axis(fixed[0], given[fixed[0]])
-    w = _axis(fixed[1], given[fixed[1]])
+    u, w = (_axis(a, given[a]) for a in fixed)
     lo, hi = _range_arg("search_range", search_range or DEFAULT_RANGES[axis])
     name, p = _model(model)
     log = axis == "kg" and lo > 0
