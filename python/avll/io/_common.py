@@ -581,7 +581,7 @@ def check_signal(kind: str, x: np.ndarray, path: str | Path, column: str, *,
 
 #: Kind of each canonical column (``command`` depends on the command kind).
 COLUMN_KINDS = {"a": "acceleration", "lead_a": "acceleration", "v": "speed",
-                "lead_v": "speed", "x": "position", "lead_x": "position"}
+                "lead_v": "speed", "x": "position", "lead_x": "position", "exo_grade": "grade"}
 
 
 def check_columns(cols: Mapping[str, np.ndarray], path: str | Path,
@@ -593,22 +593,17 @@ def check_columns(cols: Mapping[str, np.ndarray], path: str | Path,
     row of each sample. ``dt`` enables the unit checks that need the time base. The
     speeds come last, so that the positions and accelerations they are compared with
     are already known to be plausible."""
-    speeds_last = sorted(cols, key=lambda k: k in ("v", "lead_v"))
-    for k in speeds_last:
-        x = cols[k]
-        col = names.get(k, k)
-        if k == "command":
-            kind = "speed" if command_kind == "speed" else "acceleration"
-        elif k == "exo_grade":
-            kind = "grade"
-        else:
-            kind = COLUMN_KINDS.get(k, "other")
-        if kind == "speed" and k in ("v", "lead_v"):
-            pre = "lead_" if k == "lead_v" else ""
+    for k in sorted(cols, key=lambda k: k in ("v", "lead_v")):
+        x, col = cols[k], names.get(k, k)
+        if k in ("v", "lead_v"):
+            pre = k.removesuffix("v")
             check_speed_units(x, path, col, dt=dt, a=cols.get(pre + "a"),
                               x=cols.get(pre + "x"), rows=rows)
+        elif k == "command":
+            check_signal("speed" if command_kind == "speed" else "acceleration", x, path, col,
+                         rows=rows, dt=dt)
         else:
-            check_signal(kind, x, path, col, rows=rows, dt=dt)
+            check_signal(COLUMN_KINDS.get(k, "other"), x, path, col, rows=rows, dt=dt)
 
 
 def check_runs_for_delay(runs: Sequence[Run], td: float, *, min_extra_samples: int = 20) -> None:
