@@ -129,13 +129,8 @@ def _load_generic(path: Path, mapping: Mapping[str, str] | None, command_kind: s
         rows = np.flatnonzero(ids == rid)
         cols = {k: v[rows] for k, v in data.items()}
         tcol = mp["t"]
-        if dt is None:
-            step = check_time(cols["t"], path, tcol, rows=rows, rtol=time_tol)
-        else:
-            check_time(cols["t"], path, tcol, rows=rows, uniform=False)
-            step = dt
-        check_time_step(step if dt is None else float(np.median(np.diff(cols["t"]))),
-                        path, tcol, int(rows[1]) if rows.size > 1 else None)
+        step = check_time(cols["t"], path, tcol, rows=rows, rtol=time_tol, uniform=dt is None)
+        check_time_step(step, path, tcol, int(rows[1]) if rows.size > 1 else None)
         check_columns({k: v for k, v in cols.items() if k != "t"}, path, mp,
                       command_kind=kind, dt=None if dt else step, rows=rows)
         base_meta: dict[str, Any] = {"format": "generic", "file": str(path),
