@@ -257,12 +257,7 @@ def _loc(path: Path, column: str | None = None, row: int | None = None,
     line of the file), metadata by line."""
     if row is not None:
         return where(path, column, row, header_lines=HEADER_LINES)
-    s = str(path)
-    if column is not None:
-        s += f", column {column!r}"
-    if line is not None:
-        s += f", line {line}"
-    return s
+    return where(path, column) + (f", line {line}" if line is not None else "")
 
 
 @dataclass
