@@ -53,19 +53,9 @@ from ..paper import MODELS as _MODELS
 from ..rollout import batch_cost, closed_loop, simulate_full
 from ..uncertainty import _finite_or_none as _finite
 
-__all__ = [
-    "Study",
-    "HANDOVER_SPEED",
-    "CARMA_OBJECTIVES",
-    "ASTAZERO_OBJECTIVES",
-    "CARMA_CAL_FILES",
-    "CARMA_BOUNDS",
-    "read_carma",
-    "split_launch_cruise",
-    "read_astazero_pairs",
-    "carma_study",
-    "astazero_study",
-]
+__all__ = ["Study", "HANDOVER_SPEED", "CARMA_OBJECTIVES", "ASTAZERO_OBJECTIVES",
+           "CARMA_CAL_FILES", "CARMA_BOUNDS", "read_carma", "split_launch_cruise",
+           "read_astazero_pairs", "carma_study", "astazero_study"]
 
 #: First command of the CARMA cruise logic is 20.11 m/s; a launch ends at the first
 #: command at or above this speed (m/s).

@@ -135,29 +135,11 @@ from ..spectral import (
 from ..stability import exact_delay_codes
 from ..uncertainty import symmetric_interval
 
-__all__ = [
-    "WEIGHTS",
-    "DEFAULT_BAND",
-    "TRIM",
-    "BLOCK",
-    "N_BOOT",
-    "MIN_EXCITATION",
-    "GMIN_MAX",
-    "HEADWAY_MIN_SPEED",
-    "OpenACCStudy",
-    "openacc_study",
-    "bandpass",
-    "amplification",
-    "bootstrap_ci",
-    "transfer_gain",
-    "predicted_amplification",
-    "replay_amplification",
-    "measured_amplification",
-    "run_meta",
-    "setting_order",
-    "MIN_BLOCKS",
-    "ACC_UNKNOWN",
-]
+__all__ = ["WEIGHTS", "DEFAULT_BAND", "TRIM", "BLOCK", "N_BOOT", "MIN_EXCITATION",
+           "GMIN_MAX", "HEADWAY_MIN_SPEED", "OpenACCStudy", "openacc_study", "bandpass",
+           "amplification", "bootstrap_ci", "transfer_gain", "predicted_amplification",
+           "replay_amplification", "measured_amplification", "run_meta", "setting_order",
+           "MIN_BLOCKS", "ACC_UNKNOWN"]
 
 #: Objective weights (wa, wv, wx) of the closed-loop calibration: the project's one
 #: closed-loop weighting (:data:`avll.defaults.CLOSED_LOOP_WEIGHTS`).
@@ -420,26 +402,21 @@ def _headway(run: Run) -> float:
     return float(np.median((run.lead_x - run.x)[m] / run.v[m]))
 
 
-_NOTES_CACHE: dict[Path, Path | None] = {}
+_NOTES_CACHE: dict[Path, bool] = {}
 
 
 def _campaign_root(file: Path) -> Path | None:
     """The nearest folder above ``file`` (up to four levels) holding a campaign's
     notes (``*notes*.txt``), as the JRC distributes every campaign; None if none."""
-    d = file.parent
-    for _ in range(5):
+    for d in [file.parent, *file.parent.parents][:5]:
         if d not in _NOTES_CACHE:
             try:
-                has = any(bool(f.is_file() and "notes" in f.name.lower()
-                               and f.suffix.lower() == ".txt") for f in d.iterdir())
-                _NOTES_CACHE[d] = d if has else None
+                _NOTES_CACHE[d] = any(f.is_file() and "notes" in f.name.lower()
+                                      and f.suffix.lower() == ".txt" for f in d.iterdir())
             except OSError:
-                _NOTES_CACHE[d] = None
-        if _NOTES_CACHE[d] is not None:
+                _NOTES_CACHE[d] = False
+        if _NOTES_CACHE[d]:
             return d
-        if d.parent == d:
-            break
-        d = d.parent
     return None
 
 

@@ -53,16 +53,8 @@ import numpy as np
 from ..data import Run
 from ..uncertainty import _finite_or_none as _fin
 
-__all__ = [
-    "CANDIDATES",
-    "MIN_GAIN",
-    "ALPHA",
-    "MAX_STRUCTURES",
-    "StructureStep",
-    "StructureSelection",
-    "heldout_loss",
-    "select_structures",
-]
+__all__ = ["CANDIDATES", "MIN_GAIN", "ALPHA", "MAX_STRUCTURES", "StructureStep",
+           "StructureSelection", "heldout_loss", "select_structures"]
 
 #: Candidate structures, from the lower level to the whole follower.
 CANDIDATES: tuple[str, ...] = ("delay", "perception", "feedforward", "closing", "speed_gains")
