@@ -39,10 +39,11 @@ from .data import Run
 # the defaults and the paper's calibration runs, re-exported here (their old home)
 from .defaults import DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS, UPPER_BOUNDS, Bound
 from .defaults import UPPER_NAMES as _UPPER_NAMES
+from .effects import EFFECTS, WithEffects, canonical, exo_needs
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import MODEL_TITLES as _LABELS
 from .paper import PAPER_CAL_RUNS
-from .rollout import closed_loop, simulate
+from .rollout import _structure, closed_loop, simulate
 from .runs import RunSet, as_runset, positions
 from .uncertainty import Uncertainty
 
@@ -92,14 +93,11 @@ def default_bounds(
     :data:`UPPER_BOUNDS` for the free gains."""
     cls = model_class(model)
     out = dict(DEFAULT_BOUNDS[cls.name])
-    if effects:
-        from .effects import EFFECTS, canonical
-
-        for e in canonical(list(effects)):
-            ecls = EFFECTS[e]
-            for p, (lo, hi) in zip(ecls.param_names(), ecls.bounds, strict=True):
-                fx = ecls.fixed.get(kind, {}).get(p)
-                out[f"{e}.{p}"] = (lo, hi, "linear") if fx is None else (fx, fx, "linear")
+    for e in canonical(list(effects)):
+        ecls = EFFECTS[e]
+        for p, (lo, hi) in zip(ecls.param_names(), ecls.bounds, strict=True):
+            fx = ecls.fixed.get(kind, {}).get(p)
+            out[f"{e}.{p}"] = (lo, hi, "linear") if fx is None else (fx, fx, "linear")
     for u in upper_free:
         name = _UPPER_NAMES[_upper_index(u)]
         out[name] = UPPER_BOUNDS[name]
@@ -253,28 +251,6 @@ class _Packs:
         return self._packed[key]
 
 
-def _split_model(model: Any, effects: Sequence[str]) -> tuple[type[LowerLevelModel],
-                                                             tuple[str, ...], np.ndarray | None]:
-    """The base model class, the effects (canonical order) and, for a model instance,
-    its parameter row (a start for the search)."""
-    from .effects import WithEffects, canonical
-
-    row = None
-    if isinstance(model, WithEffects):
-        if effects:
-            raise ValueError("effects: give them either in the model or as effects=, not both")
-        names = tuple(model.effect_names)
-        row = np.asarray(model.to_array(), dtype=np.float64)
-        model = type(model.base)
-    else:
-        names = tuple(canonical(list(effects))) if effects else ()
-        if isinstance(model, LowerLevelModel) and not names:
-            row = np.asarray(model.to_array(), dtype=np.float64)
-        if isinstance(model, LowerLevelModel):
-            model = type(model)
-    return model_class(model), names, row
-
-
 def _problem(
     model: Any,
     runs: RunSet | Sequence[Run],
@@ -287,22 +263,17 @@ def _problem(
     effects: Sequence[str] = (),
     packs: _Packs | None = None,
 ) -> _Problem:
-    cls, names, _ = _split_model(model, effects)
+    cls, names = _structure(model, effects)
     free = [_upper_index(u) for u in upper_free]
     if free and not closed_loop:
         raise ValueError("upper_free: the upper-level gains can only be calibrated in closed loop")
     rs = (packs or _Packs()).get(runs)
-    exo: dict[str, str] = {}
-    if names:
-        from .effects import exo_needs
-
-        exo = exo_needs(names)
     kw = rs.cost_kw(weights=weights, init=init, closed_loop=closed_loop, upper_free=free,
-                    exo=exo)  # fmt: skip
+                    exo=exo_needs(names))  # fmt: skip
     kw["effects"] = list(names)
-    w = kw["weights"]
     lo_names, lo, hi, sc = _resolve_bounds(cls, free, bounds, names, rs.command_kind)
-    return _Problem(cls, rs, names, free, lo_names, lo, hi, sc, kw, w, init, closed_loop)
+    return _Problem(cls, rs, names, free, lo_names, lo, hi, sc, kw, kw["weights"], init,
+                    closed_loop)
 
 
 def _ga_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
@@ -388,8 +359,6 @@ def start_row(result: CalibrationResult, effects: Sequence[str] = ()) -> np.ndar
     together, in canonical order): a start for a calibration of the richer model that
     costs exactly what ``result`` costs (an effect at its neutral values is the
     identity), e.g. ``initial_per_problem`` of :func:`calibrate_many`."""
-    from .effects import EFFECTS, canonical
-
     x = np.asarray(result.x if result.x is not None else
                    [*result.model.to_array(), *result.upper.values()], dtype=np.float64)
     have = tuple(result.with_effects.effect_names) if result.with_effects is not None else ()
@@ -437,8 +406,6 @@ def _result(prob: _Problem, raw: Mapping[str, Any], runs: Sequence[Run], seed: i
     with_effects = None
     n_row = n_model
     if prob.effects:
-        from .effects import WithEffects
-
         n_row = len(x) - len(prob.free)
         with_effects = WithEffects.from_array(prob.cls.name, list(prob.effects), x[:n_row])
     upper = {_UPPER_NAMES[i]: float(x[n_row + j]) for j, i in enumerate(prob.free)}
@@ -709,7 +676,12 @@ def _best(prob: _Problem, group: Sequence[dict[str, Any]], where: str
     j = min(range(len(group)), key=lambda i: (group[i]["f"], i))
     raw = dict(group[j])
     if not math.isfinite(float(raw["f"])):
-        _no_fit(prob, raw, where)
+        how = "interrupted before any finite cost was found; " if raw.get("interrupted") else ""
+        raise ValueError(
+            f"runs: the calibration of {prob.cls.name!r}{where} found no parameter set with a "
+            f"finite cost ({how}every evaluated candidate diverged or gave a non-finite "
+            f"error). Check the runs for implausible values (strict=True when loading), the "
+            f"command kind and the bounds ({', '.join(prob.names)})")
     raw["evaluations"] = sum(int(r["evaluations"]) for r in group)
     raw["interrupted"] = any(bool(r["interrupted"]) for r in group)
     return j, raw
@@ -719,15 +691,6 @@ def _costs(group: Sequence[Mapping[str, Any]]) -> tuple[float, ...]:
     return tuple(float(r["f"]) for r in group)
 
 
-def _no_fit(prob: _Problem, raw: dict[str, Any], where: str) -> None:
-    how = "interrupted before any finite cost was found; " if raw.get("interrupted") else ""
-    raise ValueError(
-        f"runs: the calibration of {prob.cls.name!r}{where} found no parameter set with a "
-        f"finite cost ({how}every evaluated candidate diverged or gave a non-finite "
-        f"error). Check the runs for implausible values (strict=True when loading), the "
-        f"command kind and the bounds ({', '.join(prob.names)})")
-
-
 def _subset_indices(runs: Sequence[Run], subset: Sequence[Any], k: int) -> list[int]:
     """Run positions of ``subset`` (positions or run ids) in ``runs`` (``avll.maps``)."""
     return positions([r.run_id for r in runs], subset, f"subsets[{k}]")
@@ -735,10 +698,9 @@ def _subset_indices(runs: Sequence[Run], subset: Sequence[Any], k: int) -> list[
 
 def _with_start(model: Any, initial: Sequence[Any] | None) -> Sequence[Any] | None:
     """``initial`` with the parameters of a model instance given as ``model``."""
-    row = _split_model(model, ())[2] if not isinstance(model, (str, type)) else None
-    if row is None:
+    if not isinstance(model, (LowerLevelModel, WithEffects)):
         return initial
-    return [*(initial or ()), row]
+    return [*(initial or ()), np.asarray(model.to_array(), dtype=np.float64)]
 
 
 def calibrate_many(
@@ -850,8 +812,6 @@ def calibrate_effects(
     :class:`avll.CalibrationResult` itself under ``"result"``. ``max_generations``
     and ``pop_size`` (``None``: the defaults of :data:`avll.defaults.GA_OPTIONS`) are
     checked by the Rust core."""
-    from .effects import canonical
-
     rs = as_runset(runs)
     names = canonical(list(effects))
     box = list(default_bounds(base, list(upper_free), names, rs.command_kind))

@@ -488,11 +488,10 @@ class WithEffects:
         for e in effs:
             if not isinstance(e, Effect):
                 raise ValueError(f"effects: expected Effect objects, got {type(e).__name__}")
-        order = canonical([e.name for e in effs])
+        canonical([e.name for e in effs])  # known, no duplicates, no excluded pairs
         object.__setattr__(
             self, "effects", tuple(sorted(effs, key=lambda e: CANONICAL_ORDER.index(e.name)))
         )
-        assert tuple(e.name for e in self.effects) == order
 
     @property
     def name(self) -> str:
@@ -576,17 +575,10 @@ class WithEffects:
         (``sensor``; not a dynamic of the vehicle), and ``command_delay`` (s), the
         ``delay`` effect's factor ``e^{-tau s}`` outside the inner loop (with ``K = 0``
         the non-``terms`` form adds it to ``Td`` instead)."""
-        return dict(
-            _core.linearize_effects(
-                self.base.name,
-                [float(x) for x in self.base.to_array()],
-                list(self.effect_names),
-                [float(x) for e in self.effects for x in e.to_array()],
-                float(v),
-                int(side),
-                terms=bool(terms),
-            )
-        )
+        return dict(_core.linearize_effects(
+            self.base.name, [float(x) for x in self.base.to_array()], list(self.effect_names),
+            [float(x) for e in self.effects for x in e.to_array()], float(v), int(side),
+            terms=bool(terms)))
 
 
 def equivalent_model(

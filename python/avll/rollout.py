@@ -422,10 +422,9 @@ def platoon(
         _check_out(list(zip(names, arrs, strict=True)), (nf, lx.size), [lx, lv], order="F")
     else:
         per = 2 * 4 * 8 * max(lx.size, 1)
-        need = float(nf) * per
         check_memory(
-            need, f"platoon: followers={nf} x {lx.size} samples x 4 arrays x 8 bytes (twice "
-            "while copying)",
+            float(nf) * per, f"platoon: followers={nf} x {lx.size} samples x 4 arrays x 8 "
+            "bytes (twice while copying)",
             "simulate fewer followers per call (the last follower's x and v lead the next "
             "slice)",
             per=per, unit="followers")

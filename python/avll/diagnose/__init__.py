@@ -70,23 +70,20 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
 #: Where each public name lives: the submodules load on first use, so that
 #: importing the package (e.g. for :data:`MIN_GAIN`) does not import scipy.
 _WHERE = {
-    "model_from_dict": "contract", "model_to_dict": "contract", "simulate_run": "contract",
-    "BASE_BOUNDS": "fitting", "CLOSED_LOOP_WEIGHTS": "fitting",
-    "SPEED_COMMAND_WEIGHTS": "fitting", "UPPER_BOUNDS": "fitting", "at_bound": "fitting",
-    "AtBound": "fitting",
-    "calibrate_kw": "fitting", "default_weights": "fitting", "run_mse": "fitting",
-    "simulate_runs": "fitting",
+    **dict.fromkeys(("model_from_dict", "model_to_dict", "simulate_run"), "contract"),
+    **dict.fromkeys(("BASE_BOUNDS", "CLOSED_LOOP_WEIGHTS", "SPEED_COMMAND_WEIGHTS",
+                     "UPPER_BOUNDS", "at_bound", "AtBound", "calibrate_kw", "default_weights",
+                     "run_mse", "simulate_runs"), "fitting"),
     "MIN_GAIN": "defaults",
     **dict.fromkeys(("LoopResult", "Step", "Trial", "Flag", "Splits", "Selection",
                      "effect_loop", "make_folds"), "loop"),
-    "mse_table": "report", "plot_diagnosis": "report", "plot_unexplained": "report",
-    "write_report": "report",
-    "Candidate": "signatures", "Diagnosis": "signatures", "diagnose": "signatures",
-    "offered": "signatures", "residual_structure": "signatures",
-    "SignalDependence": "stats", "LossTest": "stats", "BootstrapGain": "stats",
-    "binned_dependence": "stats",
-    "block_bootstrap_gain": "stats", "effective_sample_size": "stats",
-    "loss_difference_test": "stats",
+    **dict.fromkeys(("mse_table", "plot_diagnosis", "plot_unexplained", "write_report"),
+                    "report"),
+    **dict.fromkeys(("Candidate", "Diagnosis", "diagnose", "offered", "residual_structure"),
+                    "signatures"),
+    **dict.fromkeys(("SignalDependence", "LossTest", "BootstrapGain", "binned_dependence",
+                     "block_bootstrap_gain", "effective_sample_size", "loss_difference_test"),
+                    "stats"),
 }  # fmt: skip
 
 

@@ -53,7 +53,6 @@ def _init(runs: Any, init: str) -> str:
     """``"auto"``: a speed command starts at its steady state (a run that begins
     while driving), an acceleration command at rest (the paper's experiment)."""
     if init == "auto":
-        runs = runs.runs if isinstance(runs, RunSet) else runs
         return "steady" if runs and runs[0].command_kind == "speed" else "rest"
     if init not in ("rest", "steady"):
         raise ValueError(f"init: must be 'auto', 'rest' or 'steady', got {init!r}")
@@ -63,7 +62,6 @@ def _init(runs: Any, init: str) -> str:
 def _closed(runs: Any, closed_loop: bool | None) -> bool:
     if closed_loop is not None:
         return bool(closed_loop)
-    runs = runs.runs if isinstance(runs, RunSet) else runs
     return any(r.command is None for r in runs)
 
 
@@ -80,7 +78,7 @@ def calibrate_kw(runs: Sequence[Run], closed_loop: bool | None = None,
     ``closed_loop`` (default: when a run has no command), ``init`` (``"auto"``: see
     :func:`simulate_runs`), ``upper_free`` (in closed loop, all four gains when a run
     has no upper-level law) and ``weights`` (:func:`default_weights`)."""
-    runs = list(runs.runs if isinstance(runs, RunSet) else runs)
+    runs = list(runs)
     closed = _closed(runs, closed_loop)
     speed = runs[0].command_kind == "speed" and all(r.v is not None for r in runs)
     return {"closed_loop": closed, "init": _init(runs, init),
@@ -169,9 +167,7 @@ def default_weights(closed: bool, speed: bool = False) -> tuple[float, float, fl
     otherwise the paper's Eq. 6 ``(1, 0, 0)``. The loop reports acceleration MSEs."""
     if closed:
         return CLOSED_LOOP_WEIGHTS
-    if speed:
-        return SPEED_COMMAND_WEIGHTS
-    return (1.0, 0.0, 0.0)
+    return SPEED_COMMAND_WEIGHTS if speed else (1.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -207,16 +203,14 @@ def at_bound(
             raise ValueError(f"upper_bounds: unknown gain {k!r}; known: {', '.join(_UB)}")
         box[k] = (float(lo_k), float(hi_k), "linear")
     names = [f"upper.{n}" if n in _UB else n for n in box]
-    lo, hi, lg = ([x[0] for x in box.values()], [x[1] for x in box.values()],
-                  [x[2] == "log" for x in box.values()])
     values = list(model.to_array())
     if upper is not None:
         values.extend(float(x) for x in upper.to_array())
     out = []
-    for n, v, a, b, is_log in zip(names, values, lo, hi, lg, strict=True):
+    for n, v, (a, b, scale) in zip(names, values, box.values(), strict=True):
         if not a < b:
             continue
-        if is_log:
+        if scale == "log":
             u = (np.log(max(v, 1e-300)) - np.log(a)) / (np.log(b) - np.log(a))
         else:
             u = (v - a) / (b - a)

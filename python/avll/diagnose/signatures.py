@@ -27,7 +27,7 @@ which effects to cross-validate; it does not accept anything by itself.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -96,12 +96,7 @@ class Diagnosis:
             "n_eff": self.n_eff,
             "xcorr_best_lag_s": self.best_lag,
             "signals": [s.to_dict() for s in self.signals],
-            "candidates": [
-                {"effect": c.effect, "explained": c.explained, "val_explained": c.val_explained,
-                 "F": c.F, "df": c.df, "p_value": c.p_value, "hint": c.hint,
-                 "significant": c.significant}
-                for c in self.candidates
-            ],  # fmt: skip
+            "candidates": [asdict(c) for c in self.candidates],
         }
 
 
@@ -347,10 +342,9 @@ def diagnose(
     # Dependence on candidate signals.
     sig_runs = [_signals(r, s) for r, s in zip(runs, sims, strict=True)]
     names = [k for k in sig_runs[0] if all(k in s for s in sig_runs)]
-    deps = []
-    for k in names:
-        x = np.concatenate([s[k] for s in sig_runs])
-        deps.append(replace(_binned(x, e, np.cumsum([len(r) for r in runs])[:-1]), signal=k))
+    cuts = np.cumsum([len(r) for r in runs])[:-1]
+    deps = [replace(_binned(np.concatenate([s[k] for s in sig_runs]), e, cuts), signal=k)
+            for k in names]
     # Candidate effects: the score test by simulation.
     kind = runs[0].command_kind
     allowed = offered(model, [*runs, *val_runs], candidates, closed=closed)
@@ -381,7 +375,6 @@ def diagnose(
         k = J.shape[1] + q
         # Effective sample size of the residual under the alternative (with the effect).
         r_alt = e - np.column_stack([J, *cols]) @ beta
-        cuts = np.cumsum([len(r) for r in runs])[:-1]
         n_eff_c = _ess(np.split(r_alt, cuts))
         explained = max(rss0 - rss1, 0.0) / sse if sse > 0 else 0.0
         F = ((rss0 - rss1) / q) / (rss1 / max(n_eff_c - k, 1.0)) if rss1 > 0 else np.inf
