@@ -126,19 +126,23 @@ class _Count(argparse.Action):
         setattr(ns, self.dest, check_int(n, name, min=self.minimum))
 
 
-def add_ga_budget(p: argparse.ArgumentParser, *, generations: int, starts: int,
-                  pop_size: int | None = None, what: str = "") -> None:
-    """The GA budget, named alike on every command: ``--max-generations`` (per start),
-    ``--starts`` and, with ``pop_size``, ``--pop-size`` (0: automatic)."""
+def add_ga_budget(p: argparse.ArgumentParser, *, pop_size: bool = False, what: str = "") -> None:
+    """The GA budget, named alike on every command, defaulting to the library's
+    (:data:`avll.defaults.GA_OPTIONS`): ``--max-generations`` (per start), ``--starts``
+    and, with ``pop_size``, ``--pop-size`` (0: automatic)."""
+    from ..defaults import DEFAULT_STARTS, GA_OPTIONS
+
+    generations, starts = GA_OPTIONS["max_generations"], DEFAULT_STARTS
     of = f" of {what}" if what else ""
     p.add_argument("--max-generations", dest="max_generations", action=_Count,
                    default=generations, metavar="N",
                    help=f"GA generation budget per start{of} (default: {generations})")
     p.add_argument("--starts", action=_Count, default=starts, metavar="N",
                    help=f"independent GA starts{of}, the best kept (default: {starts})")
-    if pop_size is not None:
-        p.add_argument("--pop-size", action=_Count, minimum=0, default=pop_size, metavar="N",
-                       help=f"GA population (default: {pop_size}; 0 is automatic: "
+    if pop_size:
+        pop = GA_OPTIONS["pop_size"]
+        p.add_argument("--pop-size", action=_Count, minimum=0, default=pop, metavar="N",
+                       help=f"GA population (default: {pop}; 0 is automatic: "
                        "max(16 x parameters, 40))")
 
 

@@ -161,8 +161,6 @@ def _cmd(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Registers ``avll calibrate``."""
-    from ..defaults import DEFAULT_STARTS, GA_OPTIONS
-
     p = sub.add_parser(
         "calibrate",
         help="calibrate lower-level models on runs and validate them (Tables II-IV)",
@@ -199,8 +197,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="CARMA only: keep the launch or cruise parts of the stretches "
                    "(default: all)")
     add_astazero_options(p)
-    add_ga_budget(p, generations=GA_OPTIONS["max_generations"], starts=DEFAULT_STARTS,
-                  pop_size=GA_OPTIONS["pop_size"])
+    add_ga_budget(p, pop_size=True)
     p.add_argument("--figure", default=None, metavar="PATH",
                    help="save measured vs simulated acceleration of one run; .png, .svg or .pdf "
                    "(default: not drawn)")

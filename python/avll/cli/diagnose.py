@@ -13,7 +13,6 @@ import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from ..defaults import DEFAULT_STARTS, GA_OPTIONS
 from ..diagnose.defaults import MIN_GAIN
 from ._common import (
     add_astazero_options,
@@ -142,8 +141,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"effect (default: {MIN_GAIN})")
     p.add_argument("--max-effects", type=int, default=3,
                    help="at most this many effects (default: 3)")
-    add_ga_budget(p, generations=GA_OPTIONS["max_generations"], starts=DEFAULT_STARTS,
-                  what="every fit")
+    add_ga_budget(p, what="every fit")
     p.add_argument("--candidates", default=None, metavar="E[,E...]",
                    help="effects offered, comma-separated (default: every registered "
                    "effect that applies to the data)")

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from .._limits import check_int
-from ..defaults import DEFAULT_STARTS, GA_OPTIONS
 from ._common import (
     add_ga_budget,
     add_json,
@@ -121,8 +120,7 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
     add_models(p, ("first", "second", "proposed"), what="models compared")
     add_seed(p, "GA and the bootstrap")
     add_threads(p)
-    add_ga_budget(p, generations=GA_OPTIONS["max_generations"], starts=DEFAULT_STARTS,
-                  pop_size=GA_OPTIONS["pop_size"], what="each car")
+    add_ga_budget(p, pop_size=True, what="each car")
     p.add_argument("--band", default=f"{DEFAULT_BAND[0]:g},{DEFAULT_BAND[1]:g}",
                    metavar="LOW,HIGH",
                    help=f"amplification band in Hz (default: {DEFAULT_BAND[0]:g},"
