@@ -62,8 +62,8 @@ def _gap_cars(study: OpenACCStudy, tol: float) -> list[tuple[int, str]]:
         meas = c.get("amplification_measured")
         if meas is None:
             continue
-        errs = {m: d.get("amplification_replay_error") for m, d in c["models"].items()}
-        errs = {m: e for m, e in errs.items() if e is not None}
+        errs = {m: d["amplification_replay_error"] for m, d in c["models"].items()
+                if d.get("amplification_replay_error") is not None}
         if not errs:
             continue
         best = min(errs, key=lambda m: abs(errs[m]))

@@ -55,11 +55,9 @@ def _halves(r: Run) -> tuple[Run, Run]:
 def astazero_cases(data: Path) -> dict[str, tuple[list[Run], list[Run], list[Run]]]:
     """Pair -> (calibration, validation, test) runs."""
     plat = data / "openacc-astazero" / "platoon"
-    days = {}
-    for k in ("7", "8"):
-        days[k] = {r.run_id.split("/")[1]: r for r in read_runs(
-            plat / f"ASta_040719_platoon{k}.csv", format="openacc-astazero",
-            command_kind="acceleration")}  # fmt: skip
+    days = {k: {r.run_id.split("/")[1]: r for r in read_runs(
+        plat / f"ASta_040719_platoon{k}.csv", format="openacc-astazero",
+        command_kind="acceleration")} for k in ("7", "8")}  # fmt: skip
     out = {}
     for pair in PAIRS:
         val, test = _halves(days["8"][pair])
