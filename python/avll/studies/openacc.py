@@ -1742,8 +1742,7 @@ def _findings(s: Mapping[str, Any]) -> list[str]:
            + (f"; per campaign: {camps}" if multi and camps else "") + ")"
            + (f"; not for {', '.join(fails)}" if fails else "") + "; file by "
            f"file, in {so['file_pairs_held']} of {so['file_pairs_checked']} pairs of files. "
-           "The "
-           f"effective time gap Tg + Gmin/v̄ follows the setting in {eff['held']} of "
+           f"The effective time gap Tg + Gmin/v̄ follows the setting in {eff['held']} of "
            f"{eff['checked']}, the measured headway (no model) in {hw['held']} of "
            f"{hw['checked']}."]
     for key, lab in (("amplification_replay", "time-domain replay"),
@@ -1761,11 +1760,9 @@ def _findings(s: Mapping[str, Any]) -> list[str]:
     d = comp[main]["amplification_replay_acc"]
     if d["corr_error_vs_measured"] is not None:
         out.append(f"- The {main} model's replay error correlates with the measured "
-                   f"amplification at {_f(d['corr_error_vs_measured'])}: the more a car "
-                   "amplifies, the more the calibrated model underestimates it"
-                   if d["corr_error_vs_measured"] < 0 else
-                   f"- The {main} model's replay error correlates with the measured "
-                   f"amplification at {_f(d['corr_error_vs_measured'])}.")
+                   f"amplification at {_f(d['corr_error_vs_measured'])}"
+                   + (": the more a car amplifies, the more the calibrated model "
+                      "underestimates it" if d["corr_error_vs_measured"] < 0 else "."))
     q = comp[main]["string_stability"]
     out.append(f"- **String stability**: the measured amplification's 95 % CI is above 1 "
                f"for {q['measured_unstable']} ACC cars and below 1 for "
@@ -1840,8 +1837,7 @@ def _report(s: Mapping[str, Any], tables: Mapping[str, Any]) -> str:
         f"Amplification band {s['band_hz'][0]:g}–{s['band_hz'][1]:g} Hz, block bootstrap "
         f"{s['bootstrap']['n']} × {s['bootstrap']['block_s']:g} s blocks (no interval "
         f"for a run shorter than {s['bootstrap']['min_blocks']} blocks after the trim). "
-        f"Wall time "
-        f"{s.get('seconds', 0):.0f} s.",
+        f"Wall time {s.get('seconds', 0):.0f} s.",
         "",
         "## Files",
         "",
