@@ -916,7 +916,7 @@ def split_runs(
     return cal, val
 
 
-def _average(d: Mapping[str, float]) -> float:
+def _average(d: Mapping[str, float] | None) -> float:
     return float(np.mean(list(d.values()))) if d else float("nan")
 
 

@@ -52,6 +52,7 @@ import numpy as np
 
 from .. import _core
 from .._limits import check_int, check_number, check_seed, check_threads
+from ..calibration import _average as _mean
 from ..calibration import calibrate
 from ..data import Run
 from ..defaults import DEFAULT_STARTS, GA_OPTIONS, UPPER_PLACEHOLDER
@@ -67,9 +68,6 @@ from .stats import BootstrapGain, LossTest, block_bootstrap_gain, loss_differenc
 
 __all__ = ["MIN_GAIN", "Trial", "Flag", "Splits", "Selection", "Step", "LoopResult",
            "effect_loop", "make_folds"]
-
-def _mean(d: dict[str, float] | None) -> float:
-    return float(np.mean(list(d.values()))) if d else float("nan")
 
 
 def _gain(before: dict[str, float] | None, after: dict[str, float] | None) -> float:

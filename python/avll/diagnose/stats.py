@@ -143,7 +143,6 @@ def _binned(x: np.ndarray, e: np.ndarray, cuts: np.ndarray, nbins: int = 10) -> 
             centers[b] = means[b] = np.nan
             continue
         centers[b] = float(np.mean(x[m]))
-        means[b] = float(np.mean(e[m]))
         ne = max(counts[b] * ratio, 2.0)
         hw[b] = 1.96 * float(np.std(e[m])) / math.sqrt(ne)
     # One-way ANOVA of the bins with effective sample sizes.
