@@ -309,10 +309,8 @@ def setting_order(rows: Iterable[Mapping[str, Any]], key: str = "Tg") -> dict[st
                              "rank_longer": a, "rank_shorter": b, "value_longer": va,
                              "value_shorter": vb, "n_longer": len(by[k][a]),
                              "n_shorter": len(by[k][b]), "held": bool(va > vb)})
-                for x in by[k][a]:
-                    for y in by[k][b]:
-                        pairs += 1
-                        held_pairs += int(x > y)
+                pairs += len(by[k][a]) * len(by[k][b])
+                held_pairs += sum(x > y for x in by[k][a] for y in by[k][b])
         checks += mine
         per_car.append({"campaign": camp, "car": car,
                         "settings": [{"setting": lab[rk], "rank": rk, "n": len(by[k][rk]),
@@ -1560,14 +1558,13 @@ def _comparison(cars: Sequence[Mapping[str, Any]], models: Sequence[str]) -> dic
         d: dict[str, Any] = {}
         for key in ("amplification_H", "amplification_replay"):
             for grp, cs in (("acc", acc), ("human", human)):
-                errs = [c["models"][m][f"{key}_error"] for c in cs
-                        if c["models"][m][f"{key}_error"] is not None]
+                have = [c for c in cs if c["models"][m][f"{key}_error"] is not None]
+                errs = [c["models"][m][f"{key}_error"] for c in have]
+                am = [c["amplification_measured"] for c in have]
                 inside = [c for c in cs if c["models"][m][key] is not None
                           and c["amplification_measured_ci"][0] is not None
                           and c["amplification_measured_ci"][0] <= c["models"][m][key]
                           <= c["amplification_measured_ci"][1]]
-                am = [c["amplification_measured"] for c in cs
-                      if c["models"][m][f"{key}_error"] is not None]
                 d[f"{key}_{grp}"] = {
                     "n": len(errs),
                     "underestimated": int(np.sum(np.asarray(errs) < 0)) if errs else 0,
