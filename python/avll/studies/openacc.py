@@ -1104,8 +1104,7 @@ def _car_entry(i: int, r: Run, meta: Mapping[str, Any], models: Sequence[str], m
     e["final_model_effects"] = main_effs
     e.update(_interval_entry(results[main][i], r, band, short, ""))
     e["models"] = per
-    for k, v in reasons.items():
-        e[f"{k}_reason"] = v
+    e.update({f"{k}_reason": v for k, v in reasons.items()})
     return e
 
 
@@ -1199,8 +1198,7 @@ def _oos_entry(i: int, r: Run, car: Mapping[str, Any], main: str,
     e["amplification_predicted_oos"] = _fin(a_h)
     e["amplification_replay_oos"] = _fin(a_r)
     if short is not None:
-        e["amplification_predicted_oos_reason"] = short
-        e["amplification_replay_oos_reason"] = short
+        e["amplification_predicted_oos_reason"] = e["amplification_replay_oos_reason"] = short
     else:
         if not code:
             e["amplification_predicted_oos_reason"] = (
