@@ -28,8 +28,6 @@ from ._common import (
     select_runs,
 )
 
-_UPPER_NAMES = ("kg", "kv", "Tg", "Gmin")
-
 
 def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str]:
     """Runs, closed loop, free upper gains and initial state for ``avll calibrate``.
@@ -47,7 +45,7 @@ def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str
     """
     from pathlib import Path
 
-    from ..defaults import UPPER_PLACEHOLDER
+    from ..defaults import UPPER_NAMES, UPPER_PLACEHOLDER
     from ..io import read_runs
     from ..studies.fielddata import read_carma, split_launch_cruise
 
@@ -87,15 +85,15 @@ def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str
                 "cannot calibrate it"
             )
     if args.upper_free is None:
-        free = list(_UPPER_NAMES) if closed and any(r.upper is None for r in runs) else []
+        free = list(UPPER_NAMES) if closed and any(r.upper is None for r in runs) else []
     elif args.upper_free == "none":
         free = []
     else:
         free = parse_list("--upper-free", args.upper_free)
         for u in free:
-            if u not in _UPPER_NAMES:
+            if u not in UPPER_NAMES:
                 raise ValueError(f"--upper-free: unknown gain {u!r}; known: "
-                                 f"{', '.join(_UPPER_NAMES)}")
+                                 f"{', '.join(UPPER_NAMES)}")
     if closed:
         missing = [r for r in runs if r.upper is None]
         if missing and len(free) < 4:
