@@ -35,6 +35,20 @@ def test_calibrate_is_the_function_after_importing_its_module() -> None:
     assert r.stdout.split() == ["True", "True"]
 
 
+def test_every_public_submodule_is_an_attribute_on_first_access() -> None:
+    """``import avll; avll.stability.plot_regions(...)`` works in a fresh process, without
+    an ``import avll.stability`` first (a test passed only after another file imported it)."""
+    names = sorted(p.stem for p in PKG.glob("*.py") if not p.stem.startswith("_"))
+    names += sorted(p.name for p in PKG.iterdir() if (p / "__init__.py").is_file())
+    code = ("import types, avll; "
+            f"print(all(isinstance(getattr(avll, n), types.ModuleType) for n in {names!r})); "
+            "print(hasattr(avll, 'no_such_module'), hasattr(avll, '_no_such'))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120, check=True)
+    assert r.stdout.split() == ["True", "False", "False"], r.stderr
+    assert "stability" in names and "diagnose" in names
+
+
 def _module_name(path: Path) -> str:
     parts = ["avll", *path.relative_to(PKG).with_suffix("").parts]
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)

@@ -128,17 +128,21 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
 #: Submodules imported on first use: ``avll.io`` brings pandas (the loaders), which
 #: ``import avll`` alone does not need; ``avll.plotting`` the figures (matplotlib on
 #: first drawing), ``avll.progress`` the progress display, ``avll.cli`` the command,
-#: ``avll.datasets`` the field data by name (pooch).
+#: ``avll.datasets`` the field data by name (pooch). Every other public submodule
+#: (``avll.stability``, ``avll.maps``, ...) is imported on first access too.
 _LAZY = ("io", "synth", "datasets", "plotting", "progress", "cli")
 
 
 def __getattr__(name: str) -> Any:
-    """Imports the public names of ``_LAZY_NAMES`` (from their module), the submodules
-    of ``_LAZY`` and ``PAPER_TABLE_II`` (Table II of the paper, :data:`avll.paper.TABLE_II`)
+    """Imports the public names of ``_LAZY_NAMES`` (from their module), the public
+    submodules and ``PAPER_TABLE_II`` (Table II of the paper, :data:`avll.paper.TABLE_II`)
     on first access."""
     import importlib
+    import importlib.util
 
-    if name in _LAZY:
+    if name in _LAZY or (
+        not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None
+    ):
         val: Any = importlib.import_module(f".{name}", __name__)
     elif name == "PAPER_TABLE_II":
         val = importlib.import_module(".paper", __name__).TABLE_II
