@@ -169,6 +169,49 @@ def test_staleness_is_the_commits_touching_the_inputs() -> None:
     assert "not in this repository" in gen.staleness(frag, "0123456789abc")[0]
 
 
+def test_inputs_include_the_modules_they_load(tmp_path: Path) -> None:
+    """A fragment is stale when a module its inputs load changes, not only a listed one:
+    ``calibration.py`` loads ``rollout.py`` at import; a script's imports inside its
+    functions and its ``avll.NAME`` uses count; the progress display does not."""
+    frag = gen.Fragment("t", "docs/_generated/t.md", lambda _: None,
+                        ("python/avll/calibration.py", "rust/optimize"), cheap=False)
+    ins = gen.inputs_of(frag)
+    assert ins[:2] == ["python/avll/calibration.py", "rust/optimize"]
+    assert {"python/avll/rollout.py", "python/avll/models.py"} <= set(ins)
+    assert not set(gen.NO_OUTPUT) & set(ins)
+    assert "python/avll/_sigint.py" in {str(p.relative_to(ROOT)) for p in
+                                        gen_imports().loaded_files([ROOT / ins[0]])}
+    script = tmp_path / "bench_x.py"
+    script.write_text("import avll\nfrom avll import calibrate\n\n\ndef run():\n"
+                      "    import avll.maps\n    return avll.simulate, avll.stability\n")
+    got = {p.name for p in gen_imports().loaded_files([script])}
+    assert {"calibration.py", "maps.py", "rollout.py", "stability.py", "runs.py"} <= got
+    assert "plotting.py" not in got  # imported inside a function of the package: not followed
+
+
+def gen_imports() -> ModuleType:
+    return importlib.import_module("docs.gen.imports")
+
+
+@pytest.mark.skipif(not _has_git_history(), reason="needs the git history (not a shallow copy)")
+def test_a_commit_on_a_loaded_module_makes_the_fragment_stale() -> None:
+    frag = gen.Fragment("t", "docs/_generated/t.md", lambda _: None,
+                        ("python/avll/calibration.py",), cheap=False)
+
+    def git(*a: str) -> str:
+        return subprocess.run(["git", "-C", str(ROOT), *a], capture_output=True, text=True,
+                              check=True).stdout
+
+    # the newest commit on rollout.py that left calibration.py alone
+    commit = next(c for c in git("log", "--format=%H", "--", "python/avll/rollout.py").split()
+                  if "python/avll/calibration.py" not in git("show", "--name-only",
+                                                             "--format=", c).split())
+    stale = [line.split()[0] for line in gen.staleness(frag, f"{commit}^")]
+    assert git("rev-parse", "--short", commit).strip() in stale
+    assert git("log", "--format=%h", f"{commit}^..HEAD", "--", "python/avll/calibration.py"
+               ).split() != stale  # the listed input alone would not see it
+
+
 @pytest.mark.slow
 def test_check_command_passes() -> None:
     """``python -m docs.gen --check`` (what CI runs) exits 0 and says what it found."""

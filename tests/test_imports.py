@@ -3,7 +3,6 @@ import cycle exists between avll's modules."""
 
 from __future__ import annotations
 
-import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -11,6 +10,11 @@ from pathlib import Path
 import avll
 
 PKG = Path(avll.__file__).resolve().parent
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # docs/ is not installed: the repository root on the path
+    sys.path.insert(0, str(ROOT))
+
+from docs.gen.imports import import_graph  # noqa: E402  (the graph the docs pipeline uses)
 
 #: Heavy optional libraries that ``import avll`` alone must not import.
 HEAVY = ("scipy", "matplotlib", "pandas", "xarray", "dask")
@@ -47,78 +51,6 @@ def test_every_public_submodule_is_an_attribute_on_first_access() -> None:
                        timeout=120, check=True)
     assert r.stdout.split() == ["True", "False", "False"], r.stderr
     assert "stability" in names and "diagnose" in names
-
-
-def _module_name(path: Path) -> str:
-    parts = ["avll", *path.relative_to(PKG).with_suffix("").parts]
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-
-
-def _modules() -> dict[str, Path]:
-    return {_module_name(p): p for p in sorted(PKG.rglob("*.py"))}
-
-
-def _is_type_checking(test: ast.expr) -> bool:
-    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
-
-
-def _imports(tree: ast.Module, deferred: bool) -> list[ast.Import | ast.ImportFrom]:
-    """Imports executed when the module is imported: the module body, including
-    ``try``/``if`` blocks, but not ``if TYPE_CHECKING``; with ``deferred`` also those
-    inside functions and classes (run on first use)."""
-    out: list[ast.Import | ast.ImportFrom] = []
-
-    def walk(body: list[ast.stmt]) -> None:
-        for node in body:
-            if isinstance(node, (ast.Import, ast.ImportFrom)):
-                out.append(node)
-            elif isinstance(node, ast.If):
-                if not _is_type_checking(node.test):
-                    walk(node.body)
-                walk(node.orelse)
-            elif isinstance(node, ast.Try):
-                walk(node.body)
-                for h in node.handlers:
-                    walk(h.body)
-                walk(node.orelse)
-                walk(node.finalbody)
-            elif isinstance(node, (ast.With, ast.For, ast.While)) or (deferred and isinstance(
-                    node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))):
-                walk(node.body)
-
-    walk(tree.body)
-    return out
-
-
-def import_graph(deferred: bool = False) -> dict[str, set[str]]:
-    """Module -> the avll modules its imports load (module level; with ``deferred``
-    also the imports inside functions). Edges to the package root ``avll`` are left
-    out: it is imported before any of its submodules, and its lazy names import
-    their modules on first use."""
-    mods = _modules()
-    graph: dict[str, set[str]] = {m: set() for m in mods}
-    for name, path in mods.items():
-        is_pkg = path.name == "__init__.py"
-        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
-        for node in _imports(tree, deferred):
-            if isinstance(node, ast.Import):
-                targets = [a.name for a in node.names]
-            else:
-                if node.level:
-                    base = name.split(".")
-                    if not is_pkg:
-                        base = base[:-1]
-                    base = base[:len(base) - (node.level - 1)]
-                    src = ".".join(base + ([node.module] if node.module else []))
-                else:
-                    src = node.module or ""
-                # "from pkg import sub" loads pkg.sub when sub is a module
-                targets = [src] + [f"{src}.{a.name}" for a in node.names]
-            for t in targets:
-                if t in mods and t not in (name, "avll"):
-                    graph[name].add(t)
-    return graph
 
 
 def _cycle(graph: dict[str, set[str]]) -> list[str] | None:

@@ -26,7 +26,8 @@ benchmarks in ``benches/`` write their tables themselves, and the writer then
 re-stamps what they wrote.
 ``--check`` compares the bodies of cheap fragments (not the stamp line) and, for every
 fragment, reports a stale stamp: a commit since the stamp's commit that touches one of
-the fragment's inputs (``git log STAMP..HEAD -- INPUTS``).
+the fragment's inputs (``git log STAMP..HEAD -- INPUTS``; :func:`inputs_of`: the listed
+inputs and the avll modules they load).
 """
 
 from __future__ import annotations
@@ -609,15 +610,34 @@ class Status:
         return not self.mismatch
 
 
+#: avll modules that cannot move a fragment's numbers or text (the progress display and
+#: the Ctrl-C handling): a change to them does not make a fragment stale.
+NO_OUTPUT = ("python/avll/progress.py", "python/avll/_sigint.py")
+
+
+def inputs_of(frag: Fragment) -> list[str]:
+    """The files whose change makes ``frag`` stale: its listed inputs (files or folders)
+    and every avll module their Python files load (:func:`docs.gen.imports.loaded_files`:
+    a module's imports at load time, transitively; a script's also inside its
+    functions), but :data:`NO_OUTPUT`."""
+    from .imports import loaded_files
+
+    listed = [p for p in frag.inputs if (ROOT / p).exists()]
+    py = [f for p in listed for f in ([ROOT / p] if p.endswith(".py")
+                                      else sorted((ROOT / p).rglob("*.py")))]
+    loaded = {str(f.relative_to(ROOT)) for f in loaded_files(py)}
+    covered = {str(f.relative_to(ROOT)) for f in py}
+    return listed + sorted(loaded - covered - set(NO_OUTPUT))
+
+
 def staleness(frag: Fragment, commit: str) -> list[str]:
-    """Commits since ``commit`` that touch one of the fragment's inputs (an unknown
-    commit: one entry saying so)."""
+    """Commits since ``commit`` that touch one of the fragment's inputs
+    (:func:`inputs_of`; an unknown commit: one entry saying so)."""
     try:
         _git("cat-file", "-e", f"{commit}^{{commit}}")
     except (OSError, subprocess.CalledProcessError):
         return [f"{commit} (the stamp's commit is not in this repository's history)"]
-    inputs = [p for p in frag.inputs if (ROOT / p).exists()]
-    out = _git("log", "--format=%h %s", f"{commit}..HEAD", "--", *inputs)
+    out = _git("log", "--format=%h %s", f"{commit}..HEAD", "--", *inputs_of(frag))
     return [line for line in out.splitlines() if line]
 
 
