@@ -572,17 +572,6 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
 ]}
 
 
-#: Fragments written before this pipeline without a stamp and not regenerated since (their
-#: runs are long science or benchmark runs; re-stamping without regenerating would claim a
-#: commit the numbers did not come from). ``--check`` reports them; the test requires this
-#: set to be exactly the unstamped files, so it shrinks as they are regenerated.
-UNSTAMPED: dict[str, str] = {
-    name: f"unstamped: regenerate with `{COMMAND.format(name=name)}`"
-    + (f" ({REGISTRY[name].note})" if REGISTRY[name].note else "")
-    for name in ()
-}
-
-
 def _engine_bench() -> None:
     """The engine benchmark: one run of benches/bench_engine.py with the default
     allocator (as users run), then benches/render_engine.py (their own functions)."""
@@ -673,16 +662,15 @@ def check(frag: Fragment, a: argparse.Namespace, fresh: Generated | None = None)
         if have != gen.body.rstrip("\n"):
             st.mismatch = _diff(have, gen.body.rstrip("\n"))
         elif gen.numbers is not None:
-            fresh = plain(gen.numbers)
             if not frag.sidecar.exists():
                 st.mismatch = f"{frag.sidecar.relative_to(ROOT)} is missing"
-            elif json.loads(frag.sidecar.read_text(encoding="utf-8")) != fresh:
+            elif json.loads(frag.sidecar.read_text(encoding="utf-8")) != plain(gen.numbers):
                 st.mismatch = f"{frag.sidecar.relative_to(ROOT)} differs from the numbers"
     elif frag.rerender is not None:
         st.compared = "re-rendered from JSON"
-        fresh = frag.rerender().rstrip("\n")
-        if have != fresh:
-            st.mismatch = "the table is not its JSON's rendering:\n" + _diff(have, fresh)
+        table = frag.rerender().rstrip("\n")
+        if have != table:
+            st.mismatch = "the table is not its JSON's rendering:\n" + _diff(have, table)
     return st
 
 
@@ -748,8 +736,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if st.mismatch:
                 print("    " + st.mismatch.replace("\n", "\n    "))
             if st.stamp is None:
-                print("    " + UNSTAMPED.get(f.name, "unstamped and not in UNSTAMPED: "
-                                          f"regenerate with `{COMMAND.format(name=f.name)}`"))
+                print(f"    unstamped: regenerate with `{COMMAND.format(name=f.name)}`"
+                      + (f" ({f.note})" if f.note else ""))
         print(f"docs.gen --check: {len(frags)} fragment(s), {bad} mismatch(es), "
               f"{unstamped} unstamped, {stale} stale")
         return 1 if bad or (a.strict and (unstamped or stale)) else 0
