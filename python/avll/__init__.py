@@ -125,12 +125,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers; imported lazily below
     )
     from .uncertainty import Intervals, Uncertainty
 
-#: Submodules imported on first use: ``avll.io`` brings pandas (the loaders), which
-#: ``import avll`` alone does not need; ``avll.plotting`` the figures (matplotlib on
-#: first drawing), ``avll.progress`` the progress display, ``avll.cli`` the command,
-#: ``avll.datasets`` the field data by name (pooch). Every other public submodule
-#: (``avll.stability``, ``avll.maps``, ...) is imported on first access too.
-_LAZY = ("io", "synth", "datasets", "plotting", "progress", "cli")
+# Submodules are imported on first access (``avll.io`` brings pandas, ``avll.plotting``
+# matplotlib on first drawing, ``avll.datasets`` pooch: ``import avll`` alone needs none).
 
 
 def __getattr__(name: str) -> Any:
@@ -140,9 +136,7 @@ def __getattr__(name: str) -> Any:
     import importlib
     import importlib.util
 
-    if name in _LAZY or (
-        not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None
-    ):
+    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
         val: Any = importlib.import_module(f".{name}", __name__)
     elif name == "PAPER_TABLE_II":
         val = importlib.import_module(".paper", __name__).TABLE_II
@@ -155,5 +149,8 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    """The module's names including the lazily imported ones."""
-    return sorted(set(globals()) | set(__all__) | set(_LAZY))
+    """The module's names including the lazily imported ones and every public submodule."""
+    import pkgutil
+
+    subs = {m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")}
+    return sorted(set(globals()) | set(__all__) | subs)
