@@ -35,7 +35,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -116,6 +116,16 @@ def _hp(x: np.ndarray, n: int) -> np.ndarray:
     return x - np.convolve(x, np.ones(n) / n, mode="same")
 
 
+def _col(r: avll.Run, name: Literal["command", "v", "x", "lead_x", "lead_v", "lead_a"]
+         ) -> np.ndarray:
+    """Series ``name`` of ``r``, which the loaders read here always fill (CARMA: the
+    command and the speed; AstaZero: the speed and the position, in a pair the leader's)."""
+    x: np.ndarray | None = getattr(r, name)
+    if x is None:
+        raise ValueError(f"run {r.run_id!r}: no {name!r} series (the loader always sets it)")
+    return x
+
+
 # ---------------------------------------------------------------------------- loaders
 def carma_runs(data: Path) -> list[avll.Run]:
     from avll.io import load_carma
@@ -143,15 +153,15 @@ def part_loaders(data: Path, **_: Any) -> dict[str, Any]:
             for v in f.meta["file_report"]["vehicles"].values()]  # fmt: skip
     durs = np.array([(len(r) - 1) * r.dt for r in runs])
     a = np.concatenate([r.a for r in runs])
-    dv = np.concatenate([np.gradient(r.v, r.dt) for r in runs])
-    err = np.concatenate([r.v - r.command for r in runs])
+    dv = np.concatenate([np.gradient(_col(r, "v"), r.dt) for r in runs])
+    err = np.concatenate([_col(r, "v") - _col(r, "command") for r in runs])
     bridged = int(sum(r.meta["bridged_samples"] for r in runs))
     launch, cruise = split_launch_cruise(runs)
-    starts_low = [r for r in runs if r.v[0] < 2.0]
+    starts_low = [r for r in runs if _col(r, "v")[0] < 2.0]
     joined = sorted({"/".join(r.run_id.split("/")[:2]) for r in cruise
                      if r.run_id.endswith("/cruise")})  # fmt: skip
     cruise_v = np.concatenate([r.v for r in cruise])
-    dv0 = [float(r.v[0] - r.command[0]) for r in cruise]
+    dv0 = [float(_col(r, "v")[0] - _col(r, "command")[0]) for r in cruise]
     carma = {
         "stretches": len(runs),
         "total_min": float(durs.sum() / 60),
@@ -196,15 +206,16 @@ def part_loaders(data: Path, **_: Any) -> dict[str, Any]:
             e["pairs"] += 1
             e["spacing_max_deviation"] = max(e["spacing_max_deviation"],
                                              float(r.meta["spacing_max_deviation"]))
-            fwd = np.diff(r.v) / r.dt
+            fwd = np.diff(_col(r, "v")) / r.dt
             e["accel_fd_max"] = max(e["accel_fd_max"], float(np.max(np.abs(fwd - r.a[:-1]))))
     free = []
     for r in ar:
         if r.meta["kind"] == "freeflow":
             vs = float(r.meta["set_speed"])
+            v = _col(r, "v")
             free.append({"id": r.run_id, "duration_s": (len(r) - 1) * r.dt,
-                         "set_kmh": round(vs * 3.6), "mean_minus_set": float(np.mean(r.v - vs)),
-                         "below_pct": float(100 * (1 - np.mean(r.v) / vs))})  # fmt: skip
+                         "set_kmh": round(vs * 3.6), "mean_minus_set": float(np.mean(v - vs)),
+                         "below_pct": float(100 * (1 - np.mean(v) / vs))})  # fmt: skip
     return {"carma": carma,
             "astazero": {"lap_m": float(lap), "grade_integral_m": float(np.trapezoid(sy, sx)),
                          "grade_abs_max": float(np.abs(sy).max()), "platoon": plat,
@@ -226,12 +237,13 @@ def part_grade(data: Path, **_: Any) -> dict[str, Any]:
     for r in runs:
         if r.meta["kind"] == "freeflow":
             groups.setdefault(round(r.meta["set_speed"] * 3.6), []).append(r)
-    rows = []
+    rows: list[dict[str, Any]] = []
     for kmh, rr in sorted(groups.items()):
         A = np.concatenate([_hp(r.a, w)[w:-w] for r in rr])
         cs = []
         for o in offs:
-            D = np.concatenate([_hp(-G * grade_at(r.x, slope, offset=o), w)[w:-w] for r in rr])
+            D = np.concatenate([_hp(-G * grade_at(_col(r, "x"), slope, offset=o), w)[w:-w]
+                                for r in rr])
             cs.append((np.corrcoef(A, D)[0, 1], np.dot(A, D) / np.dot(D, D)))
         c = np.array(cs)
         i = int(np.argmax(c[:, 0]))
@@ -248,24 +260,24 @@ def part_grade(data: Path, **_: Any) -> dict[str, Any]:
                      "corr_m60": far[0], "corr_p60": far[1]})  # fmt: skip
     ff = [r for r in runs if r.meta["kind"] == "freeflow"]
     A = np.concatenate([_hp(r.a, w)[w:-w] for r in ff])
-    D = np.concatenate([_hp(G * grade_at(r.x, slope, offset=15.0), w)[w:-w] for r in ff])
+    D = np.concatenate([_hp(G * grade_at(_col(r, "x"), slope, offset=15.0), w)[w:-w] for r in ff])
     sign = float(np.corrcoef(A, D)[0, 1])
     series = []
     for r in runs:
         if r.meta["kind"] != "platoon":
             continue
-        m = r.v > 5.0
-        series.append((r.x[m], r.a[m]))
+        m = _col(r, "v") > 5.0
+        series.append((_col(r, "x")[m], r.a[m]))
         if r.meta["leader_index"] == 1:
-            series.append((r.lead_x[m] + r.meta["lead_length"], r.lead_a[m]))
+            series.append((_col(r, "lead_x")[m] + r.meta["lead_length"], _col(r, "lead_a")[m]))
     A = np.concatenate([_hp(a, w)[w:-w] for _, a in series])
     lap = []
     for dl in (-40.0, -20.0, -10.0, -5.0, 0.0, 5.0, 10.0, 20.0, 40.0):
         D = np.concatenate([_hp(-G * grade_at(x, slope, offset=15.0, lap_length=slope[2] + dl),
                                 w)[w:-w] for x, _ in series])  # fmt: skip
         lap.append({"delta_m": dl, "corr": float(np.corrcoef(A, D)[0, 1])})
-    g15 = np.concatenate([grade_at(r.x, slope, offset=15.0) for r in ff])
-    g0 = np.concatenate([grade_at(r.x, slope) for r in ff])
+    g15 = np.concatenate([grade_at(_col(r, "x"), slope, offset=15.0) for r in ff])
+    g0 = np.concatenate([grade_at(_col(r, "x"), slope) for r in ff])
     return {"offset_scan": rows, "free_flow_minutes": float(sum(x["seconds"] for x in rows) / 60),
             "opposite_sign_corr": sign, "lap_scan": lap,
             "rms_shift_15": float(np.sqrt(np.mean((g15 - g0) ** 2))),
@@ -309,13 +321,13 @@ def part_firstlook(data: Path, *, seed: int, threads: int, **_: Any) -> dict[str
                          "val_a": _costs(m, val, (1.0, 0.0, 0.0)),
                          "params": {k: float(v) for k, v in m.to_dict().items()}})
         print(f"  first look: fitted {veh}", file=sys.stderr, flush=True)
-    regimes = {"launch": [r for r in runs if r.v[0] < 1.0],
-               "cruise": [r for r in runs if r.v[0] >= 1.0]}
+    regimes = {"launch": [r for r in runs if _col(r, "v")[0] < 1.0],
+               "cruise": [r for r in runs if _col(r, "v")[0] >= 1.0]}
     lags = {}
     for rg, rr in regimes.items():
         vals = {}
         for k in (0, 5, 10, 20, 30):
-            e = np.concatenate([r.command[: len(r) - k] - r.v[k:] for r in rr])
+            e = np.concatenate([_col(r, "command")[: len(r) - k] - _col(r, "v")[k:] for r in rr])
             vals[f"{k * 0.1:g}"] = float(np.mean(np.abs(e)))
         lags[rg] = {"stretches": len(rr), "mean_abs": vals,
                     "rms_a": float(np.sqrt(np.mean(np.concatenate([r.a for r in rr]) ** 2)))}
@@ -330,8 +342,9 @@ def part_firstlook(data: Path, *, seed: int, threads: int, **_: Any) -> dict[str
         for d in (0, 2, 4, 6):
             tot = np.zeros(tu.size)
             for r in vr:
-                u = np.r_[np.full(d, r.command[0]), r.command[: len(r) - d]]
-                v = np.full(tu.size, r.v[0])
+                cmd = _col(r, "command")
+                u = np.r_[np.full(d, cmd[0]), cmd[: len(r) - d]]
+                v = np.full(tu.size, _col(r, "v")[0])
                 sse = np.zeros(tu.size)
                 for n in range(len(r)):  # every (T_up, T_down) of the grid at once
                     e = u[n] - v
@@ -359,12 +372,13 @@ def closed_pair(r: avll.Run, seed: int, threads: int) -> dict[str, Any]:
     """Steady-state spacing regression and a closed-loop calibration of one pair (from
     the first sample above 1 m/s)."""
     from avll.defaults import UPPER_NAMES, UPPER_PLACEHOLDER
-    i0 = int(np.flatnonzero(r.v > 1.0)[0])
+    i0 = int(np.flatnonzero(_col(r, "v") > 1.0)[0])
     r = replace(r.cut(i0, len(r), "", f"from row {i0}, the first above 1 m/s"),
                 upper=UPPER_PLACEHOLDER)
-    lx, lv, am, x, v = r.lead_x, r.lead_v, r.a, r.x, r.v
+    lx, lv, am, x, v = _col(r, "lead_x"), _col(r, "lead_v"), r.a, _col(r, "x"), _col(r, "v")
     gap = lx - x
-    calm = (np.abs(am) < 0.05) & (np.abs(r.lead_a) < 0.05) & (np.abs(v - lv) < 0.2) & (v > 5)
+    calm = ((np.abs(am) < 0.05) & (np.abs(_col(r, "lead_a")) < 0.05) & (np.abs(v - lv) < 0.2)
+            & (v > 5))
     calm = np.convolve(calm.astype(float), np.ones(31) / 31, mode="same") > 0.999
     tg_ss, gmin_ss = (np.polyfit(v[calm], gap[calm], 1) if calm.sum() > 50
                       else (math.nan, math.nan))  # fmt: skip
@@ -403,9 +417,9 @@ def part_closed(data: Path, *, seed: int, threads: int, **_: Any) -> dict[str, A
     for r in runs:
         stem = r.run_id.split("/")[0]
         if r.meta["leader_index"] == 1:
-            vmax.setdefault(stem, []).append(float(r.lead_v.max()))
+            vmax.setdefault(stem, []).append(float(_col(r, "lead_v").max()))
     for r in runs:
-        vmax[r.run_id.split("/")[0]].append(float(r.v.max()))
+        vmax[r.run_id.split("/")[0]].append(float(_col(r, "v").max()))
     return {"seed": seed, "threads": threads, "pairs": rows, "max_speed": vmax}
 
 
@@ -438,15 +452,16 @@ def amplification(pairs: list[avll.Run], fits: dict[str, Any]) -> list[dict[str,
     for r in pairs:
         pair = r.run_id.split("/")[-1]
         sl = slice(200, len(r) - 200)
-        ref = np.std(_hp(r.lead_v, 200)[sl])
+        lx, lv, v, x = _col(r, "lead_x"), _col(r, "lead_v"), _col(r, "v"), _col(r, "x")
+        ref = np.std(_hp(lv, 200)[sl])
         sims = {}
         for m, e in fits.items():
             p = e["params"][pair]
-            tr = closed_loop(_model(m, p), r.lead_x, r.lead_v, r.dt,
-                             UpperLevel(*(p[k] for k in _UPPER)), v0=float(r.v[0]),
-                             x0=float(r.x[0]))  # fmt: skip
+            tr = closed_loop(_model(m, p), lx, lv, r.dt,
+                             UpperLevel(*(p[k] for k in _UPPER)), v0=float(v[0]),
+                             x0=float(x[0]))  # fmt: skip
             sims[m] = float(np.std(_hp(tr.v, 200)[sl]) / ref)
-        out.append({"run": r.run_id, "measured": float(np.std(_hp(r.v, 200)[sl]) / ref),
+        out.append({"run": r.run_id, "measured": float(np.std(_hp(v, 200)[sl]) / ref),
                     "simulated": sims})  # fmt: skip
     return out
 

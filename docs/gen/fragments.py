@@ -66,8 +66,6 @@ def section_iv_numbers(threads: int = 0) -> dict[str, Any]:
             "length": CAPACITY_LENGTH, "speed": CAPACITY_SPEED}
 
 
-
-
 def _fn(x: float | None, fmt: str, none: str = "none") -> str:
     return none if x is None else format(x, fmt)
 
@@ -204,7 +202,7 @@ def section_iv() -> str:
         row = [S.kv_threshold(P[n], kg, tg, 0.5, 1.0, G["pade_order"], tol=tol)
                for n in ("second", "proposed")]
         out.append(f"| {kg_min:g} | {row[0]:.4f} | {row[1]:.4f} |")
-    kg = section_iv_axis(*G["kg"], log=True)
+    kg = section_iv_axis(kg_lo, kg_hi, kg_n, log=True)
     out += ["", f"kv threshold (1/s) against the Padé order of the delay (kg {kg_lo:g}..{kg_hi:g}, "
             "same Tg grid):", "", "| Padé order | second-order | proposed |", "|---|---|---|"]
     for order in (1, 2, 3, 4, 5, 8):

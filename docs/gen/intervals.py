@@ -57,8 +57,8 @@ def compare_refits(seed: int = SEEDS[0], cars: int = CARS, n: int = COMPARE_N
     from avll.synth_platoon import synth_platoon
 
     sp = synth_platoon(cars, seed=seed, duration=300.0, models=("proposed",))
-    kw = dict(seed=seed, starts=2, closed_loop=True, upper_free=UPPER_NAMES, weights=WEIGHTS,
-              bounds={"Gmin": (0.0, GMIN_MAX)}, threads=1)
+    kw: dict[str, Any] = dict(seed=seed, starts=2, closed_loop=True, upper_free=UPPER_NAMES,
+                              weights=WEIGHTS, bounds={"Gmin": (0.0, GMIN_MAX)}, threads=1)
     out: dict[str, Any] = {"seed": seed, "cars": cars, "resamples": n}
     costs = {}
     for name, iv in (("none", None), ("simplex", Intervals(n=n, refit="simplex")),

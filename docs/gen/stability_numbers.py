@@ -24,11 +24,11 @@ P = avll.PAPER_TABLE_II
 NAMES = ("first", "second", "proposed")
 
 
-def f(x: float, d: int = 6) -> str:
+def f(x: float | None, d: int = 6) -> str:
     return "—" if x is None or not math.isfinite(x) else f"{x:.{d}f}"
 
 
-def g(x: float) -> str:
+def g(x: float | None) -> str:
     return "—" if x is None or not math.isfinite(x) else f"{x:.4g}"
 
 
@@ -51,7 +51,10 @@ def render(quick: bool = False) -> tuple[str, dict[str, Any]]:
             doc["min_stable_tg"][f"{name}/{lo:g}"] = e.to_dict()
             md.append(f"| {name} | [{lo:g}, 2] | {f(e.value)} | {g(e.kg)} | {g(e.kv)} | "
                       f"{', '.join(e.on_edge) or 'no'} | {f(e.capacity, 1)} |")
-    td = P["first"].Td
+    first = P["first"]
+    if not isinstance(first, avll.FirstOrderLag):
+        raise TypeError(f"PAPER_TABLE_II['first']: expected a FirstOrderLag, got {first!r}")
+    td = first.Td
     md += ["", f"First-order lag: the infimum equals 2 Td = {f(2 * td)} s at "
            f"kv = 1/(2 Td) = {f(1 / (2 * td))} (paper Appendix A.4), for any kg; not attained.",
            ""]
