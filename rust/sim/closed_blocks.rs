@@ -78,26 +78,10 @@ pub fn closed_blocks_apply<const M: usize, const N: usize, const F: bool>(
 /// dead-time line) the kernel's loop would leave, bit for bit.
 ///
 /// Requires [`closed_blocks_apply`] (checked: otherwise the kernel's loop runs) and
-/// `lead_v.len() >= lead_x.len()`.
+/// `lead_v.len() >= lead_x.len()`. Compiled for AVX-512VL when `wide` and the CPU
+/// has it, for AVX2 otherwise (the same instructions; the tests run both).
+#[cfg_attr(not(target_arch = "x86_64"), allow(unused_variables))]
 pub fn closed_blocks<
-    const M: usize,
-    const N: usize,
-    const D: bool,
-    const F: bool,
-    const U: bool,
->(
-    st: &mut Stepper<M, N, D, F, NoEffects>,
-    up: &Upper,
-    lead_x: &[f64],
-    lead_v: &[f64],
-    rec: &mut Record<'_, true, U>,
-) -> bool {
-    closed_blocks_with(st, up, lead_x, lead_v, rec, avx512())
-}
-
-/// [`closed_blocks`], compiled for AVX-512VL when `wide` (and the CPU has it) and
-/// for AVX2 otherwise.
-fn closed_blocks_with<
     const M: usize,
     const N: usize,
     const D: bool,
@@ -435,16 +419,10 @@ closed_simd!(
 );
 
 /// Whether the CPU has AVX-512F and AVX-512VL.
+#[cfg(target_arch = "x86_64")]
 fn avx512() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx512f")
-            && std::arch::is_x86_feature_detected!("avx512vl")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    std::arch::is_x86_feature_detected!("avx512f")
+        && std::arch::is_x86_feature_detected!("avx512vl")
 }
 
 /// An integrator's running value over a block: `([s, s1, s2, s3], s3, [t2, t3])`
@@ -593,7 +571,7 @@ mod tests {
                     u: if $u { &mut u[..] } else { &mut [] },
                     written: 0,
                 };
-                d2 = closed_blocks_with(&mut s2, &$up, &lx, &lv, &mut rec, $wide);
+                d2 = closed_blocks(&mut s2, &$up, &lx, &lv, &mut rec, $wide);
                 w2 = rec.written;
             }
             assert_eq!((w1, d1), (w2, d2), "written, completed");

@@ -416,7 +416,7 @@ fn closed_rec<const M: usize, const N: usize, const D: bool, const F: bool, cons
     if eff.effects.is_empty() {
         let mut st = stepper::<M, N, D, F, _>(plant, lin, ints, NoEffects, true, &s, int0)?;
         // The kernel's steps, four samples at a time where that applies.
-        closed_blocks(&mut st, up, lead_x, lead_v, &mut rec);
+        closed_blocks(&mut st, up, lead_x, lead_v, &mut rec, true);
         // Linear: a run to the end with a finite stepper proves the leader finite
         // (see `Stepper::finite`); otherwise (divergence, or a bad sample to name)
         // the leader is checked now.
