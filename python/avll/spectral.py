@@ -71,6 +71,7 @@ __all__ = [
     "DEFAULT_BAND",
     "TRIM",
     "bandpass",
+    "check_band",
     "MIN_SEGMENTS",
     "MIN_EXCITATION",
     "MAX_LAG",
@@ -134,20 +135,16 @@ class BandGain:
         return {**out, "ci": None if self.ci is None else list(self.ci)}
 
 
-def _check_band(band: Sequence[float], dt: float) -> tuple[float, float]:
-    lo, hi = (float(b) for b in band)
-    if not (0 < lo < hi < 0.5 / dt):
-        raise ValueError(f"band: need 0 < low < high < {0.5 / dt:g} Hz, got ({lo:g}, {hi:g})")
-    return lo, hi
-
-
-def _parse_band(band: Any, dt: float) -> tuple[float, float]:
-    """:func:`_check_band`, with a malformed ``band`` a ``ValueError`` too."""
+def check_band(band: Any, dt: float) -> tuple[float, float]:
+    """``band`` as ``(low, high)`` floats in Hz; a ``ValueError`` unless it is two
+    numbers with ``0 < low < high <`` the Nyquist frequency of ``dt``."""
     try:
         lo, hi = (float(b) for b in band)
     except (TypeError, ValueError):
         raise ValueError(f"band: expected (low, high) in Hz, got {band!r}") from None
-    return _check_band((lo, hi), dt)
+    if not (0 < lo < hi < 0.5 / dt):
+        raise ValueError(f"band: need 0 < low < high < {0.5 / dt:g} Hz, got ({lo:g}, {hi:g})")
+    return lo, hi
 
 
 def bandpass(x: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
@@ -157,7 +154,7 @@ def bandpass(x: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_BAND,
     each end."""
     from scipy import signal
 
-    lo, hi = _check_band(band, dt)
+    lo, hi = check_band(band, dt)
     x = np.asarray(x, dtype=np.float64)
     k = int(round(trim / dt))
     if x.shape[0] <= 2 * k + 20:
@@ -176,7 +173,7 @@ def band_weights(lead_v: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_
     holds no bin or no power."""
     from scipy import signal
 
-    lo, hi = _check_band(band, dt)
+    lo, hi = check_band(band, dt)
     f, p = signal.periodogram(bandpass(lead_v, dt, band, trim), fs=1.0 / dt, window="hann",
                               detrend=False)  # fmt: skip
     m = (f >= lo) & (f <= hi)
@@ -277,7 +274,7 @@ def h1_band_gain(
     if x.shape != y.shape:
         raise ValueError(f"lead_v, v: different lengths ({x.shape[0]} and {y.shape[0]})")
     dt = check_number(dt, "dt", positive=True)
-    lo, hi = _parse_band(band, dt)
+    lo, hi = check_band(band, dt)
     try:
         lvl = float(level)
     except (TypeError, ValueError):

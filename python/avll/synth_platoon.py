@@ -103,7 +103,7 @@ from .effects import Effect, Grade, WithEffects
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import TABLE_II_PARAMS
 from .rollout import Trajectory, closed_loop
-from .spectral import DEFAULT_BAND, _parse_band
+from .spectral import DEFAULT_BAND, check_band
 from .synth import _ar1
 
 __all__ = [
@@ -487,7 +487,7 @@ def synth_platoon(
     sub = int(round(sub))
     if duration < 20 * dt:
         raise ValueError(f"duration: must be >= 20 dt, got {duration:g} s")
-    lo, hi = _parse_band(band, dt)
+    lo, hi = check_band(band, dt)
     if isinstance(equipment, str):
         if equipment not in EQUIPMENT:
             raise ValueError(f"equipment: unknown {equipment!r}; known: {', '.join(EQUIPMENT)}")

@@ -29,14 +29,15 @@ from ._common import (
 
 def _openacc(args: argparse.Namespace) -> int:
     from ..progress import messages
-    from ..studies.openacc import _check_band, openacc_study
+    from ..spectral import check_band
+    from ..studies.openacc import openacc_study
 
     log = messages("avll study openacc", args.progress)
     try:  # (also a ValueError for more or fewer than two numbers)
         lo, hi = map(float, args.band.split(","))
     except ValueError:
         raise ValueError(f"--band: expected LOW,HIGH in Hz, got {args.band!r}") from None
-    _check_band((lo, hi), 0.1)
+    check_band((lo, hi), 0.1)
     if not Path(args.path).exists():
         raise FileNotFoundError(f"{args.path}: no such file or folder")
     load: dict[str, Any] = {

@@ -123,14 +123,15 @@ from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_STARTS, GA_OPTIONS, UPPER_PL
 from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODELS as _MODELS
+from ..report import finite_or_none as _fin
 from ..report import md_table
 from ..rollout import closed_loop
 from ..spectral import (
     DEFAULT_BAND,
     TRIM,
-    _check_band,
     band_weights,
     bandpass,
+    check_band,
 )
 from ..stability import exact_delay_codes
 from ..uncertainty import symmetric_interval
@@ -323,14 +324,6 @@ def setting_order(rows: Iterable[Mapping[str, Any]], key: str = "Tg") -> dict[st
 # ---------------------------------------------------------------------------
 # The study
 # ---------------------------------------------------------------------------
-
-
-def _fin(x: Any) -> float | None:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
 
 
 @dataclass
@@ -610,7 +603,7 @@ def openacc_study(
                          + ("; --acc-unknown include would study them" if n_unk else "")
                          + ")")
     for r in runs:
-        _check_band(band, r.dt)
+        check_band(band, r.dt)
     runs = [replace(r, upper=UPPER_PLACEHOLDER) for r in runs]
     dropped = _loader_dropped(load_report)
     say(f"{len(runs)} runs in {len({m['file'] for m in metas})} files; {len(left_out)} runs "
