@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Report", "fmt", "diff", "num", "md_table"]
+__all__ = ["Report", "fmt", "diff", "num", "md_table", "finite_or_none"]
 
 
 def fmt(x: Any, digits: int = 4) -> str:
@@ -64,6 +64,15 @@ def num(x: Any, spec: str = ".3g", none: str = "—") -> str:
     if isinstance(x, numbers.Real) and not math.isfinite(x):
         return none
     return format(x, spec)
+
+
+def finite_or_none(x: Any) -> float | None:
+    """``x`` as a float when it is a finite number, otherwise None (for strict JSON)."""
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
 
 
 def md_table(head: Sequence[str], rows: Sequence[Sequence[Any]], spec: str = ".3g") -> str:

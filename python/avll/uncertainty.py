@@ -116,6 +116,7 @@ import numpy as np
 
 from . import _core, _sigint
 from ._limits import check_int, check_seed, check_threads
+from .report import finite_or_none
 
 __all__ = [
     "Intervals",
@@ -852,8 +853,8 @@ class Uncertainty:
             "method": self.method,
             "block_s": float(self.block_s),
             "level": float(self.level),
-            "cost_given": _finite_or_none(self.cost_given),
-            "cost_estimate": _finite_or_none(self.cost_estimate),
+            "cost_given": finite_or_none(self.cost_given),
+            "cost_estimate": finite_or_none(self.cost_estimate),
         }
 
     def to_dataset(self, **coords: Any) -> Any:
@@ -940,10 +941,6 @@ def to_dataset(items: Sequence[Any], car: Sequence[Any] | None = None,
 # ---------------------------------------------------------------------------
 # The stage itself (called by avll.calibrate / calibrate_many)
 # ---------------------------------------------------------------------------
-
-
-def _finite_or_none(v: float) -> float | None:
-    return float(v) if math.isfinite(v) else None
 
 
 def refit_budget(opts: Intervals, d: int) -> int:

@@ -50,8 +50,8 @@ from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODEL_LABELS
 from ..paper import MODELS as _MODELS
+from ..report import finite_or_none as _finite
 from ..rollout import batch_cost, closed_loop, simulate_full
-from ..uncertainty import _finite_or_none as _finite
 
 __all__ = ["Study", "HANDOVER_SPEED", "CARMA_OBJECTIVES", "ASTAZERO_OBJECTIVES",
            "CARMA_CAL_FILES", "CARMA_BOUNDS", "read_carma", "split_launch_cruise",

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from ..data import Run
-from ..uncertainty import _finite_or_none as _fin
+from ..report import finite_or_none as _fin
 
 __all__ = ["CANDIDATES", "MIN_GAIN", "ALPHA", "MAX_STRUCTURES", "StructureStep",
            "StructureSelection", "heldout_loss", "select_structures"]
