@@ -21,11 +21,13 @@ import numbers
 import os
 from typing import Any
 
+import numpy as np
+
 from . import _core
 
 __all__ = [
     "SMALL", "MEMORY_FRACTION", "SEED_MAX", "check_int", "check_number", "check_threads",
-    "check_seed", "available_memory", "check_memory", "fmt_bytes",
+    "check_seed", "check_floats", "available_memory", "check_memory", "fmt_bytes",
 ]
 
 #: Allocations below this many bytes are not checked.
@@ -68,6 +70,16 @@ def check_number(value: Any, name: str, *, finite: bool = True, positive: bool =
     if nonneg and not v >= 0:
         raise ValueError(f"{name}: must be >= 0, got {v}")
     return v
+
+
+def check_floats(value: Any, name: str) -> np.ndarray:
+    """``value`` as a float64 array (any shape), or a ``ValueError`` naming ``name``."""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise ValueError(f"{name}: expected an array of numbers, got {value!r:.40}")
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name}: expected an array of numbers ({e})") from None
 
 
 def max_threads() -> int:

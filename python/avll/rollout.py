@@ -68,7 +68,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from ._limits import check_int, check_memory, check_number, check_threads
+from ._limits import check_floats, check_int, check_memory, check_number, check_threads
 from .data import Run
 from .effects import Asymmetric, WithEffects, canonical, exo_needs
 from .models import LowerLevelModel, UpperLevel, model_class
@@ -165,17 +165,8 @@ def _dt(dt: Any) -> float:
     return check_number(dt, "dt", positive=True)
 
 
-def _numbers(name: str, x: Any) -> np.ndarray:
-    if isinstance(x, (str, bytes)) or x is None:
-        raise ValueError(f"{name}: expected an array of numbers, got {x!r:.40}")
-    try:
-        return np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{name}: expected an array of numbers ({e})") from None
-
-
 def _f64(name: str, x: Any) -> np.ndarray:
-    arr = _numbers(name, x)
+    arr = check_floats(x, name)
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be 1-D, got shape {arr.shape}")
     return np.ascontiguousarray(arr)
@@ -501,7 +492,7 @@ def batch_cost(
 def params_2d(params: Any, name: str = "params") -> np.ndarray:
     """Parameter rows as a C-contiguous (P, n) float64 array (a ``ValueError`` naming
     ``name`` for anything that is not numbers; ``ValueError`` for more than 2-D)."""
-    p = _numbers(name, params)
+    p = check_floats(params, name)
     if p.ndim > 2:
         raise ValueError(f"{name}: must be 1-D (one row) or 2-D (rows), got shape {p.shape}")
     return np.ascontiguousarray(np.atleast_2d(p))

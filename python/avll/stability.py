@@ -31,7 +31,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import _atomic, _core
-from ._limits import check_int, check_memory, check_number, check_threads, fmt_bytes
+from ._limits import (
+    check_floats,
+    check_int,
+    check_memory,
+    check_number,
+    check_threads,
+    fmt_bytes,
+)
 from .models import LowerLevelModel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -82,15 +89,6 @@ def _model(model: LowerLevelModel) -> tuple[str, list[float]]:
     return model.name, [float(v) for v in model.to_array()]
 
 
-def _floats(name: str, x: Any) -> np.ndarray:
-    if isinstance(x, (str, bytes)) or x is None:
-        raise ValueError(f"{name}: expected numbers, got {x!r:.40}")
-    try:
-        return np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{name}: expected numbers ({e})") from None
-
-
 _SPLIT_GRID = "split the grid (e.g. a few kv values per call) and concatenate"
 
 
@@ -135,7 +133,7 @@ def _scan_memory(what: str, n_scan: int, threads: int, out_bytes: float = 0.0) -
 
 
 def _axis(name: str, x: Any) -> np.ndarray:
-    arr = np.require(np.atleast_1d(_floats(name, x)), requirements=["C", "A"])
+    arr = np.require(np.atleast_1d(check_floats(x, name)), requirements=["C", "A"])
     if arr.ndim != 1:
         raise ValueError(f"{name}: must be a scalar or 1-D, got shape {arr.shape}")
     if arr.size == 0:
@@ -192,7 +190,7 @@ def stability_points(
     nt = check_threads(threads)
     name, p = _model(model)
     try:
-        kg, tg, kv = np.broadcast_arrays(*(_floats(n, a) for n, a in
+        kg, tg, kv = np.broadcast_arrays(*(check_floats(a, n) for n, a in
                                            (("kg", kg), ("tg", tg), ("kv", kv))))
     except ValueError as e:
         raise ValueError(f"kg, tg, kv: shapes do not broadcast ({e})") from None
@@ -344,7 +342,7 @@ def capacity(tg: Any, length: float = CAPACITY_LENGTH, speed: float = CAPACITY_S
     """
     length = check_number(length, "length", nonneg=True)
     speed = check_number(speed, "speed", positive=True)
-    t = _floats("tg", tg)
+    t = check_floats(tg, "tg")
     bad = ~np.isnan(t) & ~((t >= 0) & np.isfinite(t))
     if np.any(bad):
         raise ValueError(f"tg: a time gap must be finite and >= 0, got {t[bad].ravel()[0]:g}")
