@@ -48,18 +48,14 @@ def section_iv_numbers(threads: int = 0) -> dict[str, Any]:
     "settings": Settings, "paper": PAPER, "length", "speed"}`` (the last two: the
     capacity formula's constants)."""
     import avll
-    from avll.reproduce import PAPER, SETTINGS, stability_summary
+    from avll.reproduce import PAPER, SETTINGS, capacity_ratios, stability_summary
 
     settings = SETTINGS["default"]
     models = {}
     for m in _MODELS:
         s = stability_summary(avll.PAPER_TABLE_II[m], settings, threads=threads)
         models[m] = {k: s[k] for k in ("kv_threshold", "min_tg", "capacity")}
-    cs, cp, cf = (models[m]["capacity"] for m in ("second", "proposed", "first"))
-    ratios = {
-        "capacity_proposed_vs_second_pct": None if not (cs and cp) else 100 * (1 - cp / cs),
-        "capacity_first_vs_proposed_pct": None if not (cf and cp) else 100 * (cf / cp - 1),
-    }
+    ratios = capacity_ratios(models)
     from avll.stability import CAPACITY_LENGTH, CAPACITY_SPEED
 
     return {"models": models, "ratios": ratios, "settings": settings, "paper": PAPER,

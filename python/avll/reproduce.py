@@ -46,6 +46,7 @@ __all__ = [
     "SETTINGS",
     "reproduce",
     "stability_summary",
+    "capacity_ratios",
     "run_diagnosis",
 ]
 
@@ -189,7 +190,10 @@ def stability_summary(
     }
 
 
-def _capacity_ratios(st: dict[str, dict[str, Any]]) -> dict[str, float | None]:
+def capacity_ratios(st: dict[str, dict[str, Any]]) -> dict[str, float | None]:
+    """Section IV's capacity comparisons from per-model summaries
+    (:func:`stability_summary`), in percent: ``100 (1 - C_proposed / C_second)`` and
+    ``100 (C_first / C_proposed - 1)`` (None when a capacity is missing or zero)."""
     cs, cp, cf = (st.get(m, {}).get("capacity") for m in ("second", "proposed", "first"))
     return {
         "capacity_proposed_vs_second_pct": None if not (cs and cp) else 100 * (1 - cp / cs),
@@ -453,7 +457,7 @@ def _reproduce_field(F: Any, outd: Path, name: str, p: Path, settings: Settings,
             "calibration_study": which_study,
             "field_study": st.summary,
             "stability": st2,
-            "stability_ratios": _capacity_ratios(st2),
+            "stability_ratios": capacity_ratios(st2),
             "stability_calibrated": None,
             **_summary_tail(calib, diag, stages.times, runtime),
             "avll_version": __version__,
@@ -579,9 +583,9 @@ def _summary(runs: list[Run], cal_runs: list[Run], val_runs: list[Run], desc: st
         "settings": _settings_json(settings),
         "calibration": cal,
         "stability": st2,
-        "stability_ratios": _capacity_ratios(st2),
+        "stability_ratios": capacity_ratios(st2),
         "stability_calibrated": stc,
-        "stability_calibrated_ratios": _capacity_ratios(stc),
+        "stability_calibrated_ratios": capacity_ratios(stc),
         **_summary_tail(cal, diag, times, runtime),
     }
 
