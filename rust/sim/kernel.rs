@@ -1054,7 +1054,8 @@ impl Sink for Response<'_> {
     }
 }
 
-#[cfg(test)]
+// The block form exists on x86_64 only.
+#[cfg(all(test, target_arch = "x86_64"))]
 mod tests {
     use super::*;
     use crate::model::Linear;
@@ -1064,7 +1065,6 @@ mod tests {
     /// bit: real poles (modal) and complex poles (canonical), with and without inner
     /// feedback, dead times from 4 to 40 samples, from a nonzero state and line.
     #[test]
-    #[cfg(target_arch = "x86_64")]
     fn avx2_blocks_equal_the_plain_blocks() {
         if !crate::sim::fma() {
             return;
