@@ -149,6 +149,19 @@ def test_too_large_stability_map_is_refused() -> None:
                               np.broadcast_to(np.float64(2.0), (10**6, 10**6)), 0.1)
 
 
+def test_stability_points_names_the_argument_that_is_not_numbers() -> None:
+    """A non-numeric coordinate is named as such, not reported as a broadcasting
+    failure; coordinates that really do not broadcast still say so."""
+    for i, name in enumerate(("kg", "tg", "kv")):
+        args: list[object] = [0.5, 1.0, 0.5]
+        args[i] = "x"
+        with pytest.raises(ValueError, match=f"^{name}: expected an array of numbers") as e:
+            avll.stability_points(M, *args)
+        assert "broadcast" not in str(e.value)
+    with pytest.raises(ValueError, match="kg, tg, kv: shapes do not broadcast"):
+        avll.stability_points(M, np.zeros(3), np.zeros(4), 0.1)
+
+
 def test_batch_cost_and_bootstrap_are_estimated(monkeypatch: pytest.MonkeyPatch,
                                                 runs: list[avll.Run]) -> None:
     """On a machine with 50 MB free, a (P, R) cost matrix of 80 MB is refused (the

@@ -204,13 +204,15 @@ def check_memory(nbytes: float, what: str, hint: str, *, per: float | None = Non
         )
 
 
-def check_weights(weights: Any) -> tuple[float, float, float]:
-    """The objective's weights ``(wa, wv, wx)`` as three finite floats, or a
-    ``ValueError``/``TypeError`` naming ``weights``."""
+def check_weights(weights: Any, name: str = "weights") -> tuple[float, float, float]:
+    """The objective's weights ``(wa, wv, wx)`` as three finite floats ``>= 0``, not all
+    zero, or a ``ValueError``/``TypeError`` naming ``name``."""
     try:
         if len(weights) != 3:
-            raise ValueError(f"weights: expected 3 values (a, v, x), got {len(weights)}")
-        wa, wv, wx = (check_number(w, "weights") for w in weights)
+            raise ValueError(f"{name}: expected 3 values (a, v, x), got {len(weights)}")
+        wa, wv, wx = (check_number(w, name, nonneg=True) for w in weights)
     except TypeError:
-        raise TypeError(f"weights: expected 3 numbers (a, v, x), got {weights!r}") from None
+        raise TypeError(f"{name}: expected 3 numbers (a, v, x), got {weights!r}") from None
+    if wa + wv + wx <= 0:
+        raise ValueError(f"{name}: at least one weight must be > 0, got {tuple(weights)!r}")
     return wa, wv, wx

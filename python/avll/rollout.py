@@ -208,7 +208,7 @@ def _with_effects(model: WithEffects, dt: float) -> tuple[str, list[float], list
     asym = [e for e in model.effects if isinstance(e, Asymmetric)]
     if asym:
         c = WithEffects(model.base, tuple(asym)).linear(side=-1)
-        if not _stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"], dt):
+        if not _stable(c, dt):
             raise ValueError(
                 f"model: the braking side of {model!r} (kb G(rb s): {c}) is not "
                 f"asymptotically stable at dt={dt:g} s; its response diverges when braking, so "
@@ -242,12 +242,17 @@ def lower_level_stable(model: LowerLevelModel, dt: float) -> bool:
     asymptotically stable when sampled every ``dt`` seconds: the test behind the costs'
     ``inf`` (:func:`batch_cost`)."""
     c = model.linear()
-    return _stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"],
-                   check_number(dt, "dt", positive=True))
+    return _stable(c, check_number(dt, "dt", positive=True))
+
+
+def _stable(c: Mapping[str, float], dt: float) -> bool:
+    """The test of :func:`lower_level_stable` on the coefficients ``model.linear()``."""
+    return _stable_at(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"], dt)
 
 
 @functools.lru_cache(maxsize=4096)
-def _stable(b1: float, b0: float, a2: float, a1: float, td: float, k: float, dt: float) -> bool:
+def _stable_at(b1: float, b0: float, a2: float, a1: float, td: float, k: float,
+               dt: float) -> bool:
     # cached: the test discretizes (a matrix exponential) and runs Schur-Cohn, ~8 us
     return bool(_core.lower_level_stable(b1, b0, a2, a1, td, k, dt))
 
@@ -256,7 +261,7 @@ def check_lower_level(model: LowerLevelModel, dt: float, *, what: str = "") -> N
     """Raises ``ValueError`` naming the model and its parameters unless
     :func:`lower_level_stable` (the policy of every trajectory function)."""
     c = model.linear()
-    if not _stable(c["b1"], c["b0"], c["a2"], c["a1"], c["Td"], c["K"], float(dt)):
+    if not _stable(c, float(dt)):
         why = (f"K K0 = {c['K'] * c['b0']:.4g} >= 1: the inner loop has no steady state"
                if c["K"] * c["b0"] >= 1 else
                "a pole of G/(1 - K G), with its dead time, sampled at dt, lies on or outside "

@@ -189,9 +189,9 @@ def stability_points(
     """Codes at scattered points ``(kg[i], tg[i], kv[i])`` (arrays broadcast)."""
     nt = check_threads(threads)
     name, p = _model(model)
+    arrs = [check_floats(a, n) for n, a in (("kg", kg), ("tg", tg), ("kv", kv))]
     try:
-        kg, tg, kv = np.broadcast_arrays(*(check_floats(a, n) for n, a in
-                                           (("kg", kg), ("tg", tg), ("kv", kv))))
+        kg, tg, kv = np.broadcast_arrays(*arrs)
     except ValueError as e:
         raise ValueError(f"kg, tg, kv: shapes do not broadcast ({e})") from None
     _grid_memory("stability_points", float(kg.size), 3 * 8.0 + 1.0)

@@ -4,11 +4,11 @@ paper's Tables II-IV)."""
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from dataclasses import replace
 from typing import Any
 
+from .._limits import check_weights
 from ._common import (
     add_astazero_options,
     add_cal_runs,
@@ -113,11 +113,7 @@ def _weights(text: str) -> tuple[float, float, float]:
         weights = [float(w) for w in parse_list("--weights", text)]
     except ValueError:
         raise ValueError(f"--weights: expected three numbers, got {text!r}") from None
-    if len(weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in weights):
-        raise ValueError(f"--weights: expected three finite values >= 0, got {text!r}")
-    if sum(weights) <= 0:
-        raise ValueError("--weights: at least one weight must be > 0")
-    return weights[0], weights[1], weights[2]
+    return check_weights(weights, "--weights")
 
 
 def _cmd(args: argparse.Namespace) -> int:
