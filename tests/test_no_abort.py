@@ -161,7 +161,7 @@ def test_exact_delay_codes_refuses_unknown_keywords() -> None:
         avll.pade_report(M, [0.5], [2.0], [0.5], budgett=10)
     with pytest.raises(TypeError, match="budget: must be an integer"):
         avll.exact_delay_codes(M, 0.5, 2.0, 0.5, budget=2.5)
-    codes, ok = avll.exact_delay_codes(M, 0.5, 2.0, 0.5, orders=(2,))  # documented, ignored
+    codes, ok = avll.exact_delay_codes(M, 0.5, 2.0, 0.5, budget=10)
     assert codes.shape == ok.shape == (1,)
 
 

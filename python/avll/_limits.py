@@ -62,7 +62,7 @@ def check_number(value: Any, name: str, *, finite: bool = True, positive: bool =
     try:
         v = float(value)
     except OverflowError:
-        raise ValueError(f"{name}: {value!r} is too large for a float") from None
+        raise ValueError(f"{name}: {value!r:.40}... is too large for a float") from None
     if finite and not math.isfinite(v):
         raise ValueError(f"{name}: must be finite, got {v}")
     if positive and not v > 0:
@@ -77,9 +77,20 @@ def check_floats(value: Any, name: str) -> np.ndarray:
     if isinstance(value, (str, bytes)) or value is None:
         raise ValueError(f"{name}: expected an array of numbers, got {value!r:.40}")
     try:
-        return np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as e:
+        a = np.asarray(value)
+        if a.dtype.kind == "c":  # a cast would drop the imaginary part with a mere warning
+            raise ValueError(f"complex values are not accepted (dtype {a.dtype})")
+        return a.astype(np.float64, copy=False)
+    except (TypeError, ValueError, OverflowError) as e:
         raise ValueError(f"{name}: expected an array of numbers ({e})") from None
+
+
+def check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of the strings ``choices``, else a ``ValueError`` naming
+    ``name`` (``None`` and other types included)."""
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name}: must be {' or '.join(map(repr, choices))}, got {value!r:.40}")
+    return value
 
 
 def max_threads() -> int:

@@ -33,11 +33,11 @@ from typing import Any
 import numpy as np
 
 from . import _core, _sigint
-from ._limits import check_int, check_memory, check_seed, check_threads
+from ._limits import check_int, check_memory, check_number, check_seed, check_threads
 from .data import Run
 
 # the defaults and the paper's calibration runs, re-exported here (their old home)
-from .defaults import DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS, UPPER_BOUNDS, Bound
+from .defaults import DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS, UPPER_BOUNDS, Bound, upper_index
 from .defaults import UPPER_NAMES as _UPPER_NAMES
 from .effects import EFFECTS, WithEffects, canonical, exo_needs
 from .models import LowerLevelModel, UpperLevel, model_class
@@ -69,16 +69,6 @@ __all__ = [
 ]
 
 
-def _upper_index(u: int | str) -> int:
-    if isinstance(u, str):
-        if u not in _UPPER_NAMES:
-            raise ValueError(f"upper_free: unknown gain {u!r}; known: {', '.join(_UPPER_NAMES)}")
-        return _UPPER_NAMES.index(u)
-    if not 0 <= int(u) < 4:
-        raise ValueError(f"upper_free: index {u} is not in 0..3 (kg, kv, Tg, Gmin)")
-    return int(u)
-
-
 def default_bounds(
     model: str | type[LowerLevelModel],
     upper_free: Sequence[int | str] = (),
@@ -99,7 +89,7 @@ def default_bounds(
             fx = ecls.fixed.get(kind, {}).get(p)
             out[f"{e}.{p}"] = (lo, hi, "linear") if fx is None else (fx, fx, "linear")
     for u in upper_free:
-        name = _UPPER_NAMES[_upper_index(u)]
+        name = _UPPER_NAMES[upper_index(u)]
         out[name] = UPPER_BOUNDS[name]
     return out
 
@@ -127,8 +117,9 @@ def _resolve_bounds(
             raise ValueError(f"bounds[{k!r}]: expected (lower, upper) or (lower, upper, scale)")
         try:
             lo, hi = float(b[0]), float(b[1])
-        except (TypeError, ValueError):
-            raise TypeError(f"bounds[{k!r}]: lower and upper must be numbers, got {b!r}") from None
+        except (TypeError, ValueError, OverflowError):
+            raise TypeError(f"bounds[{k!r}]: lower and upper must be numbers, got {b!r:.80}"
+                            ) from None
         scale = str(b[2]) if len(b) == 3 else box[k][2]
         if scale == "log" and lo <= 0:
             scale = "linear"  # a user box reaching 0 cannot be log-scaled
@@ -264,7 +255,7 @@ def _problem(
     packs: _Packs | None = None,
 ) -> _Problem:
     cls, names = _structure(model, effects)
-    free = [_upper_index(u) for u in upper_free]
+    free = [upper_index(u) for u in upper_free]
     if free and not closed_loop:
         raise ValueError("upper_free: the upper-level gains can only be calibrated in closed loop")
     rs = (packs or _Packs()).get(runs)
@@ -460,9 +451,10 @@ def _run(
     threads = check_threads(threads)
     n_problems = 1 if problems is None else len(problems)
     _ga_memory(prob, n_problems, ga)
-    if target is not None and (isinstance(target, bool) or not isinstance(
-            target, (int, float, np.integer, np.floating)) or math.isnan(float(target))):
-        raise TypeError(f"target: must be a number or None, got {target!r}")
+    if target is not None:
+        check_number(target, "target", finite=False)
+        if math.isnan(float(target)):
+            raise ValueError("target: must be a number (or -inf) or None, got nan")
     bar: Any
     if callable(progress):
         bar = progress
@@ -1070,7 +1062,7 @@ def paper_workflow(
                             "init": "rest", "initial": None, "target": None,
                             "starts": DEFAULT_STARTS}  # fmt: skip
     opts.update({k: kwargs.pop(k) for k in list(opts) if k in kwargs})
-    free = [_upper_index(u) for u in opts["upper_free"]]
+    free = [upper_index(u) for u in opts["upper_free"]]
     for m in models:
         cls = model_class(m)
         res = _calibrate(cls, cal, seed=seed, threads=threads, progress=progress,

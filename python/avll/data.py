@@ -20,6 +20,8 @@ from .models import UpperLevel
 __all__ = ["Run", "DataError", "DataWarning", "PlausibilityWarning", "COMMAND_KINDS"]
 
 COMMAND_KINDS = ("acceleration", "speed")
+#: The initial states of a rollout (:mod:`avll.rollout`).
+INITS = ("rest", "steady")
 
 
 class DataError(ValueError):
@@ -44,7 +46,7 @@ def _series(run_id: str, name: str, x: Any, n: int | None) -> np.ndarray:
         raise DataError(f"run {run_id!r}: column {name!r} must be numbers, got {x!r:.40}")
     try:
         arr = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
-    except (TypeError, ValueError) as e:
+    except (TypeError, ValueError, OverflowError) as e:
         raise DataError(f"run {run_id!r}: column {name!r} must be numbers ({e})") from None
     if arr.ndim != 1:
         raise DataError(f"run {run_id!r}: column {name!r} must be 1-D, got shape {arr.shape}")
@@ -114,6 +116,13 @@ class Run:
             val = getattr(self, name)
             if val is not None:
                 object.__setattr__(self, name, _series(rid, name, val, n))
+        for name, ok, what in (("exo", isinstance(self.exo, Mapping), "a mapping"),
+                               ("meta", isinstance(self.meta, Mapping), "a mapping"),
+                               ("upper", self.upper is None or isinstance(self.upper, UpperLevel),
+                                "an avll.UpperLevel or None")):  # fmt: skip
+            if not ok:
+                raise DataError(f"run {rid!r}: {name} must be {what}, got "
+                                f"{getattr(self, name)!r:.40}")
         object.__setattr__(
             self, "exo", {k: _series(rid, f"exo_{k}", v, n) for k, v in self.exo.items()}
         )

@@ -8,6 +8,7 @@ The bounds' reasons are :data:`BOUND_REASONS` (printed beside them in the docs).
 
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 from . import _core
@@ -20,6 +21,7 @@ __all__ = [
     "UPPER_BOUNDS",
     "BOUND_REASONS",
     "UPPER_NAMES",
+    "upper_index",
     "GA_OPTIONS",
     "CLOSED_LOOP_WEIGHTS",
     "UPPER_PLACEHOLDER",
@@ -99,6 +101,18 @@ BOUND_REASONS: dict[str, str] = {
 
 #: The upper-level gains (Eq. 3) in the order of :class:`avll.UpperLevel`.
 UPPER_NAMES: tuple[str, ...] = ("kg", "kv", "Tg", "Gmin")
+
+
+def upper_index(u: int | str) -> int:
+    """An entry of ``upper_free`` (a name of :data:`UPPER_NAMES` or its index 0..3) as
+    the index, or a ``ValueError`` naming ``upper_free`` (never truncated: 0.7 and
+    ``True`` are refused)."""
+    if isinstance(u, str) and u in UPPER_NAMES:
+        return UPPER_NAMES.index(u)
+    if isinstance(u, numbers.Integral) and not isinstance(u, bool) and 0 <= u < 4:
+        return int(u)
+    raise ValueError(f"upper_free: expected a gain name ({', '.join(UPPER_NAMES)}) or its "
+                     f"index 0..3, got {u!r}")
 
 #: The GA's tunable options with their defaults, as the Rust core defines them
 #: (``GaOptions::default()``, exported by ``avll._core.ga_defaults``; the core also

@@ -31,7 +31,11 @@ __all__ = [
 def _check(name: str, value: float, *, positive: bool = False, nonneg: bool = False) -> None:
     if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
         raise ValueError(f"{name}: must be a number, got {value!r}")
-    if not math.isfinite(value):
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:  # an int beyond the float range
+        raise ValueError(f"{name}: must be finite, got {value!r:.40}") from None
+    if not finite:
         raise ValueError(f"{name}: must be finite, got {value}")
     if positive and not value > 0:
         raise ValueError(f"{name}: must be > 0, got {value}")
@@ -78,7 +82,10 @@ class LowerLevelModel(ABC):
     @classmethod
     def from_array(cls, values: Any) -> LowerLevelModel:
         """Builds the model from values in :meth:`param_names` order."""
-        vals = [float(v) for v in np.asarray(values, dtype=np.float64).ravel()]
+        try:
+            vals = [float(v) for v in np.asarray(values, dtype=np.float64).ravel()]
+        except (TypeError, ValueError, OverflowError) as e:
+            raise ValueError(f"params: expected numbers ({e})") from None
         names = cls.param_names()
         if len(vals) != len(names):
             raise ValueError(

@@ -68,8 +68,15 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from ._limits import check_floats, check_int, check_memory, check_number, check_threads
-from .data import Run
+from ._limits import (
+    check_choice,
+    check_floats,
+    check_int,
+    check_memory,
+    check_number,
+    check_threads,
+)
+from .data import COMMAND_KINDS, INITS, Run
 from .effects import Asymmetric, WithEffects, canonical, exo_needs
 from .models import LowerLevelModel, UpperLevel, model_class
 
@@ -227,7 +234,14 @@ def _parts(model: Any, base: LowerLevelModel | None, dt: float
     return _with_effects(model, dt)
 
 
+def _start(init: Any, command_kind: Any) -> tuple[str, str]:
+    return check_choice(init, "init", INITS), check_choice(command_kind, "command_kind",
+                                                           COMMAND_KINDS)
+
+
 def _exo(exo: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
+    if exo is not None and not isinstance(exo, Mapping):
+        raise TypeError(f"exo: expected a mapping of signal name -> array, got {exo!r:.40}")
     return {str(k): _f64(f"exo[{k!r}]", v) for k, v in (exo or {}).items()}
 
 
@@ -277,8 +291,8 @@ def _finite_or_raise(model: Any, dt: float, *arrays: np.ndarray) -> None:
     for a in arrays:
         if a.size and not math.isfinite(float(a[-1])):
             raise ValueError(f"model: the response of {model!r} at dt={dt:g} s diverged "
-                             "(|y| beyond 1e9 or not finite): the lower level or the command "
-                             "is out of range")
+                             "(|y| beyond 1e9 or not finite): the lower level, the command or "
+                             "the initial state is out of range")
 
 
 def simulate(
@@ -298,6 +312,7 @@ def simulate(
     """
     dt = _dt(dt)
     u = _f64("command", command)
+    init, command_kind = _start(init, command_kind)
     base = _base(model)
     if base is not None:
         # `out` is checked by the binding (dtype, shape, layout, writeable, shared memory)
@@ -336,12 +351,13 @@ def simulate_full(
     doc). An unstable lower level is a ``ValueError`` (see the module doc)."""
     dt = check_number(dt, "dt", positive=True)
     u = _f64("command", command)
+    init, command_kind = _start(init, command_kind)
     v0, x0 = check_number(v0, "v0"), check_number(x0, "x0")
     arrs = None if out is None else _out_seq(out)  # the arrays are checked by the binding
     name, p, en, ep = _parts(model, _base(model), dt)
     d = _core.simulate_full(name, p, u, dt, command_kind, init, v0, x0, effects=en,
                             effect_params=ep, exo=_exo(exo), out=arrs)  # fmt: skip
-    _finite_or_raise(model, dt, d[0], d[1])
+    _finite_or_raise(model, dt, d[0], d[1], d[2])
     return _result(out, d if arrs is None else arrs)
 
 

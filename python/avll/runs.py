@@ -18,8 +18,9 @@ from typing import Any, overload
 import numpy as np
 
 from . import _core
-from ._limits import check_weights
-from .data import Run, check_runs
+from ._limits import check_choice, check_weights
+from .data import INITS, Run, check_runs
+from .defaults import upper_index
 
 __all__ = ["RunSet", "as_runset"]
 
@@ -183,11 +184,12 @@ class RunSet(Sequence[Run]):
         the exogenous signal each effect of ``exo`` (effect name -> signal name,
         :func:`avll.effects.exo_needs`) reads)."""
         wa, wv, wx = check_weights(weights)
+        init = check_choice(init, "init", INITS)
         need = ["lead_x", "lead_v", "v", "x"] if closed_loop else ["command"]
         need += [c for c, w in (("v", wv), ("x", wx)) if w > 0 and c not in need]
         for c in need:
             self._require(c)
-        free = [int(i) for i in upper_free]
+        free = [upper_index(u) for u in upper_free]
         if closed_loop and len(set(free)) < 4:
             for i in self._handle.index:
                 if not self._has_upper[i]:

@@ -379,9 +379,13 @@ def _broadcast_size(*arrays: Any) -> float:
 def _points(kg: Any, tg: Any, kv: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The points as three contiguous float arrays (each flattened, the lengths
     broadcast), checked finite."""
-    arrs = np.broadcast_arrays(
-        *(np.atleast_1d(np.asarray(a, dtype=np.float64)).ravel() for a in (kg, tg, kv))
-    )
+    flat = [np.atleast_1d(check_floats(a, n)).ravel() for n, a in
+            (("kg", kg), ("tg", tg), ("kv", kv))]
+    try:
+        arrs = np.broadcast_arrays(*flat)
+    except ValueError:
+        raise ValueError("kg, tg, kv: lengths do not broadcast "
+                         f"({', '.join(str(a.size) for a in flat)} points)") from None
     out = tuple(np.ascontiguousarray(a) for a in arrs)
     for n, a in zip(("kg", "tg", "kv"), out, strict=True):
         if not np.all(np.isfinite(a)):
@@ -442,7 +446,6 @@ def exact_delay_codes(
     tg: Any,
     kv: Any,
     *,
-    orders: Sequence[int] | None = None,
     threads: int = 0,
     budget: int = EXACT_BUDGET,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -452,13 +455,10 @@ def exact_delay_codes(
     exactly (crossing frequencies from ``|A(jω)| = |B(jω)|``, crossing directions and
     the root count of the delay-free polynomial), string stability by the certified
     sweep of :func:`exact_delay_string`. ``settled`` is False where a test could not
-    decide (a point on a boundary; the code is then 0 or 1, never 2). ``orders`` (a
-    keyword of the former Padé-agreement implementation) is accepted and ignored; any
-    other keyword is an error.
+    decide (a point on a boundary; the code is then 0 or 1, never 2).
     """
     threads = check_threads(threads)
     budget = check_int(budget, "budget", min=1)
-    del orders
     name, p = _model(model)
     _grid_memory("exact_delay_codes", _broadcast_size(kg, tg, kv), _POINT_BYTES,
                  "split the points into several calls and concatenate")
@@ -553,7 +553,7 @@ def _pade_arg(pade_order: int | None) -> int:
 def _range_arg(name: str, r: Any) -> tuple[float, float]:
     try:
         lo, hi = (float(v) for v in r)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name}: expected (lo, hi), got {r!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise ValueError(f"{name}: need finite lo < hi, got ({lo}, {hi})")
@@ -561,7 +561,7 @@ def _range_arg(name: str, r: Any) -> tuple[float, float]:
 
 
 def _level_arg(level: str) -> int:
-    if level not in _LEVELS:
+    if not isinstance(level, str) or level not in _LEVELS:
         raise ValueError(f"level: must be 'string' or 'local', got {level!r}")
     return _LEVELS[level]
 
@@ -675,7 +675,7 @@ def stable_intervals(
     """The stable set along ``axis`` (``"kg"``, ``"tg"`` or ``"kv"``) through the point
     given by the other two parameters, within ``search_range``, as a list of
     ``(lo, hi)`` intervals (ends found as in :func:`boundary`)."""
-    if axis not in _ALIASES:
+    if not isinstance(axis, str) or axis not in _ALIASES:
         raise ValueError(f"axis: must be 'kg', 'tg' or 'kv', got {axis!r}")
     ax = _ALIASES[axis]
     given: dict[str, Any] = {"kg": kg, "Tg": tg, "kv": kv}
@@ -683,9 +683,9 @@ def stable_intervals(
         raise ValueError(f"{axis}: is the searched axis; use search_range")
     given[ax] = 0.0
     for a, v in given.items():
-        if v is None or not math.isfinite(float(v)):
+        if v is None:
             raise ValueError(f"{a.lower()}: a finite value is needed")
-    point = [float(v) for v in given.values()]
+    point = [check_number(v, a.lower()) for a, v in given.items()]
     lo, hi = _range_arg("search_range", search_range or DEFAULT_RANGES[ax])
     name, p = _model(model)
     n_scan = check_int(n_scan, "n_scan", min=2, max=MAX_SCAN)
@@ -849,6 +849,8 @@ def pade_error_map(
 
     kg, tg, kv = _axis("kg", kg), _axis("tg", tg), _axis("kv", kv)
     orders = [_order(o) for o in orders]
+    if not orders:
+        raise ValueError("orders: at least one Padé order is needed")
     check_threads(threads)
     # the meshgrid and the exact codes, then per order a Padé map and three masks
     _grid_memory(f"pade_error_map: {kg.size} kg x {tg.size} tg x {kv.size} kv x "

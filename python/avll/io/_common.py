@@ -31,6 +31,7 @@ import contextlib
 import csv
 import errno
 import functools
+import io
 import math
 import os
 import re
@@ -276,9 +277,32 @@ def where(path: str | Path, column: str | None = None, row: int | None = None,
         s += f", column {column!r}"
     if row is not None:
         s += f", row {int(row)}"
-        if str(path).lower().endswith(".csv"):
+        if not str(path).lower().endswith((".parquet", ".pq")):
             s += f" (line {int(row) + header_lines + 1})"
     return s
+
+
+def record_lines(path: str | Path, n: int, header_records: int = 1) -> np.ndarray:
+    """The 1-based line of the CSV file ``path`` where each of its first ``n`` data
+    records starts, counted as pandas reads them: blank and whitespace-only lines
+    skipped, a quoted cell may span lines. Files with neither take the fast path (the
+    record index + ``header_records`` + 1)."""
+    plain = np.arange(n) + header_records + 1
+    try:
+        data = Path(path).read_bytes()
+    except OSError:
+        return plain
+    if b'"' not in data and not re.search(rb"(^|\n)[ \t]*\r?(\n|$)", data.rstrip()):
+        return plain
+    rd = csv.reader(io.StringIO(data.decode("utf-8-sig", errors="replace"), newline=""))
+    starts: list[int] = []
+    end = 0
+    for rec in rd:
+        start, end = end + 1, rd.line_num
+        if rec and not (len(rec) == 1 and not rec[0].strip()):
+            starts.append(start)
+    starts = starts[header_records:header_records + n]
+    return np.array(starts) if len(starts) == n else plain
 
 
 def read_table(path: str | Path, *, encoding: str = "utf-8-sig") -> pd.DataFrame:

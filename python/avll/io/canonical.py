@@ -58,6 +58,7 @@ from ._common import (
     check_regular_file,
     check_time_step,
     check_unique_header,
+    record_lines,
     stat_path,
     strict_warnings,
 )
@@ -106,7 +107,7 @@ def _read_table(path: Path) -> pd.DataFrame:
     return df
 
 
-def _numeric(path: Path, df: pd.DataFrame, col: str, line0: int) -> np.ndarray:
+def _numeric(path: Path, df: pd.DataFrame, col: str, line: np.ndarray) -> np.ndarray:
     s = df[col]
     if not pd.api.types.is_numeric_dtype(s.dtype):
         txt = s.astype(str).str.strip()
@@ -119,14 +120,14 @@ def _numeric(path: Path, df: pd.DataFrame, col: str, line0: int) -> np.ndarray:
                     f"{raw!r} is not a number (NaN is not allowed)"
                     if raw.lower().lstrip("+-") in ("nan", "na")
                     else f"{raw!r} is not a number")
-            raise DataError(f"{path}: column {col!r} line {i + line0}: {what}")
+            raise DataError(f"{path}: column {col!r} line {line[i]}: {what}")
         arr = vals.to_numpy(dtype=np.float64)
     else:
         arr = s.to_numpy(dtype=np.float64)
     bad = np.flatnonzero(~np.isfinite(arr))
     if bad.size:
         i = int(bad[0])
-        raise DataError(f"{path}: column {col!r} line {i + line0}: value {arr[i]} is not finite")
+        raise DataError(f"{path}: column {col!r} line {line[i]}: value {arr[i]} is not finite")
     return arr
 
 
@@ -156,9 +157,12 @@ def _depth(x: Any) -> int:
 def _number(sc: Path, at: str, v: Any) -> float:
     if isinstance(v, bool) or not isinstance(v, numbers.Real):
         raise DataError(f"{sc}: {at}: must be a number, got {v!r}")
-    f = float(v)
+    try:
+        f = float(v)
+    except OverflowError:  # an integer beyond the float range
+        f = math.inf
     if not math.isfinite(f):
-        raise DataError(f"{sc}: {at}: must be finite, got {v!r}")
+        raise DataError(f"{sc}: {at}: must be finite, got {v!r:.40}")
     return f
 
 
@@ -219,12 +223,12 @@ def _sidecar(path: Path) -> dict[str, Any]:
         raise DataError(f"{sc}: larger than {MAX_SIDECAR_BYTES // 2**20} MB; not a sidecar")
     try:
         data = json.loads(sc.read_text(encoding="utf-8"), object_pairs_hook=_no_duplicates)
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+    except DataError as e:
+        raise DataError(f"{sc}: {e}") from None
+    except ValueError as e:  # JSONDecodeError, UnicodeDecodeError, an int of > 4300 digits
         raise DataError(f"{sc}: not valid JSON ({e})") from None
     except RecursionError:
         raise DataError(f"{sc}: nested deeper than {MAX_SIDECAR_DEPTH} levels") from None
-    except DataError as e:
-        raise DataError(f"{sc}: {e}") from None
     return validate_sidecar(data, sc)
 
 
@@ -297,12 +301,14 @@ def _load_canonical(path: Path, command_kind: str | None) -> list[Run]:
         )
     if kind not in COMMAND_KINDS:
         raise DataError(f"{path}: command kind must be one of {COMMAND_KINDS}, got {kind!r}")
-    line0 = 2  # header is line 1 (Parquet: row index + 2 as well, for consistency)
-    cols = {c: _numeric(path, df, c, line0) for c in df.columns if c != "run"}
+    # the line of each row (Parquet: row index + 2, as if the header were line 1)
+    line = (np.arange(len(df)) + 2 if path.suffix.lower() in (".parquet", ".pq")
+            else record_lines(path, len(df)))
+    cols = {c: _numeric(path, df, c, line) for c in df.columns if c != "run"}
     run_ids = _run_ids(df)
     empty = np.flatnonzero((run_ids == "") | (run_ids == "nan") | (run_ids == "None"))
     if empty.size:
-        raise DataError(f"{path}: column 'run' line {int(empty[0]) + line0}: is empty")
+        raise DataError(f"{path}: column 'run' line {line[empty[0]]}: is empty")
     exo_cols = [c for c in df.columns if c.startswith("exo_")]
     per_run = side.get("runs", {})
     runs: list[Run] = []
@@ -314,18 +320,18 @@ def _load_canonical(path: Path, command_kind: str | None) -> list[Run]:
         if idx.size > 1 and np.any(np.diff(idx) != 1):
             gap = int(idx[np.flatnonzero(np.diff(idx) != 1)[0] + 1])
             raise DataError(
-                f"{path}: column 'run' line {gap + line0}: rows of run {rid!r} are not contiguous"
+                f"{path}: column 'run' line {line[gap]}: rows of run {rid!r} are not contiguous"
             )
         t = cols["t"][idx]
         if idx.size < 2:
-            raise DataError(f"{path}: run {rid!r} (line {idx[0] + line0}) has fewer than 2 rows")
+            raise DataError(f"{path}: run {rid!r} (line {line[idx[0]]}) has fewer than 2 rows")
         dts = np.diff(t)
         bad = np.flatnonzero(dts <= 0)
         if bad.size:
             i = int(bad[0])
             what = "repeats" if dts[i] == 0 else "goes backwards"
             raise DataError(
-                f"{path}: column 't' line {idx[i + 1] + line0}: time {what} in run {rid!r} "
+                f"{path}: column 't' line {line[idx[i + 1]]}: time {what} in run {rid!r} "
                 f"({t[i]} then {t[i + 1]})"
             )
         dt = float(np.median(dts))
@@ -333,12 +339,13 @@ def _load_canonical(path: Path, command_kind: str | None) -> list[Run]:
         if off.size:
             i = int(off[0])
             raise DataError(
-                f"{path}: column 't' line {idx[i + 1] + line0}: non-uniform sampling in run "
+                f"{path}: column 't' line {line[idx[i + 1]]}: non-uniform sampling in run "
                 f"{rid!r} (step {dts[i]:.6g} s, median {dt:.6g} s); resample it first"
             )
-        check_time_step(dt, path, "t", int(idx[1]))
+        rows = line[idx] - 2  # the data line of each row (where() adds the header line)
+        check_time_step(dt, path, "t", int(rows[1]))
         check_columns({c: cols[c][idx] for c in signal_cols}, path, {}, command_kind=kind,
-                      dt=dt, rows=idx)
+                      dt=dt, rows=rows)
         info = per_run.get(rid, {})
         upper = None
         if "upper" in info:
@@ -350,7 +357,7 @@ def _load_canonical(path: Path, command_kind: str | None) -> list[Run]:
         runs.append(Run(run_id=rid, t=t, a=cols["a"][idx], command_kind=kind,
                         exo={c[4:]: cols[c][idx] for c in exo_cols}, upper=upper,
                         meta={**info.get("meta", {}), "source": str(path),
-                              "first_line": int(idx[0] + line0)}, **optional))
+                              "first_line": int(line[idx[0]])}, **optional))
     return runs
 
 
