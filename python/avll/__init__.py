@@ -149,8 +149,9 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    """The module's names including the lazily imported ones and every public submodule."""
+    """The module's names including the lazily imported ones and every public submodule
+    (not the typing helpers this file imports for itself)."""
     import pkgutil
 
     subs = {m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")}
-    return sorted(set(globals()) | set(__all__) | subs)
+    return sorted({n for n in globals() if n.startswith("_")} | set(__all__) | subs)

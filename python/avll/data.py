@@ -36,7 +36,7 @@ class DataWarning(UserWarning):
 
 class PlausibilityWarning(DataWarning):
     """A value outside the physical range of road vehicles (speed, acceleration,
-    time step, grade; see ``avll.io.plausibility.RANGES``) that is not so far out that
+    time step, grade; see ``avll.io._common.RANGES``) that is not so far out that
     the unit must be wrong. Names the file, the column and the line; ``strict=True``
     turns it into a :class:`DataError`."""
 

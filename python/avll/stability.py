@@ -725,18 +725,10 @@ class Extremum:
     capacity: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (non-finite -> None)."""
-
-        def clean(x: Any) -> Any:
-            if isinstance(x, float) and not math.isfinite(x):
-                return None
-            if isinstance(x, tuple):
-                return [clean(v) for v in x]
-            if isinstance(x, dict):
-                return {k: clean(v) for k, v in x.items()}
-            return x
-
-        return {k: clean(v) for k, v in asdict(self).items()}
+        """JSON-ready dictionary: non-finite -> None with a ``"<key>_note"`` beside it
+        (:func:`avll._atomic.json_safe`)."""
+        out: dict[str, Any] = _atomic.json_safe(asdict(self))
+        return out
 
 
 def _extremum(
