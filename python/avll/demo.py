@@ -28,7 +28,8 @@ def run(out: Path, dt: float = 0.05) -> dict[str, np.ndarray]:
 
     dt = check_number(dt, "dt", positive=True)
     if dt > 10.0:
-        raise ValueError(f"dt: {dt:g} s is longer than the 60 s demo command; use <= 10 s")
+        raise ValueError(f"dt: {dt:g} s is longer than the demo command's 10 s steps; "
+                         "use <= 10 s")
     check_memory(8.0 * 8 * 60.0 / dt, f"simulate: 60 s at dt={dt:g} s x 8 series",
                  "use a larger dt")
     u = demo_command(dt)

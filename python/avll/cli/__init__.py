@@ -3,10 +3,11 @@
 :mod:`avll.cli._common`.
 
 Every sub-command (see docs/guarantees.md): errors in the input (``ValueError``,
-``TypeError``, ``OSError``, ``MemoryError``) end it with one line on stderr and exit
-code 2, Ctrl-C with 130; warnings about the data are one line each (``--strict``: errors);
-every output path is checked before any computation (:func:`avll.cli._common.check_io`);
-progress goes to stderr (``--progress``, ``-q``).
+``TypeError``, ``OSError``, ``MemoryError``, ``ArithmeticError``) end it with one line on
+stderr and exit code 2, Ctrl-C with 130; warnings about the data are one line each
+(``--strict``: errors); every output path is checked before any computation
+(:func:`avll.cli._common.check_io`); progress goes to stderr (``--progress``, ``-q``); the
+files a command lists in ``args.wrote`` are said ("wrote PATH") once they are committed.
 """
 
 from __future__ import annotations
@@ -167,8 +168,12 @@ def _main(argv: Sequence[str] | None) -> int:
                 code = int(args.func(args) or 0)
                 # a Ctrl-C Python had to ignore (avll._sigint), before the outputs commit
                 _sigint.check()
-                return code
-    except (KeyboardInterrupt, ValueError, TypeError, OSError, MemoryError) as e:
+            # the files a command lists in args.wrote, said once they are committed
+            for path in getattr(args, "wrote", ()):
+                print(f"wrote {path}", file=sys.stderr)
+            return code
+    except (KeyboardInterrupt, ValueError, TypeError, OSError, MemoryError,
+            ArithmeticError) as e:
         # (a Ctrl-C another error hid counts as a Ctrl-C)
         if isinstance(e, KeyboardInterrupt) or (_sigint.console and _sigint.interrupted()):
             print(f"{who}: interrupted", file=sys.stderr)

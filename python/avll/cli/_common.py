@@ -236,10 +236,16 @@ def declare_io(p: argparse.ArgumentParser, inputs: Sequence[str] = (),
     ``dest`` names) for :func:`check_io`; ``figures`` are the output files among
     ``files`` that are figures (their suffix picks the format: ``FIGURE_FORMATS``),
     ``runs`` those written in the canonical format (with a ``.meta.json`` sidecar,
-    itself an output)."""
+    itself an output). Call it after adding those arguments: the messages name each
+    path by its option as the parser knows it (``--from`` for ``dest="source"``), a
+    positional one by its metavar."""
+    declared = {*inputs, *files, *folders}
+    labels = {a.dest: max(a.option_strings, key=len) if a.option_strings
+              else str(a.metavar or a.dest.upper())
+              for a in p._actions if a.dest in declared}
     p.set_defaults(io_inputs=tuple(inputs), io_outputs=tuple(files) + tuple(folders),
                    io_folders=tuple(folders), io_figures=tuple(figures),
-                   io_runs=tuple(runs))
+                   io_runs=tuple(runs), io_labels=labels)
 
 
 #: Figure formats the commands write, chosen by the output's suffix.
@@ -304,10 +310,6 @@ def check_not_foreign(label: str, folder: Path, command: str, overwrite: bool) -
                          "folder, or pass --overwrite")
 
 
-def _label(dest: str, positional: Sequence[str]) -> str:
-    return dest.upper() if dest in positional else "--" + dest.replace("_", "-")
-
-
 def _writable_target(label: str, path: Path, folder: bool) -> None:
     if folder:
         if path.exists() and not path.is_dir():
@@ -326,7 +328,7 @@ def _writable_target(label: str, path: Path, folder: bool) -> None:
         raise PermissionError(f"{label}: {path}: folder {anc} is not writable")
 
 
-def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "data")) -> None:
+def check_io(args: argparse.Namespace) -> None:
     """Checks the paths :func:`declare_io` named, before any computation: every output
     can be written (not a folder where a file is expected or the reverse, its nearest
     existing folder writable), none is one of the inputs (no command writes over its
@@ -337,17 +339,18 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
     ins = tuple(getattr(args, "io_inputs", ()))
     outs = tuple(getattr(args, "io_outputs", ()))
     folders = set(getattr(args, "io_folders", ()))
+    label = getattr(args, "io_labels", {})
 
     def given(d: str) -> Any:
         v = getattr(args, d, None)
         return None if v == "" else v  # an empty path means "not written" (--out "")
 
-    inputs = [f for d in ins for f in _input_files(_label(d, positional), given(d))]
-    outputs = [(_label(d, positional), given(d), d in folders) for d in outs]
+    inputs = [f for d in ins for f in _input_files(label[d], given(d))]
+    outputs = [(label[d], given(d), d in folders) for d in outs]
     for d in getattr(args, "io_runs", ()):
         if given(d) is not None:  # the canonical writer's sidecar is an output too
             path = Path(given(d))
-            outputs.append((f"{_label(d, positional)} (its sidecar)",
+            outputs.append((f"{label[d]} (its sidecar)",
                             path.with_name(path.name + ".meta.json"), False))
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
     named = [(lab, pth) for lab, pth, _ in outputs if pth is not None]
@@ -356,7 +359,7 @@ def check_io(args: argparse.Namespace, positional: Sequence[str] = ("path", "dat
             raise ValueError(f"{lb}: {pb} is also the output of {la}; choose distinct names")
     for d in getattr(args, "io_figures", ()):
         if given(d) is not None:
-            check_figure_path(_label(d, positional), given(d))
+            check_figure_path(label[d], given(d))
     for lab, pth, folder in outputs:
         if pth is not None:
             _writable_target(lab, Path(pth), folder)

@@ -80,10 +80,10 @@ def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str
     if closed:
         bad = [r for r in runs if r.lead_x is None or r.lead_v is None]
         if bad:
-            raise ValueError(
-                f"run {bad[0].run_id!r}: has no command and no leader (lead_x, lead_v): "
-                "cannot calibrate it"
-            )
+            why = ("has no command and no leader (lead_x, lead_v): cannot calibrate it"
+                   if no_cmd else "has no leader (lead_x, lead_v), which --closed-loop "
+                   "needs; without --closed-loop it calibrates in open loop")
+            raise ValueError(f"{args.data}: run {bad[0].run_id!r}: {why}")
     if args.upper_free is None:
         free = list(UPPER_NAMES) if closed and any(r.upper is None for r in runs) else []
     elif args.upper_free == "none":
@@ -123,9 +123,14 @@ def _cmd(args: argparse.Namespace) -> int:
     models = models_of(args)
     weights = _weights(args.weights)
     runs, closed, free, init = load_runs(args)
+    ids = [r.run_id for r in runs]
+    if args.figure_run is not None and args.figure_run not in ids:
+        more = ", ..." if len(ids) > 5 else ""
+        raise ValueError(f"--figure-run: unknown run {args.figure_run!r}; known: "
+                         f"{', '.join(ids[:5])}{more}")
     cal_runs: Any = args.cal_runs
     if cal_runs not in (None, "paper"):
-        cal_runs = select_runs([r.run_id for r in runs], cal_runs)
+        cal_runs = select_runs(ids, cal_runs)
     wf = paper_workflow(
         runs, cal_runs=cal_runs, models=models, seed=args.seed, threads=args.threads,
         progress=args.progress, closed_loop=closed, upper_free=free, init=init,
@@ -141,12 +146,12 @@ def _cmd(args: argparse.Namespace) -> int:
     print(text)
     if args.json:
         _atomic.write_json(args.json, _atomic.json_safe(wf.to_json()))
-        print(f"wrote {args.json}", file=sys.stderr)
     if args.figure:
         rid = args.figure_run or wf.cal[0].run_id
         fig = wf.plot(rid)
         _atomic.savefig(fig, args.figure)
-        print(f"wrote {args.figure}", file=sys.stderr)
+    # said by avll.cli once the output group has committed them
+    args.wrote = [p for p in (args.json, args.figure) if p]
     if wf.interrupted:
         print("avll calibrate: interrupted; results are the best so far", file=sys.stderr)
         return 130

@@ -85,7 +85,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     known = names()
     p = sub.add_parser(
-        "data", help="the field data by name: list, describe, fetch (checked by SHA-256)",
+        "data", help="the field data by name: list, info, fetch (checked by SHA-256)",
         description="Field data by name: where each dataset comes from, its licence and "
         "the paper to cite, and every file with its size and SHA-256; 'fetch' downloads "
         "what is missing into a folder and verifies every file (see docs/data.md).")

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .._limits import check_int
+from .._limits import check_int, check_memory, check_number
 from ..paper import SECTION_IV_GRID
 from ..report import num
 from ._common import add_json, add_models, add_progress, add_threads, declare_io, models_of
@@ -23,8 +23,12 @@ def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
         lo, hi, n = float(spec[0]), float(spec[1]), int(spec[2])
     except (ValueError, IndexError):
         raise ValueError(f"--{name}: expected MIN MAX N, got {' '.join(spec)}") from None
-    if n < 1 or not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
-        raise ValueError(f"--{name}: need finite MIN <= MAX and N >= 1, got {lo} {hi} {n}")
+    check_int(n, f"--{name}: N", min=2)
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
+        raise ValueError(f"--{name}: need finite MIN <= MAX, got {lo:g} {hi:g}")
+    if hi == lo:
+        raise ValueError(f"--{name}: MIN and MAX are both {lo:g}; an axis needs MIN < MAX")
+    check_memory(8.0 * n, f"--{name}: N = {n} points", "use a smaller N")
     if log:
         if lo <= 0:
             raise ValueError(f"--{name}: a log-spaced axis needs MIN > 0, got {lo}")
@@ -37,13 +41,22 @@ def models_from_json(path: str | Path, names: Sequence[str] | None = None) -> di
     writes: ``{"models": {name: {"params": {...}}}}``), by model name; ``names``
     keeps only those. A ``ValueError`` naming the file and the entry when it is not
     such a file."""
+    from ..defaults import UPPER_NAMES
+    from ..io.canonical import _no_duplicates
     from ..models import model_class
 
     p = Path(path)
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = json.loads(p.read_text(encoding="utf-8"), object_pairs_hook=_no_duplicates,
+                         parse_constant=_not_a_number)
     except json.JSONDecodeError as e:
         raise ValueError(f"--from: {p}: not JSON (line {e.lineno}: {e.msg})") from None
+    except ValueError as e:  # not UTF-8, a duplicated key, NaN, an integer too long
+        raise ValueError(f"--from: {p}: not strict JSON ({e})") from None
+    except RecursionError:
+        raise ValueError(f"--from: {p}: nested too deeply for a calibration JSON") from None
+    except OSError as e:  # missing, a folder, unreadable
+        raise OSError(f"--from: {p}: {e.strerror or e}") from None
     entries = doc.get("models") if isinstance(doc, dict) else None
     if not isinstance(entries, dict) or not entries:
         raise ValueError(f"--from: {p}: expected a calibration JSON with a \"models\" object "
@@ -52,24 +65,36 @@ def models_from_json(path: str | Path, names: Sequence[str] | None = None) -> di
     for name, entry in entries.items():
         if names and name not in names:
             continue
-        cls = model_class(name)
+        try:
+            cls = model_class(name)
+        except ValueError as e:
+            raise ValueError(f"--from: {p}: models.{name}: {e}") from None
         params = entry.get("params") if isinstance(entry, dict) else None
         if not isinstance(params, dict):
             raise ValueError(f"--from: {p}: models.{name}: has no \"params\" object")
-        vals = {}
-        for k in cls.param_names():
-            v = params.get(k)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"--from: {p}: models.{name}.params.{k}: expected a finite "
-                                 f"number, got {v!r}")
-            vals[k] = float(v)
-        out[name] = cls(**vals)
+        # a closed-loop calibration also holds the free upper-level gains: the map
+        # sweeps kg, Tg and kv itself, so they are not used
+        unknown = [k for k in params if k not in cls.param_names() + UPPER_NAMES]
+        if unknown:
+            raise ValueError(f"--from: {p}: models.{name}.params.{unknown[0]}: not a parameter "
+                             f"of the {name} model ({', '.join(cls.param_names())}) nor an "
+                             f"upper-level gain ({', '.join(UPPER_NAMES)})")
+        vals = {k: check_number(params.get(k), f"--from: {p}: models.{name}.params.{k}")
+                for k in cls.param_names()}
+        try:
+            out[name] = cls(**vals)
+        except ValueError as e:  # a value out of the model's range
+            raise ValueError(f"--from: {p}: models.{name}.params.{e}") from None
     if names:
         missing = [n for n in names if n not in out]
         if missing:
             raise ValueError(f"--models: {', '.join(missing)} not in {p} (it has "
                              f"{', '.join(entries)})")
     return out
+
+
+def _not_a_number(word: str) -> float:
+    raise ValueError(f"{word} is not a JSON number")
 
 
 def _cmd(args: argparse.Namespace) -> int:
@@ -86,6 +111,11 @@ def _cmd(args: argparse.Namespace) -> int:
     )
 
     check_int(args.panels, "--panels", min=1)
+    check_number(args.length, "--length", nonneg=True)
+    check_number(args.speed, "--speed", positive=True)
+    kg = _range(args.kg, "kg", log=args.kg_log)
+    tg = _range(args.tg, "tg")
+    kv = _range(args.kv, "kv")
     if args.source:
         models = list(models_from_json(args.source, args.models).values())
         source = f"calibrated ({Path(args.source).name})"
@@ -93,9 +123,6 @@ def _cmd(args: argparse.Namespace) -> int:
         models = [PAPER_TABLE_II[n] for n in models_of(args)]
         source = "Table II"
     labels = [f"{model_label(m.name)}, {source}" for m in models]
-    kg = _range(args.kg, "kg", log=args.kg_log)
-    tg = _range(args.tg, "tg")
-    kv = _range(args.kv, "kv")
     show = args.progress if kg.size * tg.size * kv.size >= 2_000_000 else "none"
     if args.scheduler:
         from ..maps import sweep
@@ -131,8 +158,9 @@ def _cmd(args: argparse.Namespace) -> int:
               + ("; kg from 1e-06, as kg = 0 has no gap control" if kg_r[0] <= 0 else "")
               + "):")
         for m in models:
-            e1 = min_stable_tg(m, lo, kv_r, args.pade_order, tg_range=tg_r)
-            e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=kv_r)
+            e1 = min_stable_tg(m, lo, kv_r, args.pade_order, tg_range=tg_r,
+                               threads=args.threads)
+            e2 = kv_supremum(m, lo, tg_r, args.pade_order, kv_range=kv_r, threads=args.threads)
             exact[m.name] = {"min_stable_tg": e1.to_dict(), "kv_supremum": e2.to_dict()}
             print(f"{m.name:<10} {_exact_tg_text(e1, tg_r)}; {_exact_kv_text(e2, kv_r)}")
     print()
