@@ -23,19 +23,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import err_line
 from signal_helpers import SIGINT_DEFAULT
 
 from avll.cli import build_parser, main
 
 SMALL_MAP = ["--kg", "0.001", "2", "30", "--tg", "0", "15", "31", "--kv", "0", "1", "101"]
-
-
-def _err_line(capsys: pytest.CaptureFixture[str], *words: str) -> str:
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, err
-    return err
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +52,7 @@ def test_no_output_is_an_inputs_sidecar(runs_csv: Path, capsys: pytest.CaptureFi
                  ["calibrate", str(runs_csv), "--json", str(side)],
                  ["diagnose", str(runs_csv), "--cal-runs", "1", "--json", str(side)]):
         assert main(argv) == 2, argv
-        _err_line(capsys, "sidecar", "would replace the input")
+        err_line(capsys, "sidecar", "would replace the input")
     assert side.read_bytes() == before
 
 
@@ -71,7 +64,7 @@ def test_no_output_is_a_file_of_an_input_folder(runs_csv: Path, tmp_path: Path,
         (folder / f.name).write_bytes(f.read_bytes())
     capsys.readouterr()
     assert main(["load", str(folder), "--json", str(folder / "runs.csv")]) == 2
-    _err_line(capsys, "a file it holds", "would replace the input")
+    err_line(capsys, "a file it holds", "would replace the input")
 
 
 def test_reproduce_then_simulate_with_defaults_keeps_the_report(
@@ -102,7 +95,7 @@ def test_a_folder_of_another_command_is_refused_unless_overwrite(
         (st / "report.md").write_text("# report\n")
     capsys.readouterr()
     assert main(["simulate", "--out", str(out)]) == 2
-    _err_line(capsys, "holds the output of 'avll reproduce'", "--overwrite")
+    err_line(capsys, "holds the output of 'avll reproduce'", "--overwrite")
     assert (out / "report.md").is_file() and not (out / "simulate.csv").exists()
     # its own folder again: fine
     own = tmp_path / "own"
@@ -384,7 +377,7 @@ def test_figures_take_dpi_and_vector_formats(runs_csv: Path, tmp_path: Path,
     assert (tmp_path / "c.pdf").read_bytes().startswith(b"%PDF")
     capsys.readouterr()
     assert main([*base, "--out", str(tmp_path / "d.jpeg")]) == 2
-    _err_line(capsys, "--out", ".png, .svg, .pdf")
+    err_line(capsys, "--out", ".png, .svg, .pdf")
 
 
 # -- degenerate input -----------------------------------------------------------------
@@ -409,7 +402,7 @@ def test_degenerate_input_is_an_error_naming_the_file(tmp_path: Path,
                         (o, "all zero")):
         assert main(["calibrate", str(path), "--command-kind", "acceleration",
                      "--max-generations", "2", "--starts", "1", "-q"]) == 2
-        _err_line(capsys, path.name, words, "nothing to calibrate")
+        err_line(capsys, path.name, words, "nothing to calibrate")
 
 
 def test_one_degenerate_run_among_good_ones_is_a_warning(tmp_path: Path,
@@ -473,7 +466,7 @@ def test_the_sidecar_of_a_runs_output_is_an_output_too(runs_csv: Path, tmp_path:
     capsys.readouterr()
     assert main(["load", str(runs_csv), "--out", str(out), "--json",
                  str(tmp_path / "canon.csv.meta.json")]) == 2
-    _err_line(capsys, "--out (its sidecar)", "choose distinct names")
+    err_line(capsys, "--out (its sidecar)", "choose distinct names")
     # an input's sidecar as the sidecar of the output: the output is the input itself
     assert main(["synth", "--out", str(tmp_path / "s.csv")]) == 0
     assert main(["load", str(tmp_path / "s.csv"), "--out", str(tmp_path / "s.csv")]) == 2

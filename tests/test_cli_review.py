@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from cli_helpers import err_line
 
 import avll
 import avll.calibration
@@ -25,14 +26,6 @@ from avll.cli import build_parser, main
 
 TINY = ["--kg", "0.01", "2", "5", "--tg", "0", "15", "6", "--kv", "0", "1", "3",
         "--threads", "1", "-q"]
-
-
-def _err_line(capsys: pytest.CaptureFixture[str], *words: str) -> str:
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, err
-    return err
 
 
 @pytest.fixture
@@ -75,7 +68,7 @@ def test_axis_refused_before_computing(axis: list[str], words: tuple[str, ...],
                                        capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["stability-map", "--models", "first", *TINY, *axis,
                  "--out", str(tmp_path / "m.png")]) == 2
-    err = _err_line(capsys, *words)
+    err = err_line(capsys, *words)
     assert "allocate" not in err
     assert not (tmp_path / "m.png").exists()
 
@@ -87,7 +80,7 @@ def test_capacity_options_checked_up_front(opt: str, value: str, tmp_path: Path,
                                            capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["stability-map", "--models", "first", *TINY, opt, value,
                  "--out", str(tmp_path / "m.png")]) == 2
-    err = _err_line(capsys, f"error: {opt}: ")
+    err = err_line(capsys, f"error: {opt}: ")
     assert f"error: {opt[2:]}:" not in err
 
 
@@ -122,7 +115,7 @@ def test_unknown_figure_run_refused_before_calibrating(
     js = tmp_path / "cal.json"
     assert main(["calibrate", str(small_runs), *CAL, "--json", str(js), "--figure",
                  str(tmp_path / "f.png"), "--figure-run", "77"]) == 2
-    err = _err_line(capsys, "--figure-run", "'77'", "r1, r2")
+    err = err_line(capsys, "--figure-run", "'77'", "r1, r2")
     assert "run_id" not in err and "wrote" not in err
     assert not js.exists()
 
@@ -140,7 +133,7 @@ def test_wrote_lines_only_for_committed_files(small_runs: Path, tmp_path: Path,
     with monkeypatch.context() as m:  # the figure fails after the JSON was written
         m.setattr(_atomic, "savefig", fail)
         assert main(argv) == 2
-    _err_line(capsys, "disk full")  # the only line: no "wrote cal.json"
+    err_line(capsys, "disk full")  # the only line: no "wrote cal.json"
     assert not js.exists() and not fig.exists()
     assert main(argv) == 0
     err = capsys.readouterr().err
@@ -182,7 +175,7 @@ def test_from_errors_name_the_option_and_the_file(content: str | bytes | None,
         src.write_text(content, encoding="utf-8")
     assert main(["stability-map", "--from", str(src), *TINY,
                  "--out", str(tmp_path / "m.png")]) == 2
-    _err_line(capsys, f"--from: {src}", *words)
+    err_line(capsys, f"--from: {src}", *words)
 
 
 def test_from_accepts_the_upper_gains_of_a_closed_loop_calibration(
@@ -199,7 +192,7 @@ def test_path_collisions_name_the_option_not_the_dest(tmp_path: Path,
     (tmp_path / "m.png").write_bytes(b"old")  # a file of the input folder
     assert main(["stability-map", "--from", str(tmp_path), *TINY,
                  "--out", str(tmp_path / "m.png")]) == 2
-    err = _err_line(capsys, "--out", "is the input --from")
+    err = err_line(capsys, "--out", "is the input --from")
     assert "--source" not in err
 
 
@@ -216,7 +209,7 @@ def test_arithmetic_errors_are_one_line(exc: ArithmeticError, tmp_path: Path,
 
     monkeypatch.setattr(avll.demo, "run", fail)
     assert main(["simulate", "--out", str(tmp_path / "s")]) == 2
-    assert _err_line(capsys) == f"avll simulate: error: {exc}"
+    assert err_line(capsys) == f"avll simulate: error: {exc}"
 
 
 # -- 7.-9. texts that said something else --------------------------------------------
@@ -225,7 +218,7 @@ def test_arithmetic_errors_are_one_line(exc: ArithmeticError, tmp_path: Path,
 def test_simulate_dt_limit_message(tmp_path: Path, capsys: pytest.CaptureFixture[str]
                                    ) -> None:
     assert main(["simulate", "--dt", "30", "--out", str(tmp_path / "s")]) == 2
-    err = _err_line(capsys, "30 s", "<= 10 s")
+    err = err_line(capsys, "30 s", "<= 10 s")
     assert "60 s" not in err
 
 
@@ -242,5 +235,5 @@ def test_data_help_lists_the_real_actions() -> None:
 def test_closed_loop_without_leader_says_the_leader_is_missing(
         small_runs: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["calibrate", str(small_runs), *CAL, "--closed-loop"]) == 2
-    err = _err_line(capsys, "runs.csv", "run 'r1'", "no leader", "--closed-loop")
+    err = err_line(capsys, "runs.csv", "run 'r1'", "no leader", "--closed-loop")
     assert "no command" not in err
