@@ -196,6 +196,15 @@ def test_path_collisions_name_the_option_not_the_dest(tmp_path: Path,
     assert "--source" not in err
 
 
+@pytest.mark.parametrize("out", ["/", "."])
+def test_a_folder_as_the_runs_output_is_named(out: str, capsys: pytest.CaptureFixture[str]
+                                             ) -> None:
+    """``--out /`` once said "PosixPath('/') has an empty name" (the sidecar's name was
+    made before the output was checked)."""
+    assert main(["synth", "--out", out]) == 2
+    err_line(capsys, f"--out: {out} is a folder, expected a file name")
+
+
 # -- 6. ArithmeticError is one line -----------------------------------------------------
 
 

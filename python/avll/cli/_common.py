@@ -350,6 +350,7 @@ def check_io(args: argparse.Namespace) -> None:
     for d in getattr(args, "io_runs", ()):
         if given(d) is not None:  # the canonical writer's sidecar is an output too
             path = Path(given(d))
+            _writable_target(label[d], path, False)  # "/" or "." has no name to extend
             outputs.append((f"{label[d]} (its sidecar)",
                             path.with_name(path.name + ".meta.json"), False))
     check_not_inputs([(lab, pth) for lab, pth, _ in outputs], inputs)
