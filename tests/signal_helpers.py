@@ -27,13 +27,15 @@ def _restore_default_sigint() -> None:  # runs in the child, before exec
 SIGINT_DEFAULT: dict[str, Any] = {"preexec_fn": _restore_default_sigint}
 
 
-def interrupt_once_staged(p: subprocess.Popen[str], out: Path, timeout: float = 120.0) -> None:
-    """Sends SIGINT to ``p``, an ``avll reproduce --out out`` child, once the run has
-    written its first figure into its staging folder (the stability maps, the
-    diagnosis and the report are still to come). Not after a fixed delay: that lands
-    after the end of the run on a fast enough machine, when the run is complete and
-    the interpreter only shutting down (the process then ends by SIGINT). Skips the
-    test if the run finishes first; fails it if nothing is staged in ``timeout``."""
+def interrupt_once_staged(p: subprocess.Popen[str], out: Path, timeout: float = 120.0,
+                          sig: int = signal.SIGINT) -> None:
+    """Sends ``sig`` (SIGINT by default) to ``p``, an ``avll reproduce --out out``
+    child, once the run has written its first figure into its staging folder (the
+    stability maps, the diagnosis and the report are still to come). Not after a
+    fixed delay: that lands after the end of the run on a fast enough machine, when
+    the run is complete and the interpreter only shutting down (the process then ends
+    by the signal). Skips the test if the run finishes first; fails it if nothing is
+    staged in ``timeout``."""
     from avll import _atomic
 
     deadline = time.monotonic() + timeout
@@ -47,4 +49,4 @@ def interrupt_once_staged(p: subprocess.Popen[str], out: Path, timeout: float = 
     if p.poll() is not None:  # pragma: no cover - a very fast machine
         p.communicate()  # close the pipes (an unclosed pipe warns, i.e. fails, later)
         pytest.skip("finished before the signal")
-    p.send_signal(signal.SIGINT)
+    p.send_signal(sig)

@@ -198,10 +198,16 @@ def test_output_dir_commits_as_a_unit(tmp_path: Path) -> None:
 
 
 @pytest.mark.skipif(os.name != "posix", reason="needs SIGINT delivery")
-def test_interrupted_reproduce_keeps_the_finished_folder(tmp_path: Path) -> None:
-    """``avll reproduce --seed 1`` interrupted by SIGINT in the folder of a finished
-    seed-0 run: exit 130 and the folder is still the complete, consistent seed-0 run
-    (no new figure beside the old report), no staging folder left."""
+@pytest.mark.parametrize(("sig", "code", "said"), [
+    (signal.SIGINT, 130, "interrupted"),
+    (signal.SIGTERM, 143, "terminated (SIGTERM)"),  # timeout, schedulers, docker stop
+])
+def test_interrupted_reproduce_keeps_the_finished_folder(tmp_path: Path, sig: int, code: int,
+                                                         said: str) -> None:
+    """``avll reproduce --seed 1`` interrupted by SIGINT (or SIGTERM) in the folder of
+    a finished seed-0 run: exit 130 (143) and the folder is still the complete,
+    consistent seed-0 run (no new figure beside the old report), no staging folder
+    left."""
     out = tmp_path / "out"
     R.reproduce(out, settings=TINY, seed=0, progress=False)
     before = {p.name: sha(p) for p in out.iterdir()}
@@ -209,10 +215,10 @@ def test_interrupted_reproduce_keeps_the_finished_folder(tmp_path: Path) -> None
     p = subprocess.Popen([sys.executable, "-m", "avll.cli", "reproduce", "--out", str(out),
                           "--seed", "1", "--quick", "-q"], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, **SIGINT_DEFAULT)
-    interrupt_once_staged(p, out)
+    interrupt_once_staged(p, out, sig=sig)
     _, err = p.communicate(timeout=60)
-    assert p.returncode == 130, err
-    assert err.strip().splitlines()[-1] == "avll reproduce: interrupted"
+    assert p.returncode == code, err
+    assert err.strip().splitlines()[-1] == f"avll reproduce: {said}"
     assert {p.name: sha(p) for p in out.iterdir()} == before
     doc = _atomic.read_manifest(out)
     assert doc["seed"] == 0

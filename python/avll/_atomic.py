@@ -64,14 +64,17 @@ os.umask(_UMASK)
 
 @contextlib.contextmanager
 def deferred_sigint() -> Iterator[None]:
-    """Defers Ctrl-C (SIGINT) for the duration of the block (main thread only); a
-    signal received meanwhile is raised as ``KeyboardInterrupt`` afterwards."""
+    """Defers Ctrl-C (SIGINT) and SIGTERM for the duration of the block (main thread
+    only); a signal received meanwhile acts afterwards: SIGINT raised as
+    ``KeyboardInterrupt``, SIGTERM re-sent to the process (its default action ends it;
+    the ``avll`` command's handler raises ``KeyboardInterrupt``)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     got: list[Any] = []
     try:
         old = signal.signal(signal.SIGINT, lambda s, f: got.append(s))
+        old_term = signal.signal(signal.SIGTERM, lambda s, f: got.append(s))
     except ValueError:  # pragma: no cover - not the main interpreter
         yield
         return
@@ -79,7 +82,10 @@ def deferred_sigint() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, old)
-        if got and callable(old):
+        signal.signal(signal.SIGTERM, old_term)
+        if signal.SIGTERM in got:
+            signal.raise_signal(signal.SIGTERM)
+        if signal.SIGINT in got and callable(old):
             old(signal.SIGINT, None)  # the default handler raises KeyboardInterrupt
 
 

@@ -10,6 +10,10 @@ while the latch is set. A calibration that returns its best point after a Ctrl-C
 (``interrupted=True``) has delivered the interrupt and clears the latch
 (:func:`clear`), so the command can still write that result.
 
+The command treats SIGTERM (``timeout``, schedulers, ``docker stop``) as a Ctrl-C
+(:func:`term_handler`): the staged outputs are removed, the old ones stay, and it exits
+with 143 instead of 130.
+
 The library installs nothing by itself: in a notebook or a script Python's own handler
 (or the user's) stays in place and :func:`check` never raises.
 """
@@ -27,6 +31,7 @@ from types import FrameType
 from typing import Any
 
 _pending = False
+_term = False
 
 
 def handler(signum: int, frame: FrameType | None) -> None:
@@ -35,6 +40,19 @@ def handler(signum: int, frame: FrameType | None) -> None:
     global _pending
     _pending = True
     raise KeyboardInterrupt
+
+
+def term_handler(signum: int, frame: FrameType | None) -> None:
+    """The ``avll`` command's SIGTERM handler: records it (:func:`terminated`), then
+    acts as :func:`handler`."""
+    global _term
+    _term = True
+    handler(signum, frame)
+
+
+def terminated() -> bool:
+    """Whether the ``avll`` command received SIGTERM while it ran."""
+    return _term
 
 
 def check() -> None:
@@ -130,6 +148,8 @@ def command_starts() -> None:
     if console and signal.getsignal(signal.SIGINT) is quiet_exit:
         clear()
         signal.signal(signal.SIGINT, handler)
+        if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, term_handler)
         if sys.unraisablehook is not _quiet_unraisable:
             _previous_hook = sys.unraisablehook
             sys.unraisablehook = _quiet_unraisable
@@ -156,5 +176,7 @@ def command_ends() -> None:
         import atexit
 
         signal.signal(signal.SIGINT, quiet_exit)  # never raises: nothing left to latch
+        if signal.getsignal(signal.SIGTERM) is term_handler:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
         _restore_unraisable()
         atexit.register(signal.signal, signal.SIGINT, signal.SIG_IGN)

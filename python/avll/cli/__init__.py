@@ -4,7 +4,8 @@
 
 Every sub-command (see docs/guarantees.md): errors in the input (``ValueError``,
 ``TypeError``, ``OSError``, ``MemoryError``, ``ArithmeticError``) end it with one line on
-stderr and exit code 2, Ctrl-C with 130; warnings about the data are one line each
+stderr and exit code 2, Ctrl-C with 130, SIGTERM (handled as a Ctrl-C: staged outputs
+removed) with 143; warnings about the data are one line each
 (``--strict``: errors); every output path is checked before any computation
 (:func:`avll.cli._common.check_io`); progress goes to stderr (``--progress``, ``-q``); the
 files a command lists in ``args.wrote`` are said ("wrote PATH") once they are committed.
@@ -120,7 +121,8 @@ class _QuietPipe:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C).
+    """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C,
+    143 SIGTERM).
     A closed pipe on stdout is not an error (the rest of the output is dropped)."""
     _sigint.command_starts()
     real = sys.stdout
@@ -171,11 +173,15 @@ def _main(argv: Sequence[str] | None) -> int:
             # the files a command lists in args.wrote, said once they are committed
             for path in getattr(args, "wrote", ()):
                 print(f"wrote {path}", file=sys.stderr)
-            return code
+            # a SIGTERM a calibration delivered by returning its best point early
+            return 143 if _sigint.terminated() else code
     except (KeyboardInterrupt, ValueError, TypeError, OSError, MemoryError,
             ArithmeticError) as e:
         # (a Ctrl-C another error hid counts as a Ctrl-C)
         if isinstance(e, KeyboardInterrupt) or (_sigint.console and _sigint.interrupted()):
+            if _sigint.terminated():
+                print(f"{who}: terminated (SIGTERM)", file=sys.stderr)
+                return 143
             print(f"{who}: interrupted", file=sys.stderr)
             return 130
         msg = " ".join(str(e).split())
