@@ -269,3 +269,21 @@ def test_a_ctrl_c_during_a_fit_stops_the_loop(monkeypatch: pytest.MonkeyPatch) -
     monkeypatch.setattr(loop, "calibrate", interrupted)
     with pytest.raises(KeyboardInterrupt):
         loop.effect_loop(SECOND, runs, **kw)
+
+
+def test_a_candidate_the_data_cannot_test_is_said() -> None:
+    """``candidates=["grade"]`` on runs without ``exo_grade`` (or an upper-level
+    structure in an open loop) once left ``trials: []`` and "no offered effect passed"
+    although the effect was never tried: it is now a DataWarning naming the candidate
+    and the reason."""
+    runs = paper_experiment_effects(SECOND, {"saturation": None}, seed=SEED, runs=(1, 3))
+    assert all("grade" not in r.exo for r in runs)
+    kw = dict(max_effects=0, max_generations=5, starts=1)
+    with pytest.warns(avll.DataWarning) as rec:
+        effect_loop(SECOND, runs, candidates=["grade", "saturation", "perception"], **kw)
+    said = sorted(str(w.message) for w in rec if issubclass(w.category, avll.DataWarning))
+    assert said == [
+        "candidates: 'grade' is not tried: it needs the column 'exo_grade', which run(s) "
+        "'1', '3' lack",
+        "candidates: 'perception' is not tried: an upper-level structure needs a closed loop",
+    ], said

@@ -44,6 +44,7 @@ an honest "none of these" instead of the least-bad effect.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from typing import Any
@@ -54,7 +55,7 @@ from .. import _core
 from .._limits import check_int, check_number, check_seed, check_threads
 from ..calibration import _average as _mean
 from ..calibration import calibrate
-from ..data import Run
+from ..data import DataWarning, Run
 from ..defaults import DEFAULT_STARTS, GA_OPTIONS, UPPER_PLACEHOLDER
 from ..effects import EFFECTS, WithEffects
 from ..models import LowerLevelModel, UpperLevel, model_class
@@ -63,7 +64,7 @@ from ..runs import RunSet
 from .contract import model_to_dict
 from .defaults import DEFAULT_BLOCKS, DEFAULT_FOLDS, FAR_SMALLER, MIN_BLOCK, MIN_GAIN
 from .fitting import AtBound, at_bound, calibrate_kw, run_mse, simulate_runs
-from .signatures import Diagnosis, diagnose, residual_structure
+from .signatures import Diagnosis, diagnose, not_offered, residual_structure
 from .stats import BootstrapGain, LossTest, block_bootstrap_gain, loss_difference_test
 
 __all__ = ["MIN_GAIN", "Trial", "Flag", "Splits", "Selection", "Step", "LoopResult",
@@ -429,6 +430,10 @@ def effect_loop(
     # The loop's settings of every fit (avll.calibrate's keywords) and simulation.
     fit_kw = calibrate_kw([*cal_runs, *val_runs, *test_runs], closed_loop, init)
     closed, init, upper_free = fit_kw["closed_loop"], fit_kw["init"], bool(fit_kw["upper_free"])
+    if candidates is not None:  # one the data can never test is said, not silently dropped
+        for n, why in not_offered((), [*cal_runs, *val_runs], candidates,
+                                  closed=closed).items():
+            warnings.warn(DataWarning(f"candidates: {n!r} is not tried: {why}"), stacklevel=2)
     bname = model_class(base).name
     kind = cal_runs[0].command_kind
     fold_sets, fold_kind = make_folds(cal_runs, folds, seed)

@@ -262,16 +262,33 @@ def offered(
     signal (``exo_<name>``) in every run, and upper-level structures only in a closed
     loop (``closed``: in an open loop the recorded command replaces the law)."""
     names = list(CANONICAL_ORDER if candidates is None else candidates)
-    for n in names:
+    why = not_offered(model.effect_names, runs, names, closed=closed)
+    return [n for n in names if n not in why]
+
+
+def not_offered(have: Sequence[str], runs: Sequence[Run], candidates: Sequence[str], *,
+                closed: bool = False) -> dict[str, str]:
+    """Why each of ``candidates`` that :func:`offered` leaves out, for a model with the
+    effects ``have``, is left out (effect name -> reason); a ``ValueError`` for a name
+    that is not an effect."""
+    kind = runs[0].command_kind if runs else "acceleration"
+    out: dict[str, str] = {}
+    for n in candidates:
         if n not in EFFECTS:
             raise ValueError(f"candidates: unknown effect {n!r}; known: {', '.join(EFFECTS)}")
-    kind = runs[0].command_kind if runs else "acceleration"
-    have = model.effect_names
-    return [n for n, cls in ((n, EFFECTS[n]) for n in names)
-            if n not in have and not (cls.accel_only and kind == "speed")
-            and (cls.level != "upper" or closed)
-            and cls.excludes not in have  # not identifiable together
-            and (cls.exo is None or all(cls.exo in r.exo for r in runs))]
+        cls = EFFECTS[n]
+        missing = [r.run_id for r in runs if cls.exo is not None and cls.exo not in r.exo]
+        reason = ("it is already in the model" if n in have else
+                  "it needs an acceleration command" if cls.accel_only and kind == "speed"
+                  else "an upper-level structure needs a closed loop"
+                  if cls.level == "upper" and not closed else
+                  f"it is not identifiable together with {cls.excludes!r}"
+                  if cls.excludes in have else
+                  f"it needs the column 'exo_{cls.exo}', which run(s) "
+                  f"{', '.join(map(repr, missing[:5]))} lack" if missing else None)
+        if reason is not None:
+            out[n] = reason
+    return out
 
 
 def diagnose(
