@@ -134,6 +134,18 @@ def test_carma_text_cell(tmp_path):
     _raises(carma, p, "leader_acceleration", 123, "not a number")
 
 
+def test_carma_error_line_counts_blank_lines(tmp_path):
+    """Row 123 of the table is line 125 of a plain file; with three blank lines
+    before it (pandas skips them, the row count is unchanged) it is line 128."""
+    df = carma_frame().astype({"leader_acceleration": object})
+    df.loc[123, "leader_acceleration"] = "n/a?"
+    p = _write(df, tmp_path / "c.csv")
+    assert "row 123 (line 125)" in _raises(carma, p, "leader_acceleration", 123)
+    lines = p.read_text().splitlines(keepends=True)
+    p.write_text("".join(lines[:40] + ["\n", "  \n", "\n"] + lines[40:]))
+    assert "row 123 (line 128)" in _raises(carma, p, "leader_acceleration", 123)
+
+
 def test_carma_conflicting_duplicate_time(tmp_path):
     df = carma_frame()
     df.loc[50, "Time"] = df.loc[49, "Time"]

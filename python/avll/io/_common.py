@@ -270,30 +270,52 @@ def check_unique_header(path: str | Path, columns: Sequence[str], *,
 
 
 def where(path: str | Path, column: str | None = None, row: int | None = None,
-          *, header_lines: int = 1) -> str:
-    """``"file.csv, column 'v', row 12 (line 14)"``: the location part of an error."""
+          *, header_lines: int | None = None) -> str:
+    """``"file.csv, column 'v', row 12 (line 14)"``: the location part of an error.
+
+    ``row`` counts the data records as pandas reads a CSV file (blank lines skipped):
+    its line is found in the file (:func:`record_lines`). ``header_lines``: a format
+    read line by line instead (every line a record) whose data start after that many
+    lines. Parquet has rows, no lines."""
     s = f"{path}"
     if column is not None:
         s += f", column {column!r}"
     if row is not None:
-        s += f", row {int(row)}"
+        row = int(row)
+        s += f", row {row}"
         if not str(path).lower().endswith((".parquet", ".pq")):
-            s += f" (line {int(row) + header_lines + 1})"
+            line = (row + header_lines + 1 if header_lines is not None
+                    else int(record_lines(path, row + 1)[row]))
+            s += f" (line {line})"
     return s
 
 
-def record_lines(path: str | Path, n: int, header_records: int = 1) -> np.ndarray:
-    """The 1-based line of the CSV file ``path`` where each of its first ``n`` data
-    records starts, counted as pandas reads them: blank and whitespace-only lines
-    skipped, a quoted cell may span lines. Files with neither take the fast path (the
-    record index + ``header_records`` + 1)."""
-    plain = np.arange(n) + header_records + 1
+def record_lines(path: str | Path, n: int) -> np.ndarray:
+    """The 1-based line of the CSV file ``path`` (a one-line header) where each of its
+    first ``n`` data records starts, counted as pandas reads them: blank and
+    whitespace-only lines skipped, a quoted cell may span lines. A file with neither
+    takes the fast path (the record index + 2)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return np.arange(n) + 2
+    starts = _record_starts(str(path), (st.st_mtime_ns, st.st_size))
+    if starts is None or starts.size < n + 1:
+        return np.arange(n) + 2
+    return starts[1:n + 1]
+
+
+@functools.lru_cache(maxsize=4)
+def _record_starts(path: str, stamp: tuple[int, int]) -> np.ndarray | None:
+    """The start line of every record of ``path`` (the header first), or ``None`` when
+    each record is one line and no line is blank (or the file cannot be read); cached
+    per version of the file (``stamp``: its modification time and size)."""
     try:
         data = Path(path).read_bytes()
     except OSError:
-        return plain
+        return None
     if b'"' not in data and not re.search(rb"(^|\n)[ \t]*\r?(\n|$)", data.rstrip()):
-        return plain
+        return None
     rd = csv.reader(io.StringIO(data.decode("utf-8-sig", errors="replace"), newline=""))
     starts: list[int] = []
     end = 0
@@ -301,8 +323,7 @@ def record_lines(path: str | Path, n: int, header_records: int = 1) -> np.ndarra
         start, end = end + 1, rd.line_num
         if rec and not (len(rec) == 1 and not rec[0].strip()):
             starts.append(start)
-    starts = starts[header_records:header_records + n]
-    return np.array(starts) if len(starts) == n else plain
+    return np.array(starts)
 
 
 def read_table(path: str | Path, *, encoding: str = "utf-8-sig") -> pd.DataFrame:
@@ -453,7 +474,7 @@ def _first(mask: np.ndarray) -> int | None:
 
 def _range_check(x: np.ndarray, path: str | Path, column: str, kind: str,
                  rows: np.ndarray | None, hint: str, *, rg: Range | None = None,
-                 header_lines: int = 1) -> None:
+                 header_lines: int | None = None) -> None:
     """Hard limit (DataError with ``hint``) then plausible range (warning) of a
     ``kind`` of signal: the range ``rg``, by default ``RANGES[kind]``."""
     rg = RANGES[kind] if rg is None else rg

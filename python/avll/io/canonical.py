@@ -342,10 +342,9 @@ def _load_canonical(path: Path, command_kind: str | None) -> list[Run]:
                 f"{path}: column 't' line {line[idx[i + 1]]}: non-uniform sampling in run "
                 f"{rid!r} (step {dts[i]:.6g} s, median {dt:.6g} s); resample it first"
             )
-        rows = line[idx] - 2  # the data line of each row (where() adds the header line)
-        check_time_step(dt, path, "t", int(rows[1]))
+        check_time_step(dt, path, "t", int(idx[1]))
         check_columns({c: cols[c][idx] for c in signal_cols}, path, {}, command_kind=kind,
-                      dt=dt, rows=rows)
+                      dt=dt, rows=idx)
         info = per_run.get(rid, {})
         upper = None
         if "upper" in info:
