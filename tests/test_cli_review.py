@@ -246,3 +246,21 @@ def test_closed_loop_without_leader_says_the_leader_is_missing(
     assert main(["calibrate", str(small_runs), *CAL, "--closed-loop"]) == 2
     err = err_line(capsys, "runs.csv", "run 'r1'", "no leader", "--closed-loop")
     assert "no command" not in err
+
+
+# -- a library error about an argument an option sets names the option ----------------
+
+
+@pytest.mark.parametrize(("opts", "said"), [
+    (["--pop-size", "1"], "--pop-size: must be 0 (automatic) or in 2"),
+    (["--seed", "-1"], "--seed: must be >= 0"),
+    (["--threads", "-3"], "--threads: must be >= 0"),
+])
+def test_library_errors_name_the_option(small_runs: Path, opts: list[str], said: str,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """The library says ``pop_size: ...`` (its argument); the command says which of its
+    options that is."""
+    assert main(["calibrate", str(small_runs), "--command-kind", "acceleration",
+                 "--starts", "1", "--max-generations", "2", *opts]) == 2
+    err = err_line(capsys, f"avll calibrate: error: {said}")
+    assert f": error: {opts[0][2:].replace('-', '_')}:" not in err

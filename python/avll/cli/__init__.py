@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
                            "command's output (its MANIFEST.json) (default: off, refused)")
         if (folders or figures) and "--dpi" not in have:
             add_dpi(p)
+        # an error about a library argument an option sets names the option (_main)
+        p.set_defaults(option_of={a.dest: max(a.option_strings, key=len)
+                                  for a in p._actions if a.option_strings})
     return parser
 
 
@@ -150,9 +153,11 @@ def _forget_unhandled_interrupt() -> None:
 
 def _main(argv: Sequence[str] | None) -> int:
     who = "avll"  # in messages: "avll COMMAND" once the command is known
+    option_of: dict[str, str] = {}
     try:
         args = build_parser().parse_args(argv)
         who = f"avll {args.command}"
+        option_of = args.option_of
 
         from ..data import DataWarning
         from ._common import check_io
@@ -185,6 +190,9 @@ def _main(argv: Sequence[str] | None) -> int:
             print(f"{who}: interrupted", file=sys.stderr)
             return 130
         msg = " ".join(str(e).split())
+        head, colon, rest = msg.partition(":")  # "pop_size: ..." -> "--pop-size: ..."
+        if colon and head in option_of:
+            msg = option_of[head] + colon + rest
         if isinstance(e, MemoryError):
             msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
         print(f"{who}: error: {msg}", file=sys.stderr)
