@@ -264,3 +264,14 @@ def test_library_errors_name_the_option(small_runs: Path, opts: list[str], said:
                  "--starts", "1", "--max-generations", "2", *opts]) == 2
     err = err_line(capsys, f"avll calibrate: error: {said}")
     assert f": error: {opts[0][2:].replace('-', '_')}:" not in err
+
+
+@pytest.mark.parametrize(("opts", "named"), [
+    (["--max-gap", "1"], "--max-gap:"),
+    (["--dt", "0.1", "--max-gap", "1"], "--dt and --max-gap:"),
+])
+def test_load_names_the_resampling_option_given(small_runs: Path, opts: list[str], named: str,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """``--max-gap`` alone on canonical data once blamed ``--dt``."""
+    assert main(["load", str(small_runs), "--command-kind", "acceleration", *opts]) == 2
+    err_line(capsys, f"error: {named} the canonical format is already uniformly sampled")

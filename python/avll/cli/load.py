@@ -23,8 +23,9 @@ def _cmd(args: argparse.Namespace) -> int:
 
     opts: dict[str, Any] = {k: v for k in ("dt", "max_gap") if (v := getattr(args, k)) is not None}
     if opts and args.format == "canonical":
-        raise ValueError("--dt: the canonical format is already uniformly sampled and is not "
-                         "resampled; use --format generic to resample a table")
+        given = " and ".join(f"--{k.replace('_', '-')}" for k in opts)
+        raise ValueError(f"{given}: the canonical format is already uniformly sampled and is "
+                         "not resampled; use --format generic to resample a table")
     # the loader options of one format
     for key, fmt in (("min_duration", "carma"), ("grade_offset", "openacc-astazero")):
         if getattr(args, key) is not None:
