@@ -102,13 +102,16 @@ def atomic_paths(*paths: str | os.PathLike[str]) -> Iterator[list[Path]]:
             if dest.is_dir():
                 raise IsADirectoryError(f"{dest}: is a folder, expected a file name")
             try:
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.tmp-", suffix=dest.suffix,
-                                           dir=dest.parent)
+                # Ctrl-C deferred: the file exists only once `tmps` holds it (a Ctrl-C
+                # between the two would leave it behind)
+                with deferred_sigint():
+                    dest.parent.mkdir(parents=True, exist_ok=True)
+                    fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.tmp-",
+                                               suffix=dest.suffix, dir=dest.parent)
+                    tmps.append(tmp)
+                    os.close(fd)
             except OSError as e:
                 raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
-            os.close(fd)
-            tmps.append(tmp)
             os.chmod(tmp, 0o666 & ~_UMASK)
         yield [Path(t) for t in tmps]
         for t in tmps:
@@ -302,13 +305,17 @@ def output_dir(path: str | os.PathLike[str], *, meta: dict[str, Any] | None = No
     if dest.exists() and not dest.is_dir():
         raise NotADirectoryError(f"{dest}: exists and is not a folder")
     created = not dest.exists()
-    try:
-        dest.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=dest))
-    except OSError as e:
-        raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
     ok = deferred = False
+    stage: Path | None = None
     try:
+        try:
+            # Ctrl-C deferred: the stage exists only once the cleanup below knows it (a
+            # Ctrl-C between the two would leave it behind)
+            with deferred_sigint():
+                dest.mkdir(parents=True, exist_ok=True)
+                stage = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=dest))
+        except OSError as e:
+            raise OSError(e.errno, f"{dest}: cannot write here ({e.strerror})") from None
         yield stage
         group = _GROUP.get()
         if group is not None:
@@ -319,7 +326,7 @@ def output_dir(path: str | os.PathLike[str], *, meta: dict[str, Any] | None = No
             _commit(stage, dest, meta or {})
         ok = True
     finally:
-        if not deferred:
+        if stage is not None and not deferred:
             _drop_stage(stage, dest, created and not ok)
 
 
