@@ -13,6 +13,7 @@ import textwrap
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -361,3 +362,34 @@ def test_diagnose_report_escapes_run_ids(tmp_path: Path) -> None:
     text = (rep / "report.html").read_text()
     assert EVIL not in text and "&lt;img src=x onerror=alert(1)&gt;" in text
     assert "report.html" in _atomic.read_manifest(rep)["files"]
+
+
+@pytest.mark.usefixtures("sigint_handler")
+def test_ctrl_c_right_after_a_temporary_is_created_leaves_nothing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Ctrl-C landing just after ``mkdtemp`` / ``mkstemp`` made the temporary, before
+    avll knew it (the signal delivered inside the call here), once left the staging
+    folder or the temporary file behind; the creation now runs with Ctrl-C deferred,
+    so the interrupt arrives once the cleanup knows the temporary."""
+    import tempfile
+
+    real_mkdtemp, real_mkstemp = tempfile.mkdtemp, tempfile.mkstemp
+
+    def mkdtemp(*a: Any, **k: Any) -> str:
+        made = real_mkdtemp(*a, **k)
+        signal.raise_signal(signal.SIGINT)
+        return made
+
+    def mkstemp(*a: Any, **k: Any) -> tuple[int, str]:
+        made = real_mkstemp(*a, **k)
+        signal.raise_signal(signal.SIGINT)
+        return made
+
+    monkeypatch.setattr(tempfile, "mkdtemp", mkdtemp)
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    (tmp_path / "d").mkdir()
+    with pytest.raises(KeyboardInterrupt), _atomic.output_dir(tmp_path / "d"):
+        pass
+    with pytest.raises(KeyboardInterrupt), _atomic.atomic_paths(tmp_path / "f.json"):
+        pass
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["d"]
