@@ -131,7 +131,7 @@ def test_stability_map_from_bad_json(tmp_path: Path, capsys: pytest.CaptureFixtu
     bad = tmp_path / "bad.json"
     bad.write_text("{nope")
     assert main(["stability-map", "--from", str(bad), "--out", str(tmp_path / "x.png")]) == 2
-    _one_line_error(capsys, "--from", "not JSON")
+    _one_line_error(capsys, "--from", "not valid JSON")
     bad.write_text(json.dumps({"models": {"second": {"params": {"K0": None}}}}))
     assert main(["stability-map", "--from", str(bad), "--out", str(tmp_path / "x.png")]) == 2
     _one_line_error(capsys, "models.second.params.K0")

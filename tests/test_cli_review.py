@@ -152,7 +152,7 @@ def _cal(params: dict[str, Any]) -> str:
     (None, ("No such file",)),
     ("folder", ()),
     (b"\xff\xfe{}", ("utf-8",)),
-    ("{nope", ("not JSON",)),
+    ("{nope", ("not valid JSON (line 1",)),
     ('{"models": {"first": {"params": {"Td": 1' + "0" * 400 + "}}}}",
      ("models.first.params.Td", "too large")),
     ('{"models": {"first": {"params": {"Td": 1}}}, "models": {}}', ("duplicated key",)),

@@ -88,5 +88,5 @@ def test_command_kind_required(tmp_path: Path) -> None:
 def test_unknown_format_and_missing_file(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="unknown format 'nope'"):
         read_runs(tmp_path, format="nope")
-    with pytest.raises(avll.DataError, match="no such file"):
+    with pytest.raises(FileNotFoundError, match="missing.csv: no such file"):
         read_runs(tmp_path / "missing.csv")

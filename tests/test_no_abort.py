@@ -183,7 +183,7 @@ def test_integer_arguments_refuse_non_integers(call: object) -> None:
 @pytest.mark.skipif(sys.platform != "linux", reason="RLIMIT_AS is a Linux limit here")
 def test_cli_stability_map_scheduler_refuses_with_the_estimate(tmp_path: object) -> None:
     """``stability-map --scheduler`` went to the cluster without an estimate: now the
-    sweep refuses before any scheduler is contacted (none listens at port 9)."""
+    command refuses before any scheduler is contacted (none listens at port 9)."""
     import resource
     from pathlib import Path
 
@@ -200,6 +200,7 @@ def test_cli_stability_map_scheduler_refuses_with_the_estimate(tmp_path: object)
         env={**os.environ, "RAYON_NUM_THREADS": "2"})
     assert res.returncode == 2, res.stderr[-2000:]
     assert "Traceback" not in res.stderr
-    assert re.search(r"sweep: one map of 3000 kg x 3000 Tg x 3000 kv.*needs about 27\.0 GB",
-                     res.stderr), res.stderr
+    # the maps come back to this process: the whole grid is checked before the sweep
+    assert re.search(r"--kg x --tg x --kv: 3000 x 3000 x 3000 = 27000000000 points x 1 "
+                     r"map\(s\): needs about 54\.0 GB", res.stderr), res.stderr
     assert not out.exists()

@@ -16,7 +16,7 @@ import pytest
 from loader_helpers import DATA, NO_DATA, ZALA, native_platoon
 
 from avll import DataError, PlausibilityWarning
-from avll.io import openacc_native_report, read_openacc_native, read_runs
+from avll.io import load_openacc_native, openacc_native_report, read_openacc_native, read_runs
 from avll.io.openacc_native import (
     CONSISTENCY_TOL,
     CONSISTENCY_WINDOW,
@@ -273,6 +273,8 @@ def test_implausible_spacing(tmp_path, platoon, value, what):
         runs = read_runs(f, format="openacc")
     with pytest.raises(DataError, match="outside the plausible range"):
         read_runs(f, format="openacc", strict=True)
+    with pytest.raises(DataError, match="outside the plausible range"):
+        load_openacc_native(f, strict=True)  # every load_* takes strict
     for r in runs:  # the bad sample is in no run
         a, b = r.meta["rows"]
         assert r.meta["vehicle_index"] != 3 or not (a <= 300 <= b)

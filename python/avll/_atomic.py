@@ -4,8 +4,9 @@ Files: :func:`atomic_path` yields a temporary name beside the destination
 (``.<name>.tmp-XXXXXX<suffix>``: writers that look at the suffix still work), flushed to
 disk and renamed onto it (``os.replace``) when the block ends normally, removed otherwise
 (an error, Ctrl-C): a reader sees the old file or the complete new one, never a truncated
-one. :func:`write_text`, :func:`write_bytes`, :func:`write_json` (strict JSON),
-:func:`savefig`, :func:`to_csv` and :func:`to_parquet` are built on it.
+one. :func:`write_text`, :func:`write_bytes`, :func:`write_json` (strict JSON, which
+:func:`loads` reads back strictly), :func:`savefig`, :func:`to_csv` and
+:func:`to_parquet` are built on it.
 
 Folders: :func:`output_dir` stages a folder of outputs in a hidden folder inside it
 (``.avll-tmp-XXXXXX``) and commits it when the block ends, Ctrl-C deferred: the old
@@ -33,7 +34,8 @@ from typing import Any
 
 __all__ = [
     "MANIFEST", "atomic_path", "atomic_paths", "write_text", "write_bytes", "write_json",
-    "json_safe", "dumps", "savefig", "figure_dpi", "figure_bytes", "to_csv", "to_parquet",
+    "json_safe", "dumps", "loads", "json_depth", "savefig", "figure_dpi", "figure_bytes",
+    "to_csv", "to_parquet",
     "output_dir", "output_group", "read_manifest", "same_file", "check_not_inputs",
     "deferred_sigint",
 ]
@@ -211,6 +213,57 @@ def dumps(obj: Any, *, indent: int | None = 2, default: Any = None) -> str:
     return json.dumps(json_safe(obj), indent=indent, allow_nan=False, default=default)
 
 
+def loads(text: str, *, max_depth: int | None = None) -> Any:
+    """The strict-JSON reader every JSON input of avll goes through (a calibration JSON
+    for ``--from``, a canonical file's sidecar): ``text`` parsed as RFC 8259 JSON, a
+    ``ValueError`` that says why otherwise -- a syntax error (with its line and
+    column), a duplicated key, a ``NaN``/``Infinity`` token, an integer too long to
+    convert, a document nested deeper than ``max_depth`` levels (or than the parser
+    can follow)."""
+    try:
+        doc = json.loads(text, object_pairs_hook=_unique_keys, parse_constant=_not_a_number)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})"
+                         ) from None
+    except RecursionError:
+        doc = _TOO_DEEP
+    if doc is _TOO_DEEP or (max_depth is not None and json_depth(doc) > max_depth):
+        raise ValueError(f"nested deeper than {max_depth} levels" if max_depth is not None
+                         else "nested too deeply to parse")
+    return doc
+
+
+_TOO_DEEP = object()
+
+
+def json_depth(x: Any) -> int:
+    """Nesting depth of a parsed JSON value: 0 for a scalar, 1 for a flat object or
+    array (iterative: no recursion limit)."""
+    best, stack = 0, [(x, 1)]
+    while stack:
+        v, d = stack.pop()
+        if isinstance(v, dict):
+            best = max(best, d)
+            stack.extend((w, d + 1) for w in v.values())
+        elif isinstance(v, list):
+            best = max(best, d)
+            stack.extend((w, d + 1) for w in v)
+    return best
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in pairs:
+        if k in out:
+            raise ValueError(f"duplicated key {k!r}")
+        out[k] = v
+    return out
+
+
+def _not_a_number(word: str) -> float:
+    raise ValueError(f"{word} is not a JSON number")
+
+
 def write_json(path: str | os.PathLike[str], obj: Any, *, indent: int | None = 2,
                default: Any = None) -> Path:
     """Strict JSON of ``obj`` (:func:`dumps`: non-finite numbers become ``null`` with a
@@ -288,7 +341,7 @@ def _files(root: Path) -> list[str]:
 
 def _old_manifest_files(dest: Path) -> list[str]:
     try:
-        doc = json.loads((dest / MANIFEST).read_text(encoding="utf-8"))
+        doc = loads((dest / MANIFEST).read_text(encoding="utf-8"))
         return [str(f) for f in doc.get("files", {})]
     except (OSError, ValueError, AttributeError):
         return []
@@ -432,12 +485,12 @@ def read_manifest(path: str | os.PathLike[str], *, verify: bool = True) -> dict[
     d = Path(path)
     mp = d / MANIFEST
     try:
-        doc = json.loads(mp.read_text(encoding="utf-8"))
+        doc = loads(mp.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ValueError(f"{d}: no {MANIFEST}: not a complete avll output folder "
                          "(interrupted, or written by something else)") from None
     except ValueError as e:
-        raise ValueError(f"{mp}: not valid JSON ({e})") from None
+        raise ValueError(f"{mp}: {e}") from None
     if not isinstance(doc, dict) or doc.get("complete") is not True or not isinstance(
             doc.get("files"), dict):
         raise ValueError(f"{mp}: not an avll manifest")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,8 @@ from . import _core
 
 __all__ = [
     "SMALL", "MEMORY_FRACTION", "SEED_MAX", "check_int", "check_number", "check_threads",
-    "check_seed", "check_floats", "available_memory", "check_memory", "fmt_bytes",
+    "check_seed", "check_floats", "check_range", "Range", "RANGES", "MAX_PLAUSIBLE_SPEED",
+    "MAX_PLAUSIBLE_ACCEL", "MAX_POSITION_RATE", "available_memory", "check_memory", "fmt_bytes",
 ]
 
 #: Allocations below this many bytes are not checked.
@@ -83,6 +85,51 @@ def check_floats(value: Any, name: str) -> np.ndarray:
         return a.astype(np.float64, copy=False)
     except (TypeError, ValueError, OverflowError) as e:
         raise ValueError(f"{name}: expected an array of numbers ({e})") from None
+
+
+#: Speeds above this (m/s, 252 km/h) are not plausible for road vehicles.
+MAX_PLAUSIBLE_SPEED = 70.0
+#: Accelerations beyond this (m/s²) are not plausible for road vehicles.
+MAX_PLAUSIBLE_ACCEL = 15.0
+
+
+@dataclass(frozen=True)
+class Range:
+    """Plausible range ``[lo, hi]`` (outside: a warning) and the hard limit ``hard``
+    on the magnitude (beyond: an error) of one kind of signal, in SI ``unit``."""
+
+    lo: float
+    hi: float
+    hard: float
+    unit: str
+
+
+#: Physical ranges by kind of signal (see the module doc).
+RANGES: dict[str, Range] = {
+    "speed": Range(-1.0, 50.0, MAX_PLAUSIBLE_SPEED, "m/s"),
+    "acceleration": Range(-10.0, 10.0, MAX_PLAUSIBLE_ACCEL, "m/s²"),
+    "time_step": Range(1e-3, 1.0, 2.0, "s"),
+    "grade": Range(-0.2, 0.2, 1.0, ""),
+    "position": Range(-1e8, 1e8, 1e8, "m"),
+    "other": Range(-1e12, 1e12, 1e12, ""),
+}
+#: Largest plausible speed implied by two consecutive positions (m/s).
+MAX_POSITION_RATE = 70.0
+
+
+def check_range(arr: np.ndarray, kind: str, name: str,
+                error: type[ValueError] = ValueError) -> None:
+    """Refuses (``error`` naming ``name`` and the sample) a value of the signal ``arr``
+    beyond the hard limit of its ``kind`` in :data:`RANGES` (``"other"`` for a kind it
+    does not list). The API checks exogenous signals as ``"other"``: a synthetic one
+    may carry any disturbance (:mod:`avll.synth_platoon` drives a follower through the
+    grade channel in m/s²), so only a magnitude no signal can have is refused there."""
+    rg = RANGES.get(kind, RANGES["other"])
+    bad = np.flatnonzero(np.abs(arr) > rg.hard)
+    if bad.size:
+        i = int(bad[0])
+        raise error(f"{name}: sample {i} is {arr[i]:g}, beyond the hard limit "
+                    f"+-{rg.hard:g}{(' ' + rg.unit) if rg.unit else ''}")
 
 
 def check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:

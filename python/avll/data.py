@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ._limits import check_range
 from .models import UpperLevel
 
 __all__ = ["Run", "DataError", "DataWarning", "PlausibilityWarning", "COMMAND_KINDS"]
@@ -36,7 +37,7 @@ class DataWarning(UserWarning):
 
 class PlausibilityWarning(DataWarning):
     """A value outside the physical range of road vehicles (speed, acceleration,
-    time step, grade; see ``avll.io._common.RANGES``) that is not so far out that
+    time step, grade; see ``avll._limits.RANGES``) that is not so far out that
     the unit must be wrong. Names the file, the column and the line; ``strict=True``
     turns it into a :class:`DataError`."""
 
@@ -123,9 +124,10 @@ class Run:
             if not ok:
                 raise DataError(f"run {rid!r}: {name} must be {what}, got "
                                 f"{getattr(self, name)!r:.40}")
-        object.__setattr__(
-            self, "exo", {k: _series(rid, f"exo_{k}", v, n) for k, v in self.exo.items()}
-        )
+        exo = {k: _series(rid, f"exo_{k}", v, n) for k, v in self.exo.items()}
+        for k, v in exo.items():  # a loader checks a file's grade against its own range
+            check_range(v, "other", f"run {rid!r}: column 'exo_{k}'", DataError)
+        object.__setattr__(self, "exo", exo)
         object.__setattr__(self, "meta", dict(self.meta))
 
     @property

@@ -74,6 +74,7 @@ from ._limits import (
     check_int,
     check_memory,
     check_number,
+    check_range,
     check_threads,
 )
 from .data import COMMAND_KINDS, INITS, Run
@@ -242,7 +243,10 @@ def _start(init: Any, command_kind: Any) -> tuple[str, str]:
 def _exo(exo: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
     if exo is not None and not isinstance(exo, Mapping):
         raise TypeError(f"exo: expected a mapping of signal name -> array, got {exo!r:.40}")
-    return {str(k): _f64(f"exo[{k!r}]", v) for k, v in (exo or {}).items()}
+    out = {str(k): _f64(f"exo[{k!r}]", v) for k, v in (exo or {}).items()}
+    for k, v in out.items():  # absurd magnitudes only: a synthetic exo can be any signal
+        check_range(v, "other", f"exo[{k!r}]")
+    return out
 
 
 def _upper(upper: Any) -> UpperLevel:

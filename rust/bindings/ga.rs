@@ -15,7 +15,7 @@ use super::{guard, slice2};
 use crate::ga::{self, Bounds, GaOptions, Phase, Scale, StopReason};
 use crate::optimize::calibrate::Calibration;
 use numpy::{IntoPyArray, PyReadonlyArray2};
-use pyo3::exceptions::{PyKeyboardInterrupt, PyTypeError, PyValueError};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -425,9 +425,11 @@ fn relay<T: Send>(
                     }
                 });
             }
-            worker
-                .join()
-                .unwrap_or_else(|_| Err(PyValueError::new_err("avll internal error: GA worker")))
+            worker.join().unwrap_or_else(|_| {
+                Err(PyRuntimeError::new_err(
+                    "avll internal error (please report): GA worker panicked",
+                ))
+            })
         })
     });
     if let Some(e) = py_error {

@@ -18,6 +18,7 @@ import contextlib
 import importlib
 import io
 import os
+import re
 import sys
 import warnings
 from collections.abc import Sequence
@@ -193,6 +194,9 @@ def _main(argv: Sequence[str] | None) -> int:
         head, colon, rest = msg.partition(":")  # "pop_size: ..." -> "--pop-size: ..."
         if colon and head in option_of:
             msg = option_of[head] + colon + rest
+        # "pass slope=PATH" -> "pass --slope PATH"
+        msg = re.sub(r"\bpass (\w+)=", lambda m: f"pass {option_of[m[1]]} "
+                     if m[1] in option_of else m[0], msg)
         if isinstance(e, MemoryError):
             msg = f"out of memory{': ' + msg if msg else ''} (use a smaller problem)"
         print(f"{who}: error: {msg}", file=sys.stderr)

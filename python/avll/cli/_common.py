@@ -291,15 +291,13 @@ def check_not_foreign(label: str, folder: Path, command: str, overwrite: bool) -
     """A ``ValueError`` naming ``label`` when ``folder`` holds another command's output
     (the ``command`` of its MANIFEST.json: ``avll X`` writes only over its own folders)
     and ``overwrite`` is not set."""
-    import json
-
-    from .._atomic import MANIFEST
+    from .._atomic import MANIFEST, loads
 
     mp = folder / MANIFEST
     if overwrite or not mp.is_file():
         return
     try:
-        doc = json.loads(mp.read_text(encoding="utf-8"))
+        doc = loads(mp.read_text(encoding="utf-8"))
         cmd = doc.get("command") if isinstance(doc, dict) else None
         other = str(cmd) if cmd else "an unknown command"
     except (OSError, ValueError):

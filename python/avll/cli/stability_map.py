@@ -4,7 +4,6 @@ for the paper's Table II models or the models of a calibration JSON (``--from``)
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -41,20 +40,15 @@ def models_from_json(path: str | Path, names: Sequence[str] | None = None) -> di
     writes: ``{"models": {name: {"params": {...}}}}``), by model name; ``names``
     keeps only those. A ``ValueError`` naming the file and the entry when it is not
     such a file."""
+    from .. import _atomic
     from ..defaults import UPPER_NAMES
-    from ..io.canonical import _no_duplicates
     from ..models import model_class
 
     p = Path(path)
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"), object_pairs_hook=_no_duplicates,
-                         parse_constant=_not_a_number)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"--from: {p}: not JSON (line {e.lineno}: {e.msg})") from None
-    except ValueError as e:  # not UTF-8, a duplicated key, NaN, an integer too long
-        raise ValueError(f"--from: {p}: not strict JSON ({e})") from None
-    except RecursionError:
-        raise ValueError(f"--from: {p}: nested too deeply for a calibration JSON") from None
+        doc = _atomic.loads(p.read_text(encoding="utf-8"))
+    except ValueError as e:  # not strict JSON, not UTF-8, an integer too long
+        raise ValueError(f"--from: {p}: {e}") from None
     except OSError as e:  # missing, a folder, unreadable
         raise OSError(f"--from: {p}: {e.strerror or e}") from None
     entries = doc.get("models") if isinstance(doc, dict) else None
@@ -93,10 +87,6 @@ def models_from_json(path: str | Path, names: Sequence[str] | None = None) -> di
     return out
 
 
-def _not_a_number(word: str) -> float:
-    raise ValueError(f"{word} is not a JSON number")
-
-
 def _cmd(args: argparse.Namespace) -> int:
     from .. import PAPER_TABLE_II
     from ..plotting import model_label
@@ -123,6 +113,12 @@ def _cmd(args: argparse.Namespace) -> int:
         models = [PAPER_TABLE_II[n] for n in models_of(args)]
         source = "Table II"
     labels = [f"{model_label(m.name)}, {source}" for m in models]
+    # every model's map is kept (a byte a point), plus what each derives from its map
+    n_pts = float(kg.size) * tg.size * kv.size
+    check_memory(n_pts * (len(models) + 1.0),
+                 f"--kg x --tg x --kv: {kg.size} x {tg.size} x {kv.size} = {n_pts:.0f} points "
+                 f"x {len(models)} map(s)", "use a smaller N in --kg, --tg or --kv",
+                 per=len(models) + 1.0, unit="points")
     show = args.progress if kg.size * tg.size * kv.size >= 2_000_000 else "none"
     if args.scheduler:
         from ..maps import sweep

@@ -278,16 +278,20 @@ def not_offered(have: Sequence[str], runs: Sequence[Run], candidates: Sequence[s
             raise ValueError(f"candidates: unknown effect {n!r}; known: {', '.join(EFFECTS)}")
         cls = EFFECTS[n]
         missing = [r.run_id for r in runs if cls.exo is not None and cls.exo not in r.exo]
-        reason = ("it is already in the model" if n in have else
-                  "it needs an acceleration command" if cls.accel_only and kind == "speed"
-                  else "an upper-level structure needs a closed loop"
-                  if cls.level == "upper" and not closed else
-                  f"it is not identifiable together with {cls.excludes!r}"
-                  if cls.excludes in have else
-                  f"it needs the column 'exo_{cls.exo}', which run(s) "
-                  f"{', '.join(map(repr, missing[:5]))} lack" if missing else None)
-        if reason is not None:
-            out[n] = reason
+        if n in have:
+            reason = "it is already in the model"
+        elif cls.accel_only and kind == "speed":
+            reason = "it needs an acceleration command"
+        elif cls.level == "upper" and not closed:
+            reason = "an upper-level structure needs a closed loop"
+        elif cls.excludes in have:
+            reason = f"it is not identifiable together with {cls.excludes!r}"
+        elif missing:
+            reason = (f"it needs the column 'exo_{cls.exo}', which run(s) "
+                      f"{', '.join(map(repr, missing[:5]))} lack")
+        else:
+            continue
+        out[n] = reason
     return out
 
 

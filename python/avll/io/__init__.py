@@ -38,13 +38,16 @@ from .carma import load_carma as _load_carma
 from .formats import LOADERS, load_format
 from .generic import load_generic
 from .openacc import load_openacc_astazero as _load_openacc_astazero
-from .openacc_native import load_openacc_native, openacc_native_report, read_openacc_native
+from .openacc_native import load_openacc_native as _load_openacc_native
+from .openacc_native import openacc_native_report, read_openacc_native
 from .resample import resample_arrays, resample_run
 
 #: :func:`avll.io.carma.load_carma` with the ``strict=False`` option.
 load_carma = with_strict(_load_carma)
 #: :func:`avll.io.openacc.load_openacc_astazero` with the ``strict=False`` option.
 load_openacc_astazero = with_strict(_load_openacc_astazero)
+#: :func:`avll.io.openacc_native.load_openacc_native` with the ``strict=False`` option.
+load_openacc_native = with_strict(_load_openacc_native)
 
 __all__ = [
     "read_runs",
@@ -102,7 +105,7 @@ def _read_runs(path: str | Path, command_kind: str | None, format: str,
             f"format: unknown format {format!r}; known: {', '.join(sorted(FORMATS))}"
         ) from None
     p = Path(path)
-    st = stat_path(p)  # a DataError for a missing path or a symbolic link loop
+    st = stat_path(p)  # FileNotFoundError for a missing path, DataError for a link loop
     if stat.S_ISDIR(st.st_mode) and format in _PER_FILE:
         files = sorted(
             (f for f in p.iterdir() if f.suffix.lower() in (".csv", ".parquet", ".pq")),

@@ -38,13 +38,13 @@ import re
 import stat
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from .._limits import MAX_PLAUSIBLE_ACCEL, MAX_PLAUSIBLE_SPEED, MAX_POSITION_RATE, RANGES, Range
 from ..data import DataError, DataWarning, PlausibilityWarning, Run
 
 __all__ = [
@@ -90,8 +90,9 @@ def _file_kind(mode: int) -> str:
 
 
 def stat_path(path: str | Path, what: str = "file or folder") -> os.stat_result:
-    """``os.stat`` of ``path`` (links followed) as a :class:`DataError` naming the
-    path: no such ``what``, a symbolic link loop, or no permission."""
+    """``os.stat`` of ``path`` (links followed); its failure as an error naming the
+    path: no such ``what`` is a ``FileNotFoundError`` (as Python's ``open`` says it),
+    a symbolic link loop, a path too long or no permission a :class:`DataError`."""
     p = Path(path)
     try:
         return os.stat(p)
@@ -101,7 +102,7 @@ def stat_path(path: str | Path, what: str = "file or folder") -> os.stat_result:
                             "not followed") from None
         if e.errno in (errno.ENOENT, errno.ENOTDIR):
             broken = " (a broken symbolic link)" if os.path.islink(p) else ""
-            raise DataError(f"{p}: no such {what}{broken}") from None
+            raise FileNotFoundError(f"{p}: no such {what}{broken}") from None
         if e.errno == errno.ENAMETOOLONG:
             raise DataError(f"{p}: the path is too long") from None
         raise DataError(f"{p}: cannot be read ({e.strerror})") from None
@@ -178,34 +179,6 @@ def check_header(path: str | Path) -> None:
                             "accepted; a data file of runs has a few dozen")
 
 
-#: Speeds above this (m/s, 252 km/h) are not plausible for road vehicles.
-MAX_PLAUSIBLE_SPEED = 70.0
-#: Accelerations beyond this (m/s²) are not plausible for road vehicles.
-MAX_PLAUSIBLE_ACCEL = 15.0
-
-
-@dataclass(frozen=True)
-class Range:
-    """Plausible range ``[lo, hi]`` (outside: a warning) and the hard limit ``hard``
-    on the magnitude (beyond: an error) of one kind of signal, in SI ``unit``."""
-
-    lo: float
-    hi: float
-    hard: float
-    unit: str
-
-
-#: Physical ranges by kind of signal (see the module doc).
-RANGES: dict[str, Range] = {
-    "speed": Range(-1.0, 50.0, MAX_PLAUSIBLE_SPEED, "m/s"),
-    "acceleration": Range(-10.0, 10.0, MAX_PLAUSIBLE_ACCEL, "m/s²"),
-    "time_step": Range(1e-3, 1.0, 2.0, "s"),
-    "grade": Range(-0.2, 0.2, 1.0, ""),
-    "position": Range(-1e8, 1e8, 1e8, "m"),
-    "other": Range(-1e12, 1e12, 1e12, ""),
-}
-#: Largest plausible speed implied by two consecutive positions (m/s).
-MAX_POSITION_RATE = 70.0
 
 
 def plausibility_warning(msg: str) -> None:
@@ -314,7 +287,7 @@ def _record_starts(path: str, stamp: tuple[int, int]) -> np.ndarray | None:
         data = Path(path).read_bytes()
     except OSError:
         return None
-    if b'"' not in data and not re.search(rb"(^|\n)[ \t]*\r?(\n|$)", data.rstrip()):
+    if b'"' not in data and not _has_blank_line(data):
         return None
     rd = csv.reader(io.StringIO(data.decode("utf-8-sig", errors="replace"), newline=""))
     starts: list[int] = []
@@ -324,6 +297,26 @@ def _record_starts(path: str, stamp: tuple[int, int]) -> np.ndarray | None:
         if rec and not (len(rec) == 1 and not rec[0].strip()):
             starts.append(start)
     return np.array(starts)
+
+
+def _has_blank_line(data: bytes) -> bool:
+    """Whether ``data`` (a CSV file's bytes) has an empty or whitespace-only line before
+    its last non-blank one. A vectorised look at the byte after each newline first (a
+    50 MB file in 20 ms); the regular expression only when a line starts with white
+    space."""
+    end = len(data)
+    while end and data[end - 1] in b" \t\r\n\v\f":
+        end -= 1
+    if not end:
+        return False
+    a = np.frombuffer(data, np.uint8, count=end)
+    after = a[1:][a[:-1] == 10]  # each line's first byte (the first line's: a[0])
+    white = (after == 10) | (after == 13) | (after == 32) | (after == 9)
+    if a[0] == 10 or (after == 10).any():
+        return True
+    if a[0] not in (9, 13, 32) and not white.any():
+        return False
+    return re.search(rb"(^|\n)[ \t]*\r?\n", data[:end]) is not None
 
 
 def read_table(path: str | Path, *, encoding: str = "utf-8-sig") -> pd.DataFrame:

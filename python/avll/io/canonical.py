@@ -35,7 +35,6 @@ Rows are reported as file lines (the header is line 1).
 
 from __future__ import annotations
 
-import json
 import math
 import numbers
 import os
@@ -131,29 +130,6 @@ def _numeric(path: Path, df: pd.DataFrame, col: str, line: np.ndarray) -> np.nda
     return arr
 
 
-def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in pairs:
-        if k in out:
-            raise DataError(f"duplicated key {k!r}")
-        out[k] = v
-    return out
-
-
-def _depth(x: Any) -> int:
-    """Nesting depth of a parsed JSON value (iterative: no recursion limit)."""
-    best, stack = 0, [(x, 1)]
-    while stack:
-        v, d = stack.pop()
-        if isinstance(v, dict):
-            best = max(best, d)
-            stack.extend((w, d + 1) for w in v.values())
-        elif isinstance(v, list):
-            best = max(best, d)
-            stack.extend((w, d + 1) for w in v)
-    return best
-
-
 def _number(sc: Path, at: str, v: Any) -> float:
     if isinstance(v, bool) or not isinstance(v, numbers.Real):
         raise DataError(f"{sc}: {at}: must be a number, got {v!r}")
@@ -172,7 +148,7 @@ def validate_sidecar(doc: Any, sc: Path | str = "sidecar") -> dict[str, Any]:
     sc = Path(sc)
     if not isinstance(doc, dict):
         raise DataError(f"{sc}: must hold a JSON object, got {type(doc).__name__}")
-    if _depth(doc) > MAX_SIDECAR_DEPTH:
+    if _atomic.json_depth(doc) > MAX_SIDECAR_DEPTH:
         raise DataError(f"{sc}: nested deeper than {MAX_SIDECAR_DEPTH} levels")
     extra = [k for k in doc if k not in ("command_kind", "runs")]
     if extra:
@@ -222,13 +198,9 @@ def _sidecar(path: Path) -> dict[str, Any]:
     if st.st_size > MAX_SIDECAR_BYTES:
         raise DataError(f"{sc}: larger than {MAX_SIDECAR_BYTES // 2**20} MB; not a sidecar")
     try:
-        data = json.loads(sc.read_text(encoding="utf-8"), object_pairs_hook=_no_duplicates)
-    except DataError as e:
+        data = _atomic.loads(sc.read_text(encoding="utf-8"), max_depth=MAX_SIDECAR_DEPTH)
+    except ValueError as e:  # not strict JSON, not UTF-8, an int of > 4300 digits
         raise DataError(f"{sc}: {e}") from None
-    except ValueError as e:  # JSONDecodeError, UnicodeDecodeError, an int of > 4300 digits
-        raise DataError(f"{sc}: not valid JSON ({e})") from None
-    except RecursionError:
-        raise DataError(f"{sc}: nested deeper than {MAX_SIDECAR_DEPTH} levels") from None
     return validate_sidecar(data, sc)
 
 
@@ -296,8 +268,8 @@ def _load_canonical(path: Path, command_kind: str | None) -> list[Run]:
     kind = command_kind or side.get("command_kind")
     if kind is None:
         raise DataError(
-            f"{path}: the command kind is not given: pass command_kind "
-            f"('acceleration' or 'speed') or write it in {sidecar_path(path).name}"
+            f"{path}: the command kind is not given: pass command_kind='acceleration' "
+            f"or 'speed', or write it in {sidecar_path(path).name}"
         )
     if kind not in COMMAND_KINDS:
         raise DataError(f"{path}: command kind must be one of {COMMAND_KINDS}, got {kind!r}")
