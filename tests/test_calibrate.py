@@ -152,8 +152,9 @@ def test_starts_stopped_at_a_target_are_the_same_for_any_thread_count(
 
 def test_many_problems_equal_single_problems(proposed_data: list[avll.Run]) -> None:
     runs = proposed_data[:4]
-    many1 = calibrate_many("second", runs, "per_run", seed=9, threads=1, max_generations=30)
-    many2 = calibrate_many("second", runs, "per_run", seed=9, threads=2, max_generations=30)
+    kw = dict(seed=9, max_generations=30, starts=1)
+    many1 = calibrate_many("second", runs, "per_run", threads=1, **kw)
+    many2 = calibrate_many("second", runs, "per_run", threads=2, **kw)
     assert [m.params for m in many1] == [m.params for m in many2]
     for k, (res, run) in enumerate(zip(many1, runs, strict=True)):
         single = calibrate(

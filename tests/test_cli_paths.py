@@ -7,11 +7,11 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 import avll
 from avll.cli import main
+from avll.paper import section_iv_axis
 
 # a grid that takes many seconds: a failure must come before it is computed
 _BIG = ["--kg", "0.001", "2", "2000", "--tg", "0", "15", "1501", "--kv", "0", "1", "201"]
@@ -107,7 +107,8 @@ def test_stability_map_from_calibration_json(tmp_path: Path,
     doc = json.loads(out.read_text())
     assert doc["source"] == {"kind": "calibration", "path": str(cal)}
     caldoc = json.loads(cal.read_text())
-    kg, tg, kv = np.geomspace(0.01, 2, 30), np.linspace(0, 15, 31), np.linspace(0, 1, 11)
+    kg, tg, kv = (section_iv_axis(0.01, 2, 30, log=True), section_iv_axis(0, 15, 31),
+                  section_iv_axis(0, 1, 11))  # the CLI's axes
     for name in ("second", "proposed"):
         params = caldoc["models"][name]["params"]
         assert doc["models"][name]["params"] == params

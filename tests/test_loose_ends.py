@@ -16,8 +16,10 @@ from cli_helpers import err_line
 import avll
 from avll import _atomic
 from avll.cli import main
+from avll.effect_stability import effect_stability
 from avll.io import read_runs
 from avll.io._common import _has_blank_line, record_lines
+from avll.synth_platoon import synth_platoon
 
 
 def _blank_by_regex(data: bytes) -> bool:
@@ -119,3 +121,80 @@ def test_stability_map_refuses_a_grid_too_large_naming_its_options(
     assert "--kg x --tg x --kv: 20000 x 20000 x 20000" in line
     assert "use a smaller N in --kg, --tg or --kv" in line
     assert not (tmp_path / "m.png").exists()
+
+
+# -- one default per decision ------------------------------------------------------------
+
+
+def test_weights_none_is_the_loops_default_everywhere() -> None:
+    from avll.defaults import CLOSED_LOOP_WEIGHTS, EQ6_WEIGHTS, objective_weights
+
+    assert objective_weights(None, False) == EQ6_WEIGHTS == (1.0, 0.0, 0.0)
+    assert objective_weights(None, True) == CLOSED_LOOP_WEIGHTS
+    assert objective_weights((2, 0, 1), True) == (2.0, 0.0, 1.0)
+    with pytest.raises(ValueError, match="weights"):
+        objective_weights((-1, 0, 0), False)
+    sp = synth_platoon(2, seed=3, duration=60.0, models=("first",))
+    run = sp.runs[0]
+    row = np.concatenate([avll.PAPER_TABLE_II["first"].to_array(), [0.5, 0.5, 1.5, 5.0]])[None]
+    kw = dict(closed_loop=True, upper_free=["kg", "kv", "Tg", "Gmin"])
+    default = avll.batch_cost("first", row, [run], **kw)
+    assert default[0, 0] == avll.batch_cost("first", row, [run], weights=CLOSED_LOOP_WEIGHTS,
+                                            **kw)[0, 0]
+    assert default[0, 0] != avll.batch_cost("first", row, [run], weights=EQ6_WEIGHTS,
+                                            **kw)[0, 0]
+    # the calibration's cost is the closed-loop weighting's at its optimum
+    res = avll.calibrate("first", [run], max_generations=2, starts=1, **kw)
+    at = np.concatenate([res.model.to_array(), [res.upper[k] for k in kw["upper_free"]]])[None]
+    want = avll.batch_cost("first", at, [run], weights=CLOSED_LOOP_WEIGHTS, **kw)[0, 0]
+    assert res.cost == pytest.approx(want, rel=1e-12)
+
+
+def test_calibrate_many_starts_like_calibrate_with_subsets() -> None:
+    sp = synth_platoon(2, seed=4, duration=40.0, models=("first",))
+    kw = dict(closed_loop=True, upper_free=["kg", "kv", "Tg", "Gmin"], seed=5,
+              max_generations=3)
+    many = avll.calibrate_many("first", sp.runs, "per_run", **kw)
+    via = avll.calibrate("first", sp.runs, subsets="per_run", **kw)
+    assert [m.params for m in many] == [m.params for m in via]
+    assert all(len(m.start_costs) == avll.defaults.DEFAULT_STARTS for m in many)
+
+
+def test_stability_map_default_axes_are_reproduces_bit_for_bit() -> None:
+    from avll.cli.stability_map import _range
+    from avll.paper import SECTION_IV_GRID as G
+    from avll.reproduce import SETTINGS
+
+    want = SETTINGS["default"].axes()
+    got = (_range([f"{x!r}" for x in G["kg"]], "kg", log=True),
+           _range([f"{x!r}" for x in G["Tg"]], "tg"), _range([f"{x!r}" for x in G["kv"]], "kv"))
+    for w, g in zip(want, got, strict=True):
+        np.testing.assert_array_equal(w, g)
+    fine = _range(["0", "1e-9", "11"], "kv")  # steps below 10 decimals are not rounded away
+    assert np.unique(fine).size == 11
+
+
+def test_effect_stability_progress_modes(capsys: pytest.CaptureFixture[str]) -> None:
+    up = avll.UpperLevel(kg=0.5, kv=0.5, Tg=2.0, Gmin=5.0)
+    kw = dict(amplitudes=(0.5,), n_cars=2, thresholds=False, warm_periods=1,
+              measure_periods=1)
+    with pytest.raises(ValueError, match="progress"):
+        effect_stability(avll.PAPER_TABLE_II["first"], up, progress="loud", **kw)
+    effect_stability(avll.PAPER_TABLE_II["first"], up, progress="none", **kw)
+    assert capsys.readouterr().err == ""
+    effect_stability(avll.PAPER_TABLE_II["first"], up, progress="log", **kw)
+    assert "platoon" in capsys.readouterr().err
+
+
+def test_write_runs_round_trips_exactly(tmp_path: Path) -> None:
+    """The canonical CSV was written with 10 significant digits: a run read back
+    differed from the one written (a time of 123456.789012345 s came back rounded)."""
+    rng = np.random.default_rng(1)
+    t = 123456.789012345 + np.arange(200) * 0.05
+    a = rng.normal(size=200) * np.pi
+    run = avll.Run("r1", t, a=a, command=a / 3, command_kind="acceleration",
+                   v=20 + np.cumsum(a) * 0.05, exo={"grade": rng.normal(size=200) / 97})
+    back = read_runs(avll.io.write_runs([run], tmp_path / "r.csv"))[0]
+    for name in ("t", "a", "command", "v"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(run, name))
+    np.testing.assert_array_equal(back.exo["grade"], run.exo["grade"])

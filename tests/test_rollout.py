@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 import avll
 from avll import _core
+from avll.defaults import CLOSED_LOOP_WEIGHTS
 from avll.reference import rollout as ref
 from avll.reference import stability as ref_stability
 
@@ -242,6 +243,7 @@ def test_batch_cost_upper_free_overrides_the_runs_law() -> None:
                     r,
                     closed_loop_=True,
                     upper=avll.UpperLevel(kg=kg, kv=r.upper.kv, Tg=Tg, Gmin=r.upper.Gmin),
+                    weights=CLOSED_LOOP_WEIGHTS,  # batch_cost's closed-loop default
                 )
                 for r in runs
             ]

@@ -158,7 +158,7 @@ def test_distributed_calibrations_equal_calibrate_many(client) -> None:  # type:
 
     runs = paper_experiment(P["second"], seed=3, runs=(1, 2, 3), duration=40.0)
     subsets = [[0], [1, 2], [0, 0, 2]]
-    want = avll.calibrate_many("second", runs, subsets, seed=11, max_generations=15)
+    want = avll.calibrate_many("second", runs, subsets, seed=11, max_generations=15, starts=1)
     got = avll.calibrate_many_distributed("second", runs, subsets, client=client, seed=11,
                                           batch=2, max_generations=15)
     assert len(got) == len(want)

@@ -249,7 +249,7 @@ def _problem(
     bounds: Mapping[str, Sequence[Any]] | None,
     closed_loop: bool,
     upper_free: Sequence[int | str],
-    weights: Sequence[float],
+    weights: Sequence[float] | None,
     init: str,
     effects: Sequence[str] = (),
     packs: _Packs | None = None,
@@ -498,7 +498,7 @@ def calibrate(
     seed: int = 0,
     closed_loop: bool = False,
     upper_free: Sequence[int | str] = (),
-    weights: Sequence[float] = (1.0, 0.0, 0.0),
+    weights: Sequence[float] | None = None,
     init: str = "rest",
     initial: Sequence[Any] | None = None,
     initial_per_problem: Sequence[Sequence[Any]] | None = None,
@@ -523,7 +523,9 @@ def calibrate(
     with a scale: ``{"m3": (1e-3, 1e3, "log")}``). ``closed_loop`` drives the model by
     the recorded leader through each run's upper law; ``upper_free`` (names or indices
     of kg, kv, Tg, Gmin) calibrates those gains too. ``weights`` weigh the mean squared
-    errors of acceleration, speed and position. ``init`` is the rollouts' initial state
+    errors of acceleration, speed and position (``None``: the paper's Eq. 6,
+    acceleration only, in open loop; :data:`avll.defaults.CLOSED_LOOP_WEIGHTS` in
+    closed loop). ``init`` is the rollouts' initial state
     (``"rest"`` or ``"steady"``). ``initial`` seeds the population with models or
     parameter vectors; with ``subsets``, ``initial_per_problem`` gives each problem its
     own starting rows too (one list per subset, see :func:`calibrate_many`).
@@ -580,7 +582,7 @@ def _calibrate(
     seed: int,
     closed_loop: bool,
     upper_free: Sequence[int | str],
-    weights: Sequence[float],
+    weights: Sequence[float] | None,
     init: str,
     initial: Sequence[Any] | None,
     target: float | None,
@@ -707,11 +709,11 @@ def calibrate_many(
     bounds: Mapping[str, Sequence[Any]] | None = None,
     closed_loop: bool = False,
     upper_free: Sequence[int | str] = (),
-    weights: Sequence[float] = (1.0, 0.0, 0.0),
+    weights: Sequence[float] | None = None,
     init: str = "rest",
     initial: Sequence[Any] | None = None,
     target: float | None = None,
-    starts: int = 1,
+    starts: int = DEFAULT_STARTS,
     intervals: Any = None,
     initial_per_problem: Sequence[Sequence[Any]] | None = None,
     **ga_options: Any,
@@ -783,7 +785,7 @@ def calibrate_effects(
     upper: Sequence[float],
     scale: Sequence[str],
     *,
-    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    weights: Sequence[float] | None = None,
     init: str = "rest",
     closed_loop: bool = False,
     upper_free: Sequence[int] = (),
@@ -1058,7 +1060,7 @@ def paper_workflow(
     val_mse: dict[str, dict[str, float]] = {}
     # The calibration runs and the validation runs are each packed once for all models.
     packs = _Packs()
-    opts: dict[str, Any] = {"closed_loop": False, "upper_free": (), "weights": (1.0, 0.0, 0.0),
+    opts: dict[str, Any] = {"closed_loop": False, "upper_free": (), "weights": None,
                             "init": "rest", "initial": None, "target": None,
                             "starts": DEFAULT_STARTS}  # fmt: skip
     opts.update({k: kwargs.pop(k) for k in list(opts) if k in kwargs})
@@ -1070,7 +1072,7 @@ def paper_workflow(
                          **opts)  # fmt: skip
         results[cls.name] = res
         if val:
-            kw = packs.get(val).cost_kw(weights=tuple(opts["weights"]), init=opts["init"],
+            kw = packs.get(val).cost_kw(weights=opts["weights"], init=opts["init"],
                                         closed_loop=bool(opts["closed_loop"]), upper_free=free)
             row = np.ascontiguousarray(np.array(list(res.params.values()), dtype=np.float64))
             c = _core.batch_cost(cls.name, row[None, :], threads=check_threads(threads), **kw)[0]

@@ -1,6 +1,6 @@
 """Defaults, defined once: the GA's search boxes and options (the options read from
-the Rust core, which also validates them), the objective weighting of closed-loop
-calibrations, the upper-level placeholder of runs without an upper law, and the figure
+the Rust core, which also validates them), the objective weightings of open- and
+closed-loop calibrations, the upper-level placeholder of runs without an upper law, and the figure
 styles (one colour per model and per stability class) every command and the report use.
 
 The bounds' reasons are :data:`BOUND_REASONS` (printed beside them in the docs).
@@ -12,6 +12,7 @@ import numbers
 from typing import Any
 
 from . import _core
+from ._limits import check_weights
 from .models import UpperLevel
 
 __all__ = [
@@ -23,7 +24,9 @@ __all__ = [
     "UPPER_NAMES",
     "upper_index",
     "GA_OPTIONS",
+    "EQ6_WEIGHTS",
     "CLOSED_LOOP_WEIGHTS",
+    "objective_weights",
     "UPPER_PLACEHOLDER",
     "MODEL_COLORS",
     "MODEL_LINESTYLES",
@@ -121,17 +124,30 @@ def upper_index(u: int | str) -> int:
 #: (``max_generations=None``, ``pop_size=None``) means the value here.
 GA_OPTIONS: dict[str, Any] = dict(_core.ga_defaults())
 
-#: Objective weights ``(wa, wv, wx)`` of every closed-loop calibration (the diagnosis
-#: loop's, the AstaZero ``"mixed"`` objective, the OpenACC study): the mean squared
-#: errors of acceleration (m/s²)², speed (m/s)² and position (m²). In closed loop the
-#: upper law's spacing (``Tg``, ``Gmin``) acts on the gap, which the acceleration alone
-#: barely sees, and a measured acceleration is often a differentiated speed (noise
-#: times 1/dt), so speed and position carry weight too. The weights make errors of
-#: 0.1 m/s², 0.1 m/s and 1 m cost the same (1 x 0.1² = 1 x 0.1² = 0.01 x 1²): errors of
-#: the order of the sensors' and of practical relevance to a following car. (The
-#: diagnosis loop once used (1, 0.1, 0.01), a speed weighted 10x less for no stated
-#: reason.)
+#: Objective weights ``(wa, wv, wx)`` of an open-loop calibration: the paper's Eq. 6,
+#: the mean squared error of the acceleration alone.
+EQ6_WEIGHTS: tuple[float, float, float] = (1.0, 0.0, 0.0)
+
+#: Objective weights ``(wa, wv, wx)`` of every closed-loop calibration (the default of
+#: ``weights=None`` with ``closed_loop=True`` in :func:`avll.calibrate`, the batched
+#: costs and ``avll calibrate``; the diagnosis loop, the AstaZero ``"mixed"``
+#: objective, the OpenACC study): the mean squared errors of acceleration (m/s²)²,
+#: speed (m/s)² and position (m²). In closed loop the upper law's spacing (``Tg``,
+#: ``Gmin``) acts on the gap, which the acceleration alone barely sees, and a measured
+#: acceleration is often a differentiated speed (noise times 1/dt), so speed and
+#: position carry weight too. The weights make errors of 0.1 m/s², 0.1 m/s and 1 m
+#: cost the same (1 x 0.1² = 1 x 0.1² = 0.01 x 1²): errors of the order of the
+#: sensors' and of practical relevance to a following car.
 CLOSED_LOOP_WEIGHTS: tuple[float, float, float] = (1.0, 1.0, 0.01)
+
+
+def objective_weights(weights: Any, closed_loop: bool) -> tuple[float, float, float]:
+    """The objective weights a call uses: ``weights`` checked (three finite floats
+    ``>= 0``, not all zero), or for ``None`` the default of its loop,
+    :data:`CLOSED_LOOP_WEIGHTS` in closed loop and :data:`EQ6_WEIGHTS` in open loop."""
+    if weights is None:
+        return CLOSED_LOOP_WEIGHTS if closed_loop else EQ6_WEIGHTS
+    return check_weights(weights)
 
 #: Upper-level law given to runs that have none (OpenACC pairs) before all four gains
 #: are calibrated: only a starting point, never a result.

@@ -72,6 +72,7 @@ from . import _core
 from ._limits import check_int, check_number, check_threads
 from .effects import EFFECTS, WithEffects, canonical, equivalent_model
 from .models import LowerLevelModel, UpperLevel, model_class
+from .progress import resolve_mode
 from .rollout import platoon
 from .stability import kv_supremum, min_stable_tg, stability_points, stable_intervals
 
@@ -522,7 +523,7 @@ def effect_stability(
     kg_range: tuple[float, float] = (1e-3, 2.0),
     kv_range: tuple[float, float] = (0.0, 1.2),
     tg_range: tuple[float, float] = (0.0, 15.0),
-    progress: bool = False,
+    progress: bool | str = False,
 ) -> EffectStability:
     """The stability of ``model`` (a base model or base + effects) under the
     constant-time-gap ``upper`` level (an :class:`avll.UpperLevel` or a dict with
@@ -536,13 +537,15 @@ def effect_stability(
     between periods of 4 and 60 s. ``warm_periods`` periods are simulated before the
     ``measure_periods`` whose fundamental amplitude is fitted. ``thresholds=False``
     skips the (slower, ~1 s each) extrema searches; ``kg_range``, ``kv_range`` and
-    ``tg_range`` are their boxes (the paper's: Tg in [0, 15] s). ``progress=True``
-    shows a tqdm bar over the amplitudes (one platoon each)."""
+    ``tg_range`` are their boxes (the paper's: Tg in [0, 15] s). ``progress`` shows
+    the amplitudes done (one platoon each) on stderr (``True``/``"auto"``, ``"bar"``,
+    ``"log"``, ``False``/``"none"``: see :mod:`avll.progress`)."""
     model = _with_effects(model)
     upper = _upper_arg(upper)
     v0 = check_number(v0, "v0", positive=True)
     dt = check_number(dt, "dt", positive=True)
     n_cars = check_int(n_cars, "n_cars", min=1, max=200)
+    resolve_mode(progress)  # a bad mode refused before any work
     warm_periods = check_int(warm_periods, "warm_periods", min=1)
     measure_periods = check_int(measure_periods, "measure_periods", min=1)
     amps = np.array([check_number(a, "amplitudes", positive=True) for a in amplitudes])
@@ -602,10 +605,9 @@ def effect_stability(
         a2 = _fit_amplitude(tm[~first_half], vm[~first_half], omega)
         return _fit_amplitude(tm, vm, omega), (a2 / a1 - 1.0 if a1 > 0 else math.nan)
 
-    from tqdm.auto import tqdm
+    from .progress import Progress
 
-    with tqdm(total=n_amp, desc="platoon", unit="amplitude", leave=False,
-              disable=not progress) as bar:
+    with Progress(n_amp, "platoon", unit="amplitude", mode=progress) as bar:
         for k, a in enumerate(amps):
             lv = v0 + a * ramp * np.sin(omega * t)
             lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])

@@ -636,7 +636,7 @@ def _problem_kw(kwargs: dict[str, Any]) -> dict[str, Any]:
     """The problem keywords of :func:`avll.calibrate_many` in ``kwargs``, with its
     defaults."""
     pk: dict[str, Any] = {"bounds": None, "closed_loop": False, "upper_free": (),
-                          "weights": (1.0, 0.0, 0.0), "init": "rest"}
+                          "weights": None, "init": "rest"}
     pk.update({k: kwargs[k] for k in _PROBLEM_KW if k in kwargs})
     return pk
 
@@ -686,9 +686,10 @@ def calibrate_many_distributed(
     ``dask.distributed`` client (``client``: a Client or scheduler address; default a
     local cluster of two worker processes), ``batch`` problems per task. Problem
     ``k`` is calibrated with the seed :func:`avll.calibrate_many` gives it, so the
-    results are the same. ``kwargs`` are those of :func:`avll.calibrate_many` (bounds,
-    closed_loop, upper_free, weights, init, initial, target and GA options; one start
-    per problem; no progress bar)."""
+    results are those of ``avll.calibrate_many(..., starts=1)``: one start per problem
+    (``starts`` other than 1 is refused). ``kwargs`` are those of
+    :func:`avll.calibrate_many` (bounds, closed_loop, upper_free, weights, init,
+    initial, target and GA options; no progress bar)."""
     from ._limits import check_seed
     from .calibration import _ga_kwargs, _ga_memory, _problem
 

@@ -470,7 +470,7 @@ def batch_cost(
     runs: Any,
     *,
     effects: Sequence[str] = (),
-    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    weights: Sequence[float] | None = None,
     init: str = "rest",
     closed_loop: bool = False,
     upper_free: Sequence[int] = (),
@@ -487,8 +487,10 @@ def batch_cost(
     (packed once, :class:`avll.RunSet`: every column the runs have, so the measured
     speed and position start the integrators whenever the runs carry them).
 
-    Each cost is ``wa MSE(a) + wv MSE(v) + wx MSE(x)`` over the run's samples (paper
-    Eq. 6 with the default weights); Eq. 6 itself is the mean over runs. Open loop
+    Each cost is ``wa MSE(a) + wv MSE(v) + wx MSE(x)`` over the run's samples;
+    ``weights=None`` are the loop's defaults (:func:`avll.defaults.objective_weights`:
+    the paper's Eq. 6 in open loop, whose value is the mean over runs, and
+    :data:`avll.defaults.CLOSED_LOOP_WEIGHTS` in closed loop). Open loop
     drives the model with each run's recorded command; closed loop drives it with the
     recorded leader through the run's upper law, whose parameters listed in
     ``upper_free`` (0 kg, 1 kv, 2 Tg, 3 Gmin) are taken from the extra columns of
@@ -541,7 +543,7 @@ def simulate_batch(
     runs: Any,
     *,
     effects: Sequence[str] = (),
-    weights: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    weights: Sequence[float] | None = None,
     init: str = "rest",
     closed_loop: bool = False,
     upper_free: Sequence[int] = (),

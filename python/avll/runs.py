@@ -18,9 +18,9 @@ from typing import Any, overload
 import numpy as np
 
 from . import _core
-from ._limits import check_choice, check_weights
+from ._limits import check_choice
 from .data import INITS, Run, check_runs
-from .defaults import upper_index
+from .defaults import objective_weights, upper_index
 
 __all__ = ["RunSet", "as_runset"]
 
@@ -172,7 +172,7 @@ class RunSet(Sequence[Run]):
     def cost_kw(
         self,
         *,
-        weights: Sequence[float] = (1.0, 0.0, 0.0),
+        weights: Sequence[float] | None = None,
         init: str = "rest",
         closed_loop: bool = False,
         upper_free: Sequence[int] = (),
@@ -182,8 +182,9 @@ class RunSet(Sequence[Run]):
         every run has what this objective needs (the command in open loop, the leader,
         speed, position and upper-level law in closed loop, ``v``/``x`` when weighted,
         the exogenous signal each effect of ``exo`` (effect name -> signal name,
-        :func:`avll.effects.exo_needs`) reads)."""
-        wa, wv, wx = check_weights(weights)
+        :func:`avll.effects.exo_needs`) reads). ``weights=None``: the default of the loop
+        (:func:`avll.defaults.objective_weights`)."""
+        wa, wv, wx = objective_weights(weights, closed_loop)
         init = check_choice(init, "init", INITS)
         need = ["lead_x", "lead_v", "v", "x"] if closed_loop else ["command"]
         need += [c for c, w in (("v", wv), ("x", wx)) if w > 0 and c not in need]

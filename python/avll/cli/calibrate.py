@@ -9,6 +9,7 @@ from dataclasses import replace
 from typing import Any
 
 from .._limits import check_weights
+from ..defaults import CLOSED_LOOP_WEIGHTS, EQ6_WEIGHTS, objective_weights
 from ._common import (
     add_astazero_options,
     add_cal_runs,
@@ -108,6 +109,10 @@ def load_runs(args: argparse.Namespace) -> tuple[list[Any], bool, list[str], str
     return runs, closed, free, init
 
 
+def _csv(weights: tuple[float, float, float]) -> str:
+    return ",".join(f"{w:g}" for w in weights)
+
+
 def _weights(text: str) -> tuple[float, float, float]:
     try:
         weights = [float(w) for w in parse_list("--weights", text)]
@@ -121,7 +126,7 @@ def _cmd(args: argparse.Namespace) -> int:
     from ..calibration import paper_workflow
 
     models = models_of(args)
-    weights = _weights(args.weights)
+    weights = None if args.weights is None else _weights(args.weights)
     runs, closed, free, init = load_runs(args)
     ids = [r.run_id for r in runs]
     if args.figure_run is not None and args.figure_run not in ids:
@@ -138,9 +143,10 @@ def _cmd(args: argparse.Namespace) -> int:
         max_generations=args.max_generations, pop_size=args.pop_size,
     )  # fmt: skip
     text = wf.to_text()
-    if weights != (1.0, 0.0, 0.0):
+    used = objective_weights(weights, closed)
+    if used != EQ6_WEIGHTS:
         text = text.replace("MSE (m/s^2)^2", f"cost wa MSE(a) + wv MSE(v) + wx MSE(x), "
-                            f"(wa, wv, wx) = ({', '.join(f'{w:g}' for w in weights)})")  # fmt: skip
+                            f"(wa, wv, wx) = ({_csv(used)})")
     loop = f"closed loop, free upper gains {','.join(free) or 'none'}" if closed else "open loop"
     print(f"{len(runs)} runs, {loop}, init {init}")
     print(text)
@@ -185,9 +191,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="initial state of each open-loop rollout (default: steady for "
                    "--format carma, openacc-astazero and openacc, whose runs are cut out of "
                    "longer drives; rest otherwise)")
-    p.add_argument("--weights", default="1,0,0", metavar="WA,WV,WX",
+    p.add_argument("--weights", default=None, metavar="WA,WV,WX",
                    help="weights of the acceleration, speed and position MSE (default: "
-                   "1,0,0, the paper's Eq. 6)")
+                   f"{_csv(EQ6_WEIGHTS)}, the paper's Eq. 6, in open loop; "
+                   f"{_csv(CLOSED_LOOP_WEIGHTS)} in closed loop)")
     p.add_argument("--upper-free", default=None, metavar="GAINS",
                    help="closed loop: upper-level gains to calibrate, e.g. kg,kv,Tg,Gmin or "
                    "'none' (default: all four when the runs have no upper law, as OpenACC "

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from .._limits import check_int, check_memory, check_number
-from ..paper import SECTION_IV_GRID
+from ..paper import SECTION_IV_GRID, section_iv_axis
 from ..report import num
 from ._common import add_json, add_models, add_progress, add_threads, declare_io, models_of
 
@@ -28,11 +28,11 @@ def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
     if hi == lo:
         raise ValueError(f"--{name}: MIN and MAX are both {lo:g}; an axis needs MIN < MAX")
     check_memory(8.0 * n, f"--{name}: N = {n} points", "use a smaller N")
-    if log:
-        if lo <= 0:
-            raise ValueError(f"--{name}: a log-spaced axis needs MIN > 0, got {lo}")
-        return np.geomspace(lo, hi, n)
-    return np.linspace(lo, hi, n)
+    if log and lo <= 0:
+        raise ValueError(f"--{name}: a log-spaced axis needs MIN > 0, got {lo}")
+    if not log and (hi - lo) / (n - 1) < 1e-6:  # steps too fine for 10-decimal rounding
+        return np.linspace(lo, hi, n)
+    return section_iv_axis(lo, hi, n, log)  # the default axes are reproduce's, bit for bit
 
 
 def models_from_json(path: str | Path, names: Sequence[str] | None = None) -> dict[str, Any]:

@@ -17,7 +17,7 @@ from .. import _core
 from .._limits import check_threads
 from ..calibration import default_bounds
 from ..data import Run
-from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS
+from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, EQ6_WEIGHTS
 from ..defaults import UPPER_BOUNDS as _UB
 from ..defaults import UPPER_NAMES as _UPPER_NAMES
 from ..effects import EFFECTS, WithEffects, exo_needs
@@ -142,7 +142,8 @@ def run_mse(
     up = upper if upper is not None else rs.upper
     row = model.to_array() if up is None else np.r_[model.to_array(), up.to_array()]
     return batch_cost(model, row[None, :], rs, closed_loop=closed, init=init, threads=threads,
-                      upper_free=[0, 1, 2, 3] if up is not None else [])[0]
+                      upper_free=[0, 1, 2, 3] if up is not None else [],
+                      weights=EQ6_WEIGHTS)[0]  # the acceleration's MSE in either loop
 
 
 def _fixed(effect: str, param: str, kind: str) -> float | None:
@@ -164,10 +165,11 @@ def default_weights(closed: bool, speed: bool = False) -> tuple[float, float, fl
     """The loop's objective weights ``(wa, wv, wx)``: :data:`avll.defaults.CLOSED_LOOP_WEIGHTS`
     in closed loop (the acceleration alone leaves the upper law's spacing unidentified),
     :data:`SPEED_COMMAND_WEIGHTS` for a ``speed`` command with a measured speed,
-    otherwise the paper's Eq. 6 ``(1, 0, 0)``. The loop reports acceleration MSEs."""
+    otherwise the paper's Eq. 6 (:data:`avll.defaults.EQ6_WEIGHTS`). The loop reports
+    acceleration MSEs."""
     if closed:
         return CLOSED_LOOP_WEIGHTS
-    return SPEED_COMMAND_WEIGHTS if speed else (1.0, 0.0, 0.0)
+    return SPEED_COMMAND_WEIGHTS if speed else EQ6_WEIGHTS
 
 
 @dataclass(frozen=True)

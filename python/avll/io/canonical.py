@@ -391,6 +391,6 @@ def write_runs(runs: Sequence[Run], path: str | Path) -> Path:
         if path.suffix.lower() in (".parquet", ".pq"):
             df.to_parquet(tmp_data, index=False)
         else:
-            df.to_csv(tmp_data, index=False, float_format="%.10g")
+            df.to_csv(tmp_data, index=False)  # shortest text that reads back exactly
         tmp_side.write_text(text + "\n", encoding="utf-8")
     return path

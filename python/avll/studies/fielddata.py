@@ -45,7 +45,7 @@ import numpy as np
 
 from ..calibration import CalibrationResult, calibrate_many
 from ..data import Run
-from ..defaults import CLOSED_LOOP_WEIGHTS, UPPER_PLACEHOLDER
+from ..defaults import CLOSED_LOOP_WEIGHTS, EQ6_WEIGHTS, UPPER_PLACEHOLDER
 from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODEL_LABELS
@@ -63,7 +63,7 @@ HANDOVER_SPEED = 20.05
 
 #: Objectives of the CARMA study: name -> (wa, wv, wx).
 CARMA_OBJECTIVES: dict[str, tuple[float, float, float]] = {
-    "acceleration": (1.0, 0.0, 0.0),
+    "acceleration": EQ6_WEIGHTS,
     "speed": (0.0, 1.0, 0.0),
 }
 
@@ -72,7 +72,7 @@ CARMA_OBJECTIVES: dict[str, tuple[float, float, float]] = {
 #: ahead), so ``"mixed"`` weighs the measured speed and position (i.e. the gap, the
 #: leader being measured) too: :data:`avll.defaults.CLOSED_LOOP_WEIGHTS`.
 ASTAZERO_OBJECTIVES: dict[str, tuple[float, float, float]] = {
-    "acceleration": (1.0, 0.0, 0.0),
+    "acceleration": EQ6_WEIGHTS,
     "mixed": CLOSED_LOOP_WEIGHTS,
 }
 
