@@ -42,6 +42,7 @@ import numpy as np
 import avll
 from avll import _atomic
 from avll.defaults import DEFAULT_STARTS, GA_OPTIONS
+from avll.paper import G
 from avll.report import md_table as _md
 from avll.report import num as _f
 
@@ -54,7 +55,6 @@ MODELS = ("first", "second", "proposed")
 CARMA_FILES = ("data5", "data6", "data9", "data10")
 CAL_FILES = ("data5", "data9")
 PAIRS = ("v1-v2", "v2-v3", "v3-v4", "v4-v5")
-G = 9.81
 #: GA budgets of the two studies (the studies' defaults).
 STUDY_GA: dict[str, dict[str, Any]] = {
     "carma": dict(max_generations=60, stall_generations=12, starts=1),

@@ -37,7 +37,15 @@ from ._limits import check_int, check_memory, check_number, check_seed, check_th
 from .data import Run
 
 # the defaults and the paper's calibration runs, re-exported here (their old home)
-from .defaults import DEFAULT_BOUNDS, DEFAULT_STARTS, GA_OPTIONS, UPPER_BOUNDS, Bound, upper_index
+from .defaults import (
+    AT_BOUND_TOL,
+    DEFAULT_BOUNDS,
+    DEFAULT_STARTS,
+    GA_OPTIONS,
+    UPPER_BOUNDS,
+    Bound,
+    upper_index,
+)
 from .defaults import UPPER_NAMES as _UPPER_NAMES
 from .effects import EFFECTS, WithEffects, canonical, exo_needs
 from .models import LowerLevelModel, UpperLevel, model_class
@@ -409,7 +417,7 @@ def _result(prob: _Problem, raw: Mapping[str, Any], runs: Sequence[Run], seed: i
     at_bound = tuple(
         n
         for n, v, lo, hi, sc in zip(prob.names, x, prob.lower, prob.upper, prob.scale, strict=True)
-        if lo < hi and min(unit(v, lo, hi, sc), 1.0 - unit(v, lo, hi, sc)) <= 1e-3
+        if lo < hi and min(unit(v, lo, hi, sc), 1.0 - unit(v, lo, hi, sc)) <= AT_BOUND_TOL
     )
     return CalibrationResult(
         model=model,

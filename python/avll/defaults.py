@@ -23,6 +23,7 @@ __all__ = [
     "BOUND_REASONS",
     "UPPER_NAMES",
     "upper_index",
+    "AT_BOUND_TOL",
     "GA_OPTIONS",
     "EQ6_WEIGHTS",
     "CLOSED_LOOP_WEIGHTS",
@@ -116,6 +117,12 @@ def upper_index(u: int | str) -> int:
         return int(u)
     raise ValueError(f"upper_free: expected a gain name ({', '.join(UPPER_NAMES)}) or its "
                      f"index 0..3, got {u!r}")
+
+#: A fitted parameter within this share of its search box (in the box's own scale,
+#: logarithmic for log-scaled parameters) of a bound is "at bound": the rule of
+#: :attr:`avll.calibration.CalibrationResult.at_bound`, of the diagnosis's
+#: :func:`avll.diagnose.fitting.at_bound` and of the intervals (:mod:`avll.uncertainty`).
+AT_BOUND_TOL: float = 1e-3
 
 #: The GA's tunable options with their defaults, as the Rust core defines them
 #: (``GaOptions::default()``, exported by ``avll._core.ga_defaults``; the core also

@@ -74,7 +74,13 @@ from .effects import EFFECTS, WithEffects, canonical, equivalent_model
 from .models import LowerLevelModel, UpperLevel, model_class
 from .progress import resolve_mode
 from .rollout import platoon
-from .stability import kv_supremum, min_stable_tg, stability_points, stable_intervals
+from .stability import (
+    EXACT_BUDGET,
+    kv_supremum,
+    min_stable_tg,
+    stability_points,
+    stable_intervals,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -227,7 +233,7 @@ def band_amplification_rows(
 
 def stability_codes_rows(
     model: Any, rows: Any, *, effects: Sequence[str] = (), v: float = 0.0, side: int = 0,
-    budget: int = 20000, threads: int = 0,
+    budget: int = EXACT_BUDGET, threads: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Certified stability codes (0 locally unstable, 1 string unstable, 2 string
     stable) of the closed loops of many parameter rows ``[model | effects | kg, kv, Tg,

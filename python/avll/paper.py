@@ -17,6 +17,7 @@ from .models import FirstOrderLag, LowerLevelModel, Proposed, SecondOrder
 
 __all__ = [
     "MODELS",
+    "G",
     "MODEL_LABELS",
     "MODEL_TITLES",
     "TABLE_I",
@@ -63,6 +64,10 @@ PAPER_VAL_RUNS: tuple[int, ...] = tuple(r for r in TABLE_I if r not in PAPER_CAL
 
 #: Standstill spacing of the experiment (m).
 GMIN = 9.5
+
+#: Standard gravity (m/s²): a road grade ``g`` (rise over run) pulls a car with
+#: ``-G g``, wherever a grade becomes an acceleration.
+G = 9.81
 
 #: Table II: the calibrated parameters of the three models (s, s^2, and 1 for gains).
 TABLE_II_PARAMS: dict[str, dict[str, float]] = {

@@ -77,6 +77,7 @@ import numpy as np
 from ._limits import check_int, check_number, check_seed
 from .data import Run
 from .models import UpperLevel
+from .paper import G
 from .synth import GMIN, _ar1, _noisy, _table_i_upper, leader_profile
 
 __all__ = [
@@ -88,8 +89,6 @@ __all__ = [
     "simulate_vehicle",
     "simulate_platoon",
 ]
-
-G = 9.81
 
 #: The vehicle, its sensors and its network, without any effect (the ``clean``
 #: scenario). Forces in N, speeds in m/s, times in s.

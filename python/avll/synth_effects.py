@@ -38,11 +38,10 @@ from scipy.linalg import expm
 
 from .data import Run
 from .models import LowerLevelModel, UpperLevel
+from .paper import G
 from .synth import GMIN, _measured, _table_i_upper, leader_profile
 
 __all__ = ["GENERATOR_DEFAULTS", "expected_params", "paper_experiment_effects"]
-
-G = 9.81
 
 #: Default generator parameters of each effect.
 GENERATOR_DEFAULTS: dict[str, dict[str, float]] = {

@@ -116,6 +116,7 @@ import numpy as np
 
 from . import _core, _sigint
 from ._limits import check_int, check_seed, check_threads
+from .defaults import AT_BOUND_TOL
 from .report import finite_or_none
 
 __all__ = [
@@ -151,7 +152,7 @@ MAX_BOX_SHARE = 0.25
 #: identified.
 MAX_REL_WIDTH = 0.5
 #: Distance (unit coordinates) within which a value counts as at its bound.
-BOUND_TOL = 1e-3
+BOUND_TOL = AT_BOUND_TOL
 #: Correlations at least this large (absolute) are listed in the report.
 MIN_CORREL = 0.5
 #: Rollouts per fitted parameter of a Levenberg-Marquardt refit when

@@ -13,7 +13,7 @@ import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from ..diagnose.defaults import MIN_GAIN
+from ..diagnose.defaults import MAX_EFFECTS, MIN_GAIN
 from ._common import (
     add_astazero_options,
     add_command_kind,
@@ -139,8 +139,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-gain", type=float, default=MIN_GAIN,
                    help="minimum relative reduction of the out-of-fold MSE to accept an "
                    f"effect (default: {MIN_GAIN})")
-    p.add_argument("--max-effects", type=int, default=3,
-                   help="at most this many effects (default: 3)")
+    p.add_argument("--max-effects", type=int, default=MAX_EFFECTS,
+                   help=f"at most this many effects (default: {MAX_EFFECTS})")
     add_ga_budget(p, what="every fit")
     p.add_argument("--candidates", default=None, metavar="E[,E...]",
                    help="effects offered, comma-separated (default: every registered "

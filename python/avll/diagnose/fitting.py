@@ -17,7 +17,7 @@ from .. import _core
 from .._limits import check_threads
 from ..calibration import default_bounds
 from ..data import Run
-from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, EQ6_WEIGHTS
+from ..defaults import AT_BOUND_TOL, CLOSED_LOOP_WEIGHTS, DEFAULT_BOUNDS, EQ6_WEIGHTS
 from ..defaults import UPPER_BOUNDS as _UB
 from ..defaults import UPPER_NAMES as _UPPER_NAMES
 from ..effects import EFFECTS, WithEffects, exo_needs
@@ -43,10 +43,6 @@ __all__ = [
 #: diagnosis and a calibration of the same data answer the same question.
 BASE_BOUNDS: dict[str, dict[str, tuple[float, float, str]]] = DEFAULT_BOUNDS
 
-#: A fitted parameter within this share of its search box (in the box's own scale,
-#: logarithmic for log-scaled parameters) of a bound is reported "at bound": the
-#: rule of :attr:`avll.calibration.CalibrationResult.at_bound`.
-AT_BOUND_TOL: float = 1e-3
 
 
 def _init(runs: Any, init: str) -> str:

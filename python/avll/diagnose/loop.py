@@ -62,7 +62,17 @@ from ..models import LowerLevelModel, UpperLevel, model_class
 from ..progress import Progress, messages
 from ..runs import RunSet
 from .contract import model_to_dict
-from .defaults import DEFAULT_BLOCKS, DEFAULT_FOLDS, FAR_SMALLER, MIN_BLOCK, MIN_GAIN
+from .defaults import (
+    ALPHA,
+    DEFAULT_BLOCKS,
+    DEFAULT_FOLDS,
+    FAR_SMALLER,
+    MAX_EFFECTS,
+    MIN_BLOCK,
+    MIN_GAIN,
+    MIN_SHARE,
+    N_BOOT,
+)
 from .fitting import AtBound, at_bound, calibrate_kw, run_mse, simulate_runs
 from .signatures import Diagnosis, diagnose, not_offered, residual_structure
 from .stats import BootstrapGain, LossTest, block_bootstrap_gain, loss_difference_test
@@ -370,20 +380,20 @@ def effect_loop(
     test_runs: Sequence[Run] = (),
     seed: int = 0,
     closed_loop: bool | None = None,
-    alpha: float = 1e-3,
+    alpha: float = ALPHA,
     cv_alpha: float = 0.01,
     min_gain: float = MIN_GAIN,
     folds: int | None = None,
-    max_effects: int = 3,
+    max_effects: int = MAX_EFFECTS,
     tries: int = 2,
     baseline: LowerLevelModel | None = None,
     candidates: Sequence[str] | None = None,
     init: str = "auto",
     max_generations: int | None = None,
     starts: int = DEFAULT_STARTS,
-    structure_alpha: float = 1e-3,
-    min_structure: float = 0.02,
-    n_boot: int = 2000,
+    structure_alpha: float = ALPHA,
+    min_structure: float = MIN_SHARE,
+    n_boot: int = N_BOOT,
     threads: int = 0,
     progress: Any = False,
 ) -> LoopResult:

@@ -37,6 +37,7 @@ from ..data import Run
 from ..effects import CANONICAL_ORDER, EFFECTS, WithEffects
 from ..models import LowerLevelModel
 from ..runs import RunSet, as_runset
+from .defaults import ALPHA, MIN_SHARE
 from .fitting import BATCH, _fixed, _setup, _simulate, _split
 from .stats import SignalDependence, _binned, _ess, _lag1, _lstsq
 
@@ -301,7 +302,7 @@ def diagnose(
     val_runs: Sequence[Run] = (),
     *,
     closed_loop: bool | None = None,
-    alpha: float = 1e-3,
+    alpha: float = ALPHA,
     min_explained: float = 0.01,
     candidates: Sequence[str] | None = None,
     init: str = "auto",
@@ -456,8 +457,8 @@ def residual_structure(
     *,
     closed_loop: bool | None = None,
     init: str = "auto",
-    alpha: float = 1e-3,
-    min_share: float = 0.02,
+    alpha: float = ALPHA,
+    min_share: float = MIN_SHARE,
     nbins: int = 10,
 ) -> dict[str, Any]:
     """What the residual of ``model`` on ``runs`` still depends on: the residual binned

@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from .defaults import N_BOOT
+
 __all__ = [
     "SignalDependence",
     "LossTest",
@@ -207,7 +209,7 @@ def block_bootstrap_gain(
     before: Sequence[np.ndarray],
     after: Sequence[np.ndarray],
     *,
-    n_boot: int = 2000,
+    n_boot: int = N_BOOT,
     seed: int = 0,
     level: float = 0.95,
 ) -> BootstrapGain:

@@ -30,9 +30,9 @@ from avll.data import Run
 from avll.diagnose import calibrate_kw, effect_loop, effective_sample_size, simulate_runs
 from avll.effects import WithEffects
 from avll.io import read_runs
+from avll.paper import G
 
 BASE = "second"
-G = 9.81
 
 
 def split(data: Path) -> tuple[list[Run], list[Run], list[Run]]:

@@ -128,6 +128,7 @@ from ..report import md_table
 from ..rollout import closed_loop
 from ..spectral import (
     DEFAULT_BAND,
+    MIN_EXCITATION,
     TRIM,
     band_weights,
     bandpass,
@@ -135,6 +136,9 @@ from ..spectral import (
 )
 from ..stability import exact_delay_codes
 from ..uncertainty import symmetric_interval
+from .openacc_select import ALPHA as SELECT_ALPHA
+from .openacc_select import MAX_STRUCTURES
+from .openacc_select import MIN_GAIN as SELECT_MIN_GAIN
 
 __all__ = ["WEIGHTS", "DEFAULT_BAND", "TRIM", "BLOCK", "N_BOOT", "MIN_EXCITATION",
            "GMIN_MAX", "HEADWAY_MIN_SPEED", "OpenACCStudy", "openacc_study", "bandpass",
@@ -149,8 +153,6 @@ WEIGHTS: tuple[float, float, float] = CLOSED_LOOP_WEIGHTS
 BLOCK = 20.0
 #: Bootstrap resamples.
 N_BOOT = 2000
-#: Smallest band RMS (m/s) of the predecessor's speed that counts as an excitation.
-MIN_EXCITATION = 0.05
 #: Upper bound (m) of the standstill distance Gmin in the calibration.
 GMIN_MAX = 10.0
 #: The measured time headway uses the samples faster than this (m/s).
@@ -504,9 +506,9 @@ def openacc_study(
     out_of_sample: bool = True,
     intervals: Any = True,
     structures: bool | Sequence[str] = True,
-    min_gain: float = 0.02,
-    alpha: float = 0.05,
-    max_structures: int = 2,
+    min_gain: float = SELECT_MIN_GAIN,
+    alpha: float = SELECT_ALPHA,
+    max_structures: int = MAX_STRUCTURES,
     **load_options: Any,
 ) -> OpenACCStudy:
     """Runs the study (see the module doc) on native OpenACC data at ``path`` (a
