@@ -148,6 +148,16 @@ def test_weights_none_is_the_loops_default_everywhere() -> None:
     at = np.concatenate([res.model.to_array(), [res.upper[k] for k in kw["upper_free"]]])[None]
     want = avll.batch_cost("first", at, [run], weights=CLOSED_LOOP_WEIGHTS, **kw)[0, 0]
     assert res.cost == pytest.approx(want, rel=1e-12)
+    assert res.weights == CLOSED_LOOP_WEIGHTS
+    wf = avll.paper_workflow(sp.runs, cal_runs=[sp.runs[0].run_id], models=("first",),
+                             max_generations=2, starts=1, **kw)
+    assert wf.weights == CLOSED_LOOP_WEIGHTS and wf.to_json()["weights"] == [1.0, 1.0, 0.01]
+    assert "(wa, wv, wx) = (1, 1, 0.01)" in wf.to_text() and "MSE (m/s^2)^2" not in wf.to_text()
+    from avll.synth import paper_experiment
+
+    open_wf = avll.paper_workflow(paper_experiment(seed=0, duration=20.0), cal_runs=None,
+                                  models=("first",), max_generations=2, starts=1)
+    assert open_wf.weights == EQ6_WEIGHTS and "Calibration MSE (m/s^2)^2" in open_wf.to_text()
 
 
 def test_calibrate_many_starts_like_calibrate_with_subsets() -> None:

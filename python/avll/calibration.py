@@ -41,9 +41,11 @@ from .defaults import (
     AT_BOUND_TOL,
     DEFAULT_BOUNDS,
     DEFAULT_STARTS,
+    EQ6_WEIGHTS,
     GA_OPTIONS,
     UPPER_BOUNDS,
     Bound,
+    objective_weights,
     upper_index,
 )
 from .defaults import UPPER_NAMES as _UPPER_NAMES
@@ -147,7 +149,8 @@ class CalibrationResult:
     """A calibrated model.
 
     ``cost`` is Eq. 6 on the calibration runs; ``per_run_mse`` each run's cost (the
-    acceleration MSE with the default weights); ``upper`` the calibrated upper-level
+    acceleration MSE with Eq. 6's weights; with others, ``weights``, the weighted sum of
+    the MSEs); ``upper`` the calibrated upper-level
     gains (closed loop with ``upper_free``); ``history`` the best cost after each
     generation; ``interrupted`` is true when Ctrl-C (or the progress callable)
     stopped the search, the result then being the best so far. With effects,
@@ -180,6 +183,8 @@ class CalibrationResult:
     #: The uncertainty of the calibration (:class:`avll.Uncertainty`) when asked for
     #: with ``intervals=``; ``None`` otherwise.
     uncertainty: Any = None
+    #: The objective's weights ``(wa, wv, wx)`` the costs are under.
+    weights: tuple[float, float, float] = EQ6_WEIGHTS
 
     @property
     def params(self) -> dict[str, float]:
@@ -436,6 +441,7 @@ def _result(prob: _Problem, raw: Mapping[str, Any], runs: Sequence[Run], seed: i
         start_costs=start_costs,
         with_effects=with_effects,
         x=x,
+        weights=prob.weights,
     )
 
 
@@ -933,6 +939,8 @@ class Workflow:
     val_mse: dict[str, dict[str, float]]
     closed_loop: bool = False
     init: str = "rest"
+    #: The objective's weights ``(wa, wv, wx)`` of the calibration and validation costs.
+    weights: tuple[float, float, float] = EQ6_WEIGHTS
 
     @property
     def interrupted(self) -> bool:
@@ -972,18 +980,21 @@ class Workflow:
         """The tables as plain text."""
         import pandas as pd
 
+        what = "MSE (m/s^2)^2" if self.weights == EQ6_WEIGHTS else (
+            "cost wa MSE(a) + wv MSE(v) + wx MSE(x), (wa, wv, wx) = ("
+            + ", ".join(f"{w:g}" for w in self.weights) + ")")
         with pd.option_context("display.width", 200, "display.max_columns", 50):
             parts = [
                 "Calibrated parameters (cf. Table II; -: not a parameter of that model)",
                 self.params_table().to_string(float_format=lambda v: f"{v:.4f}", na_rep="-"),
                 "",
-                "Calibration MSE (m/s^2)^2 (cf. Table III)",
+                f"Calibration {what} (cf. Table III)",
                 self.mse_table("cal").to_string(float_format=lambda v: f"{v:.4f}"),
             ]
             if self.val:
                 parts += [
                     "",
-                    "Validation MSE (m/s^2)^2 (cf. Table IV)",
+                    f"Validation {what} (cf. Table IV)",
                     self.mse_table("val").to_string(float_format=lambda v: f"{v:.4f}"),
                 ]
         if self.interrupted:
@@ -992,7 +1003,8 @@ class Workflow:
 
     def to_json(self) -> dict[str, Any]:
         """The CLI's JSON contract: ``{"models": {name: {"params", "cal_mse", "val_mse",
-        "per_run_mse"}}}`` (``per_run_mse`` covers calibration and validation runs)."""
+        "per_run_mse"}}, "weights": [wa, wv, wx]}`` (``per_run_mse`` covers calibration
+        and validation runs; the costs are under ``weights``)."""
         models: dict[str, Any] = {}
         for m, r in self.results.items():
             v = self.val_mse[m]
@@ -1008,7 +1020,7 @@ class Workflow:
                 "interrupted": r.interrupted,
                 "at_bound": list(r.at_bound),
             }
-        return {"models": models}
+        return {"models": models, "weights": list(self.weights)}
 
     def simulated(self, model: str, run: Run) -> np.ndarray:
         """The acceleration that ``model`` (as calibrated) simulates for ``run``."""
@@ -1089,4 +1101,5 @@ def paper_workflow(
             val_mse[cls.name] = {}
         if res.interrupted:
             break
-    return Workflow(results, cal, val, val_mse, bool(opts["closed_loop"]), str(opts["init"]))
+    return Workflow(results, cal, val, val_mse, bool(opts["closed_loop"]), str(opts["init"]),
+                    objective_weights(opts["weights"], bool(opts["closed_loop"])))

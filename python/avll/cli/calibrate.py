@@ -9,7 +9,7 @@ from dataclasses import replace
 from typing import Any
 
 from .._limits import check_weights
-from ..defaults import CLOSED_LOOP_WEIGHTS, EQ6_WEIGHTS, objective_weights
+from ..defaults import CLOSED_LOOP_WEIGHTS, EQ6_WEIGHTS
 from ._common import (
     add_astazero_options,
     add_cal_runs,
@@ -142,11 +142,7 @@ def _cmd(args: argparse.Namespace) -> int:
         weights=weights, starts=args.starts,
         max_generations=args.max_generations, pop_size=args.pop_size,
     )  # fmt: skip
-    text = wf.to_text()
-    used = objective_weights(weights, closed)
-    if used != EQ6_WEIGHTS:
-        text = text.replace("MSE (m/s^2)^2", f"cost wa MSE(a) + wv MSE(v) + wx MSE(x), "
-                            f"(wa, wv, wx) = ({_csv(used)})")
+    text = wf.to_text()  # names the weights when they are not Eq. 6's
     loop = f"closed loop, free upper gains {','.join(free) or 'none'}" if closed else "open loop"
     print(f"{len(runs)} runs, {loop}, init {init}")
     print(text)
