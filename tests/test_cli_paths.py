@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import pytest
+from cli_helpers import err_line
 
 import avll
 from avll.cli import main
@@ -15,14 +16,6 @@ from avll.paper import section_iv_axis
 
 # a grid that takes many seconds: a failure must come before it is computed
 _BIG = ["--kg", "0.001", "2", "2000", "--tg", "0", "15", "1501", "--kv", "0", "1", "201"]
-
-
-def _one_line_error(capsys: pytest.CaptureFixture[str], *words: str) -> str:
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, err
-    return err
 
 
 def test_bad_json_fails_fast_before_work(tmp_path: Path,
@@ -33,7 +26,7 @@ def test_bad_json_fails_fast_before_work(tmp_path: Path,
     t0 = time.perf_counter()
     rc = main(["stability-map", *_BIG, "--out", str(fig), "--json", str(blocker / "x.json")])
     assert rc == 2 and time.perf_counter() - t0 < 5.0
-    _one_line_error(capsys, "--json", "is a file, not a folder")
+    err_line(capsys, "--json", "is a file, not a folder")
     assert not fig.exists()
 
 
@@ -42,7 +35,7 @@ def test_json_that_is_a_folder_fails_fast(tmp_path: Path,
     rc = main(["stability-map", *_BIG, "--out", str(tmp_path / "f.png"), "--json",
                str(tmp_path)])
     assert rc == 2
-    _one_line_error(capsys, "--json", "is a folder")
+    err_line(capsys, "--json", "is a folder")
 
 
 def test_output_folder_that_is_a_file(tmp_path: Path,
@@ -50,7 +43,7 @@ def test_output_folder_that_is_a_file(tmp_path: Path,
     f = tmp_path / "out"
     f.write_text("x")
     assert main(["simulate", "--out", str(f)]) == 2
-    _one_line_error(capsys, "--out", "not a folder")
+    err_line(capsys, "--out", "not a folder")
 
 
 def test_unwritable_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -63,7 +56,7 @@ def test_unwritable_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
         if os.access(ro, os.W_OK):
             pytest.skip("running as a user who can write anywhere (root)")
         assert main(["stability-map", *_BIG, "--out", str(ro / "f.png")]) == 2
-        _one_line_error(capsys, "--out", "not writable")
+        err_line(capsys, "--out", "not writable")
     finally:
         ro.chmod(0o700)
 
@@ -78,15 +71,15 @@ def test_no_command_writes_over_its_input(tmp_path: Path,
                  ["calibrate", str(data), "--figure", str(data)],
                  ["load", str(data), "--json", str(data)]):
         assert main(argv) == 2
-        _one_line_error(capsys, "would replace the input")
+        err_line(capsys, "would replace the input")
     assert data.read_bytes() == before
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"models": {"first": {"params": {"Td": 1.0}}}}))
     assert main(["stability-map", "--from", str(cal), "--json", str(cal)]) == 2
-    _one_line_error(capsys, "--json", "would replace the input")
+    err_line(capsys, "--json", "would replace the input")
     assert main(["stability-map", "--from", str(cal), "--json", str(tmp_path / "a.json"),
                  "--out", str(tmp_path / "a.json")]) == 2
-    _one_line_error(capsys, "also the output")
+    err_line(capsys, "also the output")
 
 
 def test_stability_map_from_calibration_json(tmp_path: Path,
@@ -124,7 +117,7 @@ def test_stability_map_from_calibration_json(tmp_path: Path,
     capsys.readouterr()
     assert main(["stability-map", "--from", str(cal), "--models", "first", *grid,
                  "--out", str(tmp_path / "p.png")]) == 2
-    _one_line_error(capsys, "first not in")
+    err_line(capsys, "first not in")
 
 
 def test_stability_map_from_bad_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -132,9 +125,9 @@ def test_stability_map_from_bad_json(tmp_path: Path, capsys: pytest.CaptureFixtu
     bad = tmp_path / "bad.json"
     bad.write_text("{nope")
     assert main(["stability-map", "--from", str(bad), "--out", str(tmp_path / "x.png")]) == 2
-    _one_line_error(capsys, "--from", "not valid JSON")
+    err_line(capsys, "--from", "not valid JSON")
     bad.write_text(json.dumps({"models": {"second": {"params": {"K0": None}}}}))
     assert main(["stability-map", "--from", str(bad), "--out", str(tmp_path / "x.png")]) == 2
-    _one_line_error(capsys, "models.second.params.K0")
+    err_line(capsys, "models.second.params.K0")
     assert main(["stability-map", "--from", str(tmp_path / "none.json")]) == 2
-    _one_line_error(capsys, "none.json")
+    err_line(capsys, "none.json")
