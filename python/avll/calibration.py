@@ -43,6 +43,7 @@ from .defaults import (
     DEFAULT_STARTS,
     EQ6_WEIGHTS,
     GA_OPTIONS,
+    LEVEL,
     UPPER_BOUNDS,
     Bound,
     objective_weights,
@@ -52,7 +53,7 @@ from .defaults import UPPER_NAMES as _UPPER_NAMES
 from .effects import EFFECTS, WithEffects, canonical, exo_needs
 from .models import LowerLevelModel, UpperLevel, model_class
 from .paper import MODEL_TITLES as _LABELS
-from .paper import PAPER_CAL_RUNS
+from .paper import MODELS, PAPER_CAL_RUNS
 from .rollout import _structure, closed_loop, simulate
 from .runs import RunSet, as_runset, positions
 from .uncertainty import Uncertainty
@@ -292,7 +293,7 @@ def _ga_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
 def _ga_memory(prob: _Problem, n_problems: int, ga: dict[str, Any]) -> None:
     """Refuses a calibration whose populations cannot fit in memory."""
     d = len(prob.names)
-    pop = ga["pop_size"] or max(16 * d, 40)
+    pop = ga["pop_size"] or _core.ga_auto_pop(d)
     runs = len(prob.rs)
     per = 8.0 * (4 * pop * (d + 2) + ga["max_generations"] + runs + d)
     check_memory(per * n_problems,
@@ -852,7 +853,7 @@ def bootstrap(
     n: int = 50,
     *,
     seed: int = 0,
-    level: float = 0.95,
+    level: float = LEVEL,
     threads: int = 0,
     progress: bool | str | Callable[[dict[str, Any]], Any] = False,
     method: str = "runs",
@@ -1061,7 +1062,7 @@ def paper_workflow(
     runs: Sequence[Run],
     *,
     cal_runs: Sequence[Any] | str | None = "paper",
-    models: Sequence[str] = ("first", "second", "proposed"),
+    models: Sequence[str] = MODELS,
     seed: int = 0,
     threads: int = 0,
     progress: bool | str = False,

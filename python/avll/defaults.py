@@ -24,6 +24,7 @@ __all__ = [
     "UPPER_NAMES",
     "upper_index",
     "AT_BOUND_TOL",
+    "LEVEL",
     "GA_OPTIONS",
     "EQ6_WEIGHTS",
     "CLOSED_LOOP_WEIGHTS",
@@ -123,6 +124,10 @@ def upper_index(u: int | str) -> int:
 #: :attr:`avll.calibration.CalibrationResult.at_bound`, of the diagnosis's
 #: :func:`avll.diagnose.fitting.at_bound` and of the intervals (:mod:`avll.uncertainty`).
 AT_BOUND_TOL: float = 1e-3
+
+#: Confidence level of every interval by default: bootstraps, parameter intervals, the
+#: band gain's, the diagnosis's gains and the OpenACC study's amplification ratios.
+LEVEL: float = 0.95
 
 #: The GA's tunable options with their defaults, as the Rust core defines them
 #: (``GaOptions::default()``, exported by ``avll._core.ga_defaults``; the core also

@@ -72,6 +72,7 @@ from . import _core
 from ._limits import check_int, check_number, check_threads
 from .effects import EFFECTS, WithEffects, canonical, equivalent_model
 from .models import LowerLevelModel, UpperLevel, model_class
+from .paper import PADE_ORDER
 from .progress import resolve_mode
 from .rollout import platoon
 from .stability import (
@@ -524,7 +525,7 @@ def effect_stability(
     dt: float = 0.05,
     warm_periods: int = 6,
     measure_periods: int = 4,
-    pade_order: int = 2,
+    pade_order: int = PADE_ORDER,
     thresholds: bool = True,
     kg_range: tuple[float, float] = (1e-3, 2.0),
     kv_range: tuple[float, float] = (0.0, 1.2),

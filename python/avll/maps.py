@@ -38,7 +38,9 @@ import numpy as np
 from . import _core
 from . import stability as S
 from ._limits import check_int, check_memory, check_threads
+from .defaults import LEVEL
 from .models import LowerLevelModel
+from .paper import PADE_ORDER
 
 __all__ = [
     "DIMS",
@@ -117,7 +119,7 @@ def map_dataset(
     kg: Any,
     tg: Any,
     kv: Any,
-    pade_order: int | None = 2,
+    pade_order: int | None = PADE_ORDER,
     chunks: Mapping[str, int] | None = None,
     *,
     threads: int | None = None,
@@ -452,7 +454,7 @@ def sweep(
     kg: Any,
     tg: Any,
     kv: Any,
-    pade_orders: Sequence[int | None] = (2,),
+    pade_orders: Sequence[int | None] = (PADE_ORDER,),
     *,
     client: Any = None,
     reduce: str | None = None,
@@ -526,7 +528,7 @@ def stability_probability(
     kg: Any,
     tg: Any,
     kv: Any,
-    pade_order: int | None = 2,
+    pade_order: int | None = PADE_ORDER,
     *,
     chunks: Mapping[str, int] | None = None,
 ) -> Any:
@@ -573,7 +575,7 @@ def min_stable_tg_samples(
     models: Any,
     kg_range: tuple[float, float] = (1e-3, 2.0),
     kv_range: tuple[float, float] = (0.0, 1.2),
-    pade_order: int | None = 2,
+    pade_order: int | None = PADE_ORDER,
     *,
     client: Any = None,
     distributed: bool = True,
@@ -734,7 +736,7 @@ def bootstrap_distributed(
     n: int = 50,
     *,
     seed: int = 0,
-    level: float = 0.95,
+    level: float = LEVEL,
     client: Any = None,
     batch: int = 10,
     threads: int = 1,

@@ -28,6 +28,12 @@ __all__ = [
 ]
 
 
+#: The paper's Padé order of the delay and standstill spacing (m), the defaults of
+#: :meth:`LowerLevelModel.transfer_function` and :class:`UpperLevel`: written here, as
+#: :mod:`avll.paper` builds on this module, and named by it (``PADE_ORDER``, ``GMIN``).
+PADE_ORDER, GMIN = 2, 9.5
+
+
 def _check(name: str, value: float, *, positive: bool = False, nonneg: bool = False) -> None:
     if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
         raise ValueError(f"{name}: must be a number, got {value!r}")
@@ -108,7 +114,7 @@ class LowerLevelModel(ABC):
         c = self.linear()
         return c["b0"] / (1.0 - c["K"] * c["b0"])
 
-    def transfer_function(self, pade_order: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    def transfer_function(self, pade_order: int = PADE_ORDER) -> tuple[np.ndarray, np.ndarray]:
         """Numerator and denominator (highest power first) of ``G_fb(s)`` with the dead
         time replaced by its Padé approximation of ``pade_order`` (exact when Td = 0):
         ``G_fb = Ga / (Gb - K Ga)``, ``Ga = (b1 s + b0) Q(-s)``,
@@ -120,13 +126,13 @@ class LowerLevelModel(ABC):
         den = np.polysub(gb, c["K"] * ga)
         return np.trim_zeros(ga, "f"), np.trim_zeros(den, "f")
 
-    def to_scipy(self, pade_order: int = 2) -> Any:
+    def to_scipy(self, pade_order: int = PADE_ORDER) -> Any:
         """A continuous ``scipy.signal.TransferFunction`` of ``G_fb`` (dead time by Padé)."""
         from scipy import signal
 
         return signal.TransferFunction(*self.transfer_function(pade_order))
 
-    def to_control(self, pade_order: int = 2) -> Any:
+    def to_control(self, pade_order: int = PADE_ORDER) -> Any:
         """A ``control.TransferFunction`` of ``G_fb`` (python-control, an optional
         dependency: ``pip install avll[control]``), dead time by Padé."""
         try:
@@ -197,7 +203,7 @@ class UpperLevel:
     kg: float
     kv: float = 0.0
     Tg: float = 2.0
-    Gmin: float = 9.5
+    Gmin: float = GMIN
 
     def __post_init__(self) -> None:
         for f in fields(self):

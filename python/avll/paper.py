@@ -9,11 +9,12 @@ automated vehicle" (/work/shared/paper).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
-from .models import FirstOrderLag, LowerLevelModel, Proposed, SecondOrder
+from .models import GMIN, PADE_ORDER, FirstOrderLag, LowerLevelModel, Proposed, SecondOrder
 
 __all__ = [
     "MODELS",
@@ -26,6 +27,7 @@ __all__ = [
     "PAPER_CAL_RUNS",
     "PAPER_VAL_RUNS",
     "GMIN",
+    "PADE_ORDER",
     "SECTION_IV_GRID",
     "section_iv_axis",
     "PAPER",
@@ -62,9 +64,6 @@ PAPER_CAL_RUNS: tuple[int, ...] = (3, 4, 5, 9, 10, 11, 15, 16, 17, 19)
 #: The paper's validation runs (Table IV).
 PAPER_VAL_RUNS: tuple[int, ...] = tuple(r for r in TABLE_I if r not in PAPER_CAL_RUNS)
 
-#: Standstill spacing of the experiment (m).
-GMIN = 9.5
-
 #: Standard gravity (m/s²): a road grade ``g`` (rise over run) pulls a car with
 #: ``-G g``, wherever a grade becomes an acceleration.
 G = 9.81
@@ -94,7 +93,7 @@ SECTION_IV_GRID: dict[str, Any] = {
     "kg": (1e-3, 5.0, 400),
     "Tg": (0.0, 15.0, 151),
     "kv": (0.0, 1.2, 121),
-    "pade_order": 2,
+    "pade_order": PADE_ORDER,
     "kv_tg_step": 0.05,
     "kv_tol": 1e-5,
 }
@@ -102,11 +101,14 @@ SECTION_IV_GRID: dict[str, Any] = {
 
 def section_iv_axis(first: float, last: float, points: int, log: bool = False) -> np.ndarray:
     """An axis ``(first, last, points)`` as :data:`SECTION_IV_GRID` gives it: log-spaced
-    with ``log``, else evenly spaced and rounded to 10 decimals (so that 0.1-steps are
-    the decimal values)."""
+    with ``log``, else evenly spaced and rounded to 10 decimals, or to 4 more than the
+    step's first significant decimal when the step is finer than 1e-6 (so that 0.1-steps
+    are the decimal values and no fine step is rounded away)."""
     if log:
         return np.geomspace(first, last, int(points))
-    return np.round(np.linspace(first, last, int(points)), 10)
+    step = abs(last - first) / max(int(points) - 1, 1)
+    return np.round(np.linspace(first, last, int(points)),
+                    max(10, 4 - math.floor(math.log10(step))) if step > 0 else 10)
 
 
 #: The paper's published numbers (Tables II–IV, Section IV).

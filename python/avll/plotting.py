@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .defaults import CLASS_COLORS, CLASS_LABELS, MEASURED_COLOR, MODEL_COLORS, MODEL_LINESTYLES
-from .paper import MODEL_LABELS
+from .paper import MODEL_LABELS, PADE_ORDER
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -103,7 +103,7 @@ def _kv_panels(kg: np.ndarray, kvs: np.ndarray) -> tuple[Figure, list[Any]]:
 
 
 def regions(models: Sequence[Any], kg: Any, tg: Any, kv_values: Any,
-            maps: Sequence[Any], pade_order: int = 2, *,
+            maps: Sequence[Any], pade_order: int = PADE_ORDER, *,
             labels: Sequence[str] | None = None) -> Figure:
     """Stable regions (code 2) of several models in the kg-Tg plane, one panel per kv,
     overlaid (paper Figs. 5 and 7): each model filled in its colour with its boundary

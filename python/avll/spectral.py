@@ -66,6 +66,7 @@ from typing import Any
 import numpy as np
 
 from ._limits import check_number
+from .defaults import LEVEL
 
 __all__ = [
     "DEFAULT_BAND",
@@ -254,7 +255,7 @@ def h1_band_gain(
     segment: float | None = None,
     align: bool = True,
     max_lag: float = MAX_LAG,
-    level: float = 0.95,
+    level: float = LEVEL,
     min_excitation: float = MIN_EXCITATION,
 ) -> BandGain:
     """The H1 transfer-gain estimate of predecessor speed ``lead_v`` -> follower speed

@@ -40,6 +40,7 @@ from ._limits import (
     fmt_bytes,
 )
 from .models import LowerLevelModel
+from .paper import PADE_ORDER
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -158,7 +159,7 @@ def stability_map(
     kg: Any,
     tg: Any,
     kv: Any,
-    pade_order: int = 2,
+    pade_order: int = PADE_ORDER,
     *,
     threads: int = 0,
     progress: bool | str = False,
@@ -184,8 +185,8 @@ def stability_map(
 
 
 def stability_points(
-    model: LowerLevelModel, kg: Any, tg: Any, kv: Any, pade_order: int = 2, *, threads: int = 0
-) -> np.ndarray:
+    model: LowerLevelModel, kg: Any, tg: Any, kv: Any, pade_order: int = PADE_ORDER, *,
+    threads: int = 0) -> np.ndarray:
     """Codes at scattered points ``(kg[i], tg[i], kv[i])`` (arrays broadcast)."""
     nt = check_threads(threads)
     name, p = _model(model)
@@ -304,7 +305,7 @@ def kv_threshold(
     tg: Any,
     kv_lo: float,
     kv_hi: float,
-    pade_order: int = 2,
+    pade_order: int = PADE_ORDER,
     *,
     tol: float = 1e-5,
     threads: int = 0,
@@ -510,7 +511,7 @@ def pade_report(
     kg: Any,
     tg: Any,
     kv: Any,
-    pade_order: int = 2,
+    pade_order: int = PADE_ORDER,
     *,
     threads: int = 0,
     **exact_kw: Any,
@@ -581,7 +582,7 @@ def boundary(
     kg: Any = None,
     tg: Any = None,
     kv: Any = None,
-    pade_order: int | None = 2,
+    pade_order: int | None = PADE_ORDER,
     search_range: tuple[float, float] | None = None,
     level: str = "string",
     n_scan: int = 256,
@@ -666,7 +667,7 @@ def stable_intervals(
     kg: float | None = None,
     tg: float | None = None,
     kv: float | None = None,
-    pade_order: int | None = 2,
+    pade_order: int | None = PADE_ORDER,
     search_range: tuple[float, float] | None = None,
     level: str = "string",
     n_scan: int = 256,
@@ -778,7 +779,7 @@ def min_stable_tg(
     model: LowerLevelModel,
     kg_range: tuple[float, float] = (1e-3, 2.0),
     kv_range: tuple[float, float] = (0.0, 1.2),
-    pade_order: int | None = 2,
+    pade_order: int | None = PADE_ORDER,
     *,
     tg_range: tuple[float, float] = (0.0, 15.0),
     n_scan: int = 256,
@@ -805,7 +806,7 @@ def kv_supremum(
     model: LowerLevelModel,
     kg_range: tuple[float, float] = (1e-3, 5.0),
     tg_range: tuple[float, float] = (0.0, 15.0),
-    pade_order: int | None = 2,
+    pade_order: int | None = PADE_ORDER,
     *,
     kv_range: tuple[float, float] = (0.0, 2.0),
     n_scan: int = 256,
@@ -882,7 +883,7 @@ def plot_regions(
     kg: Any = None,
     tg: Any = None,
     kv_values: Sequence[float] | None = None,
-    pade_order: int = 2,
+    pade_order: int = PADE_ORDER,
     *,
     maps: Sequence[Any] | None = None,
     threads: int = 0,

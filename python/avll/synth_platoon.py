@@ -101,7 +101,7 @@ from ._limits import check_int, check_number, check_seed
 from .data import Run
 from .effects import Effect, Grade, WithEffects
 from .models import LowerLevelModel, UpperLevel, model_class
-from .paper import TABLE_II_PARAMS
+from .paper import MODELS, TABLE_II_PARAMS
 from .rollout import Trajectory, closed_loop
 from .spectral import DEFAULT_BAND, check_band
 from .synth import _ar1
@@ -459,7 +459,7 @@ def synth_platoon(
     band_rms: float = 0.8,
     drift_rms: float = 0.5,
     band: Sequence[float] = DEFAULT_BAND,
-    models: Sequence[str] = ("first", "second", "proposed"),
+    models: Sequence[str] = MODELS,
     disturbance_std: float = 0.05,
     disturbance_tau: float = 3.0,
     hidden: HiddenUpper | None = None,

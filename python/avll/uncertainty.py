@@ -116,7 +116,7 @@ import numpy as np
 
 from . import _core, _sigint
 from ._limits import check_int, check_seed, check_threads
-from .defaults import AT_BOUND_TOL
+from .defaults import AT_BOUND_TOL, LEVEL
 from .report import finite_or_none
 
 __all__ = [
@@ -194,7 +194,7 @@ class Intervals:
     """
 
     n: int = 200
-    level: float = 0.95
+    level: float = LEVEL
     block: float | None = None
     block_factor: float = BLOCK_FACTOR
     method: str = "blocks"
@@ -318,7 +318,7 @@ def _from_unit(z: np.ndarray, lo: float, hi: float, scale: str) -> np.ndarray:
     return np.asarray(lo + z * (hi - lo))
 
 
-def small_sample_scale(blocks: float, params: int, level: float = 0.95) -> float:
+def small_sample_scale(blocks: float, params: int, level: float = LEVEL) -> float:
     """The factor by which the resampled deviations from the estimate are widened:
     ``sqrt(G / (G - p)) * t_{G-p}(q) / z(q)``, ``q = (1 + level) / 2``, for ``G``
     effective independent ``blocks`` (record length over block length, or the number

@@ -221,6 +221,12 @@ fn ga_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     tunable(py, &GaOptions::default())
 }
 
+/// The GA's automatic population of a problem of `d` parameters (`pop_size = 0`).
+#[pyfunction]
+fn ga_auto_pop(d: usize) -> usize {
+    ga::auto_pop(d)
+}
+
 /// GA options checked as `calibrate` checks them (types, ranges, unknown names):
 /// the tunable options with the given values and the defaults for the others.
 #[pyfunction]
@@ -641,5 +647,7 @@ pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(delay_codes_rows, m)?)?;
     m.add_function(wrap_pyfunction!(ga_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(ga_check, m)?)?;
+    m.add_function(wrap_pyfunction!(ga_auto_pop, m)?)?;
+    m.add("GA_AUTO_POP", ga::AUTO_POP)?;
     Ok(())
 }

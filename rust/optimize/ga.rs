@@ -178,10 +178,19 @@ impl Bounds {
     }
 }
 
+/// The automatic population (`pop_size = 0`): `AUTO_POP.0` individuals per parameter,
+/// at least `AUTO_POP.1` (exported to Python as `_core.GA_AUTO_POP`).
+pub const AUTO_POP: (usize, usize) = (16, 40);
+
+/// The automatic population of a problem of `d` parameters (even: both numbers are).
+pub fn auto_pop(d: usize) -> usize {
+    (AUTO_POP.0 * d).max(AUTO_POP.1)
+}
+
 /// GA settings. `Default` gives the values documented on each field.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GaOptions {
-    /// Population size (default 0 = `max(40, 16 d)` rounded up to even).
+    /// Population size (default 0 = [`auto_pop`]; a given size is rounded up to even).
     pub pop_size: usize,
     /// Generation limit (default 300).
     pub max_generations: usize,
@@ -299,7 +308,7 @@ impl GaOptions {
 
     fn pop(&self, d: usize) -> usize {
         let p = if self.pop_size == 0 {
-            (16 * d).max(40)
+            auto_pop(d)
         } else {
             self.pop_size
         };

@@ -141,9 +141,10 @@ def add_ga_budget(p: argparse.ArgumentParser, *, pop_size: bool = False, what: s
                    help=f"independent GA starts{of}, the best kept (default: {starts})")
     if pop_size:
         pop = GA_OPTIONS["pop_size"]
+        from .._core import GA_AUTO_POP as auto
         p.add_argument("--pop-size", action=_Count, minimum=0, default=pop, metavar="N",
                        help=f"GA population (default: {pop}; 0 is automatic: "
-                       "max(16 x parameters, 40))")
+                       f"max({auto[0]} x parameters, {auto[1]}))")
 
 
 def add_json(p: argparse.ArgumentParser, what: str, default: str = "not written",

@@ -10,6 +10,7 @@ from typing import Any
 
 from .._limits import check_weights
 from ..defaults import CLOSED_LOOP_WEIGHTS, EQ6_WEIGHTS
+from ..paper import MODELS
 from ._common import (
     add_astazero_options,
     add_cal_runs,
@@ -175,7 +176,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="runs file or folder (canonical CSV/Parquet, or see --format)")
     add_format(p)
     add_command_kind(p)
-    add_models(p, ("first", "second", "proposed"))
+    add_models(p, MODELS)
     add_cal_runs(p, "alternate runs", ", or 'paper'")
     add_seed(p)
     add_json(p, "the calibrated parameters and the MSE per run")

@@ -30,8 +30,6 @@ def _range(spec: Sequence[str], name: str, log: bool = False) -> np.ndarray:
     check_memory(8.0 * n, f"--{name}: N = {n} points", "use a smaller N")
     if log and lo <= 0:
         raise ValueError(f"--{name}: a log-spaced axis needs MIN > 0, got {lo}")
-    if not log and (hi - lo) / (n - 1) < 1e-6:  # steps too fine for 10-decimal rounding
-        return np.linspace(lo, hi, n)
     return section_iv_axis(lo, hi, n, log)  # the default axes are reproduce's, bit for bit
 
 
@@ -306,7 +304,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--kv", nargs=3, default=grid["kv"], metavar=("MIN", "MAX", "N"),
                    help=f"kv axis in 1/s (default: {' '.join(grid['kv'])})")
     p.add_argument("--pade-order", type=int, default=SECTION_IV_GRID["pade_order"],
-                   help="Padé order of the dead time, 1..10 (default: 2, the paper's)")
+                   help=f"Padé order of the dead time, 1..10 (default: "
+                   f"{SECTION_IV_GRID['pade_order']}, the paper's)")
     add_threads(p)
     p.add_argument("--out", default="stability-map.png", metavar="PATH",
                    help="region figure; .png, .svg or .pdf (default: stability-map.png)")

@@ -99,6 +99,7 @@ def _intervals(n: int | None) -> Any:
 
 def register_openacc(sub: argparse._SubParsersAction) -> None:
     """Registers ``avll study openacc``."""
+    from ..paper import MODELS
     from ..studies.openacc import ACC_UNKNOWN, DEFAULT_BAND, GMIN_MAX, N_BOOT
 
     p = sub.add_parser(
@@ -118,7 +119,7 @@ def register_openacc(sub: argparse._SubParsersAction) -> None:
                    help="output folder (required; no default)")
     add_json(p, "the summary (also written to DIR/summary.json)")
     add_model(p, "proposed", "lower-level model of the contract's params, Tg and prediction")
-    add_models(p, ("first", "second", "proposed"), what="models compared")
+    add_models(p, MODELS, what="models compared")
     add_seed(p, "GA and the bootstrap")
     add_threads(p)
     add_ga_budget(p, pop_size=True, what="each car")

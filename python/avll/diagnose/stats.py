@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from ..defaults import LEVEL
 from .defaults import N_BOOT
 
 __all__ = [
@@ -211,7 +212,7 @@ def block_bootstrap_gain(
     *,
     n_boot: int = N_BOOT,
     seed: int = 0,
-    level: float = 0.95,
+    level: float = LEVEL,
 ) -> BootstrapGain:
     """A moving-block bootstrap of the pooled relative MSE reduction
     ``gain = 1 - sum e_after² / sum e_before²`` (residual series, one array per

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..models import LowerLevelModel
+from ..paper import PADE_ORDER
 
 __all__ = [
     "pade_den",
@@ -50,7 +51,7 @@ def _reflect(p: np.ndarray) -> np.ndarray:
 
 
 def closed_loop_polys(
-    model: LowerLevelModel, kg: float, tg: float, kv: float, pade_order: int = 2
+    model: LowerLevelModel, kg: float, tg: float, kv: float, pade_order: int = PADE_ORDER
 ) -> tuple[np.ndarray, np.ndarray]:
     """N(s), D(s) of Eq. 8 with the delay replaced by its Padé approximant."""
     c = model.linear()
@@ -86,7 +87,7 @@ def _string_from_roots(r_desc: np.ndarray, roots: np.ndarray) -> bool:
 
 
 def stability_code(
-    model: LowerLevelModel, kg: float, tg: float, kv: float, pade_order: int = 2
+    model: LowerLevelModel, kg: float, tg: float, kv: float, pade_order: int = PADE_ORDER
 ) -> int:
     """Map code of one point (0 locally unstable, 1 string unstable, 2 stable) with
     ``numpy.roots`` per polynomial."""
@@ -112,7 +113,7 @@ def _batched_roots(polys: np.ndarray) -> np.ndarray:
 
 
 def stability_codes(
-    model: LowerLevelModel, kg: Any, tg: Any, kv: Any, pade_order: int = 2
+    model: LowerLevelModel, kg: Any, tg: Any, kv: Any, pade_order: int = PADE_ORDER
 ) -> tuple[np.ndarray, np.ndarray]:
     """Codes of many scattered points at once, and a local-stability margin
     (``-max Re(root of D)``; the string test's margin is not defined here).

@@ -119,7 +119,7 @@ import numpy as np
 from .. import _atomic
 from ..calibration import calibrate_many
 from ..data import Run
-from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_STARTS, GA_OPTIONS, UPPER_PLACEHOLDER
+from ..defaults import CLOSED_LOOP_WEIGHTS, DEFAULT_STARTS, GA_OPTIONS, LEVEL, UPPER_PLACEHOLDER
 from ..defaults import UPPER_NAMES as _UPPER
 from ..models import LowerLevelModel, UpperLevel, model_class
 from ..paper import MODELS as _MODELS
@@ -187,7 +187,7 @@ def amplification(v: np.ndarray, lead_v: np.ndarray, dt: float,
 
 
 def bootstrap_ci(bf: np.ndarray, bp: np.ndarray, dt: float, *, block: float = BLOCK,
-                 n: int = N_BOOT, level: float = 0.95, seed: Any = 0) -> tuple[float, float]:
+                 n: int = N_BOOT, level: float = LEVEL, seed: Any = 0) -> tuple[float, float]:
     """Percentile interval of the RMS ratio of two band-passed series by a circular
     block bootstrap over time (blocks of ``block`` seconds drawn with replacement,
     the same blocks for both series)."""
@@ -674,7 +674,7 @@ def openacc_study(
         "objective_weights": list(WEIGHTS), "bounds": {"Gmin": [0.0, float(gmin_max)]},
         "band_hz": [float(band[0]), float(band[1])],
         "trim_s": TRIM, "bootstrap": {"n": int(n_boot), "block_s": float(block),
-                                      "level": 0.95, "min_blocks": MIN_BLOCKS},
+                                      "level": LEVEL, "min_blocks": MIN_BLOCKS},
         "min_excitation_m_s": MIN_EXCITATION, "acc_unknown": acc_unknown,
         "campaigns": sorted({c["campaign"] for c in cars}),
         "cars": [_public(c) for c in cars],

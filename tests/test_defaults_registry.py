@@ -1,0 +1,74 @@
+"""One decision, one place (issue 26): the Section-IV axes rounded relative to their
+step (the same values as before on every default axis), the GA's automatic population
+from the Rust core, and the registries' constants used by the signatures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from avll.paper import SECTION_IV_GRID, section_iv_axis
+
+# every evenly spaced axis the registries, the CLI's defaults, the docs and the tests use
+_AXES = [SECTION_IV_GRID["Tg"], SECTION_IV_GRID["kv"], SECTION_IV_GRID["kg"],
+         (0.0, 15.0, 301), (0.0, 15.0, 31), (0.0, 1.0, 11), (0.0, 1.2, 25), (0.0, 1.0, 4)]
+
+
+@pytest.mark.parametrize("axis", _AXES)
+def test_even_axes_are_the_10_decimal_rounding_bit_for_bit(axis: tuple[float, float, int]
+                                                          ) -> None:
+    from avll.cli.stability_map import _range
+
+    want = np.round(np.linspace(*axis), 10)
+    assert section_iv_axis(*axis).tobytes() == want.tobytes()
+    assert _range([f"{x:g}" for x in axis], "x").tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("first", [0.0, 1.0, 1000.0])
+def test_fine_steps_are_never_merged(first: float) -> None:
+    from avll.cli.stability_map import _range
+
+    for x in (section_iv_axis(first, first + 1e-8, 11),
+              _range([repr(first), repr(first + 1e-8), "11"], "kv")):
+        assert np.unique(x).size == 11 and np.all(np.diff(x) > 0)
+    np.testing.assert_array_equal(section_iv_axis(0.0, 1e-8, 11), np.arange(11) / 1e9)
+
+
+
+def test_ga_automatic_population_is_the_cores(capsys: pytest.CaptureFixture[str]) -> None:
+    from avll import PAPER_TABLE_II, _core, calibrate
+    from avll.cli import build_parser
+    from avll.synth import paper_experiment
+
+    per, least = _core.GA_AUTO_POP
+    assert [_core.ga_auto_pop(d) for d in range(9)] == [max(per * d, least) for d in range(9)]
+    runs = paper_experiment(PAPER_TABLE_II["second"], seed=3, duration=20.0)[:2]
+    auto, given = (calibrate("second", runs, seed=1, max_generations=3, starts=1, pop_size=p)
+                   for p in (0, _core.ga_auto_pop(4)))  # the second model: 4 parameters
+    assert (auto.evaluations, auto.cost, auto.params) == (given.evaluations, given.cost,
+                                                          given.params)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["calibrate", "--help"])
+    assert f"0 is automatic: max({per} x parameters, {least}))" in " ".join(
+        capsys.readouterr().out.split())
+
+
+# a decision's value written again outside its registry
+_WRITTEN_ONCE = [r"pade_orders?: [^=\n]*= \(?2\b", r"\blevel: float = 0\.95\b",
+                 r"\"level\": 0\.95\b", r"Gmin: float = 9\.5\b",
+                 r"\(\"first\", \"second\", \"proposed\"\)"]
+
+
+def test_registry_values_are_not_written_again() -> None:
+    import re
+    from pathlib import Path
+
+    import avll
+    from avll import defaults, models, paper
+
+    assert (paper.PADE_ORDER, paper.GMIN) == (2, 9.5) and defaults.LEVEL == 0.95
+    assert paper.SECTION_IV_GRID["pade_order"] == paper.PADE_ORDER == models.PADE_ORDER
+    assert models.UpperLevel(kg=0.5).Gmin == paper.GMIN
+    hits = [f"{p.name}: {m.group(0)}" for p in Path(avll.__file__).parent.rglob("*.py")
+            for rx in _WRITTEN_ONCE for m in re.finditer(rx, p.read_text(encoding="utf-8"))]
+    assert hits == ['paper.py: ("first", "second", "proposed")'], hits  # MODELS itself
