@@ -154,6 +154,7 @@ from __future__ import annotations
 
 import csv
 import datetime as _dt
+import io
 import math
 import re
 from collections import Counter, defaultdict
@@ -163,6 +164,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from ..data import DataError, Run
 from ._common import (
@@ -363,9 +365,12 @@ def _parse_header(path: Path, rows: list[list[str]]) -> dict[str, Any]:
     return {"date": date, "listed": listed, "n": n, "acc": acc, "setting": setting}
 
 
-def _to_float(path: Path, name: str, cells: Sequence[str]) -> np.ndarray:
+def _to_float(path: Path, name: str, cells: Sequence[str] | np.ndarray) -> np.ndarray:
     """Cells as float64; empty cells (and ``nan`` text) are NaN, anything else that is
-    not a number is an error naming the row and line."""
+    not a number is an error naming the row and line. An array (a column of
+    :func:`_fast_read`) is returned as it is."""
+    if isinstance(cells, np.ndarray):
+        return cells
     try:  # fast path: numpy parses the numbers, empty cells become NaN
         arr = np.array([c if c.strip() else "nan" for c in cells], dtype=np.float64)
         if not np.isinf(arr).any():
@@ -386,6 +391,93 @@ def _to_float(path: Path, name: str, cells: Sequence[str]) -> np.ndarray:
     return out
 
 
+#: The bytes :func:`_fast_read` takes in a data block: numbers (digits, sign, point,
+#: exponent), the comma, the space, line ends and the letters of ``ACC``/``Human``.
+_FAST_BYTES = np.zeros(256, dtype=bool)
+_FAST_BYTES[list(b"0123456789+-.eE, \r\nACHUMNachumn")] = True
+#: pandas >= 3.1 parses floats with fast_float (correctly rounded, as ``float``);
+#: before, only its ``round_trip`` converter is (a deprecated option in 3.1).
+_FLOAT_OPTS: dict[str, Any] = (
+    {} if tuple(int(x) for x in re.findall(r"\d+", pd.__version__)[:2]) >= (3, 1)
+    else {"float_precision": "round_trip"})
+
+
+def _fast_read(path: Path) -> tuple[list[list[str]], list[Any]] | None:
+    """The header lines as ``csv.reader`` gives them and the data columns (float64
+    arrays; a ``Driver<i>`` column coded as :func:`_driver` codes it), the data block
+    read by pandas' C parser. ``None`` wherever the result could differ from the exact
+    path (``csv.reader``, :func:`_to_float` and :func:`_driver`, which word every
+    error): a file that is not UTF-8, a quote, a lone CR, any byte but numbers and
+    ACC/Human in the data, ``nan`` text, rows of unequal width, fewer cells than the
+    header or text beyond it, a line longer than the csv module's field limit, a cell
+    that does not parse, an inf, a missing time."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    cut = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # the BOM utf-8-sig drops
+    start = cut
+    for _ in range(HEADER_LINES):
+        cut = data.find(b"\n", cut) + 1
+        if not cut:
+            return None
+    try:  # the data block is checked to be ASCII below
+        head_text = data[start:cut].decode("utf-8")
+        head = list(csv.reader(io.StringIO(head_text, newline="")))
+    except (UnicodeDecodeError, csv.Error):
+        return None
+    if b'"' in data or "\r" in head_text.replace("\r\n", ""):
+        return None
+    header = [c.strip() for c in head[-1]]
+    while header and header[-1] == "":
+        header.pop()
+    raw = data[cut:]
+    end = len(raw)  # the last row with a value (blank rows after it are dropped)
+    while end and raw[end - 1] in b" ,\r\n":
+        end -= 1
+    a = np.frombuffer(raw, dtype=np.uint8)
+    cr = np.flatnonzero(a == 13)
+    if (len(header) < 2 or not end or not _FAST_BYTES[a].all() or b"nan" in raw.lower()
+            or raw.endswith(b"\r") or (a[cr + 1] != 10).any()):
+        return None
+    stop = raw.find(b"\n", end) + 1 or len(raw)
+    ends = np.flatnonzero(a[:stop] == 10)  # each line's end (exclusive)
+    if raw[stop - 1:stop] != b"\n":
+        ends = np.r_[ends, stop]
+    starts = np.r_[0, ends[:-1] + 1]
+    commas = np.flatnonzero(a[:stop] == 44)
+    cells = np.searchsorted(commas, ends) - np.searchsorted(commas, starts) + 1
+    width, k = len(header), int(cells[0])
+    if (cells != k).any() or k < width or (ends - starts).max() >= csv.field_size_limit():
+        return None
+    text_cols = {j for j, c in enumerate(header)
+                 if (m := _VEH_COL.match(c)) and m[1].lower() == "driver"}
+    try:  # empty cells NaN, but a Driver cell stays text ("")
+        df = pd.read_csv(io.BytesIO(raw[:stop]), header=None, names=range(k), engine="c",
+                         dtype={j: object if j in text_cols or j >= width else np.float64
+                                for j in range(k)},
+                         keep_default_na=False, skip_blank_lines=False,
+                         na_values={j: [""] for j in range(k) if j not in text_cols},
+                         **_FLOAT_OPTS)
+    except (ValueError, TypeError, OverflowError):  # ParserError is a ValueError
+        return None
+    if len(df) != len(ends) or not df.iloc[:, width:].isna().all().all():
+        return None
+    cols: list[Any] = []
+    for j in range(width):
+        if j in text_cols:  # coded as _driver does, unless a cell is not ACC/Human/empty
+            code = {c: _DRIVER.get(c.strip().lower(), -2) if c.strip() else -1
+                    for c in df[j].unique()}
+            ok = -2 not in code.values()
+            cols.append(df[j].map(code).to_numpy(np.int8) if ok else df[j].tolist())
+            continue
+        x = df[j].to_numpy(dtype=np.float64)
+        if np.isinf(x).any() or (j == 0 and np.isnan(x).any()):
+            return None
+        cols.append(x)
+    return head, cols
+
+
 def read_openacc_native(path: str | Path) -> NativeFile:
     """Parses one native OpenACC file (metadata header, columns) without cleaning.
 
@@ -399,13 +491,17 @@ def read_openacc_native(path: str | Path) -> NativeFile:
         raise DataError(f"{path}: is a directory, expected a native OpenACC CSV file")
     if not path.is_file():
         raise DataError(f"{path}: not a regular file (a FIFO or a device is not read)")
-    try:
-        with open(path, encoding="utf-8-sig", newline="") as f:
-            rows = list(csv.reader(f))
-    except UnicodeDecodeError as e:
-        raise DataError(f"{path}: not a readable text file ({e})") from e
-    except csv.Error as e:
-        raise DataError(f"{path}: not a readable CSV file ({e})") from e
+    fast = _fast_read(path)
+    if fast is not None:
+        rows, data_cols = fast
+    else:
+        try:
+            with open(path, encoding="utf-8-sig", newline="") as f:
+                rows = list(csv.reader(f))
+        except UnicodeDecodeError as e:
+            raise DataError(f"{path}: not a readable text file ({e})") from e
+        except csv.Error as e:
+            raise DataError(f"{path}: not a readable CSV file ({e})") from e
     if not rows:
         raise DataError(f"{path}: empty file (no header, no data)")
     h = _parse_header(path, rows)
@@ -458,21 +554,22 @@ def read_openacc_native(path: str | Path) -> NativeFile:
                 raise DataError(f"{_loc(path, f'{name}{k}', line=HEADER_LINES)}: missing "
                                 f"column (vehicle {k} has "
                                 f"{', '.join(header[j] for j in cols.values())})")
-    data = rows[HEADER_LINES:]
-    while data and not any(c.strip() for c in data[-1]):
-        data.pop()
-    if not data:
-        raise DataError(f"{path}: no data rows (only the header)")
-    width = len(header)
-    for r, row in enumerate(data):
-        if len(row) < width or any(c.strip() for c in row[width:]):
-            raise DataError(f"{_loc(path, header[min(len(row), width - 1)], r)}: the row has "
-                            f"{len(row)} cells, the header {width}")
-    cols_t = list(zip(*[row[:width] for row in data], strict=True))
-    t = _to_float(path, "Time", cols_t[0])
+    if fast is None:
+        data = rows[HEADER_LINES:]
+        while data and not any(c.strip() for c in data[-1]):
+            data.pop()
+        if not data:
+            raise DataError(f"{path}: no data rows (only the header)")
+        width = len(header)
+        for r, row in enumerate(data):
+            if len(row) < width or any(c.strip() for c in row[width:]):
+                raise DataError(f"{_loc(path, header[min(len(row), width - 1)], r)}: the row "
+                                f"has {len(row)} cells, the header {width}")
+        data_cols = list(zip(*[row[:width] for row in data], strict=True))
+    t = _to_float(path, "Time", data_cols[0])
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raw = cols_t[0][int(bad[0])].strip()
+        raw = data_cols[0][int(bad[0])].strip()
         what = "is empty" if not raw else f"is {raw[:20]!r}, not a time"
         raise DataError(f"{_loc(path, 'Time', int(bad[0]))}: the time {what} (every row "
                         "needs its time stamp)")
@@ -485,10 +582,10 @@ def read_openacc_native(path: str | Path) -> NativeFile:
         vehicles[k] = {}
         for q, j in cols.items():
             if q == "driver":
-                drivers[k] = _driver(path, header[j], cols_t[j])
+                drivers[k] = _driver(path, header[j], data_cols[j])
             else:
-                vehicles[k][q] = _to_float(path, header[j], cols_t[j])
-    pairs = {q: {k: _to_float(path, header[j], cols_t[j]) for k, j in sorted(m.items())}
+                vehicles[k][q] = _to_float(path, header[j], data_cols[j])
+    pairs = {q: {k: _to_float(path, header[j], data_cols[j]) for k, j in sorted(m.items())}
              for q, m in pair_cols.items()}
     ivs = pairs.pop("ivs", {})
     notes = []
@@ -518,9 +615,12 @@ def read_openacc_native(path: str | Path) -> NativeFile:
                       pairs=pairs)
 
 
-def _driver(path: Path, column: str, cells: Sequence[str]) -> np.ndarray:
+def _driver(path: Path, column: str, cells: Sequence[str] | np.ndarray) -> np.ndarray:
     """A ``Driver<i>`` column: 1 for ``ACC``, 0 for ``Human`` (any case), -1 for an
-    empty cell; anything else is an error naming the row."""
+    empty cell; anything else is an error naming the row. An array (the column coded
+    by :func:`_fast_read`) is returned as it is."""
+    if isinstance(cells, np.ndarray):
+        return cells
     out = np.full(len(cells), -1, dtype=np.int8)
     for r, c in enumerate(cells):
         c = c.strip()

@@ -1,0 +1,166 @@
+"""The loaders' fast paths (pandas' C parser on the data block) give exactly what the
+exact paths give (the native OpenACC loader's csv.reader and ``_to_float``): the same
+arrays bit for bit, the same metadata, warnings and runs, or the same exception with
+the same message. Checked on every field-data file and on small generated files
+with nasty cells; the exact path is forced by disabling the fast one."""
+
+from __future__ import annotations
+
+import tempfile
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from loader_helpers import NO_DATA
+
+import avll.io.openacc_native as native
+from avll.io import read_runs
+
+PROP = settings(derandomize=True, deadline=None, max_examples=300,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+def same(a: Any, b: Any) -> bool:
+    """Equal, arrays bit for bit (NaN payloads and the sign of zero included)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype
+                and a.shape == b.shape and np.array_equal(a, b, equal_nan=True)
+                and a.tobytes() == b.tobytes())
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+    if isinstance(a, list | tuple):
+        return type(a) is type(b) and len(a) == len(b) and all(map(same, a, b))
+    if hasattr(a, "__dataclass_fields__"):
+        return type(a) is type(b) and all(same(getattr(a, f), getattr(b, f))
+                                          for f in a.__dataclass_fields__)
+    return bool(a == b)
+
+
+def outcome(call: Callable[[], Any]) -> tuple[Any, Any, list[tuple[type, str]]]:
+    """(result, (exception type, message) or None, warnings as (category, message))."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            res, err = call(), None
+        except Exception as e:  # noqa: BLE001 - compared, type and message
+            res, err = None, (type(e), str(e))
+    return res, err, [(w.category, str(w.message)) for w in caught]
+
+
+def exact_native(monkeypatch: pytest.MonkeyPatch | None = None) -> Any:
+    """A context in which the native loader takes its exact path."""
+    mp = monkeypatch or pytest.MonkeyPatch()
+    mp.setattr(native, "_fast_read", lambda path: None)
+    return mp
+
+
+def assert_same_native(call: Callable[[], Any]) -> Any:
+    fast = outcome(call)
+    with pytest.MonkeyPatch.context() as mp:
+        exact_native(mp)
+        slow = outcome(call)
+    assert fast[1] == slow[1]
+    assert fast[2] == slow[2]
+    assert same(fast[0], slow[0])
+    return fast
+
+
+# ------------------------------------------------------------ field data
+
+
+def native_files(root: Path) -> list[Path]:
+    return sorted(p for p in root.rglob("*.csv") if native.is_openacc_native(p))
+
+
+def test_native_field_files_fast_equals_exact(shared_data):
+    files = native_files(shared_data)
+    if not files:
+        pytest.skip(NO_DATA)
+    for p in files:
+        assert native._fast_read(p) is not None, f"{p}: the fast path refused a published file"
+        res, err, _ = assert_same_native(lambda p=p: native.read_openacc_native(p))
+        assert err is None
+
+
+@pytest.mark.parametrize("campaign", ["openacc-jrc/Casale", "openacc-jrc/JRC low speed",
+                                      "openacc-zalazone"])
+def test_native_campaign_runs_fast_equals_exact(shared_data, campaign):
+    folder = shared_data / campaign
+    if not folder.is_dir():
+        pytest.skip(NO_DATA)
+    runs, err, _ = assert_same_native(lambda: read_runs(folder, format="openacc"))
+    assert err is None and runs
+
+
+# ------------------------------------------------------- generated files
+
+NASTY = ["", " ", "nan", "NaN", "-nan", "NA", "N/A", "NULL", "None", "inf", "-inf",
+         "Infinity", "1e400", "-1e400", "1e-400", "-0", "0x1p3", "1_000", '"1.5"', '"2,5"',
+         "1e5", " 2.5", "2.5 ", "+1", ".5", "5.", ".", "-", "e", "1e", "True", "\u0661",
+         "\t3", "3\t", "ACC", "Human", " human ", "x"]
+NUMBER = st.floats(0.0, 30.0, allow_nan=False).map(lambda x: repr(round(x, 3)))
+DRIVER = ["ACC", "Human", "", "acc", " ACC ", "HUMAN", "x", "1", "nan"]
+SHAPES = ["short", "long_blank", "long_space", "long_text", "blank_before"]
+
+
+@st.composite
+def native_text(draw: Any) -> str:
+    """A small native file, clean, then up to four mutations: a nasty cell, a short
+    row, a long row (blank, spaces or text beyond the header), a blank line."""
+    trail = draw(st.booleans())
+    header = ["Time", "Speed1", "Speed2", "Alt2", "IVS1", "Driver2"]
+    n = draw(st.integers(2, 8))
+    rows = [[f"{100 + i * 0.1:.1f}"] + [draw(st.one_of(NUMBER, st.just("")))
+                                        for _ in header[1:-1]]
+            + [draw(st.sampled_from(DRIVER[:3]))] + ([""] if trail else []) for i in range(n)]
+    shapes = [""] * n
+    for _ in range(draw(st.integers(0, 4))):
+        i = draw(st.integers(0, n - 1))
+        if draw(st.booleans()):
+            j = draw(st.integers(0, len(header) - 1))
+            rows[i][j] = draw(st.sampled_from(DRIVER if j == len(header) - 1 else NASTY))
+        else:
+            shapes[i] = draw(st.sampled_from(SHAPES))
+    lines = []
+    for cells, shape in zip(rows, shapes, strict=True):
+        if shape == "short":
+            cells = cells[:draw(st.integers(0, len(cells) - 1))]
+        elif shape.startswith("long"):
+            cells = cells + [{"long_blank": "", "long_space": "  ", "long_text": "7"}[shape]] * (
+                draw(st.integers(1, 2)))
+        elif shape == "blank_before":
+            lines.append(draw(st.sampled_from(["", " ", ",,,", "\t"])))
+        lines.append(",".join(cells))
+    lines += draw(st.lists(st.sampled_from(["", " ", ",,,,,,,,", " , ,"]), max_size=3))
+    meta = ["Date,8,10,2019", "Vehicle_order,CAR_A,CAR_B" + ("," if trail else ""),
+            "Number_of_vehicles,2", "ACC," + draw(st.sampled_from(["1", "2", ""])),
+            "Distance_setting,L", ",".join(header) + ("," if trail else "")]
+    eol = draw(st.sampled_from(["\n", "\r\n"]))
+    text = eol.join(meta + lines) + draw(st.sampled_from([eol, ""]))
+    return draw(st.sampled_from(["", "\ufeff"])) + text
+
+
+@PROP
+@given(text=native_text())
+def test_native_generated_files_fast_equals_exact(text):
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "dynamic_part1.csv"
+        p.write_bytes(text.encode("utf-8"))
+        assert_same_native(lambda: native.read_openacc_native(p))
+
+
+def test_native_clean_file_takes_the_fast_path(tmp_path):
+    text = ("Date,8,10,2019\nVehicle_order,A,B,\nNumber_of_vehicles,2\nACC,2\n"
+            "Distance_setting,L\nTime,Speed1,Speed2,IVS1,Driver2\n"
+            + "".join(f"{i / 10:.1f},10.0,10.5,{20 + i / 100},{'ACC' if i % 2 else ''}\n"
+                      for i in range(50)) + ",,,,\n\n")
+    p = tmp_path / "handling_part2.csv"
+    p.write_text(text)
+    assert native._fast_read(p) is not None
+    nf = assert_same_native(lambda: native.read_openacc_native(p))[0]
+    assert nf.t.shape == (50,) and nf.drivers[2].dtype == np.int8
