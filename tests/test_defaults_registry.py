@@ -56,6 +56,7 @@ def test_ga_automatic_population_is_the_cores(capsys: pytest.CaptureFixture[str]
 # a decision's value written again outside its registry
 _WRITTEN_ONCE = [r"pade_orders?: [^=\n]*= \(?2\b", r"\blevel: float = 0\.95\b",
                  r"\"level\": 0\.95\b", r"Gmin: float = 9\.5\b",
+                 r"_range: tuple\[float, float\] = \(",
                  r"\(\"first\", \"second\", \"proposed\"\)"]
 
 
@@ -64,11 +65,14 @@ def test_registry_values_are_not_written_again() -> None:
     from pathlib import Path
 
     import avll
-    from avll import defaults, models, paper
+    from avll import defaults, models, paper, stability
 
     assert (paper.PADE_ORDER, paper.GMIN) == (2, 9.5) and defaults.LEVEL == 0.95
     assert paper.SECTION_IV_GRID["pade_order"] == paper.PADE_ORDER == models.PADE_ORDER
     assert models.UpperLevel(kg=0.5).Gmin == paper.GMIN
+    assert stability.MIN_TG_BOX == {"kg": (1e-3, 2.0), "kv": (0.0, 1.2), "Tg": (0.0, 15.0)}
+    assert stability.KV_SUP_BOX == {"kg": (1e-3, 5.0), "Tg": (0.0, 15.0), "kv": (0.0, 2.0)}
+    assert stability.DEFAULT_RANGES == {"kg": (1e-4, 10.0), "Tg": (0.0, 15.0), "kv": (-1.0, 2.0)}
     hits = [f"{p.name}: {m.group(0)}" for p in Path(avll.__file__).parent.rglob("*.py")
             for rx in _WRITTEN_ONCE for m in re.finditer(rx, p.read_text(encoding="utf-8"))]
     assert hits == ['paper.py: ("first", "second", "proposed")'], hits  # MODELS itself

@@ -77,6 +77,7 @@ from .progress import resolve_mode
 from .rollout import platoon
 from .stability import (
     EXACT_BUDGET,
+    MIN_TG_BOX,
     kv_supremum,
     min_stable_tg,
     stability_points,
@@ -527,9 +528,9 @@ def effect_stability(
     measure_periods: int = 4,
     pade_order: int = PADE_ORDER,
     thresholds: bool = True,
-    kg_range: tuple[float, float] = (1e-3, 2.0),
-    kv_range: tuple[float, float] = (0.0, 1.2),
-    tg_range: tuple[float, float] = (0.0, 15.0),
+    kg_range: tuple[float, float] = MIN_TG_BOX["kg"],
+    kv_range: tuple[float, float] = MIN_TG_BOX["kv"],
+    tg_range: tuple[float, float] = MIN_TG_BOX["Tg"],
     progress: bool | str = False,
 ) -> EffectStability:
     """The stability of ``model`` (a base model or base + effects) under the

@@ -573,13 +573,13 @@ def _min_tg_task(model: LowerLevelModel, kw: dict[str, Any]) -> tuple[float, flo
 
 def min_stable_tg_samples(
     models: Any,
-    kg_range: tuple[float, float] = (1e-3, 2.0),
-    kv_range: tuple[float, float] = (0.0, 1.2),
+    kg_range: tuple[float, float] = S.MIN_TG_BOX["kg"],
+    kv_range: tuple[float, float] = S.MIN_TG_BOX["kv"],
     pade_order: int | None = PADE_ORDER,
     *,
     client: Any = None,
     distributed: bool = True,
-    tg_range: tuple[float, float] = (0.0, 15.0),
+    tg_range: tuple[float, float] = S.MIN_TG_BOX["Tg"],
     threads: int = 1,
 ) -> Any:
     """The minimum stable Tg (:func:`avll.min_stable_tg`) of every parameter sample: a

@@ -41,6 +41,7 @@ from ._limits import (
 )
 from .models import LowerLevelModel
 from .paper import PADE_ORDER
+from .paper import SECTION_IV_GRID as _G
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -72,7 +73,7 @@ __all__ = [
     "plot_thresholds",
     "plot_boundaries",
     "CODE_MEANINGS",
-    "DEFAULT_RANGES",
+    "DEFAULT_RANGES", "MIN_TG_BOX", "KV_SUP_BOX",
 ]
 
 LOCAL_UNSTABLE = 0
@@ -541,8 +542,17 @@ def pade_report(
 
 _AXES = {"kg": 0, "Tg": 1, "kv": 2}
 _ALIASES = {"kg": "kg", "tg": "Tg", "Tg": "Tg", "kv": "kv"}
-#: Default searched range of each parameter.
-DEFAULT_RANGES = {"kg": (1e-4, 10.0), "Tg": (0.0, 15.0), "kv": (-1.0, 2.0)}
+#: Default searched range of each parameter of a 1-D search at fixed others
+#: (:func:`boundary`, :func:`stable_intervals`): wider than the boxes below (down to a
+#: negative kv), as it looks for where the stable set ends rather than for its extremum.
+DEFAULT_RANGES = {"kg": (1e-4, 10.0), "Tg": _G["Tg"][:2], "kv": (-1.0, 2.0)}
+#: Default box of the minimum stable time gap (:func:`min_stable_tg`, and the effects'
+#: and the samples' in :mod:`avll.effect_stability`, :mod:`avll.maps`): the Section IV
+#: grid's kv and Tg ranges, kg from the grid's smallest to 2 1/s².
+MIN_TG_BOX = {"kg": (_G["kg"][0], 2.0), "kv": _G["kv"][:2], "Tg": _G["Tg"][:2]}
+#: Default box of the kv supremum (:func:`kv_supremum`): the Section IV grid's kg and Tg
+#: ranges, kv searched to 2 1/s, beyond the grid's 1.2, so that no supremum is cut there.
+KV_SUP_BOX = {"kg": _G["kg"][:2], "Tg": _G["Tg"][:2], "kv": (0.0, 2.0)}
 _LEVELS = {"string": 2, "local": 1}
 
 
@@ -777,11 +787,11 @@ def _extremum(
 
 def min_stable_tg(
     model: LowerLevelModel,
-    kg_range: tuple[float, float] = (1e-3, 2.0),
-    kv_range: tuple[float, float] = (0.0, 1.2),
+    kg_range: tuple[float, float] = MIN_TG_BOX["kg"],
+    kv_range: tuple[float, float] = MIN_TG_BOX["kv"],
     pade_order: int | None = PADE_ORDER,
     *,
-    tg_range: tuple[float, float] = (0.0, 15.0),
+    tg_range: tuple[float, float] = MIN_TG_BOX["Tg"],
     n_scan: int = 256,
     n_grid: int = 32,
     threads: int = 0,
@@ -804,11 +814,11 @@ def min_stable_tg(
 
 def kv_supremum(
     model: LowerLevelModel,
-    kg_range: tuple[float, float] = (1e-3, 5.0),
-    tg_range: tuple[float, float] = (0.0, 15.0),
+    kg_range: tuple[float, float] = KV_SUP_BOX["kg"],
+    tg_range: tuple[float, float] = KV_SUP_BOX["Tg"],
     pade_order: int | None = PADE_ORDER,
     *,
-    kv_range: tuple[float, float] = (0.0, 2.0),
+    kv_range: tuple[float, float] = KV_SUP_BOX["kv"],
     n_scan: int = 256,
     n_grid: int = 32,
     threads: int = 0,
