@@ -57,6 +57,7 @@ def test_ga_automatic_population_is_the_cores(capsys: pytest.CaptureFixture[str]
 _WRITTEN_ONCE = [r"pade_orders?: [^=\n]*= \(?2\b", r"\blevel: float = 0\.95\b",
                  r"\"level\": 0\.95\b", r"Gmin: float = 9\.5\b",
                  r"_range: tuple\[float, float\] = \(",
+                 r"(noise_[avx]|quantization_a): float = \d", r"duration: float = 180\b",
                  r"\(\"first\", \"second\", \"proposed\"\)"]
 
 
@@ -72,6 +73,9 @@ def test_registry_values_are_not_written_again() -> None:
     assert models.UpperLevel(kg=0.5).Gmin == paper.GMIN
     assert stability.MIN_TG_BOX == {"kg": (1e-3, 2.0), "kv": (0.0, 1.2), "Tg": (0.0, 15.0)}
     assert stability.KV_SUP_BOX == {"kg": (1e-3, 5.0), "Tg": (0.0, 15.0), "kv": (0.0, 2.0)}
+    assert (defaults.SYNTH_DURATION, defaults.SYNTH_DT) == (180.0, 0.05)
+    assert defaults.SYNTH_NOISE == {"noise_a": 0.05, "noise_v": 0.02, "noise_x": 0.02,
+                                    "quantization_a": 0.01}
     assert stability.DEFAULT_RANGES == {"kg": (1e-4, 10.0), "Tg": (0.0, 15.0), "kv": (-1.0, 2.0)}
     hits = [f"{p.name}: {m.group(0)}" for p in Path(avll.__file__).parent.rglob("*.py")
             for rx in _WRITTEN_ONCE for m in re.finditer(rx, p.read_text(encoding="utf-8"))]

@@ -30,6 +30,9 @@ __all__ = [
     "CLOSED_LOOP_WEIGHTS",
     "objective_weights",
     "UPPER_PLACEHOLDER",
+    "SYNTH_DURATION",
+    "SYNTH_DT",
+    "SYNTH_NOISE",
     "MODEL_COLORS",
     "MODEL_LINESTYLES",
     "CLASS_COLORS",
@@ -164,6 +167,14 @@ def objective_weights(weights: Any, closed_loop: bool) -> tuple[float, float, fl
 #: Upper-level law given to runs that have none (OpenACC pairs) before all four gains
 #: are calibrated: only a starting point, never a result.
 UPPER_PLACEHOLDER = UpperLevel(kg=0.1, kv=0.5, Tg=1.0, Gmin=5.0)
+
+#: The synthetic experiments' run length (s; :func:`avll.synth.paper_experiment`,
+#: ``avll synth``, ``avll reproduce``) and sample time (s, 20 Hz), and their sensors: the
+#: standard deviations of the measured acceleration (m/s²), speed (m/s) and position (m)
+#: and the acceleration's quantization step (m/s²), by argument name.
+SYNTH_DURATION, SYNTH_DT = 180.0, 0.05
+SYNTH_NOISE: dict[str, float] = {"noise_a": 0.05, "noise_v": 0.02, "noise_x": 0.02,
+                                 "quantization_a": 0.01}
 
 #: One colour per lower-level model, in every figure.
 MODEL_COLORS: dict[str, str] = {

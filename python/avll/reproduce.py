@@ -50,7 +50,7 @@ __all__ = [
     "run_diagnosis",
 ]
 
-from .defaults import DEFAULT_STARTS, GA_OPTIONS
+from .defaults import DEFAULT_STARTS, GA_OPTIONS, SYNTH_DURATION
 from .paper import MODEL_LABELS as _NAMES
 from .paper import MODELS, PAPER
 from .paper import SECTION_IV_GRID as _GRID
@@ -75,7 +75,7 @@ class Settings:
     the studies' own defaults).
     """
 
-    duration: float = 180.0
+    duration: float = SYNTH_DURATION
     max_generations: int = GA_OPTIONS["max_generations"]
     starts: int = DEFAULT_STARTS
     kg_min: float = _GRID["kg"][0]

@@ -19,6 +19,7 @@ import numpy as np
 
 from ._limits import check_int, check_memory, check_number, check_seed
 from .data import Run
+from .defaults import SYNTH_DT, SYNTH_DURATION, SYNTH_NOISE
 from .models import LowerLevelModel, UpperLevel
 from .paper import GMIN, PAPER_CAL_RUNS, PAPER_VAL_RUNS, TABLE_I, TABLE_II
 from .rollout import closed_loop
@@ -101,12 +102,12 @@ def paper_experiment(
     *,
     seed: int = 0,
     runs: tuple[int, ...] | None = None,
-    duration: float = 180.0,
-    dt: float = 0.05,
-    noise_a: float = 0.05,
-    noise_v: float = 0.02,
-    noise_x: float = 0.02,
-    quantization_a: float = 0.01,
+    duration: float = SYNTH_DURATION,
+    dt: float = SYNTH_DT,
+    noise_a: float = SYNTH_NOISE["noise_a"],
+    noise_v: float = SYNTH_NOISE["noise_v"],
+    noise_x: float = SYNTH_NOISE["noise_x"],
+    quantization_a: float = SYNTH_NOISE["quantization_a"],
 ) -> list[Run]:
     """Synthesises the paper's 21-run experiment (or the listed ``runs``).
 

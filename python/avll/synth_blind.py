@@ -76,6 +76,7 @@ import numpy as np
 
 from ._limits import check_int, check_number, check_seed
 from .data import Run
+from .defaults import SYNTH_DT, SYNTH_NOISE
 from .models import UpperLevel
 from .paper import G
 from .synth import GMIN, _ar1, _noisy, _table_i_upper, leader_profile
@@ -115,12 +116,12 @@ DEFAULTS: dict[str, Any] = {
     "grade_sensor_noise": 0.002,
     "sensor_lag": 0.0,
     "sensor_bias": 0.0,
-    "noise_a": 0.05,
+    "noise_a": SYNTH_NOISE["noise_a"],
     "ar1_sigma": 0.0,
     "ar1_phi": 0.0,
-    "quantization_a": 0.01,
-    "noise_v": 0.02,
-    "noise_x": 0.02,
+    "quantization_a": SYNTH_NOISE["quantization_a"],
+    "noise_v": SYNTH_NOISE["noise_v"],
+    "noise_x": SYNTH_NOISE["noise_x"],
 }
 
 #: Scenario name -> overrides of :data:`DEFAULTS` (one effect class each).
@@ -349,7 +350,7 @@ def blind_experiment(
     seed: int = 0,
     runs: Sequence[int] = BLIND_RUNS,
     duration: float = 120.0,
-    dt: float = 0.05,
+    dt: float = SYNTH_DT,
     substeps: int = 10,
     overrides: Mapping[str, Any] | None = None,
 ) -> list[Run]:

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from .data import Run
+from .defaults import SYNTH_DT, SYNTH_NOISE
 from .models import LowerLevelModel, UpperLevel
 from .paper import G
 from .synth import GMIN, _measured, _table_i_upper, leader_profile
@@ -202,11 +203,11 @@ def paper_experiment_effects(
     seed: int = 0,
     runs: tuple[int, ...] = (1, 3, 8, 12, 15, 19),
     duration: float = 120.0,
-    dt: float = 0.05,
-    noise_a: float = 0.05,
-    noise_v: float = 0.02,
-    noise_x: float = 0.02,
-    quantization_a: float = 0.01,
+    dt: float = SYNTH_DT,
+    noise_a: float = SYNTH_NOISE["noise_a"],
+    noise_v: float = SYNTH_NOISE["noise_v"],
+    noise_x: float = SYNTH_NOISE["noise_x"],
+    quantization_a: float = SYNTH_NOISE["quantization_a"],
     extra_exo: tuple[str, ...] = (),
     leader_speedup: float = 1.0,
 ) -> list[Run]:

@@ -22,6 +22,8 @@ def _cmd(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Registers ``avll synth``."""
+    from ..defaults import SYNTH_DURATION, SYNTH_NOISE
+
     p = sub.add_parser(
         "synth", help="write the synthetic 21-run experiment in the canonical format",
         description="Generate the paper's 21-run experiment (Table I) with a known true "
@@ -32,11 +34,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="output CSV or Parquet file (required; no default)")
     add_model(p, "proposed", "true lower-level model, with its Table II parameters")
     add_seed(p, "noise")
-    p.add_argument("--duration", type=float, default=180.0,
-                   help="seconds per run (default: 180)")
-    p.add_argument("--noise-a", type=float, default=0.05,
-                   help="acceleration noise standard deviation in m/s² (default: 0.05)")
-    p.add_argument("--quantization", type=float, default=0.01,
-                   help="acceleration quantization step in m/s² (default: 0.01)")
+    p.add_argument("--duration", type=float, default=SYNTH_DURATION,
+                   help=f"seconds per run (default: {SYNTH_DURATION:g})")
+    p.add_argument("--noise-a", type=float, default=(a := SYNTH_NOISE["noise_a"]),
+                   help=f"acceleration noise standard deviation in m/s² (default: {a:g})")
+    p.add_argument("--quantization", type=float, default=(q := SYNTH_NOISE["quantization_a"]),
+                   help=f"acceleration quantization step in m/s² (default: {q:g})")
     declare_io(p, files=("out",), runs=("out",))
     p.set_defaults(func=_cmd)
