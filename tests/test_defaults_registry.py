@@ -1,6 +1,6 @@
-"""One decision, one place (issue 26): the Section-IV axes rounded relative to their
-step (the same values as before on every default axis), the GA's automatic population
-from the Rust core, and the registries' constants used by the signatures."""
+"""One decision, one place: the Section-IV axes rounded relative to their step (the
+same values as before on every default axis), the GA's automatic population from the
+Rust core, and the registries' constants used by the signatures."""
 
 from __future__ import annotations
 

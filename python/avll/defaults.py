@@ -1,7 +1,9 @@
 """Defaults, defined once: the GA's search boxes and options (the options read from
 the Rust core, which also validates them), the objective weightings of open- and
-closed-loop calibrations, the upper-level placeholder of runs without an upper law, and the figure
-styles (one colour per model and per stability class) every command and the report use.
+closed-loop calibrations, the at-bound tolerance, the confidence level, the upper-level
+placeholder of runs without an upper law, the synthetic experiments' length, sample time
+and noise, and the figure styles (one colour per model and per stability class) every
+command and the report use.
 
 The bounds' reasons are :data:`BOUND_REASONS` (printed beside them in the docs).
 """
