@@ -1,8 +1,10 @@
-"""The loaders' fast paths (pandas' C parser on the data block) give exactly what the
-exact paths give (the native OpenACC loader's csv.reader and ``_to_float``): the same
-arrays bit for bit, the same metadata, warnings and runs, or the same exception with
-the same message. Checked on every field-data file and on small generated files
-with nasty cells; the exact path is forced by disabling the fast one."""
+"""The loaders' fast paths give exactly what the exact paths give: the native OpenACC
+loader's data block read by pandas' C parser (exact: csv.reader and ``_to_float``),
+the CARMA and canonical tables read with their numbers parsed (exact: read as text,
+then converted column by column). The same arrays bit for bit, the same metadata,
+warnings and runs, or the same exception with the same message. Checked on every
+field-data file and on small generated files with nasty cells; the exact path is
+forced by disabling the fast one."""
 
 from __future__ import annotations
 
@@ -16,10 +18,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from loader_helpers import NO_DATA
+from loader_helpers import NO_DATA, canonical_frame, carma_frame
 
+import avll.io._common as common
+import avll.io.canonical as canonical
 import avll.io.openacc_native as native
-from avll.io import read_runs
+from avll.io import load_canonical, load_carma, read_runs, write_runs
 
 PROP = settings(derandomize=True, deadline=None, max_examples=300,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -38,7 +42,9 @@ def same(a: Any, b: Any) -> bool:
     if hasattr(a, "__dataclass_fields__"):
         return type(a) is type(b) and all(same(getattr(a, f), getattr(b, f))
                                           for f in a.__dataclass_fields__)
-    return bool(a == b)
+    if isinstance(a, float) and isinstance(b, float) and a != a and b != b:
+        return True  # NaN
+    return type(a) is type(b) and bool(a == b)
 
 
 def outcome(call: Callable[[], Any]) -> tuple[Any, Any, list[tuple[type, str]]]:
@@ -52,17 +58,18 @@ def outcome(call: Callable[[], Any]) -> tuple[Any, Any, list[tuple[type, str]]]:
     return res, err, [(w.category, str(w.message)) for w in caught]
 
 
-def exact_native(monkeypatch: pytest.MonkeyPatch | None = None) -> Any:
-    """A context in which the native loader takes its exact path."""
-    mp = monkeypatch or pytest.MonkeyPatch()
+def exact_paths(mp: pytest.MonkeyPatch) -> None:
+    """The loaders take their exact paths (every fast path disabled)."""
     mp.setattr(native, "_fast_read", lambda path: None)
-    return mp
+    mp.setattr(common, "read_csv_numeric", lambda *a, **k: None)
+    mp.setattr(canonical, "read_csv_numeric", lambda *a, **k: None)
 
 
-def assert_same_native(call: Callable[[], Any]) -> Any:
+def assert_same(call: Callable[[], Any]) -> Any:
+    """``call`` gives the same result, exception and warnings on both paths."""
     fast = outcome(call)
     with pytest.MonkeyPatch.context() as mp:
-        exact_native(mp)
+        exact_paths(mp)
         slow = outcome(call)
     assert fast[1] == slow[1]
     assert fast[2] == slow[2]
@@ -83,7 +90,7 @@ def test_native_field_files_fast_equals_exact(shared_data):
         pytest.skip(NO_DATA)
     for p in files:
         assert native._fast_read(p) is not None, f"{p}: the fast path refused a published file"
-        res, err, _ = assert_same_native(lambda p=p: native.read_openacc_native(p))
+        res, err, _ = assert_same(lambda p=p: native.read_openacc_native(p))
         assert err is None
 
 
@@ -93,7 +100,7 @@ def test_native_campaign_runs_fast_equals_exact(shared_data, campaign):
     folder = shared_data / campaign
     if not folder.is_dir():
         pytest.skip(NO_DATA)
-    runs, err, _ = assert_same_native(lambda: read_runs(folder, format="openacc"))
+    runs, err, _ = assert_same(lambda: read_runs(folder, format="openacc"))
     assert err is None and runs
 
 
@@ -151,7 +158,7 @@ def test_native_generated_files_fast_equals_exact(text):
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "dynamic_part1.csv"
         p.write_bytes(text.encode("utf-8"))
-        assert_same_native(lambda: native.read_openacc_native(p))
+        assert_same(lambda: native.read_openacc_native(p))
 
 
 def test_native_clean_file_takes_the_fast_path(tmp_path):
@@ -162,5 +169,91 @@ def test_native_clean_file_takes_the_fast_path(tmp_path):
     p = tmp_path / "handling_part2.csv"
     p.write_text(text)
     assert native._fast_read(p) is not None
-    nf = assert_same_native(lambda: native.read_openacc_native(p))[0]
+    nf = assert_same(lambda: native.read_openacc_native(p))[0]
     assert nf.t.shape == (50,) and nf.drivers[2].dtype == np.int8
+
+
+# ------------------------------------------------------ CARMA, canonical
+
+
+def test_carma_field_files_fast_equals_exact(shared_data):
+    files = sorted((shared_data / "carma").glob("*.csv"))
+    if not files:
+        pytest.skip(NO_DATA)
+    for p in files:
+        df = common.read_csv_numeric(p, encoding="utf-8-sig")
+        assert df is not None and (df.dtypes == np.float64).sum() > 50  # numbers parsed
+        runs, err, _ = assert_same(lambda p=p: load_carma(p))
+        assert err is None and runs
+    assert_same(lambda: read_runs(shared_data / "carma", format="carma"))
+
+
+def test_canonical_of_field_runs_fast_equals_exact(shared_data, tmp_path):
+    """No canonical file is published: the field runs (CARMA: speed commands; Casale:
+    leader signals and the grade) written in the canonical format, read back."""
+    sets = {"carma": shared_data / "carma" / "data9.csv",
+            "casale": shared_data / "openacc-jrc" / "Casale" / "part7.csv"}
+    if not all(p.is_file() for p in sets.values()):
+        pytest.skip(NO_DATA)
+    for name, src in sets.items():
+        runs = read_runs(src, format="carma" if name == "carma" else "openacc")
+        f = write_runs(runs, tmp_path / f"{name}.csv")
+        back, err, _ = assert_same(lambda f=f: load_canonical(f))
+        assert err is None and [r.run_id for r in back] == [r.run_id for r in runs]
+
+
+def mutate(draw: Any, lines: list[str], *, first: int = 1) -> list[str]:
+    """Up to four mutations of the data lines (from ``first``): a nasty cell, a short
+    row, a long row, a blank line."""
+    lines = list(lines)
+    for _ in range(draw(st.integers(0, 4))):
+        i = draw(st.integers(first, len(lines) - 1))
+        cells = lines[i].split(",")
+        what = draw(st.sampled_from(["cell", "cell", "short", "long", "blank"]))
+        if what == "cell":
+            cells[draw(st.integers(0, len(cells) - 1))] = draw(st.sampled_from(NASTY))
+        elif what == "short":
+            cells = cells[:draw(st.integers(0, max(len(cells) - 1, 0)))]
+        elif what == "long":
+            cells.append(draw(st.sampled_from(["", " ", "7"])))
+        else:
+            lines.insert(i, draw(st.sampled_from(["", " ", ",,"])))
+            continue
+        lines[i] = ",".join(cells)
+    return lines
+
+
+@st.composite
+def carma_text(draw: Any) -> str:
+    df = carma_frame(n=draw(st.integers(30, 60)), vehicles=("leader",),
+                     seed=draw(st.integers(0, 3)))
+    lines = mutate(draw, df.to_csv(index=False, float_format="%.6g").splitlines())
+    eol = draw(st.sampled_from(["\n", "\r\n"]))
+    return draw(st.sampled_from(["", "\ufeff"])) + eol.join(lines) + eol
+
+
+@st.composite
+def canonical_text(draw: Any) -> str:
+    df = canonical_frame(n=draw(st.integers(3, 12)), runs=draw(st.sampled_from(
+        [("r1",), ("1", "2"), ("01", "r2")])), seed=draw(st.integers(0, 3)))
+    lines = mutate(draw, df.to_csv(index=False).splitlines())
+    eol = draw(st.sampled_from(["\n", "\r\n"]))
+    return eol.join(lines) + draw(st.sampled_from([eol, ""]))
+
+
+@PROP
+@given(text=carma_text())
+def test_carma_generated_files_fast_equals_exact(text):
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "data1.csv"
+        p.write_bytes(text.encode("utf-8"))
+        assert_same(lambda: load_carma(p, min_duration=1.0))
+
+
+@PROP
+@given(text=canonical_text())
+def test_canonical_generated_files_fast_equals_exact(text):
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "runs.csv"
+        p.write_bytes(text.encode("utf-8"))
+        assert_same(lambda: load_canonical(p, command_kind="acceleration"))

@@ -37,7 +37,7 @@ import os
 import re
 import stat
 import warnings
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -319,8 +319,49 @@ def _has_blank_line(data: bytes) -> bool:
     return re.search(rb"(^|\n)[ \t]*\r?\n", data[:end]) is not None
 
 
-def read_table(path: str | Path, *, encoding: str = "utf-8-sig") -> pd.DataFrame:
-    """Read a CSV or Parquet file (chosen by suffix) as strings/objects untouched.
+#: pandas >= 3.1 parses floats in read_csv and to_numeric alike (fast_float, correctly
+#: rounded); before, read_csv's default and to_numeric's parsers differ in the last bit.
+PANDAS_FAST_FLOAT = tuple(int(x) for x in re.findall(r"\d+", pd.__version__)[:2]) >= (3, 1)
+
+
+def read_csv_numeric(path: Path, *, text: Collection[str] = (), nan: bool = True,
+                     **options: Any) -> pd.DataFrame | None:
+    """A CSV file read once with its numbers parsed (pandas' C parser), every column
+    that could read differently from its text re-read as text, exactly as
+    ``pd.read_csv(path, dtype=str, keep_default_na=False, **options)`` gives it: a
+    column that is not all int64/float64, holds an inf (spellings differ) or, unless
+    ``nan``, an empty cell, and the columns named in ``text``. A numeric column's
+    empty cells are NaN, the rest the number :func:`numeric_column` gives for the
+    text. ``None`` when the read fails or pandas is older than 3.1 (the text read then
+    says why)."""
+    if not PANDAS_FAST_FLOAT:
+        return None
+    try:
+        df = pd.read_csv(path, keep_default_na=False, na_values=[""], low_memory=False,
+                         **options)
+        if not isinstance(df.index, pd.RangeIndex):  # rows wider than the header
+            return None
+        num = [j for j, (c, d) in enumerate(zip(df.columns, df.dtypes, strict=True))
+               if d in (np.float64, np.int64) and str(c).strip() not in text]
+        x = df.iloc[:, num].to_numpy(dtype=np.float64)
+        odd = np.isinf(x).any(axis=0) | (np.isnan(x).any(axis=0) & (not nan))
+        redo = sorted(set(range(df.shape[1])) - set(num) | {num[i] for i in np.flatnonzero(odd)})
+        if redo:
+            txt = pd.read_csv(path, dtype=str, keep_default_na=False, usecols=redo, **options)
+            if txt.shape != (len(df), len(redo)):
+                return None
+            for i, j in enumerate(redo):
+                df.isetitem(j, txt.iloc[:, i])
+    except Exception:  # noqa: BLE001 - any failure: the text read reports it
+        return None
+    return df
+
+
+def read_table(path: str | Path, *, encoding: str = "utf-8-sig",
+               numeric: bool = False) -> pd.DataFrame:
+    """Read a CSV or Parquet file (chosen by suffix) as strings/objects untouched, or
+    with ``numeric`` a CSV file's numeric columns as numbers
+    (:func:`read_csv_numeric`; the other columns as text).
 
     Raises :class:`DataError` for an empty file (no header or no data row) and
     ``OSError`` when the file cannot be read.
@@ -338,6 +379,8 @@ def read_table(path: str | Path, *, encoding: str = "utf-8-sig") -> pd.DataFrame
             df = pd.read_parquet(p)
         except (ImportError, OSError, ValueError) as e:  # pragma: no cover - env dependent
             raise DataError(f"{p}: cannot read as Parquet ({e})") from e
+    elif numeric and (fast := read_csv_numeric(p, encoding=encoding)) is not None:
+        df = fast
     else:
         try:
             df = pd.read_csv(p, dtype=str, keep_default_na=False, encoding=encoding)

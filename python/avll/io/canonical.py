@@ -57,6 +57,7 @@ from ._common import (
     check_regular_file,
     check_time_step,
     check_unique_header,
+    read_csv_numeric,
     record_lines,
     stat_path,
     strict_warnings,
@@ -92,6 +93,9 @@ def _read_table(path: Path) -> pd.DataFrame:
             raise DataError(f"{path}: reading Parquet needs pyarrow ({e})") from None
         except Exception as e:  # noqa: BLE001 - any parser failure is bad input
             raise DataError(f"{path}: not a readable Parquet file ({e})") from None
+    elif (fast := read_csv_numeric(path, text=("run",), nan=False,
+                                   skipinitialspace=True)) is not None:
+        df = fast
     else:
         try:
             df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)

@@ -174,7 +174,7 @@ def load_carma(
     if not (dt > 0):
         raise ValueError(f"dt: must be > 0, got {dt!r}")
     path = Path(path)
-    df = read_table(path)
+    df = read_table(path, numeric=True)
     require_columns(df, path, ["Time"])
     found = carma_vehicles(df.columns)
     explicit = vehicles is not None
@@ -205,10 +205,11 @@ def load_carma(
     rows = order  # original data-row index of each sorted row
     t = t_raw[order]
     dup = np.flatnonzero(np.diff(t) == 0)
-    if dup.size:
+    if dup.size:  # rows compared as written
+        text = read_table(path).iloc[order].reset_index(drop=True)
         keep = np.ones(t.shape[0], dtype=bool)
         for j in (int(x) for x in dup):
-            a_row, b_row = df.iloc[j], df.iloc[j + 1]
+            a_row, b_row = text.iloc[j], text.iloc[j + 1]
             if not a_row.equals(b_row):
                 raise DataError(
                     f"{where(path, 'Time', int(rows[j + 1]))}: duplicated time {t[j]:g} with "
