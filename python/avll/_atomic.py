@@ -226,14 +226,11 @@ def loads(text: str, *, max_depth: int | None = None) -> Any:
         raise ValueError(f"not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})"
                          ) from None
     except RecursionError:
-        doc = _TOO_DEEP
-    if doc is _TOO_DEEP or (max_depth is not None and json_depth(doc) > max_depth):
         raise ValueError(f"nested deeper than {max_depth} levels" if max_depth is not None
-                         else "nested too deeply to parse")
+                         else "nested too deeply to parse") from None
+    if max_depth is not None and json_depth(doc) > max_depth:
+        raise ValueError(f"nested deeper than {max_depth} levels")
     return doc
-
-
-_TOO_DEEP = object()
 
 
 def json_depth(x: Any) -> int:
