@@ -168,6 +168,7 @@ import pandas as pd
 
 from ..data import DataError, Run
 from ._common import (
+    PANDAS_FAST_FLOAT,
     Range,
     _range_check,
     check_speed_units,
@@ -397,9 +398,7 @@ _FAST_BYTES = np.zeros(256, dtype=bool)
 _FAST_BYTES[list(b"0123456789+-.eE, \r\nACHUMNachumn")] = True
 #: pandas >= 3.1 parses floats with fast_float (correctly rounded, as ``float``);
 #: before, only its ``round_trip`` converter is (a deprecated option in 3.1).
-_FLOAT_OPTS: dict[str, Any] = (
-    {} if tuple(int(x) for x in re.findall(r"\d+", pd.__version__)[:2]) >= (3, 1)
-    else {"float_precision": "round_trip"})
+_FLOAT_OPTS: dict[str, Any] = {} if PANDAS_FAST_FLOAT else {"float_precision": "round_trip"}
 
 
 def _fast_read(path: Path) -> tuple[list[list[str]], list[Any]] | None:
