@@ -152,15 +152,6 @@ def native_text(draw: Any) -> str:
     return draw(st.sampled_from(["", "\ufeff"])) + text
 
 
-@PROP
-@given(text=native_text())
-def test_native_generated_files_fast_equals_exact(text):
-    with tempfile.TemporaryDirectory() as d:
-        p = Path(d) / "dynamic_part1.csv"
-        p.write_bytes(text.encode("utf-8"))
-        assert_same(lambda: native.read_openacc_native(p))
-
-
 def test_native_clean_file_takes_the_fast_path(tmp_path):
     text = ("Date,8,10,2019\nVehicle_order,A,B,\nNumber_of_vehicles,2\nACC,2\n"
             "Distance_setting,L\nTime,Speed1,Speed2,IVS1,Driver2\n"
@@ -241,19 +232,22 @@ def canonical_text(draw: Any) -> str:
     return eol.join(lines) + draw(st.sampled_from([eol, ""]))
 
 
-@PROP
-@given(text=carma_text())
-def test_carma_generated_files_fast_equals_exact(text):
-    with tempfile.TemporaryDirectory() as d:
-        p = Path(d) / "data1.csv"
-        p.write_bytes(text.encode("utf-8"))
-        assert_same(lambda: load_carma(p, min_duration=1.0))
+#: Each format's generated files, the name they are written under and how they are read.
+GENERATED = {
+    "native": (native_text, "dynamic_part1.csv", native.read_openacc_native),
+    "carma": (carma_text, "data1.csv", lambda p: load_carma(p, min_duration=1.0)),
+    "canonical": (canonical_text, "runs.csv",
+                  lambda p: load_canonical(p, command_kind="acceleration")),
+}
 
 
+@pytest.mark.parametrize("fmt", GENERATED)
 @PROP
-@given(text=canonical_text())
-def test_canonical_generated_files_fast_equals_exact(text):
+@given(data=st.data())
+def test_generated_files_fast_equals_exact(fmt, data):
+    strategy, name, read = GENERATED[fmt]
+    text = data.draw(strategy())
     with tempfile.TemporaryDirectory() as d:
-        p = Path(d) / "runs.csv"
+        p = Path(d) / name
         p.write_bytes(text.encode("utf-8"))
-        assert_same(lambda: load_canonical(p, command_kind="acceleration"))
+        assert_same(lambda: read(p))
