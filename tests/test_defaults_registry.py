@@ -34,7 +34,6 @@ def test_fine_steps_are_never_merged(first: float) -> None:
     np.testing.assert_array_equal(section_iv_axis(0.0, 1e-8, 11), np.arange(11) / 1e9)
 
 
-
 def test_ga_automatic_population_is_the_cores(capsys: pytest.CaptureFixture[str]) -> None:
     from avll import PAPER_TABLE_II, _core, calibrate
     from avll.cli import build_parser
