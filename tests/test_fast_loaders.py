@@ -104,6 +104,22 @@ def test_native_campaign_runs_fast_equals_exact(shared_data, campaign):
     assert err is None and runs
 
 
+def test_carma_field_files_are_read_once(shared_data, monkeypatch):
+    """The date and clock columns are text: kept from the one read, not read again."""
+    files = sorted((shared_data / "carma").glob("*.csv"))
+    if not files:
+        pytest.skip(NO_DATA)
+    reads: list[Any] = []
+    real = common.pd.read_csv
+    monkeypatch.setattr(common.pd, "read_csv", lambda *a, **k: reads.append(k) or real(*a, **k))
+    for p in files:
+        reads.clear()
+        df = common.read_table(p, numeric=True)
+        assert len(reads) == 1, f"{p}: read {len(reads)} times"
+        assert all(isinstance(df[c].dtype, common.pd.StringDtype) for c in ("Date", "Heure"))
+        assert not df[["Date", "Heure"]].isna().any().any()
+
+
 # ------------------------------------------------------- generated files
 
 NASTY = ["", " ", "nan", "NaN", "-nan", "NA", "N/A", "NULL", "None", "inf", "-inf",

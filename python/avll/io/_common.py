@@ -329,11 +329,12 @@ def read_csv_numeric(path: Path, *, text: Collection[str] = (), nan: bool = True
     """A CSV file read once with its numbers parsed (pandas' C parser), every column
     that could read differently from its text re-read as text, exactly as
     ``pd.read_csv(path, dtype=str, keep_default_na=False, **options)`` gives it: a
-    column that is not all int64/float64, holds an inf (spellings differ) or, unless
-    ``nan``, an empty cell, and the columns named in ``text``. A numeric column's
-    empty cells are NaN, the rest the number :func:`numeric_column` gives for the
-    text. ``None`` when the read fails or pandas is older than 3.1 (the text read then
-    says why)."""
+    column that is neither all int64/float64 nor all text, holds an inf (spellings
+    differ) or, unless ``nan``, an empty cell, and the columns named in ``text``. A
+    numeric column's empty cells are NaN, the rest the number :func:`numeric_column`
+    gives for the text; a text column (such as CARMA's date and clock) is kept from
+    the one read, its empty cells ``""``. ``None`` when the read fails or pandas is
+    older than 3.1 (the text read then says why)."""
     if not PANDAS_FAST_FLOAT:
         return None
     try:
@@ -345,7 +346,12 @@ def read_csv_numeric(path: Path, *, text: Collection[str] = (), nan: bool = True
                if d in (np.float64, np.int64) and str(c).strip() not in text]
         x = df.iloc[:, num].to_numpy(dtype=np.float64)
         odd = np.isinf(x).any(axis=0) | (np.isnan(x).any(axis=0) & (not nan))
-        redo = sorted(set(range(df.shape[1])) - set(num) | {num[i] for i in np.flatnonzero(odd)})
+        words = {j for j, (c, d) in enumerate(zip(df.columns, df.dtypes, strict=True))
+                 if isinstance(d, pd.StringDtype) and str(c).strip() not in text}
+        for j in words:
+            df.isetitem(j, df.iloc[:, j].fillna(""))
+        redo = sorted(set(range(df.shape[1])) - set(num) - words
+                      | {num[i] for i in np.flatnonzero(odd)})
         if redo:
             txt = pd.read_csv(path, dtype=str, keep_default_na=False, usecols=redo, **options)
             if txt.shape != (len(df), len(redo)):
