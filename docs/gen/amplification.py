@@ -6,8 +6,8 @@ For every scenario, :func:`avll.synth_platoon.validate_amplification` simulates
 second-order and proposed lower levels in turn, constant-time-gap upper levels drawn
 at random; seeds :data:`SEEDS`; the estimators' problems were diagnosed on other
 seeds, 200-205, though a first version of this table was seen on these)
-and scores the band RMS ratio (:func:`avll.studies.openacc.amplification`, with the
-study's circular block bootstrap interval) and the H1 band gain
+and scores the band RMS ratio with its circular block bootstrap interval, as the
+study measures it (:func:`avll.studies.openacc.measured_amplification`), and the H1 band gain
 (:func:`avll.spectral.h1_band_gain`) against each car's true band gain.
 
     python -m docs.gen --only amplification
