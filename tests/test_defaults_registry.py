@@ -79,3 +79,31 @@ def test_registry_values_are_not_written_again() -> None:
     hits = [f"{p.name}: {m.group(0)}" for p in Path(avll.__file__).parent.rglob("*.py")
             for rx in _WRITTEN_ONCE for m in re.finditer(rx, p.read_text(encoding="utf-8"))]
     assert hits == ['paper.py: ("first", "second", "proposed")'], hits  # MODELS itself
+
+
+
+def test_bootstraps_take_the_resample_count_of_intervals(monkeypatch: pytest.MonkeyPatch
+                                                         ) -> None:
+    """``avll.bootstrap`` and ``maps.bootstrap_distributed`` without ``n`` resample as
+    many times as :class:`avll.Intervals` does by default: one decision."""
+    import avll
+    import avll.maps as maps
+    import avll.uncertainty as uncertainty
+    from avll.synth import paper_experiment
+
+    default, sizes = uncertainty.Intervals().n, []
+
+    class Stop(Exception):
+        pass
+
+    class Spy(uncertainty.Intervals):
+        def __post_init__(self) -> None:
+            sizes.append(self.n)
+            raise Stop
+
+    monkeypatch.setattr(uncertainty, "Intervals", Spy)
+    runs = paper_experiment(runs=(1,), duration=10.0)
+    for call in (avll.bootstrap, maps.bootstrap_distributed):
+        with pytest.raises(Stop):
+            call("first", runs)
+    assert sizes == [default] * 2

@@ -850,7 +850,7 @@ def calibrate_effects(
 def bootstrap(
     model: Any,
     runs: RunSet | Sequence[Run],
-    n: int = 50,
+    n: int | None = None,
     *,
     seed: int = 0,
     level: float = LEVEL,
@@ -862,7 +862,8 @@ def bootstrap(
 ) -> Any:
     """The uncertainty of a calibration (:class:`avll.Uncertainty`): :func:`calibrate`
     with ``intervals=avll.Intervals(n=n, level=level, method=method, block=block)``,
-    its ``uncertainty``. ``method="runs"`` (the default here) resamples whole runs
+    its ``uncertainty`` (``n=None``: the resamples of :class:`avll.Intervals`, one
+    default for both). ``method="runs"`` (the default here) resamples whole runs
     with replacement (the runs are the independent units: a problem of several runs);
     ``"blocks"`` resamples blocks of time within each run (the default of
     ``calibrate(intervals=True)``). Each resample is refit by a local search from the
@@ -871,7 +872,7 @@ def bootstrap(
     where the individual parameters trade off."""
     from .uncertainty import Intervals
 
-    n = check_int(n, "n", min=2)
+    n = check_int(Intervals.n if n is None else n, "n", min=2)
     if isinstance(level, bool) or not isinstance(level, (int, float, np.floating)) or not (
             0 < level < 1):
         raise ValueError(f"level: must be in (0, 1), got {level!r}")

@@ -733,7 +733,7 @@ def calibrate_many_distributed(
 def bootstrap_distributed(
     model: Any,
     runs: Sequence[Any],
-    n: int = 50,
+    n: int | None = None,
     *,
     seed: int = 0,
     level: float = LEVEL,
@@ -754,7 +754,7 @@ def bootstrap_distributed(
     from .calibration import _calibrate, _problem
     from .uncertainty import Intervals, estimate
 
-    n = check_int(n, "n", min=2)
+    n = check_int(Intervals.n if n is None else n, "n", min=2)
     level = check_number(level, "level")
     if not 0 < level < 1:
         raise ValueError(f"level: must be in (0, 1), got {level}")
