@@ -107,3 +107,14 @@ def test_bootstraps_take_the_resample_count_of_intervals(monkeypatch: pytest.Mon
         with pytest.raises(Stop):
             call("first", runs)
     assert sizes == [default] * 2
+
+
+def test_reproduce_builds_the_paper_grid_with_the_papers_axis() -> None:
+    """``avll reproduce``'s default axes are :data:`SECTION_IV_GRID`'s, bit for bit."""
+    from avll.reproduce import SETTINGS
+
+    g = SECTION_IV_GRID
+    want = (section_iv_axis(*g["kg"], log=True), section_iv_axis(*g["Tg"]),
+            section_iv_axis(*g["kv"]))
+    got = SETTINGS["default"].axes()
+    assert [a.tobytes() for a in got] == [w.tobytes() for w in want]

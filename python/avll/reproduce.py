@@ -52,7 +52,7 @@ __all__ = [
 
 from .defaults import DEFAULT_STARTS, GA_OPTIONS, SYNTH_DURATION
 from .paper import MODEL_LABELS as _NAMES
-from .paper import MODELS, PAPER
+from .paper import MODELS, PAPER, section_iv_axis
 from .paper import SECTION_IV_GRID as _GRID
 
 
@@ -95,10 +95,12 @@ class Settings:
 
     def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The (kg, Tg, kv) axes of the stability maps."""
-        kg = np.geomspace(self.kg_min, self.kg_max, self.kg_n)
-        tg = np.round(np.arange(0.0, self.tg_max + 1e-9, self.tg_step), 10)
-        kv = np.round(np.arange(0.0, self.kv_max + 1e-9, self.kv_step), 10)
-        return kg, tg, kv
+        def even(last: float, step: float) -> np.ndarray:  # 0, step, ... up to last
+            n = int(math.floor(last / step + 1e-9)) + 1
+            return section_iv_axis(0.0, (n - 1) * step, n)
+
+        return (section_iv_axis(self.kg_min, self.kg_max, self.kg_n, log=True),
+                even(self.tg_max, self.tg_step), even(self.kv_max, self.kv_step))
 
 
 #: ``default``: the paper's grid (:data:`avll.paper.SECTION_IV_GRID`, the one of
