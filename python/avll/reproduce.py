@@ -61,6 +61,12 @@ def _step(axis: tuple[float, float, int]) -> float:
     return round((axis[1] - axis[0]) / (axis[2] - 1), 12)
 
 
+def _even(last: float, step: float) -> np.ndarray:
+    """The axis 0, ``step``, ... up to ``last`` (:func:`avll.paper.section_iv_axis`)."""
+    n = int(math.floor(last / step + 1e-9)) + 1
+    return section_iv_axis(0.0, (n - 1) * step, n)
+
+
 @dataclass(frozen=True)
 class Settings:
     """Budgets and grids of a reproduction (see :data:`SETTINGS`).
@@ -95,12 +101,8 @@ class Settings:
 
     def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The (kg, Tg, kv) axes of the stability maps."""
-        def even(last: float, step: float) -> np.ndarray:  # 0, step, ... up to last
-            n = int(math.floor(last / step + 1e-9)) + 1
-            return section_iv_axis(0.0, (n - 1) * step, n)
-
         return (section_iv_axis(self.kg_min, self.kg_max, self.kg_n, log=True),
-                even(self.tg_max, self.tg_step), even(self.kv_max, self.kv_step))
+                _even(self.tg_max, self.tg_step), _even(self.kv_max, self.kv_step))
 
 
 #: ``default``: the paper's grid (:data:`avll.paper.SECTION_IV_GRID`, the one of
@@ -167,7 +169,7 @@ def stability_summary(
     th = S.thresholds(codes, kg, tg, kv)
     kvt: float | None = None
     if math.isfinite(th.kv_first_empty) and math.isfinite(th.kv_last_stable):
-        tgf = np.round(np.arange(0.0, settings.tg_max + 1e-9, settings.kv_tg_step), 10)
+        tgf = _even(settings.tg_max, settings.kv_tg_step)
         # the finer Tg grid may still hold a stable point at the first "empty" kv
         hi = th.kv_first_empty
         while hi <= settings.kv_max + 1.0 and bool(
@@ -627,6 +629,8 @@ def _run_time(tm: dict[str, float]) -> str:
 
 def _write_report(outd: Path, desc: str, diag: dict[str, Any], settings: Settings,
                   summary: dict[str, Any], figs: dict[str, str]) -> None:
+    from .stability import CAPACITY_LENGTH, CAPACITY_SPEED
+
     rep = Report("avll reproduce — Liu et al., lower-level controller of automated vehicles")
     cal = summary["calibration"]
     rep.para(f"Data: {desc}")
@@ -703,7 +707,8 @@ def _write_report(outd: Path, desc: str, diag: dict[str, Any], settings: Setting
             f"0..{settings.tg_max:g} s step {settings.tg_step:g} ({tg.size}) × kv "
             f"0..{settings.kv_max:g} step {settings.kv_step:g} ({kv.size}), Padé order "
             f"{settings.pade_order}; kv threshold by bisection to {settings.kv_tol:g} on a Tg "
-            f"step of {settings.kv_tg_step:g} s; capacity q = 3600/(Tg + 7/30) veh/h")
+            f"step of {settings.kv_tg_step:g} s; capacity q = 3600/(Tg + "
+            f"{CAPACITY_LENGTH:g}/{CAPACITY_SPEED:g}) veh/h")
     sections = (
         ("table2", "stability", "Section IV with the paper's Table II parameters", "Table II",
          "These numbers depend only on Table II and the method, not on the data: they must "
