@@ -273,20 +273,20 @@ def test_stability_maps_redrawn_with_an_effect() -> None:
 
 
 def test_ga_calibration_recovers_effect_params_thread_independently() -> None:
-    from avll.calibration import calibrate_effects
-
     base = avll.SecondOrder(K0=0.9, m2=0.3, m3=1.0, Td=0.25)
     truth = WithEffects(base, (Saturation(0.9, 1.2),))
     runs = _runs(truth)
     lo = [0.5, 0.05, 0.2, 0.0, 0.2, 0.2]
     hi = [1.5, 1.0, 3.0, 1.0, 3.0, 3.0]
     scale = ["linear", "log", "log", "linear", "linear", "linear"]
-    out = [calibrate_effects("second", ["saturation"], runs, lo, hi, scale, seed=3,
-                             max_generations=150, threads=t) for t in (1, 2)]  # fmt: skip
-    np.testing.assert_array_equal(out[0]["x"], out[1]["x"])
-    np.testing.assert_allclose(out[0]["x"], truth.to_array(), rtol=0.05)
-    with pytest.raises(ValueError, match="bounds"):
-        calibrate_effects("second", ["saturation"], runs, lo[:-1], hi[:-1], scale[:-1])
+    from avll.calibration import default_bounds
+
+    names = list(default_bounds("second", effects=["saturation"]))
+    box = dict(zip(names, zip(lo, hi, scale, strict=True), strict=True))
+    out = [avll.calibrate("second", runs, effects=["saturation"], bounds=box, seed=3,
+                          starts=1, max_generations=150, threads=t) for t in (1, 2)]  # fmt: skip
+    np.testing.assert_array_equal(out[0].x, out[1].x)
+    np.testing.assert_allclose(out[0].x, truth.to_array(), rtol=0.05)
 
 
 def test_braking_side_unstable_costs_inf_like_the_trajectory_refuses():

@@ -72,7 +72,6 @@ __all__ = [
     "default_bounds",
     "calibrate",
     "calibrate_many",
-    "calibrate_effects",
     "bootstrap",
     "start_row",
     "paper_workflow",
@@ -790,61 +789,6 @@ def calibrate_many(
     if iopts is None or any(r.interrupted for r in out):
         return out
     return _with_uncertainty(prob, idx, out, iopts, seed, threads, progress)
-
-
-def calibrate_effects(
-    base: str | type[LowerLevelModel],
-    effects: Sequence[str],
-    runs: Any,
-    lower: Sequence[float],
-    upper: Sequence[float],
-    scale: Sequence[str],
-    *,
-    weights: Sequence[float] | None = None,
-    init: str = "rest",
-    closed_loop: bool = False,
-    upper_free: Sequence[int] = (),
-    initial: Any = None,
-    seed: int = 0,
-    max_generations: int | None = None,
-    pop_size: int | None = None,
-    progress: Any = None,
-    threads: int = 0,
-    starts: int = 1,
-) -> dict[str, Any]:
-    """:func:`avll.calibrate` of base + effects (+ free upper-level gains) in the box
-    ``lower``, ``upper``, ``scale`` (``"linear"``/``"log"``) of the row
-    ``[base | effects | free upper]``; ``initial`` rows join the first population;
-    ``starts`` independent GA runs in turn, the best kept. Returns the GA's fields as
-    a dict (``x``, ``f``, ``f_ga``, ``generations``, ``evaluations``, ``stop``,
-    ``interrupted``, ``history``, ``per_run_cost``) and the
-    :class:`avll.CalibrationResult` itself under ``"result"``. ``max_generations``
-    and ``pop_size`` (``None``: the defaults of :data:`avll.defaults.GA_OPTIONS`) are
-    checked by the Rust core."""
-    rs = as_runset(runs)
-    names = canonical(list(effects))
-    box = list(default_bounds(base, list(upper_free), names, rs.command_kind))
-    lens = (len(lower), len(upper), len(scale))
-    if lens != (len(box),) * 3:
-        raise ValueError(f"bounds: lower, upper and scale need {len(box)} values each "
-                         f"({', '.join(box)}), got {lens}")  # fmt: skip
-    bounds = {n: (lo, hi, str(sc)) for n, lo, hi, sc in zip(box, lower, upper, scale,
-                                                             strict=True)}  # fmt: skip
-    if isinstance(starts, bool) or int(starts) < 1:
-        raise ValueError(f"starts: must be an integer >= 1, got {starts!r}")
-    opts = {k: v for k, v in (("max_generations", max_generations), ("pop_size", pop_size))
-            if v is not None}  # fmt: skip
-    ini = None if initial is None else list(np.atleast_2d(np.asarray(initial, dtype=float)))
-    res = _calibrate(
-        model_class(base), rs, effects=names, bounds=bounds, seed=seed,
-        closed_loop=closed_loop, upper_free=list(upper_free), weights=weights, init=init,
-        initial=ini, target=None, starts=int(starts), threads=threads,
-        progress=False if progress is None else progress, ga_options=opts,
-    )  # fmt: skip
-    return {"x": res.x, "f": res.cost, "f_ga": res.cost_ga, "generations": res.generations,
-            "evaluations": res.evaluations, "stop": res.stop, "interrupted": res.interrupted,
-            "history": res.history, "per_run_cost": np.array(list(res.per_run_mse.values())),
-            "result": res}  # fmt: skip
 
 
 def bootstrap(
