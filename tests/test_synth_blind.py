@@ -226,3 +226,18 @@ def test_loop_finds_asymmetric_for_a_slow_brake() -> None:
     before = float(np.mean(run_mse(res.baseline, test)))
     after = float(np.mean(run_mse(res.final, test)))
     assert after < 0.95 * before
+
+
+def test_one_substeps_default_and_one_duration_rule() -> None:
+    """The integration's steps per sample are one decision (SUBSTEPS), the default of
+    every generator function; the minimum run length is synth's one rule."""
+    from avll import synth, synth_blind
+
+    for f in (synth_blind.simulate_vehicle, synth_blind.simulate_platoon,
+              synth_blind.blind_experiment):
+        assert inspect.signature(f).parameters["substeps"].default is synth_blind.SUBSTEPS
+    short = synth.MIN_SAMPLES * DT
+    for make in (lambda: blind_experiment("clean", runs=(1,), duration=short, dt=DT),
+                 lambda: synth.paper_experiment(runs=(1,), duration=short, dt=DT)):
+        with pytest.raises(ValueError, match=f"> {synth.MIN_SAMPLES} dt"):
+            make()

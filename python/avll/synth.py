@@ -45,6 +45,17 @@ def _table_i_upper(r: int) -> UpperLevel:
     return UpperLevel(kg=kg, kv=0.0, Tg=tg, Gmin=GMIN)
 
 
+#: A synthetic run must be longer than this many samples (:func:`_check_duration`).
+MIN_SAMPLES = 10
+
+
+def _check_duration(duration: float, dt: float) -> None:
+    """The one rule on a synthetic run's length (:func:`paper_experiment`,
+    :func:`avll.synth_blind.blind_experiment`): more than :data:`MIN_SAMPLES` samples."""
+    if duration <= MIN_SAMPLES * dt:
+        raise ValueError(f"duration: must be > {MIN_SAMPLES} dt, got {duration}")
+
+
 def _noisy(rng: np.random.Generator, y: np.ndarray, sd: float) -> np.ndarray:
     """``y`` plus white Gaussian noise of standard deviation ``sd`` (a copy for 0)."""
     return y + rng.normal(0.0, sd, y.size) if sd > 0 else y.copy()
@@ -119,8 +130,7 @@ def paper_experiment(
     seed = check_seed(seed)
     dt = check_number(dt, "dt", positive=True)
     duration = check_number(duration, "duration", positive=True)
-    if duration <= 10 * dt:
-        raise ValueError(f"duration: must be > 10 dt, got {duration}")
+    _check_duration(duration, dt)
     n_runs = len(TABLE_I) if runs is None else len(runs)
     per_run = 16 * 8.0 * (duration / dt)  # ~16 float64 series per run
     check_memory(per_run * n_runs, f"paper_experiment: {n_runs} runs x {duration:g} s / "
