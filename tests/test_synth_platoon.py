@@ -219,3 +219,27 @@ def test_presets_against_the_shared_files(shared_data: Path) -> None:
     assert min(js) <= EQUIPMENT["jrc"].speed_white <= max(js)
     ivs = [_white_level(v) for p in jrc for v in _columns(p, "IVS").values()]
     assert 0.005 <= round(min(ivs), 3) and round(max(ivs), 3) <= 0.008, ivs
+
+
+def test_one_disturbance_and_plant_period_default() -> None:
+    """The follower disturbance (0.05 m/s², 3 s) and the plant's period (0.01 s) are
+    one decision each: every signature and the CarTruth fields default to the named
+    constants, and synth_campaign's cars get them when not told otherwise."""
+    import dataclasses
+    import inspect
+
+    from avll import synth_platoon as sp
+
+    assert (sp.DISTURBANCE_STD, sp.DISTURBANCE_TAU, sp.FINE_DT) == (0.05, 3.0, 0.01)
+    fields = {f.name: f.default for f in dataclasses.fields(CarTruth)}
+    assert (fields["disturbance_std"], fields["disturbance_tau"]) == (
+        sp.DISTURBANCE_STD, sp.DISTURBANCE_TAU)
+    for f in (random_car, synth_platoon):
+        ps = inspect.signature(f).parameters
+        assert ps["disturbance_std"].default is sp.DISTURBANCE_STD
+        assert ps["disturbance_tau"].default is sp.DISTURBANCE_TAU
+        assert ps["fine_dt"].default is sp.FINE_DT
+    runs = sp.synth_campaign(1, 1, seed=7131, duration=30.0, warmup=0.0)
+    tr = runs[0].meta["truth"]
+    assert (tr["disturbance_std"], tr["disturbance_tau"]) == (sp.DISTURBANCE_STD,
+                                                              sp.DISTURBANCE_TAU)

@@ -12,14 +12,15 @@ OpenACC study and the estimators consume them unchanged; ``meta["truth"]`` and
 
 **The plant (near-continuous).**
 Every car is simulated by the library's closed loop (:func:`avll.closed_loop`)
-at ``fine_dt`` (0.01 s by default: the upper law evaluated and the lower level stepped
-at 100 Hz), behind the previous car's *true* position and speed (the radar sees the
-true spacing), then sampled every ``dt`` (0.1 s). A follower-side disturbance -- the
-road, the wind, the ACC's own hunting, uncorrelated with the predecessor -- enters as
-an acceleration ``d(t)`` added to the car's acceleration, through the library's
-``grade`` effect (``a += -g_eff exo_grade`` with ``g_eff = 1``, ``exo_grade = -d``):
-``d`` is an AR(1) (Ornstein-Uhlenbeck) process of standard deviation
-``disturbance_std`` (m/s²) and correlation time ``disturbance_tau`` (s), per car.
+at ``fine_dt`` (:data:`FINE_DT`, 0.01 s by default: the upper law evaluated and the
+lower level stepped at 100 Hz), behind the previous car's *true* position and speed
+(the radar sees the true spacing), then sampled every ``dt`` (0.1 s). A follower-side
+disturbance -- the road, the wind, the ACC's own hunting, uncorrelated with the
+predecessor -- enters as an acceleration ``d(t)`` added to the car's acceleration,
+through the library's ``grade`` effect (``a += -g_eff exo_grade`` with ``g_eff = 1``,
+``exo_grade = -d``): ``d`` is an AR(1) (Ornstein-Uhlenbeck) process of standard deviation
+``disturbance_std`` (m/s², :data:`DISTURBANCE_STD` by default) and correlation time
+``disturbance_tau`` (s, :data:`DISTURBANCE_TAU`), per car.
 
 **The leader.**
 Cruise at ``v_mean`` plus a sum of ``n_tones`` sinusoids of random frequencies
@@ -113,6 +114,9 @@ __all__ = [
     "CarTruth",
     "SynthPlatoon",
     "leader_speed",
+    "DISTURBANCE_STD",
+    "DISTURBANCE_TAU",
+    "FINE_DT",
     "random_car",
     "synth_platoon",
     "validate_amplification",
@@ -127,6 +131,19 @@ __all__ = [
     "SelectionCheck",
     "validate_selection",
 ]
+
+#: The follower-side disturbance every car gets unless told otherwise (one decision for
+#: :class:`CarTruth`, :func:`random_car`, :func:`synth_platoon` and
+#: :func:`synth_campaign`): an AR(1) acceleration of standard deviation 0.05 m/s² ...
+DISTURBANCE_STD: float = 0.05
+#: ... and correlation time 3 s (the road, the wind, the ACC's own hunting: slow against
+#: the recorded 0.1 s, uncorrelated with the predecessor; see the module doc).
+DISTURBANCE_TAU: float = 3.0
+#: The plant's period (s) unless told otherwise: the upper law evaluated and the lower
+#: level stepped at 100 Hz, ten steps per recorded 0.1 s sample (near-continuous, see
+#: the module doc).
+FINE_DT: float = 0.01
+
 
 @dataclass(frozen=True)
 class Equipment:
@@ -244,8 +261,8 @@ class CarTruth:
     model: LowerLevelModel
     upper: UpperLevel
     effects: tuple[Effect, ...] = ()
-    disturbance_std: float = 0.05
-    disturbance_tau: float = 3.0
+    disturbance_std: float = DISTURBANCE_STD
+    disturbance_tau: float = DISTURBANCE_TAU
     hidden: HiddenUpper | None = None
 
     def __post_init__(self) -> None:
@@ -370,9 +387,10 @@ def _settles(car: CarTruth, fine_dt: float, v: float = 20.0) -> bool:
 
 
 def random_car(rng: np.random.Generator, model: str = "proposed", *,
-               disturbance_std: float = 0.05, disturbance_tau: float = 3.0,
+               disturbance_std: float = DISTURBANCE_STD,
+               disturbance_tau: float = DISTURBANCE_TAU,
                effects: Sequence[Effect] = (), hidden: HiddenUpper | None = None,
-               fine_dt: float = 0.01) -> CarTruth:
+               fine_dt: float = FINE_DT) -> CarTruth:
     """A locally stable car drawn at random: the model's Table II parameters each
     scaled by a factor in [0.7, 1.3] (``Td`` drawn in [0.2, 0.9] s), the upper law
     uniformly in kg [0.08, 0.25] 1/s², kv [0.2, 0.6] 1/s, Tg [1, 2] s, Gmin [2, 5] m;
@@ -453,15 +471,15 @@ def synth_platoon(
     equipment: str | Equipment = "zalazone",
     duration: float = 600.0,
     dt: float = 0.1,
-    fine_dt: float = 0.01,
+    fine_dt: float = FINE_DT,
     warmup: float = 60.0,
     v_mean: float = 20.0,
     band_rms: float = 0.8,
     drift_rms: float = 0.5,
     band: Sequence[float] = DEFAULT_BAND,
     models: Sequence[str] = MODELS,
-    disturbance_std: float = 0.05,
-    disturbance_tau: float = 3.0,
+    disturbance_std: float = DISTURBANCE_STD,
+    disturbance_tau: float = DISTURBANCE_TAU,
     hidden: HiddenUpper | None = None,
     setting: str = "M",
     file_name: str | None = None,
@@ -978,10 +996,10 @@ def synth_campaign(cars: int, files: int, *, seed: int, hidden: HiddenUpper | No
     nf = check_int(files, "files", min=1, max=50)
     seed = check_seed(seed)
     rng = np.random.default_rng([seed, 17])
-    fine = float(platoon.get("fine_dt", 0.01))
+    fine = float(platoon.get("fine_dt", FINE_DT))
     truths = [random_car(rng, model, hidden=hidden, fine_dt=fine,
-                         disturbance_std=float(platoon.get("disturbance_std", 0.05)),
-                         disturbance_tau=float(platoon.get("disturbance_tau", 3.0)))
+                         disturbance_std=float(platoon.get("disturbance_std", DISTURBANCE_STD)),
+                         disturbance_tau=float(platoon.get("disturbance_tau", DISTURBANCE_TAU)))
               for _ in range(nc)]  # fmt: skip
     kw = {k: v for k, v in platoon.items() if k not in ("disturbance_std", "disturbance_tau")}
     runs: list[Run] = []
