@@ -243,3 +243,22 @@ def test_one_disturbance_and_plant_period_default() -> None:
     tr = runs[0].meta["truth"]
     assert (tr["disturbance_std"], tr["disturbance_tau"]) == (sp.DISTURBANCE_STD,
                                                               sp.DISTURBANCE_TAU)
+
+
+def test_truth_time_gap_is_the_study_definition() -> None:
+    """The truth's ``Tg + Gmin / v̄`` is the OpenACC study's own (time_gap_effective),
+    with and without an upper-level structure, to the bit."""
+    from avll.effects import SpeedGains, WithEffects
+    from avll.models import Proposed
+    from avll.paper import TABLE_II_PARAMS
+    from avll.studies.openacc import time_gap_effective
+
+    m = Proposed(**TABLE_II_PARAMS["proposed"])
+    up = UpperLevel(kg=0.15, kv=0.4, Tg=1.5, Gmin=3.0)
+    cars = [CarTruth(m, up), CarTruth(m, up, (SpeedGains(ch=0.01, cs=0.0),))]
+    pl = synth_platoon(cars, seed=7141, duration=60.0, warmup=10.0)
+    for car, tr in zip(cars, pl.truth, strict=True):
+        want = time_gap_effective(WithEffects(car.model, car.effects), car.upper,
+                                  tr["v_mean"])
+        assert tr["time_gap_effective"] == want
+    assert pl.truth[1]["time_gap_effective"] != pytest.approx(pl.truth[0]["time_gap_effective"])

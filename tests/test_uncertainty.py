@@ -511,7 +511,7 @@ def test_time_gap_effective_with_speed_gains_is_the_equilibrium_one(platoon, fit
     resample is ``Tg_eq + Gmin / v̄`` (``Tg_eq = Tg + ch v̄``), the OpenACC study's point
     estimate, not ``Tg + Gmin / v̄``."""
     from avll.calibration import start_row
-    from avll.studies.openacc import _time_gap
+    from avll.studies.openacc import time_gap_effective
 
     # the second car: the first car's fit is a corner without a gap loop (no interval of
     # the effective time gap, test_uncertainty_result)
@@ -524,7 +524,7 @@ def test_time_gap_effective_with_speed_gains_is_the_equilibrium_one(platoon, fit
     v = float(np.mean(run.v))
     up = avll.UpperLevel(**{k: r.upper[k] for k in UPPER_NAMES})
     est, smp = u.time_gap_effective(v)
-    assert est == pytest.approx(_time_gap(r.with_effects, up, v), rel=1e-12)
+    assert est == pytest.approx(time_gap_effective(r.with_effects, up, v), rel=1e-12)
     j = u.names.index("speed_gains.ch")
     raw = u.uncorrected()  # the refits themselves
     ch = raw.samples[:, j]

@@ -423,7 +423,7 @@ def random_car(rng: np.random.Generator, model: str = "proposed", *,
 def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt: float,
                  band: Sequence[float], fine_dt: float) -> dict[str, Any]:
     from .spectral import band_weights
-    from .studies.openacc import amplification, transfer_gain
+    from .studies.openacc import amplification, time_gap_effective, transfer_gain
 
     v_mean = float(np.mean(v_true))
     lin_model = WithEffects(car.model, car.effects)
@@ -457,9 +457,9 @@ def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt:
         "freqs": fb.tolist(),
         "H_abs": np.asarray(h, dtype=float).tolist(),
         "v_mean": v_mean,
-        # the law's equilibrium headway at the mean speed (speed_gains: Tg + ch v)
-        "time_gap_effective": (lin_model.upper_linear(car.upper, v=v_mean)["Tg_eq"]
-                               + car.upper.Gmin / v_mean),
+        # the law's equilibrium headway at the mean speed (speed_gains: Tg + ch v),
+        # as the study defines it
+        "time_gap_effective": time_gap_effective(lin_model, car.upper, v_mean),
         "rms_ratio_true": float(ratio),
     }
 
@@ -921,7 +921,12 @@ def validate_structure(
     from .calibration import calibrate
     from .effects import effect_class
     from .rollout import simulate_batch
-    from .studies.openacc import GMIN_MAX, WEIGHTS, predicted_amplification
+    from .studies.openacc import (
+        GMIN_MAX,
+        WEIGHTS,
+        predicted_amplification,
+        time_gap_effective,
+    )
 
     names = list(candidates)
     if not names:
@@ -960,7 +965,7 @@ def validate_structure(
                               zip(WEIGHTS, (sim.a[0], sim.v[0], sim.x[0]), (r.a, r.v, r.x),
                                   strict=True)))  # fmt: skip
                 out.append((predicted_amplification(m, up, r.lead_v, r.dt),
-                            m.upper_linear(up, v=vbar)["Tg_eq"] + up.Gmin / vbar, c.cost, h,
+                            time_gap_effective(m, up, vbar), c.cost, h,
                             {k2: v for k2, v in c.params.items() if "." in k2}))
             fits[key] = out
         for r, tr, b, c in zip(pl.runs, pl.truth, fits["base"], fits["candidates"], strict=True):

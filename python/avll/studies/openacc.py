@@ -143,8 +143,8 @@ from .openacc_select import MIN_GAIN as SELECT_MIN_GAIN
 __all__ = ["WEIGHTS", "DEFAULT_BAND", "TRIM", "BLOCK", "N_BOOT", "MIN_EXCITATION",
            "GMIN_MAX", "HEADWAY_MIN_SPEED", "OpenACCStudy", "openacc_study", "bandpass",
            "amplification", "bootstrap_ci", "transfer_gain", "predicted_amplification",
-           "replay_amplification", "measured_amplification", "run_meta", "setting_order",
-           "MIN_BLOCKS", "ACC_UNKNOWN"]
+           "replay_amplification", "measured_amplification", "time_gap_effective",
+           "run_meta", "setting_order", "MIN_BLOCKS", "ACC_UNKNOWN"]
 
 #: Objective weights (wa, wv, wx) of the closed-loop calibration: the project's one
 #: closed-loop weighting (:data:`avll.defaults.CLOSED_LOOP_WEIGHTS`).
@@ -1241,13 +1241,17 @@ def _predict(name: str, fit: Any, r: Run, band: Sequence[float], short: str | No
     a_h = (predicted_amplification(mod, up, r.lead_v, r.dt, band)
            if code and short is None else math.nan)
     a_r = replay_amplification(mod, up, r, band)[0] if short is None else math.nan
-    return effs, code, a_h, a_r, _fin(_time_gap(mod, up, float(np.mean(r.v))))
+    return effs, code, a_h, a_r, _fin(time_gap_effective(mod, up, float(np.mean(r.v))))
 
 
-def _time_gap(model: Any, up: UpperLevel, v: float) -> float:
-    """``Tg + Gmin / v̄`` of the law at the mean speed ``v`` (at least 0.1 m/s): with
-    structures, their equilibrium time gap (:meth:`avll.WithEffects.upper_linear`'s
-    ``Tg_eq``, e.g. ``Tg + ch v`` of ``speed_gains``) in place of ``Tg``."""
+def time_gap_effective(model: Any, up: UpperLevel, v: float) -> float:
+    """``Tg + Gmin / v̄`` of the law ``up`` at the mean speed ``v`` (at least 0.1 m/s):
+    with structures (``model`` an :class:`avll.WithEffects`), their equilibrium time gap
+    (:meth:`avll.WithEffects.upper_linear`'s ``Tg_eq``, e.g. ``Tg + ch v`` of
+    ``speed_gains``) in place of ``Tg``. The one definition the study reports and the
+    synthetic truths and validations (:mod:`avll.synth_platoon`) use;
+    :meth:`avll.Uncertainty.time_gap_effective` gives the same of a calibration with
+    its resamples."""
     from ..effects import WithEffects
 
     vv = max(float(v), 0.1)
