@@ -188,3 +188,25 @@ def test_bad_input_is_a_clear_error(kw: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         h1_band_gain(args.pop("lead_v"), args.pop("v"), args.pop("dt"), args.pop("band"),
                      **args)
+
+
+def test_band_rms_gain_is_the_models_band_amplification() -> None:
+    """band_rms_gain weighs |H| by band_weights: a flat gain comes back, no power is NaN,
+    and predicted_amplification is this computation (the one path)."""
+    from avll.models import Proposed, UpperLevel
+    from avll.paper import TABLE_II_PARAMS
+    from avll.spectral import band_rms_gain, band_weights
+    from avll.studies.openacc import predicted_amplification, transfer_gain
+
+    dt = 0.1
+    t = np.arange(3000) * dt
+    lead_v = 20.0 + np.sin(2 * np.pi * 0.05 * t) + 0.5 * np.sin(2 * np.pi * 0.13 * t)
+    assert band_rms_gain(lambda f: np.full(f.shape, 1.7), lead_v, dt) == pytest.approx(1.7)
+    assert math.isnan(band_rms_gain(lambda f: np.ones(f.shape), np.zeros(3000), dt))
+    m, up = Proposed(**TABLE_II_PARAMS["proposed"]), UpperLevel(kg=0.15, kv=0.4, Tg=1.5)
+    f, w = band_weights(lead_v, dt)
+    h = transfer_gain(m, up, f, v=float(np.mean(lead_v)), hold=dt)
+    got = predicted_amplification(m, up, lead_v, dt)
+    assert got == band_rms_gain(lambda ff: transfer_gain(m, up, ff, v=float(np.mean(lead_v)),
+                                                         hold=dt), lead_v, dt)
+    assert got == pytest.approx(math.sqrt(float(np.sum(h * h * w))), rel=1e-15)

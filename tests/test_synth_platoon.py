@@ -262,3 +262,20 @@ def test_truth_time_gap_is_the_study_definition() -> None:
                                   tr["v_mean"])
         assert tr["time_gap_effective"] == want
     assert pl.truth[1]["time_gap_effective"] != pytest.approx(pl.truth[0]["time_gap_effective"])
+
+
+def test_truth_band_gain_is_the_study_prediction_of_the_true_car() -> None:
+    """The truth's band gain is the study's predicted amplification of the true car
+    (one weighting, avll.spectral.band_rms_gain), to the bit, at the plant's period."""
+    from avll.effects import WithEffects
+    from avll.models import model_class
+    from avll.studies.openacc import predicted_amplification
+    from avll.synth_platoon import FINE_DT
+
+    pl = synth_platoon(3, seed=7151, duration=200.0, equipment="none")
+    for i, (r, tr) in enumerate(zip(pl.runs, pl.truth, strict=True), start=1):
+        model = model_class(tr["model"])(**tr["params"])
+        want = predicted_amplification(WithEffects(model, ()), UpperLevel(**tr["upper"]),
+                                       pl.v[i - 1], r.dt, tr["band"], v=tr["v_mean"],
+                                       hold=FINE_DT)
+        assert tr["band_gain"] == want

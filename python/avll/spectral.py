@@ -59,7 +59,7 @@ biased low by about ``tau / T_segment``.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -78,6 +78,7 @@ __all__ = [
     "MAX_LAG",
     "BandGain",
     "band_weights",
+    "band_rms_gain",
     "h1_band_gain",
     "welch_effective_averages",
 ]
@@ -170,7 +171,7 @@ def band_weights(lead_v: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_
     """The periodogram bins ``f`` (Hz) in ``band`` of the predecessor's speed band-passed
     as the study does (:func:`bandpass`, Hann window) and their power as weights
     summing to 1: a model's band amplification is ``sqrt(sum w |H(f)|^2)``
-    (:func:`avll.studies.openacc.predicted_amplification`). Empty arrays when the band
+    (:func:`band_rms_gain`). Empty arrays when the band
     holds no bin or no power."""
     from scipy import signal
 
@@ -181,6 +182,21 @@ def band_weights(lead_v: np.ndarray, dt: float, band: Sequence[float] = DEFAULT_
     if not m.any() or p[m].sum() <= 0:
         return np.zeros(0), np.zeros(0)
     return f[m], p[m] / p[m].sum()
+
+
+def band_rms_gain(gain: Callable[[np.ndarray], Any], lead_v: np.ndarray, dt: float,
+                  band: Sequence[float] = DEFAULT_BAND, trim: float = TRIM) -> float:
+    """A transfer's ``|H|`` as an RMS gain on the predecessor's band-passed speed
+    spectrum: ``sqrt(sum w |H(f)|^2)`` over the bins and weights of
+    :func:`band_weights`, ``gain`` giving ``|H|`` at an array of frequencies (Hz); NaN
+    when the band holds no bin or no power. The one computation of a model's band
+    amplification (:func:`avll.studies.openacc.predicted_amplification`) and of the
+    synthetic truth's band gain (:mod:`avll.synth_platoon`)."""
+    f, w = band_weights(lead_v, dt, band, trim)
+    if not f.size:
+        return math.nan
+    h = np.asarray(gain(f), dtype=np.float64)
+    return float(np.sqrt(np.sum(h * h * w)))
 
 
 def welch_effective_averages(k: int, n: int = 0, step: int = 0) -> float:

@@ -422,7 +422,7 @@ def random_car(rng: np.random.Generator, model: str = "proposed", *,
 
 def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt: float,
                  band: Sequence[float], fine_dt: float) -> dict[str, Any]:
-    from .spectral import band_weights
+    from .spectral import band_rms_gain
     from .studies.openacc import amplification, time_gap_effective, transfer_gain
 
     v_mean = float(np.mean(v_true))
@@ -439,8 +439,7 @@ def _truth_entry(car: CarTruth, lead_v_true: np.ndarray, v_true: np.ndarray, dt:
                                    fine_dt=fine_dt))
 
     h = gain_of(fb)
-    fw, w = band_weights(lead_v_true, dt, band)
-    gain = float(np.sqrt(np.sum(gain_of(fw) ** 2 * w))) if fw.size else math.nan
+    gain = band_rms_gain(gain_of, lead_v_true, dt, band)
     ratio = amplification(v_true, lead_v_true, dt, band)[0]
     return {
         "model": car.model.name,

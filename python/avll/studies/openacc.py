@@ -130,7 +130,7 @@ from ..spectral import (
     DEFAULT_BAND,
     MIN_EXCITATION,
     TRIM,
-    band_weights,
+    band_rms_gain,
     bandpass,
     check_band,
 )
@@ -228,13 +228,12 @@ def predicted_amplification(model: Any, upper: UpperLevel, lead_v: np.ndarray,
     over the periodogram bins (Hann window) within the band
     (:func:`avll.spectral.band_weights`). ``hold``: the sample period of the loop
     (default ``dt``: a model calibrated on runs sampled at ``dt``; 0: the continuous
-    loop)."""
-    f, w = band_weights(lead_v, dt, band, trim)
-    if not f.size:
-        return math.nan
-    h = transfer_gain(model, upper, f, v=float(np.mean(lead_v)) if v is None else v,
-                      hold=float(dt) if hold is None else hold)
-    return float(np.sqrt(np.sum(h * h * w)))
+    loop). The weighting is :func:`avll.spectral.band_rms_gain`'s."""
+    def gain(f: np.ndarray) -> np.ndarray:
+        return transfer_gain(model, upper, f, v=float(np.mean(lead_v)) if v is None else v,
+                             hold=float(dt) if hold is None else hold)
+
+    return band_rms_gain(gain, lead_v, dt, band, trim)
 
 
 def replay_amplification(model: Any, upper: UpperLevel, run: Run,
