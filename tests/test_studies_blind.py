@@ -65,3 +65,25 @@ def test_clean_case_reproduces_the_docs_row() -> None:
     row = physical.table([d], timing=False)[2]
     committed = (ROOT / "docs" / "_generated" / "blind_physical.md").read_text(encoding="utf-8")
     assert row in committed.splitlines(), row
+
+
+def test_stability_truth_is_measured_as_the_models_are(monkeypatch: pytest.MonkeyPatch
+                                                       ) -> None:
+    """blind.stability's true-vehicle amplification is effect_stability's measurement
+    (same leader, window, fundamental fit and car ratios): with the model itself as the
+    'true vehicle' it gives effect_stability's amplification to the bit."""
+    import avll
+    from avll.effect_stability import effect_stability
+    from avll.rollout import platoon
+    from avll.studies.blind import stability as bs
+
+    m = avll.models.SecondOrder(**avll.paper.TABLE_II_PARAMS["second"])
+    r = effect_stability(m, bs.UPPER, v0=bs.V0, amplitudes=(0.5, 2.0), n_cars=bs.N_CARS,
+                         period=20.0, thresholds=False)
+
+    def model_platoon(p: Any, lx: Any, lv: Any, dt: float, upper: Any, n: int, *,
+                      v0: float) -> dict[str, Any]:
+        return {"v": platoon(m, lx, lv, dt, upper, n).v}
+
+    monkeypatch.setattr(bs, "simulate_platoon", model_platoon)
+    assert bs.truth_amplification("brake_lag", r).tobytes() == r.amplification.tobytes()

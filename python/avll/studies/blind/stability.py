@@ -22,7 +22,7 @@ import numpy as np
 
 import avll
 from avll.diagnose import effect_loop
-from avll.effect_stability import EffectStability, effect_stability
+from avll.effect_stability import EffectStability, _car_ratios, _fit_amplitude, effect_stability
 from avll.report import num as _f
 from avll.synth_blind import DEFAULTS, SCENARIOS, blind_experiment, simulate_platoon
 
@@ -33,28 +33,25 @@ N_CARS = 4
 SCENARIO_LIST = ("power_limit", "brake_lag")
 
 
-def _fund(t: np.ndarray, v: np.ndarray, omega: float) -> float:
-    x = np.column_stack([np.ones_like(t), t - t.mean(), np.sin(omega * t), np.cos(omega * t)])
-    c, *_ = np.linalg.lstsq(x, v, rcond=None)
-    return float(math.hypot(c[2], c[3]))
-
-
 def truth_amplification(scenario: str, r: EffectStability) -> np.ndarray:
-    """Per-car amplification of the true vehicles, same leader and method as ``r``."""
+    """Per-car amplification of the true vehicles, same leader and method as ``r``: the
+    speed fundamental fitted as :func:`avll.effect_stability.effect_stability` fits it
+    (its ``_fit_amplitude``), each car's over the car ahead's by its rule
+    (``_car_ratios``)."""
     per, om, dt = r.period, r.omega, r.dt
     n = int(math.ceil((r.warm_periods + r.measure_periods) * per / dt)) + 1
     t = np.arange(n) * dt
     ramp = np.where(t < per, 0.5 * (1 - np.cos(np.pi * t / per)), 1.0)
     meas = (t >= r.warm_periods * per) & (t < (r.warm_periods + r.measure_periods) * per)
     p = {**DEFAULTS, **SCENARIOS[scenario]}
-    out = np.full((len(r.amplitudes), N_CARS), np.nan)
-    for k, a in enumerate(r.amplitudes):
+    amps = np.asarray(r.amplitudes, dtype=float)
+    speed_amp = np.full((amps.size, N_CARS + 1), np.nan)
+    for k, a in enumerate(amps):
         lv = V0 + a * ramp * np.sin(om * t)
         lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
         pl = simulate_platoon(p, lx, lv, dt, UPPER, N_CARS, v0=V0)
-        amp = [_fund(t[meas], lv[meas], om)] + [_fund(t[meas], v[meas], om) for v in pl["v"]]
-        out[k] = np.array(amp[1:]) / np.array(amp[:-1])
-    return out
+        speed_amp[k] = [_fit_amplitude(t[meas], v[meas], om) for v in (lv, *pl["v"])]
+    return _car_ratios(speed_amp, amps)
 
 
 def _params(d: dict[str, float]) -> str:
