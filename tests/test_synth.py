@@ -53,3 +53,16 @@ def test_noise_and_quantization() -> None:
 def test_bad_arguments(bad: dict) -> None:
     with pytest.raises(ValueError):
         paper_experiment(**bad)
+
+
+def test_delay_expectation_uses_the_runs_period() -> None:
+    """The delay generator's expected lag (hold - dt)/2 uses the runs' period, the one
+    SYNTH_DT that paper_experiment_effects defaults to, not a second 0.05."""
+    import inspect
+
+    from avll.defaults import SYNTH_DT
+    from avll.synth_effects import GENERATOR_DEFAULTS, expected_params, paper_experiment_effects
+
+    assert inspect.signature(paper_experiment_effects).parameters["dt"].default is SYNTH_DT
+    g = GENERATOR_DEFAULTS["delay"]
+    assert expected_params("delay")["tau"] == g["shift"] + 0.5 * (g["hold"] - SYNTH_DT)

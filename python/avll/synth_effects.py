@@ -63,8 +63,9 @@ _EXPECTED: dict[str, Callable[[Mapping[str, float]], dict[str, float]]] = {
     "deadband": lambda p: {"delta": p["delta"]},
     "speed_drag": lambda p: {"c0": p["F0"] / p["M"], "c2": p["F2"] / p["M"]},
     "grade": lambda p: {"g_eff": G * (1 - p["rho"])},
-    # Re-sampling every `hold` s from 20 Hz lags (hold - dt)/2 on average.
-    "delay": lambda p: {"tau": p["shift"] + 0.5 * (p["hold"] - 0.05)},
+    # Re-sampling every `hold` s from the runs' period dt (SYNTH_DT, the default of
+    # paper_experiment_effects) lags (hold - dt)/2 on average.
+    "delay": lambda p: {"tau": p["shift"] + 0.5 * (p["hold"] - SYNTH_DT)},
 }
 
 
