@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 import signal
 import subprocess
@@ -172,6 +173,41 @@ def test_ctrl_c_while_importing_or_exiting_is_one_line_and_130(tmp_path: Path) -
             assert re.fullmatch(r"avll( simulate)?: interrupted", err.strip()), (delay, err)
         codes.append(p.returncode)
     assert 130 in codes, codes
+
+
+_HIDDEN_CTRL_C = """
+import os, signal, sys
+sys.argv = ["avll", "simulate", "--out", sys.argv[1]]  # the avll command's process
+import avll.cli.simulate as sim
+
+
+def run(args):
+    class Lands:  # a Ctrl-C while a class is created: Python 3.11 raises RuntimeError
+        def __set_name__(self, owner, name):  # ("Error calling __set_name__") from it
+            os.kill(os.getpid(), signal.SIGINT)
+            sum(range(100_000))
+
+    type("Lazy", (), {"field": Lands()})
+    raise AssertionError("the Ctrl-C was lost")
+
+
+sim._cmd = run
+from avll.cli import main
+sys.exit(main())
+"""
+
+
+def test_a_ctrl_c_hidden_in_another_error_is_one_line_and_130(tmp_path: Path) -> None:
+    # the Ctrl-C was latched, so whatever error carries it out (here the RuntimeError
+    # CPython 3.11 wraps around an exception of __set_name__, seen when a SIGINT landed
+    # in a lazily imported module's dataclass) the command says "interrupted", 130
+    script = tmp_path / "hidden.py"
+    script.write_text(_HIDDEN_CTRL_C, encoding="utf-8")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    p = subprocess.run([sys.executable, str(script), str(tmp_path / "o")], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120, env=env, **SIGINT_DEFAULT)
+    assert (p.returncode, p.stderr.strip()) == (130, "avll simulate: interrupted"), p.stderr
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_closed_pipe_ends_quietly_with_exit_0(runs_csv: Path, tmp_path: Path) -> None:

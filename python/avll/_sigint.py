@@ -71,18 +71,20 @@ def clear() -> None:
 def latched() -> Iterator[None]:
     """Installs :func:`handler` for the block (main thread, and only in place of
     Python's default handler); restores the previous handler and clears the latch
-    afterwards."""
+    afterwards. Under the ``avll`` command's own handler (:func:`command_starts`) it
+    does neither: a Ctrl-C latched in the block stays latched, so the command still
+    knows it was interrupted when another error carries the interrupt out."""
     installed = (threading.current_thread() is threading.main_thread()
                  and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
     if installed:
         signal.signal(signal.SIGINT, handler)
-        clear()  # only here: under command_starts' handler a Ctrl-C of its start stays latched
+        clear()
     try:
         yield
     finally:
         if installed:
             signal.signal(signal.SIGINT, signal.default_int_handler)
-        clear()
+            clear()
 
 
 # -- the ``avll`` command's start and end --------------------------------------------

@@ -181,15 +181,18 @@ def _main(argv: Sequence[str] | None) -> int:
                 print(f"wrote {path}", file=sys.stderr)
             # a SIGTERM a calibration delivered by returning its best point early
             return 143 if _sigint.terminated() else code
-    except (KeyboardInterrupt, ValueError, TypeError, OSError, MemoryError,
-            ArithmeticError) as e:
-        # (a Ctrl-C another error hid counts as a Ctrl-C)
+    except (KeyboardInterrupt, Exception) as e:
+        # A Ctrl-C another error hid counts as a Ctrl-C, whatever the error: a library's
+        # own type, or Python 3.11's RuntimeError "Error calling __set_name__" around a
+        # KeyboardInterrupt that lands while a class is created (a lazily imported module).
         if isinstance(e, KeyboardInterrupt) or (_sigint.console and _sigint.interrupted()):
             if _sigint.terminated():
                 print(f"{who}: terminated (SIGTERM)", file=sys.stderr)
                 return 143
             print(f"{who}: interrupted", file=sys.stderr)
             return 130
+        if not isinstance(e, (ValueError, TypeError, OSError, MemoryError, ArithmeticError)):
+            raise  # a defect, not bad input: its traceback is the report
         msg = " ".join(str(e).split())
         head, colon, rest = msg.partition(":")  # "pop_size: ..." -> "--pop-size: ..."
         if colon and head in option_of:
