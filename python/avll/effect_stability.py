@@ -98,6 +98,9 @@ __all__ = [
     "frequency_response_rows",
     "band_amplification_rows",
     "stability_codes_rows",
+    "sine_leader",
+    "fundamental_amplitude",
+    "car_ratios",
 ]
 
 #: Effects whose action depends on the size of the disturbance.
@@ -483,14 +486,32 @@ class EffectStability:
         return amplitude_amplification(self)
 
 
-def _fit_amplitude(t: np.ndarray, v: np.ndarray, omega: float) -> float:
+def sine_leader(v0: float, amplitude: float, omega: float, dt: float, warm_periods: int,
+                measure_periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The leader of the time-domain experiment (see the module doc): ``(t, x, v,
+    measured)``, its sample times, position and speed ``v0 + A w(t) sin(w t)`` (the
+    raised-cosine ramp ``w`` over the first period), and the mask of the
+    ``measure_periods`` periods after the ``warm_periods`` first."""
+    per = 2 * math.pi / omega
+    n = int(math.ceil((warm_periods + measure_periods) * per / dt)) + 1
+    t = np.arange(n) * dt
+    ramp = np.where(t < per, 0.5 * (1 - np.cos(np.pi * t / per)), 1.0)
+    measured = (t >= warm_periods * per) & (t < (warm_periods + measure_periods) * per)
+    v = v0 + amplitude * ramp * np.sin(omega * t)
+    x = np.concatenate([[0.0], np.cumsum(0.5 * dt * (v[1:] + v[:-1]))])
+    return t, x, v, measured
+
+
+def fundamental_amplitude(t: np.ndarray, v: np.ndarray, omega: float) -> float:
+    """The amplitude ``sqrt(s² + c²)`` of ``v`` fitted by least squares with
+    ``c0 + c1 (t - mean t) + s sin(w t) + c cos(w t)``."""
     tc = t - t.mean()
     x = np.column_stack([np.ones_like(t), tc, np.sin(omega * t), np.cos(omega * t)])
     coef, *_ = np.linalg.lstsq(x, v, rcond=None)
     return float(math.hypot(coef[2], coef[3]))
 
 
-def _car_ratios(x: np.ndarray, amps: np.ndarray) -> np.ndarray:
+def car_ratios(x: np.ndarray, amps: np.ndarray) -> np.ndarray:
     """``x`` (amplitudes x cars, the leader first) of each car over the car ahead's; NaN
     where not finite. A car whose value is below 1e-6 A did not oscillate (e.g. a dead
     band swallowed the disturbance): the ratio behind it is undefined."""
@@ -596,12 +617,8 @@ def effect_stability(
                                   thresholds) for s in sides]  # fmt: skip
     lin_gain = entries[1].gain_at_omega if names else entries[0].gain_at_omega
     # Time domain.
-    per = 2 * math.pi / omega
-    n = int(math.ceil((warm_periods + measure_periods) * per / dt)) + 1
-    t = np.arange(n) * dt
-    ramp = np.where(t < per, 0.5 * (1 - np.cos(np.pi * t / per)), 1.0)
-    meas = (t >= warm_periods * per) & (t < (warm_periods + measure_periods) * per)
-    exo = {str(EFFECTS[e].exo): np.zeros(n) for e in names if EFFECTS[e].exo}
+    t, _, _, meas = sine_leader(v0, 0.0, omega, dt, warm_periods, measure_periods)
+    exo = {str(EFFECTS[e].exo): np.zeros(t.size) for e in names if EFFECTS[e].exo}
     n_amp = amps.size
     speed_amp, half, vmin, drift = (np.full((n_amp, n_cars + 1), np.nan) for _ in range(4))
     tm = t[meas]
@@ -609,16 +626,15 @@ def effect_stability(
 
     def fit(v: np.ndarray) -> tuple[float, float]:
         vm = v[meas]
-        a1 = _fit_amplitude(tm[first_half], vm[first_half], omega)
-        a2 = _fit_amplitude(tm[~first_half], vm[~first_half], omega)
-        return _fit_amplitude(tm, vm, omega), (a2 / a1 - 1.0 if a1 > 0 else math.nan)
+        a1 = fundamental_amplitude(tm[first_half], vm[first_half], omega)
+        a2 = fundamental_amplitude(tm[~first_half], vm[~first_half], omega)
+        return fundamental_amplitude(tm, vm, omega), (a2 / a1 - 1.0 if a1 > 0 else math.nan)
 
     from .progress import Progress
 
     with Progress(n_amp, "platoon", unit="amplitude", mode=progress) as bar:
         for k, a in enumerate(amps):
-            lv = v0 + a * ramp * np.sin(omega * t)
-            lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
+            _, lx, lv, _ = sine_leader(v0, a, omega, dt, warm_periods, measure_periods)
             # every follower at once, time-major in the Rust platoon
             tr = platoon(model, lx, lv, dt, upper, n_cars, exo=exo)
             vs = np.vstack([lv, tr.v])
@@ -631,7 +647,7 @@ def effect_stability(
                 half[k, i] = 0.5 * float(np.ptp(vs[i][meas]))
                 vmin[k, i] = float(vs[i][meas].min())
             bar.update(1)
-    ampl, rampl = _car_ratios(speed_amp, amps), _car_ratios(half, amps)
+    ampl, rampl = car_ratios(speed_amp, amps), car_ratios(half, amps)
     for k, a in enumerate(amps):
         moving = np.flatnonzero(np.abs(drift[k, 1:]) > DRIFT_TOL)
         if moving.size:

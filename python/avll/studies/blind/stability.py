@@ -14,7 +14,6 @@ predict. The linearised thresholds exist only for the models.
 
 from __future__ import annotations
 
-import math
 import sys
 from typing import Any
 
@@ -22,7 +21,13 @@ import numpy as np
 
 import avll
 from avll.diagnose import effect_loop
-from avll.effect_stability import EffectStability, _car_ratios, _fit_amplitude, effect_stability
+from avll.effect_stability import (
+    EffectStability,
+    car_ratios,
+    effect_stability,
+    fundamental_amplitude,
+    sine_leader,
+)
 from avll.report import num as _f
 from avll.synth_blind import DEFAULTS, SCENARIOS, blind_experiment, simulate_platoon
 
@@ -36,22 +41,17 @@ SCENARIO_LIST = ("power_limit", "brake_lag")
 def truth_amplification(scenario: str, r: EffectStability) -> np.ndarray:
     """Per-car amplification of the true vehicles, same leader and method as ``r``: the
     speed fundamental fitted as :func:`avll.effect_stability.effect_stability` fits it
-    (its ``_fit_amplitude``), each car's over the car ahead's by its rule
-    (``_car_ratios``)."""
-    per, om, dt = r.period, r.omega, r.dt
-    n = int(math.ceil((r.warm_periods + r.measure_periods) * per / dt)) + 1
-    t = np.arange(n) * dt
-    ramp = np.where(t < per, 0.5 * (1 - np.cos(np.pi * t / per)), 1.0)
-    meas = (t >= r.warm_periods * per) & (t < (r.warm_periods + r.measure_periods) * per)
+    (:func:`~avll.effect_stability.fundamental_amplitude`), each car's over the car ahead's
+    by its rule (:func:`~avll.effect_stability.car_ratios`)."""
     p = {**DEFAULTS, **SCENARIOS[scenario]}
     amps = np.asarray(r.amplitudes, dtype=float)
     speed_amp = np.full((amps.size, N_CARS + 1), np.nan)
     for k, a in enumerate(amps):
-        lv = V0 + a * ramp * np.sin(om * t)
-        lx = np.concatenate([[0.0], np.cumsum(0.5 * dt * (lv[1:] + lv[:-1]))])
-        pl = simulate_platoon(p, lx, lv, dt, UPPER, N_CARS, v0=V0)
-        speed_amp[k] = [_fit_amplitude(t[meas], v[meas], om) for v in (lv, *pl["v"])]
-    return _car_ratios(speed_amp, amps)
+        t, lx, lv, meas = sine_leader(V0, a, r.omega, r.dt, r.warm_periods, r.measure_periods)
+        pl = simulate_platoon(p, lx, lv, r.dt, UPPER, N_CARS, v0=V0)
+        speed_amp[k] = [fundamental_amplitude(t[meas], v[meas], r.omega)
+                        for v in (lv, *pl["v"])]
+    return car_ratios(speed_amp, amps)
 
 
 def _params(d: dict[str, float]) -> str:
