@@ -132,14 +132,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     real = sys.stdout
     guard = _QuietPipe(real)
     sys.stdout = guard
+    late = False  # a Ctrl-C after _main, before the hand-over to _sigint.quiet_exit
+    code = 130
     try:
         code = _main(argv)
         guard.flush()
-        return code
+    except KeyboardInterrupt:
+        late = True
     finally:
-        sys.stdout = real
-        _forget_unhandled_interrupt()
-        _sigint.command_ends()
+        while True:  # the hand-over completes whatever instant a Ctrl-C lands in it
+            try:
+                sys.stdout = real
+                _forget_unhandled_interrupt()
+                _sigint.command_ends()
+                break
+            except KeyboardInterrupt:
+                late = True
+    if late and code not in (130, 143):
+        # the outputs are committed (or removed) by now: the exit code says interrupted
+        term = _sigint.terminated()
+        print(f"avll: {'terminated (SIGTERM)' if term else 'interrupted'}", file=sys.stderr)
+        return 143 if term else 130
+    return code
 
 
 def _forget_unhandled_interrupt() -> None:
