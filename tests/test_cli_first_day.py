@@ -214,38 +214,47 @@ def test_a_ctrl_c_hidden_in_another_error_is_one_line_and_130(tmp_path: Path) ->
     assert not (tmp_path / "o").exists()
 
 
-_LATE_CTRL_C = """
+_CTRL_C_AT_A_HAND_OVER = """
 import os, signal, sys
+where = sys.argv[2]  # one Ctrl-C right after the command's handler is installed, or
+sent = []            # after the command's end, before quiet_exit takes over again
 sys.argv = ["avll", "simulate", "--out", sys.argv[1]]  # the avll command's process
 import avll.cli as cli
+from avll import _sigint
 
 
-def lands(sent=[]):  # one Ctrl-C after the command's end, before quiet_exit takes over
+def lands():
     if not sent:
         sent.append(1)
         os.kill(os.getpid(), signal.SIGINT)
         sum(range(100_000))
 
 
-cli._forget_unhandled_interrupt = lands
+if where == "start":
+    starts = _sigint.command_starts
+    _sigint.command_starts = lambda: (starts(), lands())
+else:
+    cli._forget_unhandled_interrupt = lands
 sys.exit(cli.main())
 """
 
 
-def test_a_ctrl_c_after_the_command_before_the_hand_over_is_one_line_and_130(
-        tmp_path: Path) -> None:
-    # between the command's own handling and the quiet exit handler there are a few
-    # bytecodes in which Python's KeyboardInterrupt can still be raised: it ends the
-    # command with one line and 130 too (the outputs were committed before)
-    script = tmp_path / "late.py"
-    script.write_text(_LATE_CTRL_C, encoding="utf-8")
+@pytest.mark.parametrize("where", ["start", "end"])
+def test_a_ctrl_c_at_the_hand_over_of_the_handlers_is_one_line_and_130(
+        tmp_path: Path, where: str) -> None:
+    # around the command (avll.cli.main) there are a few bytecodes in which Python's
+    # KeyboardInterrupt is raised outside the command's own handling: at the start
+    # nothing is written, at the end the outputs are committed; one line and 130 both
+    script = tmp_path / "hand_over.py"
+    script.write_text(_CTRL_C_AT_A_HAND_OVER, encoding="utf-8")
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    p = subprocess.run([sys.executable, str(script), str(tmp_path / "o")], cwd=tmp_path,
-                       capture_output=True, text=True, timeout=120, env=env, **SIGINT_DEFAULT)
+    p = subprocess.run([sys.executable, str(script), str(tmp_path / "o"), where],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=120, env=env,
+                       **SIGINT_DEFAULT)
     assert p.returncode == 130, p.stderr
     assert p.stderr.splitlines()[-1] == "avll: interrupted", p.stderr
     assert "Traceback" not in p.stderr
-    assert (tmp_path / "o" / "MANIFEST.json").is_file()
+    assert (tmp_path / "o" / "MANIFEST.json").is_file() == (where == "end")
 
 
 def test_a_closed_pipe_ends_quietly_with_exit_0(runs_csv: Path, tmp_path: Path) -> None:

@@ -128,13 +128,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Runs the ``avll`` command; returns the exit code (0 ok, 2 bad input, 130 Ctrl-C,
     143 SIGTERM).
     A closed pipe on stdout is not an error (the rest of the output is dropped)."""
-    _sigint.command_starts()
     real = sys.stdout
     guard = _QuietPipe(real)
-    sys.stdout = guard
-    late = False  # a Ctrl-C after _main, before the hand-over to _sigint.quiet_exit
-    code = 130
+    late = False  # a Ctrl-C outside _main's own handling, before quiet_exit takes over
+    code = -1  # until _main returns one
     try:
+        _sigint.command_starts()
+        sys.stdout = guard
         code = _main(argv)
         guard.flush()
     except KeyboardInterrupt:
