@@ -469,8 +469,9 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
              ("docs/gen/fragments.py", "python/avll/synth.py", *_CAL, *_MODELS), cheap=False),
     Fragment("reproduce-data", "docs/_generated/reproduce_data.md",
              _fragment("reproduce-data"),
-             ("docs/gen/fragments.py", "python/avll/reproduce.py", *_FIELD, *_CAL, *_MODELS,
-              *_STAB), cheap=False, data=True),
+             ("docs/gen/fragments.py", "python/avll/reproduce.py",
+              "python/avll/cli/reproduce.py", *_FIELD, *_CAL, *_MODELS, *_STAB),
+             cheap=False, data=True),  # what `avll reproduce` prints (a subprocess)
     # ---- expensive: science scripts
     Fragment("stability-numbers", "docs/_generated/stability_numbers.md",
              lambda _: Generated(*_own("stability_numbers").render()),
@@ -561,7 +562,7 @@ REGISTRY: dict[str, Fragment] = {f.name: f for f in [
     _perf_frag("boundary", "benches/bench_boundary.py"),
     # the package root: what ``import avll`` runs (the import graph leaves it out)
     _perf_frag("import", "benches/bench_import.py", "python/avll/__init__.py"),
-    _perf_frag("reproduce", "python/avll/reproduce.py"),
+    _perf_frag("reproduce", "python/avll/reproduce.py", "python/avll/cli/reproduce.py"),
     # ---- a whole generated page (not in docs/_generated)
     Fragment("findings-openacc", "docs/findings-openacc.md",
              lambda a: _own("openacc_findings").generate(Path(a.data_root) / "openacc-zalazone"),
