@@ -95,6 +95,23 @@ def test_report_writer(tmp_path: Path) -> None:
     assert diff(1.1, 1.0) == "+0.1 (+10.0 %)" and diff(None, 1) == "—"
 
 
+def test_cli_summary_says_none_without_a_unit(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    # a model without a kv threshold prints "kv* none", not "kv* none 1/s"
+    st = {"kv_threshold": None, "min_tg": 2.2, "capacity": 1479.46}
+    summary = {"files": {"summary_json": "s.json"}, "timing_s": {"total": 1.0},
+               "calibration": {m: {"cal_mse": 0.01, "val_mse": None} for m in R.MODELS},
+               "stability": {m: {**st, "kv_threshold": 0.7398 if m == "second" else None}
+                             for m in R.MODELS}}
+    monkeypatch.setattr(R, "reproduce", lambda *a, **k: summary)
+    assert main(["reproduce", "--out", str(tmp_path / "o"), "-q"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    first = next(ln for ln in lines if ln.strip().startswith("first"))
+    second = next(ln for ln in lines if ln.strip().startswith("second"))
+    assert "val none | Table II: kv* none, min Tg 2.2 s, capacity 1479.5 veh/h" in first
+    assert "kv* 0.7398 1/s, min Tg 2.2 s" in second
+
+
 def test_cli_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rc = main(["reproduce", "--out", str(tmp_path), "--data", "carma", "--data-path",
                str(tmp_path / "nope"), "-q"])

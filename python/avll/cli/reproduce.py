@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from ..report import num
 from ._common import add_json, add_progress, add_seed, add_threads, declare_io
@@ -25,13 +26,17 @@ def _cmd(args: argparse.Namespace) -> int:
     out = Path(args.out)
     print(f"report: {out / 'report.md'} and {out / 'report.html'}; summary: "
           f"{s['files']['summary_json']} ({s['timing_s']['total']:.0f} s)")
+
+    def q(x: Any, spec: str, unit: str) -> str:  # "none" without a unit
+        v = num(x, spec, "none")
+        return v if v == "none" else f"{v} {unit}"
+
     for m in ("proposed", "second", "first"):
         c, st = s["calibration"][m], s["stability"][m]
         print(f"  {m:9s} cal {num(c['cal_mse'], '.4g', 'none')} "
               f"val {num(c['val_mse'], '.4g', 'none')} | "
-              f"Table II: kv* {num(st['kv_threshold'], '.4g', 'none')} 1/s, min Tg "
-              f"{num(st['min_tg'], '.1f', 'none')} s, capacity "
-              f"{num(st['capacity'], '.1f', 'none')} veh/h")
+              f"Table II: kv* {q(st['kv_threshold'], '.4g', '1/s')}, min Tg "
+              f"{q(st['min_tg'], '.1f', 's')}, capacity {q(st['capacity'], '.1f', 'veh/h')}")
     print("  (kv* none: no kv threshold within the grid)")
     return 0
 
